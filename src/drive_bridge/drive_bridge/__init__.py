@@ -1,0 +1,1 @@
+"""Composition of the cores: the one-process runner, scenarios, metrics, benchmarks and the CLI."""

@@ -1,0 +1,158 @@
+"""The ``drive`` command line."""
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+from hf_estimator.registry import describe, estimator_names
+from pmsm_plant.presets import PRESETS
+
+from .scenario import ScenarioError, load_scenario, scenario_names
+
+
+def _print_json(data):
+    print(json.dumps(data, indent=2, ensure_ascii=False))
+
+
+def cmd_run(args):
+    from .metrics import compute_metrics
+    from .plots import plot_run
+    from .runner import run_scenario, terminal_progress
+
+    scenario = load_scenario(args.scenario, estimator_override=args.estimator)
+    if args.duration is not None:
+        if args.duration <= 0.0:
+            raise ScenarioError(f"--duration: must be positive, not {args.duration}")
+        scenario = dataclasses.replace(scenario, duration_s=args.duration)
+    result = run_scenario(scenario, progress=terminal_progress(f"{scenario.name}/{scenario.estimator}"))
+    metrics = compute_metrics(result)
+    if not args.no_plot:
+        out_dir = Path(args.out) if args.out else Path("runs") / scenario.name
+        metrics["plots"] = [str(plot_run(result, out_dir))]
+    if args.json:
+        _print_json(metrics)
+        return 0
+    print(f"scenario {metrics['scenario']} ({metrics['motor']}), estimator {metrics['estimator']}, "
+          f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
+    rows = [("angle error RMS (steady)", "angle_error_rms", "rad"),
+            ("angle error bias (steady)", "angle_error_bias", "rad"),
+            ("angle error peak (all after start)", "angle_error_peak", "rad"),
+            ("angle error peak (transients)", "angle_error_peak_transient", "rad"),
+            ("speed estimation error RMS", "speed_error_rms", "rad/s"),
+            ("speed tracking error RMS", "speed_tracking_error_rms", "rad/s"),
+            ("settling time (worst step)", "settling_time_s", "s"),
+            ("observable fraction", "observable_fraction", "")]
+    for label, key, unit in rows:
+        value = metrics[key]
+        text = "n/a" if value is None else f"{value:+.4f} {unit}"
+        print(f"  {label:36s} {text}")
+    for path in metrics.get("plots", []):
+        print(f"  plot: {path}")
+    return 0
+
+
+def cmd_scenarios(args):
+    entries = []
+    for name in scenario_names():
+        s = load_scenario(name)
+        entries.append({"name": name, "motor": s.motor, "estimator": s.estimator,
+                        "duration_s": s.duration_s, "description": s.description})
+    if args.json:
+        _print_json(entries)
+    else:
+        for e in entries:
+            print(f"{e['name']:18s} {e['motor']:12s} {e['estimator']:12s} {e['duration_s']:5g} s  "
+                  f"{e['description']}")
+    return 0
+
+
+def cmd_estimators(args):
+    entries = [{"name": n, "description": describe(n)} for n in estimator_names()]
+    if args.json:
+        _print_json(entries)
+    else:
+        for e in entries:
+            print(f"{e['name']:14s} {e['description']}")
+    return 0
+
+
+def cmd_presets(args):
+    entries = [{"name": p.name, "source": p.source, "assumptions": list(p.assumptions),
+                "machine": p.machine._asdict(), "nameplate": p.nameplate._asdict(),
+                "mechanics": p.mechanics._asdict(), "inverter": p.inverter._asdict(),
+                "sensor": p.sensor._asdict()} for p in PRESETS.values()]
+    if args.json:
+        _print_json(entries)
+    else:
+        for e in entries:
+            print(f"{e['name']}: {e['source']}")
+            for a in e["assumptions"]:
+                print(f"  - {a}")
+    return 0
+
+
+def cmd_bench(args):
+    from .bench import throughput
+
+    names = args.estimators.split(",") if args.estimators else estimator_names()
+    for name in names:
+        if name not in estimator_names():
+            raise ScenarioError(f"--estimators: unknown estimator '{name}' "
+                                f"(known: {', '.join(estimator_names())})")
+    results = []
+    for name in names:
+        if not args.json:
+            print(f"  {name:14s} ...", end="", flush=True)
+        r = throughput(name, samples=args.samples)
+        results.append(r)
+        if not args.json:
+            print(f"\r  {name:14s} {r['samples_per_second']:12,.0f} samples/s "
+                  f"({r['samples']} samples in {r['wall_time_s']:.2f} s)")
+    if args.json:
+        _print_json({"benchmark": "throughput", "results": results,
+                     "samples_per_second": {r["estimator"]: r["samples_per_second"] for r in results}})
+    return 0
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(prog="drive", description="Sensorless PMSM drive stack.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a scenario in one process, print metrics, write plots")
+    run.add_argument("scenario", help="shipped scenario name (see 'drive scenarios') or YAML path")
+    run.add_argument("--estimator", help="override the scenario's estimator")
+    run.add_argument("--duration", type=float, help="override the duration [s]")
+    run.add_argument("--out", help="plot directory (default runs/SCENARIO)")
+    run.add_argument("--no-plot", action="store_true", help="skip the PNG plot")
+    run.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    run.set_defaults(func=cmd_run)
+
+    for name, func, text in (("scenarios", cmd_scenarios, "list shipped scenarios"),
+                             ("estimators", cmd_estimators, "list estimators"),
+                             ("presets", cmd_presets, "list motor presets and their assumptions")):
+        p = sub.add_parser(name, help=text)
+        p.add_argument("--json", action="store_true")
+        p.set_defaults(func=func)
+
+    bench = sub.add_parser("bench", help="benchmarks")
+    bench_sub = bench.add_subparsers(dest="bench", required=True)
+    tp = bench_sub.add_parser("throughput", help="closed-loop samples/s in one process, per estimator")
+    tp.add_argument("--estimators", help="comma-separated (default: all)")
+    tp.add_argument("--samples", type=int, default=1_000_000)
+    tp.add_argument("--json", action="store_true")
+    tp.set_defaults(func=cmd_bench)
+    return parser
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except ScenarioError as error:
+        print(f"drive: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,58 @@
+"""The one-process closed loop as one compiled kernel, in the contract's lock-step order per sample k:
+plant samples currents → estimator answers θ̂, injection → controller answers the voltage → plant
+advances to k+1. The cores are the same functions the ROS nodes call."""
+from numba import njit
+
+from foc_controller.control import controller_step
+from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
+
+LOG_COLUMNS = ("t", "theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c",
+               "i_a_meas", "i_b_meas", "i_c_meas", "theta_e_hat", "omega_e_hat", "u_alpha", "u_beta",
+               "u_inj_alpha", "u_inj_beta", "omega_m_ref", "i_d", "i_q", "i_d_ref", "i_q_ref",
+               "eps", "signal", "observable")
+COLUMN = {name: i for i, name in enumerate(LOG_COLUMNS)}
+
+
+@njit(cache=True)
+def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, substeps,
+                est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, imposed, log):
+    """Run samples k_start..k_end−1; row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
+
+    speed_ref and tau_load are indexed by k; with ``imposed`` the shaft follows speed_ref.
+    """
+    n_p = machine.n_p
+    for k in range(k_start, k_end):
+        i_a, i_b, i_c, tau_e = plant_outputs(px, machine)
+        m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, sensor, seed, k)
+        theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = est_step(
+            ex, ez, ep, k, m_a, m_b, m_c, n_p * px[THETA_M], n_p * px[OMEGA_M])
+        u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
+            cx, cz, cp, m_a, m_b, m_c, theta_hat, omega_hat, speed_ref[k], u_inj_a, u_inj_b)
+        row = log[k - k_start]
+        row[0] = k * T_s
+        row[1] = px[THETA_M]
+        row[2] = px[OMEGA_M]
+        row[3] = tau_e
+        row[4] = tau_load[k]
+        row[5] = i_a
+        row[6] = i_b
+        row[7] = i_c
+        row[8] = m_a
+        row[9] = m_b
+        row[10] = m_c
+        row[11] = theta_hat
+        row[12] = omega_hat
+        row[13] = u_a
+        row[14] = u_b
+        row[15] = u_inj_a
+        row[16] = u_inj_b
+        row[17] = speed_ref[k]
+        row[18] = i_d
+        row[19] = i_q
+        row[20] = i_d_ref
+        row[21] = i_q_ref
+        row[22] = eps
+        row[23] = signal
+        row[24] = observable
+        plant_advance(px, u_a, u_b, tau_load[k], imposed, speed_ref[k], machine, mech, inverter,
+                      T_s, substeps)

@@ -1,0 +1,44 @@
+"""PNG plots of a run: true vs estimated angle, angle error, speed, phase currents."""
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from .loop import COLUMN  # noqa: E402
+from .metrics import angle_error, wrap  # noqa: E402
+from .scenario import RPM  # noqa: E402
+
+
+def plot_run(result, out_dir):
+    """Write ``<out_dir>/<scenario>_<estimator>.png`` and return its path."""
+    log, n_p = result.log, result.preset.machine.n_p
+    t = log[:, COLUMN["t"]]
+    fig, axes = plt.subplots(4, 1, figsize=(10, 10), sharex=True)
+    axes[0].plot(t, wrap(n_p * log[:, COLUMN["theta_m"]]), label="true θ_e")
+    axes[0].plot(t, wrap(log[:, COLUMN["theta_e_hat"]]), "--", label="estimated θ̂_e")
+    axes[0].set_ylabel("electrical angle [rad]")
+    axes[1].plot(t, angle_error(log, n_p), color="tab:red")
+    axes[1].set_ylabel("θ_e − θ̂_e [rad]")
+    axes[2].plot(t, log[:, COLUMN["omega_m_ref"]] / RPM, label="reference")
+    axes[2].plot(t, log[:, COLUMN["omega_m"]] / RPM, label="true")
+    axes[2].plot(t, log[:, COLUMN["omega_e_hat"]] / n_p / RPM, alpha=0.7, label="estimated")
+    axes[2].set_ylabel("speed [rpm]")
+    for name in ("i_a_meas", "i_b_meas", "i_c_meas"):
+        axes[3].plot(t, log[:, COLUMN[name]], lw=0.6, label=name[:3])
+    axes[3].set_ylabel("phase current [A]")
+    axes[3].set_xlabel("time [s]")
+    for ax in axes:
+        ax.grid(True, alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="upper right", fontsize=8)
+    fig.suptitle(f"{result.scenario.name}: {result.scenario.motor}, estimator {result.estimator}")
+    fig.tight_layout()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / f"{result.scenario.name}_{result.estimator}.png"
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+

@@ -1,0 +1,60 @@
+"""Controller parameters for a motor preset: estimated motor values from the nameplate, gains from
+Szabó Table 2 or from the bandwidth/damping rule of ``tuning``."""
+import math
+
+import numpy as np
+
+from .control import ControllerParams
+from .discrete import notch
+from .tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
+
+DEFAULTS = {
+    "gains": "rule",
+    "current_bandwidth_rad_s": 2.0 * math.pi * 250.0,
+    "current_damping": 0.8,
+    "speed_bandwidth_rad_s": 40.0,
+    "speed_damping": 1.0,
+    "current_limit_A": None,
+    "decoupling": True,
+    "delay_compensation": True,
+    "hf_notch_quality": 1.0,
+}
+
+
+def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.0):
+    """ControllerParams for ``preset`` at sampling period T_s.
+
+    settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s,
+    current_damping, speed_bandwidth_rad_s, speed_damping, current_limit_A, decoupling,
+    delay_compensation, hf_notch_quality. The notch sits at the estimator's injection frequency.
+    """
+    s = dict(DEFAULTS)
+    unknown = set(settings or {}) - set(DEFAULTS)
+    if unknown:
+        raise KeyError(f"controller: unknown setting(s) {', '.join(sorted(unknown))} "
+                       f"(known: {', '.join(sorted(DEFAULTS))})")
+    s.update(settings or {})
+    m = preset.nameplate
+    k_t = 1.5 * m.n_p * m.psi_f_Wb
+    if s["gains"] == "szabo_table2":
+        d, q, w = SZABO_TABLE2["d"], SZABO_TABLE2["q"], SZABO_TABLE2["speed"]
+    elif s["gains"] == "rule":
+        d = current_pi_gains(m.L_d_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
+        q = current_pi_gains(m.L_q_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
+        w = speed_pi_gains(preset.mechanics.J_kgm2, preset.mechanics.B_Nms, k_t,
+                           s["speed_bandwidth_rad_s"], s["speed_damping"])
+    else:
+        raise ValueError(f"controller: gains must be 'rule' or 'szabo_table2', not '{s['gains']}'")
+    i_max = s["current_limit_A"] if s["current_limit_A"] is not None else preset.current_limit_A
+    if i_max <= 0.0:
+        raise ValueError(f"controller: current_limit_A must be positive, got {i_max}")
+    delay = preset.inverter.delay_periods + 0.5 if s["delay_compensation"] else 0.0
+    if injection_frequency_Hz > 0.0:
+        sos = notch(injection_frequency_Hz, s["hf_notch_quality"], T_s)
+    else:
+        sos = np.zeros((0, 6))
+    return ControllerParams(
+        T_s_s=T_s, n_p=m.n_p, R_s_ohm=m.R_s_ohm, L_d_H=m.L_d_H, L_q_H=m.L_q_H, psi_f_Wb=m.psi_f_Wb,
+        U_dc_V=preset.inverter.U_dc_V, kp_d=d.kp, ki_d=d.ki, kp_q=q.kp, ki_q=q.ki,
+        kp_speed=w.kp, ki_speed=w.ki, i_max_A=float(i_max), decoupling=bool(s["decoupling"]),
+        delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos))

@@ -1,0 +1,67 @@
+"""What every estimator core provides, and the registry the runner and the nodes build them from.
+
+A core is a numba step function called once per sample k with the measured phase currents:
+
+    step(x, z, p, k, i_a, i_b, i_c, theta_e_encoder, omega_e_encoder)
+        -> (θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, observable)
+
+θ̂_e is the unwrapped electrical angle estimate at sample k, ω̂_e the electrical speed estimate fed to
+the speed loop, u_inj the HF voltage to superimpose for the period that follows sample k (stationary
+frame), ε the demodulated error driving the tracking loop, ``signal`` the measured angle-information
+strength (estimator-specific units, documented per estimator) and ``observable`` 1.0 when that signal
+is strong enough to trust θ̂, else 0.0. x (1-D) and z (filter sections) are the estimator's state;
+p its parameters. The encoder inputs are read only by the ``sensored`` pass-through.
+"""
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Estimator:
+    """A built estimator: its step kernel, parameters and fresh state."""
+
+    name: str
+    step: Callable
+    params: Any
+    x: np.ndarray
+    z: np.ndarray
+    injection_frequency_Hz: float
+
+
+_REGISTRY = {}
+
+
+def register(name, description):
+    """Register ``factory(preset, T_s, settings, theta_e0, omega_e0) -> Estimator`` under ``name``."""
+    def wrap(factory):
+        _REGISTRY[name] = (factory, description)
+        return factory
+    return wrap
+
+
+def estimator_names():
+    return sorted(_REGISTRY)
+
+
+def describe(name):
+    return _REGISTRY[name][1]
+
+
+def make_estimator(name, preset, T_s, settings=None, theta_e0=0.0, omega_e0=0.0):
+    """Build the estimator ``name`` for a motor preset; θ_e0, ω_e0 are its initial estimates."""
+    if name not in _REGISTRY:
+        raise KeyError(f"unknown estimator '{name}' (known: {', '.join(estimator_names())})")
+    return _REGISTRY[name][0](preset, T_s, dict(settings or {}), theta_e0, omega_e0)
+
+
+def check_settings(name, settings, defaults):
+    """Defaults overridden by settings; an unknown key is an error naming it."""
+    unknown = set(settings) - set(defaults)
+    if unknown:
+        raise KeyError(f"estimator '{name}': unknown setting(s) {', '.join(sorted(unknown))} "
+                       f"(known: {', '.join(sorted(defaults))})")
+    merged = dict(defaults)
+    merged.update(settings)
+    return merged

@@ -1,0 +1,24 @@
+"""``sensored``: passes the encoder's angle and speed through, injects nothing. It validates the plant
+and the controller without an estimator in the loop."""
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from .interface import Estimator, check_settings, register
+
+
+class SensoredParams(NamedTuple):
+    n_p: int
+
+
+@njit(cache=True)
+def sensored_step(x, z, p, k, i_a, i_b, i_c, theta_e_encoder, omega_e_encoder):
+    return theta_e_encoder, omega_e_encoder, 0.0, 0.0, 0.0, 1.0, 1.0
+
+
+@register("sensored", "encoder pass-through (no injection): validates plant and controller")
+def make_sensored(preset, T_s, settings, theta_e0, omega_e0):
+    check_settings("sensored", settings, {})
+    return Estimator("sensored", sensored_step, SensoredParams(preset.nameplate.n_p),
+                     np.zeros(1), np.zeros((1, 1, 2)), 0.0)

@@ -1,0 +1,1 @@
+"""PMSM plant core: continuous-time motor, averaged inverter and current sensing (no rclpy)."""

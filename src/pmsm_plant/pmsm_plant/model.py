@@ -1,0 +1,229 @@
+"""Continuous-time PMSM, averaged inverter and sampled current sensing as numba kernels.
+
+The stator flux linkage in the stationary frame is the electrical state, so the piecewise-constant
+inverter voltage is integrated without approximation and only the slow resistive and mechanical terms
+go through the Runge-Kutta step; HF injection at any frequency below Nyquist is integrated accurately
+(see test/test_plant.py). One control period is: apply the (delayed) command → integrate → sample.
+"""
+import math
+
+import numpy as np
+from numba import njit
+
+from .frames import SQRT3, clarke, inverse_clarke, rotate
+
+# Plant state vector layout.
+PSI_ALPHA, PSI_BETA, OMEGA_M, THETA_M, U_PENDING_ALPHA, U_PENDING_BETA = range(6)
+N_STATE = 6
+
+
+@njit(cache=True)
+def magnet_equivalent_current(m):
+    """i_f of MachineParams: the d-current the magnetic energy gradient gives at ψ = (ψ_f, 0)."""
+    return m.psi_f_Wb / m.L_d_H + m.a_d * m.psi_f_Wb ** 5
+
+
+@njit(cache=True)
+def current_from_flux(psi_d, psi_q, m):
+    """Rotor-frame currents from flux linkages (MachineParams docstring model)."""
+    abs_d = abs(psi_d)
+    i_d = (psi_d / m.L_d_H + m.a_d * psi_d ** 5 + 0.5 * m.a_dq * abs_d * psi_d * psi_q * psi_q
+           - magnet_equivalent_current(m))
+    i_q = psi_q / m.L_q_H + m.a_q * psi_q ** 3 + (m.a_dq / 3.0) * abs_d ** 3 * psi_q
+    return i_d, i_q
+
+
+@njit(cache=True)
+def incremental_inverse_inductance(psi_d, psi_q, m):
+    """Γ = ∂i/∂ψ (the Hessian of the magnetic energy): (Γ_dd, Γ_qq, Γ_dq) [1/H]."""
+    abs_d = abs(psi_d)
+    g_dd = 1.0 / m.L_d_H + 5.0 * m.a_d * psi_d ** 4 + m.a_dq * abs_d * psi_q * psi_q
+    g_qq = 1.0 / m.L_q_H + 3.0 * m.a_q * psi_q * psi_q + (m.a_dq / 3.0) * abs_d ** 3
+    g_dq = m.a_dq * abs_d * psi_d * psi_q
+    return g_dd, g_qq, g_dq
+
+
+@njit(cache=True)
+def stator_current(psi_alpha, psi_beta, theta_m, m):
+    """Stationary-frame currents (i_α, i_β) from the stationary flux and the mechanical angle."""
+    theta_e = m.n_p * theta_m
+    psi_d, psi_q = rotate(psi_alpha, psi_beta, -theta_e)
+    i_d, i_q = current_from_flux(psi_d, psi_q, m)
+    return rotate(i_d, i_q, theta_e)
+
+
+@njit(cache=True)
+def electromagnetic_torque(psi_alpha, psi_beta, i_alpha, i_beta, n_p):
+    """τ_e = 1.5 p (ψ_α i_β − ψ_β i_α); equals Szabó Eq. (3) for the linear model."""
+    return 1.5 * n_p * (psi_alpha * i_beta - psi_beta * i_alpha)
+
+
+@njit(cache=True)
+def duty_cycles(u_alpha, u_beta, U_dc):
+    """Space-vector (min-max zero-sequence) PWM duties in [0, 1]; beyond the hexagon they clip."""
+    u_a, u_b, u_c = inverse_clarke(u_alpha, u_beta)
+    u_0 = -0.5 * (max(u_a, u_b, u_c) + min(u_a, u_b, u_c))
+    d_a = min(max(0.5 + (u_a + u_0) / U_dc, 0.0), 1.0)
+    d_b = min(max(0.5 + (u_b + u_0) / U_dc, 0.0), 1.0)
+    d_c = min(max(0.5 + (u_c + u_0) / U_dc, 0.0), 1.0)
+    return d_a, d_b, d_c
+
+
+@njit(cache=True)
+def inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s):
+    """Average stator voltage (u_α, u_β) realised by the duties, with the dead-time voltage error."""
+    u_a = d_a * inv.U_dc_V
+    u_b = d_b * inv.U_dc_V
+    u_c = d_c * inv.U_dc_V
+    if inv.t_dead_s > 0.0:
+        i_a, i_b, i_c = inverse_clarke(i_alpha, i_beta)
+        u_err = inv.t_dead_s / T_s * inv.U_dc_V
+        u_a -= u_err * math.tanh(i_a / inv.i_dead_A)
+        u_b -= u_err * math.tanh(i_b / inv.i_dead_A)
+        u_c -= u_err * math.tanh(i_c / inv.i_dead_A)
+    return clarke(u_a, u_b, u_c)
+
+
+@njit(cache=True)
+def _derivatives(psi_a, psi_b, omega_m, theta_m, u_a, u_b, tau_load, imposed, omega_imposed, m, mech):
+    i_a, i_b = stator_current(psi_a, psi_b, theta_m, m)
+    tau_e = electromagnetic_torque(psi_a, psi_b, i_a, i_b, m.n_p)
+    if imposed:
+        d_omega = 0.0
+        d_theta = omega_imposed
+    else:
+        d_omega = (tau_e - tau_load - mech.B_Nms * omega_m) / mech.J_kgm2
+        d_theta = omega_m
+    return u_a - m.R_s_ohm * i_a, u_b - m.R_s_ohm * i_b, d_omega, d_theta
+
+
+@njit(cache=True)
+def plant_advance(x, u_cmd_alpha, u_cmd_beta, tau_load_Nm, imposed, omega_imposed, m, mech, inv,
+                  T_s, n_substeps):
+    """Advance the plant state x by one control period.
+
+    ``u_cmd`` is the controller's command computed from the sample at the start of this period. With
+    ``inv.delay_periods == 1`` the command stored from the previous call is applied now and this one
+    is stored (the explicit sample → delay → PWM loop); with 0 it is applied at once. The inverter
+    realises it as one average voltage over the period, its dead-time error set by the current
+    polarities at the period start (the switching edges). With ``imposed`` the shaft runs at
+    ``omega_imposed`` [rad/s] (dynamometer mode).
+    """
+    if inv.delay_periods == 1:
+        u_a = x[U_PENDING_ALPHA]
+        u_b = x[U_PENDING_BETA]
+        x[U_PENDING_ALPHA] = u_cmd_alpha
+        x[U_PENDING_BETA] = u_cmd_beta
+    else:
+        u_a = u_cmd_alpha
+        u_b = u_cmd_beta
+    d_a, d_b, d_c = duty_cycles(u_a, u_b, inv.U_dc_V)
+    i_alpha, i_beta = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
+    v_a, v_b = inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s)
+    if imposed:
+        x[OMEGA_M] = omega_imposed
+    h = T_s / n_substeps
+    for _ in range(n_substeps):
+        s0, s1, s2, s3 = x[PSI_ALPHA], x[PSI_BETA], x[OMEGA_M], x[THETA_M]
+        k1 = _derivatives(s0, s1, s2, s3, v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech)
+        k2 = _derivatives(s0 + 0.5 * h * k1[0], s1 + 0.5 * h * k1[1], s2 + 0.5 * h * k1[2],
+                          s3 + 0.5 * h * k1[3], v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech)
+        k3 = _derivatives(s0 + 0.5 * h * k2[0], s1 + 0.5 * h * k2[1], s2 + 0.5 * h * k2[2],
+                          s3 + 0.5 * h * k2[3], v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech)
+        k4 = _derivatives(s0 + h * k3[0], s1 + h * k3[1], s2 + h * k3[2], s3 + h * k3[3],
+                          v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech)
+        x[PSI_ALPHA] = s0 + h / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
+        x[PSI_BETA] = s1 + h / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
+        x[OMEGA_M] = s2 + h / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
+        x[THETA_M] = s3 + h / 6.0 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
+
+
+@njit(cache=True)
+def plant_outputs(x, m):
+    """True (i_a, i_b, i_c, τ_e) at the current state."""
+    i_a, i_b = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
+    tau_e = electromagnetic_torque(x[PSI_ALPHA], x[PSI_BETA], i_a, i_b, m.n_p)
+    p_a, p_b, p_c = inverse_clarke(i_a, i_b)
+    return p_a, p_b, p_c, tau_e
+
+
+@njit(cache=True)
+def plant_reset(x, theta_m, omega_m, m):
+    """Start at rest electrically (i = 0) at the given shaft angle and speed."""
+    x[:] = 0.0
+    psi_a, psi_b = rotate(m.psi_f_Wb, 0.0, m.n_p * theta_m)
+    x[PSI_ALPHA] = psi_a
+    x[PSI_BETA] = psi_b
+    x[OMEGA_M] = omega_m
+    x[THETA_M] = theta_m
+
+
+@njit(cache=True)
+def _splitmix64(z):
+    z = z + np.uint64(0x9E3779B97F4A7C15)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+    return z ^ (z >> np.uint64(31))
+
+
+@njit(cache=True)
+def gaussian(seed, k, channel):
+    """Standard normal number for (seed, sample k, channel): counter-based, so any composition of the
+    cores (one process or a ROS graph) draws the same noise for the same sample."""
+    h1 = _splitmix64(np.uint64(seed) * np.uint64(0x100000001B3) ^ np.uint64(4 * k + channel))
+    h2 = _splitmix64(h1)
+    u1 = (float(h1 >> np.uint64(11)) + 1.0) * (1.0 / 9007199254740992.0)
+    u2 = float(h2 >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@njit(cache=True)
+def _adc(value, s):
+    if s.adc_bits <= 0:
+        return value
+    lsb = 2.0 * s.adc_range_A / (1 << s.adc_bits)
+    code = math.floor(value / lsb + 0.5)
+    top = (1 << (s.adc_bits - 1)) - 1
+    code = min(max(code, -top - 1), top)
+    return code * lsb
+
+
+@njit(cache=True)
+def sense_currents(i_a, i_b, i_c, s, seed, k):
+    """Measured phase currents: gain and offset errors, Gaussian noise and ADC quantisation."""
+    m_a = s.gain_a * i_a + s.offset_a_A
+    m_b = s.gain_b * i_b + s.offset_b_A
+    m_c = s.gain_c * i_c + s.offset_c_A
+    if s.noise_std_A > 0.0:
+        m_a += s.noise_std_A * gaussian(seed, k, 0)
+        m_b += s.noise_std_A * gaussian(seed, k, 1)
+        m_c += s.noise_std_A * gaussian(seed, k, 2)
+    return _adc(m_a, s), _adc(m_b, s), _adc(m_c, s)
+
+
+def incremental_inductances(machine, i_d_A=0.0, i_q_A=0.0):
+    """(L_dh, L_qh, L_dqh) [H] at an operating point, from the inverse of Γ (Python helper)."""
+    psi_d, psi_q = flux_from_current(machine, i_d_A, i_q_A)
+    g_dd, g_qq, g_dq = incremental_inverse_inductance(psi_d, psi_q, machine)
+    inv = np.linalg.inv(np.array([[g_dd, g_dq], [g_dq, g_qq]]))
+    return inv[0, 0], inv[1, 1], inv[0, 1]
+
+
+def flux_from_current(machine, i_d_A, i_q_A):
+    """Invert current_from_flux by Newton iteration (Python helper for analysis and tests)."""
+    psi = np.array([machine.psi_f_Wb + machine.L_d_H * i_d_A, machine.L_q_H * i_q_A])
+    for _ in range(50):
+        i_d, i_q = current_from_flux(psi[0], psi[1], machine)
+        residual = np.array([i_d - i_d_A, i_q - i_q_A])
+        g_dd, g_qq, g_dq = incremental_inverse_inductance(psi[0], psi[1], machine)
+        psi -= np.linalg.solve(np.array([[g_dd, g_dq], [g_dq, g_qq]]), residual)
+        if np.max(np.abs(residual)) < 1e-12:
+            break
+    return float(psi[0]), float(psi[1])
+
+
+def saturation_saliency_angle(machine, i_d_A=0.0, i_q_A=0.0):
+    """Angle [rad, electrical] by which cross-saturation turns the HF saliency axis from d."""
+    psi_d, psi_q = flux_from_current(machine, i_d_A, i_q_A)
+    g_dd, g_qq, g_dq = incremental_inverse_inductance(psi_d, psi_q, machine)
+    return 0.5 * math.atan2(2.0 * g_dq, g_dd - g_qq)

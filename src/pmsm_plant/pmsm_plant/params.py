@@ -1,0 +1,79 @@
+"""True (plant-side) parameters of the motor, its mechanics, the inverter and the current sensors.
+
+Parameters are immutable ``NamedTuple``s: frozen like motulator's dataclasses, with SI units in the
+field names, and passable unchanged into the numba kernels. Estimated parameters, used by controllers
+and estimators, live elsewhere (``foc_controller.params``) and are never read from here at run time.
+"""
+from typing import NamedTuple
+
+
+class MachineParams(NamedTuple):
+    """Electrical dq model of a PMSM with flux linkage as state (Szabó Eq. 1-3, Wang Eq. 1).
+
+    Magnetics follow an algebraic saturation model (after Hinkkanen et al., "Sensorless
+    self-commissioning of synchronous reluctance motors at standstill without rotor locking",
+    IEEE TIA 2017), written as the gradient of a magnetic energy W(ψ_d, ψ_q) so that the incremental
+    inductance matrix is symmetric (reciprocal cross-saturation):
+
+        i_d = ψ_d/L_d + a_d ψ_d⁵ + (a_dq/2)|ψ_d|ψ_d ψ_q² − i_f
+        i_q = ψ_q/L_q + a_q ψ_q³ + (a_dq/3)|ψ_d|³ ψ_q
+
+    with i_f chosen so that i = 0 at ψ = (ψ_f, 0). With a_d = a_q = a_dq = 0 it is the linear model
+    ψ_d = L_d i_d + ψ_f, ψ_q = L_q i_q. The PM flux itself saturates the d-axis iron through a_d
+    (saturation saliency), and a_dq couples the axes (cross-saturation).
+    """
+
+    n_p: int
+    """Pole pairs."""
+    R_s_ohm: float
+    """Stator resistance."""
+    L_d_H: float
+    """Unsaturated d-axis inductance."""
+    L_q_H: float
+    """Unsaturated q-axis inductance."""
+    psi_f_Wb: float
+    """Permanent-magnet flux linkage (amplitude-invariant scaling)."""
+    a_d: float = 0.0
+    """d-axis self-saturation coefficient [A/Wb⁵]."""
+    a_q: float = 0.0
+    """q-axis self-saturation coefficient [A/Wb³]."""
+    a_dq: float = 0.0
+    """Cross-saturation coefficient [A/Wb⁴]."""
+
+
+class MechanicsParams(NamedTuple):
+    """Rigid shaft: J dω_m/dt = τ_e − τ_L − B ω_m (Szabó Eq. 4)."""
+
+    J_kgm2: float
+    """Total inertia of rotor and coupled load."""
+    B_Nms: float
+    """Viscous friction coefficient."""
+
+
+class InverterParams(NamedTuple):
+    """Two-level voltage-source inverter, averaged over a switching period."""
+
+    U_dc_V: float
+    """DC-link voltage; the space-vector linear range is |u_αβ| ≤ U_dc/√3."""
+    t_dead_s: float
+    """Dead time; the average phase-voltage error is −(t_dead/T_s)·U_dc·sign(i)."""
+    i_dead_A: float
+    """Current scale of the smoothed sign tanh(i/i_dead) (switch-capacitance commutation)."""
+    delay_periods: int
+    """Computation delay: 1 = a command computed from sample k is applied during period k+1."""
+
+
+class SensorParams(NamedTuple):
+    """Phase-current sensing, sampled synchronously at the start of every control period."""
+
+    noise_std_A: float
+    offset_a_A: float
+    offset_b_A: float
+    offset_c_A: float
+    gain_a: float
+    gain_b: float
+    gain_c: float
+    adc_bits: int
+    """0 disables quantisation."""
+    adc_range_A: float
+    """Full scale: readings are quantised over [−range, +range) and clip at its ends."""

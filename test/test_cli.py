@@ -1,0 +1,61 @@
+"""The drive command line: JSON keys of a run, and one-line errors for bad scenario files."""
+import json
+import subprocess
+import sys
+
+import pytest
+
+from drive_bridge.cli import main
+
+RUN_KEYS = {"angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms"}
+
+
+def _write(tmp_path, text):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    return str(path)
+
+
+GOOD = """motor: wang_spmsm
+estimator: sensored
+duration_s: 0.3
+metrics: {settle_s: 0.1}
+sampling_period_s: 1.0e-4
+speed: {unit: rpm, points: [[0.0, 50.0]]}
+"""
+
+
+@pytest.mark.parametrize("text, key", [
+    (GOOD.replace("wang_spmsm", "no_such_motor"), "motor"),
+    (GOOD.replace("duration_s: 0.3\n", ""), "duration_s"),
+    (GOOD.replace("duration_s: 0.3", "duration_s: -1"), "duration_s"),
+    (GOOD.replace("unit: rpm", "unit: furlongs"), "speed.unit"),
+    (GOOD.replace("estimator: sensored", "estimator: crystal_ball"), "estimator"),
+    (GOOD + "non_idealities: {dead_time: maybe}\n", "non_idealities.dead_time"),
+    (GOOD + "controller: {current_limit_A: -2}\n", "controller"),
+    ("motor: [unclosed", "YAML"),
+])
+def test_bad_scenario_is_one_line_naming_the_key(tmp_path, capsys, text, key):
+    path = _write(tmp_path, text)
+    assert main(["run", path, "--no-plot"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and path in err and key in err, err
+
+
+def test_bad_scenario_from_shell_has_no_traceback(tmp_path):
+    path = _write(tmp_path, GOOD.replace("duration_s: 0.3", "duration_s: -1"))
+    proc = subprocess.run([sys.executable, "-m", "drive_bridge.cli", "run", path],
+                          capture_output=True, text=True)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and "duration_s" in proc.stderr
+
+
+def test_run_json_has_metric_keys(tmp_path):
+    path = _write(tmp_path, GOOD)
+    proc = subprocess.run([sys.executable, "-m", "drive_bridge.cli", "run", path, "--json",
+                           "--out", str(tmp_path)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    metrics = json.loads(proc.stdout)
+    assert RUN_KEYS <= set(metrics)
+    assert all(isinstance(metrics[k], float) for k in RUN_KEYS)
+    assert metrics["plots"] and (tmp_path / "bad_sensored.png").is_file()
