@@ -3,7 +3,7 @@ plant samples currents → estimator answers θ̂, injection → controller answ
 advances to k+1. The cores are the same functions the ROS nodes call."""
 from numba import njit
 
-from foc_controller.control import controller_step
+from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, controller_step
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
 LOG_COLUMNS = ("t", "theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c",
@@ -25,7 +25,8 @@ def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, 
         i_a, i_b, i_c, tau_e = plant_outputs(px, machine)
         m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, sensor, seed, k)
         theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = est_step(
-            ex, ez, ep, k, m_a, m_b, m_c, n_p * px[THETA_M], n_p * px[OMEGA_M])
+            ex, ez, ep, k, m_a, m_b, m_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], n_p * px[THETA_M],
+            n_p * px[OMEGA_M])
         u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
             cx, cz, cp, m_a, m_b, m_c, theta_hat, omega_hat, speed_ref[k], u_inj_a, u_inj_b)
         row = log[k - k_start]

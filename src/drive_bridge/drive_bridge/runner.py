@@ -8,6 +8,7 @@ import numpy as np
 
 from foc_controller.control import controller_state
 from foc_controller.params import make_controller_params
+from hf_estimator.common import commission
 from hf_estimator.registry import make_estimator
 from pmsm_plant.model import N_STATE, plant_reset
 from pmsm_plant.presets import get_preset, plant_parameters
@@ -52,7 +53,8 @@ def build_drive(scenario):
     try:
         estimator = make_estimator(scenario.estimator, preset, scenario.T_s, scenario.estimator_settings,
                                    theta_e0 - scenario.initial_angle_error_e_rad,
-                                   n_p * scenario.initial_omega_m_rad_s)
+                                   n_p * scenario.initial_omega_m_rad_s, commission(machine),
+                                   inverter.delay_periods)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source}: estimator: {error.args[0]}") from None
     try:
@@ -62,7 +64,7 @@ def build_drive(scenario):
         raise ScenarioError(f"{scenario.source}: controller: {error.args[0]}") from None
     plant_x = np.zeros(N_STATE)
     plant_reset(plant_x, scenario.initial_theta_m_rad, scenario.initial_omega_m_rad_s, machine)
-    controller_x, controller_z = controller_state(controller)
+    controller_x, controller_z = controller_state(controller, n_p * scenario.initial_omega_m_rad_s)
     t = np.arange(scenario.n_samples) * scenario.T_s
     return Drive(preset, machine, inverter, sensor, estimator, controller, plant_x, controller_x,
                  controller_z, scenario.speed.sample(t).astype(float),

@@ -15,9 +15,10 @@ from pmsm_plant.frames import SQRT3, clarke_contract, rotate
 
 from .discrete import pi_limited, sos_step
 
-# Controller integrator state layout; the notch states (d, q) live in a separate array.
-INT_D, INT_Q, INT_SPEED = range(3)
-N_STATE = 3
+# Controller state layout (integrators, filtered speed, last command); the notch states (d, q) live
+# in a separate array.
+INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, LAST_U_ALPHA, LAST_U_BETA = range(6)
+N_STATE = 6
 
 
 class ControllerParams(NamedTuple):
@@ -43,19 +44,27 @@ class ControllerParams(NamedTuple):
     delay and ZOH); the inverse Park turns by ω̂_e times that. 0 disables."""
     hf_notch_sos: np.ndarray
     """Notch SOS at the injection frequency (one row), or an empty (0 × 6) array."""
+    speed_filter_gain: float
+    """First-order smoothing per sample of the estimated speed before any use (1 = no filter)."""
 
 
 @njit(cache=True)
 def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omega_m_ref,
                     u_inj_alpha, u_inj_beta):
     """One control period from sample k: returns the stator voltage command (u_α, u_β) for the next
-    period and the (HF-rejected) feedback currents i_d, i_q and references i_d*, i_q*."""
+    period and the (HF-rejected) feedback currents i_d, i_q and references i_d*, i_q*.
+
+    The estimated speed is low-pass filtered once and that value feeds the speed loop, the back-EMF
+    decoupling and the delay compensation: a raw PLL speed in the feed-forward closes a fast loop
+    through the estimator (shared/notes/hf-demodulation.md §3)."""
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     i_d, i_q = rotate(i_alpha, i_beta, -theta_e_hat)
     if c.hf_notch_sos.shape[0] > 0:
         i_d = sos_step(c.hf_notch_sos, z_notch[0], i_d)
         i_q = sos_step(c.hf_notch_sos, z_notch[1], i_q)
 
+    x[OMEGA_FILTERED] += c.speed_filter_gain * (omega_e_hat - x[OMEGA_FILTERED])
+    omega_e_hat = x[OMEGA_FILTERED]
     omega_m_hat = omega_e_hat / c.n_p
     i_q_ref = pi_limited(x, INT_SPEED, c.kp_speed, c.ki_speed, c.T_s_s, omega_m_ref - omega_m_hat,
                          c.i_max_A)
@@ -86,9 +95,13 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     if total > u_max:
         u_alpha *= u_max / total
         u_beta *= u_max / total
+    x[LAST_U_ALPHA] = u_alpha
+    x[LAST_U_BETA] = u_beta
     return u_alpha, u_beta, i_d, i_q, i_d_ref, i_q_ref
 
 
-def controller_state(c):
+def controller_state(c, omega_e0=0.0):
     """Fresh (integrator state, notch state) arrays for ControllerParams c."""
-    return np.zeros(N_STATE), np.zeros((2, max(c.hf_notch_sos.shape[0], 1), 2))
+    x = np.zeros(N_STATE)
+    x[OMEGA_FILTERED] = omega_e0
+    return x, np.zeros((2, max(c.hf_notch_sos.shape[0], 1), 2))

@@ -18,6 +18,7 @@ DEFAULTS = {
     "decoupling": True,
     "delay_compensation": True,
     "hf_notch_quality": 1.0,
+    "speed_filter_Hz": 100.0,
 }
 
 
@@ -26,7 +27,7 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
 
     settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s,
     current_damping, speed_bandwidth_rad_s, speed_damping, current_limit_A, decoupling,
-    delay_compensation, hf_notch_quality. The notch sits at the estimator's injection frequency.
+    delay_compensation, hf_notch_quality, speed_filter_Hz (0: none). The notch sits at the estimator's injection frequency.
     """
     s = dict(DEFAULTS)
     unknown = set(settings or {}) - set(DEFAULTS)
@@ -57,4 +58,6 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
         T_s_s=T_s, n_p=m.n_p, R_s_ohm=m.R_s_ohm, L_d_H=m.L_d_H, L_q_H=m.L_q_H, psi_f_Wb=m.psi_f_Wb,
         U_dc_V=preset.inverter.U_dc_V, kp_d=d.kp, ki_d=d.ki, kp_q=q.kp, ki_q=q.ki,
         kp_speed=w.kp, ki_speed=w.ki, i_max_A=float(i_max), decoupling=bool(s["decoupling"]),
-        delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos))
+        delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos),
+        speed_filter_gain=(1.0 - math.exp(-2.0 * math.pi * s["speed_filter_Hz"] * T_s)
+                           if s["speed_filter_Hz"] > 0.0 else 1.0))

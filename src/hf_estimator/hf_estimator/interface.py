@@ -2,14 +2,15 @@
 
 A core is a numba step function called once per sample k with the measured phase currents:
 
-    step(x, z, p, k, i_a, i_b, i_c, theta_e_encoder, omega_e_encoder)
+    step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder)
         -> (θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, observable)
 
 θ̂_e is the unwrapped electrical angle estimate at sample k, ω̂_e the electrical speed estimate fed to
 the speed loop, u_inj the HF voltage to superimpose for the period that follows sample k (stationary
 frame), ε the demodulated error driving the tracking loop, ``signal`` the measured angle-information
 strength (estimator-specific units, documented per estimator) and ``observable`` 1.0 when that signal
-is strong enough to trust θ̂, else 0.0. x (1-D) and z (filter sections) are the estimator's state;
+is strong enough to trust θ̂, else 0.0. u_prev is the voltage command the controller issued at sample
+k−1 (the `voltage_command` topic; the papers' methods ignore it). x (1-D) and z (filter sections) are the estimator's state;
 p its parameters. The encoder inputs are read only by the ``sensored`` pass-through.
 """
 from dataclasses import dataclass
@@ -34,7 +35,7 @@ _REGISTRY = {}
 
 
 def register(name, description):
-    """Register ``factory(preset, T_s, settings, theta_e0, omega_e0) -> Estimator`` under ``name``."""
+    """Register ``factory(preset, T_s, settings, θ_e0, ω_e0, commissioning, delay_periods) -> Estimator``."""
     def wrap(factory):
         _REGISTRY[name] = (factory, description)
         return factory
@@ -49,11 +50,24 @@ def describe(name):
     return _REGISTRY[name][1]
 
 
-def make_estimator(name, preset, T_s, settings=None, theta_e0=0.0, omega_e0=0.0):
-    """Build the estimator ``name`` for a motor preset; θ_e0, ω_e0 are its initial estimates."""
+def make_estimator(name, preset, T_s, settings=None, theta_e0=0.0, omega_e0=0.0, commissioning=None,
+                   delay_periods=None):
+    """Build the estimator ``name`` for a motor preset; θ_e0, ω_e0 are its initial estimates.
+
+    ``commissioning`` (hf_estimator.common.Commissioning) holds the HF inductances measured on the
+    drive's own motor at standstill (default: the preset's motor); ``delay_periods`` the inverter's
+    computation delay (default: the preset's).
+    """
+    from .common import commission
+
     if name not in _REGISTRY:
         raise KeyError(f"unknown estimator '{name}' (known: {', '.join(estimator_names())})")
-    return _REGISTRY[name][0](preset, T_s, dict(settings or {}), theta_e0, omega_e0)
+    if commissioning is None:
+        commissioning = commission(preset.machine)
+    if delay_periods is None:
+        delay_periods = preset.inverter.delay_periods
+    return _REGISTRY[name][0](preset, T_s, dict(settings or {}), theta_e0, omega_e0, commissioning,
+                              delay_periods)
 
 
 def check_settings(name, settings, defaults):

@@ -1,3 +1,5 @@
 """Importing this module registers every estimator core."""
-from . import sensored  # noqa: F401
+from . import injection_frame, sensored, szabo, wang  # noqa: F401
 from .interface import describe, estimator_names, make_estimator  # noqa: F401
+
+DEFAULT_ESTIMATOR = "injection_frame"

@@ -13,12 +13,12 @@ class SensoredParams(NamedTuple):
 
 
 @njit(cache=True)
-def sensored_step(x, z, p, k, i_a, i_b, i_c, theta_e_encoder, omega_e_encoder):
+def sensored_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
     return theta_e_encoder, omega_e_encoder, 0.0, 0.0, 0.0, 1.0, 1.0
 
 
 @register("sensored", "encoder pass-through (no injection): validates plant and controller")
-def make_sensored(preset, T_s, settings, theta_e0, omega_e0):
+def make_sensored(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
     check_settings("sensored", settings, {})
     return Estimator("sensored", sensored_step, SensoredParams(preset.nameplate.n_p),
                      np.zeros(1), np.zeros((1, 1, 2)), 0.0)

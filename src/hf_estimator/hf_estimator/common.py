@@ -1,0 +1,129 @@
+"""Kernels and design helpers shared by the estimators: the PI tracking loop, commissioning values and
+the HF admittance monitor that measures angle-information strength for every estimator."""
+import math
+from typing import NamedTuple
+
+from numba import njit
+
+from pmsm_plant.frames import rotate
+from pmsm_plant.model import incremental_inductances
+
+
+@njit(cache=True)
+def pi_tracking_loop(x, i_theta, i_integral, kp, ki, T_s, error):
+    """PI + integrator (Wang Fig. 6, Szabó Fig. 3): ω̂ = k_p ε + ∫k_i ε, θ̂ = ∫ω̂ (state in x).
+    Returns the PI output ω̂."""
+    x[i_integral] += T_s * ki * error
+    omega = kp * error + x[i_integral]
+    x[i_theta] += T_s * omega
+    return omega
+
+
+def loop_gains(gain_per_rad, bandwidth_Hz, damping):
+    """PI gains (k_p, k_i) placing the linearised loop ε = g·(θ − θ̂) at ω_n = 2π·bandwidth, ζ:
+    s² + g k_p s + g k_i (Wang Eq. 24 with k_h = g)."""
+    omega_n = 2.0 * math.pi * bandwidth_Hz
+    return 2.0 * damping * omega_n / gain_per_rad, omega_n ** 2 / gain_per_rad
+
+
+class Commissioning(NamedTuple):
+    """HF inductances a standstill HF commissioning test measures on the drive's motor (no load)."""
+
+    L_dh_H: float
+    L_qh_H: float
+
+    @property
+    def sigma(self):
+        """Σ = ½(1/L_dh + 1/L_qh) [1/H] (shared/notes/hf-demodulation.md)."""
+        return 0.5 * (1.0 / self.L_dh_H + 1.0 / self.L_qh_H)
+
+    @property
+    def delta(self):
+        """Δ = ½(1/L_dh − 1/L_qh) [1/H]."""
+        return 0.5 * (1.0 / self.L_dh_H - 1.0 / self.L_qh_H)
+
+
+def commission(machine):
+    """The standstill HF test's result on ``machine`` (ideal measurement at no load)."""
+    L_dh, L_qh, _ = incremental_inductances(machine)
+    return Commissioning(L_dh, L_qh)
+
+
+class MonitorParams(NamedTuple):
+    """HF admittance monitor: correlates current steps with the applied injection in its own frame."""
+
+    T_s_s: float
+    U_h_V: float
+    delay_periods: int
+    window: int
+    """Samples averaged: one carrier period (rounded)."""
+    sigma_hat: float
+    """Commissioned Σ [1/H]: the in-phase admittance a round rotor would show."""
+    observable_ratio: float
+    """|Δ̂|/Σ̂ below this is reported as low observability."""
+    smoothing: float
+    """First-order smoothing factor per sample of the reported |Δ̂|."""
+
+
+# Monitor state layout inside an estimator's x, from a base offset.
+MON_PREV_IA, MON_PREV_IB, MON_SUM_D, MON_SUM_Q, MON_SUM_C2, MON_DELTA, MON_COUNT = range(7)
+MON_HISTORY = 7
+"""Then three ring buffers: issued injection (carrier, angle) per sample, and products (d, q, c²)."""
+
+
+def monitor_size(p):
+    return MON_HISTORY + 2 * (p.delay_periods + 2) + 3 * p.window
+
+
+@njit(cache=True)
+def monitor_step(x, base, p, k, i_alpha, i_beta, carrier_now, angle_now):
+    """Update with sample k's currents; record the injection issued now (carrier value c and axis angle).
+
+    The current step i[k] − i[k−1] answers the voltage applied during period k−1, i.e. the injection
+    issued at sample k−1−delay. Rotated into that injection's frame and correlated with its carrier
+    over one carrier period, it gives D = Σ + Δ cos 2e (in-phase) and Q = Δ sin 2e (quadrature) [1/H],
+    e = θ − θ_inj. Returns (|Δ̂| smoothed, observable flag)."""
+    hist = base + MON_HISTORY
+    depth = p.delay_periods + 2
+    ring = hist + 2 * depth
+    slot_now = k % depth
+    slot_then = (k - 1 - p.delay_periods) % depth
+    carrier_then = x[hist + 2 * slot_then]
+    angle_then = x[hist + 2 * slot_then + 1]
+    d_alpha = i_alpha - x[base + MON_PREV_IA]
+    d_beta = i_beta - x[base + MON_PREV_IB]
+    x[base + MON_PREV_IA] = i_alpha
+    x[base + MON_PREV_IB] = i_beta
+    x[hist + 2 * slot_now] = carrier_now
+    x[hist + 2 * slot_now + 1] = angle_now
+    if k < p.delay_periods + 1:
+        return 0.0, 0.0
+    step_d, step_q = rotate(d_alpha, d_beta, -angle_then)
+    scale = 1.0 / (p.T_s_s * p.U_h_V)
+    prod_d = carrier_then * step_d * scale
+    prod_q = carrier_then * step_q * scale
+    c2 = carrier_then * carrier_then
+    slot = k % p.window
+    x[base + MON_SUM_D] += prod_d - x[ring + 3 * slot]
+    x[base + MON_SUM_Q] += prod_q - x[ring + 3 * slot + 1]
+    x[base + MON_SUM_C2] += c2 - x[ring + 3 * slot + 2]
+    x[ring + 3 * slot] = prod_d
+    x[ring + 3 * slot + 1] = prod_q
+    x[ring + 3 * slot + 2] = c2
+    x[base + MON_COUNT] += 1.0
+    if x[base + MON_COUNT] < p.window or x[base + MON_SUM_C2] <= 0.0:
+        return 0.0, 0.0
+    D = x[base + MON_SUM_D] / x[base + MON_SUM_C2]
+    Q = x[base + MON_SUM_Q] / x[base + MON_SUM_C2]
+    delta = math.hypot(Q, D - p.sigma_hat)
+    x[base + MON_DELTA] += p.smoothing * (delta - x[base + MON_DELTA])
+    observable = 1.0 if x[base + MON_DELTA] > p.observable_ratio * p.sigma_hat else 0.0
+    return x[base + MON_DELTA], observable
+
+
+def make_monitor(T_s, U_h, f_h, delay_periods, commissioning, observable_ratio=0.02,
+                 smoothing_Hz=20.0):
+    return MonitorParams(T_s_s=T_s, U_h_V=U_h, delay_periods=int(delay_periods),
+                         window=max(2, int(round(1.0 / (f_h * T_s)))), sigma_hat=commissioning.sigma,
+                         observable_ratio=observable_ratio,
+                         smoothing=1.0 - math.exp(-2.0 * math.pi * smoothing_Hz * T_s))

@@ -1,0 +1,163 @@
+"""``injection_frame`` — our estimator: the incremental admittance identified from current steps in
+the injection frame, with an alternating injection axis (shared/notes/hf-demodulation.md §2-4 turned
+into a design).
+
+1. Carrier synchronous with sampling: c_k = cos(2πk/N), N = round(f_s/f_h) samples per period
+   (900 Hz at 10 kHz becomes 909.1 Hz), injected along θ_axis ± δ (δ = π/8, sign alternating every
+   carrier period), θ_axis = θ̂ + ω̂(d + ½)T_s predicted to the middle of the period in which the
+   voltage is applied (d = computation delay).
+2. Exact pairing, no carrier-phase error: the current step i[k] − i[k−1] answers the voltage applied
+   during that period, i.e. the command issued d + 1 samples earlier. That whole voltage (fundamental +
+   injection, from `voltage_command`) is known, so nothing of it leaks: for a pure inductance
+   Δi = T_s·Γ·u + r, with r the slow resistive/back-EMF/offset drift.
+3. In the frame θ_axis of each period, the last 2N samples (one + and one − carrier period) give a
+   least-squares fit of Γ̂ = [[g_dd, g_dq], [g_dq, g_qq]] and r (intercepts removed by centring, a 3 × 3
+   normal system). On a salient rotor Γ̂ = Σ·I + Δ·[[cos 2e, sin 2e], [sin 2e, −cos 2e]], e = θ − θ_axis:
+   the Σ term stays on the diagonal (no Σ-term bias), e = ½ atan2(2g_dq, g_dd − g_qq) is measured in
+   radians whatever the saliency, and |Δ̂| = ½ hypot(g_dd − g_qq, 2g_dq) against Σ̂ = ½(g_dd + g_qq) is
+   a model-free observability measure. The ±δ axes make g_qq and g_dq identifiable.
+4. A type-2 loop (PI + integrator) on e with ω_n, ζ placed directly (e has unit slope); its integrator
+   state is the speed handed to the speed loop (the proportional path stays out of it). While |Δ̂|/Σ̂ is
+   below the threshold the loop is held (ε = 0) and the flag says so.
+"""
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from pmsm_plant.frames import clarke_contract, rotate
+
+from .common import pi_tracking_loop
+from .interface import Estimator, check_settings, register
+
+THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH = range(6)
+SUMS = 6
+"""Sliding sums from here: a, b, y1, y2, aa, bb, ab, a·y1, b·y2, b·y1 + a·y2 (10)."""
+N_SUMS = 10
+HISTORY = SUMS + N_SUMS
+"""Then the ring of (axis angle, applied command α, β) per sample × (d + 2), then the regressor ring
+(a, b, y1, y2) × 2N."""
+
+DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
+            "pll_bandwidth_Hz": 25.0, "pll_damping": 0.9, "observable_ratio": 0.02,
+            "signal_smoothing_Hz": 20.0}
+
+
+class InjectionFrameParams(NamedTuple):
+    T_s_s: float
+    N: int
+    U_h_V: float
+    dither_rad: float
+    delay_periods: int
+    kp: float
+    ki: float
+    observable_ratio: float
+    smoothing: float
+
+
+@njit(cache=True)
+def _fit_error(x, n, p):
+    """Least-squares Γ̂ from the sliding sums → (e [rad], |Δ̂| [1/H], Σ̂ [1/H])."""
+    s_a, s_b, s_y1, s_y2 = x[SUMS], x[SUMS + 1], x[SUMS + 2], x[SUMS + 3]
+    aa = x[SUMS + 4] - s_a * s_a / n
+    bb = x[SUMS + 5] - s_b * s_b / n
+    ab = x[SUMS + 6] - s_a * s_b / n
+    ay1 = x[SUMS + 7] - s_a * s_y1 / n
+    by2 = x[SUMS + 8] - s_b * s_y2 / n
+    mixed = x[SUMS + 9] - (s_b * s_y1 + s_a * s_y2) / n
+    # Normal equations for (g_dd, g_qq, g_dq): [[aa, 0, ab], [0, bb, ab], [ab, ab, aa + bb]].
+    m00, m02, m11, m12, m22 = aa, ab, bb, ab, aa + bb
+    det = m00 * (m11 * m22 - m12 * m12) - m02 * m02 * m11
+    if abs(det) <= 1e-12 * (aa + bb) ** 3 or aa + bb <= 0.0:
+        return 0.0, 0.0, 0.0
+    g_dd = (ay1 * (m11 * m22 - m12 * m12) + m02 * (by2 * m12 - m11 * mixed)) / det
+    g_qq = (m00 * (by2 * m22 - m12 * mixed) + m02 * (m12 * ay1 - m02 * by2)) / det
+    g_dq = (m00 * (m11 * mixed - by2 * m12) - m02 * m11 * ay1) / det
+    scale = 1.0 / (p.T_s_s * p.U_h_V)
+    g_dd *= scale
+    g_qq *= scale
+    g_dq *= scale
+    half_difference = 0.5 * (g_dd - g_qq)
+    return (0.5 * math.atan2(g_dq, half_difference), math.hypot(half_difference, g_dq),
+            0.5 * (g_dd + g_qq))
+
+
+@njit(cache=True)
+def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder,
+                         omega_e_encoder):
+    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
+    depth = p.delay_periods + 2
+    issued = HISTORY
+    ring = HISTORY + 3 * depth
+    window = 2 * p.N
+
+    # The command issued at k−1 arrives now: store it beside the axis it was aimed at.
+    slot_prev = (k - 1) % depth
+    x[issued + 3 * slot_prev + 1] = u_prev_alpha
+    x[issued + 3 * slot_prev + 2] = u_prev_beta
+    slot_then = (k - 1 - p.delay_periods) % depth
+    axis_then = x[issued + 3 * slot_then]
+    u_then_alpha = x[issued + 3 * slot_then + 1]
+    u_then_beta = x[issued + 3 * slot_then + 2]
+    d_alpha = i_alpha - x[PREV_IA]
+    d_beta = i_beta - x[PREV_IB]
+    x[PREV_IA] = i_alpha
+    x[PREV_IB] = i_beta
+
+    eps = 0.0
+    observable = 0.0
+    if k >= p.delay_periods + 2:
+        y1, y2 = rotate(d_alpha, d_beta, -axis_then)
+        v_d, v_q = rotate(u_then_alpha, u_then_beta, -axis_then)
+        a = v_d / p.U_h_V
+        b = v_q / p.U_h_V
+        new = (a, b, y1, y2, a * a, b * b, a * b, a * y1, b * y2, b * y1 + a * y2)
+        slot = 4 * (k % window)
+        old_a, old_b = x[ring + slot], x[ring + slot + 1]
+        old_y1, old_y2 = x[ring + slot + 2], x[ring + slot + 3]
+        old = (old_a, old_b, old_y1, old_y2, old_a * old_a, old_b * old_b, old_a * old_b,
+               old_a * old_y1, old_b * old_y2, old_b * old_y1 + old_a * old_y2)
+        for j in range(N_SUMS):
+            x[SUMS + j] += new[j] - old[j]
+        x[ring + slot] = a
+        x[ring + slot + 1] = b
+        x[ring + slot + 2] = y1
+        x[ring + slot + 3] = y2
+        x[COUNT] += 1.0
+        if x[COUNT] >= window:
+            error, delta, sigma = _fit_error(x, float(window), p)
+            x[DELTA_SMOOTH] += p.smoothing * (delta - x[DELTA_SMOOTH])
+            if x[DELTA_SMOOTH] > p.observable_ratio * abs(sigma):
+                observable = 1.0
+                eps = error
+
+    pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
+    omega = x[INTEGRAL]
+
+    carrier_now = math.cos(2.0 * math.pi * (k % p.N) / p.N)
+    sign_now = 1.0 if (k // p.N) % 2 == 0 else -1.0
+    axis_now = x[THETA] + omega * (p.delay_periods + 0.5) * p.T_s_s
+    x[issued + 3 * (k % depth)] = axis_now
+    u_alpha, u_beta = rotate(p.U_h_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
+    return x[THETA], omega, u_alpha, u_beta, eps, x[DELTA_SMOOTH], observable
+
+
+@register("injection_frame", "ours: incremental admittance fitted from current steps and the applied "
+                             "voltage in the injection frame; alternating axis; model-free observability")
+def make_injection_frame(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+    s = check_settings("injection_frame", settings, DEFAULTS)
+    N = int(round(1.0 / (float(s["frequency_Hz"]) * T_s)))
+    if N < 3:
+        raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
+    omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
+    params = InjectionFrameParams(
+        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), dither_rad=float(s["dither_rad"]),
+        delay_periods=int(delay_periods), kp=2.0 * float(s["pll_damping"]) * omega_n, ki=omega_n ** 2,
+        observable_ratio=float(s["observable_ratio"]),
+        smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s))
+    x = np.zeros(HISTORY + 3 * (delay_periods + 2) + 4 * 2 * N)
+    x[THETA] = theta_e0
+    x[INTEGRAL] = omega_e0
+    return Estimator("injection_frame", injection_frame_step, params, x, np.zeros((1, 1, 2)),
+                     1.0 / (N * T_s))

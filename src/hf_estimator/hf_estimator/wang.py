@@ -1,0 +1,108 @@
+"""Wang et al. 2019, pulsating sinusoidal injection U_h cos ω_h t on the estimated d̂ axis.
+
+``conventional`` — §II, Fig. 2, Eq. (7)-(11): î_q → 4th-order Butterworth band-pass (600-1200 Hz)
+→ × 2 sin ω_h t → low-pass → PI tracking loop.
+``improved`` — §III, Fig. 3, 5(b), 6, Eq. (16)-(24): i_αβ × 2 sin ω_h t → low-pass (300 Hz), no
+band-pass → two-phase PLL with ε = i_βl cos θ̂ − i_αl sin θ̂ (Eq. 22).
+
+Where the paper is silent: the low-pass is 2nd-order Butterworth; the band-pass is scipy's Butterworth
+band-pass of prototype order 2 (overall order 4); the carriers are evaluated at the sampling instant
+(no delay compensation, as in the paper). The PI gains place the linearised loop (Eq. 24) at the
+requested bandwidth for the physical gain ε ≈ 2(U_h/ω_h)Δ·(θ − θ̂), Δ = ½(1/L_dh − 1/L_qh), from the
+commissioned HF inductances: Eq. (22)'s k_h = U_h/(ω_h L_dh) is not the slope of ε (it is zero on a
+round rotor, see shared/notes/hf-demodulation.md §1), and tuning for it would measure a mistuning
+rather than the method. With no commissioned saliency there is nothing to lock to: the gains are zero
+and the HF admittance monitor reports low observability.
+"""
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from foc_controller.discrete import butterworth_bandpass, butterworth_lowpass, sos_step
+from pmsm_plant.frames import clarke_contract, rotate
+
+from .common import MonitorParams, loop_gains, make_monitor, monitor_size, monitor_step, pi_tracking_loop
+from .interface import Estimator, check_settings, register
+
+THETA, INTEGRAL, MONITOR = 0, 1, 2
+
+DEFAULTS = {"frequency_Hz": 900.0, "amplitude_V": 5.0, "demodulation_amplitude": 2.0,
+            "lowpass_Hz": 300.0, "lowpass_order": 2, "bandpass_Hz": [600.0, 1200.0],
+            "bandpass_order": 2, "pll_bandwidth_Hz": 20.0, "pll_damping": 0.8,
+            "observable_ratio": 0.02}
+
+
+class WangParams(NamedTuple):
+    T_s_s: float
+    omega_h_rad_s: float
+    U_h_V: float
+    demodulation_amplitude: float
+    kp: float
+    ki: float
+    lowpass: np.ndarray
+    bandpass: np.ndarray
+    monitor: MonitorParams
+
+
+@njit(cache=True)
+def conventional_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
+    t = k * p.T_s_s
+    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
+    _, i_q = rotate(i_alpha, i_beta, -x[THETA])
+    i_qh = sos_step(p.bandpass, z[0], i_q)
+    eps = sos_step(p.lowpass, z[1], i_qh * p.demodulation_amplitude * math.sin(p.omega_h_rad_s * t))
+    omega = pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
+    carrier = math.cos(p.omega_h_rad_s * t)
+    signal, observable = monitor_step(x, MONITOR, p.monitor, k, i_alpha, i_beta, carrier, x[THETA])
+    u_alpha, u_beta = rotate(p.U_h_V * carrier, 0.0, x[THETA])
+    return x[THETA], omega, u_alpha, u_beta, eps, signal, observable
+
+
+@njit(cache=True)
+def improved_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
+    t = k * p.T_s_s
+    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
+    modulation = p.demodulation_amplitude * math.sin(p.omega_h_rad_s * t)
+    i_alpha_l = sos_step(p.lowpass, z[0], i_alpha * modulation)
+    i_beta_l = sos_step(p.lowpass, z[1], i_beta * modulation)
+    eps = i_beta_l * math.cos(x[THETA]) - i_alpha_l * math.sin(x[THETA])
+    omega = pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
+    carrier = math.cos(p.omega_h_rad_s * t)
+    signal, observable = monitor_step(x, MONITOR, p.monitor, k, i_alpha, i_beta, carrier, x[THETA])
+    u_alpha, u_beta = rotate(p.U_h_V * carrier, 0.0, x[THETA])
+    return x[THETA], omega, u_alpha, u_beta, eps, signal, observable
+
+
+def _make(name, step, preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+    s = check_settings(name, settings, DEFAULTS)
+    f_h, U_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
+    if not 0.0 < f_h < 0.5 / T_s:
+        raise ValueError(f"frequency_Hz {f_h} must lie between 0 and Nyquist {0.5 / T_s} Hz")
+    gain = s["demodulation_amplitude"] * U_h * commissioning.delta / (2.0 * math.pi * f_h)
+    kp, ki = loop_gains(gain, s["pll_bandwidth_Hz"], s["pll_damping"]) if gain > 0.0 else (0.0, 0.0)
+    low, high = s["bandpass_Hz"]
+    params = WangParams(
+        T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, U_h_V=U_h,
+        demodulation_amplitude=float(s["demodulation_amplitude"]), kp=kp, ki=ki,
+        lowpass=butterworth_lowpass(s["lowpass_order"], s["lowpass_Hz"], T_s),
+        bandpass=butterworth_bandpass(s["bandpass_order"], low, high, T_s),
+        monitor=make_monitor(T_s, U_h, f_h, delay_periods, commissioning, s["observable_ratio"]))
+    x = np.zeros(MONITOR + monitor_size(params.monitor))
+    x[THETA] = theta_e0
+    x[INTEGRAL] = omega_e0
+    sections = max(params.lowpass.shape[0], params.bandpass.shape[0])
+    return Estimator(name, step, params, x, np.zeros((2, sections, 2)), f_h)
+
+
+@register("conventional", "Wang §II: d̂ injection, band-pass, q̂ demodulation, low-pass, PI (faithful)")
+def make_conventional(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+    return _make("conventional", conventional_step, preset, T_s, settings, theta_e0, omega_e0,
+                 commissioning, delay_periods)
+
+
+@register("improved", "Wang §III: d̂ injection, αβ × 2 sin ω_h t, 300 Hz low-pass, two-phase PLL (faithful)")
+def make_improved(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+    return _make("improved", improved_step, preset, T_s, settings, theta_e0, omega_e0,
+                 commissioning, delay_periods)
