@@ -13,12 +13,14 @@ LOG_COLUMNS = ("t", "theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_
 COLUMN = {name: i for i, name in enumerate(LOG_COLUMNS)}
 
 
-@njit(cache=True)
+@njit
 def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, substeps,
                 est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, imposed, log):
     """Run samples k_start..k_end−1; row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
 
     speed_ref and tau_load are indexed by k; with ``imposed`` the shaft follows speed_ref.
+    Not cached on disk: numba cannot re-save a cache index whose entries are specialised on other
+    processes' step functions ("underlying object has vanished"); the kernels it calls are cached.
     """
     n_p = machine.n_p
     for k in range(k_start, k_end):
