@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 
-from .loop import LOG_COLUMNS, run_samples
+from .loop import LOG_COLUMNS
 from .runner import build_drive
 from .scenario import load_scenario
 
@@ -18,22 +18,14 @@ def throughput(estimator, samples=1_000_000, chunk=50_000, scenario_name=BENCH_S
     reuse one log buffer, as a long ``drive run`` does between progress reports.
     """
     scenario = load_scenario(scenario_name, estimator_override=estimator)
-    T_s = scenario.T_s
-    scenario = dataclasses.replace(scenario, duration_s=(samples + chunk) * T_s)
+    scenario = dataclasses.replace(scenario, duration_s=(samples + chunk) * scenario.T_s)
     drive = build_drive(scenario)
-    e = drive.estimator
     log = np.zeros((chunk, len(LOG_COLUMNS)))
-
-    def run(k0, k1):
-        run_samples(k0, k1, drive.plant_x, drive.machine, drive.preset.mechanics, drive.inverter,
-                    drive.sensor, scenario.seed, T_s, scenario.substeps, e.step, e.x, e.z, e.params,
-                    drive.controller_x, drive.controller_z, drive.controller, drive.speed_ref,
-                    drive.tau_load, scenario.mode == "imposed_speed", log[:k1 - k0])
-
-    run(0, chunk)
+    drive.run(0, chunk, log)
     start = time.perf_counter()
     for k0 in range(chunk, chunk + samples, chunk):
-        run(k0, min(k0 + chunk, chunk + samples))
+        k1 = min(k0 + chunk, chunk + samples)
+        drive.run(k0, k1, log[:k1 - k0])
     wall = time.perf_counter() - start
     return {"estimator": estimator, "scenario": scenario_name, "samples": samples,
             "wall_time_s": wall, "samples_per_second": samples / wall}

@@ -31,6 +31,7 @@ class RunResult:
 class Drive:
     """Every core of one drive, built for a scenario, with fresh state."""
 
+    scenario: object
     preset: object
     machine: object
     inverter: object
@@ -42,6 +43,14 @@ class Drive:
     controller_z: np.ndarray
     speed_ref: np.ndarray
     tau_load: np.ndarray
+
+    def run(self, k_start, k_end, log):
+        """Run samples k_start..k_end−1 of the compiled loop; ``log`` receives one row per sample."""
+        s, e = self.scenario, self.estimator
+        run_samples(k_start, k_end, self.plant_x, self.machine, self.preset.mechanics, self.inverter,
+                    self.sensor, s.seed, s.T_s, s.substeps, e.step, e.x, e.z, e.params,
+                    self.controller_x, self.controller_z, self.controller, self.speed_ref,
+                    self.tau_load, s.mode == "imposed_speed", log)
 
 
 def build_drive(scenario):
@@ -66,7 +75,7 @@ def build_drive(scenario):
     plant_reset(plant_x, scenario.initial_theta_m_rad, scenario.initial_omega_m_rad_s, machine)
     controller_x, controller_z = controller_state(controller, n_p * scenario.initial_omega_m_rad_s)
     t = np.arange(scenario.n_samples) * scenario.T_s
-    return Drive(preset, machine, inverter, sensor, estimator, controller, plant_x, controller_x,
+    return Drive(scenario, preset, machine, inverter, sensor, estimator, controller, plant_x, controller_x,
                  controller_z, scenario.speed.sample(t).astype(float),
                  scenario.load.sample(t).astype(float))
 
@@ -76,17 +85,13 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
     drive = build_drive(scenario)
     n = scenario.n_samples
     log = np.zeros((n, len(LOG_COLUMNS)))
-    e = drive.estimator
     start = time.perf_counter()
     for k0 in range(0, n, chunk_samples):
         k1 = min(k0 + chunk_samples, n)
-        run_samples(k0, k1, drive.plant_x, drive.machine, drive.preset.mechanics, drive.inverter,
-                    drive.sensor, scenario.seed, scenario.T_s, scenario.substeps, e.step, e.x, e.z,
-                    e.params, drive.controller_x, drive.controller_z, drive.controller,
-                    drive.speed_ref, drive.tau_load, scenario.mode == "imposed_speed", log[k0:k1])
+        drive.run(k0, k1, log[k0:k1])
         if progress:
             progress(k1 / n)
-    return RunResult(scenario, drive.preset, e.name, log, time.perf_counter() - start)
+    return RunResult(scenario, drive.preset, drive.estimator.name, log, time.perf_counter() - start)
 
 
 def terminal_progress(label):
