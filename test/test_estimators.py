@@ -21,7 +21,7 @@ def held_shaft_response(name, error_e, saturation=True, samples=600):
     machine, inverter, _ = plant_parameters(WANG, flags)
     x = np.zeros(N_STATE)
     plant_reset(x, 0.0, 0.0, machine)
-    c = commission(machine)
+    c = commission(machine, WANG.current_limit_A)
     e = make_estimator(name, WANG, 1e-4, {"pll_bandwidth_Hz": 1e-9}, -error_e, 0.0, c,
                        inverter.delay_periods)
     u_a = u_b = 0.0

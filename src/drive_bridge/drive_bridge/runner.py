@@ -9,6 +9,7 @@ import numpy as np
 from foc_controller.control import controller_state
 from foc_controller.params import make_controller_params
 from hf_estimator.common import commission
+from hf_estimator.interface import injects
 from hf_estimator.registry import make_estimator
 from pmsm_plant.model import N_STATE, plant_reset
 from pmsm_plant.presets import get_preset, plant_parameters
@@ -60,15 +61,19 @@ def build_drive(scenario):
     n_p = machine.n_p
     theta_e0 = n_p * scenario.initial_theta_m_rad
     try:
-        estimator = make_estimator(scenario.estimator, preset, scenario.T_s, scenario.estimator_settings,
+        settings = dict(scenario.estimator_settings)
+        if injects(scenario.estimator):
+            settings = {**scenario.injection, **settings}
+        estimator = make_estimator(scenario.estimator, preset, scenario.T_s, settings,
                                    theta_e0 - scenario.initial_angle_error_e_rad,
-                                   n_p * scenario.initial_omega_m_rad_s, commission(machine),
-                                   inverter.delay_periods)
+                                   n_p * scenario.initial_omega_m_rad_s,
+                                   commission(machine, preset.current_limit_A), inverter.delay_periods)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source}: estimator: {error.args[0]}") from None
     try:
         controller = make_controller_params(preset, scenario.T_s, scenario.controller,
-                                            estimator.injection_frequency_Hz)
+                                            estimator.injection_frequency_Hz,
+                                            estimator.tracking_bandwidth_Hz)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source}: controller: {error.args[0]}") from None
     plant_x = np.zeros(N_STATE)

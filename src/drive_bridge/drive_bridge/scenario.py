@@ -11,8 +11,8 @@ from pmsm_plant.presets import PRESETS
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
-TOP_KEYS = {"description", "motor", "estimator", "duration_s", "sampling_period_s", "mode", "speed",
-            "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps"}
+TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
+            "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps"}
 RPM = 2.0 * math.pi / 60.0
 
 
@@ -45,6 +45,8 @@ class Scenario:
     motor: str
     estimator: str
     estimator_settings: dict
+    injection: dict
+    """frequency_Hz and amplitude_V of the HF injection, for whichever injecting estimator runs."""
     duration_s: float
     T_s: float
     mode: str
@@ -131,6 +133,13 @@ def parse_scenario(data, name, source, estimator_override=None):
     if estimator_override:
         estimator, settings = estimator_override, (settings if estimator_override == estimator else {})
 
+    injection = data.get("injection", {}) or {}
+    if not isinstance(injection, dict):
+        fail("injection", "must be a mapping with frequency_Hz and amplitude_V")
+    for key in sorted(set(injection) - {"frequency_Hz", "amplitude_V"}):
+        fail(f"injection.{key}", "unknown key (known: frequency_Hz, amplitude_V)")
+    injection = {key: _positive(value, f"injection.{key}", fail) for key, value in injection.items()}
+
     duration = _positive(data["duration_s"], "duration_s", fail)
     T_s = _positive(data["sampling_period_s"], "sampling_period_s", fail)
     if T_s > duration:
@@ -172,7 +181,7 @@ def parse_scenario(data, name, source, estimator_override=None):
 
     return Scenario(
         name=name, source=source, description=str(data.get("description", "")), motor=motor,
-        estimator=estimator, estimator_settings=settings, duration_s=duration, T_s=T_s, mode=mode,
+        estimator=estimator, estimator_settings=settings, injection=injection, duration_s=duration, T_s=T_s, mode=mode,
         speed=speed, load=load, non_idealities=non_idealities,
         initial_theta_m_rad=_number(initial.get("theta_m_rad", 0.0), "initial.theta_m_rad", fail),
         initial_omega_m_rad_s=RPM * _number(initial.get("omega_m_rpm", 0.0), "initial.omega_m_rpm", fail),

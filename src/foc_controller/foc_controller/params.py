@@ -13,6 +13,7 @@ DEFAULTS = {
     "current_bandwidth_rad_s": 2.0 * math.pi * 250.0,
     "current_damping": 0.8,
     "speed_bandwidth_rad_s": 40.0,
+    "speed_to_estimator_ratio": 0.25,
     "speed_damping": 1.0,
     "current_limit_A": None,
     "decoupling": True,
@@ -22,12 +23,16 @@ DEFAULTS = {
 }
 
 
-def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.0):
+def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.0,
+                           estimator_bandwidth_Hz=math.inf):
     """ControllerParams for ``preset`` at sampling period T_s.
 
     settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s,
-    current_damping, speed_bandwidth_rad_s, speed_damping, current_limit_A, decoupling,
-    delay_compensation, hf_notch_quality, speed_filter_Hz (0: none). The notch sits at the estimator's injection frequency.
+    current_damping, speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A,
+    decoupling, delay_compensation, hf_notch_quality, speed_filter_Hz (0: none). The notch sits at the
+    estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade step below the
+    angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · estimator_bandwidth_Hz
+    (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
     """
     s = dict(DEFAULTS)
     unknown = set(settings or {}) - set(DEFAULTS)
@@ -43,7 +48,7 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
         d = current_pi_gains(m.L_d_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
         q = current_pi_gains(m.L_q_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
         w = speed_pi_gains(preset.mechanics.J_kgm2, preset.mechanics.B_Nms, k_t,
-                           s["speed_bandwidth_rad_s"], s["speed_damping"])
+                           speed_bandwidth_rad_s(s, estimator_bandwidth_Hz), s["speed_damping"])
     else:
         raise ValueError(f"controller: gains must be 'rule' or 'szabo_table2', not '{s['gains']}'")
     i_max = s["current_limit_A"] if s["current_limit_A"] is not None else preset.current_limit_A
@@ -61,3 +66,12 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
         delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos),
         speed_filter_gain=(1.0 - math.exp(-2.0 * math.pi * s["speed_filter_Hz"] * T_s)
                            if s["speed_filter_Hz"] > 0.0 else 1.0))
+
+
+def speed_bandwidth_rad_s(settings, estimator_bandwidth_Hz=math.inf):
+    """The speed-loop bandwidth used with 'rule' gains: the requested one, capped a cascade step below
+    the estimator's tracking loop."""
+    s = dict(DEFAULTS)
+    s.update(settings or {})
+    return min(float(s["speed_bandwidth_rad_s"]),
+               float(s["speed_to_estimator_ratio"]) * 2.0 * math.pi * estimator_bandwidth_Hz)

@@ -3,16 +3,21 @@ the HF admittance monitor that measures angle-information strength for every est
 import math
 from typing import NamedTuple
 
+import numpy as np
 from numba import njit
 
 from pmsm_plant.frames import rotate
-from pmsm_plant.model import incremental_inductances
+from pmsm_plant.model import incremental_inductances, saturation_saliency_angle
 
 
 @njit(cache=True)
 def pi_tracking_loop(x, i_theta, i_integral, kp, ki, T_s, error):
-    """PI + integrator (Wang Fig. 6, Szabó Fig. 3): ω̂ = k_p ε + ∫k_i ε, θ̂ = ∫ω̂ (state in x).
-    Returns the PI output ω̂."""
+    """PI + integrator (Wang Fig. 6, Szabó Fig. 3): ω_PI = k_p ε + ∫k_i ε, θ̂ = ∫ω_PI (state in x).
+
+    Returns ω_PI; the integrator state x[i_integral] is the smoother speed estimate. Which one an
+    estimator hands the speed loop is its choice: the proportional part carries the demodulation ripple
+    (hundreds of rad/s behind a 300 Hz low-pass), which fed to the speed loop and the back-EMF
+    decoupling closes an unstable loop through the estimator (shared/notes/hf-demodulation.md §3)."""
     x[i_integral] += T_s * ki * error
     omega = kp * error + x[i_integral]
     x[i_theta] += T_s * omega
@@ -27,10 +32,16 @@ def loop_gains(gain_per_rad, bandwidth_Hz, damping):
 
 
 class Commissioning(NamedTuple):
-    """HF inductances a standstill HF commissioning test measures on the drive's motor (no load)."""
+    """What a standstill HF commissioning test measures on the drive's motor: the HF inductances at no
+    load, and how far load current turns the saliency axis (rotor locked at a known angle, i_q stepped
+    over ±current limit, the HF admittance's axis recorded: the cross-saturation shift)."""
 
     L_dh_H: float
     L_qh_H: float
+    saliency_shift_i_q_A: np.ndarray
+    """q currents of the shift table [A] (uniform grid, ascending)."""
+    saliency_shift_rad: np.ndarray
+    """Saliency-axis angle from the rotor d axis at those currents [rad, electrical]."""
 
     @property
     def sigma(self):
@@ -43,10 +54,30 @@ class Commissioning(NamedTuple):
         return 0.5 * (1.0 / self.L_dh_H - 1.0 / self.L_qh_H)
 
 
-def commission(machine):
-    """The standstill HF test's result on ``machine`` (ideal measurement at no load)."""
+def commission(machine, i_q_max_A, points=33):
+    """The standstill HF test's result on ``machine`` (ideal measurement), the shift table over
+    ±i_q_max_A (the drive's current limit)."""
     L_dh, L_qh, _ = incremental_inductances(machine)
-    return Commissioning(L_dh, L_qh)
+    currents = np.linspace(-i_q_max_A, i_q_max_A, points)
+    shift = np.array([saturation_saliency_angle(machine, 0.0, i_q) for i_q in currents])
+    return Commissioning(L_dh, L_qh, currents, shift)
+
+
+@njit(cache=True)
+def saliency_shift(i_q, currents, shift):
+    """Cross-saturation shift of the saliency axis at q current i_q, interpolated in the commissioning
+    table (held at its ends)."""
+    n = currents.shape[0]
+    if n == 0:
+        return 0.0
+    position = (i_q - currents[0]) / (currents[n - 1] - currents[0]) * (n - 1)
+    if position <= 0.0:
+        return shift[0]
+    if position >= n - 1:
+        return shift[n - 1]
+    j = int(position)
+    fraction = position - j
+    return shift[j] + fraction * (shift[j + 1] - shift[j])
 
 
 class MonitorParams(NamedTuple):

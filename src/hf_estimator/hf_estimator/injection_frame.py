@@ -8,15 +8,21 @@ into a design).
    voltage is applied (d = computation delay).
 2. Exact pairing, no carrier-phase error: the current step i[k] − i[k−1] answers the voltage applied
    during that period, i.e. the command issued d + 1 samples earlier. That whole voltage (fundamental +
-   injection, from `voltage_command`) is known, so nothing of it leaks: for a pure inductance
-   Δi = T_s·Γ·u + r, with r the slow resistive/back-EMF/offset drift.
+   injection, from `voltage_command`) is known, so nothing of it leaks: Δi = T_s·Γ·(u − R̂·ī) + r,
+   with ī the period's mean current (mean of its end samples) and r the slow back-EMF/dead-time/offset
+   drift. The
+   resistive drop must be in the regressor: the current loop makes u follow i, so left in r it biases Γ̂
+   (under rated load and fast current-loop action the fit lost the angle without it).
 3. In the frame θ_axis of each period, the last 2N samples (one + and one − carrier period) give a
    least-squares fit of Γ̂ = [[g_dd, g_dq], [g_dq, g_qq]] and r (intercepts removed by centring, a 3 × 3
    normal system). On a salient rotor Γ̂ = Σ·I + Δ·[[cos 2e, sin 2e], [sin 2e, −cos 2e]], e = θ − θ_axis:
    the Σ term stays on the diagonal (no Σ-term bias), e = ½ atan2(2g_dq, g_dd − g_qq) is measured in
    radians whatever the saliency, and |Δ̂| = ½ hypot(g_dd − g_qq, 2g_dq) against Σ̂ = ½(g_dd + g_qq) is
    a model-free observability measure. The ±δ axes make g_qq and g_dq identifiable.
-4. A type-2 loop (PI + integrator) on e with ω_n, ζ placed directly (e has unit slope); its integrator
+4. Load turns the saliency axis (cross-saturation: 0.09 rad at rated current on `wang_spmsm`, 0.3 rad
+   at the current limit). The commissioned shift δ(i_q) is subtracted at the q current of the fit
+   window (ε = e − δ(î_q), î_q low-passed in the θ̂ frame).
+5. A type-2 loop (PI + integrator) on ε with ω_n, ζ placed directly (ε has unit slope); its integrator
    state is the speed handed to the speed loop (the proportional path stays out of it). While |Δ̂|/Σ̂ is
    below the threshold the loop is held (ε = 0) and the flag says so.
 """
@@ -28,11 +34,11 @@ from numba import njit
 
 from pmsm_plant.frames import clarke_contract, rotate
 
-from .common import pi_tracking_loop
+from .common import pi_tracking_loop, saliency_shift
 from .interface import Estimator, check_settings, register
 
-THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH = range(6)
-SUMS = 6
+THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH, I_Q_SMOOTH = range(7)
+SUMS = 7
 """Sliding sums from here: a, b, y1, y2, aa, bb, ab, a·y1, b·y2, b·y1 + a·y2 (10)."""
 N_SUMS = 10
 HISTORY = SUMS + N_SUMS
@@ -48,12 +54,18 @@ class InjectionFrameParams(NamedTuple):
     T_s_s: float
     N: int
     U_h_V: float
+    R_s_ohm: float
+    """Nameplate stator resistance (an estimate, not the plant's)."""
     dither_rad: float
     delay_periods: int
     kp: float
     ki: float
     observable_ratio: float
     smoothing: float
+    current_smoothing: float
+    """First-order smoothing per sample of î_q (window-centred: time constant N/2 samples)."""
+    shift_i_q_A: np.ndarray
+    shift_rad: np.ndarray
 
 
 @njit(cache=True)
@@ -102,14 +114,18 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
     u_then_beta = x[issued + 3 * slot_then + 2]
     d_alpha = i_alpha - x[PREV_IA]
     d_beta = i_beta - x[PREV_IB]
+    drive_alpha = u_then_alpha - p.R_s_ohm * 0.5 * (i_alpha + x[PREV_IA])
+    drive_beta = u_then_beta - p.R_s_ohm * 0.5 * (i_beta + x[PREV_IB])
     x[PREV_IA] = i_alpha
     x[PREV_IB] = i_beta
 
+    _, i_q = rotate(i_alpha, i_beta, -x[THETA])
+    x[I_Q_SMOOTH] += p.current_smoothing * (i_q - x[I_Q_SMOOTH])
     eps = 0.0
     observable = 0.0
     if k >= p.delay_periods + 2:
         y1, y2 = rotate(d_alpha, d_beta, -axis_then)
-        v_d, v_q = rotate(u_then_alpha, u_then_beta, -axis_then)
+        v_d, v_q = rotate(drive_alpha, drive_beta, -axis_then)
         a = v_d / p.U_h_V
         b = v_q / p.U_h_V
         new = (a, b, y1, y2, a * a, b * b, a * b, a * y1, b * y2, b * y1 + a * y2)
@@ -130,7 +146,7 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
             x[DELTA_SMOOTH] += p.smoothing * (delta - x[DELTA_SMOOTH])
             if x[DELTA_SMOOTH] > p.observable_ratio * abs(sigma):
                 observable = 1.0
-                eps = error
+                eps = error - saliency_shift(x[I_Q_SMOOTH], p.shift_i_q_A, p.shift_rad)
 
     pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
     omega = x[INTEGRAL]
@@ -152,12 +168,14 @@ def make_injection_frame(preset, T_s, settings, theta_e0, omega_e0, commissionin
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     params = InjectionFrameParams(
-        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), dither_rad=float(s["dither_rad"]),
+        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), R_s_ohm=preset.nameplate.R_s_ohm, dither_rad=float(s["dither_rad"]),
         delay_periods=int(delay_periods), kp=2.0 * float(s["pll_damping"]) * omega_n, ki=omega_n ** 2,
         observable_ratio=float(s["observable_ratio"]),
-        smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s))
+        smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
+        current_smoothing=1.0 - math.exp(-2.0 / N),
+        shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad)
     x = np.zeros(HISTORY + 3 * (delay_periods + 2) + 4 * 2 * N)
     x[THETA] = theta_e0
     x[INTEGRAL] = omega_e0
     return Estimator("injection_frame", injection_frame_step, params, x, np.zeros((1, 1, 2)),
-                     1.0 / (N * T_s))
+                     1.0 / (N * T_s), float(s["pll_bandwidth_Hz"]))

@@ -13,6 +13,7 @@ is strong enough to trust θ̂, else 0.0. u_prev is the voltage command the cont
 k−1 (the `voltage_command` topic; the papers' methods ignore it). x (1-D) and z (filter sections) are the estimator's state;
 p its parameters. The encoder inputs are read only by the ``sensored`` pass-through.
 """
+import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -29,17 +30,30 @@ class Estimator:
     x: np.ndarray
     z: np.ndarray
     injection_frequency_Hz: float
+    tracking_bandwidth_Hz: float = math.inf
+    """Natural frequency of the angle-tracking loop (∞ for a sensor): the speed loop is kept below it."""
 
 
 _REGISTRY = {}
 
 
-def register(name, description):
-    """Register ``factory(preset, T_s, settings, θ_e0, ω_e0, commissioning, delay_periods) -> Estimator``."""
+def register(name, description, injects=True):
+    """Register ``factory(preset, T_s, settings, θ_e0, ω_e0, commissioning, delay_periods) -> Estimator``;
+    ``injects``: it takes the settings frequency_Hz and amplitude_V for its HF injection."""
     def wrap(factory):
-        _REGISTRY[name] = (factory, description)
+        _REGISTRY[name] = (factory, description, injects)
         return factory
     return wrap
+
+
+def _entry(name):
+    if name not in _REGISTRY:
+        raise KeyError(f"unknown estimator '{name}' (known: {', '.join(estimator_names())})")
+    return _REGISTRY[name]
+
+
+def injects(name):
+    return _entry(name)[2]
 
 
 def estimator_names():
@@ -47,7 +61,7 @@ def estimator_names():
 
 
 def describe(name):
-    return _REGISTRY[name][1]
+    return _entry(name)[1]
 
 
 def make_estimator(name, preset, T_s, settings=None, theta_e0=0.0, omega_e0=0.0, commissioning=None,
@@ -60,13 +74,12 @@ def make_estimator(name, preset, T_s, settings=None, theta_e0=0.0, omega_e0=0.0,
     """
     from .common import commission
 
-    if name not in _REGISTRY:
-        raise KeyError(f"unknown estimator '{name}' (known: {', '.join(estimator_names())})")
+    factory = _entry(name)[0]
     if commissioning is None:
-        commissioning = commission(preset.machine)
+        commissioning = commission(preset.machine, preset.current_limit_A)
     if delay_periods is None:
         delay_periods = preset.inverter.delay_periods
-    return _REGISTRY[name][0](preset, T_s, dict(settings or {}), theta_e0, omega_e0, commissioning,
+    return factory(preset, T_s, dict(settings or {}), theta_e0, omega_e0, commissioning,
                               delay_periods)
 
 

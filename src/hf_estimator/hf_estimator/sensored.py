@@ -17,7 +17,7 @@ def sensored_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_
     return theta_e_encoder, omega_e_encoder, 0.0, 0.0, 0.0, 1.0, 1.0
 
 
-@register("sensored", "encoder pass-through (no injection): validates plant and controller")
+@register("sensored", "encoder pass-through (no injection): validates plant and controller", injects=False)
 def make_sensored(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
     check_settings("sensored", settings, {})
     return Estimator("sensored", sensored_step, SensoredParams(preset.nameplate.n_p),

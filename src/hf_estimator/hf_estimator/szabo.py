@@ -78,4 +78,7 @@ def make_synchronous(preset, T_s, settings, theta_e0, omega_e0, commissioning, d
     x = np.zeros(MONITOR + monitor_size(params.monitor))
     x[THETA] = theta_e0
     x[INTEGRAL] = omega_e0
-    return Estimator("synchronous", synchronous_step, params, x, np.zeros((2, 1, 2)), f_h)
+    gain = params.u_star * u_h * commissioning.delta / params.omega_h_rad_s
+    omega_n = math.sqrt(gain * params.ki)
+    return Estimator("synchronous", synchronous_step, params, x, np.zeros((2, 1, 2)), f_h,
+                     omega_n / (2.0 * math.pi))

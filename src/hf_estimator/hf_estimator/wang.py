@@ -7,7 +7,12 @@ band-pass → two-phase PLL with ε = i_βl cos θ̂ − i_αl sin θ̂ (Eq. 22)
 
 Where the paper is silent: the low-pass is 2nd-order Butterworth; the band-pass is scipy's Butterworth
 band-pass of prototype order 2 (overall order 4); the carriers are evaluated at the sampling instant
-(no delay compensation, as in the paper). The PI gains place the linearised loop (Eq. 24) at the
+(no delay compensation, as in the paper). The speed handed to the speed loop is the PI's integrator
+state: the PI output carries the fundamental current that ×2 sin ω_h t moves to ω_h and the low-pass
+passes (note §3), and fed to the speed loop it destabilised every closed-loop run. PLL bandwidth:
+conventional 20 Hz; improved 10 Hz: its ε carries Σ/Δ ≈ 15 times more leaked HF than signal (note
+§2-3), and at 20 Hz the ripple in θ̂ and the current loop sustained an oscillation of several hundred
+Hz; 10 Hz is the fastest that held lock in our closed-loop runs. The PI gains place the linearised loop (Eq. 24) at the
 requested bandwidth for the physical gain ε ≈ 2(U_h/ω_h)Δ·(θ − θ̂), Δ = ½(1/L_dh − 1/L_qh), from the
 commissioned HF inductances: Eq. (22)'s k_h = U_h/(ω_h L_dh) is not the slope of ε (it is zero on a
 round rotor, see shared/notes/hf-demodulation.md §1), and tuning for it would measure a mistuning
@@ -53,7 +58,8 @@ def conventional_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, thet
     _, i_q = rotate(i_alpha, i_beta, -x[THETA])
     i_qh = sos_step(p.bandpass, z[0], i_q)
     eps = sos_step(p.lowpass, z[1], i_qh * p.demodulation_amplitude * math.sin(p.omega_h_rad_s * t))
-    omega = pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
+    pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
+    omega = x[INTEGRAL]
     carrier = math.cos(p.omega_h_rad_s * t)
     signal, observable = monitor_step(x, MONITOR, p.monitor, k, i_alpha, i_beta, carrier, x[THETA])
     u_alpha, u_beta = rotate(p.U_h_V * carrier, 0.0, x[THETA])
@@ -68,15 +74,16 @@ def improved_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_
     i_alpha_l = sos_step(p.lowpass, z[0], i_alpha * modulation)
     i_beta_l = sos_step(p.lowpass, z[1], i_beta * modulation)
     eps = i_beta_l * math.cos(x[THETA]) - i_alpha_l * math.sin(x[THETA])
-    omega = pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
+    pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
+    omega = x[INTEGRAL]
     carrier = math.cos(p.omega_h_rad_s * t)
     signal, observable = monitor_step(x, MONITOR, p.monitor, k, i_alpha, i_beta, carrier, x[THETA])
     u_alpha, u_beta = rotate(p.U_h_V * carrier, 0.0, x[THETA])
     return x[THETA], omega, u_alpha, u_beta, eps, signal, observable
 
 
-def _make(name, step, preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
-    s = check_settings(name, settings, DEFAULTS)
+def _make(name, step, defaults, settings, T_s, theta_e0, omega_e0, commissioning, delay_periods):
+    s = check_settings(name, settings, defaults)
     f_h, U_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
     if not 0.0 < f_h < 0.5 / T_s:
         raise ValueError(f"frequency_Hz {f_h} must lie between 0 and Nyquist {0.5 / T_s} Hz")
@@ -93,16 +100,16 @@ def _make(name, step, preset, T_s, settings, theta_e0, omega_e0, commissioning, 
     x[THETA] = theta_e0
     x[INTEGRAL] = omega_e0
     sections = max(params.lowpass.shape[0], params.bandpass.shape[0])
-    return Estimator(name, step, params, x, np.zeros((2, sections, 2)), f_h)
+    return Estimator(name, step, params, x, np.zeros((2, sections, 2)), f_h, float(s["pll_bandwidth_Hz"]))
 
 
 @register("conventional", "Wang §II: d̂ injection, band-pass, q̂ demodulation, low-pass, PI (faithful)")
 def make_conventional(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
-    return _make("conventional", conventional_step, preset, T_s, settings, theta_e0, omega_e0,
+    return _make("conventional", conventional_step, DEFAULTS, settings, T_s, theta_e0, omega_e0,
                  commissioning, delay_periods)
 
 
 @register("improved", "Wang §III: d̂ injection, αβ × 2 sin ω_h t, 300 Hz low-pass, two-phase PLL (faithful)")
 def make_improved(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
-    return _make("improved", improved_step, preset, T_s, settings, theta_e0, omega_e0,
-                 commissioning, delay_periods)
+    return _make("improved", improved_step, {**DEFAULTS, "pll_bandwidth_Hz": 10.0}, settings, T_s,
+                 theta_e0, omega_e0, commissioning, delay_periods)
