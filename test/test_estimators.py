@@ -1,9 +1,11 @@
 """Estimators: demodulation against the true angle error with the shaft held (no controller), low
-observability on a round rotor, and our estimator locking in closed loop."""
+observability on a round rotor, locking in closed loop, the improved method's predicted bias."""
+import math
+
 import numpy as np
 import pytest
 
-from helpers import run, shipped
+from helpers import run, scenario, shipped
 from hf_estimator.common import commission
 from hf_estimator.registry import make_estimator
 from pmsm_plant.model import N_STATE, plant_advance, plant_outputs, plant_reset
@@ -62,9 +64,58 @@ def test_round_rotor_reports_low_observability(name):
 
 def test_injection_frame_locks_at_100_rpm_closed_loop():
     """wang_100rpm (900 Hz / 5 V, all non-idealities, 0.5 rad initial error), shortened to 1.1 s:
-    steady RMS < 0.03 rad, |bias| < 0.01 rad, peak after start < 0.1 rad, always observable."""
+    the issue's targets, steady RMS ≤ 0.02 rad (0.0135-0.016 over noise seeds 1-4) and |bias| ≤ 0.01
+    rad; peak < 0.1 rad; observable throughout."""
     _, m = run(shipped("wang_100rpm", duration_s=1.1))
-    assert m["angle_error_rms"] < 0.03
+    assert m["angle_error_rms"] <= 0.02
     assert abs(m["angle_error_bias"]) < 0.01
     assert m["angle_error_peak"] < 0.1
     assert m["observable_fraction"] == 1.0
+
+
+LOCK_CASES = [("injection_frame", "wang_spmsm", 900.0, 5.0, 0.05),
+              ("conventional", "wang_spmsm", 900.0, 5.0, 0.15),
+              ("improved", "wang_spmsm", 900.0, 5.0, 0.2),
+              ("synchronous", "szabo_ipmsm", 1500.0, 40.0, 0.05),
+              ("injection_frame", "szabo_ipmsm", 1500.0, 40.0, 0.05)]
+
+
+@pytest.mark.parametrize("name, motor, f_h, U_h, peak_rad", LOCK_CASES)
+def test_each_estimator_locks_from_half_a_radian(name, motor, f_h, U_h, peak_rad):
+    """Speed-controlled standstill, estimate 0.5 rad off, all non-idealities: locked within 0.25 s
+    (|bias| < 0.05 rad and |error| < peak_rad over 0.25-0.4 s: 0.05 rad for ours and the synchronous
+    method, the Wang methods' leaked ripple allows 0.15 and 0.2) and observable throughout."""
+    s = scenario(motor=motor, estimator=name, injection={"frequency_Hz": f_h, "amplitude_V": U_h},
+                 duration_s=0.4, initial={"angle_error_e_rad": 0.5}, metrics={"settle_s": 0.25})
+    _, m = run(s)
+    assert abs(m["angle_error_bias"]) < 0.05
+    assert m["angle_error_peak"] < peak_rad
+    assert m["observable_fraction"] == 1.0
+
+
+@pytest.mark.parametrize("rpm", [100.0, 200.0, -100.0])
+def test_improved_bias_follows_sigma_term_formula(rpm):
+    """Faithful `improved` at imposed speed lags by the Σ-term bias of shared/notes/hf-demodulation.md
+    §2, ½(Σ/Δ)·ω_e·τ_g (τ_g: the 300 Hz 2nd-order Butterworth's group delay √2/ω_c), within ±25 %."""
+    s = scenario(estimator="improved", mode="imposed_speed", duration_s=0.6,
+                 injection={"frequency_Hz": 900.0, "amplitude_V": 5.0},
+                 speed={"unit": "rpm", "points": [[0.0, rpm]]}, initial={"omega_m_rpm": rpm},
+                 metrics={"settle_s": 0.3})
+    _, m = run(s)
+    machine = WANG.machine
+    c = commission(machine, WANG.current_limit_A)
+    omega_e = machine.n_p * rpm * 2.0 * math.pi / 60.0
+    predicted = 0.5 * (c.sigma / c.delta) * omega_e * math.sqrt(2.0) / (2.0 * math.pi * 300.0)
+    assert m["angle_error_bias"] == pytest.approx(predicted, rel=0.25)
+
+
+def test_injection_frame_stays_locked_through_reversal():
+    """50 → −50 rpm step at 0.3 s (Wang §III-C reversal, shortened), 1000 Hz / 10 V: the estimate
+    never slips (peak < 0.2 rad after start) and is back within 0.02 rad RMS 0.2 s after the step."""
+    s = scenario(estimator="injection_frame", injection={"frequency_Hz": 1000.0, "amplitude_V": 10.0},
+                 duration_s=0.7, initial={"omega_m_rpm": 50.0},
+                 speed={"unit": "rpm", "points": [[0.0, 50.0], [0.3, -50.0]]},
+                 metrics={"settle_s": 0.2, "start_s": 0.1})
+    _, m = run(s)
+    assert m["angle_error_peak"] < 0.2
+    assert m["steady_windows"][-1]["angle_error_rms"] < 0.02

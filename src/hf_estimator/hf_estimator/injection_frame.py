@@ -46,7 +46,7 @@ HISTORY = SUMS + N_SUMS
 (a, b, y1, y2) × 2N."""
 
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
-            "pll_bandwidth_Hz": 25.0, "pll_damping": 0.9, "observable_ratio": 0.02,
+            "pll_bandwidth_Hz": 15.0, "pll_damping": 0.9, "observable_ratio": 0.02,
             "signal_smoothing_Hz": 20.0}
 
 
