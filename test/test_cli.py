@@ -32,6 +32,8 @@ speed: {unit: rpm, points: [[0.0, 50.0]]}
     (GOOD.replace("unit: rpm", "unit: furlongs"), "speed.unit"),
     (GOOD.replace("estimator: sensored", "estimator: crystal_ball"), "estimator"),
     (GOOD + "non_idealities: {dead_time: maybe}\n", "non_idealities.dead_time"),
+    (GOOD + "injection: {frequency_Hz: -900.0}\n", "injection.frequency_Hz"),
+    (GOOD + "injection: {phase_rad: 1.0}\n", "injection.phase_rad"),
     (GOOD + "controller: {current_limit_A: -2}\n", "controller"),
     ("motor: [unclosed", "YAML"),
 ])

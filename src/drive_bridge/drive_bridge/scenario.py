@@ -181,8 +181,8 @@ def parse_scenario(data, name, source, estimator_override=None):
 
     return Scenario(
         name=name, source=source, description=str(data.get("description", "")), motor=motor,
-        estimator=estimator, estimator_settings=settings, injection=injection, duration_s=duration, T_s=T_s, mode=mode,
-        speed=speed, load=load, non_idealities=non_idealities,
+        estimator=estimator, estimator_settings=settings, injection=injection, duration_s=duration,
+        T_s=T_s, mode=mode, speed=speed, load=load, non_idealities=non_idealities,
         initial_theta_m_rad=_number(initial.get("theta_m_rad", 0.0), "initial.theta_m_rad", fail),
         initial_omega_m_rad_s=RPM * _number(initial.get("omega_m_rpm", 0.0), "initial.omega_m_rpm", fail),
         initial_angle_error_e_rad=_number(initial.get("angle_error_e_rad", 0.0),

@@ -10,9 +10,8 @@ into a design).
    during that period, i.e. the command issued d + 1 samples earlier. That whole voltage (fundamental +
    injection, from `voltage_command`) is known, so nothing of it leaks: Δi = T_s·Γ·(u − R̂·ī) + r,
    with ī the period's mean current (mean of its end samples) and r the slow back-EMF/dead-time/offset
-   drift. The
-   resistive drop must be in the regressor: the current loop makes u follow i, so left in r it biases Γ̂
-   (under rated load and fast current-loop action the fit lost the angle without it).
+   drift. The resistive drop must be in the regressor: the current loop makes u follow i, so left in r
+   it biases Γ̂ (under rated load and fast current-loop action the fit lost the angle without it).
 3. In the frame θ_axis of each period, the last 2N samples (one + and one − carrier period) give a
    least-squares fit of Γ̂ = [[g_dd, g_dq], [g_dq, g_qq]] and r (intercepts removed by centring, a 3 × 3
    normal system). On a salient rotor Γ̂ = Σ·I + Δ·[[cos 2e, sin 2e], [sin 2e, −cos 2e]], e = θ − θ_axis:
@@ -168,7 +167,8 @@ def make_injection_frame(preset, T_s, settings, theta_e0, omega_e0, commissionin
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     params = InjectionFrameParams(
-        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), R_s_ohm=preset.nameplate.R_s_ohm, dither_rad=float(s["dither_rad"]),
+        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), R_s_ohm=preset.nameplate.R_s_ohm,
+        dither_rad=float(s["dither_rad"]),
         delay_periods=int(delay_periods), kp=2.0 * float(s["pll_damping"]) * omega_n, ki=omega_n ** 2,
         observable_ratio=float(s["observable_ratio"]),
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),

@@ -111,5 +111,6 @@ def make_conventional(preset, T_s, settings, theta_e0, omega_e0, commissioning, 
 
 @register("improved", "Wang §III: d̂ injection, αβ × 2 sin ω_h t, 300 Hz low-pass, two-phase PLL (faithful)")
 def make_improved(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
-    return _make("improved", improved_step, {**DEFAULTS, "pll_bandwidth_Hz": 10.0}, settings, T_s,
-                 theta_e0, omega_e0, commissioning, delay_periods)
+    defaults = {**DEFAULTS, "pll_bandwidth_Hz": 10.0}
+    return _make("improved", improved_step, defaults, settings, T_s, theta_e0, omega_e0, commissioning,
+                 delay_periods)
