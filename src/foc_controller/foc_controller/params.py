@@ -48,7 +48,7 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
         d = current_pi_gains(m.L_d_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
         q = current_pi_gains(m.L_q_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
         w = speed_pi_gains(preset.mechanics.J_kgm2, preset.mechanics.B_Nms, k_t,
-                           speed_bandwidth_rad_s(s, estimator_bandwidth_Hz), s["speed_damping"])
+                           _capped_speed_bandwidth(s, estimator_bandwidth_Hz), s["speed_damping"])
     else:
         raise ValueError(f"controller: gains must be 'rule' or 'szabo_table2', not '{s['gains']}'")
     i_max = s["current_limit_A"] if s["current_limit_A"] is not None else preset.current_limit_A
@@ -68,10 +68,8 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
                            if s["speed_filter_Hz"] > 0.0 else 1.0))
 
 
-def speed_bandwidth_rad_s(settings, estimator_bandwidth_Hz=math.inf):
-    """The speed-loop bandwidth used with 'rule' gains: the requested one, capped a cascade step below
-    the estimator's tracking loop."""
-    s = dict(DEFAULTS)
-    s.update(settings or {})
+def _capped_speed_bandwidth(s, estimator_bandwidth_Hz):
+    """The speed-loop bandwidth used with 'rule' gains (s: the merged settings): the requested one,
+    capped a cascade step below the estimator's tracking loop."""
     return min(float(s["speed_bandwidth_rad_s"]),
                float(s["speed_to_estimator_ratio"]) * 2.0 * math.pi * estimator_bandwidth_Hz)

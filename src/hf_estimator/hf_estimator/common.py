@@ -158,3 +158,31 @@ def make_monitor(T_s, U_h, f_h, delay_periods, commissioning, observable_ratio=0
                          window=max(2, int(round(1.0 / (f_h * T_s)))), sigma_hat=commissioning.sigma,
                          observable_ratio=observable_ratio,
                          smoothing=1.0 - math.exp(-2.0 * math.pi * smoothing_Hz * T_s))
+
+
+# State layout of the papers' pulsating-injection estimators: θ̂, the PI integrator, then the monitor.
+THETA, INTEGRAL, MONITOR = 0, 1, 2
+
+
+def check_injection_frequency(f_h, T_s):
+    if not 0.0 < f_h < 0.5 / T_s:
+        raise ValueError(f"frequency_Hz {f_h} must lie between 0 and Nyquist {0.5 / T_s} Hz")
+
+
+def pulsating_state(monitor, theta_e0, omega_e0):
+    """Fresh state for a pulsating-injection estimator with monitor parameters ``monitor``."""
+    x = np.zeros(MONITOR + monitor_size(monitor))
+    x[THETA] = theta_e0
+    x[INTEGRAL] = omega_e0
+    return x
+
+
+@njit(cache=True)
+def pulsating_track_and_inject(x, monitor, k, i_alpha, i_beta, carrier, U_h, kp, ki, T_s, error):
+    """What the papers' methods do after demodulating ε: the PI tracking loop, the HF admittance
+    monitor, and the next injection U_h·carrier along the new d̂ (Wang Eq. 7, Szabó Eq. 6).
+    Returns (ω_PI, u_inj_α, u_inj_β, signal, observable)."""
+    omega = pi_tracking_loop(x, THETA, INTEGRAL, kp, ki, T_s, error)
+    signal, observable = monitor_step(x, MONITOR, monitor, k, i_alpha, i_beta, carrier, x[THETA])
+    u_alpha, u_beta = rotate(U_h * carrier, 0.0, x[THETA])
+    return omega, u_alpha, u_beta, signal, observable

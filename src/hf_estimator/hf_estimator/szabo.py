@@ -18,10 +18,9 @@ from scipy import signal
 from foc_controller.discrete import butterworth_bandpass, sos_step
 from pmsm_plant.frames import clarke_contract, rotate
 
-from .common import MonitorParams, make_monitor, monitor_size, monitor_step, pi_tracking_loop
+from .common import (THETA, MonitorParams, check_injection_frequency, make_monitor, pulsating_state,
+                     pulsating_track_and_inject)
 from .interface import Estimator, check_settings, register
-
-THETA, INTEGRAL, MONITOR = 0, 1, 2
 
 DEFAULTS = {"frequency_Hz": 1500.0, "amplitude_V": 40.0, "u_star": 1.0, "A_p": 4853.0,
             "T_i_s": 0.136, "T_f_s": 0.53e-3, "bandpass_ratio": math.sqrt(2.0),
@@ -48,11 +47,9 @@ def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta
     i_qh = sos_step(p.bandpass, z[0], i_q)
     i_qh_star = i_qh * p.u_star * math.cos(p.omega_h_rad_s * t)
     i_qhf = sos_step(p.lowpass, z[1], i_qh_star)
-    omega = pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, -i_qhf)
-    carrier = math.sin(p.omega_h_rad_s * t)
-    signal_strength, observable = monitor_step(x, MONITOR, p.monitor, k, i_alpha, i_beta, carrier,
-                                               x[THETA])
-    u_alpha, u_beta = rotate(p.u_h_V * carrier, 0.0, x[THETA])
+    omega, u_alpha, u_beta, signal_strength, observable = pulsating_track_and_inject(
+        x, p.monitor, k, i_alpha, i_beta, math.sin(p.omega_h_rad_s * t), p.u_h_V, p.kp, p.ki, p.T_s_s,
+        -i_qhf)
     return x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, observable
 
 
@@ -66,8 +63,7 @@ def first_order_lowpass(T_f, T_s):
 def make_synchronous(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
     s = check_settings("synchronous", settings, DEFAULTS)
     f_h, u_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
-    if not 0.0 < f_h < 0.5 / T_s:
-        raise ValueError(f"frequency_Hz {f_h} must lie between 0 and Nyquist {0.5 / T_s} Hz")
+    check_injection_frequency(f_h, T_s)
     ratio = float(s["bandpass_ratio"])
     params = SynchronousParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, u_h_V=u_h, u_star=float(s["u_star"]),
@@ -75,10 +71,8 @@ def make_synchronous(preset, T_s, settings, theta_e0, omega_e0, commissioning, d
         lowpass=first_order_lowpass(float(s["T_f_s"]), T_s),
         bandpass=butterworth_bandpass(1, f_h / ratio, min(f_h * ratio, 0.49 / T_s), T_s),
         monitor=make_monitor(T_s, u_h, f_h, delay_periods, commissioning, s["observable_ratio"]))
-    x = np.zeros(MONITOR + monitor_size(params.monitor))
-    x[THETA] = theta_e0
-    x[INTEGRAL] = omega_e0
     gain = params.u_star * u_h * commissioning.delta / params.omega_h_rad_s
     omega_n = math.sqrt(gain * params.ki)
-    return Estimator("synchronous", synchronous_step, params, x, np.zeros((2, 1, 2)), f_h,
+    return Estimator("synchronous", synchronous_step, params,
+                     pulsating_state(params.monitor, theta_e0, omega_e0), np.zeros((2, 1, 2)), f_h,
                      omega_n / (2.0 * math.pi))

@@ -28,10 +28,9 @@ from numba import njit
 from foc_controller.discrete import butterworth_bandpass, butterworth_lowpass, sos_step
 from pmsm_plant.frames import clarke_contract, rotate
 
-from .common import MonitorParams, loop_gains, make_monitor, monitor_size, monitor_step, pi_tracking_loop
+from .common import (INTEGRAL, THETA, MonitorParams, check_injection_frequency, loop_gains, make_monitor,
+                     pulsating_state, pulsating_track_and_inject)
 from .interface import Estimator, check_settings, register
-
-THETA, INTEGRAL, MONITOR = 0, 1, 2
 
 DEFAULTS = {"frequency_Hz": 900.0, "amplitude_V": 5.0, "demodulation_amplitude": 2.0,
             "lowpass_Hz": 300.0, "lowpass_order": 2, "bandpass_Hz": [600.0, 1200.0],
@@ -58,12 +57,9 @@ def conventional_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, thet
     _, i_q = rotate(i_alpha, i_beta, -x[THETA])
     i_qh = sos_step(p.bandpass, z[0], i_q)
     eps = sos_step(p.lowpass, z[1], i_qh * p.demodulation_amplitude * math.sin(p.omega_h_rad_s * t))
-    pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
-    omega = x[INTEGRAL]
-    carrier = math.cos(p.omega_h_rad_s * t)
-    signal, observable = monitor_step(x, MONITOR, p.monitor, k, i_alpha, i_beta, carrier, x[THETA])
-    u_alpha, u_beta = rotate(p.U_h_V * carrier, 0.0, x[THETA])
-    return x[THETA], omega, u_alpha, u_beta, eps, signal, observable
+    _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
+        x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
+    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, observable
 
 
 @njit(cache=True)
@@ -74,19 +70,15 @@ def improved_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_
     i_alpha_l = sos_step(p.lowpass, z[0], i_alpha * modulation)
     i_beta_l = sos_step(p.lowpass, z[1], i_beta * modulation)
     eps = i_beta_l * math.cos(x[THETA]) - i_alpha_l * math.sin(x[THETA])
-    pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
-    omega = x[INTEGRAL]
-    carrier = math.cos(p.omega_h_rad_s * t)
-    signal, observable = monitor_step(x, MONITOR, p.monitor, k, i_alpha, i_beta, carrier, x[THETA])
-    u_alpha, u_beta = rotate(p.U_h_V * carrier, 0.0, x[THETA])
-    return x[THETA], omega, u_alpha, u_beta, eps, signal, observable
+    _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
+        x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
+    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, observable
 
 
 def _make(name, step, defaults, settings, T_s, theta_e0, omega_e0, commissioning, delay_periods):
     s = check_settings(name, settings, defaults)
     f_h, U_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
-    if not 0.0 < f_h < 0.5 / T_s:
-        raise ValueError(f"frequency_Hz {f_h} must lie between 0 and Nyquist {0.5 / T_s} Hz")
+    check_injection_frequency(f_h, T_s)
     gain = s["demodulation_amplitude"] * U_h * commissioning.delta / (2.0 * math.pi * f_h)
     kp, ki = loop_gains(gain, s["pll_bandwidth_Hz"], s["pll_damping"]) if gain > 0.0 else (0.0, 0.0)
     low, high = s["bandpass_Hz"]
@@ -96,11 +88,9 @@ def _make(name, step, defaults, settings, T_s, theta_e0, omega_e0, commissioning
         lowpass=butterworth_lowpass(s["lowpass_order"], s["lowpass_Hz"], T_s),
         bandpass=butterworth_bandpass(s["bandpass_order"], low, high, T_s),
         monitor=make_monitor(T_s, U_h, f_h, delay_periods, commissioning, s["observable_ratio"]))
-    x = np.zeros(MONITOR + monitor_size(params.monitor))
-    x[THETA] = theta_e0
-    x[INTEGRAL] = omega_e0
     sections = max(params.lowpass.shape[0], params.bandpass.shape[0])
-    return Estimator(name, step, params, x, np.zeros((2, sections, 2)), f_h, float(s["pll_bandwidth_Hz"]))
+    return Estimator(name, step, params, pulsating_state(params.monitor, theta_e0, omega_e0),
+                     np.zeros((2, sections, 2)), f_h, float(s["pll_bandwidth_Hz"]))
 
 
 @register("conventional", "Wang §II: d̂ injection, band-pass, q̂ demodulation, low-pass, PI (faithful)")
