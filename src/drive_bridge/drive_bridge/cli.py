@@ -42,7 +42,8 @@ def cmd_run(args):
             ("speed estimation error RMS", "speed_error_rms", "rad/s"),
             ("speed tracking error RMS", "speed_tracking_error_rms", "rad/s"),
             ("settling time (worst step)", "settling_time_s", "s"),
-            ("observable fraction", "observable_fraction", "")]
+            ("observable fraction", "observable_fraction", ""),
+            ("current limit", "current_limit_A", "A")]
     for label, key, unit in rows:
         value = metrics[key]
         text = "n/a" if value is None else f"{value:+.4f} {unit}"
@@ -93,8 +94,11 @@ def cmd_presets(args):
 
 
 def cmd_bench(args):
-    from .bench import throughput
+    from .bench import motulator_python, motulator_throughput, throughput
 
+    for flag, value in (("--samples", args.samples), ("--repeats", args.repeats)):
+        if value < 1:
+            raise ScenarioError(f"{flag}: must be at least 1, not {value}")
     names = args.estimators.split(",") if args.estimators else estimator_names()
     for name in names:
         if name not in estimator_names():
@@ -104,14 +108,35 @@ def cmd_bench(args):
     for name in names:
         if not args.json:
             print(f"  {name:14s} ...", end="", flush=True)
-        r = throughput(name, samples=args.samples)
+        r = throughput(name, samples=args.samples, repeats=args.repeats)
         results.append(r)
         if not args.json:
             print(f"\r  {name:14s} {r['samples_per_second']:12,.0f} samples/s "
-                  f"({r['samples']} samples in {r['wall_time_s']:.2f} s)")
+                  f"(best of {r['repeats']} × {r['samples']} samples; median "
+                  f"{r['samples_per_second_median']:,.0f})")
+    report = {"benchmark": "throughput", "results": results,
+              "samples_per_second": {r["estimator"]: r["samples_per_second"] for r in results}}
+    python = None if args.no_motulator else motulator_python()
+    if python:
+        if not args.json:
+            print("  motulator 2.2-kW PMSM signal-injection example ...", end="", flush=True)
+        reference = motulator_throughput(python)
+        report["motulator"] = reference
+        if "error" not in reference:
+            report["ratio_to_motulator"] = {r["estimator"]: r["samples_per_second"]
+                                            / reference["samples_per_second"] for r in results}
+        if not args.json:
+            if "error" in reference:
+                print(f"\r  motulator: not timed ({reference['error']})")
+            else:
+                print(f"\r  motulator      {reference['samples_per_second']:12,.0f} samples/s "
+                      f"({reference['samples']} samples in {reference['wall_time_s']:.2f} s, {python})")
+                for name, ratio in report["ratio_to_motulator"].items():
+                    print(f"  {name:14s} {ratio:12,.0f} × motulator")
+    elif not args.json:
+        print("  motulator: not installed (./setup.sh --with-motulator, or DRIVE_MOTULATOR_PYTHON)")
     if args.json:
-        _print_json({"benchmark": "throughput", "results": results,
-                     "samples_per_second": {r["estimator"]: r["samples_per_second"] for r in results}})
+        _print_json(report)
     return 0
 
 
@@ -140,6 +165,9 @@ def build_parser():
     tp = bench_sub.add_parser("throughput", help="closed-loop samples/s in one process, per estimator")
     tp.add_argument("--estimators", help="comma-separated (default: all)")
     tp.add_argument("--samples", type=int, default=1_000_000)
+    tp.add_argument("--repeats", type=int, default=3, help="timed runs per estimator (best reported)")
+    tp.add_argument("--no-motulator", action="store_true",
+                    help="skip timing motulator's signal-injection example")
     tp.add_argument("--json", action="store_true")
     tp.set_defaults(func=cmd_bench)
     return parser

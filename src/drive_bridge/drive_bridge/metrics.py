@@ -101,6 +101,7 @@ def compute_metrics(result):
         "estimator": result.estimator,
         "duration_s": scenario.duration_s,
         "samples": int(log.shape[0]),
+        "current_limit_A": result.current_limit_A,
         "angle_error_rms": rms,
         "angle_error_bias": bias,
         "angle_error_peak": peak,

@@ -8,7 +8,7 @@ import numpy as np
 
 from foc_controller.control import controller_state
 from foc_controller.params import make_controller_params
-from hf_estimator.common import commission
+from hf_estimator.common import MIN_CONVERGENCE_SLOPE, commission
 from hf_estimator.interface import injects
 from hf_estimator.registry import make_estimator
 from pmsm_plant.model import N_STATE, plant_reset
@@ -26,6 +26,8 @@ class RunResult:
     log: np.ndarray
     """One row per sample, columns drive_bridge.loop.LOG_COLUMNS."""
     wall_time_s: float
+    current_limit_A: float
+    """The controller's current limit (for injecting estimators: where saliency tracking holds)."""
 
 
 @dataclass
@@ -60,18 +62,22 @@ def build_drive(scenario):
     machine, inverter, sensor = plant_parameters(preset, scenario.non_idealities)
     n_p = machine.n_p
     theta_e0 = n_p * scenario.initial_theta_m_rad
+    commissioning = commission(machine, preset.current_limit_A)
+    controller_settings = dict(scenario.controller)
     try:
         settings = dict(scenario.estimator_settings)
         if injects(scenario.estimator):
             settings = {**scenario.injection, **settings}
+            controller_settings.setdefault(
+                "current_limit_A", commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE))
         estimator = make_estimator(scenario.estimator, preset, scenario.T_s, settings,
                                    theta_e0 - scenario.initial_angle_error_e_rad,
-                                   n_p * scenario.initial_omega_m_rad_s,
-                                   commission(machine, preset.current_limit_A), inverter.delay_periods)
+                                   n_p * scenario.initial_omega_m_rad_s, commissioning,
+                                   inverter.delay_periods)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source}: estimator: {error.args[0]}") from None
     try:
-        controller = make_controller_params(preset, scenario.T_s, scenario.controller,
+        controller = make_controller_params(preset, scenario.T_s, controller_settings,
                                             estimator.injection_frequency_Hz,
                                             estimator.tracking_bandwidth_Hz)
     except (KeyError, ValueError) as error:
@@ -96,7 +102,8 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
         drive.run(k0, k1, log[k0:k1])
         if progress:
             progress(k1 / n)
-    return RunResult(scenario, drive.preset, drive.estimator.name, log, time.perf_counter() - start)
+    return RunResult(scenario, drive.preset, drive.estimator.name, log, time.perf_counter() - start,
+                     drive.controller.i_max_A)
 
 
 def terminal_progress(label):

@@ -33,15 +33,20 @@ def loop_gains(gain_per_rad, bandwidth_Hz, damping):
 
 class Commissioning(NamedTuple):
     """What a standstill HF commissioning test measures on the drive's motor: the HF inductances at no
-    load, and how far load current turns the saliency axis (rotor locked at a known angle, i_q stepped
-    over ±current limit, the HF admittance's axis recorded: the cross-saturation shift)."""
+    load, and how load current turns the saliency axis (rotor locked at a known angle, the current
+    vector stepped along the q axis up to the current limit and swept a little about it, the HF
+    admittance's axis recorded: the cross-saturation shift and how it depends on the d current)."""
 
     L_dh_H: float
     L_qh_H: float
     saliency_shift_i_q_A: np.ndarray
-    """q currents of the shift table [A] (uniform grid, ascending)."""
+    """q currents of the tables [A] (uniform grid, ascending)."""
     saliency_shift_rad: np.ndarray
     """Saliency-axis angle from the rotor d axis at those currents [rad, electrical]."""
+    convergence_slope: np.ndarray
+    """d(saliency-axis angle)/d(rotor angle) with the current vector held still, at those currents:
+    1 + i_q·∂δ/∂i_d [1]. It is the slope of every saliency tracker's error signal; at 0 the HF
+    admittance no longer tells the rotor angle (the axis turns back as fast as the rotor turns)."""
 
     @property
     def sigma(self):
@@ -53,31 +58,47 @@ class Commissioning(NamedTuple):
         """Δ = ½(1/L_dh − 1/L_qh) [1/H]."""
         return 0.5 * (1.0 / self.L_dh_H - 1.0 / self.L_qh_H)
 
+    def tracking_current_limit_A(self, min_slope):
+        """The largest table current |i_q| [A] up to which the convergence slope stays at or above
+        ``min_slope`` on both signs of the current."""
+        magnitude = np.abs(self.saliency_shift_i_q_A)
+        failing = magnitude[self.convergence_slope < min_slope]
+        inside = magnitude < failing.min() if failing.size else np.ones_like(magnitude, dtype=bool)
+        return float(magnitude[inside].max())
 
-def commission(machine, i_q_max_A, points=33):
-    """The standstill HF test's result on ``machine`` (ideal measurement), the shift table over
-    ±i_q_max_A (the drive's current limit)."""
+
+MIN_CONVERGENCE_SLOPE = 0.75
+"""Sensorless operation keeps the current where a saliency tracker keeps three quarters of its loop gain
+(on `wang_spmsm`: 5.6 A, 1.22× rated; at 1.5× rated the slope is −0.2)."""
+
+
+def commission(machine, i_q_max_A, points=65, d_sweep_A=0.01):
+    """The standstill HF test's result on ``machine`` (ideal measurement): tables over ±i_q_max_A (the
+    drive's current limit); the d current is swept by ±d_sweep_A about zero for the slope."""
     L_dh, L_qh, _ = incremental_inductances(machine)
     currents = np.linspace(-i_q_max_A, i_q_max_A, points)
     shift = np.array([saturation_saliency_angle(machine, 0.0, i_q) for i_q in currents])
-    return Commissioning(L_dh, L_qh, currents, shift)
+    slope = np.array([1.0 + i_q * (saturation_saliency_angle(machine, d_sweep_A, i_q)
+                                   - saturation_saliency_angle(machine, -d_sweep_A, i_q))
+                      / (2.0 * d_sweep_A) for i_q in currents])
+    return Commissioning(L_dh, L_qh, currents, shift, slope)
 
 
 @njit(cache=True)
-def saliency_shift(i_q, currents, shift):
-    """Cross-saturation shift of the saliency axis at q current i_q, interpolated in the commissioning
-    table (held at its ends)."""
+def commissioned_value(i_q, currents, table):
+    """A commissioning table (shift or convergence slope) at q current i_q, interpolated linearly (held
+    at its ends)."""
     n = currents.shape[0]
     if n == 0:
         return 0.0
     position = (i_q - currents[0]) / (currents[n - 1] - currents[0]) * (n - 1)
     if position <= 0.0:
-        return shift[0]
+        return table[0]
     if position >= n - 1:
-        return shift[n - 1]
+        return table[n - 1]
     j = int(position)
     fraction = position - j
-    return shift[j] + fraction * (shift[j + 1] - shift[j])
+    return table[j] + fraction * (table[j + 1] - table[j])
 
 
 class MonitorParams(NamedTuple):

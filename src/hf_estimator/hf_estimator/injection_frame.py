@@ -19,8 +19,11 @@ into a design).
    radians whatever the saliency, and |Δ̂| = ½ hypot(g_dd − g_qq, 2g_dq) against Σ̂ = ½(g_dd + g_qq) is
    a model-free observability measure. The ±δ axes make g_qq and g_dq identifiable.
 4. Load turns the saliency axis (cross-saturation: 0.09 rad at rated current on `wang_spmsm`, 0.3 rad
-   at the current limit). The commissioned shift δ(i_q) is subtracted at the q current of the fit
-   window (ε = e − δ(î_q), î_q low-passed in the θ̂ frame).
+   at 1.5× rated). The commissioned shift δ(i_q) is subtracted at the q current of the fit window
+   (ε = e − δ(î_q), î_q low-passed in the θ̂ frame). Load also makes the axis turn back as the rotor
+   turns under a still current vector, so ε moves by only F = 1 + i_q·∂δ/∂i_d per radian of angle
+   error (0.91 at rated current, −0.2 at 1.5× rated: no angle information); the drive keeps the current
+   where F ≥ ¾ (Commissioning.tracking_current_limit_A).
 5. A type-2 loop (PI + integrator) on ε with ω_n, ζ placed directly (ε has unit slope); its integrator
    state is the speed handed to the speed loop (the proportional path stays out of it). While |Δ̂|/Σ̂ is
    below the threshold the loop is held (ε = 0) and the flag says so.
@@ -33,7 +36,7 @@ from numba import njit
 
 from pmsm_plant.frames import clarke_contract, rotate
 
-from .common import pi_tracking_loop, saliency_shift
+from .common import commissioned_value, pi_tracking_loop
 from .interface import Estimator, check_settings, register
 
 THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH, I_Q_SMOOTH = range(7)
@@ -45,7 +48,7 @@ HISTORY = SUMS + N_SUMS
 (a, b, y1, y2) × 2N."""
 
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
-            "pll_bandwidth_Hz": 15.0, "pll_damping": 0.9, "observable_ratio": 0.02,
+            "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
             "signal_smoothing_Hz": 20.0}
 
 
@@ -145,7 +148,7 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
             x[DELTA_SMOOTH] += p.smoothing * (delta - x[DELTA_SMOOTH])
             if x[DELTA_SMOOTH] > p.observable_ratio * abs(sigma):
                 observable = 1.0
-                eps = error - saliency_shift(x[I_Q_SMOOTH], p.shift_i_q_A, p.shift_rad)
+                eps = error - commissioned_value(x[I_Q_SMOOTH], p.shift_i_q_A, p.shift_rad)
 
     pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
     omega = x[INTEGRAL]
