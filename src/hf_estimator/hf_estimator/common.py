@@ -86,8 +86,8 @@ def commission(machine, i_q_max_A, points=65, d_sweep_A=0.01):
 
 @njit(cache=True)
 def commissioned_value(i_q, currents, table):
-    """A commissioning table (shift or convergence slope) at q current i_q, interpolated linearly (held
-    at its ends)."""
+    """A commissioning table (e.g. the saliency shift) at q current i_q, interpolated linearly (held at
+    its ends)."""
     n = currents.shape[0]
     if n == 0:
         return 0.0
