@@ -6,6 +6,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from foc_controller.discrete import sos_step
 from pmsm_plant.frames import rotate
 from pmsm_plant.model import incremental_inductances, saturation_saliency_angle
 
@@ -196,6 +197,14 @@ def pulsating_state(monitor, theta_e0, omega_e0):
     x[THETA] = theta_e0
     x[INTEGRAL] = omega_e0
     return x
+
+
+@njit(cache=True)
+def q_axis_demodulation(z, bandpass, lowpass, i_alpha, i_beta, theta, amplitude, carrier):
+    """The q̂-axis demodulation of Wang §II (Eq. 8-11) and Szabó §2.3 (Eq. 15-21): î_q in the θ̂ frame →
+    band-pass (state z[0]) → × amplitude·carrier → low-pass (state z[1])."""
+    _, i_q = rotate(i_alpha, i_beta, -theta)
+    return sos_step(lowpass, z[1], sos_step(bandpass, z[0], i_q) * amplitude * carrier)
 
 
 @njit(cache=True)

@@ -10,14 +10,16 @@ the speed loop, u_inj the HF voltage to superimpose for the period that follows 
 frame), ε the demodulated error driving the tracking loop, ``signal`` the measured angle-information
 strength (estimator-specific units, documented per estimator) and ``observable`` 1.0 when that signal
 is strong enough to trust θ̂, else 0.0. u_prev is the voltage command the controller issued at sample
-k−1 (the `voltage_command` topic; the papers' methods ignore it). x (1-D) and z (filter sections) are the estimator's state;
-p its parameters. The encoder inputs are read only by the ``sensored`` pass-through.
+k−1 (the `voltage_command` topic; the papers' methods ignore it). x (1-D) and z (filter sections) are
+the estimator's state; p its parameters. The encoder inputs are read only by the ``sensored`` pass-through.
 """
 import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
+
+from .common import commission
 
 
 @dataclass(frozen=True)
@@ -72,15 +74,12 @@ def make_estimator(name, preset, T_s, settings=None, theta_e0=0.0, omega_e0=0.0,
     drive's own motor at standstill (default: the preset's motor); ``delay_periods`` the inverter's
     computation delay (default: the preset's).
     """
-    from .common import commission
-
     factory = _entry(name)[0]
     if commissioning is None:
         commissioning = commission(preset.machine, preset.current_limit_A)
     if delay_periods is None:
         delay_periods = preset.inverter.delay_periods
-    return factory(preset, T_s, dict(settings or {}), theta_e0, omega_e0, commissioning,
-                              delay_periods)
+    return factory(preset, T_s, dict(settings or {}), theta_e0, omega_e0, commissioning, delay_periods)
 
 
 def check_settings(name, settings, defaults):

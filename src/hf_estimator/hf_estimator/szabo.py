@@ -15,11 +15,11 @@ import numpy as np
 from numba import njit
 from scipy import signal
 
-from foc_controller.discrete import butterworth_bandpass, sos_step
-from pmsm_plant.frames import clarke_contract, rotate
+from foc_controller.discrete import butterworth_bandpass
+from pmsm_plant.frames import clarke_contract
 
 from .common import (THETA, MonitorParams, check_injection_frequency, make_monitor, pulsating_state,
-                     pulsating_track_and_inject)
+                     pulsating_track_and_inject, q_axis_demodulation)
 from .interface import Estimator, check_settings, register
 
 DEFAULTS = {"frequency_Hz": 1500.0, "amplitude_V": 40.0, "u_star": 1.0, "A_p": 4853.0,
@@ -43,10 +43,8 @@ class SynchronousParams(NamedTuple):
 def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
     t = k * p.T_s_s
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
-    _, i_q = rotate(i_alpha, i_beta, -x[THETA])
-    i_qh = sos_step(p.bandpass, z[0], i_q)
-    i_qh_star = i_qh * p.u_star * math.cos(p.omega_h_rad_s * t)
-    i_qhf = sos_step(p.lowpass, z[1], i_qh_star)
+    i_qhf = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA], p.u_star,
+                                math.cos(p.omega_h_rad_s * t))
     omega, u_alpha, u_beta, signal_strength, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.sin(p.omega_h_rad_s * t), p.u_h_V, p.kp, p.ki, p.T_s_s,
         -i_qhf)

@@ -12,12 +12,12 @@ state: the PI output carries the fundamental current that ×2 sin ω_h t moves t
 passes (note §3), and fed to the speed loop it destabilised every closed-loop run. PLL bandwidth:
 conventional 20 Hz; improved 10 Hz: its ε carries Σ/Δ ≈ 15 times more leaked HF than signal (note
 §2-3), and at 20 Hz the ripple in θ̂ and the current loop sustained an oscillation of several hundred
-Hz; 10 Hz is the fastest that held lock in our closed-loop runs. The PI gains place the linearised loop (Eq. 24) at the
-requested bandwidth for the physical gain ε ≈ 2(U_h/ω_h)Δ·(θ − θ̂), Δ = ½(1/L_dh − 1/L_qh), from the
-commissioned HF inductances: Eq. (22)'s k_h = U_h/(ω_h L_dh) is not the slope of ε (it is zero on a
-round rotor, see shared/notes/hf-demodulation.md §1), and tuning for it would measure a mistuning
-rather than the method. With no commissioned saliency there is nothing to lock to: the gains are zero
-and the HF admittance monitor reports low observability.
+Hz; 10 Hz is the fastest that held lock in our closed-loop runs. The PI gains place the linearised
+loop (Eq. 24) at the requested bandwidth for the physical gain ε ≈ 2(U_h/ω_h)Δ·(θ − θ̂),
+Δ = ½(1/L_dh − 1/L_qh), from the commissioned HF inductances: Eq. (22)'s k_h = U_h/(ω_h L_dh) is not
+the slope of ε (it is zero on a round rotor, see shared/notes/hf-demodulation.md §1), and tuning for it
+would measure a mistuning rather than the method. With no commissioned saliency there is nothing to
+lock to: the gains are zero and the HF admittance monitor reports low observability.
 """
 import math
 from typing import NamedTuple
@@ -26,10 +26,10 @@ import numpy as np
 from numba import njit
 
 from foc_controller.discrete import butterworth_bandpass, butterworth_lowpass, sos_step
-from pmsm_plant.frames import clarke_contract, rotate
+from pmsm_plant.frames import clarke_contract
 
 from .common import (INTEGRAL, THETA, MonitorParams, check_injection_frequency, loop_gains, make_monitor,
-                     pulsating_state, pulsating_track_and_inject)
+                     pulsating_state, pulsating_track_and_inject, q_axis_demodulation)
 from .interface import Estimator, check_settings, register
 
 DEFAULTS = {"frequency_Hz": 900.0, "amplitude_V": 5.0, "demodulation_amplitude": 2.0,
@@ -54,9 +54,8 @@ class WangParams(NamedTuple):
 def conventional_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
     t = k * p.T_s_s
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
-    _, i_q = rotate(i_alpha, i_beta, -x[THETA])
-    i_qh = sos_step(p.bandpass, z[0], i_q)
-    eps = sos_step(p.lowpass, z[1], i_qh * p.demodulation_amplitude * math.sin(p.omega_h_rad_s * t))
+    eps = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA],
+                              p.demodulation_amplitude, math.sin(p.omega_h_rad_s * t))
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
     return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, observable
