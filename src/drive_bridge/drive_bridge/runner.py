@@ -1,5 +1,6 @@
 """The one-process runner: builds the cores for a scenario and runs the compiled loop in chunks
 between progress reports."""
+import functools
 import sys
 import time
 from dataclasses import dataclass
@@ -56,13 +57,19 @@ class Drive:
                     self.tau_load, s.mode == "imposed_speed", log)
 
 
+@functools.lru_cache(maxsize=8)
+def _commission(machine, i_q_max_A):
+    """Commissioning is a pure function of the machine: the nodes of one process share it."""
+    return commission(machine, i_q_max_A)
+
+
 def build_drive(scenario):
     """Plant, estimator and controller for a scenario; errors name the scenario key at fault."""
     preset = get_preset(scenario.motor)
     machine, inverter, sensor = plant_parameters(preset, scenario.non_idealities)
     n_p = machine.n_p
     theta_e0 = n_p * scenario.initial_theta_m_rad
-    commissioning = commission(machine, preset.current_limit_A)
+    commissioning = _commission(machine, preset.current_limit_A)
     controller_settings = dict(scenario.controller)
     try:
         settings = dict(scenario.estimator_settings)

@@ -46,6 +46,8 @@ class ControllerParams(NamedTuple):
     """Notch SOS at the injection frequency (one row), or an empty (0 × 6) array."""
     speed_filter_gain: float
     """First-order smoothing per sample of the estimated speed before any use (1 = no filter)."""
+    speed_limit_rad_s: float
+    """The mechanical speed reference is clamped to ±this (∞: no limit)."""
 
 
 @njit(cache=True)
@@ -66,6 +68,7 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     x[OMEGA_FILTERED] += c.speed_filter_gain * (omega_e_hat - x[OMEGA_FILTERED])
     omega_e_hat = x[OMEGA_FILTERED]
     omega_m_hat = omega_e_hat / c.n_p
+    omega_m_ref = min(max(omega_m_ref, -c.speed_limit_rad_s), c.speed_limit_rad_s)
     i_q_ref = pi_limited(x, INT_SPEED, c.kp_speed, c.ki_speed, c.T_s_s, omega_m_ref - omega_m_hat,
                          c.i_max_A)
     i_d_ref = 0.0
@@ -98,6 +101,11 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     x[LAST_U_ALPHA] = u_alpha
     x[LAST_U_BETA] = u_beta
     return u_alpha, u_beta, i_d, i_q, i_d_ref, i_q_ref
+
+
+def estimated_torque(c, i_d, i_q):
+    """τ̂_e = 1.5 p (ψ_f i_q + (L_d − L_q) i_d i_q) from the nameplate [N·m]."""
+    return 1.5 * c.n_p * (c.psi_f_Wb * i_q + (c.L_d_H - c.L_q_H) * i_d * i_q)
 
 
 def controller_state(c, omega_e0=0.0):

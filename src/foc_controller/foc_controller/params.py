@@ -20,6 +20,7 @@ DEFAULTS = {
     "delay_compensation": True,
     "hf_notch_quality": 1.0,
     "speed_filter_Hz": 100.0,
+    "speed_limit_rad_s": math.inf,
 }
 
 
@@ -29,7 +30,8 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
 
     settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s,
     current_damping, speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A,
-    decoupling, delay_compensation, hf_notch_quality, speed_filter_Hz (0: none). The notch sits at the
+    decoupling, delay_compensation, hf_notch_quality, speed_filter_Hz (0: none), speed_limit_rad_s
+    (mechanical, clamps the speed reference; ∞: none). The notch sits at the
     estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade step below the
     angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · estimator_bandwidth_Hz
     (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
@@ -54,6 +56,7 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
     i_max = s["current_limit_A"] if s["current_limit_A"] is not None else preset.current_limit_A
     if i_max <= 0.0:
         raise ValueError(f"controller: current_limit_A must be positive, got {i_max}")
+    check_speed_limit(s["speed_limit_rad_s"])
     delay = preset.inverter.delay_periods + 0.5 if s["delay_compensation"] else 0.0
     if injection_frequency_Hz > 0.0:
         sos = notch(injection_frequency_Hz, s["hf_notch_quality"], T_s)
@@ -65,7 +68,14 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
         kp_speed=w.kp, ki_speed=w.ki, i_max_A=float(i_max), decoupling=bool(s["decoupling"]),
         delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos),
         speed_filter_gain=(1.0 - math.exp(-2.0 * math.pi * s["speed_filter_Hz"] * T_s)
-                           if s["speed_filter_Hz"] > 0.0 else 1.0))
+                           if s["speed_filter_Hz"] > 0.0 else 1.0),
+        speed_limit_rad_s=float(s["speed_limit_rad_s"]))
+
+
+def check_speed_limit(value):
+    """A speed limit must be a positive number of rad/s (∞ allowed); otherwise ValueError naming it."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0.0:
+        raise ValueError(f"controller: speed_limit_rad_s must be positive, got {value!r}")
 
 
 def _capped_speed_bandwidth(s, estimator_bandwidth_Hz):

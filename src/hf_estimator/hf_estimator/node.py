@@ -1,0 +1,126 @@
+"""The ``hf_estimator`` node: an estimator core over topics.
+
+For sample k it joins `currents`(k) with `voltage_command`(k−1) (the voltage applied during the period
+that produced them; zero for k = 0, and zero if the controller stays silent past half the lock-step
+timeout, which is what the plant then applied) and, for `sensored` only, `rotor_state`(k). It answers
+`rotor_estimate`(k), `injection`(k) and `estimator_state`(k) (x = ε, y = signal, z = observable).
+Non-finite or absurd currents are not fed to the core: the node answers with its last estimate and
+no injection, and reports the fault.
+"""
+import time
+
+from geometry_msgs.msg import Vector3Stamped
+from pmsm_plant.contract import PER_SAMPLE_QOS, DriveNode, finite, sample_of, stamp
+from sensor_msgs.msg import JointState
+
+
+class EstimatorNode(DriveNode):
+    def __init__(self, builder, **kwargs):
+        super().__init__("hf_estimator", builder, **kwargs)
+        self.estimate_pub = self.create_publisher(JointState, "rotor_estimate", PER_SAMPLE_QOS)
+        self.injection_pub = self.create_publisher(Vector3Stamped, "injection", PER_SAMPLE_QOS)
+        self.state_pub = self.create_publisher(Vector3Stamped, "estimator_state", PER_SAMPLE_QOS)
+        self.currents = {}
+        self.voltages = {}
+        self.encoder = {}
+        self.waiting_since = None
+        self.estimate_msg = JointState(name=["rotor"])
+        self.injection_msg = Vector3Stamped()
+        self.injection_msg.header.frame_id = "alpha_beta"
+        self.state_msg = Vector3Stamped()
+        self.observable = 0.0
+        self.signal = 0.0
+        if not self.drive:
+            self.publish_config({})
+            return
+        e, s = self.drive.estimator, self.drive.scenario
+        self.sensored = e.name == "sensored"
+        self.n_p = self.drive.machine.n_p
+        self.k = 0
+        self.theta_hat = s.initial_theta_m_rad * self.n_p - s.initial_angle_error_e_rad
+        self.omega_hat = self.n_p * s.initial_omega_m_rad_s
+        self.trip_A = self.trip_current_A()
+        self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents), PER_SAMPLE_QOS)
+        self.create_subscription(Vector3Stamped, "voltage_command", self.on_voltage_command, PER_SAMPLE_QOS)
+        if self.sensored:
+            self.create_subscription(JointState, "rotor_state", self.on_rotor_state, PER_SAMPLE_QOS)
+        self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
+        self.publish_config({"estimator": e.name, "injection_frequency_Hz": e.injection_frequency_Hz,
+                             "tracking_bandwidth_Hz": e.tracking_bandwidth_Hz, "parameters": e.params})
+
+    def on_currents(self, msg):
+        k = sample_of(msg.header, self.T_s)
+        if k is None or k < self.k:
+            self.fault("wrong_stamp", f"currents stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} "
+                                      f"is not a sample at or after {self.k}; discarded")
+            return
+        v = msg.vector
+        self.currents[k] = (v.x, v.y, v.z)
+        self.try_step()
+
+    def on_voltage_command(self, msg):
+        k = sample_of(msg.header, self.T_s)
+        if k is not None and k + 1 >= self.k:
+            self.voltages[k] = (msg.vector.x, msg.vector.y)
+            self.try_step()
+
+    def on_rotor_state(self, msg):
+        k = sample_of(msg.header, self.T_s)
+        if k is not None and k >= self.k and msg.position:
+            self.encoder[k] = (self.n_p * msg.position[0], self.n_p * msg.velocity[0])
+            self.try_step()
+
+    def try_step(self, force_voltage=False):
+        k = self.k
+        if k not in self.currents:
+            return
+        if k > 0 and k - 1 not in self.voltages and not force_voltage:
+            self.waiting_since = self.waiting_since or time.monotonic()
+            return
+        if self.sensored and k not in self.encoder:
+            return
+        self.waiting_since = None
+        i_a, i_b, i_c = self.currents.pop(k)
+        u_alpha, u_beta = self.voltages.pop(k - 1, (0.0, 0.0))
+        if not finite(u_alpha, u_beta):
+            u_alpha, u_beta = 0.0, 0.0
+        theta_enc, omega_enc = self.encoder.pop(k, (0.0, 0.0))
+        self.k = k + 1
+        if not finite(i_a, i_b, i_c) or max(abs(i_a), abs(i_b), abs(i_c)) > self.trip_A:
+            self.fault("bad_input", f"currents at sample {k}: ({i_a}, {i_b}, {i_c}) A are not finite or "
+                                    f"beyond the {self.trip_A:g} A trip; estimate held, no injection")
+            self.answer(k, self.theta_hat, self.omega_hat, 0.0, 0.0, 0.0, self.signal, 0.0)
+        else:
+            e = self.drive.estimator
+            self.answer(k, *e.step(e.x, e.z, e.params, k, i_a, i_b, i_c, u_alpha, u_beta, theta_enc,
+                                   omega_enc))
+        self.try_step()
+
+    def answer(self, k, theta_hat, omega_hat, u_inj_alpha, u_inj_beta, eps, signal, observable):
+        self.theta_hat, self.omega_hat, self.signal, self.observable = theta_hat, omega_hat, signal, observable
+        t = stamp(k, self.T_s)
+        r = self.estimate_msg
+        r.header.stamp = t
+        r.position = [theta_hat / self.n_p]
+        r.velocity = [omega_hat / self.n_p]
+        i = self.injection_msg
+        i.header.stamp = t
+        i.vector.x, i.vector.y = u_inj_alpha, u_inj_beta
+        s = self.state_msg
+        s.header.stamp = t
+        s.vector.x, s.vector.y, s.vector.z = eps, signal, observable
+        self.injection_pub.publish(i)
+        self.estimate_pub.publish(r)
+        self.state_pub.publish(s)
+
+    def watchdog(self):
+        if self.waiting_since and time.monotonic() - self.waiting_since > self.timeout_s / 2.0:
+            self.fault("timeout", f"sample {self.k}: no {self.resolve_topic_name('voltage_command')} for "
+                                  f"sample {self.k - 1}; estimating with zero voltage (what the plant applied)")
+            self.try_step(force_voltage=True)
+
+    def status_values(self):
+        if not self.drive:
+            return {}
+        return {"sample": getattr(self, "k", 0), "observable": bool(self.observable > 0.5),
+                "signal": self.signal, "estimator": self.drive.estimator.name}

@@ -1,0 +1,189 @@
+"""The ``pmsm_plant`` node: the plant core over topics, in lock-step on sim time.
+
+Publishes sample k (`currents`, `rotor_state`, `/clock`), waits for `voltage_command` stamped k, then
+advances to k+1. A command with another stamp is discarded and counted; if no valid command comes
+within ``lockstep_timeout_s`` the plant applies zero voltage for that period and names the silent topic.
+`angle_error` is published for each `rotor_estimate` that matches a recent sample.
+
+With ``load_torque_per_sample`` (a scenario driver acting as the dyno) the plant takes exactly one
+`load_torque` message per sample and starts sample k only once it has the k-th; the shaft speed of
+imposed-speed scenarios is the latest `speed_command` at that moment. Otherwise the latest load applies.
+"""
+import time
+from collections import deque
+
+from geometry_msgs.msg import Vector3Stamped
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64
+
+from .contract import (COMMAND_QOS, PER_SAMPLE_QOS, DriveNode, finite, sample_of, stamp,
+                       stamp_ns)
+from .frames import wrap
+from .model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
+
+HISTORY_SAMPLES = 8
+
+
+class PlantNode(DriveNode):
+    def __init__(self, builder, **kwargs):
+        super().__init__("pmsm_plant", builder, **kwargs)
+        self.declare_parameter("load_torque_per_sample", False)
+        self.declare_parameter("angle_error_decimation", 1)
+        self.load_per_sample = self.get_parameter("load_torque_per_sample").value
+        self.angle_error_decimation = max(1, int(self.get_parameter("angle_error_decimation").value))
+        self.currents_pub = self.create_publisher(Vector3Stamped, "currents", PER_SAMPLE_QOS)
+        self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", PER_SAMPLE_QOS)
+        self.clock_pub = self.create_publisher(Clock, "/clock", PER_SAMPLE_QOS)
+        self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", COMMAND_QOS)
+        self.create_subscription(Vector3Stamped, "voltage_command", self.timed(self.on_voltage_command),
+                                 PER_SAMPLE_QOS)
+        self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate, PER_SAMPLE_QOS)
+        self.create_subscription(Float64, "load_torque", self.on_load_torque, COMMAND_QOS)
+        self.create_subscription(Float64, "speed_command", self.on_speed_command, COMMAND_QOS)
+        self.k = 0
+        self.tau_load = 0.0
+        self.loads = deque()
+        self.omega_imposed = 0.0
+        self.latest_speed = 0.0
+        self.started = False
+        self.finished = False
+        self.waiting_for_load = False
+        self.sent_at = 0.0
+        self.history = {}
+        self.estimate_seen = -1
+        self.zero_voltage_periods = 0
+        self.currents_msg = Vector3Stamped()
+        self.currents_msg.header.frame_id = "abc"
+        self.rotor_state_msg = JointState(name=["rotor"])
+        self.error_msg = Vector3Stamped()
+        self.clock_msg = Clock()
+        if self.drive:
+            s = self.drive.scenario
+            self.n_samples = s.n_samples
+            self.imposed = s.mode == "imposed_speed"
+            self.publish_config({"scenario": s.name, "T_s_s": s.T_s, "samples": s.n_samples,
+                                 "mode": s.mode, "machine": self.drive.machine,
+                                 "mechanics": self.drive.preset.mechanics, "inverter": self.drive.inverter,
+                                 "sensor": self.drive.sensor, "non_idealities": s.non_idealities})
+            self.create_timer(min(self.timeout_s / 4.0, 0.05), self.watchdog)
+        else:
+            self.publish_config({})
+
+    def on_load_torque(self, msg):
+        if not finite(msg.data):
+            self.fault("bad_input", f"load_torque: {msg.data} is not a finite torque; ignored")
+            return
+        if self.load_per_sample:
+            self.loads.append(msg.data)
+            if self.started and self.waiting_for_load:
+                self.publish_sample()
+        else:
+            self.tau_load = msg.data
+
+    def on_speed_command(self, msg):
+        if finite(msg.data):
+            self.latest_speed = msg.data
+
+    def ready(self):
+        """Every lock-step partner is matched (and the first load is in, when taken per sample)."""
+        return (self.currents_pub.get_subscription_count() >= 2 and self.count_publishers("voltage_command") >= 1
+                and self.count_publishers("rotor_estimate") >= 1 and (self.loads or not self.load_per_sample))
+
+    def watchdog(self):
+        if self.finished:
+            return
+        if not self.started:
+            if self.ready():
+                self.started = True
+                self.publish_sample()
+            return
+        if time.monotonic() - self.sent_at <= self.timeout_s:
+            return
+        if self.waiting_for_load:
+            self.fault("timeout", f"sample {self.k}: no {self.resolve_topic_name('load_torque')} within "
+                                  f"{self.timeout_s:g} s; the last load is kept")
+            self.loads.append(self.tau_load)
+            self.publish_sample()
+        else:
+            silent = "rotor_estimate" if self.estimate_seen < self.k else "voltage_command"
+            self.fault("timeout", f"sample {self.k}: no answer within {self.timeout_s:g} s "
+                                  f"(silent topic: {self.resolve_topic_name(silent)}); zero voltage applied")
+            self.advance(0.0, 0.0)
+
+    def publish_sample(self):
+        d, k = self.drive, self.k
+        if self.load_per_sample:
+            self.waiting_for_load = not self.loads
+            if self.waiting_for_load:
+                return
+            self.tau_load = self.loads.popleft()
+        self.omega_imposed = self.latest_speed
+        x = d.plant_x
+        i_a, i_b, i_c, tau_e = plant_outputs(x, d.machine)
+        m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, d.sensor, d.scenario.seed, k)
+        self.history[k] = (x[THETA_M], x[OMEGA_M])
+        self.history.pop(k - HISTORY_SAMPLES, None)
+        t = stamp(k, self.T_s)
+        self.clock_msg.clock = t
+        self.clock_pub.publish(self.clock_msg)
+        r = self.rotor_state_msg
+        r.header.stamp = t
+        r.position = [x[THETA_M]]
+        r.velocity = [x[OMEGA_M]]
+        r.effort = [tau_e]
+        m = self.currents_msg
+        m.header.stamp = t
+        m.vector.x, m.vector.y, m.vector.z = m_a, m_b, m_c
+        self.sent_at = time.monotonic()
+        self.rotor_state_pub.publish(r)
+        self.currents_pub.publish(m)
+
+    def on_voltage_command(self, msg):
+        if not self.started or self.finished:
+            return
+        k = sample_of(msg.header, self.T_s)
+        if k != self.k:
+            self.fault("wrong_stamp", f"voltage_command stamped {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
+                                      f" while waiting for sample {self.k} ({stamp_ns(self.k, self.T_s)} ns); "
+                                      f"discarded")
+            return
+        u = msg.vector
+        limit = self.drive.inverter.U_dc_V
+        if not finite(u.x, u.y) or abs(u.x) > limit or abs(u.y) > limit:
+            self.fault("bad_input", f"voltage_command at sample {k}: ({u.x}, {u.y}) V is not a voltage the "
+                                    f"inverter can apply; zero voltage applied")
+            self.advance(0.0, 0.0)
+            return
+        self.advance(u.x, u.y)
+
+    def advance(self, u_alpha, u_beta):
+        d, s = self.drive, self.drive.scenario
+        if u_alpha == 0.0 and u_beta == 0.0:
+            self.zero_voltage_periods += 1
+        plant_advance(d.plant_x, u_alpha, u_beta, self.tau_load, self.imposed, self.omega_imposed, d.machine,
+                      d.preset.mechanics, d.inverter, s.T_s, s.substeps)
+        self.k += 1
+        if self.k >= self.n_samples:
+            self.finished = True
+            return
+        self.publish_sample()
+
+    def on_rotor_estimate(self, msg):
+        k = sample_of(msg.header, self.T_s)
+        if k is None or k not in self.history:
+            return
+        self.estimate_seen = max(self.estimate_seen, k)
+        if k % self.angle_error_decimation or not finite(*msg.position, *msg.velocity):
+            return
+        theta_m, omega_m = self.history[k]
+        n_p = self.drive.machine.n_p
+        e = self.error_msg
+        e.header.stamp = msg.header.stamp
+        e.vector.x = wrap(n_p * (theta_m - msg.position[0]))
+        e.vector.y = omega_m - msg.velocity[0]
+        self.angle_error_pub.publish(e)
+
+    def status_values(self):
+        return {"sample": self.k, "started": self.started, "finished": self.finished,
+                "sim_time_s": self.k * self.T_s, "zero_voltage_periods": self.zero_voltage_periods}
