@@ -1,5 +1,6 @@
 """``drive bench throughput``: closed-loop samples per second of the one-process runner, per estimator,
-and of motulator's signal-injection example when motulator is installed (a side environment is fine)."""
+and of motulator's signal-injection example when motulator is installed (a side environment is fine).
+``drive bench graph``: real-time factor of the lock-step ROS graph."""
 import dataclasses
 import importlib.util
 import json
@@ -70,3 +71,28 @@ def motulator_throughput(python, timeout_s=900.0):
         last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
         return {"error": f"{python} {script.name} exited {proc.returncode}: {last}"}
     return {**json.loads(proc.stdout.strip().splitlines()[-1]), "python": python}
+
+
+GRAPH_CONFIGURATIONS = (("composed", "events"), ("composed", "single"), ("separate", "events"))
+
+
+def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False, progress=None):
+    """Real-time factor (simulated / wall time) of the lock-step graph per (processes, executor), and
+    the wall time per sample and per hop (HOPS_PER_SAMPLE sequential hops close one sample)."""
+    from .graph import HOPS_PER_SAMPLE, launch
+
+    results = []
+    for processes, executor in GRAPH_CONFIGURATIONS:
+        r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
+                   record=record)
+        samples = r.scenario.n_samples
+        entry = {"processes": processes, "executor": executor, "samples": samples,
+                 "wall_time_s": r.wall_time_s, "real_time_factor": r.scenario.duration_s / r.wall_time_s,
+                 "us_per_sample": 1e6 * r.wall_time_s / samples,
+                 "us_per_hop": 1e6 * r.wall_time_s / samples / HOPS_PER_SAMPLE}
+        results.append(entry)
+        if progress:
+            progress(f"  {processes:9s} {executor:7s} real-time factor {entry['real_time_factor']:.3f} "
+                     f"({entry['us_per_sample']:.0f} µs per sample, {entry['us_per_hop']:.0f} µs per hop)")
+    return {"benchmark": "graph", "scenario": scenario_name, "duration_s": duration_s, "record": record,
+            "sampling_rate_Hz": 1.0 / load_scenario(scenario_name).T_s, "results": results}

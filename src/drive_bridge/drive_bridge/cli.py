@@ -16,8 +16,6 @@ def _print_json(data):
 
 
 def cmd_run(args):
-    from .metrics import compute_metrics
-    from .plots import plot_run
     from .runner import run_scenario, terminal_progress
 
     scenario = load_scenario(args.scenario, estimator_override=args.estimator)
@@ -26,8 +24,18 @@ def cmd_run(args):
             raise ScenarioError(f"--duration: must be positive, not {args.duration}")
         scenario = dataclasses.replace(scenario, duration_s=args.duration)
     result = run_scenario(scenario, progress=terminal_progress(f"{scenario.name}/{scenario.estimator}"))
+    return _report(result, args)
+
+
+def _report(result, args, extra=None):
+    """Print a run's metrics (drive run and drive launch), write its plot unless --no-plot."""
+    from .metrics import compute_metrics
+    from .plots import plot_run
+
+    scenario = result.scenario
     metrics = compute_metrics(result)
-    if not args.no_plot:
+    metrics.update(extra or {})
+    if not args.no_plot and result.log.shape[0]:
         out_dir = Path(args.out) if args.out else Path("runs") / scenario.name
         metrics["plots"] = [str(plot_run(result, out_dir))]
     if args.json:
@@ -35,6 +43,9 @@ def cmd_run(args):
         return 0
     print(f"scenario {metrics['scenario']} ({metrics['motor']}), estimator {metrics['estimator']}, "
           f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
+    for key, value in (extra or {}).items():
+        if not isinstance(value, dict):
+            print(f"  {key:36s} {value}")
     rows = [("angle error RMS (steady)", "angle_error_rms", "rad"),
             ("angle error bias (steady)", "angle_error_bias", "rad"),
             ("angle error peak (all after start)", "angle_error_peak", "rad"),
@@ -51,6 +62,26 @@ def cmd_run(args):
     for path in metrics.get("plots", []):
         print(f"  plot: {path}")
     return 0
+
+
+def cmd_launch(args):
+    from .graph import launch
+    from .runner import terminal_progress
+
+    if args.duration is not None and args.duration <= 0.0:
+        raise ScenarioError(f"--duration: must be positive, not {args.duration}")
+    scenario = load_scenario(args.scenario, estimator_override=args.estimator)
+    result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
+                    processes=args.processes, executor=args.executor, namespace=args.namespace,
+                    timeout_s=args.timeout,
+                    progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
+    faults = {name: d["message"] for name, d in (result.diagnostics or {}).items() if d["level"] > 0}
+    extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}",
+             "real_time_factor": round(result.scenario.duration_s / result.wall_time_s, 4)
+             if result.wall_time_s > 0 else None,
+             "interrupted": result.interrupted, "node_faults": faults}
+    _report(result, args, extra)
+    return 130 if result.interrupted else 0
 
 
 def cmd_scenarios(args):
@@ -90,6 +121,25 @@ def cmd_presets(args):
             print(f"{e['name']}: {e['source']}")
             for a in e["assumptions"]:
                 print(f"  - {a}")
+    return 0
+
+
+def cmd_echo(args):
+    from .graph import echo
+    for flag, value in (("--count", args.count), ("--every", args.every)):
+        if value is not None and value < 1:
+            raise ScenarioError(f"{flag}: must be at least 1, not {value}")
+    return echo(args.topic, args.namespace, args.count, args.every, args.json, args.timeout)
+
+
+def cmd_bench_graph(args):
+    from .bench import graph_throughput
+    if args.duration <= 0.0:
+        raise ScenarioError(f"--duration: must be positive, not {args.duration}")
+    report = graph_throughput(args.scenario, args.duration, record=args.record,
+                              progress=None if args.json else print)
+    if args.json:
+        _print_json(report)
     return 0
 
 
@@ -170,6 +220,38 @@ def build_parser():
                     help="skip timing motulator's signal-injection example")
     tp.add_argument("--json", action="store_true")
     tp.set_defaults(func=cmd_bench)
+    graph = bench_sub.add_parser("graph", help="real-time factor of the lock-step ROS graph at the "
+                                               "scenario's sampling rate, composed and separate")
+    graph.add_argument("--scenario", default="wang_100rpm")
+    graph.add_argument("--duration", type=float, default=0.5, help="simulated seconds per run")
+    graph.add_argument("--record", action="store_true", help="also record every per-sample topic")
+    graph.add_argument("--json", action="store_true")
+    graph.set_defaults(func=cmd_bench_graph)
+
+    from .graph import DEFAULT_NAMESPACE, EXECUTORS
+    launch = sub.add_parser("launch", help="run a scenario through the ROS 2 graph (nodes over topics)")
+    launch.add_argument("scenario", help="shipped scenario name or YAML path")
+    launch.add_argument("--estimator", help="override the scenario's estimator")
+    launch.add_argument("--duration", type=float, help="override the duration [s]")
+    launch.add_argument("--processes", choices=("composed", "separate"), default="composed",
+                        help="nodes in this process (default) or one process per node")
+    launch.add_argument("--executor", choices=EXECUTORS, default="events",
+                        help="events (rclpy.experimental.EventsExecutor, default) or single (fallback)")
+    launch.add_argument("--namespace", default=DEFAULT_NAMESPACE)
+    launch.add_argument("--timeout", type=float, default=1.0, help="lock-step answer timeout [s]")
+    launch.add_argument("--out", help="plot directory (default runs/SCENARIO)")
+    launch.add_argument("--no-plot", action="store_true")
+    launch.add_argument("--json", action="store_true")
+    launch.set_defaults(func=cmd_launch)
+
+    echo = sub.add_parser("echo", help="print a drive topic (like ros2 topic echo)")
+    echo.add_argument("topic", help="contract topic, e.g. angle_error, joint_states, /diagnostics")
+    echo.add_argument("--namespace", default=DEFAULT_NAMESPACE)
+    echo.add_argument("--count", type=int, help="stop after this many printed messages")
+    echo.add_argument("--every", type=int, default=1, help="print every N-th message")
+    echo.add_argument("--timeout", type=float, help="stop after this many seconds")
+    echo.add_argument("--json", action="store_true", help="one JSON object per line")
+    echo.set_defaults(func=cmd_echo)
     return parser
 
 

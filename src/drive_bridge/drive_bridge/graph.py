@@ -7,7 +7,6 @@ Node processes: ``python -m drive_bridge.graph {pmsm_plant,hf_estimator,foc_cont
 """
 import dataclasses
 import math
-import os
 import signal
 import subprocess
 import sys
@@ -120,17 +119,17 @@ class ScenarioDriver:
         self.speed_pub = node.create_publisher(Float64, "speed_command", COMMAND_QOS)
         self.load_pub = node.create_publisher(Float64, "load_torque", COMMAND_QOS)
         self.Float64 = Float64
-        node.create_subscription(Vector3Stamped, "currents", self.on_currents, PER_SAMPLE_QOS)
         node.create_subscription(Vector3Stamped, "voltage_command", self.on_voltage, PER_SAMPLE_QOS)
         node.create_subscription(DiagnosticArray, "/diagnostics", self.on_diagnostics, 50)
         if record:
+            node.create_subscription(Vector3Stamped, "currents", self.on_currents, PER_SAMPLE_QOS)
             node.create_subscription(JointState, "rotor_state", self.on_rotor_state, PER_SAMPLE_QOS)
             node.create_subscription(JointState, "rotor_estimate", self.on_estimate, PER_SAMPLE_QOS)
             node.create_subscription(Vector3Stamped, "injection", self.on_injection, PER_SAMPLE_QOS)
             node.create_subscription(Vector3Stamped, "estimator_state", self.on_estimator_state,
                                      PER_SAMPLE_QOS)
-        self.received = dict.fromkeys(("currents", "voltage_command") + (
-            ("rotor_state", "rotor_estimate", "injection", "estimator_state") if record else ()), 0)
+        self.received = dict.fromkeys(("voltage_command",) + (
+            ("currents", "rotor_state", "rotor_estimate", "injection", "estimator_state") if record else ()), 0)
         self.sent_speed = None
         self.created = time.monotonic()
         self.ready_since = None
@@ -145,7 +144,7 @@ class ScenarioDriver:
         """(topic, publishers, subscribers) that must exist before sample 0, this node included."""
         r = 1 if self.record else 0
         sensored = self.drive.estimator.name == "sensored"
-        return [("currents", 1, 3), ("rotor_state", 1, r + sensored), ("rotor_estimate", 1, 2 + r),
+        return [("currents", 1, 2 + r), ("rotor_state", 1, r + sensored), ("rotor_estimate", 1, 2 + r),
                 ("injection", 1, 1 + r), ("voltage_command", 1, 3), ("estimator_state", 1, r),
                 ("speed_command", 1, 1), ("load_torque", 1, 1)]
 
@@ -202,7 +201,7 @@ class ScenarioDriver:
 
     def on_currents(self, msg):
         k = self.sample(msg, "currents")
-        if k is not None and self.record:
+        if k is not None:
             row = self.log[k]
             row[COLUMN["i_a_meas"]], row[COLUMN["i_b_meas"]], row[COLUMN["i_c_meas"]] = (
                 msg.vector.x, msg.vector.y, msg.vector.z)
@@ -273,88 +272,114 @@ def _all_parameters(overrides):
     return merged
 
 
+@dataclass(frozen=True)
+class DriveSpec:
+    """One drive of a graph: its scenario (name or path), namespace and overrides."""
+
+    scenario: str
+    namespace: str = DEFAULT_NAMESPACE
+    estimator: str = None
+    duration_s: float = None
+    extra_parameters: dict = None
+
+
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
-           progress=None, extra_parameters=None, domain_id=None):
+           progress=None, extra_parameters=None):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
     ``interrupted``."""
+    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters)
+    return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress)[0]
+
+
+def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
+                startup_timeout_s=60.0, progress=None):
+    """Run several drives side by side in one graph (one namespace each); one GraphResult per spec."""
     import rclpy
+    from rclpy.node import Node
     from rclpy.signals import SignalHandlerOptions
     from rclpy.task import Future
 
     if processes not in ("composed", "separate"):
         raise ScenarioError(f"--processes: must be 'composed' or 'separate', not '{processes}'")
-    parameters = node_parameters(scenario_ref, estimator, duration_s, timeout_s, extra_parameters)
-    all_parameters = _all_parameters(parameters)
-    scenario = scenario_from_parameters(all_parameters)
-    drive = build_drive(scenario)
+    if len({spec.namespace for spec in specs}) < len(specs):
+        raise ScenarioError("--namespace: drives side by side need distinct namespaces")
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=domain_id, signal_handler_options=SignalHandlerOptions.NO)
-    children, nodes = [], []
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    children, nodes, drivers = [], [], []
     interrupted = []
     previous = {s: signal.signal(s, lambda signum, frame: interrupted.append(signum))
                 for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         ex = make_executor(executor, context)
-        plant_parameters = {**parameters, "load_torque_per_sample": True}
-        if processes == "composed":
+        for i, spec in enumerate(specs):
+            parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
+                                         spec.extra_parameters)
+            scenario = scenario_from_parameters(_all_parameters(parameters))
+            plant_parameters = {**parameters, "load_torque_per_sample": True}
             for role in ROLES:
-                nodes.append(make_node(role, context, namespace,
-                                       plant_parameters if role == "pmsm_plant" else parameters))
-        else:
-            children = [_spawn(role, namespace, plant_parameters if role == "pmsm_plant" else parameters,
-                               executor, domain_id) for role in ROLES]
-        from rclpy.node import Node
-        driver_node = Node("drive_launcher", context=context, namespace=namespace)
-        nodes.append(driver_node)
-        driver = ScenarioDriver(driver_node, scenario, drive, record,
-                                0.1 if processes == "composed" else 0.5, startup_timeout_s, progress)
-        driver.done = Future()
+                role_parameters = plant_parameters if role == "pmsm_plant" else parameters
+                if processes == "composed":
+                    nodes.append(make_node(role, context, spec.namespace, role_parameters))
+                else:
+                    children.append((role, _spawn(role, spec.namespace, role_parameters, executor)))
+            driver_node = Node("drive_launcher", context=context, namespace=spec.namespace)
+            nodes.append(driver_node)
+            driver = ScenarioDriver(driver_node, scenario, build_drive(scenario), record,
+                                    0.1 if processes == "composed" else 0.5, startup_timeout_s,
+                                    progress if i == 0 else None)
+            driver.done = Future()
+            drivers.append(driver)
         for node in nodes:
             ex.add_node(node)
-        watcher = driver_node.create_timer(0.05, lambda: _watch(driver, interrupted, children))
-        while not driver.done.done():
-            ex.spin_until_future_complete(driver.done, timeout_sec=1.0)
-        driver_node.destroy_timer(watcher)
-        if driver.error and not interrupted:
-            raise ScenarioError(f"{scenario.name}: {driver.error}")
-        end = driver.finished_at or time.monotonic()
-        wall = end - driver.started_at if driver.started_at else 0.0
-        log = driver.log[:driver.last_sample + 1] if record else driver.log[:0]
-        result_scenario = scenario
-        if driver.last_sample + 1 < scenario.n_samples:
-            result_scenario = dataclasses.replace(scenario, duration_s=(driver.last_sample + 1) * scenario.T_s)
-        return GraphResult(result_scenario, drive.preset, drive.estimator.name, log, wall,
-                           drive.controller.i_max_A, processes=processes, executor=executor,
-                           interrupted=bool(interrupted), diagnostics=dict(driver.diagnostics))
+        all_done = Future()
+        watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, interrupted, children, all_done))
+        while not all_done.done():
+            ex.spin_until_future_complete(all_done, timeout_sec=1.0)
+        nodes[-1].destroy_timer(watcher)
+        return [_result(driver, record, processes, executor, interrupted) for driver in drivers]
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-        _stop_children(children)
+        _stop_children([child for _, child in children])
         for node in nodes:
             node.destroy_node()
         context.try_shutdown()
 
 
-def _watch(driver, interrupted, children):
-    if interrupted:
-        driver.finish("interrupted")
-    for role, child in zip(ROLES, children):
-        if child.poll() is not None:
-            driver.finish(f"node process {role} exited with code {child.returncode}")
+def _result(driver, record, processes, executor, interrupted):
+    scenario, drive = driver.scenario, driver.drive
+    if driver.error and not interrupted:
+        raise ScenarioError(f"{driver.node.get_namespace()} ({scenario.name}): {driver.error}")
+    end = driver.finished_at or time.monotonic()
+    wall = end - driver.started_at if driver.started_at else 0.0
+    log = driver.log[:driver.last_sample + 1] if record else driver.log[:0]
+    if driver.last_sample + 1 < scenario.n_samples:
+        scenario = dataclasses.replace(scenario, duration_s=(driver.last_sample + 1) * scenario.T_s)
+    return GraphResult(scenario, drive.preset, drive.estimator.name, log, wall, drive.controller.i_max_A,
+                       processes=processes, executor=executor, interrupted=bool(interrupted),
+                       diagnostics=dict(driver.diagnostics))
 
 
-def _spawn(role, namespace, parameters, executor, domain_id):
+def _watch(drivers, interrupted, children, all_done):
+    for driver in drivers:
+        if interrupted:
+            driver.finish("interrupted")
+        for role, child in children:
+            if child.poll() is not None:
+                driver.finish(f"node process {role} exited with code {child.returncode}")
+    if all(driver.done.done() for driver in drivers) and not all_done.done():
+        all_done.set_result(True)
+
+
+def _spawn(role, namespace, parameters, executor):
     args = [sys.executable, "-m", "drive_bridge.graph", role, "--executor", executor,
             "--ros-args", "-r", f"__ns:={namespace}"]
     for name, value in parameters.items():
         args += ["-p", f"{name}:={_ros_value(value)}"]
-    env = dict(os.environ)
-    if domain_id is not None:
-        env["ROS_DOMAIN_ID"] = str(domain_id)
-    return subprocess.Popen(args, env=env)
+    return subprocess.Popen(args)
 
 
 def _ros_value(value):
@@ -376,6 +401,99 @@ def _stop_children(children, grace_s=5.0):
         except subprocess.TimeoutExpired:
             child.kill()
             child.wait()
+
+
+def topic_types():
+    """Message class and QoS of each contract topic (names relative to the drive's namespace)."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import Vector3Stamped
+    from pmsm_plant.contract import COMMAND_QOS, LATCHED_QOS, PER_SAMPLE_QOS
+    from rosgraph_msgs.msg import Clock
+    from sensor_msgs.msg import JointState
+    from std_msgs.msg import Float64, String
+    return {"currents": (Vector3Stamped, PER_SAMPLE_QOS), "rotor_state": (JointState, PER_SAMPLE_QOS),
+            "rotor_estimate": (JointState, PER_SAMPLE_QOS), "injection": (Vector3Stamped, PER_SAMPLE_QOS),
+            "voltage_command": (Vector3Stamped, PER_SAMPLE_QOS),
+            "estimator_state": (Vector3Stamped, PER_SAMPLE_QOS), "/clock": (Clock, PER_SAMPLE_QOS),
+            "angle_error": (Vector3Stamped, COMMAND_QOS), "joint_states": (JointState, COMMAND_QOS),
+            "speed_command": (Float64, COMMAND_QOS), "load_torque": (Float64, COMMAND_QOS),
+            "drive_config": (String, LATCHED_QOS), "/diagnostics": (DiagnosticArray, 50)}
+
+
+def message_dict(msg):
+    """A ROS message as plain Python data (what `ros2 topic echo` shows)."""
+    if hasattr(msg, "get_fields_and_field_types"):
+        return {name: message_dict(getattr(msg, name)) for name in msg.get_fields_and_field_types()}
+    if isinstance(msg, (list, tuple)) or hasattr(msg, "tolist"):
+        return [message_dict(v) for v in msg]
+    if isinstance(msg, bytes):
+        return int.from_bytes(msg, "little")
+    return msg
+
+
+def echo(topic, namespace=DEFAULT_NAMESPACE, count=None, every=1, as_json=False, timeout_s=None):
+    """Print messages of a contract topic until ``count`` were printed, ``timeout_s`` passed or
+    Ctrl-C; there is no `ros2 topic echo` in a PyPI-only install."""
+    import json
+
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.task import Future
+
+    types = topic_types()
+    key = topic if topic in types else topic.rsplit("/", 1)[-1]
+    if key not in types:
+        raise ScenarioError(f"{topic}: not a drive topic (known: {', '.join(types)})")
+    message_type, qos = types[key]
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    done = Future()
+    previous = {s: signal.signal(s, lambda *_: done.done() or done.set_result(True))
+                for s in (signal.SIGINT, signal.SIGTERM)}
+    seen, printed = [0], [0]
+
+    def show(msg):
+        seen[0] += 1
+        if (seen[0] - 1) % every or done.done():
+            return
+        data = message_dict(msg)
+        print(json.dumps(data) if as_json else _yaml_like(data) + "\n---", flush=True)
+        printed[0] += 1
+        if count and printed[0] >= count:
+            done.set_result(True)
+
+    node = Node("drive_echo", context=context, namespace=namespace)
+    try:
+        node.create_subscription(message_type, topic if topic.startswith("/") else key, show, qos)
+        if timeout_s:
+            node.create_timer(timeout_s, lambda: done.done() or done.set_result(True))
+        executor = make_executor("events", context)
+        executor.add_node(node)
+        while not done.done():
+            executor.spin_until_future_complete(done, timeout_sec=0.25)
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        node.destroy_node()
+        context.try_shutdown()
+    return 0
+
+
+def _yaml_like(data, indent=""):
+    lines = []
+    for name, value in data.items():
+        if isinstance(value, dict):
+            lines.append(f"{indent}{name}:")
+            lines.append(_yaml_like(value, indent + "  "))
+        elif isinstance(value, list) and value and isinstance(value[0], dict):
+            lines.append(f"{indent}{name}:")
+            for item in value:
+                body = _yaml_like(item, indent + "  ")
+                lines.append(f"{indent}- " + body.lstrip())
+        else:
+            lines.append(f"{indent}{name}: {value}")
+    return "\n".join(lines)
 
 
 def node_main(argv=None):

@@ -1,0 +1,285 @@
+"""The drive as a ROS 2 graph: lock-step equivalence with the one-process runner, namespaces, bad input,
+timeouts, the launcher's signals and `drive echo`. Isolated: localhost discovery, a per-run domain."""
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ["ROS_DOMAIN_ID"] = str(30 + os.getpid() % 60)
+
+rclpy = pytest.importorskip("rclpy")
+import rclpy.node  # noqa: E402
+from geometry_msgs.msg import Vector3Stamped  # noqa: E402
+from rclpy.experimental import EventsExecutor  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
+from rclpy.signals import SignalHandlerOptions  # noqa: E402
+from sensor_msgs.msg import JointState  # noqa: E402
+from std_msgs.msg import Float64  # noqa: E402
+
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from drive_bridge.graph import DriveSpec, build_from_parameters, launch, launch_many  # noqa: E402
+from drive_bridge.loop import COLUMN  # noqa: E402
+from drive_bridge.runner import run_scenario  # noqa: E402
+from drive_bridge.scenario import load_scenario  # noqa: E402
+from foc_controller.node import SPEED_LIMIT, ControllerNode  # noqa: E402
+from hf_estimator.node import EstimatorNode  # noqa: E402
+from pmsm_plant.contract import COMMAND_QOS, PER_SAMPLE_QOS, parameter_overrides, sample_of, stamp  # noqa: E402
+from pmsm_plant.node import PlantNode  # noqa: E402
+
+DRIVE = [sys.executable, "-m", "drive_bridge.cli"]
+COMPARED = ("theta_m", "omega_m", "tau_e", "i_a_meas", "i_b_meas", "i_c_meas", "theta_e_hat", "omega_e_hat",
+            "u_alpha", "u_beta", "u_inj_alpha", "u_inj_beta", "eps", "signal", "observable")
+SCENARIO = """\
+description: graph equivalence (speed ramp and a load step, both crossing samples)
+motor: wang_spmsm
+estimator: {estimator}
+injection: {{frequency_Hz: 900.0, amplitude_V: 5.0}}
+duration_s: 0.06
+sampling_period_s: 1.0e-4
+initial: {{angle_error_e_rad: 0.3}}
+speed: {{unit: rpm, interpolation: linear, points: [[0.0, 0.0], [0.04, {rpm}]]}}
+load: {{unit: rated, points: [[0.0, 0.0], [0.03, 0.5]]}}
+"""
+
+
+def scenario_file(tmp_path, name="equivalence", estimator="injection_frame", rpm=60.0):
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(SCENARIO.format(estimator=estimator, rpm=rpm))
+    return str(path)
+
+
+def assert_same_samples(graph_result, path):
+    reference = run_scenario(load_scenario(path)).log
+    log = graph_result.log
+    assert log.shape == reference.shape
+    for name in COMPARED:
+        a, b = log[:, COLUMN[name]], reference[:, COLUMN[name]]
+        assert np.all(np.isfinite(a)), f"{name}: samples missing from the topics"
+        np.testing.assert_allclose(a, b, rtol=0.0, atol=1e-9, err_msg=name)
+
+
+@pytest.mark.parametrize("processes", ["composed", "separate"])
+def test_graph_gives_the_runners_samples(tmp_path, processes):
+    path = scenario_file(tmp_path)
+    result = launch(path, processes=processes, namespace=f"/eq_{processes}")
+    assert not result.interrupted
+    assert_same_samples(result, path)
+
+
+def test_two_drives_side_by_side_do_not_cross_talk(tmp_path):
+    left, right = scenario_file(tmp_path, "left", rpm=60.0), scenario_file(tmp_path, "right", "improved", -90.0)
+    results = launch_many([DriveSpec(left, "/left_wheel"), DriveSpec(right, "/right_wheel")])
+    assert_same_samples(results[0], left)
+    assert_same_samples(results[1], right)
+    assert results[0].estimator == "injection_frame" and results[1].estimator == "improved"
+
+
+class Harness:
+    """One context with the node under test, a tester node standing in for its partners, and the
+    /diagnostics statuses it has published."""
+
+    def __init__(self, namespace, **parameters):
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
+        self.namespace = namespace
+        self.parameters = {"scenario": "wang_100rpm", "diagnostics_period_s": 0.1, **parameters}
+        self.executor = EventsExecutor(context=self.context)
+        self.tester = rclpy.node.Node("tester", context=self.context, namespace=namespace)
+        self.statuses = []
+        self.tester.create_subscription(DiagnosticArray, "/diagnostics", self.on_diagnostics, 50)
+        self.received = {}
+        self.nodes = [self.tester]
+
+    def add(self, node_class, **extra):
+        node = node_class(build_from_parameters, context=self.context, namespace=self.namespace,
+                          parameter_overrides=parameter_overrides({**self.parameters, **extra}))
+        self.nodes.append(node)
+        return node
+
+    def publisher(self, msg_type, topic, qos=PER_SAMPLE_QOS):
+        return self.tester.create_publisher(msg_type, topic, qos)
+
+    def listen(self, msg_type, topic):
+        self.received[topic] = []
+        self.tester.create_subscription(msg_type, topic, self.received[topic].append, PER_SAMPLE_QOS)
+
+    def on_diagnostics(self, msg):
+        self.statuses += [s for s in msg.status if s.name.startswith(self.namespace + "/")]
+
+    def spin_until(self, predicate, timeout_s=15.0, what="condition"):
+        for node in self.nodes:
+            if node.executor is None:
+                self.executor.add_node(node)
+        end = time.monotonic() + timeout_s
+        while not predicate():
+            assert time.monotonic() < end, f"timed out waiting for {what}"
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def error_status(self, node_name, fault_key):
+        for s in reversed(self.statuses):
+            values = {v.key: v.value for v in s.values}
+            if s.name.endswith(node_name) and s.level == b"\x02" and int(values.get(fault_key, 0)) >= 1:
+                return s
+        return None
+
+    def close(self):
+        for node in self.nodes:
+            node.destroy_node()
+        self.context.try_shutdown()
+
+
+def vector(k, x, y, z=0.0, T_s=1e-4):
+    msg = Vector3Stamped()
+    msg.header.stamp = stamp(k, T_s)
+    msg.vector.x, msg.vector.y, msg.vector.z = x, y, z
+    return msg
+
+
+def estimate(k, theta_m=0.0, omega_m=0.0, T_s=1e-4):
+    msg = JointState(name=["rotor"], position=[theta_m], velocity=[omega_m])
+    msg.header.stamp = stamp(k, T_s)
+    return msg
+
+
+def test_controller_answers_bad_input_with_zero_voltage_and_keeps_running():
+    h = Harness("/bad_controller")
+    try:
+        node = h.add(ControllerNode)
+        currents, estimates = h.publisher(Vector3Stamped, "currents"), h.publisher(JointState, "rotor_estimate")
+        injection, speed = h.publisher(Vector3Stamped, "injection"), h.publisher(Float64, "speed_command",
+                                                                                   COMMAND_QOS)
+        h.listen(Vector3Stamped, "voltage_command")
+        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection, speed))
+                     and h.tester.count_publishers("/bad_controller/voltage_command"), what="matching")
+        speed.publish(Float64(data=20.0))
+        h.spin_until(lambda: node.omega_m_ref == 20.0, what="speed command")
+        answers = h.received["voltage_command"]
+
+        def sample(k, i_a, i_b, i_c):
+            currents.publish(vector(k, i_a, i_b, i_c))
+            estimates.publish(estimate(k))
+            injection.publish(vector(k, 0.0, 0.0))
+            h.spin_until(lambda: len(answers) > k, what=f"voltage_command {k}")
+            assert sample_of(answers[k].header, 1e-4) == k
+            return math.hypot(answers[k].vector.x, answers[k].vector.y)
+
+        assert sample(0, math.nan, 0.0, 0.0) == 0.0
+        assert sample(1, 1e6, -5e5, -5e5) == 0.0
+        assert sample(2, 0.0, 0.0, 0.0) > 0.1
+        h.spin_until(lambda: h.error_status("foc_controller", "faults.bad_input"), what="diagnostics error")
+        assert "currents at sample" in h.error_status("foc_controller", "faults.bad_input").message
+
+        assert not node.set_parameters([Parameter(SPEED_LIMIT, value=-5.0)])[0].successful
+        assert sample(3, 0.0, 0.0, 0.0) == 0.0
+        h.spin_until(lambda: h.error_status("foc_controller", "faults.parameter"), what="parameter error")
+        assert SPEED_LIMIT in h.error_status("foc_controller", "faults.parameter").message
+        assert node.set_parameters([Parameter(SPEED_LIMIT, value=50.0)])[0].successful
+        assert sample(4, 0.0, 0.0, 0.0) > 0.1
+    finally:
+        h.close()
+
+
+def test_controller_with_a_negative_speed_limit_at_start_holds_zero_voltage():
+    h = Harness("/bad_start", **{SPEED_LIMIT: -1.0})
+    try:
+        node = h.add(ControllerNode)
+        assert node.drive is None and "speed_limit_rad_s" in node.health.latched
+        currents, estimates = h.publisher(Vector3Stamped, "currents"), h.publisher(JointState, "rotor_estimate")
+        injection = h.publisher(Vector3Stamped, "injection")
+        h.listen(Vector3Stamped, "voltage_command")
+        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection))
+                     and h.tester.count_publishers("/bad_start/voltage_command"), what="matching")
+        currents.publish(vector(0, 0.0, 0.0, 0.0))
+        estimates.publish(estimate(0))
+        injection.publish(vector(0, 0.0, 0.0))
+        h.spin_until(lambda: h.received["voltage_command"], what="voltage_command")
+        assert h.received["voltage_command"][0].vector.x == 0.0 == h.received["voltage_command"][0].vector.y
+        h.spin_until(lambda: h.error_status("foc_controller", "faults.configuration"), what="diagnostics")
+    finally:
+        h.close()
+
+
+def test_estimator_holds_its_estimate_on_nan_currents():
+    h = Harness("/bad_estimator")
+    try:
+        h.add(EstimatorNode)
+        currents = h.publisher(Vector3Stamped, "currents")
+        voltage = h.publisher(Vector3Stamped, "voltage_command")
+        h.listen(JointState, "rotor_estimate")
+        h.listen(Vector3Stamped, "injection")
+        h.spin_until(lambda: currents.get_subscription_count() and voltage.get_subscription_count()
+                     and h.tester.count_publishers("/bad_estimator/injection"), what="matching")
+        currents.publish(vector(0, math.inf, 0.0, 0.0))
+        h.spin_until(lambda: h.received["injection"] and h.received["rotor_estimate"], what="answer")
+        first = h.received["rotor_estimate"][0]
+        assert math.isfinite(first.position[0]) and h.received["injection"][0].vector.x == 0.0
+        voltage.publish(vector(0, 0.0, 0.0))
+        currents.publish(vector(1, 0.0, 0.0, 0.0))
+        h.spin_until(lambda: len(h.received["injection"]) > 1 and len(h.received["rotor_estimate"]) > 1,
+                     what="second answer")
+        assert h.received["injection"][1].vector.x != 0.0 or h.received["injection"][1].vector.y != 0.0
+        h.spin_until(lambda: h.error_status("hf_estimator", "faults.bad_input"), what="diagnostics error")
+    finally:
+        h.close()
+
+
+def test_plant_discards_a_wrongly_stamped_command_and_applies_zero_voltage_on_timeout():
+    h = Harness("/bad_plant", lockstep_timeout_s=0.3)
+    try:
+        plant = h.add(PlantNode)
+        voltage = h.publisher(Vector3Stamped, "voltage_command")
+        h.publisher(JointState, "rotor_estimate")
+        h.listen(Vector3Stamped, "currents")
+        h.tester.create_subscription(Vector3Stamped, "currents", lambda msg: None, PER_SAMPLE_QOS)
+        currents = h.received["currents"]
+        h.spin_until(lambda: currents, what="sample 0")
+        voltage.publish(vector(5, 10.0, 0.0))
+        h.spin_until(lambda: len(currents) > 1, what="sample 1 after the timeout")
+        h.spin_until(lambda: h.error_status("pmsm_plant", "faults.wrong_stamp")
+                     and h.error_status("pmsm_plant", "faults.timeout"), what="diagnostics errors")
+        assert "silent topic: /bad_plant/rotor_estimate" in h.error_status("pmsm_plant", "faults.timeout").message
+        for k, u_alpha in ((1, 10.0), (2, 0.0)):
+            voltage.publish(vector(k, u_alpha, 0.0))
+            h.spin_until(lambda: len(currents) > k + 1, what=f"sample {k + 1}")
+        # One period of computation delay: currents(2) show the period after sample 0 (zero voltage
+        # instead of the discarded 10 V), currents(3) the 10 V commanded at sample 1.
+        assert abs(currents[2].vector.x) < 0.1 and currents[3].vector.x > 0.3
+        assert plant.k == 3
+    finally:
+        h.close()
+
+
+def test_launch_json_and_echo_from_a_second_process(tmp_path):
+    path = scenario_file(tmp_path)
+    echo = subprocess.Popen(DRIVE + ["echo", "angle_error", "--namespace", "/echoed", "--count", "3", "--json",
+                                     "--timeout", "60"], stdout=subprocess.PIPE, text=True)
+    time.sleep(3.0)
+    run = subprocess.run(DRIVE + ["launch", path, "--namespace", "/echoed", "--json", "--no-plot"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    metrics = json.loads(run.stdout)
+    assert metrics["samples"] == 600 and metrics["real_time_factor"] > 0.0 and not metrics["node_faults"]
+    lines = echo.communicate(timeout=30)[0].splitlines()
+    assert len(lines) == 3
+    assert all(abs(json.loads(line)["vector"]["x"]) < math.pi for line in lines)
+
+
+def test_sigterm_stops_the_launcher_and_its_node_processes(tmp_path):
+    launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--processes", "separate", "--namespace",
+                                         "/sigterm_test", "--json", "--no-plot"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(8.0)
+    launcher.send_signal(signal.SIGTERM)
+    out, _ = launcher.communicate(timeout=30)
+    assert launcher.returncode == 130
+    assert json.loads(out)["interrupted"] is True
+    time.sleep(0.5)
+    left = subprocess.run(["pgrep", "-f", "__ns:=/sigterm_test"], capture_output=True, text=True).stdout
+    assert left.strip() == ""
