@@ -30,7 +30,8 @@ from drive_bridge.runner import run_scenario  # noqa: E402
 from drive_bridge.scenario import load_scenario  # noqa: E402
 from foc_controller.node import SPEED_LIMIT, ControllerNode  # noqa: E402
 from hf_estimator.node import EstimatorNode  # noqa: E402
-from pmsm_plant.contract import COMMAND_QOS, PER_SAMPLE_QOS, parameter_overrides, sample_of, stamp  # noqa: E402
+from pmsm_plant.contract import (COMMAND_QOS, PER_SAMPLE_QOS, parameter_overrides, sample_of,  # noqa: E402
+                                 stamp)
 from pmsm_plant.node import PlantNode  # noqa: E402
 
 DRIVE = [sys.executable, "-m", "drive_bridge.cli"]
@@ -74,7 +75,8 @@ def test_graph_gives_the_runners_samples(tmp_path, processes):
 
 
 def test_two_drives_side_by_side_do_not_cross_talk(tmp_path):
-    left, right = scenario_file(tmp_path, "left", rpm=60.0), scenario_file(tmp_path, "right", "improved", -90.0)
+    left = scenario_file(tmp_path, "left", rpm=60.0)
+    right = scenario_file(tmp_path, "right", "improved", -90.0)
     results = launch_many([DriveSpec(left, "/left_wheel"), DriveSpec(right, "/right_wheel")])
     assert_same_samples(results[0], left)
     assert_same_samples(results[1], right)
@@ -152,7 +154,8 @@ def test_controller_answers_bad_input_with_zero_voltage_and_keeps_running():
     h = Harness("/bad_controller")
     try:
         node = h.add(ControllerNode)
-        currents, estimates = h.publisher(Vector3Stamped, "currents"), h.publisher(JointState, "rotor_estimate")
+        currents = h.publisher(Vector3Stamped, "currents")
+        estimates = h.publisher(JointState, "rotor_estimate")
         injection, speed = h.publisher(Vector3Stamped, "injection"), h.publisher(Float64, "speed_command",
                                                                                    COMMAND_QOS)
         h.listen(Vector3Stamped, "voltage_command")
@@ -191,7 +194,8 @@ def test_controller_with_a_negative_speed_limit_at_start_holds_zero_voltage():
     try:
         node = h.add(ControllerNode)
         assert node.drive is None and "speed_limit_rad_s" in node.health.latched
-        currents, estimates = h.publisher(Vector3Stamped, "currents"), h.publisher(JointState, "rotor_estimate")
+        currents = h.publisher(Vector3Stamped, "currents")
+        estimates = h.publisher(JointState, "rotor_estimate")
         injection = h.publisher(Vector3Stamped, "injection")
         h.listen(Vector3Stamped, "voltage_command")
         h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection))
@@ -244,7 +248,8 @@ def test_plant_discards_a_wrongly_stamped_command_and_applies_zero_voltage_on_ti
         h.spin_until(lambda: len(currents) > 1, what="sample 1 after the timeout")
         h.spin_until(lambda: h.error_status("pmsm_plant", "faults.wrong_stamp")
                      and h.error_status("pmsm_plant", "faults.timeout"), what="diagnostics errors")
-        assert "silent topic: /bad_plant/rotor_estimate" in h.error_status("pmsm_plant", "faults.timeout").message
+        timeout = h.error_status("pmsm_plant", "faults.timeout")
+        assert "silent topic: /bad_plant/rotor_estimate" in timeout.message
         for k, u_alpha in ((1, 10.0), (2, 0.0)):
             voltage.publish(vector(k, u_alpha, 0.0))
             h.spin_until(lambda: len(currents) > k + 1, what=f"sample {k + 1}")
@@ -258,8 +263,8 @@ def test_plant_discards_a_wrongly_stamped_command_and_applies_zero_voltage_on_ti
 
 def test_launch_json_and_echo_from_a_second_process(tmp_path):
     path = scenario_file(tmp_path)
-    echo = subprocess.Popen(DRIVE + ["echo", "angle_error", "--namespace", "/echoed", "--count", "3", "--json",
-                                     "--timeout", "60"], stdout=subprocess.PIPE, text=True)
+    echo = subprocess.Popen(DRIVE + ["echo", "angle_error", "--namespace", "/echoed", "--count", "3",
+                                     "--json", "--timeout", "60"], stdout=subprocess.PIPE, text=True)
     time.sleep(3.0)
     run = subprocess.run(DRIVE + ["launch", path, "--namespace", "/echoed", "--json", "--no-plot"],
                          capture_output=True, text=True, timeout=120)

@@ -15,5 +15,6 @@ setup(
     zip_safe=False,
     description="One-process runner, scenarios, metrics, benchmarks and the drive command line.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["drive = drive_bridge.cli:main"]},
+    entry_points={"console_scripts": ["drive = drive_bridge.cli:main",
+                                      "drive_node = drive_bridge.graph:node_main"]},
 )

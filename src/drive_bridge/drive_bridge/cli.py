@@ -136,7 +136,9 @@ def cmd_bench_graph(args):
     from .bench import graph_throughput
     if args.duration <= 0.0:
         raise ScenarioError(f"--duration: must be positive, not {args.duration}")
-    report = graph_throughput(args.scenario, args.duration, record=args.record,
+    if args.repeats < 1:
+        raise ScenarioError(f"--repeats: must be at least 1, not {args.repeats}")
+    report = graph_throughput(args.scenario, args.duration, record=args.record, repeats=args.repeats,
                               progress=None if args.json else print)
     if args.json:
         _print_json(report)
@@ -225,6 +227,7 @@ def build_parser():
     graph.add_argument("--scenario", default="wang_100rpm")
     graph.add_argument("--duration", type=float, default=0.5, help="simulated seconds per run")
     graph.add_argument("--record", action="store_true", help="also record every per-sample topic")
+    graph.add_argument("--repeats", type=int, default=2, help="timed runs per configuration (best kept)")
     graph.add_argument("--json", action="store_true")
     graph.set_defaults(func=cmd_bench_graph)
 

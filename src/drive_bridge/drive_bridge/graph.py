@@ -22,8 +22,10 @@ from .scenario import ScenarioError, load_scenario, resolve
 EXECUTORS = ("events", "single")
 ROLES = ("pmsm_plant", "hf_estimator", "foc_controller")
 DEFAULT_NAMESPACE = "/drive"
-HOPS_PER_SAMPLE = 3
-"""Sequential hops of one lock-step sample: currents → estimator → controller → plant."""
+DELIVERIES_PER_SAMPLE = 9
+"""Messages delivered per lock-step sample without recording: currents → estimator, controller;
+rotor_estimate → controller, plant; injection → controller; voltage_command → plant, estimator,
+launcher; load_torque → plant. Composed on one executor thread, a sample costs their sum."""
 
 
 def scenario_from_parameters(parameters):
@@ -128,8 +130,8 @@ class ScenarioDriver:
             node.create_subscription(Vector3Stamped, "injection", self.on_injection, PER_SAMPLE_QOS)
             node.create_subscription(Vector3Stamped, "estimator_state", self.on_estimator_state,
                                      PER_SAMPLE_QOS)
-        self.received = dict.fromkeys(("voltage_command",) + (
-            ("currents", "rotor_state", "rotor_estimate", "injection", "estimator_state") if record else ()), 0)
+        recorded = ("currents", "rotor_state", "rotor_estimate", "injection", "estimator_state")
+        self.received = dict.fromkeys(("voltage_command",) + (recorded if record else ()), 0)
         self.sent_speed = None
         self.created = time.monotonic()
         self.ready_since = None

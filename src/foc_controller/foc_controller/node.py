@@ -86,9 +86,10 @@ class ControllerNode(DriveNode):
                                       f"sample at or after {self.k}; discarded")
             return
         table[k] = value
-        while self.k in self.currents and self.k in self.estimates and self.k in self.injections:
-            self.step(self.k, self.currents.pop(self.k), self.estimates.pop(self.k), self.injections.pop(self.k))
-            self.k += 1
+        k = self.k
+        while k in self.currents and k in self.estimates and k in self.injections:
+            self.step(k, self.currents.pop(k), self.estimates.pop(k), self.injections.pop(k))
+            k = self.k = k + 1
 
     def step(self, k, currents, estimate, injection):
         u_alpha = u_beta = 0.0
@@ -118,4 +119,5 @@ class ControllerNode(DriveNode):
         self.voltage_pub.publish(m)
 
     def status_values(self):
-        return {"sample": self.k, "speed_command_rad_s": self.omega_m_ref, "current_limited": self.current_limited}
+        return {"sample": self.k, "speed_command_rad_s": self.omega_m_ref,
+                "current_limited": self.current_limited}

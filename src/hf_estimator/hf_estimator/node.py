@@ -97,7 +97,8 @@ class EstimatorNode(DriveNode):
         self.try_step()
 
     def answer(self, k, theta_hat, omega_hat, u_inj_alpha, u_inj_beta, eps, signal, observable):
-        self.theta_hat, self.omega_hat, self.signal, self.observable = theta_hat, omega_hat, signal, observable
+        self.theta_hat, self.omega_hat = theta_hat, omega_hat
+        self.signal, self.observable = signal, observable
         t = stamp(k, self.T_s)
         r = self.estimate_msg
         r.header.stamp = t
@@ -115,8 +116,9 @@ class EstimatorNode(DriveNode):
 
     def watchdog(self):
         if self.waiting_since and time.monotonic() - self.waiting_since > self.timeout_s / 2.0:
-            self.fault("timeout", f"sample {self.k}: no {self.resolve_topic_name('voltage_command')} for "
-                                  f"sample {self.k - 1}; estimating with zero voltage (what the plant applied)")
+            topic = self.resolve_topic_name("voltage_command")
+            self.fault("timeout", f"sample {self.k}: no {topic} for sample {self.k - 1}; estimating with "
+                                  f"zero voltage (what the plant applied)")
             self.try_step(force_voltage=True)
 
     def status_values(self):

@@ -87,8 +87,9 @@ class PlantNode(DriveNode):
 
     def ready(self):
         """Every lock-step partner is matched (and the first load is in, when taken per sample)."""
-        return (self.currents_pub.get_subscription_count() >= 2 and self.count_publishers("voltage_command") >= 1
-                and self.count_publishers("rotor_estimate") >= 1 and (self.loads or not self.load_per_sample))
+        return (self.currents_pub.get_subscription_count() >= 2
+                and self.count_publishers("voltage_command") >= 1 and self.count_publishers("rotor_estimate") >= 1
+                and (self.loads or not self.load_per_sample))
 
     def watchdog(self):
         if self.finished:
@@ -109,7 +110,7 @@ class PlantNode(DriveNode):
             silent = "rotor_estimate" if self.estimate_seen < self.k else "voltage_command"
             self.fault("timeout", f"sample {self.k}: no answer within {self.timeout_s:g} s "
                                   f"(silent topic: {self.resolve_topic_name(silent)}); zero voltage applied")
-            self.advance(0.0, 0.0)
+            self.advance(0.0, 0.0, safe_state=True)
 
     def publish_sample(self):
         d, k = self.drive, self.k
@@ -144,23 +145,23 @@ class PlantNode(DriveNode):
             return
         k = sample_of(msg.header, self.T_s)
         if k != self.k:
-            self.fault("wrong_stamp", f"voltage_command stamped {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}"
-                                      f" while waiting for sample {self.k} ({stamp_ns(self.k, self.T_s)} ns); "
-                                      f"discarded")
+            t = msg.header.stamp
+            self.fault("wrong_stamp", f"voltage_command stamped {t.sec}.{t.nanosec:09d} while waiting for "
+                                      f"sample {self.k} ({stamp_ns(self.k, self.T_s)} ns); discarded")
             return
         u = msg.vector
         limit = self.drive.inverter.U_dc_V
         if not finite(u.x, u.y) or abs(u.x) > limit or abs(u.y) > limit:
             self.fault("bad_input", f"voltage_command at sample {k}: ({u.x}, {u.y}) V is not a voltage the "
                                     f"inverter can apply; zero voltage applied")
-            self.advance(0.0, 0.0)
+            self.advance(0.0, 0.0, safe_state=True)
             return
         self.advance(u.x, u.y)
 
-    def advance(self, u_alpha, u_beta):
+    def advance(self, u_alpha, u_beta, safe_state=False):
+        """Apply the command of sample k (zero voltage as the safe state after a fault) and go to k+1."""
         d, s = self.drive, self.drive.scenario
-        if u_alpha == 0.0 and u_beta == 0.0:
-            self.zero_voltage_periods += 1
+        self.zero_voltage_periods += safe_state
         plant_advance(d.plant_x, u_alpha, u_beta, self.tau_load, self.imposed, self.omega_imposed, d.machine,
                       d.preset.mechanics, d.inverter, s.T_s, s.substeps)
         self.k += 1
@@ -186,4 +187,4 @@ class PlantNode(DriveNode):
 
     def status_values(self):
         return {"sample": self.k, "started": self.started, "finished": self.finished,
-                "sim_time_s": self.k * self.T_s, "zero_voltage_periods": self.zero_voltage_periods}
+                "sim_time_s": self.k * self.T_s, "safe_state_periods": self.zero_voltage_periods}
