@@ -46,6 +46,11 @@ class ControllerNode(DriveNode):
         else:
             self.publish_config({})
 
+    def warm_up(self):
+        d = self.drive
+        controller_step(d.controller_x.copy(), d.controller_z.copy(), d.controller, 0.0, 0.0, 0.0, 0.0, 0.0,
+                        0.0, 0.0, 0.0)
+
     def on_set_parameters(self, parameters):
         for p in parameters:
             if p.name != SPEED_LIMIT:

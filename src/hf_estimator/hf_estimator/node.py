@@ -48,6 +48,10 @@ class EstimatorNode(DriveNode):
         self.publish_config({"estimator": e.name, "injection_frequency_Hz": e.injection_frequency_Hz,
                              "tracking_bandwidth_Hz": e.tracking_bandwidth_Hz, "parameters": e.params})
 
+    def warm_up(self):
+        e = self.drive.estimator
+        e.step(e.x.copy(), e.z.copy(), e.params, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
     def on_currents(self, msg):
         k = sample_of(msg.header, self.T_s)
         if k is None or k < self.k:

