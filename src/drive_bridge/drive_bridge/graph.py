@@ -71,6 +71,11 @@ def make_node(role, context=None, namespace=None, parameters=None):
     raise ValueError(f"unknown node '{role}' (known: {', '.join(ROLES)})")
 
 
+def _msgtype(cls):
+    """'geometry_msgs/msg/Vector3Stamped' for the rclpy class."""
+    return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
+
+
 def make_executor(name, context):
     """``events``: rclpy.experimental.EventsExecutor (≈ 10× less overhead per message here; its
     spin_until_future_complete without a timeout never returns in this rclpy, so callers pass one);
@@ -98,13 +103,12 @@ class ScenarioDriver:
     endpoint is matched, then publishes the speed (when it changes) and the load torque of sample 0,
     which starts the plant (``load_torque_per_sample``); on `voltage_command`(k), after the controller
     has used the speed of k, it publishes those of k+1. With ``record`` it fills a log
-    (drive_bridge.loop.LOG_COLUMNS) from the topics; columns no topic carries stay NaN."""
+    (drive_bridge.loop.LOG_COLUMNS) from the topics; columns no topic carries stay NaN. With a
+    ``recorder`` (drive_bridge.bag.BagWriter) it writes every contract topic as received, serialized."""
 
-    def __init__(self, node, scenario, drive, record, settle_s, startup_timeout_s, progress):
-        from diagnostic_msgs.msg import DiagnosticArray
-        from geometry_msgs.msg import Vector3Stamped
-        from pmsm_plant.contract import COMMAND_QOS, PER_SAMPLE_QOS
-        from sensor_msgs.msg import JointState
+    def __init__(self, node, scenario, drive, record, settle_s, startup_timeout_s, progress, recorder=None):
+        from pmsm_plant.contract import COMMAND_QOS
+        from rclpy.serialization import serialize_message
         from std_msgs.msg import Float64
 
         self.node, self.scenario, self.drive = node, scenario, drive
@@ -120,18 +124,16 @@ class ScenarioDriver:
             self.log[:, COLUMN["tau_load"]] = self.load
         self.speed_pub = node.create_publisher(Float64, "speed_command", COMMAND_QOS)
         self.load_pub = node.create_publisher(Float64, "load_torque", COMMAND_QOS)
-        self.Float64 = Float64
-        node.create_subscription(Vector3Stamped, "voltage_command", self.on_voltage, PER_SAMPLE_QOS)
-        node.create_subscription(DiagnosticArray, "/diagnostics", self.on_diagnostics, 50)
+        self.Float64, self.serialize = Float64, serialize_message
+        self.recorder = recorder
+        handlers = {"voltage_command": self.on_voltage, "/diagnostics": self.on_diagnostics}
+        recorded = {"currents": self.on_currents, "rotor_state": self.on_rotor_state,
+                    "rotor_estimate": self.on_estimate, "injection": self.on_injection,
+                    "estimator_state": self.on_estimator_state}
         if record:
-            node.create_subscription(Vector3Stamped, "currents", self.on_currents, PER_SAMPLE_QOS)
-            node.create_subscription(JointState, "rotor_state", self.on_rotor_state, PER_SAMPLE_QOS)
-            node.create_subscription(JointState, "rotor_estimate", self.on_estimate, PER_SAMPLE_QOS)
-            node.create_subscription(Vector3Stamped, "injection", self.on_injection, PER_SAMPLE_QOS)
-            node.create_subscription(Vector3Stamped, "estimator_state", self.on_estimator_state,
-                                     PER_SAMPLE_QOS)
-        recorded = ("currents", "rotor_state", "rotor_estimate", "injection", "estimator_state")
-        self.received = dict.fromkeys(("voltage_command",) + (recorded if record else ()), 0)
+            handlers.update(recorded)
+        self.subscribe(handlers)
+        self.received = dict.fromkeys(("voltage_command",) + (tuple(recorded) if record else ()), 0)
         self.sent_speed = None
         self.created = time.monotonic()
         self.ready_since = None
@@ -142,9 +144,43 @@ class ScenarioDriver:
         self.done = None
         node.create_timer(0.05, self.tick)
 
+    def subscribe(self, handlers):
+        """Subscribe the handlers; with a recorder, every contract topic raw, written as it comes and
+        deserialised only for a handler. The launcher's own commands are written where published."""
+        from .bag import SAMPLE_STAMPED, rosbags_qos
+        types = topic_types()
+        topics = set(handlers)
+        if self.recorder:
+            topics |= set(types) - {"speed_command", "load_torque"}
+        for topic in sorted(topics):
+            cls, qos = types[topic]
+            handler = handlers.get(topic)
+            if not self.recorder:
+                self.node.create_subscription(cls, topic, handler, qos)
+                continue
+            self.node.create_subscription(cls, topic, self.recording(topic, cls, handler, topic in SAMPLE_STAMPED),
+                                          qos, raw=True)
+        if self.recorder:
+            for topic in sorted(types):
+                cls, qos = types[topic]
+                depth = qos if isinstance(qos, int) else qos.depth
+                durability = 1 if topic == "drive_config" else 2
+                self.recorder.add(self.node.resolve_topic_name(topic), _msgtype(cls),
+                                  rosbags_qos(depth=depth, durability=durability))
+
+    def recording(self, topic, cls, handler, stamped):
+        from rclpy.serialization import deserialize_message
+        name = self.node.resolve_topic_name(topic)
+
+        def callback(data):
+            self.recorder.write(name, data, stamped)
+            if handler:
+                handler(deserialize_message(data, cls))
+        return callback
+
     def expected_endpoints(self):
         """(topic, publishers, subscribers) that must exist before sample 0, this node included."""
-        r = 1 if self.record else 0
+        r = 1 if self.record or self.recorder else 0
         sensored = self.drive.estimator.name == "sensored"
         return [("currents", 1, 2 + r), ("rotor_state", 1, r + sensored), ("rotor_estimate", 1, 2 + r),
                 ("injection", 1, 1 + r), ("voltage_command", 1, 3), ("estimator_state", 1, r),
@@ -160,10 +196,17 @@ class ScenarioDriver:
         return missing
 
     def command(self, k):
+        from pmsm_plant.contract import stamp_ns
+        published = []
         if self.speed[k] != self.sent_speed:
             self.sent_speed = self.speed[k]
-            self.speed_pub.publish(self.Float64(data=float(self.sent_speed)))
-        self.load_pub.publish(self.Float64(data=float(self.load[k])))
+            published.append((self.speed_pub, self.Float64(data=float(self.sent_speed))))
+        published.append((self.load_pub, self.Float64(data=float(self.load[k]))))
+        for publisher, msg in published:
+            publisher.publish(msg)
+            if self.recorder:
+                self.recorder.write(publisher.topic_name, self.serialize(msg), False,
+                                    stamp_ns(k, self.scenario.T_s))
 
     def tick(self):
         now = time.monotonic()
@@ -283,16 +326,18 @@ class DriveSpec:
     estimator: str = None
     duration_s: float = None
     extra_parameters: dict = None
+    bag: str = None
+    """Record every contract topic of this drive into this new rosbag2 directory."""
 
 
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
-           progress=None, extra_parameters=None):
+           progress=None, extra_parameters=None, bag=None):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
-    ``interrupted``."""
-    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters)
+    ``interrupted``; a ``bag`` being recorded is closed complete."""
+    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag)
     return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress)[0]
 
 
@@ -308,6 +353,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         raise ScenarioError(f"--processes: must be 'composed' or 'separate', not '{processes}'")
     if len({spec.namespace for spec in specs}) < len(specs):
         raise ScenarioError("--namespace: drives side by side need distinct namespaces")
+    from .bag import BagWriter
+    recorders = [BagWriter(spec.bag) if spec.bag else None for spec in specs]
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     children, nodes, drivers = [], [], []
@@ -331,7 +378,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             nodes.append(driver_node)
             driver = ScenarioDriver(driver_node, scenario, build_drive(scenario), record,
                                     0.1 if processes == "composed" else 0.5, startup_timeout_s,
-                                    progress if i == 0 else None)
+                                    progress if i == 0 else None, recorders[i])
             driver.done = Future()
             drivers.append(driver)
         for node in nodes:
@@ -349,6 +396,9 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         for node in nodes:
             node.destroy_node()
         context.try_shutdown()
+        for recorder in recorders:
+            if recorder:
+                recorder.close()
 
 
 def _result(driver, record, processes, executor, interrupted):

@@ -23,8 +23,9 @@ COMMAND_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=History
 """speed_command / load_torque / angle_error / joint_states: reliable; volatile so `ros2 topic pub`
 and Foxglove publishers match."""
 LATCHED_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                         depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL)
-"""drive_config: published once per node start, delivered to late joiners."""
+                         depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL)
+"""drive_config: published once per node start, delivered to late joiners (10 deep, so a subscriber
+keeps the configs of all the drive's nodes)."""
 
 GLOBAL_PARAMETERS = {
     "scenario": ("wang_100rpm", "shipped scenario name or YAML path: the file `drive run` reads"),
@@ -123,7 +124,9 @@ class DriveNode(Node):
     def publish_config(self, config):
         config = {"node": self.get_fully_qualified_name(), "parameters": self.parameters,
                   "error": self.health.latched, **config}
-        self.config_pub.publish(String(data=json.dumps(config, default=_json_default)))
+        if self.drive:
+            config.update(motor=self.drive.scenario.motor, n_p=self.drive.machine.n_p, T_s_s=self.T_s)
+        self.config_pub.publish(String(data=json.dumps(_plain(config))))
 
     def trip_current_A(self):
         given = float(self.parameters["trip_current_A"])
@@ -178,11 +181,18 @@ def _text(value):
     return f"{value:.6g}" if isinstance(value, float) else str(value)
 
 
-def _json_default(value):
+def _plain(value):
+    """JSON-ready data: parameter tuples become dicts, arrays lists, anything else unknown text."""
+    if hasattr(value, "_asdict"):
+        return {k: _plain(v) for k, v in value._asdict().items()}
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
     if hasattr(value, "tolist"):
         return value.tolist()
-    if hasattr(value, "_asdict"):
-        return value._asdict()
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
     return str(value)
 
 

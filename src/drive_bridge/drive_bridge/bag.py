@@ -1,0 +1,320 @@
+"""Recordings as the contract says: a rosbag2 directory (metadata.yaml + one zstd-chunked .mcap), storage
+`mcap`, serialization `cdr`, standard message types, offered QoS stored, written with `rosbags` from
+serialized bytes. Log times are sim time: a message's own stamp when it carries the sample instant,
+otherwise the instant of the latest sample recorded.
+
+The one-process runner writes the same topics from its log (``write_run_bag``), except `/diagnostics`
+and `joint_states`, which only nodes produce.
+"""
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .loop import COLUMN, LOG_COLUMNS
+from .scenario import ScenarioError
+
+SAMPLE_STAMPED = {"currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state",
+                  "angle_error", "joint_states", "/clock"}
+"""Topics whose first field is the sample instant (header.stamp or clock)."""
+DRIVE_TOPICS = {
+    "currents": "geometry_msgs/msg/Vector3Stamped", "rotor_state": "sensor_msgs/msg/JointState",
+    "rotor_estimate": "sensor_msgs/msg/JointState", "injection": "geometry_msgs/msg/Vector3Stamped",
+    "voltage_command": "geometry_msgs/msg/Vector3Stamped", "estimator_state": "geometry_msgs/msg/Vector3Stamped",
+    "/clock": "rosgraph_msgs/msg/Clock", "angle_error": "geometry_msgs/msg/Vector3Stamped",
+    "joint_states": "sensor_msgs/msg/JointState", "speed_command": "std_msgs/msg/Float64",
+    "load_torque": "std_msgs/msg/Float64", "drive_config": "std_msgs/msg/String",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray"}
+"""Every contract topic (relative to the drive's namespace unless absolute) and its type."""
+
+
+class BagError(ScenarioError):
+    """A bag is unusable; the message names the bag (and topic) in one line."""
+
+
+def typestore():
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def full_topic(namespace, topic):
+    return topic if topic.startswith("/") else f"{namespace.rstrip('/')}/{topic}"
+
+
+def rosbags_qos(history=1, depth=10, reliability=1, durability=2):
+    """A rosbags Qos from the rmw enum values (KEEP_LAST 1, RELIABLE 1, VOLATILE 2, TRANSIENT_LOCAL 1)."""
+    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
+                                    QosTime)
+    return Qos(QosHistory(history), depth, QosReliability(reliability), QosDurability(durability),
+               QosTime(0, 0), QosTime(0, 0), QosLiveliness.AUTOMATIC, QosTime(0, 0), False)
+
+
+def sample_stamp_ns(data):
+    """The header stamp (or clock) of a serialized message whose first field is a builtin Time."""
+    order = "little" if data[1] == 1 else "big"
+    return int.from_bytes(data[4:8], order, signed=True) * 1_000_000_000 + int.from_bytes(data[8:12], order)
+
+
+class BagWriter:
+    """A rosbag2 + MCAP writer taking serialized messages; ``close`` makes the bag complete."""
+
+    def __init__(self, path):
+        from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagError(f"{self.path}: already exists; choose a new bag name")
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self.writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+        self.writer.open()
+        self.store = typestore()
+        self.connections = {}
+        self.latest_ns = 0
+
+    def add(self, topic, msgtype, qos):
+        self.connections[topic] = self.writer.add_connection(topic, msgtype, typestore=self.store,
+                                                             offered_qos_profiles=[qos])
+
+    def write(self, topic, data, stamped, t_ns=None):
+        """Write one serialized message at ``t_ns``, or at its own sample instant when ``stamped``
+        (its first field is one), or else at the latest sample instant written."""
+        if stamped:
+            t_ns = sample_stamp_ns(data)
+            self.latest_ns = max(self.latest_ns, t_ns)
+        elif t_ns is None:
+            t_ns = self.latest_ns
+        self.writer.write(self.connections[topic], t_ns, data)
+
+    def close(self):
+        self.writer.close()
+
+
+def write_run_bag(result, path, namespace="/drive", progress=None):
+    """Write a one-process run (drive_bridge.runner.RunResult) as the graph would have recorded it."""
+    store = typestore()
+    types = store.types
+    Time, Header = types["builtin_interfaces/msg/Time"], types["std_msgs/msg/Header"]
+    Vector3, Vector3Stamped = types["geometry_msgs/msg/Vector3"], types["geometry_msgs/msg/Vector3Stamped"]
+    JointState, Float64 = types["sensor_msgs/msg/JointState"], types["std_msgs/msg/Float64"]
+    Clock, String = types["rosgraph_msgs/msg/Clock"], types["std_msgs/msg/String"]
+    serialize = store.serialize_cdr
+    log, scenario = result.log, result.scenario
+    n_p = result.preset.machine.n_p
+    writer = BagWriter(path)
+    from pmsm_plant.contract import COMMAND_QOS, LATCHED_QOS, PER_SAMPLE_QOS
+    per_sample = rosbags_qos(depth=PER_SAMPLE_QOS.depth)
+    for topic, msgtype in DRIVE_TOPICS.items():
+        if topic in ("/diagnostics", "joint_states"):
+            continue
+        qos = (rosbags_qos(depth=LATCHED_QOS.depth, durability=1) if topic == "drive_config" else
+               per_sample if topic in SAMPLE_STAMPED and topic != "angle_error" else
+               rosbags_qos(depth=COMMAND_QOS.depth))
+        writer.add(full_topic(namespace, topic), msgtype, qos)
+    config = {"node": "drive run", "n_p": n_p, "scenario": scenario.name, "source": scenario.source, "motor": scenario.motor,
+              "estimator": result.estimator, "T_s_s": scenario.T_s, "samples": int(log.shape[0]),
+              "injection": scenario.injection, "controller": scenario.controller,
+              "current_limit_A": result.current_limit_A, "non_idealities": scenario.non_idealities}
+
+    def put(topic, msg, msgtype):
+        writer.write(full_topic(namespace, topic), serialize(msg, msgtype), topic in SAMPLE_STAMPED)
+
+    def vector(stamp, frame, x, y, z=0.0):
+        return Vector3Stamped(header=Header(stamp=stamp, frame_id=frame), vector=Vector3(x=x, y=y, z=z))
+
+    c = COLUMN
+    last_speed = None
+    rows = log.shape[0]
+    for k in range(rows):
+        row = [float(v) for v in log[k]]
+        sec, nanosec = divmod(round(k * scenario.T_s * 1e9), 1_000_000_000)
+        stamp = Time(sec=sec, nanosec=nanosec)
+        put("/clock", Clock(clock=stamp), DRIVE_TOPICS["/clock"])
+        if k == 0:
+            put("drive_config", String(data=json.dumps(config, default=str)), DRIVE_TOPICS["drive_config"])
+        if row[c["omega_m_ref"]] != last_speed:
+            last_speed = row[c["omega_m_ref"]]
+            put("speed_command", Float64(data=last_speed), DRIVE_TOPICS["speed_command"])
+        put("load_torque", Float64(data=row[c["tau_load"]]), DRIVE_TOPICS["load_torque"])
+        put("rotor_state", JointState(header=Header(stamp=stamp, frame_id=""), name=["rotor"],
+                                      position=np.array([row[c["theta_m"]]]),
+                                      velocity=np.array([row[c["omega_m"]]]), effort=np.array([row[c["tau_e"]]])),
+            DRIVE_TOPICS["rotor_state"])
+        put("currents", vector(stamp, "abc", row[c["i_a_meas"]], row[c["i_b_meas"]], row[c["i_c_meas"]]),
+            DRIVE_TOPICS["currents"])
+        theta_hat_m, omega_hat_m = row[c["theta_e_hat"]] / n_p, row[c["omega_e_hat"]] / n_p
+        put("injection", vector(stamp, "alpha_beta", row[c["u_inj_alpha"]], row[c["u_inj_beta"]]),
+            DRIVE_TOPICS["injection"])
+        put("rotor_estimate", JointState(header=Header(stamp=stamp, frame_id=""), name=["rotor"],
+                                         position=np.array([theta_hat_m]), velocity=np.array([omega_hat_m]),
+                                         effort=np.array([], dtype=float)), DRIVE_TOPICS["rotor_estimate"])
+        put("estimator_state", vector(stamp, "", row[c["eps"]], row[c["signal"]], row[c["observable"]]),
+            DRIVE_TOPICS["estimator_state"])
+        put("angle_error", vector(stamp, "", _wrap(n_p * (row[c["theta_m"]] - theta_hat_m)),
+                                  row[c["omega_m"]] - omega_hat_m), DRIVE_TOPICS["angle_error"])
+        put("voltage_command", vector(stamp, "alpha_beta", row[c["u_alpha"]], row[c["u_beta"]]),
+            DRIVE_TOPICS["voltage_command"])
+        if progress and k % 10000 == 0:
+            progress(k / rows)
+    writer.close()
+    return Path(path)
+
+
+def _wrap(angle):
+    from pmsm_plant.frames import wrap
+    return wrap.py_func(angle)
+
+
+def open_bag(path):
+    """A rosbags Reader for a rosbag2 directory; a cut or foreign bag gives a BagError naming it."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.rosbag2.errors import ReaderError
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f"{path}: no such bag")
+    if path.is_dir() and not (path / "metadata.yaml").exists():
+        mcaps = sorted(path.glob("*.mcap"))
+        if mcaps:
+            raise BagError(f"{path}: no metadata.yaml, the recording was cut before it closed (killed?); "
+                           f"`drive bag reindex {path}` rebuilds it from {mcaps[0].name}")
+    try:
+        reader = Reader(path)
+        reader.open()
+    except ReaderError as error:
+        raise BagError(f"{path}: not a readable rosbag2 bag ({error})") from None
+    return reader
+
+
+def bag_info(path):
+    """What `ros2 bag info` shows: storage, duration, message counts, topics with type, count and QoS."""
+    reader = open_bag(path)
+    try:
+        topics = [{"topic": c.topic, "type": c.msgtype, "count": c.msgcount,
+                   "serialization": c.ext.serialization_format,
+                   "offered_qos": [_qos_dict(q) for q in c.ext.offered_qos_profiles]}
+                  for c in sorted(reader.connections, key=lambda c: c.topic)]
+        path = Path(path)
+        files = [{"path": p.name, "bytes": p.stat().st_size}
+                 for p in (sorted(path.glob("*.mcap")) + sorted(path.glob("*.db3")) if path.is_dir() else [path])]
+        return {"bag": str(path), "storage": _storage_identifier(path),
+                "compression": f"{reader.compression_mode} {reader.compression_format}"
+                if reader.compression_mode else "none at bag level (MCAP chunks may be compressed)",
+                "files": files, "start_s": reader.start_time / 1e9, "end_s": reader.end_time / 1e9,
+                "duration_s": reader.duration / 1e9, "messages": reader.message_count, "topics": topics}
+    finally:
+        reader.close()
+
+
+def _storage_identifier(path):
+    if not path.is_dir():
+        return path.suffix.lstrip(".")
+    import yaml
+    metadata = yaml.safe_load((path / "metadata.yaml").read_text())
+    return metadata["rosbag2_bagfile_information"]["storage_identifier"]
+
+
+def _qos_dict(qos):
+    return {"history": qos.history.name, "depth": qos.depth, "reliability": qos.reliability.name,
+            "durability": qos.durability.name}
+
+
+def read_topics(path, wanted, namespace=None):
+    """{topic (relative): [(log_time_ns, message), ...]} of the wanted contract topics, deserialised.
+
+    ``namespace``: the drive's; by default the one namespace the bag's `currents` topic is in. A topic in
+    the wrong type is a BagError naming bag and topic."""
+    reader = open_bag(path)
+    store = typestore()
+    try:
+        connections = {c.topic: c for c in reader.connections}
+        if namespace is None:
+            namespaces = sorted(t.rsplit("/", 1)[0] or "/" for t in connections if t.endswith("/currents"))
+            if len(namespaces) > 1:
+                raise BagError(f"{path}: drives in {', '.join(namespaces)}; name one with --namespace")
+            namespace = namespaces[0] if namespaces else "/drive"
+        chosen = {}
+        for topic in wanted:
+            name = full_topic(namespace, topic)
+            if name not in connections:
+                continue
+            c = connections[name]
+            if c.msgtype != DRIVE_TOPICS[topic]:
+                raise BagError(f"{path}: {name} is {c.msgtype}, the contract says {DRIVE_TOPICS[topic]}")
+            chosen[c.id] = topic
+        out = {topic: [] for topic in chosen.values()}
+        try:
+            for connection, t, data in reader.messages([c for c in reader.connections if c.id in chosen]):
+                out[chosen[connection.id]].append((t, store.deserialize_cdr(data, connection.msgtype)))
+        except Exception as error:
+            raise BagError(f"{path}: unreadable message data ({type(error).__name__}: {error})") from None
+        return namespace, out
+    finally:
+        reader.close()
+
+
+def bag_log(path, T_s=None, namespace=None):
+    """The runner's log layout (LOG_COLUMNS) filled from a bag's per-sample topics (NaN where the bag
+    says nothing), the sample period and the bag's drive_config entries."""
+    wanted = ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state",
+              "speed_command", "load_torque", "drive_config")
+    namespace, topics = read_topics(path, wanted, namespace)
+    if not topics.get("currents"):
+        raise BagError(f"{path}: no {full_topic(namespace, 'currents')} messages; the contract needs them")
+    stamps = np.array([_stamp_ns(m.header.stamp) for _, m in topics["currents"]], dtype=np.int64)
+    if T_s is None:
+        steps = np.diff(stamps)
+        if steps.size == 0 or steps.min() <= 0:
+            raise BagError(f"{path}: {full_topic(namespace, 'currents')} stamps are not increasing sample instants")
+        T_s = float(np.median(steps)) * 1e-9
+    n = int(round(stamps[-1] * 1e-9 / T_s)) + 1
+    log = np.full((n, len(LOG_COLUMNS)), np.nan)
+    log[:, COLUMN["t"]] = np.arange(n) * T_s
+    configs = [json.loads(m.data) for _, m in topics.get("drive_config", [])]
+    n_p = _pole_pairs(configs)
+
+    def index(stamp):
+        k = int(round(_stamp_ns(stamp) * 1e-9 / T_s))
+        return k if 0 <= k < n else None
+
+    fields = {"currents": ("vector", ("i_a_meas", "i_b_meas", "i_c_meas")),
+              "injection": ("vector", ("u_inj_alpha", "u_inj_beta")),
+              "voltage_command": ("vector", ("u_alpha", "u_beta")),
+              "estimator_state": ("vector", ("eps", "signal", "observable"))}
+    for topic, (_, columns) in fields.items():
+        for _, m in topics.get(topic, []):
+            k = index(m.header.stamp)
+            if k is not None:
+                for column, value in zip(columns, (m.vector.x, m.vector.y, m.vector.z)):
+                    log[k, COLUMN[column]] = value
+    for _, m in topics.get("rotor_state", []):
+        k = index(m.header.stamp)
+        if k is not None and len(m.position):
+            log[k, COLUMN["theta_m"]], log[k, COLUMN["omega_m"]] = m.position[0], m.velocity[0]
+            log[k, COLUMN["tau_e"]] = m.effort[0] if len(m.effort) else math.nan
+    for _, m in topics.get("rotor_estimate", []):
+        k = index(m.header.stamp)
+        if k is not None and len(m.position):
+            log[k, COLUMN["theta_e_hat"]], log[k, COLUMN["omega_e_hat"]] = n_p * m.position[0], n_p * m.velocity[0]
+    for topic, column in (("speed_command", "omega_m_ref"), ("load_torque", "tau_load")):
+        _hold(log[:, COLUMN[column]], topics.get(topic, []), T_s, n)
+    return log, T_s, configs
+
+
+def _hold(column, messages, T_s, n):
+    """Fill a column with unstamped commands, each held from its log time on."""
+    for t, m in messages:
+        k = int(round(t * 1e-9 / T_s))
+        if 0 <= k < n:
+            column[k:] = m.data
+
+
+def _pole_pairs(configs):
+    """p from the bag's drive_config (every node's carries ``n_p``); 1 when the bag has none."""
+    for config in configs:
+        if "n_p" in config:
+            return int(config["n_p"])
+    return 1
+
+
+def _stamp_ns(stamp):
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
