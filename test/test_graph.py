@@ -276,15 +276,21 @@ def test_launch_json_and_echo_from_a_second_process(tmp_path):
     assert all(abs(json.loads(line)["vector"]["x"]) < math.pi for line in lines)
 
 
-def test_sigterm_stops_the_launcher_and_its_node_processes(tmp_path):
+def test_sigterm_stops_the_launcher_and_its_node_processes_leaving_a_complete_bag(tmp_path):
+    from drive_bridge.bag import bag_info
+    bag = tmp_path / "stopped"
     launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--processes", "separate", "--namespace",
-                                         "/sigterm_test", "--json", "--no-plot"],
+                                         "/sigterm_test", "--json", "--no-plot", "--record", str(bag)],
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     time.sleep(8.0)
     launcher.send_signal(signal.SIGTERM)
     out, _ = launcher.communicate(timeout=30)
     assert launcher.returncode == 130
-    assert json.loads(out)["interrupted"] is True
+    metrics = json.loads(out)
+    assert metrics["interrupted"] is True and metrics["samples"] > 100
+    counts = {t["topic"]: t["count"] for t in bag_info(bag)["topics"]}
+    assert counts["/sigterm_test/voltage_command"] == metrics["samples"]
+    assert counts["/sigterm_test/currents"] >= metrics["samples"]
     time.sleep(0.5)
     left = subprocess.run(["pgrep", "-f", "__ns:=/sigterm_test"], capture_output=True, text=True).stdout
     assert left.strip() == ""

@@ -198,11 +198,22 @@ def bag_info(path):
                  for p in (sorted(path.glob("*.mcap")) + sorted(path.glob("*.db3")) if path.is_dir() else [path])]
         return {"bag": str(path), "storage": _storage_identifier(path),
                 "compression": f"{reader.compression_mode} {reader.compression_format}"
-                if reader.compression_mode else "none at bag level (MCAP chunks may be compressed)",
+                if reader.compression_mode else _chunk_compression(path),
                 "files": files, "start_s": reader.start_time / 1e9, "end_s": reader.end_time / 1e9,
                 "duration_s": reader.duration / 1e9, "messages": reader.message_count, "topics": topics}
     finally:
         reader.close()
+
+
+def _chunk_compression(path):
+    """How the MCAP chunks are compressed, from the first file's summary."""
+    from mcap.reader import make_reader
+    for file in (sorted(path.glob("*.mcap")) if path.is_dir() else [path] if path.suffix == ".mcap" else []):
+        with file.open("rb") as stream:
+            summary = make_reader(stream).get_summary()
+        kinds = sorted({c.compression or "none" for c in summary.chunk_indexes}) if summary else []
+        return f"MCAP chunks: {', '.join(kinds) or 'none'}"
+    return "none"
 
 
 def _storage_identifier(path):
@@ -318,3 +329,68 @@ def _pole_pairs(configs):
 
 def _stamp_ns(stamp):
     return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def reindex(path):
+    """Rebuild a cut recording (no metadata.yaml: the recorder was killed) into a complete bag from the
+    chunks that reached the disk; the chunk being written when it died is lost. Returns bag_info."""
+    import shutil
+
+    import yaml
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    path = Path(path)
+    if (path / "metadata.yaml").exists():
+        raise BagError(f"{path}: already complete (has metadata.yaml); nothing to reindex")
+    mcaps = sorted(path.glob("*.mcap"))
+    if not mcaps:
+        raise BagError(f"{path}: no .mcap file to reindex")
+    rebuilt = path.with_name(path.name + ".reindexed")
+    if rebuilt.exists():
+        shutil.rmtree(rebuilt)
+    writer = BagWriter(rebuilt)
+    schemas, topics, kept = {}, {}, 0
+    try:
+        with mcaps[0].open("rb") as stream:
+            try:
+                for record in StreamReader(stream).records:
+                    if isinstance(record, Schema):
+                        schemas[record.id] = record.name
+                    elif isinstance(record, Channel):
+                        qos = [rosbags_qos(**_qos_values(q)) for q in
+                               yaml.safe_load(record.metadata.get("offered_qos_profiles", "") or "[]") or []]
+                        writer.connections[record.topic] = writer.writer.add_connection(
+                            record.topic, schemas[record.schema_id], typestore=writer.store, offered_qos_profiles=qos)
+                        topics[record.id] = record.topic
+                    elif isinstance(record, Message) and record.channel_id in topics:
+                        writer.write(topics[record.channel_id], record.data, False, record.log_time)
+                        kept += 1
+            except (McapError, EOFError, ValueError, KeyError, struct_error()):
+                pass
+    finally:
+        writer.close()
+    cut = path.with_name(path.name + ".cut")
+    path.rename(cut)
+    rebuilt.rename(path)
+    (path / f"{rebuilt.name}.mcap").rename(path / mcaps[0].name)
+    _rename_in_metadata(path, f"{rebuilt.name}.mcap", mcaps[0].name)
+    shutil.rmtree(cut)
+    return bag_info(path)
+
+
+def struct_error():
+    import struct
+    return struct.error
+
+
+def _qos_values(q):
+    names = {"keep_last": 1, "keep_all": 2, "reliable": 1, "best_effort": 2, "transient_local": 1, "volatile": 2}
+    return {"history": names.get(q.get("history"), 1), "depth": int(q.get("depth", 10)),
+            "reliability": names.get(q.get("reliability"), 1), "durability": names.get(q.get("durability"), 2)}
+
+
+def _rename_in_metadata(path, old, new):
+    metadata = path / "metadata.yaml"
+    metadata.write_text(metadata.read_text().replace(old, new))

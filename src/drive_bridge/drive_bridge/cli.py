@@ -23,8 +23,14 @@ def cmd_run(args):
         if args.duration <= 0.0:
             raise ScenarioError(f"--duration: must be positive, not {args.duration}")
         scenario = dataclasses.replace(scenario, duration_s=args.duration)
+    if args.record and Path(args.record).exists():
+        raise ScenarioError(f"--record: {args.record} already exists; choose a new bag name")
     result = run_scenario(scenario, progress=terminal_progress(f"{scenario.name}/{scenario.estimator}"))
-    return _report(result, args)
+    extra = {}
+    if args.record:
+        from .bag import write_run_bag
+        extra["bag"] = str(write_run_bag(result, args.record, progress=terminal_progress(f"writing {args.record}")))
+    return _report(result, args, extra)
 
 
 def _report(result, args, extra=None):
@@ -73,13 +79,15 @@ def cmd_launch(args):
     scenario = load_scenario(args.scenario, estimator_override=args.estimator)
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
-                    timeout_s=args.timeout,
+                    timeout_s=args.timeout, bag=args.record,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
     faults = {name: d["message"] for name, d in (result.diagnostics or {}).items() if d["level"] > 0}
     extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}",
              "real_time_factor": round(result.scenario.duration_s / result.wall_time_s, 4)
              if result.wall_time_s > 0 else None,
              "interrupted": result.interrupted, "node_faults": faults}
+    if args.record:
+        extra["bag"] = args.record
     _report(result, args, extra)
     return 130 if result.interrupted else 0
 
@@ -130,6 +138,35 @@ def cmd_echo(args):
         if value is not None and value < 1:
             raise ScenarioError(f"{flag}: must be at least 1, not {value}")
     return echo(args.topic, args.namespace, args.count, args.every, args.json, args.timeout)
+
+
+def cmd_bag_info(args):
+    from .bag import bag_info
+    info = bag_info(args.bag)
+    if args.json:
+        _print_json(info)
+        return 0
+    print(f"bag {info['bag']}: storage {info['storage']}, compression {info['compression']}")
+    for f in info["files"]:
+        print(f"  file {f['path']} ({f['bytes']:,} bytes)")
+    print(f"  duration {info['duration_s']:.6f} s (start {info['start_s']:.6f} s, end {info['end_s']:.6f} s), "
+          f"{info['messages']:,} messages")
+    width = max((len(t["topic"]) for t in info["topics"]), default=0)
+    for t in info["topics"]:
+        qos = t["offered_qos"][0] if t["offered_qos"] else {}
+        print(f"  {t['topic']:{width}s}  {t['type']:38s} {t['count']:8d}  {t['serialization']}  "
+              f"{qos.get('reliability', '?').lower()}/{qos.get('durability', '?').lower()}/{qos.get('depth', '?')}")
+    return 0
+
+
+def cmd_bag_reindex(args):
+    from .bag import reindex
+    info = reindex(args.bag)
+    if args.json:
+        _print_json(info)
+    else:
+        print(f"{info['bag']}: rebuilt, {info['messages']:,} messages over {info['duration_s']:.6f} s")
+    return 0
 
 
 def cmd_bench_graph(args):
@@ -202,6 +239,7 @@ def build_parser():
     run.add_argument("--duration", type=float, help="override the duration [s]")
     run.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     run.add_argument("--no-plot", action="store_true", help="skip the PNG plot")
+    run.add_argument("--record", metavar="BAG", help="write the run as a rosbag2/MCAP bag into this new directory")
     run.add_argument("--json", action="store_true", help="print the metrics as JSON")
     run.set_defaults(func=cmd_run)
 
@@ -244,6 +282,7 @@ def build_parser():
     launch.add_argument("--timeout", type=float, default=1.0, help="lock-step answer timeout [s]")
     launch.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     launch.add_argument("--no-plot", action="store_true")
+    launch.add_argument("--record", metavar="BAG", help="record every drive topic into this new rosbag2 directory")
     launch.add_argument("--json", action="store_true")
     launch.set_defaults(func=cmd_launch)
 
@@ -255,6 +294,17 @@ def build_parser():
     echo.add_argument("--timeout", type=float, help="stop after this many seconds")
     echo.add_argument("--json", action="store_true", help="one JSON object per line")
     echo.set_defaults(func=cmd_echo)
+
+    bag = sub.add_parser("bag", help="recordings (rosbag2 directories with MCAP storage)")
+    bag_sub = bag.add_subparsers(dest="bag_command", required=True)
+    info = bag_sub.add_parser("info", help="topics, types, counts, duration (like ros2 bag info)")
+    info.add_argument("bag")
+    info.add_argument("--json", action="store_true")
+    info.set_defaults(func=cmd_bag_info)
+    reindex = bag_sub.add_parser("reindex", help="make a cut recording (killed recorder) a complete bag")
+    reindex.add_argument("bag")
+    reindex.add_argument("--json", action="store_true")
+    reindex.set_defaults(func=cmd_bag_reindex)
     return parser
 
 

@@ -1,0 +1,120 @@
+"""Recordings: the graph's and the runner's bags have the contract's layout, are read alike by rosbags
+and by the mcap library, stamp every per-sample message with its sample instant, and a cut recording is
+rebuilt by `drive bag reindex`."""
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ["ROS_DOMAIN_ID"] = str(30 + (os.getpid() + 7) % 60)
+
+from drive_bridge.bag import DRIVE_TOPICS, BagError, bag_info, bag_log, reindex, write_run_bag  # noqa: E402
+from drive_bridge.loop import COLUMN  # noqa: E402
+from drive_bridge.runner import run_scenario  # noqa: E402
+from drive_bridge.scenario import load_scenario  # noqa: E402
+
+DRIVE = [sys.executable, "-m", "drive_bridge.cli"]
+PER_SAMPLE = ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state",
+              "angle_error", "/clock", "load_torque")
+SCENARIO = """\
+motor: wang_spmsm
+estimator: injection_frame
+injection: {frequency_Hz: 900.0, amplitude_V: 5.0}
+duration_s: 0.05
+sampling_period_s: 1.0e-4
+speed: {unit: rpm, interpolation: linear, points: [[0.0, 0.0], [0.05, 50.0]]}
+load: {unit: rated, points: [[0.0, 0.0], [0.02, 0.3]]}
+"""
+
+
+def mcap_stamps(bag, topic):
+    """(log time, header stamp) pairs of a topic read with the mcap library and its ROS 2 decoder."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+    (file,) = bag.glob("*.mcap")
+    with file.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=[DecoderFactory()])
+        return [(m.log_time, (d.clock if topic == "/clock" else d.header.stamp))
+                for _, _, m, d in reader.iter_decoded_messages(topics=[topic])]
+
+
+@pytest.fixture(scope="module")
+def bags(tmp_path_factory):
+    pytest.importorskip("rclpy")
+    from drive_bridge.graph import launch
+    root = tmp_path_factory.mktemp("bags")
+    path = root / "scenario.yaml"
+    path.write_text(SCENARIO)
+    launch(str(path), namespace="/drive", bag=str(root / "graph"))
+    write_run_bag(run_scenario(load_scenario(str(path))), root / "run")
+    return root / "graph", root / "run", 500
+
+
+def test_graph_and_runner_bags_have_the_contract_layout(bags):
+    graph, run, n = bags
+    for bag in (graph, run):
+        info = bag_info(bag)
+        assert info["storage"] == "mcap" and info["compression"] == "MCAP chunks: zstd"
+        counts = {t["topic"]: (t["type"], t["count"]) for t in info["topics"]}
+        for topic in PER_SAMPLE:
+            name = topic if topic.startswith("/") else f"/drive/{topic}"
+            assert counts[name] == (DRIVE_TOPICS[topic], n), (bag.name, topic)
+        assert counts["/drive/drive_config"][1] >= 1
+        assert all(t["serialization"] == "cdr" and t["offered_qos"] for t in info["topics"])
+    graph_topics = {t["topic"] for t in bag_info(graph)["topics"]}
+    run_topics = {t["topic"] for t in bag_info(run)["topics"]}
+    assert graph_topics - run_topics == {"/diagnostics", "/drive/joint_states"}
+
+
+def test_per_sample_messages_are_stamped_with_their_sample_instant(bags):
+    for bag in bags[:2]:
+        for topic in ("/drive/currents", "/drive/voltage_command", "/drive/rotor_estimate", "/clock"):
+            pairs = mcap_stamps(bag, topic)
+            stamps = np.array([s.sec * 1_000_000_000 + s.nanosec for _, s in pairs])
+            np.testing.assert_array_equal(stamps, np.arange(bags[2]) * 100_000)
+            np.testing.assert_array_equal([t for t, _ in pairs], stamps)
+
+
+def test_both_bags_hold_the_same_samples(bags):
+    graph, run, _ = bags
+    a, T_s, configs = bag_log(graph)
+    b, _, _ = bag_log(run)
+    assert T_s == pytest.approx(1e-4) and {c["n_p"] for c in configs} == {2}
+    for name in ("theta_m", "omega_m", "i_a_meas", "theta_e_hat", "u_alpha", "u_inj_beta", "observable",
+                 "omega_m_ref", "tau_load"):
+        np.testing.assert_allclose(a[:, COLUMN[name]], b[:, COLUMN[name]], atol=1e-9, err_msg=name)
+
+
+def test_a_cut_recording_is_rebuilt_losing_at_most_the_last_chunk(tmp_path):
+    scenario = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.4)
+    bag = write_run_bag(run_scenario(scenario), tmp_path / "cut")
+    full = bag_info(bag)
+    (mcap,) = bag.glob("*.mcap")
+    (bag / "metadata.yaml").unlink()
+    with mcap.open("r+b") as f:
+        f.truncate(int(mcap.stat().st_size * 0.7))
+    with pytest.raises(BagError, match="drive bag reindex"):
+        bag_info(bag)
+    out = subprocess.run(DRIVE + ["bag", "reindex", str(bag), "--json"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    rebuilt = json.loads(out.stdout)
+    assert 0.3 * full["messages"] < rebuilt["messages"] < full["messages"]
+    counts = {t["topic"]: t["count"] for t in bag_info(bag)["topics"]}
+    assert counts["/drive/currents"] > 1000
+    pairs = mcap_stamps(bag, "/drive/currents")
+    stamps = [s.sec * 1_000_000_000 + s.nanosec for _, s in pairs]
+    assert stamps == list(range(0, 100_000 * len(stamps), 100_000))
+
+
+def test_bag_errors_name_the_bag(tmp_path):
+    out = subprocess.run(DRIVE + ["bag", "info", str(tmp_path / "missing")], capture_output=True, text=True)
+    assert out.returncode == 2 and "missing: no such bag" in out.stderr
+    (tmp_path / "taken").mkdir()
+    out = subprocess.run(DRIVE + ["run", "wang_100rpm", "--duration", "0.01", "--no-plot", "--record",
+                                  str(tmp_path / "taken")], capture_output=True, text=True)
+    assert out.returncode == 2 and "taken already exists" in out.stderr
