@@ -118,3 +118,40 @@ def test_bag_errors_name_the_bag(tmp_path):
     out = subprocess.run(DRIVE + ["run", "wang_100rpm", "--duration", "0.01", "--no-plot", "--record",
                                   str(tmp_path / "taken")], capture_output=True, text=True)
     assert out.returncode == 2 and "taken already exists" in out.stderr
+
+
+def test_compare_scores_the_graph_and_runner_bags_alike(bags, tmp_path):
+    graph, run, _ = bags
+    out = subprocess.run(DRIVE + ["bench", "compare", str(graph), str(run), "--json", "--out", str(tmp_path)],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    a, b = json.loads(out.stdout)["runs"]
+    assert a["ground_truth"] and b["ground_truth"] and a["samples"] == b["samples"] == 500
+    assert a["angle_error_peak"] == pytest.approx(b["angle_error_peak"], abs=1e-9)
+    assert (tmp_path / "graph_vs_run.png").is_file()
+
+
+def foreign_bag(path, topics):
+    """A bag written by someone else: {topic: (msgtype, [serialized messages])}."""
+    from drive_bridge.bag import BagWriter, rosbags_qos
+    writer = BagWriter(path)
+    for topic, (msgtype, messages) in topics.items():
+        writer.add(topic, msgtype, rosbags_qos())
+        for i, data in enumerate(messages):
+            writer.write(topic, data, False, i * 100_000)
+    writer.close()
+    return path
+
+
+def test_foreign_bags_with_missing_or_mistyped_topics_are_named(tmp_path):
+    from drive_bridge.bag import typestore
+    store = typestore()
+    Float64 = store.types["std_msgs/msg/Float64"]
+    data = [store.serialize_cdr(Float64(data=1.0), "std_msgs/msg/Float64")] * 3
+    mistyped = foreign_bag(tmp_path / "mistyped", {"/drive/currents": ("std_msgs/msg/Float64", data)})
+    with pytest.raises(BagError, match="mistyped: /drive/currents is std_msgs/msg/Float64, the contract says "
+                                       "geometry_msgs/msg/Vector3Stamped"):
+        bag_log(mistyped)
+    empty = foreign_bag(tmp_path / "no_currents", {"/drive/speed_command": ("std_msgs/msg/Float64", data)})
+    with pytest.raises(BagError, match="no_currents: no /drive/currents messages"):
+        bag_log(empty)

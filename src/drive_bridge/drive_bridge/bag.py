@@ -6,6 +6,7 @@ otherwise the instant of the latest sample recorded.
 The one-process runner writes the same topics from its log (``write_run_bag``), except `/diagnostics`
 and `joint_states`, which only nodes produce.
 """
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -394,3 +395,41 @@ def _qos_values(q):
 def _rename_in_metadata(path, old, new):
     metadata = path / "metadata.yaml"
     metadata.write_text(metadata.read_text().replace(old, new))
+
+
+def bag_result(path, namespace=None):
+    """A recorded run as drive_bridge.runner.RunResult, its scenario rebuilt from the bag's drive_config
+    (the scenario file and overrides the nodes or the runner used), so it is scored as `drive run` is."""
+    from pmsm_plant.presets import get_preset
+
+    from .runner import RunResult
+    log, T_s, configs = bag_log(path, namespace=namespace)
+    scenario = _bag_scenario(path, configs)
+    scenario = dataclasses.replace(scenario, duration_s=log.shape[0] * T_s, T_s=T_s)
+    estimator = next((c["parameters"]["estimator"] or scenario.estimator for c in configs if "parameters" in c),
+                     next((c["estimator"] for c in configs if "estimator" in c), scenario.estimator))
+    limit = next((c["current_limit_A"] for c in configs if "current_limit_A" in c),
+                 next((c["controller"]["i_max_A"] for c in configs if isinstance(c.get("controller"), dict)
+                       and "i_max_A" in c["controller"]), math.nan))
+    return RunResult(scenario, get_preset(scenario.motor), estimator, log, 0.0, limit)
+
+
+def _bag_scenario(path, configs):
+    from .graph import scenario_from_parameters
+    from .scenario import load_scenario
+    for config in configs:
+        try:
+            if "parameters" in config:
+                return scenario_from_parameters(config["parameters"])
+            if "source" in config:
+                s = load_scenario(config["source"], estimator_override=config.get("estimator"))
+                return dataclasses.replace(s, injection=config.get("injection", s.injection),
+                                           controller=config.get("controller", s.controller))
+        except ScenarioError as error:
+            raise BagError(f"{path}: drive_config names a scenario that cannot be loaded ({error})") from None
+    raise BagError(f"{path}: no drive_config, so no scenario to score the run against (its windows and "
+                   f"motor); record with `drive run|launch --record`")
+
+
+def has_ground_truth(log):
+    return bool(np.isfinite(log[:, COLUMN["theta_m"]]).any())

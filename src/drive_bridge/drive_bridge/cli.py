@@ -169,6 +169,50 @@ def cmd_bag_reindex(args):
     return 0
 
 
+COMPARED_METRICS = (("angle error RMS (steady)", "angle_error_rms", "rad"),
+                    ("angle error bias (steady)", "angle_error_bias", "rad"),
+                    ("angle error peak", "angle_error_peak", "rad"),
+                    ("speed estimation error RMS", "speed_error_rms", "rad/s"),
+                    ("observable fraction", "observable_fraction", ""))
+
+
+def cmd_bench_compare(args):
+    from .bag import bag_result, has_ground_truth
+    from .metrics import compute_metrics
+    from .plots import plot_angle_errors
+
+    results, entries = [], []
+    for bag in (args.bag_a, args.bag_b):
+        result = bag_result(bag)
+        entry = {"bag": bag, "scenario": result.scenario.name, "estimator": result.estimator,
+                 "samples": int(result.log.shape[0]), "ground_truth": has_ground_truth(result.log)}
+        metrics = compute_metrics(result)
+        entry.update({key: metrics[key] if entry["ground_truth"] or key == "observable_fraction" else None
+                      for _, key, _ in COMPARED_METRICS})
+        results.append(result)
+        entries.append(entry)
+    names = [Path(bag).name for bag in (args.bag_a, args.bag_b)]
+    report = {"benchmark": "compare", "runs": entries}
+    if not args.no_plot:
+        out = Path(args.out) if args.out else Path("runs") / "compare"
+        report["plot"] = str(plot_angle_errors(results, names, out / f"{names[0]}_vs_{names[1]}.png"))
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"  {'':30s} {names[0]:>24s} {names[1]:>24s}")
+    for label, key, unit in (("scenario", "scenario", ""), ("estimator", "estimator", ""),
+                             ("samples", "samples", "")) + COMPARED_METRICS:
+        cells = [e[key] for e in entries]
+        text = [("n/a" if v is None else f"{v:+.4f} {unit}" if isinstance(v, float) else str(v)) for v in cells]
+        print(f"  {label:30s} {text[0]:>24s} {text[1]:>24s}")
+    for entry in entries:
+        if not entry["ground_truth"]:
+            print(f"  {entry['bag']}: no ground truth (rotor_state); only consistency is scored")
+    if "plot" in report:
+        print(f"  plot: {report['plot']}")
+    return 0
+
+
 def cmd_bench_graph(args):
     from .bench import graph_throughput
     if args.duration <= 0.0:
@@ -268,6 +312,14 @@ def build_parser():
     graph.add_argument("--repeats", type=int, default=2, help="timed runs per configuration (best kept)")
     graph.add_argument("--json", action="store_true")
     graph.set_defaults(func=cmd_bench_graph)
+
+    compare = bench_sub.add_parser("compare", help="two recorded runs side by side: metrics and angle error")
+    compare.add_argument("bag_a")
+    compare.add_argument("bag_b")
+    compare.add_argument("--out", help="plot directory (default runs/compare)")
+    compare.add_argument("--no-plot", action="store_true")
+    compare.add_argument("--json", action="store_true")
+    compare.set_defaults(func=cmd_bench_compare)
 
     from .graph import DEFAULT_NAMESPACE, EXECUTORS
     launch = sub.add_parser("launch", help="run a scenario through the ROS 2 graph (nodes over topics)")

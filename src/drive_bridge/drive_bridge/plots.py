@@ -42,3 +42,21 @@ def plot_run(result, out_dir):
     plt.close(fig)
     return path
 
+
+
+def plot_angle_errors(results, labels, path):
+    """One PNG with the angle error of several runs over time, overlaid; returns its path."""
+    fig, ax = plt.subplots(1, 1, figsize=(10, 4))
+    for result, label in zip(results, labels):
+        ax.plot(result.log[:, COLUMN["t"]], angle_error(result.log, result.preset.machine.n_p), lw=0.7,
+                label=f"{label} ({result.estimator})")
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("θ_e − θ̂_e [rad]")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
