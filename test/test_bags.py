@@ -13,7 +13,7 @@ import pytest
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ["ROS_DOMAIN_ID"] = str(30 + (os.getpid() + 7) % 60)
 
-from drive_bridge.bag import DRIVE_TOPICS, BagError, bag_info, bag_log, reindex, write_run_bag  # noqa: E402
+from drive_bridge.bag import DRIVE_TOPICS, BagError, bag_info, bag_log, write_run_bag  # noqa: E402
 from drive_bridge.loop import COLUMN  # noqa: E402
 from drive_bridge.runner import run_scenario  # noqa: E402
 from drive_bridge.scenario import load_scenario  # noqa: E402
@@ -29,6 +29,7 @@ duration_s: 0.05
 sampling_period_s: 1.0e-4
 speed: {unit: rpm, interpolation: linear, points: [[0.0, 0.0], [0.05, 50.0]]}
 load: {unit: rated, points: [[0.0, 0.0], [0.02, 0.3]]}
+metrics: {settle_s: 0.01}
 """
 
 
@@ -127,6 +128,7 @@ def test_compare_scores_the_graph_and_runner_bags_alike(bags, tmp_path):
     assert out.returncode == 0, out.stderr
     a, b = json.loads(out.stdout)["runs"]
     assert a["ground_truth"] and b["ground_truth"] and a["samples"] == b["samples"] == 500
+    assert a["angle_error_peak"] > 0.0
     assert a["angle_error_peak"] == pytest.approx(b["angle_error_peak"], abs=1e-9)
     assert (tmp_path / "graph_vs_run.png").is_file()
 
@@ -155,3 +157,49 @@ def test_foreign_bags_with_missing_or_mistyped_topics_are_named(tmp_path):
     empty = foreign_bag(tmp_path / "no_currents", {"/drive/speed_command": ("std_msgs/msg/Float64", data)})
     with pytest.raises(BagError, match="no_currents: no /drive/currents messages"):
         bag_log(empty)
+
+
+def test_replay_reproduces_the_recorded_estimator_and_flags_foreign_excitation(bags, tmp_path):
+    graph, _, n = bags
+    out = subprocess.run(DRIVE + ["bench", "replay", str(graph), "--estimators", "injection_frame,conventional",
+                                  "--json", "--out", str(tmp_path)], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    own, other = report["results"]
+    from drive_bridge.bag import bag_result
+    from drive_bridge.metrics import compute_metrics
+    recorded = compute_metrics(bag_result(graph))
+    assert report["ground_truth"] and report["recorded_estimator"] == "injection_frame"
+    assert own["excitation_mismatch"] == 0.0
+    for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak"):
+        assert own[key] == pytest.approx(recorded[key], abs=1e-12), key
+    assert other["excitation_mismatch"] > 0.5
+    assert own["samples"] == n and own["samples_per_second"] > 0
+    assert (tmp_path / "replay.json").is_file() and (tmp_path / "angle_error.png").is_file()
+
+
+def copy_without(source, target, dropped):
+    """A copy of a bag without some topics (as a bag recorded without ground truth would be)."""
+    from rosbags.rosbag2 import Reader
+
+    from drive_bridge.bag import BagWriter, rosbags_qos
+    writer = BagWriter(target)
+    with Reader(source) as reader:
+        kept = [c for c in reader.connections if c.topic not in dropped]
+        for c in kept:
+            writer.add(c.topic, c.msgtype, rosbags_qos())
+        for c, t, data in reader.messages(kept):
+            writer.write(c.topic, data, False, t)
+    writer.close()
+    return target
+
+
+def test_replay_without_ground_truth_scores_consistency_only(bags, tmp_path):
+    bag = copy_without(bags[1], tmp_path / "no_truth", {"/drive/rotor_state", "/drive/angle_error"})
+    out = subprocess.run(DRIVE + ["bench", "replay", str(bag), "--estimators", "injection_frame"],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert "no ground truth (rotor_state) in this bag: scored for consistency only" in out.stdout
+    no_injection = copy_without(bags[1], tmp_path / "no_injection", {"/drive/injection"})
+    out = subprocess.run(DRIVE + ["bench", "replay", str(no_injection)], capture_output=True, text=True)
+    assert out.returncode == 2 and "no_injection: injection: 500 of 500 samples missing" in out.stderr

@@ -213,6 +213,48 @@ def cmd_bench_compare(args):
     return 0
 
 
+def cmd_bench_replay(args):
+    from .plots import plot_angle_errors
+    from .replay import replay
+
+    names = args.estimators.split(",") if args.estimators else estimator_names()
+    for name in names:
+        if name not in estimator_names():
+            raise ScenarioError(f"--estimators: unknown estimator '{name}' (known: {', '.join(estimator_names())})")
+    recorded, entries, results = replay(args.bag, names)
+    truth = "rotor_state" if "angle_error_rms" in entries[0] else None
+    out = Path(args.out) if args.out else Path("runs") / "replay" / Path(args.bag).name
+    report = {"benchmark": "replay", "bag": args.bag, "scenario": recorded.scenario.name,
+              "recorded_estimator": recorded.estimator, "samples": int(recorded.log.shape[0]),
+              "ground_truth": truth is not None, "results": entries}
+    if not args.no_plot and truth:
+        report["plot"] = str(plot_angle_errors(results, names, out / "angle_error.png"))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "replay.json").write_text(json.dumps(report, indent=2))
+    report["json"] = str(out / "replay.json")
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"replay of {args.bag}: {report['samples']} samples of {report['scenario']}, recorded with "
+          f"{recorded.estimator}")
+    if not truth:
+        print("  no ground truth (rotor_state) in this bag: scored for consistency only")
+    columns = [("samples/s", "samples_per_second", "{:,.0f}"), ("exc. mismatch", "excitation_mismatch", "{:.3f}"),
+               ("observable", "observable_fraction", "{:.3f}")]
+    if truth:
+        columns += [("RMS [rad]", "angle_error_rms", "{:.4f}"), ("bias [rad]", "angle_error_bias", "{:+.4f}"),
+                    ("peak [rad]", "angle_error_peak", "{:.4f}"), ("speed RMS", "speed_error_rms", "{:.3f}"),
+                    ("lock [s]", "time_to_lock_s", "{:.4f}")]
+    print(f"  {'estimator':16s}" + "".join(f"{label:>14s}" for label, _, _ in columns))
+    for e in entries:
+        cells = ["n/a" if e.get(key) is None else fmt.format(e[key]) for _, key, fmt in columns]
+        print(f"  {e['estimator']:16s}" + "".join(f"{c:>14s}" for c in cells))
+    for key in ("plot", "json"):
+        if key in report:
+            print(f"  {key}: {report[key]}")
+    return 0
+
+
 def cmd_bench_graph(args):
     from .bench import graph_throughput
     if args.duration <= 0.0:
@@ -320,6 +362,14 @@ def build_parser():
     compare.add_argument("--no-plot", action="store_true")
     compare.add_argument("--json", action="store_true")
     compare.set_defaults(func=cmd_bench_compare)
+
+    rp = bench_sub.add_parser("replay", help="estimators on a recording's currents, scored against its ground truth")
+    rp.add_argument("bag")
+    rp.add_argument("--estimators", help="comma-separated (default: all)")
+    rp.add_argument("--out", help="directory for angle_error.png and replay.json (default runs/replay/BAG)")
+    rp.add_argument("--no-plot", action="store_true")
+    rp.add_argument("--json", action="store_true")
+    rp.set_defaults(func=cmd_bench_replay)
 
     from .graph import DEFAULT_NAMESPACE, EXECUTORS
     launch = sub.add_parser("launch", help="run a scenario through the ROS 2 graph (nodes over topics)")

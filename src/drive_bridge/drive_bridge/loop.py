@@ -59,3 +59,17 @@ def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, 
         row[24] = observable
         plant_advance(px, u_a, u_b, tau_load[k], imposed, speed_ref[k], machine, mech, inverter,
                       T_s, substeps)
+
+
+@njit
+def replay_samples(est_step, ex, ez, ep, n_p, currents, u_prev, theta_m, omega_m, out):
+    """Run an estimator over recorded samples: ``currents`` (n × 3, measured a, b, c), ``u_prev`` (n × 2,
+    the voltage command of the sample before), the recorded ground truth θ_m, ω_m (read only by
+    `sensored`; NaN becomes 0). ``out`` rows receive θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, observable."""
+    for k in range(currents.shape[0]):
+        theta = theta_m[k] if theta_m[k] == theta_m[k] else 0.0
+        omega = omega_m[k] if omega_m[k] == omega_m[k] else 0.0
+        result = est_step(ex, ez, ep, k, currents[k, 0], currents[k, 1], currents[k, 2], u_prev[k, 0], u_prev[k, 1],
+                          n_p * theta, n_p * omega)
+        for j in range(7):
+            out[k, j] = result[j]
