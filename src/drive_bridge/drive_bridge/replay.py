@@ -19,6 +19,8 @@ from .loop import COLUMN, replay_samples
 from .metrics import angle_error, compute_metrics
 from .runner import RunResult, build_drive
 
+TIMED_RUNS = 3
+"""Each estimator replays the bag this many times from its fresh state; the fastest run is reported."""
 OUTPUTS = ("theta_e_hat", "omega_e_hat", "u_inj_alpha", "u_inj_beta", "eps", "signal", "observable")
 LOCK_BAND_RAD = math.pi / 8
 """Time to lock: from the start until |angle error| stays within this band to the end. Every saliency
@@ -56,9 +58,12 @@ def replay(path, estimators):
         out = np.zeros((len(currents), len(OUTPUTS)))
         replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, n_p, currents[:2], u_prev[:2], theta_m[:2],
                        omega_m[:2], out[:2])
-        start = time.perf_counter()
-        replay_samples(e.step, e.x, e.z, e.params, n_p, currents, u_prev, theta_m, omega_m, out)
-        wall = time.perf_counter() - start
+        wall = math.inf
+        for _ in range(TIMED_RUNS):
+            x, z = e.x.copy(), e.z.copy()
+            start = time.perf_counter()
+            replay_samples(e.step, x, z, e.params, n_p, currents, u_prev, theta_m, omega_m, out)
+            wall = min(wall, time.perf_counter() - start)
         log = recorded.log.copy()
         for j, column in enumerate(OUTPUTS):
             log[:, COLUMN[column]] = out[:, j]
