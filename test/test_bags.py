@@ -203,3 +203,34 @@ def test_replay_without_ground_truth_scores_consistency_only(bags, tmp_path):
     no_injection = copy_without(bags[1], tmp_path / "no_injection", {"/drive/injection"})
     out = subprocess.run(DRIVE + ["bench", "replay", str(no_injection)], capture_output=True, text=True)
     assert out.returncode == 2 and "no_injection: injection: 500 of 500 samples missing" in out.stderr
+
+
+def test_a_killed_recorder_leaves_chunks_that_reindex_makes_a_bag(tmp_path):
+    import signal
+    import time
+    bag = tmp_path / "killed"
+    launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--namespace", "/killed", "--no-plot",
+                                         "--record", str(bag)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 60.0
+    while sum(f.stat().st_size for f in bag.glob("*.mcap")) < 300_000:
+        assert time.monotonic() < deadline and launcher.poll() is None, "recording did not grow"
+        time.sleep(0.05)
+    launcher.send_signal(signal.SIGKILL)
+    launcher.wait()
+    out = subprocess.run(DRIVE + ["bag", "info", str(bag)], capture_output=True, text=True)
+    assert out.returncode == 2 and f"drive bag reindex {bag}" in out.stderr
+    out = subprocess.run(DRIVE + ["bag", "reindex", str(bag), "--json"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    counts = {t["topic"]: t["count"] for t in json.loads(out.stdout)["topics"]}
+    assert 1000 < counts["/killed/currents"] < 15000
+
+
+def test_a_truncated_mcap_under_a_complete_metadata_is_named(bags, tmp_path):
+    import shutil
+    bag = tmp_path / "truncated"
+    shutil.copytree(bags[1], bag)
+    (mcap,) = bag.glob("*.mcap")
+    with mcap.open("r+b") as f:
+        f.truncate(mcap.stat().st_size // 3)
+    out = subprocess.run(DRIVE + ["bench", "replay", str(bag)], capture_output=True, text=True)
+    assert out.returncode == 2 and out.stderr.startswith(f"drive: {bag}: ")
