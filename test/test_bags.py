@@ -225,12 +225,15 @@ def test_a_killed_recorder_leaves_chunks_that_reindex_makes_a_bag(tmp_path):
     assert 1000 < counts["/killed/currents"] < 15000
 
 
-def test_a_truncated_mcap_under_a_complete_metadata_is_named(bags, tmp_path):
-    import shutil
-    bag = tmp_path / "truncated"
-    shutil.copytree(bags[1], bag)
+def test_a_truncated_mcap_under_a_complete_metadata_is_named(tmp_path):
+    scenario = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.4)
+    bag = write_run_bag(run_scenario(scenario), tmp_path / "truncated")
     (mcap,) = bag.glob("*.mcap")
     with mcap.open("r+b") as f:
         f.truncate(mcap.stat().st_size // 3)
     out = subprocess.run(DRIVE + ["bench", "replay", str(bag)], capture_output=True, text=True)
     assert out.returncode == 2 and out.stderr.startswith(f"drive: {bag}: ")
+    assert f"drive bag reindex {bag} --force" in out.stderr
+    out = subprocess.run(DRIVE + ["bag", "reindex", str(bag), "--force", "--json"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert 0 < json.loads(out.stdout)["messages"]

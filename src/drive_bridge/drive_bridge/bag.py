@@ -182,7 +182,8 @@ def open_bag(path):
         reader = Reader(path)
         reader.open()
     except ReaderError as error:
-        raise BagError(f"{path}: not a readable rosbag2 bag ({error})") from None
+        hint = f"; if its .mcap was cut, `drive bag reindex {path} --force` rebuilds it" if path.is_dir() else ""
+        raise BagError(f"{path}: not a readable rosbag2 bag ({error}){hint}") from None
     return reader
 
 
@@ -332,9 +333,10 @@ def _stamp_ns(stamp):
     return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
-def reindex(path):
+def reindex(path, force=False):
     """Rebuild a cut recording (no metadata.yaml: the recorder was killed) into a complete bag from the
-    chunks that reached the disk; the chunk being written when it died is lost. Returns bag_info."""
+    chunks that reached the disk; the chunk being written when it died is lost. ``force``: also when a
+    metadata.yaml exists (an .mcap cut after the bag was closed). Returns bag_info."""
     import shutil
 
     import yaml
@@ -344,7 +346,9 @@ def reindex(path):
 
     path = Path(path)
     if (path / "metadata.yaml").exists():
-        raise BagError(f"{path}: already complete (has metadata.yaml); nothing to reindex")
+        if not force:
+            raise BagError(f"{path}: already complete (has metadata.yaml); --force rebuilds it anyway")
+        (path / "metadata.yaml").unlink()
     mcaps = sorted(path.glob("*.mcap"))
     if not mcaps:
         raise BagError(f"{path}: no .mcap file to reindex")

@@ -161,7 +161,7 @@ def cmd_bag_info(args):
 
 def cmd_bag_reindex(args):
     from .bag import reindex
-    info = reindex(args.bag)
+    info = reindex(args.bag, force=args.force)
     if args.json:
         _print_json(info)
     else:
@@ -405,6 +405,7 @@ def build_parser():
     info.set_defaults(func=cmd_bag_info)
     reindex = bag_sub.add_parser("reindex", help="make a cut recording (killed recorder) a complete bag")
     reindex.add_argument("bag")
+    reindex.add_argument("--force", action="store_true", help="also when metadata.yaml exists (a cut .mcap)")
     reindex.add_argument("--json", action="store_true")
     reindex.set_defaults(func=cmd_bag_reindex)
     return parser
