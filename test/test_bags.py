@@ -161,8 +161,9 @@ def test_foreign_bags_with_missing_or_mistyped_topics_are_named(tmp_path):
 
 def test_replay_reproduces_the_recorded_estimator_and_flags_foreign_excitation(bags, tmp_path):
     graph, _, n = bags
-    out = subprocess.run(DRIVE + ["bench", "replay", str(graph), "--estimators", "injection_frame,conventional",
-                                  "--json", "--out", str(tmp_path)], capture_output=True, text=True)
+    out = subprocess.run(DRIVE + ["bench", "replay", str(graph), "--estimators",
+                                  "injection_frame,conventional", "--json", "--out", str(tmp_path)],
+                         capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     own, other = report["results"]
@@ -210,7 +211,8 @@ def test_a_killed_recorder_leaves_chunks_that_reindex_makes_a_bag(tmp_path):
     import time
     bag = tmp_path / "killed"
     launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--namespace", "/killed", "--no-plot",
-                                         "--record", str(bag)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                         "--record", str(bag)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 60.0
     while sum(f.stat().st_size for f in bag.glob("*.mcap")) < 300_000:
         assert time.monotonic() < deadline and launcher.poll() is None, "recording did not grow"
@@ -234,6 +236,35 @@ def test_a_truncated_mcap_under_a_complete_metadata_is_named(tmp_path):
     out = subprocess.run(DRIVE + ["bench", "replay", str(bag)], capture_output=True, text=True)
     assert out.returncode == 2 and out.stderr.startswith(f"drive: {bag}: ")
     assert f"drive bag reindex {bag} --force" in out.stderr
-    out = subprocess.run(DRIVE + ["bag", "reindex", str(bag), "--force", "--json"], capture_output=True, text=True)
+    out = subprocess.run(DRIVE + ["bag", "reindex", str(bag), "--force", "--json"], capture_output=True,
+                         text=True)
     assert out.returncode == 0, out.stderr
     assert 0 < json.loads(out.stdout)["messages"]
+
+
+def test_bulk_cdr_records_equal_the_rosbags_serialiser():
+    from drive_bridge.bag import (CDR_LITTLE_ENDIAN, _cdr_joint_state, _cdr_scalars, _cdr_vector3_stamped,
+                                  typestore)
+    store = typestore()
+    T = store.types
+    stamp = T["builtin_interfaces/msg/Time"](sec=3, nanosec=700)
+    header = T["std_msgs/msg/Header"]
+
+    def same(records, msg, msgtype):
+        records["enc"] = CDR_LITTLE_ENDIAN
+        assert records.tobytes() == bytes(store.serialize_cdr(msg, msgtype)), msgtype
+
+    one = (np.array([3]), np.array([700]))
+    for frame in ("abc", "alpha_beta", ""):
+        vector = T["geometry_msgs/msg/Vector3"](x=1.5, y=-2.0, z=3.25)
+        same(_cdr_vector3_stamped(*one, frame, [1.5], [-2.0], [3.25]),
+             T["geometry_msgs/msg/Vector3Stamped"](header=header(stamp=stamp, frame_id=frame), vector=vector),
+             "geometry_msgs/msg/Vector3Stamped")
+    for effort in ([], [0.5]):
+        msg = T["sensor_msgs/msg/JointState"](header=header(stamp=stamp, frame_id=""), name=["rotor"],
+                                              position=np.array([1.5]), velocity=np.array([-2.0]),
+                                              effort=np.array(effort, dtype=float))
+        same(_cdr_joint_state(*one, [1.5], [-2.0], effort or None), msg, "sensor_msgs/msg/JointState")
+    same(_cdr_scalars(("<f8",), [2.5]), T["std_msgs/msg/Float64"](data=2.5), "std_msgs/msg/Float64")
+    same(_cdr_scalars(("<i4", "<u4"), [3], [700]), T["rosgraph_msgs/msg/Clock"](clock=stamp),
+         "rosgraph_msgs/msg/Clock")

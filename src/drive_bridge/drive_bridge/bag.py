@@ -1,7 +1,8 @@
 """Recordings as the contract says: a rosbag2 directory (metadata.yaml + one zstd-chunked .mcap), storage
 `mcap`, serialization `cdr`, standard message types, offered QoS stored, written with the `mcap` library
-from serialized bytes (message definitions and type hashes from the `rosbags` typestore). Log times are sim time: a message's own stamp when it carries the sample instant,
-otherwise the instant of the latest sample recorded.
+from serialized bytes (message definitions and type hashes from the `rosbags` typestore). Log times are
+sim time: a message's own stamp when it carries the sample instant, otherwise the instant of the latest
+sample recorded.
 
 The one-process runner writes the same topics from its log (``write_run_bag``), except `/diagnostics`
 and `joint_states`, which only nodes produce.
@@ -16,13 +17,14 @@ import numpy as np
 from .loop import COLUMN, LOG_COLUMNS
 from .scenario import ScenarioError
 
-SAMPLE_STAMPED = {"currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state",
-                  "angle_error", "joint_states", "/clock"}
+SAMPLE_STAMPED = {"currents", "rotor_state", "rotor_estimate", "injection", "voltage_command",
+                  "estimator_state", "angle_error", "joint_states", "/clock"}
 """Topics whose first field is the sample instant (header.stamp or clock)."""
 DRIVE_TOPICS = {
     "currents": "geometry_msgs/msg/Vector3Stamped", "rotor_state": "sensor_msgs/msg/JointState",
     "rotor_estimate": "sensor_msgs/msg/JointState", "injection": "geometry_msgs/msg/Vector3Stamped",
-    "voltage_command": "geometry_msgs/msg/Vector3Stamped", "estimator_state": "geometry_msgs/msg/Vector3Stamped",
+    "voltage_command": "geometry_msgs/msg/Vector3Stamped",
+    "estimator_state": "geometry_msgs/msg/Vector3Stamped",
     "/clock": "rosgraph_msgs/msg/Clock", "angle_error": "geometry_msgs/msg/Vector3Stamped",
     "joint_states": "sensor_msgs/msg/JointState", "speed_command": "std_msgs/msg/Float64",
     "load_torque": "std_msgs/msg/Float64", "drive_config": "std_msgs/msg/String",
@@ -149,7 +151,8 @@ def _cdr_vector3_stamped(sec, nanosec, frame, x, y, z):
 def _cdr_joint_state(sec, nanosec, position, velocity, effort=None):
     """n sensor_msgs/JointState of the one joint `rotor` (frame ''), as CDR records."""
     fields = [("enc", "<u4"), ("sec", "<i4"), ("nanosec", "<u4"), ("frame_length", "<u4"), ("frame", "S1"),
-              ("pad0", "u1", (3,)), ("names", "<u4"), ("name_length", "<u4"), ("name", "S6"), ("pad1", "u1", (2,)),
+              ("pad0", "u1", (3,)), ("names", "<u4"), ("name_length", "<u4"), ("name", "S6"),
+              ("pad1", "u1", (2,)),
               ("positions", "<u4"), ("pad2", "u1", (4,)), ("position", "<f8"),
               ("velocities", "<u4"), ("pad3", "u1", (4,)), ("velocity", "<f8"), ("efforts", "<u4")]
     fields += [("pad4", "u1", (4,)), ("effort", "<f8")] if effort is not None else []
@@ -183,9 +186,9 @@ def write_run_bag(result, path, namespace="/drive", progress=None):
     for topic, msgtype in DRIVE_TOPICS.items():
         if topic in ("/diagnostics", "joint_states"):
             continue
+        per_sample = topic in SAMPLE_STAMPED and topic != "angle_error"
         qos = (rosbags_qos(depth=LATCHED_QOS.depth, durability=1) if topic == "drive_config" else
-               rosbags_qos(depth=PER_SAMPLE_QOS.depth) if topic in SAMPLE_STAMPED and topic != "angle_error" else
-               rosbags_qos(depth=COMMAND_QOS.depth))
+               rosbags_qos(depth=(PER_SAMPLE_QOS if per_sample else COMMAND_QOS).depth))
         writer.add(full_topic(namespace, topic), msgtype, qos)
     config = {"node": "drive run", "n_p": n_p, "scenario": scenario.name, "source": scenario.source,
               "motor": scenario.motor, "estimator": result.estimator, "T_s_s": scenario.T_s, "samples": n,
@@ -197,22 +200,19 @@ def write_run_bag(result, path, namespace="/drive", progress=None):
     theta_hat_m, omega_hat_m = col["theta_e_hat"] / n_p, col["omega_e_hat"] / n_p
     speed_changes = np.ones(n, dtype=bool)
     speed_changes[1:] = col["omega_m_ref"][1:] != col["omega_m_ref"][:-1]
+    vector = _cdr_vector3_stamped
     per_sample = [
         ("/clock", _cdr_scalars(("<i4", "<u4"), sec, nanosec), None),
         ("speed_command", _cdr_scalars(("<f8",), col["omega_m_ref"]), speed_changes),
         ("load_torque", _cdr_scalars(("<f8",), col["tau_load"]), None),
         ("rotor_state", _cdr_joint_state(sec, nanosec, col["theta_m"], col["omega_m"], col["tau_e"]), None),
-        ("currents", _cdr_vector3_stamped(sec, nanosec, "abc", col["i_a_meas"], col["i_b_meas"], col["i_c_meas"]),
-         None),
-        ("injection", _cdr_vector3_stamped(sec, nanosec, "alpha_beta", col["u_inj_alpha"], col["u_inj_beta"], 0.0),
-         None),
+        ("currents", vector(sec, nanosec, "abc", col["i_a_meas"], col["i_b_meas"], col["i_c_meas"]), None),
+        ("injection", vector(sec, nanosec, "alpha_beta", col["u_inj_alpha"], col["u_inj_beta"], 0.0), None),
         ("rotor_estimate", _cdr_joint_state(sec, nanosec, theta_hat_m, omega_hat_m), None),
-        ("estimator_state", _cdr_vector3_stamped(sec, nanosec, "", col["eps"], col["signal"], col["observable"]),
-         None),
-        ("angle_error", _cdr_vector3_stamped(sec, nanosec, "", wrap(n_p * (col["theta_m"] - theta_hat_m)),
-                                             col["omega_m"] - omega_hat_m, 0.0), None),
-        ("voltage_command", _cdr_vector3_stamped(sec, nanosec, "alpha_beta", col["u_alpha"], col["u_beta"], 0.0),
-         None)]
+        ("estimator_state", vector(sec, nanosec, "", col["eps"], col["signal"], col["observable"]), None),
+        ("angle_error", vector(sec, nanosec, "", wrap(n_p * (col["theta_m"] - theta_hat_m)),
+                               col["omega_m"] - omega_hat_m, 0.0), None),
+        ("voltage_command", vector(sec, nanosec, "alpha_beta", col["u_alpha"], col["u_beta"], 0.0), None)]
     streams = []
     for topic, records in ((t, r) for t, r, _ in per_sample):
         records["enc"] = CDR_LITTLE_ENDIAN
@@ -249,7 +249,8 @@ def open_bag(path):
         reader = Reader(path)
         reader.open()
     except ReaderError as error:
-        hint = f"; if its .mcap was cut, `drive bag reindex {path} --force` rebuilds it" if path.is_dir() else ""
+        hint = (f"; if its .mcap was cut, `drive bag reindex {path} --force` rebuilds it"
+                if path.is_dir() else "")
         raise BagError(f"{path}: not a readable rosbag2 bag ({error}){hint}") from None
     return reader
 
@@ -263,8 +264,8 @@ def bag_info(path):
                    "offered_qos": [_qos_dict(q) for q in c.ext.offered_qos_profiles]}
                   for c in sorted(reader.connections, key=lambda c: c.topic)]
         path = Path(path)
-        files = [{"path": p.name, "bytes": p.stat().st_size}
-                 for p in (sorted(path.glob("*.mcap")) + sorted(path.glob("*.db3")) if path.is_dir() else [path])]
+        stored = sorted(path.glob("*.mcap")) + sorted(path.glob("*.db3")) if path.is_dir() else [path]
+        files = [{"path": p.name, "bytes": p.stat().st_size} for p in stored]
         return {"bag": str(path), "storage": _storage_identifier(path),
                 "compression": f"{reader.compression_mode} {reader.compression_format}"
                 if reader.compression_mode else _chunk_compression(path),
@@ -344,7 +345,8 @@ def bag_log(path, T_s=None, namespace=None):
     if T_s is None:
         steps = np.diff(stamps)
         if steps.size == 0 or steps.min() <= 0:
-            raise BagError(f"{path}: {full_topic(namespace, 'currents')} stamps are not increasing sample instants")
+            raise BagError(f"{path}: {full_topic(namespace, 'currents')} stamps are not increasing sample "
+                           f"instants")
         T_s = float(np.median(steps)) * 1e-9
     n = int(round(stamps[-1] * 1e-9 / T_s)) + 1
     log = np.full((n, len(LOG_COLUMNS)), np.nan)
@@ -374,7 +376,8 @@ def bag_log(path, T_s=None, namespace=None):
     for _, m in topics.get("rotor_estimate", []):
         k = index(m.header.stamp)
         if k is not None and len(m.position):
-            log[k, COLUMN["theta_e_hat"]], log[k, COLUMN["omega_e_hat"]] = n_p * m.position[0], n_p * m.velocity[0]
+            log[k, COLUMN["theta_e_hat"]] = n_p * m.position[0]
+            log[k, COLUMN["omega_e_hat"]] = n_p * m.velocity[0]
     for topic, column in (("speed_command", "omega_m_ref"), ("load_torque", "tau_load")):
         _hold(log[:, COLUMN[column]], topics.get(topic, []), T_s, n)
     return log, T_s, configs
@@ -431,8 +434,10 @@ def reindex(path, force=False):
                     if isinstance(record, Schema):
                         schemas[record.id] = record.name
                     elif isinstance(record, Channel):
-                        profiles = yaml.safe_load(record.metadata.get("offered_qos_profiles", "") or "[]") or [{}]
-                        writer.add(record.topic, schemas[record.schema_id], rosbags_qos(**_qos_values(profiles[0])))
+                        text = record.metadata.get("offered_qos_profiles", "") or "[]"
+                        profiles = yaml.safe_load(text) or [{}]
+                        writer.add(record.topic, schemas[record.schema_id],
+                                   rosbags_qos(**_qos_values(profiles[0])))
                         topics[record.id] = record.topic
                     elif isinstance(record, Message) and record.channel_id in topics:
                         writer.write(topics[record.channel_id], record.data, False, record.log_time)
@@ -456,9 +461,11 @@ def struct_error():
 
 
 def _qos_values(q):
-    names = {"keep_last": 1, "keep_all": 2, "reliable": 1, "best_effort": 2, "transient_local": 1, "volatile": 2}
+    names = {"keep_last": 1, "keep_all": 2, "reliable": 1, "best_effort": 2, "transient_local": 1,
+             "volatile": 2}
     return {"history": names.get(q.get("history"), 1), "depth": int(q.get("depth", 10)),
-            "reliability": names.get(q.get("reliability"), 1), "durability": names.get(q.get("durability"), 2)}
+            "reliability": names.get(q.get("reliability"), 1),
+            "durability": names.get(q.get("durability"), 2)}
 
 
 def _rename_in_metadata(path, old, new):
@@ -475,8 +482,9 @@ def bag_result(path, namespace=None):
     log, T_s, configs = bag_log(path, namespace=namespace)
     scenario = _bag_scenario(path, configs)
     scenario = dataclasses.replace(scenario, duration_s=log.shape[0] * T_s, T_s=T_s)
-    estimator = next((c["parameters"]["estimator"] or scenario.estimator for c in configs if "parameters" in c),
-                     next((c["estimator"] for c in configs if "estimator" in c), scenario.estimator))
+    recorded = next((c["estimator"] for c in configs if "estimator" in c), scenario.estimator)
+    from_nodes = (c["parameters"]["estimator"] or scenario.estimator for c in configs if "parameters" in c)
+    estimator = next(from_nodes, recorded)
     limit = next((c["current_limit_A"] for c in configs if "current_limit_A" in c),
                  next((c["controller"]["i_max_A"] for c in configs if isinstance(c.get("controller"), dict)
                        and "i_max_A" in c["controller"]), math.nan))

@@ -15,7 +15,7 @@ import numpy as np
 
 from .loop import LOG_COLUMNS
 from .runner import build_drive
-from .scenario import load_scenario
+from .scenario import ScenarioError, load_scenario
 
 BENCH_SCENARIO = "wang_100rpm"
 
@@ -142,7 +142,9 @@ def hop_latency(round_trips=20000):
         executor.add_node(a)
         executor.add_node(b)
         end = time.monotonic() + 10.0
-        while min(ping.get_subscription_count(), pong.get_subscription_count()) < 1 and time.monotonic() < end:
+        while min(ping.get_subscription_count(), pong.get_subscription_count()) < 1:
+            if time.monotonic() > end:
+                raise ScenarioError("bench graph: the ping-pong nodes did not match within 10 s")
             executor.spin_once(timeout_sec=0.05)
         start = time.perf_counter()
         ping.publish(message)

@@ -29,7 +29,8 @@ def cmd_run(args):
     extra = {}
     if args.record:
         from .bag import write_run_bag
-        extra["bag"] = str(write_run_bag(result, args.record, progress=terminal_progress(f"writing {args.record}")))
+        progress = terminal_progress(f"writing {args.record}")
+        extra["bag"] = str(write_run_bag(result, args.record, progress=progress))
     return _report(result, args, extra)
 
 
@@ -149,13 +150,13 @@ def cmd_bag_info(args):
     print(f"bag {info['bag']}: storage {info['storage']}, compression {info['compression']}")
     for f in info["files"]:
         print(f"  file {f['path']} ({f['bytes']:,} bytes)")
-    print(f"  duration {info['duration_s']:.6f} s (start {info['start_s']:.6f} s, end {info['end_s']:.6f} s), "
-          f"{info['messages']:,} messages")
+    print(f"  duration {info['duration_s']:.6f} s (start {info['start_s']:.6f} s, "
+          f"end {info['end_s']:.6f} s), {info['messages']:,} messages")
     width = max((len(t["topic"]) for t in info["topics"]), default=0)
     for t in info["topics"]:
         qos = t["offered_qos"][0] if t["offered_qos"] else {}
-        print(f"  {t['topic']:{width}s}  {t['type']:38s} {t['count']:8d}  {t['serialization']}  "
-              f"{qos.get('reliability', '?').lower()}/{qos.get('durability', '?').lower()}/{qos.get('depth', '?')}")
+        qos_text = "/".join(str(qos.get(key, "?")).lower() for key in ("reliability", "durability", "depth"))
+        print(f"  {t['topic']:{width}s}  {t['type']:38s} {t['count']:8d}  {t['serialization']}  {qos_text}")
     return 0
 
 
@@ -203,7 +204,8 @@ def cmd_bench_compare(args):
     for label, key, unit in (("scenario", "scenario", ""), ("estimator", "estimator", ""),
                              ("samples", "samples", "")) + COMPARED_METRICS:
         cells = [e[key] for e in entries]
-        text = [("n/a" if v is None else f"{v:+.4f} {unit}" if isinstance(v, float) else str(v)) for v in cells]
+        text = ["n/a" if v is None else f"{v:+.4f} {unit}" if isinstance(v, float) else str(v)
+                for v in cells]
         print(f"  {label:30s} {text[0]:>24s} {text[1]:>24s}")
     for entry in entries:
         if not entry["ground_truth"]:
@@ -220,7 +222,8 @@ def cmd_bench_replay(args):
     names = args.estimators.split(",") if args.estimators else estimator_names()
     for name in names:
         if name not in estimator_names():
-            raise ScenarioError(f"--estimators: unknown estimator '{name}' (known: {', '.join(estimator_names())})")
+            raise ScenarioError(f"--estimators: unknown estimator '{name}' "
+                                f"(known: {', '.join(estimator_names())})")
     recorded, entries, results = replay(args.bag, names)
     truth = "rotor_state" if "angle_error_rms" in entries[0] else None
     out = Path(args.out) if args.out else Path("runs") / "replay" / Path(args.bag).name
@@ -239,7 +242,8 @@ def cmd_bench_replay(args):
           f"{recorded.estimator}")
     if not truth:
         print("  no ground truth (rotor_state) in this bag: scored for consistency only")
-    columns = [("samples/s", "samples_per_second", "{:,.0f}"), ("exc. mismatch", "excitation_mismatch", "{:.3f}"),
+    columns = [("samples/s", "samples_per_second", "{:,.0f}"),
+               ("exc. mismatch", "excitation_mismatch", "{:.3f}"),
                ("observable", "observable_fraction", "{:.3f}")]
     if truth:
         columns += [("RMS [rad]", "angle_error_rms", "{:.4f}"), ("bias [rad]", "angle_error_bias", "{:+.4f}"),
@@ -325,7 +329,8 @@ def build_parser():
     run.add_argument("--duration", type=float, help="override the duration [s]")
     run.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     run.add_argument("--no-plot", action="store_true", help="skip the PNG plot")
-    run.add_argument("--record", metavar="BAG", help="write the run as a rosbag2/MCAP bag into this new directory")
+    run.add_argument("--record", metavar="BAG",
+                     help="write the run as a rosbag2/MCAP bag into this new directory")
     run.add_argument("--json", action="store_true", help="print the metrics as JSON")
     run.set_defaults(func=cmd_run)
 
@@ -363,7 +368,8 @@ def build_parser():
     compare.add_argument("--json", action="store_true")
     compare.set_defaults(func=cmd_bench_compare)
 
-    rp = bench_sub.add_parser("replay", help="estimators on a recording's currents, scored against its ground truth")
+    rp = bench_sub.add_parser("replay",
+                              help="estimators on a recording's currents, scored against its ground truth")
     rp.add_argument("bag")
     rp.add_argument("--estimators", help="comma-separated (default: all)")
     rp.add_argument("--out", help="directory for angle_error.png and replay.json (default runs/replay/BAG)")
@@ -384,7 +390,8 @@ def build_parser():
     launch.add_argument("--timeout", type=float, default=1.0, help="lock-step answer timeout [s]")
     launch.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     launch.add_argument("--no-plot", action="store_true")
-    launch.add_argument("--record", metavar="BAG", help="record every drive topic into this new rosbag2 directory")
+    launch.add_argument("--record", metavar="BAG",
+                        help="record every drive topic into this new rosbag2 directory")
     launch.add_argument("--json", action="store_true")
     launch.set_defaults(func=cmd_launch)
 

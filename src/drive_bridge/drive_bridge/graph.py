@@ -158,8 +158,8 @@ class ScenarioDriver:
             if not self.recorder:
                 self.node.create_subscription(cls, topic, handler, qos)
                 continue
-            self.node.create_subscription(cls, topic, self.recording(topic, cls, handler, topic in SAMPLE_STAMPED),
-                                          qos, raw=True)
+            callback = self.recording(topic, cls, handler, topic in SAMPLE_STAMPED)
+            self.node.create_subscription(cls, topic, callback, qos, raw=True)
         if self.recorder:
             for topic in sorted(types):
                 cls, qos = types[topic]

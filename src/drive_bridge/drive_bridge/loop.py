@@ -69,7 +69,7 @@ def replay_samples(est_step, ex, ez, ep, n_p, currents, u_prev, theta_m, omega_m
     for k in range(currents.shape[0]):
         theta = theta_m[k] if theta_m[k] == theta_m[k] else 0.0
         omega = omega_m[k] if omega_m[k] == omega_m[k] else 0.0
-        result = est_step(ex, ez, ep, k, currents[k, 0], currents[k, 1], currents[k, 2], u_prev[k, 0], u_prev[k, 1],
-                          n_p * theta, n_p * omega)
+        result = est_step(ex, ez, ep, k, currents[k, 0], currents[k, 1], currents[k, 2], u_prev[k, 0],
+                          u_prev[k, 1], n_p * theta, n_p * omega)
         for j in range(7):
             out[k, j] = result[j]

@@ -28,7 +28,8 @@ tracker's error signal goes as sin 2Δθ; within π/8 its slope is still ≥ 0.7
 
 
 def replay_inputs(recorded, path):
-    """(currents n × 3, previous voltage command n × 2) from a recorded log; BagError naming what is missing."""
+    """(currents n × 3, previous voltage command n × 2) from a recorded log; a BagError names what
+    is missing."""
     log = recorded.log
     currents = log[:, [COLUMN["i_a_meas"], COLUMN["i_b_meas"], COLUMN["i_c_meas"]]]
     voltage = log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]]
@@ -36,7 +37,8 @@ def replay_inputs(recorded, path):
     for name, values in (("currents", currents), ("voltage_command", voltage), ("injection", injection)):
         missing = int(np.isnan(values[:, 0]).sum())
         if missing:
-            raise BagError(f"{path}: {name}: {missing} of {len(values)} samples missing; replay needs every one")
+            raise BagError(f"{path}: {name}: {missing} of {len(values)} samples missing; replay needs "
+                           f"every one")
     u_prev = np.zeros((len(voltage), 2))
     u_prev[1:] = voltage[:-1]
     return np.ascontiguousarray(currents), u_prev
@@ -73,8 +75,8 @@ def replay(path, estimators):
                  "excitation_mismatch": _relative_rms(out[:, 2:4] - applied, applied),
                  "observable_fraction": metrics["observable_fraction"]}
         if truth:
-            entry.update({key: metrics[key] for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak",
-                                                        "speed_error_rms")})
+            scored = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms")
+            entry.update({key: metrics[key] for key in scored})
             entry["time_to_lock_s"] = time_to_lock(result)
         entries.append(entry)
         results.append(result)

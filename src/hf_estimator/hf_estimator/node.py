@@ -46,7 +46,8 @@ class EstimatorNode(DriveNode):
             self.create_subscription(JointState, "rotor_state", self.on_rotor_state, PER_SAMPLE_QOS)
         self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
         self.publish_config({"estimator": e.name, "injection_frequency_Hz": e.injection_frequency_Hz,
-                             "tracking_bandwidth_Hz": e.tracking_bandwidth_Hz, "estimator_parameters": e.params})
+                             "tracking_bandwidth_Hz": e.tracking_bandwidth_Hz,
+                             "estimator_parameters": e.params})
 
     def warm_up(self):
         e = self.drive.estimator

@@ -97,7 +97,8 @@ class PlantNode(DriveNode):
     def ready(self):
         """Every lock-step partner is matched (and the first load is in, when taken per sample)."""
         return (self.currents_pub.get_subscription_count() >= 2
-                and self.count_publishers("voltage_command") >= 1 and self.count_publishers("rotor_estimate") >= 1
+                and self.count_publishers("voltage_command") >= 1
+                and self.count_publishers("rotor_estimate") >= 1
                 and (self.loads or not self.load_per_sample))
 
     def watchdog(self):
