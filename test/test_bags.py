@@ -268,3 +268,17 @@ def test_bulk_cdr_records_equal_the_rosbags_serialiser():
     same(_cdr_scalars(("<f8",), [2.5]), T["std_msgs/msg/Float64"](data=2.5), "std_msgs/msg/Float64")
     same(_cdr_scalars(("<i4", "<u4"), [3], [700]), T["rosgraph_msgs/msg/Clock"](clock=stamp),
          "rosgraph_msgs/msg/Clock")
+
+
+def test_a_bag_with_an_unknown_message_type_is_named(tmp_path):
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    path = tmp_path / "unknown_type"
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        connection = writer.add_connection("/drive/currents", "my_msgs/msg/PhaseCurrents",
+                                           msgdef="float64 a\nfloat64 b\nfloat64 c", rihs01="RIHS01_" + "0" * 64)
+        writer.write(connection, 0, b"\x00\x01\x00\x00" + b"\x00" * 24)
+    assert [t["type"] for t in bag_info(path)["topics"]] == ["my_msgs/msg/PhaseCurrents"]
+    out = subprocess.run(DRIVE + ["bench", "replay", str(path)], capture_output=True, text=True)
+    assert out.returncode == 2
+    assert out.stderr.strip() == (f"drive: {path}: /drive/currents is my_msgs/msg/PhaseCurrents, the contract "
+                                  f"says geometry_msgs/msg/Vector3Stamped")
