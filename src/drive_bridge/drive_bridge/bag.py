@@ -408,6 +408,7 @@ def reindex(path, force=False):
     chunks that reached the disk; the chunk being written when it died is lost. ``force``: also when a
     metadata.yaml exists (an .mcap cut after the bag was closed). Returns bag_info."""
     import shutil
+    import struct
 
     import yaml
     from mcap.exceptions import McapError
@@ -442,7 +443,7 @@ def reindex(path, force=False):
                     elif isinstance(record, Message) and record.channel_id in topics:
                         writer.write(topics[record.channel_id], record.data, False, record.log_time)
                         kept += 1
-            except (McapError, EOFError, ValueError, KeyError, struct_error()):
+            except (McapError, EOFError, ValueError, KeyError, struct.error):
                 pass
     finally:
         writer.close()
@@ -453,11 +454,6 @@ def reindex(path, force=False):
     _rename_in_metadata(path, f"{rebuilt.name}.mcap", mcaps[0].name)
     shutil.rmtree(cut)
     return bag_info(path)
-
-
-def struct_error():
-    import struct
-    return struct.error
 
 
 def _qos_values(q):

@@ -80,10 +80,6 @@ class Health:
         self.last_fault = message
         self.level = DiagnosticStatus.ERROR
 
-    def warn(self, message):
-        self.last_fault = message
-        self.level = max(self.level, DiagnosticStatus.WARN)
-
 
 class DriveNode(Node):
     """Base of the drive's nodes: declares GLOBAL_PARAMETERS, builds the cores with ``builder``
