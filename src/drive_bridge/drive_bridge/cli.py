@@ -259,6 +259,74 @@ def cmd_bench_replay(args):
     return 0
 
 
+def cmd_tune_pll(args):
+    import math
+
+    import numpy as np
+    from hf_estimator.pll_model import (_unwrapped_phase, highest_crossover, margins, open_loop, pll_process,
+                                        tune_pi)
+    from hf_estimator.szabo import DEFAULTS
+
+    from .plots import plot_bode
+
+    preset = PRESETS.get(args.motor)
+    if preset is None:
+        raise ScenarioError(f"--motor: unknown preset '{args.motor}' (known: {', '.join(sorted(PRESETS))})")
+    m = preset.nameplate
+    f_h = args.frequency or DEFAULTS["frequency_Hz"]
+    u_h = args.amplitude or DEFAULTS["amplitude_V"]
+    T_f = DEFAULTS["T_f_s"] if args.T_f is None else args.T_f
+    process = pll_process(m.R_s_ohm, m.L_d_H, m.L_q_H, f_h, u_h, args.u_star)
+    table2 = margins(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"], DEFAULTS["T_f_s"])
+    try:
+        crossover = args.crossover or highest_crossover(process, T_f, args.phase_margin)
+        A_p, T_i = tune_pi(process, T_f, args.phase_margin, crossover)
+    except ValueError as error:
+        raise ScenarioError(str(error)) from None
+    tuned = margins(process, A_p, T_i, T_f)
+    report = {"motor": args.motor, "estimator": "synchronous",
+              "model": "Szabó & Veszprémi Eq. (22)-(39): G_o = |K|·A_p(1 + 1/(sT_i))·G_p(s)/(s(sT_f + 1))",
+              "injection": {"frequency_Hz": f_h, "amplitude_V": u_h, "u_star": args.u_star},
+              "process": {"p1": process.p1, "p2": process.p2, "p3": process.p3, "lambda_d": process.lambda_d,
+                          "lambda_q": process.lambda_q, "K": process.K, "c_S": process.c_S},
+              "requested": {"phase_margin_deg": args.phase_margin, "crossover_rad_s": crossover},
+              "tuned": {"A_p": A_p, "T_i_s": T_i, "T_f_s": T_f, **tuned.__dict__},
+              "table2_gains": {"A_p": DEFAULTS["A_p"], "T_i_s": DEFAULTS["T_i_s"], "T_f_s": DEFAULTS["T_f_s"],
+                               **table2.__dict__}}
+    if not args.no_plot:
+        out = Path(args.out) if args.out else Path("runs") / "tune"
+        omega = np.logspace(0, 5, 2000)
+        s = 1j * omega
+        process_phase = np.degrees(_unwrapped_phase(process, 1.0, math.inf, 0.0, omega) + math.pi / 2.0)
+        report["plots"] = [
+            str(plot_bode([("G_p(s)", omega, process.G_p(s), process_phase)], out / f"{args.motor}_pll_process.png",
+                          f"{args.motor}: PLL process G_p (Szabó Fig. 8)")),
+            str(plot_bode([(f"tuned A_p {A_p:.0f}, T_i {1e3 * T_i:.1f} ms", omega,
+                            open_loop(process, A_p, T_i, T_f, omega),
+                            np.degrees(_unwrapped_phase(process, A_p, T_i, T_f, omega))),
+                           ("Table 2 A_p 4853, T_i 136 ms", omega,
+                            open_loop(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"], DEFAULTS["T_f_s"], omega),
+                            np.degrees(_unwrapped_phase(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"],
+                                                        DEFAULTS["T_f_s"], omega)))],
+                          out / f"{args.motor}_pll_open_loop.png", f"{args.motor}: PLL open loop (Szabó Fig. 9)"))]
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"PLL of `synchronous` on {args.motor}: {f_h:g} Hz, {u_h:g} V, u* {args.u_star:g}; "
+          f"K {process.K:.3f}, G_p(0) {process.c_S:.6f} S, poles {process.lambda_d:.1f}, "
+          f"{process.lambda_q:.1f} rad/s")
+    print(f"  tuned:    A_p {A_p:10.1f}  T_i {1e3 * T_i:7.2f} ms  T_f {1e3 * T_f:.3f} ms  crossover "
+          f"{tuned.crossover_rad_s:7.1f} rad/s  phase margin {tuned.phase_margin_deg:5.1f}°  "
+          f"gain margin {tuned.gain_margin_dB:5.1f} dB")
+    print(f"  Table 2:  A_p {DEFAULTS['A_p']:10.1f}  T_i {1e3 * DEFAULTS['T_i_s']:7.2f} ms  T_f "
+          f"{1e3 * DEFAULTS['T_f_s']:.3f} ms  crossover {table2.crossover_rad_s:7.1f} rad/s  phase margin "
+          f"{table2.phase_margin_deg:5.1f}°  gain margin {table2.gain_margin_dB:5.1f} dB "
+          f"(paper: 175 rad/s, 60°)")
+    for path in report.get("plots", []):
+        print(f"  plot: {path}")
+    return 0
+
+
 def cmd_bench_graph(args):
     from .bench import graph_throughput
     if args.duration <= 0.0:
@@ -376,6 +444,22 @@ def build_parser():
     rp.add_argument("--no-plot", action="store_true")
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=cmd_bench_replay)
+
+    tune = sub.add_parser("tune", help="controller tuning from models")
+    tune_sub = tune.add_subparsers(dest="tune", required=True)
+    pll = tune_sub.add_parser("pll", help="PI of the synchronous-injection PLL from Szabó's model (§2.4)")
+    pll.add_argument("--motor", default="szabo_ipmsm", help="motor preset (nameplate R, L_d, L_q)")
+    pll.add_argument("--phase-margin", type=float, default=60.0, help="[deg]")
+    pll.add_argument("--crossover", type=float, help="[rad/s] (default: the highest reaching the margin "
+                                                     "with the PI zero a decade below)")
+    pll.add_argument("--frequency", type=float, help="injection frequency [Hz] (default 1500)")
+    pll.add_argument("--amplitude", type=float, help="injection amplitude u_h [V] (default 40)")
+    pll.add_argument("--u-star", type=float, default=1.0, help="demodulation amplitude u*")
+    pll.add_argument("--T-f", type=float, help="loop filter time constant [s] (default 0.53 ms)")
+    pll.add_argument("--out", help="plot directory (default runs/tune)")
+    pll.add_argument("--no-plot", action="store_true")
+    pll.add_argument("--json", action="store_true")
+    pll.set_defaults(func=cmd_tune_pll)
 
     from .graph import DEFAULT_NAMESPACE, EXECUTORS
     launch = sub.add_parser("launch", help="run a scenario through the ROS 2 graph (nodes over topics)")

@@ -60,3 +60,28 @@ def plot_angle_errors(results, labels, path):
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def plot_bode(curves, path, title):
+    """Magnitude [dB] and phase [deg] over ω [rad/s] of (label, ω, complex response) curves, with the
+    crossover of each marked; the paper's Fig. 8-9 layout. Returns the path."""
+    import numpy as np
+    fig, (mag, phase) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    for label, omega, response, unwrapped_phase_deg in curves:
+        mag.semilogx(omega, 20.0 * np.log10(np.abs(response)), label=label)
+        phase.semilogx(omega, unwrapped_phase_deg, label=label)
+    mag.axhline(0.0, color="k", lw=0.5)
+    phase.axhline(-180.0, color="k", lw=0.5)
+    mag.set_ylabel("magnitude [dB]")
+    phase.set_ylabel("phase [deg]")
+    phase.set_xlabel("ω [rad/s]")
+    for ax in (mag, phase):
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(loc="lower left", fontsize=8)
+    fig.suptitle(title)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
