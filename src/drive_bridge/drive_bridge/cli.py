@@ -299,7 +299,8 @@ def cmd_tune_pll(args):
         s = 1j * omega
         process_phase = np.degrees(_unwrapped_phase(process, 1.0, math.inf, 0.0, omega) + math.pi / 2.0)
         report["plots"] = [
-            str(plot_bode([("G_p(s)", omega, process.G_p(s), process_phase)], out / f"{args.motor}_pll_process.png",
+            str(plot_bode([("G_p(s)", omega, process.G_p(s), process_phase)],
+                          out / f"{args.motor}_pll_process.png",
                           f"{args.motor}: PLL process G_p (Szabó Fig. 8)")),
             str(plot_bode([(f"tuned A_p {A_p:.0f}, T_i {1e3 * T_i:.1f} ms", omega,
                             open_loop(process, A_p, T_i, T_f, omega),
@@ -308,7 +309,8 @@ def cmd_tune_pll(args):
                             open_loop(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"], DEFAULTS["T_f_s"], omega),
                             np.degrees(_unwrapped_phase(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"],
                                                         DEFAULTS["T_f_s"], omega)))],
-                          out / f"{args.motor}_pll_open_loop.png", f"{args.motor}: PLL open loop (Szabó Fig. 9)"))]
+                          out / f"{args.motor}_pll_open_loop.png",
+                          f"{args.motor}: PLL open loop (Szabó Fig. 9)"))]
     if args.json:
         _print_json(report)
         return 0

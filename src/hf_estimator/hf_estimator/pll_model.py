@@ -42,15 +42,15 @@ def pll_process(R_ohm, L_d_H, L_q_H, f_h_Hz, u_h_V, u_star):
     y_d, y_q = 1.0 / complex(R_ohm, omega_h * L_d_H), 1.0 / complex(R_ohm, omega_h * L_q_H)
     i_d, phi_d = abs(y_d), cmath.phase(y_d)
     i_q, phi_q = abs(y_q), cmath.phase(y_q)
-    c = math.sqrt(i_d ** 2 + i_q ** 2 - 2.0 * i_d * i_q * math.cos(phi_q - phi_d))              # Eq. (30)
+    c = math.sqrt(i_d ** 2 + i_q ** 2 - 2.0 * i_d * i_q * math.cos(phi_q - phi_d))  # Eq. (30)
     phi_star = math.atan(-i_q * math.sin(phi_q - phi_d) / (i_d + i_q * math.cos(phi_q - phi_d)))  # Eq. (31)
-    lambda_d, lambda_q = -R_ohm / L_d_H, -R_ohm / L_q_H                                              # Eq. (25)
+    lambda_d, lambda_q = -R_ohm / L_d_H, -R_ohm / L_q_H  # Eq. (25)
     S = math.sin(phi_d + phi_star)
-    a, b = i_d * math.sin(phi_d) / S, i_q * math.sin(phi_q) / S                                       # Eq. (33)
-    p1 = -a + b + c                                                                                  # Eq. (35)
-    p2 = a * lambda_q - b * lambda_d - c * lambda_d - c * lambda_q                                   # Eq. (36)
-    p3 = c * lambda_d * lambda_q                                                                     # Eq. (37)
-    K = 0.5 * u_h_V * u_star * S                                                                     # Eq. (38)
+    a, b = i_d * math.sin(phi_d) / S, i_q * math.sin(phi_q) / S  # Eq. (33)
+    p1 = -a + b + c  # Eq. (35)
+    p2 = a * lambda_q - b * lambda_d - c * lambda_d - c * lambda_q  # Eq. (36)
+    p3 = c * lambda_d * lambda_q  # Eq. (37)
+    K = 0.5 * u_h_V * u_star * S  # Eq. (38)
     return PllProcess(p1, p2, p3, lambda_d, lambda_q, K, c, phi_star)
 
 
@@ -123,7 +123,8 @@ def highest_crossover(process, T_f_s, phase_margin_deg, pi_zero_ratio=10.0, omeg
     lag = math.atan(1.0 / pi_zero_ratio)
 
     def excess(w):
-        return 180.0 + math.degrees(_unwrapped_phase(process, 1.0, math.inf, T_f_s, w) - lag) - phase_margin_deg
+        phase = _unwrapped_phase(process, 1.0, math.inf, T_f_s, w) - lag
+        return 180.0 + math.degrees(phase) - phase_margin_deg
 
     grid = np.logspace(0, math.log10(omega_max), 4000)
     values = np.array([excess(w) for w in grid])
