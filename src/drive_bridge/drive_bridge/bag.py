@@ -53,6 +53,39 @@ def rosbags_qos(history=1, depth=10, reliability=1, durability=2):
                QosTime(0, 0), QosTime(0, 0), QosLiveliness.AUTOMATIC, QosTime(0, 0), False)
 
 
+def offered_qos(topic):
+    """The contract's QoS of a topic (pmsm_plant.contract.topic_qos) as rosbags stores it."""
+    from pmsm_plant.contract import topic_qos
+    q = topic_qos(topic)
+    return rosbags_qos(q.history.value, q.depth, q.reliability.value, q.durability.value)
+
+
+VECTOR_COLUMNS = {"currents": ("i_a_meas", "i_b_meas", "i_c_meas"),
+                  "injection": ("u_inj_alpha", "u_inj_beta"),
+                  "voltage_command": ("u_alpha", "u_beta"),
+                  "estimator_state": ("eps", "signal", "observable")}
+"""Log columns (drive_bridge.loop.LOG_COLUMNS) of the x, y, z of each per-sample Vector3Stamped topic."""
+SAMPLE_LOGGED = ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command",
+                 "estimator_state")
+"""The per-sample topics whose content goes into the log."""
+
+
+def fill_sample(row, topic, msg, n_p):
+    """Write what a per-sample message of ``topic`` says into a log row: rclpy and rosbags messages alike,
+    so a recording from the graph and one read back from a bag fill the same columns."""
+    if topic in VECTOR_COLUMNS:
+        v = msg.vector
+        for column, value in zip(VECTOR_COLUMNS[topic], (v.x, v.y, v.z)):
+            row[COLUMN[column]] = value
+    elif not len(msg.position):
+        return
+    elif topic == "rotor_state":
+        row[COLUMN["theta_m"]], row[COLUMN["omega_m"]] = msg.position[0], msg.velocity[0]
+        row[COLUMN["tau_e"]] = msg.effort[0] if len(msg.effort) else math.nan
+    elif topic == "rotor_estimate":
+        row[COLUMN["theta_e_hat"]], row[COLUMN["omega_e_hat"]] = n_p * msg.position[0], n_p * msg.velocity[0]
+
+
 def sample_stamp_ns(data):
     """The header stamp (or clock) of a serialized message whose first field is a builtin Time."""
     order = "little" if data[1] == 1 else "big"
@@ -177,8 +210,6 @@ def _cdr_scalars(dtype, *columns):
 def write_run_bag(result, path, namespace="/drive", progress=None):
     """Write a one-process run (drive_bridge.runner.RunResult) as the graph would have recorded it,
     its messages serialised to CDR in bulk with numpy."""
-    from pmsm_plant.contract import COMMAND_QOS, LATCHED_QOS, PER_SAMPLE_QOS
-
     from .metrics import wrap
     log, scenario = result.log, result.scenario
     n, n_p, c = log.shape[0], result.preset.machine.n_p, COLUMN
@@ -186,10 +217,7 @@ def write_run_bag(result, path, namespace="/drive", progress=None):
     for topic, msgtype in DRIVE_TOPICS.items():
         if topic in ("/diagnostics", "joint_states"):
             continue
-        per_sample = topic in SAMPLE_STAMPED and topic != "angle_error"
-        qos = (rosbags_qos(depth=LATCHED_QOS.depth, durability=1) if topic == "drive_config" else
-               rosbags_qos(depth=(PER_SAMPLE_QOS if per_sample else COMMAND_QOS).depth))
-        writer.add(full_topic(namespace, topic), msgtype, qos)
+        writer.add(full_topic(namespace, topic), msgtype, offered_qos(topic))
     config = {"node": "drive run", "n_p": n_p, "scenario": scenario.name, "source": scenario.source,
               "motor": scenario.motor, "estimator": result.estimator, "T_s_s": scenario.T_s, "samples": n,
               "injection": scenario.injection, "controller": scenario.controller,
@@ -336,8 +364,7 @@ def read_topics(path, wanted, namespace=None):
 def bag_log(path, T_s=None, namespace=None):
     """The runner's log layout (LOG_COLUMNS) filled from a bag's per-sample topics (NaN where the bag
     says nothing), the sample period and the bag's drive_config entries."""
-    wanted = ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state",
-              "speed_command", "load_torque", "drive_config")
+    wanted = SAMPLE_LOGGED + ("speed_command", "load_torque", "drive_config")
     namespace, topics = read_topics(path, wanted, namespace)
     if not topics.get("currents"):
         raise BagError(f"{path}: no {full_topic(namespace, 'currents')} messages; the contract needs them")
@@ -358,26 +385,11 @@ def bag_log(path, T_s=None, namespace=None):
         k = int(round(_stamp_ns(stamp) * 1e-9 / T_s))
         return k if 0 <= k < n else None
 
-    fields = {"currents": ("vector", ("i_a_meas", "i_b_meas", "i_c_meas")),
-              "injection": ("vector", ("u_inj_alpha", "u_inj_beta")),
-              "voltage_command": ("vector", ("u_alpha", "u_beta")),
-              "estimator_state": ("vector", ("eps", "signal", "observable"))}
-    for topic, (_, columns) in fields.items():
+    for topic in SAMPLE_LOGGED:
         for _, m in topics.get(topic, []):
             k = index(m.header.stamp)
             if k is not None:
-                for column, value in zip(columns, (m.vector.x, m.vector.y, m.vector.z)):
-                    log[k, COLUMN[column]] = value
-    for _, m in topics.get("rotor_state", []):
-        k = index(m.header.stamp)
-        if k is not None and len(m.position):
-            log[k, COLUMN["theta_m"]], log[k, COLUMN["omega_m"]] = m.position[0], m.velocity[0]
-            log[k, COLUMN["tau_e"]] = m.effort[0] if len(m.effort) else math.nan
-    for _, m in topics.get("rotor_estimate", []):
-        k = index(m.header.stamp)
-        if k is not None and len(m.position):
-            log[k, COLUMN["theta_e_hat"]] = n_p * m.position[0]
-            log[k, COLUMN["omega_e_hat"]] = n_p * m.velocity[0]
+                fill_sample(log[k], topic, m, n_p)
     for topic, column in (("speed_command", "omega_m_ref"), ("load_torque", "tau_load")):
         _hold(log[:, COLUMN[column]], topics.get(topic, []), T_s, n)
     return log, T_s, configs

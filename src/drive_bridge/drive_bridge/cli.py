@@ -263,8 +263,7 @@ def cmd_tune_pll(args):
     import math
 
     import numpy as np
-    from hf_estimator.pll_model import (_unwrapped_phase, highest_crossover, margins, open_loop, pll_process,
-                                        tune_pi)
+    from hf_estimator.pll_model import highest_crossover, loop_phase, margins, open_loop, pll_process, tune_pi
     from hf_estimator.szabo import DEFAULTS
 
     from .plots import plot_bode
@@ -297,17 +296,17 @@ def cmd_tune_pll(args):
         out = Path(args.out) if args.out else Path("runs") / "tune"
         omega = np.logspace(0, 5, 2000)
         s = 1j * omega
-        process_phase = np.degrees(_unwrapped_phase(process, 1.0, math.inf, 0.0, omega) + math.pi / 2.0)
+        process_phase = np.degrees(loop_phase(process, 1.0, math.inf, 0.0, omega) + math.pi / 2.0)
         report["plots"] = [
             str(plot_bode([("G_p(s)", omega, process.G_p(s), process_phase)],
                           out / f"{args.motor}_pll_process.png",
                           f"{args.motor}: PLL process G_p (Szabó Fig. 8)")),
             str(plot_bode([(f"tuned A_p {A_p:.0f}, T_i {1e3 * T_i:.1f} ms", omega,
                             open_loop(process, A_p, T_i, T_f, omega),
-                            np.degrees(_unwrapped_phase(process, A_p, T_i, T_f, omega))),
+                            np.degrees(loop_phase(process, A_p, T_i, T_f, omega))),
                            ("Table 2 A_p 4853, T_i 136 ms", omega,
                             open_loop(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"], DEFAULTS["T_f_s"], omega),
-                            np.degrees(_unwrapped_phase(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"],
+                            np.degrees(loop_phase(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"],
                                                         DEFAULTS["T_f_s"], omega)))],
                           out / f"{args.motor}_pll_open_loop.png",
                           f"{args.motor}: PLL open loop (Szabó Fig. 9)"))]

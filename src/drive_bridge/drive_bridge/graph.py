@@ -71,11 +71,6 @@ def make_node(role, context=None, namespace=None, parameters=None):
     raise ValueError(f"unknown node '{role}' (known: {', '.join(ROLES)})")
 
 
-def _msgtype(cls):
-    """'geometry_msgs/msg/Vector3Stamped' for the rclpy class."""
-    return f"{cls.__module__.split('.')[0]}/msg/{cls.__name__}"
-
-
 def make_executor(name, context):
     """``events``: rclpy.experimental.EventsExecutor (≈ 10× less overhead per message here; its
     spin_until_future_complete without a timeout never returns in this rclpy, so callers pass one);
@@ -127,13 +122,11 @@ class ScenarioDriver:
         self.Float64, self.serialize = Float64, serialize_message
         self.recorder = recorder
         handlers = {"voltage_command": self.on_voltage, "/diagnostics": self.on_diagnostics}
-        recorded = {"currents": self.on_currents, "rotor_state": self.on_rotor_state,
-                    "rotor_estimate": self.on_estimate, "injection": self.on_injection,
-                    "estimator_state": self.on_estimator_state}
+        recorded = ("currents", "rotor_state", "rotor_estimate", "injection", "estimator_state")
         if record:
-            handlers.update(recorded)
+            handlers.update({topic: self.logger_of(topic) for topic in recorded})
         self.subscribe(handlers)
-        self.received = dict.fromkeys(("voltage_command",) + (tuple(recorded) if record else ()), 0)
+        self.received = dict.fromkeys(("voltage_command",) + (recorded if record else ()), 0)
         self.sent_speed = None
         self.created = time.monotonic()
         self.ready_since = None
@@ -147,7 +140,7 @@ class ScenarioDriver:
     def subscribe(self, handlers):
         """Subscribe the handlers; with a recorder, every contract topic raw, written as it comes and
         deserialised only for a handler. The launcher's own commands are written where published."""
-        from .bag import SAMPLE_STAMPED, rosbags_qos
+        from .bag import DRIVE_TOPICS, SAMPLE_STAMPED, offered_qos
         types = topic_types()
         topics = set(handlers)
         if self.recorder:
@@ -162,11 +155,8 @@ class ScenarioDriver:
             self.node.create_subscription(cls, topic, callback, qos, raw=True)
         if self.recorder:
             for topic in sorted(types):
-                cls, qos = types[topic]
-                depth = qos if isinstance(qos, int) else qos.depth
-                durability = 1 if topic == "drive_config" else 2
-                self.recorder.add(self.node.resolve_topic_name(topic), _msgtype(cls),
-                                  rosbags_qos(depth=depth, durability=durability))
+                name = self.node.resolve_topic_name(topic)
+                self.recorder.add(name, DRIVE_TOPICS[topic], offered_qos(topic))
 
     def recording(self, topic, cls, handler, stamped):
         from rclpy.serialization import deserialize_message
@@ -244,12 +234,15 @@ class ScenarioDriver:
         self.received[topic] += 1
         return k
 
-    def on_currents(self, msg):
-        k = self.sample(msg, "currents")
-        if k is not None:
-            row = self.log[k]
-            row[COLUMN["i_a_meas"]], row[COLUMN["i_b_meas"]], row[COLUMN["i_c_meas"]] = (
-                msg.vector.x, msg.vector.y, msg.vector.z)
+    def logger_of(self, topic):
+        """A handler writing what a per-sample message of ``topic`` says into its log row."""
+        from .bag import fill_sample
+
+        def log_sample(msg):
+            k = self.sample(msg, topic)
+            if k is not None:
+                fill_sample(self.log[k], topic, msg, self.n_p)
+        return log_sample
 
     def on_voltage(self, msg):
         k = self.sample(msg, "voltage_command")
@@ -259,36 +252,12 @@ class ScenarioDriver:
         if k + 1 < self.n:
             self.command(k + 1)
         if self.record:
-            self.log[k, COLUMN["u_alpha"]], self.log[k, COLUMN["u_beta"]] = msg.vector.x, msg.vector.y
+            from .bag import fill_sample
+            fill_sample(self.log[k], "voltage_command", msg, self.n_p)
         if k == self.n - 1:
             self.finished_at = time.monotonic()
             if self.complete():
                 self.finish()
-
-    def on_rotor_state(self, msg):
-        k = self.sample(msg, "rotor_state")
-        if k is not None:
-            row = self.log[k]
-            row[COLUMN["theta_m"]], row[COLUMN["omega_m"]] = msg.position[0], msg.velocity[0]
-            row[COLUMN["tau_e"]] = msg.effort[0]
-
-    def on_estimate(self, msg):
-        k = self.sample(msg, "rotor_estimate")
-        if k is not None:
-            self.log[k, COLUMN["theta_e_hat"]] = self.n_p * msg.position[0]
-            self.log[k, COLUMN["omega_e_hat"]] = self.n_p * msg.velocity[0]
-
-    def on_injection(self, msg):
-        k = self.sample(msg, "injection")
-        if k is not None:
-            self.log[k, COLUMN["u_inj_alpha"]], self.log[k, COLUMN["u_inj_beta"]] = msg.vector.x, msg.vector.y
-
-    def on_estimator_state(self, msg):
-        k = self.sample(msg, "estimator_state")
-        if k is not None:
-            row = self.log[k]
-            row[COLUMN["eps"]], row[COLUMN["signal"]], row[COLUMN["observable"]] = (
-                msg.vector.x, msg.vector.y, msg.vector.z)
 
     def on_diagnostics(self, msg):
         prefix = self.node.get_namespace().rstrip("/") + "/"
@@ -456,20 +425,18 @@ def _stop_children(children, grace_s=5.0):
 
 
 def topic_types():
-    """Message class and QoS of each contract topic (names relative to the drive's namespace)."""
-    from diagnostic_msgs.msg import DiagnosticArray
-    from geometry_msgs.msg import Vector3Stamped
-    from pmsm_plant.contract import COMMAND_QOS, LATCHED_QOS, PER_SAMPLE_QOS
-    from rosgraph_msgs.msg import Clock
-    from sensor_msgs.msg import JointState
-    from std_msgs.msg import Float64, String
-    return {"currents": (Vector3Stamped, PER_SAMPLE_QOS), "rotor_state": (JointState, PER_SAMPLE_QOS),
-            "rotor_estimate": (JointState, PER_SAMPLE_QOS), "injection": (Vector3Stamped, PER_SAMPLE_QOS),
-            "voltage_command": (Vector3Stamped, PER_SAMPLE_QOS),
-            "estimator_state": (Vector3Stamped, PER_SAMPLE_QOS), "/clock": (Clock, PER_SAMPLE_QOS),
-            "angle_error": (Vector3Stamped, COMMAND_QOS), "joint_states": (JointState, COMMAND_QOS),
-            "speed_command": (Float64, COMMAND_QOS), "load_torque": (Float64, COMMAND_QOS),
-            "drive_config": (String, LATCHED_QOS), "/diagnostics": (DiagnosticArray, 50)}
+    """Message class and QoS of each contract topic (names relative to the drive's namespace), from
+    drive_bridge.bag.DRIVE_TOPICS and pmsm_plant.contract.topic_qos."""
+    import importlib
+
+    from pmsm_plant.contract import topic_qos
+
+    from .bag import DRIVE_TOPICS
+    types = {}
+    for topic, msgtype in DRIVE_TOPICS.items():
+        package, _, name = msgtype.split("/")
+        types[topic] = (getattr(importlib.import_module(f"{package}.msg"), name), topic_qos(topic))
+    return types
 
 
 def message_dict(msg):

@@ -35,9 +35,13 @@ def plot_run(result, out_dir):
             ax.legend(loc="upper right", fontsize=8)
     fig.suptitle(f"{result.scenario.name}: {result.scenario.motor}, estimator {result.estimator}")
     fig.tight_layout()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    path = out / f"{result.scenario.name}_{result.estimator}.png"
+    return _save(fig, Path(out_dir) / f"{result.scenario.name}_{result.estimator}.png")
+
+
+def _save(fig, path):
+    """Write the figure as a PNG (creating its directory), close it and return the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
@@ -55,11 +59,7 @@ def plot_angle_errors(results, labels, path):
     ax.grid(True, alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)
 
 
 def plot_bode(curves, path, title):
@@ -80,8 +80,4 @@ def plot_bode(curves, path, title):
         ax.legend(loc="lower left", fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(fig, path)

@@ -79,19 +79,19 @@ def margins(process, A_p, T_i_s, T_f_s, omega_max=1e6):
         return abs(open_loop(process, A_p, T_i_s, T_f_s, w)) - 1.0
 
     crossover = brentq(magnitude_minus_one, 1e-3, omega_max)
-    phase_margin = 180.0 + math.degrees(_unwrapped_phase(process, A_p, T_i_s, T_f_s, crossover))
+    phase_margin = 180.0 + math.degrees(loop_phase(process, A_p, T_i_s, T_f_s, crossover))
     grid = np.logspace(-1, math.log10(omega_max), 20000)
-    phase = _unwrapped_phase(process, A_p, T_i_s, T_f_s, grid)
+    phase = loop_phase(process, A_p, T_i_s, T_f_s, grid)
     below = np.nonzero(phase <= -math.pi)[0]
     if below.size == 0:
         return Margins(crossover, phase_margin, math.inf)
-    w180 = brentq(lambda w: _unwrapped_phase(process, A_p, T_i_s, T_f_s, w) + math.pi,
+    w180 = brentq(lambda w: loop_phase(process, A_p, T_i_s, T_f_s, w) + math.pi,
                   grid[max(below[0] - 1, 0)], grid[below[0]])
     gain_margin = -20.0 * math.log10(abs(open_loop(process, A_p, T_i_s, T_f_s, w180)))
     return Margins(crossover, phase_margin, gain_margin)
 
 
-def _unwrapped_phase(process, A_p, T_i_s, T_f_s, omega):
+def loop_phase(process, A_p, T_i_s, T_f_s, omega):
     """Phase of L(jω) from its factors (so it is continuous): PI, integrator, G_p, T_f."""
     w = np.asarray(omega, dtype=float)
     s = 1j * w
@@ -106,7 +106,7 @@ def tune_pi(process, T_f_s, phase_margin_deg, crossover_rad_s):
     phase lag −atan(1/(ω_c T_i)) makes up the margin, its gain the magnitude. ValueError when the loop
     without PI already has less margin than asked (a PI only takes phase away)."""
     w = crossover_rad_s
-    rest = _unwrapped_phase(process, 1.0, math.inf, T_f_s, w)
+    rest = loop_phase(process, 1.0, math.inf, T_f_s, w)
     lag = -math.pi + math.radians(phase_margin_deg) - rest
     if lag >= 0.0:
         available = 180.0 + math.degrees(rest)
@@ -123,7 +123,7 @@ def highest_crossover(process, T_f_s, phase_margin_deg, pi_zero_ratio=10.0, omeg
     lag = math.atan(1.0 / pi_zero_ratio)
 
     def excess(w):
-        phase = _unwrapped_phase(process, 1.0, math.inf, T_f_s, w) - lag
+        phase = loop_phase(process, 1.0, math.inf, T_f_s, w) - lag
         return 180.0 + math.degrees(phase) - phase_margin_deg
 
     grid = np.logspace(0, math.log10(omega_max), 4000)

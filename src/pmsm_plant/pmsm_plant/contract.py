@@ -26,6 +26,17 @@ LATCHED_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=History
                          depth=10, durability=DurabilityPolicy.TRANSIENT_LOCAL)
 """drive_config: published once per node start, delivered to late joiners (10 deep, so a subscriber
 keeps the configs of all the drive's nodes)."""
+DIAGNOSTICS_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                             depth=10, durability=DurabilityPolicy.VOLATILE)
+PER_SAMPLE_TOPICS = ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command",
+                     "estimator_state", "/clock")
+
+
+def topic_qos(topic):
+    """The QoS every publisher and subscriber of a contract topic uses."""
+    if topic in PER_SAMPLE_TOPICS:
+        return PER_SAMPLE_QOS
+    return {"drive_config": LATCHED_QOS, "/diagnostics": DIAGNOSTICS_QOS}.get(topic, COMMAND_QOS)
 
 GLOBAL_PARAMETERS = {
     "scenario": ("wang_100rpm", "shipped scenario name or YAML path: the file `drive run` reads"),
@@ -111,7 +122,7 @@ class DriveNode(Node):
         self.T_s = self.drive.scenario.T_s if self.drive else 1e-4
         self.timeout_s = float(self.parameters["lockstep_timeout_s"])
         self.config_pub = self.create_publisher(String, "drive_config", LATCHED_QOS)
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
         self.create_timer(float(self.parameters["diagnostics_period_s"]), self.publish_diagnostics)
 
     def warm_up(self):
