@@ -281,11 +281,14 @@ def test_sigterm_stops_the_launcher_and_its_node_processes_leaving_a_complete_ba
     bag = tmp_path / "stopped"
     launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--processes", "separate", "--namespace",
                                          "/sigterm_test", "--json", "--no-plot", "--record", str(bag)],
-                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(8.0)
+                                stdout=subprocess.PIPE, stderr=(tmp_path / "stderr").open("w"), text=True)
+    deadline = time.monotonic() + 60.0
+    while sum(f.stat().st_size for f in bag.glob("*.mcap")) < 100_000:
+        assert time.monotonic() < deadline and launcher.poll() is None, (tmp_path / "stderr").read_text()
+        time.sleep(0.05)
     launcher.send_signal(signal.SIGTERM)
     out, _ = launcher.communicate(timeout=30)
-    assert launcher.returncode == 130
+    assert launcher.returncode == 130, (tmp_path / "stderr").read_text()
     metrics = json.loads(out)
     assert metrics["interrupted"] is True and metrics["samples"] > 100
     counts = {t["topic"]: t["count"] for t in bag_info(bag)["topics"]}
@@ -294,3 +297,25 @@ def test_sigterm_stops_the_launcher_and_its_node_processes_leaving_a_complete_ba
     time.sleep(0.5)
     left = subprocess.run(["pgrep", "-f", "__ns:=/sigterm_test"], capture_output=True, text=True).stdout
     assert left.strip() == ""
+
+
+def test_controller_follows_the_plant_past_a_lost_sample():
+    h = Harness("/lost_sample")
+    try:
+        node = h.add(ControllerNode)
+        currents = h.publisher(Vector3Stamped, "currents")
+        estimates = h.publisher(JointState, "rotor_estimate")
+        injection = h.publisher(Vector3Stamped, "injection")
+        h.listen(Vector3Stamped, "voltage_command")
+        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection))
+                     and h.tester.count_publishers("/lost_sample/voltage_command"), what="matching")
+        estimates.publish(estimate(0))
+        injection.publish(vector(0, 0.0, 0.0))
+        for msg, publisher in ((vector(1, 0.0, 0.0, 0.0), currents), (estimate(1), estimates),
+                               (vector(1, 0.0, 0.0), injection)):
+            publisher.publish(msg)
+        h.spin_until(lambda: h.received["voltage_command"], what="voltage_command 1")
+        assert sample_of(h.received["voltage_command"][0].header, 1e-4) == 1 and node.k == 2
+        h.spin_until(lambda: h.error_status("foc_controller", "faults.missed_sample"), what="diagnostics")
+    finally:
+        h.close()

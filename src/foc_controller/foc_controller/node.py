@@ -8,7 +8,8 @@ estimates, or a rejected speed limit, give zero voltage and a reported fault; th
 import math
 
 from geometry_msgs.msg import Vector3Stamped
-from pmsm_plant.contract import COMMAND_QOS, PER_SAMPLE_QOS, DriveNode, finite, sample_of, stamp
+from pmsm_plant.contract import (COMMAND_QOS, PER_SAMPLE_QOS, RESYNC_SAMPLES, DriveNode, finite, sample_of,
+                                 stamp)
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
@@ -24,11 +25,12 @@ class ControllerNode(DriveNode):
         super().__init__("foc_controller", builder, **kwargs)
         self.declare_parameter("joint_states_decimation", 100)
         self.decimation = max(1, int(self.get_parameter("joint_states_decimation").value))
-        self.voltage_pub = self.create_publisher(Vector3Stamped, "voltage_command", PER_SAMPLE_QOS)
         self.joint_pub = self.create_publisher(JointState, "joint_states", COMMAND_QOS)
-        self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents), PER_SAMPLE_QOS)
-        self.create_subscription(JointState, "rotor_estimate", self.on_estimate, PER_SAMPLE_QOS)
-        self.create_subscription(Vector3Stamped, "injection", self.on_injection, PER_SAMPLE_QOS)
+        inputs = [self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents),
+                                           PER_SAMPLE_QOS),
+                  self.create_subscription(JointState, "rotor_estimate", self.on_estimate, PER_SAMPLE_QOS),
+                  self.create_subscription(Vector3Stamped, "injection", self.on_injection, PER_SAMPLE_QOS)]
+        self.open_when_matched(inputs, self.open_outputs)
         self.create_subscription(Float64, "speed_command", self.on_speed_command, COMMAND_QOS)
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.currents, self.estimates, self.injections = {}, {}, {}
@@ -50,6 +52,9 @@ class ControllerNode(DriveNode):
         d = self.drive
         controller_step(d.controller_x.copy(), d.controller_z.copy(), d.controller, 0.0, 0.0, 0.0, 0.0, 0.0,
                         0.0, 0.0, 0.0)
+
+    def open_outputs(self):
+        self.voltage_pub = self.create_publisher(Vector3Stamped, "voltage_command", PER_SAMPLE_QOS)
 
     def on_set_parameters(self, parameters):
         for p in parameters:
@@ -86,15 +91,27 @@ class ControllerNode(DriveNode):
 
     def store(self, table, msg, value):
         k = sample_of(msg.header, self.T_s)
-        if k is None or k < self.k:
+        if k is None or not self.k <= k <= self.k + RESYNC_SAMPLES:
             self.fault("wrong_stamp", f"stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} is not a "
-                                      f"sample at or after {self.k}; discarded")
+                                      f"sample in {self.k}..{self.k + RESYNC_SAMPLES}; discarded")
             return
         table[k] = value
+        if table is self.currents and k > self.k:
+            self.resynchronise(k)
         k = self.k
         while k in self.currents and k in self.estimates and k in self.injections:
             self.step(k, self.currents.pop(k), self.estimates.pop(k), self.injections.pop(k))
             k = self.k = k + 1
+
+    def resynchronise(self, k):
+        """Currents of a later sample mean the plant gave up on samples self.k..k−1 (they never completed
+        here: an input was lost, e.g. sent before a subscription matched); follow it to k."""
+        self.fault("missed_sample", f"samples {self.k}..{k - 1} never completed (currents, rotor_estimate or "
+                                    f"injection missing); following the plant to sample {k}")
+        for table in (self.currents, self.estimates, self.injections):
+            for old in [j for j in table if j < k]:
+                del table[old]
+        self.k = k
 
     def step(self, k, currents, estimate, injection):
         u_alpha = u_beta = 0.0

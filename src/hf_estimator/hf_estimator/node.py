@@ -10,16 +10,13 @@ no injection, and reports the fault.
 import time
 
 from geometry_msgs.msg import Vector3Stamped
-from pmsm_plant.contract import PER_SAMPLE_QOS, DriveNode, finite, sample_of, stamp
+from pmsm_plant.contract import PER_SAMPLE_QOS, RESYNC_SAMPLES, DriveNode, finite, sample_of, stamp
 from sensor_msgs.msg import JointState
 
 
 class EstimatorNode(DriveNode):
     def __init__(self, builder, **kwargs):
         super().__init__("hf_estimator", builder, **kwargs)
-        self.estimate_pub = self.create_publisher(JointState, "rotor_estimate", PER_SAMPLE_QOS)
-        self.injection_pub = self.create_publisher(Vector3Stamped, "injection", PER_SAMPLE_QOS)
-        self.state_pub = self.create_publisher(Vector3Stamped, "estimator_state", PER_SAMPLE_QOS)
         self.currents = {}
         self.voltages = {}
         self.encoder = {}
@@ -31,6 +28,7 @@ class EstimatorNode(DriveNode):
         self.observable = 0.0
         self.signal = 0.0
         if not self.drive:
+            self.open_outputs()
             self.publish_config({})
             return
         e, s = self.drive.estimator, self.drive.scenario
@@ -40,14 +38,24 @@ class EstimatorNode(DriveNode):
         self.theta_hat = s.initial_theta_m_rad * self.n_p - s.initial_angle_error_e_rad
         self.omega_hat = self.n_p * s.initial_omega_m_rad_s
         self.trip_A = self.trip_current_A()
-        self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents), PER_SAMPLE_QOS)
+        inputs = [self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents),
+                                           PER_SAMPLE_QOS)]
         self.create_subscription(Vector3Stamped, "voltage_command", self.on_voltage_command, PER_SAMPLE_QOS)
         if self.sensored:
-            self.create_subscription(JointState, "rotor_state", self.on_rotor_state, PER_SAMPLE_QOS)
+            inputs.append(self.create_subscription(JointState, "rotor_state", self.on_rotor_state,
+                                                   PER_SAMPLE_QOS))
+        self.open_when_matched(inputs, self.open_outputs)
         self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
         self.publish_config({"estimator": e.name, "injection_frequency_Hz": e.injection_frequency_Hz,
                              "tracking_bandwidth_Hz": e.tracking_bandwidth_Hz,
                              "estimator_parameters": e.params})
+
+    def open_outputs(self):
+        """The answer publishers; `voltage_command` is not waited for (the controller opens its own
+        publisher only after these match, and sample 0 needs no previous command)."""
+        self.estimate_pub = self.create_publisher(JointState, "rotor_estimate", PER_SAMPLE_QOS)
+        self.injection_pub = self.create_publisher(Vector3Stamped, "injection", PER_SAMPLE_QOS)
+        self.state_pub = self.create_publisher(Vector3Stamped, "estimator_state", PER_SAMPLE_QOS)
 
     def warm_up(self):
         e = self.drive.estimator
@@ -55,10 +63,15 @@ class EstimatorNode(DriveNode):
 
     def on_currents(self, msg):
         k = sample_of(msg.header, self.T_s)
-        if k is None or k < self.k:
+        if k is None or not self.k <= k <= self.k + RESYNC_SAMPLES:
             self.fault("wrong_stamp", f"currents stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} "
-                                      f"is not a sample at or after {self.k}; discarded")
+                                      f"is not a sample in {self.k}..{self.k + RESYNC_SAMPLES}; discarded")
             return
+        if k > self.k:
+            self.fault("missed_sample", f"currents of samples {self.k}..{k - 1} never arrived; following the "
+                                        f"plant to sample {k}")
+            self.currents.clear()
+            self.k = k
         v = msg.vector
         self.currents[k] = (v.x, v.y, v.z)
         self.try_step()

@@ -55,6 +55,11 @@ GLOBAL_PARAMETERS = {
 the overrides applied on top of it; settable with --ros-args -p NAME:=VALUE or a params file."""
 
 
+RESYNC_SAMPLES = 1000
+"""How far ahead a sample may be for a node to follow the plant past samples it lost; a stamp beyond
+this is treated as a wrong stamp (a stray publisher), not as progress."""
+
+
 def stamp_ns(k, T_s):
     """Integer nanoseconds of sampling instant k (the contract's header.stamp of sample k)."""
     return round(k * T_s * 1e9)
@@ -127,6 +132,17 @@ class DriveNode(Node):
 
     def warm_up(self):
         """Call the node's kernels once on copies of its state, with the argument types of a sample."""
+
+    def open_when_matched(self, subscriptions, open_outputs):
+        """Call ``open_outputs`` (creating the node's per-sample answer publishers) once every input
+        subscription is matched to a publisher. An answer sent before its reader matched is lost, and a
+        graph entry is not yet a match: gated so, the answer publishers' appearance tells the plant, at
+        the end of the chain, that every node before it can hear its inputs."""
+        def check():
+            if all(s.get_publisher_count() >= 1 for s in subscriptions):
+                timer.cancel()
+                open_outputs()
+        timer = self.create_timer(0.02, check)
 
     def publish_config(self, config):
         config = {"node": self.get_fully_qualified_name(), "parameters": self.parameters,

@@ -36,8 +36,8 @@ class PlantNode(DriveNode):
         self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", PER_SAMPLE_QOS)
         self.clock_pub = self.create_publisher(Clock, "/clock", PER_SAMPLE_QOS)
         self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", COMMAND_QOS)
-        self.create_subscription(Vector3Stamped, "voltage_command", self.timed(self.on_voltage_command),
-                                 PER_SAMPLE_QOS)
+        self.voltage_sub = self.create_subscription(Vector3Stamped, "voltage_command",
+                                                    self.timed(self.on_voltage_command), PER_SAMPLE_QOS)
         self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate, PER_SAMPLE_QOS)
         self.create_subscription(Float64, "load_torque", self.on_load_torque, COMMAND_QOS)
         self.create_subscription(Float64, "speed_command", self.on_speed_command, COMMAND_QOS)
@@ -95,9 +95,12 @@ class PlantNode(DriveNode):
             self.latest_speed = msg.data
 
     def ready(self):
-        """Every lock-step partner is matched (and the first load is in, when taken per sample)."""
-        return (self.currents_pub.get_subscription_count() >= 2
-                and self.count_publishers("voltage_command") >= 1
+        """Every lock-step partner is matched: `currents` reaches every subscriber the graph shows (at
+        least estimator and controller; a graph entry is not yet a match), a `voltage_command` publisher
+        is matched, and the first load is in when taken per sample."""
+        matched = self.currents_pub.get_subscription_count()
+        return (matched >= max(2, self.count_subscribers("currents"))
+                and self.voltage_sub.get_publisher_count() >= 1
                 and self.count_publishers("rotor_estimate") >= 1
                 and (self.loads or not self.load_per_sample))
 
