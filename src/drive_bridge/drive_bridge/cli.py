@@ -10,6 +10,8 @@ from pmsm_plant.presets import PRESETS
 
 from .scenario import ScenarioError, load_scenario, scenario_names
 
+PLL_ESTIMATORS = ("synchronous", "conventional", "improved")
+
 
 def _print_json(data):
     print(json.dumps(data, indent=2, ensure_ascii=False))
@@ -259,70 +261,184 @@ def cmd_bench_replay(args):
     return 0
 
 
-def cmd_tune_pll(args):
-    import math
-
-    import numpy as np
-    from hf_estimator.pll_model import highest_crossover, loop_phase, margins, open_loop, pll_process, tune_pi
-    from hf_estimator.szabo import DEFAULTS
-
-    from .plots import plot_bode
-
-    preset = PRESETS.get(args.motor)
+def _preset_arg(name):
+    preset = PRESETS.get(name)
     if preset is None:
-        raise ScenarioError(f"--motor: unknown preset '{args.motor}' (known: {', '.join(sorted(PRESETS))})")
+        raise ScenarioError(f"--motor: unknown preset '{name}' (known: {', '.join(sorted(PRESETS))})")
+    return preset
+
+
+def _gains_entry(gains):
+    return {"A_p": gains.kp, "T_i_s": gains.kp / gains.ki, "kp": gains.kp, "ki": gains.ki}
+
+
+def cmd_tune_current(args):
+    from foc_controller.params import DEFAULTS
+    from foc_controller.tuning import SZABO_TABLE2, current_bandwidth_damping, current_pi_gains
+
+    preset = _preset_arg(args.motor)
     m = preset.nameplate
-    f_h = args.frequency or DEFAULTS["frequency_Hz"]
-    u_h = args.amplitude or DEFAULTS["amplitude_V"]
-    T_f = DEFAULTS["T_f_s"] if args.T_f is None else args.T_f
-    process = pll_process(m.R_s_ohm, m.L_d_H, m.L_q_H, f_h, u_h, args.u_star)
-    table2 = margins(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"], DEFAULTS["T_f_s"])
+    omega_n = args.bandwidth or DEFAULTS["current_bandwidth_rad_s"]
+    zeta = args.damping or DEFAULTS["current_damping"]
+    axes = ("d", "q") if args.axis == "both" else (args.axis,)
+    inductance = {"d": m.L_d_H, "q": m.L_q_H}
+    report = {"motor": args.motor, "bandwidth_rad_s": omega_n, "damping": zeta,
+              "method": "closed-loop poles of the PI around 1/(Ls + R): k_p = 2ζω_n L − R, k_i = ω_n² L "
+                        "(Szabó ref. [16])", "gains": {}}
     try:
-        crossover = args.crossover or highest_crossover(process, T_f, args.phase_margin)
-        A_p, T_i = tune_pi(process, T_f, args.phase_margin, crossover)
+        for axis in axes:
+            report["gains"][axis] = _gains_entry(current_pi_gains(inductance[axis], m.R_s_ohm, omega_n, zeta))
     except ValueError as error:
-        raise ScenarioError(str(error)) from None
-    tuned = margins(process, A_p, T_i, T_f)
-    report = {"motor": args.motor, "estimator": "synchronous",
-              "model": "Szabó & Veszprémi Eq. (22)-(39): G_o = |K|·A_p(1 + 1/(sT_i))·G_p(s)/(s(sT_f + 1))",
-              "injection": {"frequency_Hz": f_h, "amplitude_V": u_h, "u_star": args.u_star},
-              "process": {"p1": process.p1, "p2": process.p2, "p3": process.p3, "lambda_d": process.lambda_d,
-                          "lambda_q": process.lambda_q, "K": process.K, "c_S": process.c_S},
-              "requested": {"phase_margin_deg": args.phase_margin, "crossover_rad_s": crossover},
-              "tuned": {"A_p": A_p, "T_i_s": T_i, "T_f_s": T_f, **tuned.__dict__},
-              "table2_gains": {"A_p": DEFAULTS["A_p"], "T_i_s": DEFAULTS["T_i_s"], "T_f_s": DEFAULTS["T_f_s"],
-                               **table2.__dict__}}
-    if not args.no_plot:
-        out = Path(args.out) if args.out else Path("runs") / "tune"
-        omega = np.logspace(0, 5, 2000)
-        s = 1j * omega
-        process_phase = np.degrees(loop_phase(process, 1.0, math.inf, 0.0, omega) + math.pi / 2.0)
-        report["plots"] = [
-            str(plot_bode([("G_p(s)", omega, process.G_p(s), process_phase)],
-                          out / f"{args.motor}_pll_process.png",
-                          f"{args.motor}: PLL process G_p (Szabó Fig. 8)")),
-            str(plot_bode([(f"tuned A_p {A_p:.0f}, T_i {1e3 * T_i:.1f} ms", omega,
-                            open_loop(process, A_p, T_i, T_f, omega),
-                            np.degrees(loop_phase(process, A_p, T_i, T_f, omega))),
-                           ("Table 2 A_p 4853, T_i 136 ms", omega,
-                            open_loop(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"], DEFAULTS["T_f_s"], omega),
-                            np.degrees(loop_phase(process, DEFAULTS["A_p"], DEFAULTS["T_i_s"],
-                                                        DEFAULTS["T_f_s"], omega)))],
-                          out / f"{args.motor}_pll_open_loop.png",
-                          f"{args.motor}: PLL open loop (Szabó Fig. 9)"))]
+        raise ScenarioError(f"--bandwidth: {error}") from None
+    if args.motor == "szabo_ipmsm":
+        report["table2"] = {axis: {**_gains_entry(SZABO_TABLE2[axis]), **dict(zip(
+            ("bandwidth_rad_s", "damping"),
+            current_bandwidth_damping(inductance[axis], m.R_s_ohm, SZABO_TABLE2[axis])))} for axis in axes}
     if args.json:
         _print_json(report)
         return 0
-    print(f"PLL of `synchronous` on {args.motor}: {f_h:g} Hz, {u_h:g} V, u* {args.u_star:g}; "
-          f"K {process.K:.3f}, G_p(0) {process.c_S:.6f} S, poles {process.lambda_d:.1f}, "
-          f"{process.lambda_q:.1f} rad/s")
-    print(f"  tuned:    A_p {A_p:10.1f}  T_i {1e3 * T_i:7.2f} ms  T_f {1e3 * T_f:.3f} ms  crossover "
-          f"{tuned.crossover_rad_s:7.1f} rad/s  phase margin {tuned.phase_margin_deg:5.1f}°  "
-          f"gain margin {tuned.gain_margin_dB:5.1f} dB")
-    print(f"  Table 2:  A_p {DEFAULTS['A_p']:10.1f}  T_i {1e3 * DEFAULTS['T_i_s']:7.2f} ms  T_f "
-          f"{1e3 * DEFAULTS['T_f_s']:.3f} ms  crossover {table2.crossover_rad_s:7.1f} rad/s  phase margin "
-          f"{table2.phase_margin_deg:5.1f}°  gain margin {table2.gain_margin_dB:5.1f} dB "
-          f"(paper: 175 rad/s, 60°)")
+    print(f"current PI on {args.motor}: ω_n {omega_n:.1f} rad/s, ζ {zeta:g} ({report['method']})")
+    for axis, g in report["gains"].items():
+        line = f"  {axis}: A_p {g['A_p']:8.3f} V/A  T_i {1e3 * g['T_i_s']:7.3f} ms"
+        if "table2" in report:
+            t = report["table2"][axis]
+            line += (f"   (Table 2: A_p {t['A_p']:.2f}, T_i {1e3 * t['T_i_s']:.1f} ms, "
+                     f"which this method gives "
+                     f"for ω_n {t['bandwidth_rad_s']:.1f} rad/s, ζ {t['damping']:.3f})")
+        print(line)
+    return 0
+
+
+def cmd_tune_speed(args):
+    from foc_controller.params import DEFAULTS
+    from foc_controller.tuning import SZABO_TABLE2, speed_bandwidth_damping, speed_pi_gains
+    from hf_estimator.pll_model import margins
+
+    preset = _preset_arg(args.motor)
+    m, mech = preset.nameplate, preset.mechanics
+    k_t = 1.5 * m.n_p * m.psi_f_Wb
+    requested = args.bandwidth or DEFAULTS["speed_bandwidth_rad_s"]
+    zeta = args.damping or DEFAULTS["speed_damping"]
+    pll = args.pll_crossover
+    source = "--pll-crossover"
+    if pll is None:
+        from .pll_tuning import pll_design
+        try:
+            design = pll_design(args.motor, args.estimator, {})
+        except (KeyError, ValueError) as error:
+            raise ScenarioError(f"--estimator {args.estimator}: {error.args[0]} "
+                                f"(give --pll-crossover)") from None
+        pll = margins(design.carrier, *design.current_gains).crossover_rad_s
+        source = f"carrier model of `{args.estimator}` with its current gains"
+    cap = args.ratio * pll
+    omega_n = min(requested, cap)
+    try:
+        gains = speed_pi_gains(mech.J_kgm2, mech.B_Nms, k_t, omega_n, zeta)
+    except ValueError as error:
+        raise ScenarioError(f"--bandwidth: {error}") from None
+    report = {"motor": args.motor, "requested_bandwidth_rad_s": requested, "bandwidth_rad_s": omega_n,
+              "damping": zeta, "pll_crossover_rad_s": pll, "pll_crossover_from": source,
+              "ratio": args.ratio, "limited_by_pll": requested > cap,
+              "method": "closed-loop poles of the PI around k_t/(Js + B), current loop ideal: "
+                        "k_p = (2ζω_n J − B)/k_t, k_i = ω_n² J/k_t (Szabó ref. [16])",
+              "gains": _gains_entry(gains)}
+    if args.motor == "szabo_ipmsm":
+        table = SZABO_TABLE2["speed"]
+        report["table2"] = {**_gains_entry(table), **dict(zip(
+            ("bandwidth_rad_s", "damping"), speed_bandwidth_damping(mech.J_kgm2, mech.B_Nms, k_t, table)))}
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"speed PI on {args.motor}: ω_n {omega_n:.1f} rad/s, ζ {zeta:g} (J {mech.J_kgm2:g} kg·m², "
+          f"k_t {k_t:.4f} N·m/A)")
+    print(f"  PLL crossover {pll:.1f} rad/s ({source}); the speed loop is kept at ≤ {args.ratio:g} × it"
+          + (f": the requested {requested:g} rad/s was lowered to {cap:.1f}" if requested > cap else ""))
+    g = report["gains"]
+    print(f"  A_p {g['A_p']:.4f} A·s/rad  T_i {1e3 * g['T_i_s']:.2f} ms")
+    if "table2" in report:
+        t = report["table2"]
+        print(f"  Table 2: A_p {t['A_p']:.3f}, T_i {1e3 * t['T_i_s']:.0f} ms, which this method gives for "
+              f"ω_n {t['bandwidth_rad_s']:.1f} rad/s, ζ {t['damping']:.3f} with the preset's J")
+    return 0
+
+
+def cmd_tune_pll(args):
+    import math
+
+    from hf_estimator.pll_model import margins
+
+    from .pll_tuning import MAPPINGS, check_tuning, pll_design, tuned
+    from .plots import plot_pll
+
+    given = (("frequency_Hz", args.frequency), ("amplitude_V", args.amplitude), ("u_star", args.u_star),
+             ("T_f_s", args.T_f), ("demodulation", args.demodulation))
+    settings = {key: value for key, value in given if value is not None}
+    if args.estimator != "synchronous" and set(settings) - {"frequency_Hz", "amplitude_V"}:
+        raise ScenarioError(f"--u-star, --T-f and --demodulation belong to `synchronous`, "
+                            f"not `{args.estimator}`")
+    try:
+        design = pll_design(args.motor, args.estimator, settings)
+    except KeyError as error:
+        raise ScenarioError(f"--motor/--estimator: {error.args[0]}") from None
+    except ValueError as error:
+        raise ScenarioError(f"--estimator {args.estimator}: {error}") from None
+    models = {"carrier": design.carrier, "szabo": design.szabo}
+    if models[args.model] is None:
+        raise ScenarioError(f"--model szabo: {MAPPINGS[args.estimator]}")
+    A_now, T_now = design.current_gains
+    report = {"motor": args.motor, "estimator": args.estimator, "mapping": MAPPINGS[args.estimator],
+              "injection": {"frequency_Hz": design.path.omega_h_rad_s / (2.0 * math.pi),
+                            "amplitude_V": design.path.u_h_V, "demodulation_amplitude": design.path.u_star},
+              "request": {"phase_margin_deg": args.phase_margin, "crossover_rad_s": args.crossover,
+                          "model": args.model},
+              "tuned": {}, "current_gains": {"A_p": A_now, "T_i_s": T_now}}
+    for name, loop in models.items():
+        if loop is None:
+            continue
+        try:
+            report["tuned"][name] = tuned(loop, args.phase_margin, args.crossover)
+        except ValueError as error:
+            report["tuned"][name] = {"error": str(error)}
+        report["current_gains"][name] = dataclasses.asdict(margins(loop, A_now, T_now))
+    if "error" in report["tuned"][args.model]:
+        raise ScenarioError(report["tuned"][args.model]["error"])
+    choice = report["tuned"][args.model]
+    if args.check:
+        from .runner import terminal_progress
+        report["check"] = [check_tuning(design, A, T, settings, ideal, args.check_speed_loop,
+                                        terminal_progress(f"closed-loop check, {label}, {plant} plant"))
+                           for label, A, T in (("current gains", A_now, T_now),
+                                               ("tuned gains", choice["A_p"], choice["T_i_s"]))
+                           for ideal, plant in ((True, "ideal"), (False, "full"))]
+    if not args.no_plot:
+        out = Path(args.out) if args.out else Path("runs") / "tune"
+        report["plots"] = plot_pll(design, choice["A_p"], choice["T_i_s"], report.get("check"),
+                                   out / f"{args.motor}_{args.estimator}")
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"PLL of `{args.estimator}` on {args.motor}: {report['injection']['frequency_Hz']:g} Hz, "
+          f"{report['injection']['amplitude_V']:g} V")
+    print(f"  maps onto the model as: {report['mapping']}")
+    rows = [(f"current gains, {m}", A_now, T_now, report["current_gains"][m]) for m in models if models[m]]
+    rows += [(f"tuned by the {m} model", t["A_p"], t["T_i_s"], t) for m, t in report["tuned"].items()
+             if "error" not in t]
+    print(f"  {'':34s} {'A_p':>10s} {'T_i [ms]':>9s} {'crossover':>10s} {'margin':>7s} {'gain margin':>11s}")
+    for label, A, T, m in rows:
+        print(f"  {label:34s} {A:10.1f} {1e3 * T:9.2f} {m['crossover_rad_s']:10.1f} "
+              f"{m['phase_margin_deg']:6.1f}° {m['gain_margin_dB']:8.1f} dB")
+    for m, t in report["tuned"].items():
+        if "error" in t:
+            print(f"  tuned by the {m} model: {t['error']}")
+    for check in report.get("check", []):
+        print(f"  closed loop, A_p {check['A_p']:.1f}, T_i {1e3 * check['T_i_s']:.2f} ms "
+              f"({check['plant']} plant): "
+              f"{'bandwidth':>10s} {'peak':>8s} {'crossover':>10s} {'margin':>7s}")
+        for label in ("measured", "carrier_model", "szabo_model"):
+            if label in check:
+                f = check[label]
+                print(f"    {label:30s} {f['bandwidth_rad_s']:10.1f} {f['peak_dB']:6.2f} dB "
+                      f"{f['crossover_rad_s']:10.1f} {f['phase_margin_deg']:6.1f}°")
     for path in report.get("plots", []):
         print(f"  plot: {path}")
     return 0
@@ -448,19 +564,52 @@ def build_parser():
 
     tune = sub.add_parser("tune", help="controller tuning from models")
     tune_sub = tune.add_subparsers(dest="tune", required=True)
-    pll = tune_sub.add_parser("pll", help="PI of the synchronous-injection PLL from Szabó's model (§2.4)")
-    pll.add_argument("--motor", default="szabo_ipmsm", help="motor preset (nameplate R, L_d, L_q)")
+    pll = tune_sub.add_parser("pll", help="PI of a pulsating-injection estimator's PLL from Szabó's model "
+                                          "(§2.4) and our carrier model, with a closed-loop check")
+    pll.add_argument("--motor", default="szabo_ipmsm",
+                     help="motor preset (nameplate R, commissioned L_dh, L_qh)")
+    pll.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS)
+    pll.add_argument("--model", default="carrier", choices=("carrier", "szabo"),
+                     help="model the tuned gains come from (both are reported)")
     pll.add_argument("--phase-margin", type=float, default=60.0, help="[deg]")
     pll.add_argument("--crossover", type=float, help="[rad/s] (default: the highest reaching the margin "
                                                      "with the PI zero a decade below)")
-    pll.add_argument("--frequency", type=float, help="injection frequency [Hz] (default 1500)")
-    pll.add_argument("--amplitude", type=float, help="injection amplitude u_h [V] (default 40)")
-    pll.add_argument("--u-star", type=float, default=1.0, help="demodulation amplitude u*")
-    pll.add_argument("--T-f", type=float, help="loop filter time constant [s] (default 0.53 ms)")
+    pll.add_argument("--frequency", type=float, help="injection frequency [Hz] (default: the estimator's)")
+    pll.add_argument("--amplitude", type=float, help="injection amplitude [V] (default: the estimator's)")
+    pll.add_argument("--u-star", type=float, help="synchronous: demodulation amplitude u* (default 1)")
+    pll.add_argument("--T-f", type=float, help="synchronous: loop filter time constant [s] (default 0.53 ms)")
+    pll.add_argument("--demodulation", choices=("paper", "aligned"),
+                     help="synchronous: demodulation carrier as the paper, or turned by the sampled "
+                          "current's phase lag (ours)")
+    pll.add_argument("--check", action="store_true",
+                     help="measure the closed loop in the runner with the current and the tuned gains, on "
+                          "the ideal plant (no dead time or sensor errors: the models' assumptions) and the "
+                          "full one")
+    pll.add_argument("--check-speed-loop", choices=("off", "rule", "table2"), default="off",
+                     help="speed loop during the check: 1 rad/s (the PLL alone), the controller's rule, or "
+                          "Szabó's Table 2 cascade")
     pll.add_argument("--out", help="plot directory (default runs/tune)")
     pll.add_argument("--no-plot", action="store_true")
     pll.add_argument("--json", action="store_true")
     pll.set_defaults(func=cmd_tune_pll)
+    current = tune_sub.add_parser("current", help="d/q current PI gains from a bandwidth and damping")
+    current.add_argument("--motor", default="szabo_ipmsm", help="motor preset (nameplate R, L_d, L_q)")
+    current.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default 2π·250)")
+    current.add_argument("--damping", type=float, help="ζ (default 0.8)")
+    current.add_argument("--axis", choices=("d", "q", "both"), default="both")
+    current.add_argument("--json", action="store_true")
+    current.set_defaults(func=cmd_tune_current)
+    speed = tune_sub.add_parser("speed",
+                                help="speed PI gains from a bandwidth and damping, kept below the PLL")
+    speed.add_argument("--motor", default="szabo_ipmsm", help="motor preset (J, B, k_t)")
+    speed.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default 40)")
+    speed.add_argument("--damping", type=float, help="ζ (default 1)")
+    speed.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS,
+                       help="whose PLL crossover (carrier model, current gains) bounds the speed loop")
+    speed.add_argument("--pll-crossover", type=float, help="[rad/s] instead of the estimator's model")
+    speed.add_argument("--ratio", type=float, default=0.25, help="speed bandwidth ≤ ratio × PLL crossover")
+    speed.add_argument("--json", action="store_true")
+    speed.set_defaults(func=cmd_tune_speed)
 
     from .graph import DEFAULT_NAMESPACE, EXECUTORS
     launch = sub.add_parser("launch", help="run a scenario through the ROS 2 graph (nodes over topics)")

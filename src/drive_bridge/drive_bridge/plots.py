@@ -63,15 +63,15 @@ def plot_angle_errors(results, labels, path):
 
 
 def plot_bode(curves, path, title):
-    """Magnitude [dB] and phase [deg] over ω [rad/s] of (label, ω, complex response) curves, with the
-    crossover of each marked; the paper's Fig. 8-9 layout. Returns the path."""
+    """Magnitude [dB] and phase [deg] over ω [rad/s] of (label, ω, complex response, phase [deg],
+    style) curves (style as matplotlib's, e.g. "-" or "o"); the paper's Fig. 8-9 layout. Returns the path."""
     import numpy as np
     fig, (mag, phase) = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
-    for label, omega, response, unwrapped_phase_deg in curves:
-        mag.semilogx(omega, 20.0 * np.log10(np.abs(response)), label=label)
-        phase.semilogx(omega, unwrapped_phase_deg, label=label)
+    for label, omega, response, phase_deg, style in curves:
+        mag.semilogx(omega, 20.0 * np.log10(np.abs(response)), style, label=label)
+        phase.semilogx(omega, phase_deg, style, label=label)
     mag.axhline(0.0, color="k", lw=0.5)
-    phase.axhline(-180.0, color="k", lw=0.5)
+    mag.axhline(-3.0, color="k", lw=0.5, ls=":")
     mag.set_ylabel("magnitude [dB]")
     phase.set_ylabel("phase [deg]")
     phase.set_xlabel("ω [rad/s]")
@@ -81,3 +81,40 @@ def plot_bode(curves, path, title):
     fig.suptitle(title)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def plot_pll(design, A_p, T_i_s, checks, stem):
+    """`drive tune pll`'s plots: Szabó's process (Fig. 8), the open loop with the tuned gains in both
+    models (Fig. 9), and each closed-loop check (measured points over both models). Returns the paths."""
+    import math
+
+    import numpy as np
+    name = f"{design.motor}, {design.estimator.name}"
+    omega = np.logspace(0, math.log10(0.9 * design.carrier.search_max_rad_s), 2000)
+    loops = [(label, loop) for label, loop in (("carrier model", design.carrier),
+                                               ("Szabó model", design.szabo)) if loop is not None]
+    paths = []
+    if design.szabo is not None:
+        process = design.szabo.rest(omega) * 1j * omega
+        paths.append(plot_bode([("|K|·G_p·filter (Szabó)", omega, process,
+                                 np.degrees(design.szabo.phase(1.0, math.inf, omega)) + 90.0, "-")],
+                               stem.with_name(stem.name + "_process.png"),
+                               f"{name}: PLL process (Szabó Fig. 8)"))
+    paths.append(plot_bode([(f"{label}, A_p {A_p:.0f}, T_i {1e3 * T_i_s:.1f} ms", omega,
+                             loop.open_loop(A_p, T_i_s, omega),
+                             np.degrees(loop.phase(A_p, T_i_s, omega)), "-")
+                            for label, loop in loops],
+                           stem.with_name(stem.name + "_open_loop.png"),
+                           f"{name}: PLL open loop (Szabó Fig. 9)"))
+    for i, check in enumerate(checks or []):
+        w = np.asarray(check["response"]["omega_rad_s"])
+        T = np.asarray(check["response"]["T_re"]) + 1j * np.asarray(check["response"]["T_im"])
+        dense = np.logspace(math.log10(w[0]), math.log10(w[-1]), 1000)
+        curves = [("measured (runner)", w, T, np.degrees(np.unwrap(np.angle(T))), "o")]
+        for label, loop in loops:
+            model = loop.closed_loop(check["A_p"], check["T_i_s"], dense)
+            curves.append((label, dense, model, np.degrees(np.unwrap(np.angle(model))), "-"))
+        paths.append(plot_bode(curves, stem.with_name(f"{stem.name}_closed_loop_{i + 1}.png"),
+                               f"{name}: θ̂/θ with A_p {check['A_p']:.0f}, T_i {1e3 * check['T_i_s']:.1f} ms "
+                               f"({check['plant']} plant)"))
+    return [str(p) for p in paths]

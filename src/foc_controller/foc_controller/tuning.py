@@ -30,6 +30,18 @@ def speed_pi_gains(J_kgm2, B_Nms, k_t_Nm_per_A, omega_n_rad_s, zeta):
     return PIGains(kp, omega_n_rad_s ** 2 * J_kgm2 / k_t_Nm_per_A)
 
 
+def current_bandwidth_damping(L_H, R_ohm, gains):
+    """The (ω_n, ζ) that ``current_pi_gains`` maps to ``gains``: its inverse."""
+    omega_n = (gains.ki / L_H) ** 0.5
+    return omega_n, (gains.kp + R_ohm) / (2.0 * omega_n * L_H)
+
+
+def speed_bandwidth_damping(J_kgm2, B_Nms, k_t_Nm_per_A, gains):
+    """The (ω_n, ζ) that ``speed_pi_gains`` maps to ``gains``: its inverse."""
+    omega_n = (gains.ki * k_t_Nm_per_A / J_kgm2) ** 0.5
+    return omega_n, (gains.kp * k_t_Nm_per_A + B_Nms) / (2.0 * omega_n * J_kgm2)
+
+
 def from_gain_and_integral_time(A_p, T_i_s):
     """Szabó Eq. (22), G_PI = A_p (1 + 1/(s T_i)), as parallel gains."""
     return PIGains(A_p, A_p / T_i_s)

@@ -1,15 +1,24 @@
-"""Szabó & Veszprémi §2.4: the dynamic model of the synchronous-injection PLL, for tuning its PI.
+"""PLL loop models for tuning the tracking PI of the pulsating-injection estimators.
 
-The loop (Fig. 4): angle error → G_1 = 1 (Eq. 23, sin α cos α ≈ α) → process G_p(s) (Eq. 34-37, the
-envelope of the q̂ HF current when the d- and q-direction R-L circuits are hit by a sine step, Eq. 24-33)
-→ gain K (Eq. 38) → loop filter 1/(sT_f + 1) → PI A_p(1 + 1/(sT_i)) (Eq. 22) → integrator 1/s → θ̂.
-Eq. (39) writes the open loop as G_o = −K·A_p(…)·G_p/(sT_f+1)/s. K (Eq. 38) is negative here
-(sin(φ_d + φ*) ≈ sin(−π/2) for inductive circuits), so −K = |K| and ``open_loop`` returns
+Szabó & Veszprémi §2.4 (faithful): the loop of Fig. 4, angle error → G_1 = 1 (Eq. 23, sin α cos α ≈ α)
+→ process G_p(s) (Eq. 34-37, the q̂ HF current's response when the d- and q-direction R-L circuits are hit
+by a sine step, Eq. 24-33) → gain K (Eq. 38) → loop filter 1/(sT_f + 1) → PI A_p(1 + 1/(sT_i)) (Eq. 22)
+→ integrator 1/s → θ̂. Eq. (39) writes G_o = −K·A_p(…)·G_p/(sT_f+1)/s. K is negative here
+(sin(φ_d + φ*) ≈ sin(−π/2) for inductive circuits), so −K = |K| and ``szabo_loop`` gives
 L(s) = |K|·A_p(1 + 1/(sT_i))·G_p(s)/(s(sT_f + 1)), read with the usual negative feedback.
+
+Carrier model (ours, ``carrier_loop``): the same loop as the sampled drive runs it. A slow angle
+perturbation at ω modulates the carrier; a linear element G then acts at ω_h ± ω, and demodulation
+brings ¼u*[e^{jΔφ}G(ω + ω_h) + e^{−jΔφ}G(ω − ω_h)] back to ω (Δφ: injection minus demodulation carrier
+phase). With G the sampled motor admittance (one-period command delay, zero-order hold), the estimator's
+digital band-pass and low-pass, its discrete PI and integrator, this is the estimator's small-signal
+loop. It has no R/L poles: those belong to the step's baseband transient, which the band-pass and the
+demodulation keep out of the envelope; what it has instead is the carrier's phase error ω_h·1.5·T_s.
 """
 import cmath
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.optimize import brentq
@@ -54,15 +63,156 @@ def pll_process(R_ohm, L_d_H, L_q_H, f_h_Hz, u_h_V, u_star):
     return PllProcess(p1, p2, p3, lambda_d, lambda_q, K, c, phi_star)
 
 
-def open_loop(process, A_p, T_i_s, T_f_s, omega):
-    """L(jω) of the PLL (Eq. 39, sign as in the module docstring) at the angular frequencies ω."""
-    s = 1j * np.asarray(omega, dtype=float)
-    return abs(process.K) * A_p * _pi(s, T_i_s) * process.G_p(s) / (s * (s * T_f_s + 1.0))
+@dataclass(frozen=True)
+class TrackingLoop:
+    """A PLL's open loop L(jω) = A_p·pi(ω, T_i)·rest(ω), and its closed loop from the rotor angle."""
+
+    label: str
+    rest: Callable
+    """ω [rad/s] → the loop without A_p·PI (complex)."""
+    pi: Callable
+    """(ω, T_i) → the PI's shape 1 + 1/(sT_i), or its discrete form."""
+    input_path: Callable = None
+    """ω → the input path over the loop path (θ → θ̂ over −(θ̂ → θ̂)); None: 1 (unity feedback)."""
+    omega_max_rad_s: float = 1e6
+    """Where the model holds, and the search for the highest crossover stops."""
+    search_max_rad_s: float = 1e6
+    """Where the search for crossovers stops: below Nyquist for a sampled loop (periodic beyond)."""
+
+    def open_loop(self, A_p, T_i_s, omega):
+        w = np.asarray(omega, dtype=float)
+        return A_p * self.pi(w, T_i_s) * self.rest(w)
+
+    def closed_loop(self, A_p, T_i_s, omega):
+        """θ̂/θ at ω."""
+        L = self.open_loop(A_p, T_i_s, omega)
+        ratio = 1.0 if self.input_path is None else self.input_path(np.asarray(omega, dtype=float))
+        return ratio * L / (1.0 + L)
+
+    def phase(self, A_p, T_i_s, omega):
+        """Phase of L(jω), continuous from low frequency (where the two integrators give −180°)."""
+        w = np.atleast_1d(np.asarray(omega, dtype=float))
+        grid = np.logspace(-2, math.log10(max(w.max(), 1.0) * 1.01), 40000)
+        wrapped = np.angle(self.open_loop(A_p, T_i_s, grid))
+        unwrapped = np.unwrap(wrapped)
+        unwrapped += 2.0 * math.pi * round((-math.pi - unwrapped[0]) / (2.0 * math.pi))
+        result = np.interp(w, grid, unwrapped)
+        return result if np.ndim(omega) else float(result[0])
 
 
-def _pi(s, T_i_s):
-    """1 + 1/(sT_i); 1 for T_i = ∞ (a P controller)."""
-    return 1.0 if math.isinf(T_i_s) else 1.0 + 1.0 / (s * T_i_s)
+def continuous_pi(omega, T_i_s):
+    """1 + 1/(sT_i) (Szabó Eq. 22); 1 for T_i = ∞ (a P controller)."""
+    return 1.0 if math.isinf(T_i_s) else 1.0 + 1.0 / (1j * omega * T_i_s)
+
+
+def szabo_loop(process, filter_response, omega_max_rad_s=1e6):
+    """Szabó Eq. (39) with the loop filter ``filter_response(ω)`` (1/(jωT_f + 1) in the paper; a digital
+    filter's response is periodic, so searches then stop at ``omega_max_rad_s``, its Nyquist)."""
+    def rest(omega):
+        s = 1j * omega
+        return abs(process.K) * process.G_p(s) * filter_response(omega) / s
+    return TrackingLoop("Szabó §2.4 model", rest, continuous_pi, omega_max_rad_s=omega_max_rad_s,
+                        search_max_rad_s=omega_max_rad_s)
+
+
+def first_order_response(T_f_s):
+    """ω → 1/(jωT_f + 1)."""
+    return lambda omega: 1.0 / (1j * np.asarray(omega) * T_f_s + 1.0)
+
+
+def sos_response(sos, omega, T_s):
+    """Frequency response of digital second-order sections at ω [rad/s] (negative ω allowed)."""
+    zi = np.exp(-1j * np.asarray(omega, dtype=float) * T_s)
+    h = np.ones_like(zi)
+    for b0, b1, b2, _, a1, a2 in sos:
+        h = h * (b0 + b1 * zi + b2 * zi * zi) / (1.0 + a1 * zi + a2 * zi * zi)
+    return h
+
+
+@dataclass(frozen=True)
+class CarrierPath:
+    """What the carrier model needs of a drive and a pulsating-injection estimator."""
+
+    R_ohm: float
+    L_d_H: float
+    L_q_H: float
+    T_s_s: float
+    delay_periods: int
+    omega_h_rad_s: float
+    u_h_V: float
+    u_star: float
+    """Demodulation carrier amplitude (Szabó u*, Wang's 2)."""
+    carrier_phase_difference_rad: float
+    """Injection carrier phase minus demodulation carrier phase (sin vs cos: −π/2; cos vs sin: +π/2)."""
+    error_sign: float
+    """The error the PI receives is error_sign × the demodulated q̂ (or β-rotated) current."""
+    bandpass: np.ndarray
+    """Band-pass before demodulation (SOS rows; none: empty)."""
+    lowpass: np.ndarray
+    """Low-pass after demodulation (SOS rows)."""
+    alphabeta: bool
+    """Wang's improved structure: demodulate α and β, low-pass, then rotate by θ̂ (Eq. 22)."""
+
+
+def sampled_admittance(R_ohm, L_H, T_s_s, delay_periods, omega):
+    """Sampled current per voltage command of one R-L axis at ω [rad/s]: the command delay, the
+    zero-order hold and 1/(R + sL) (exact for the average-value inverter)."""
+    a = math.exp(-R_ohm * T_s_s / L_H)
+    zi = np.exp(-1j * np.asarray(omega, dtype=float) * T_s_s)
+    return zi ** delay_periods * (1.0 - a) / R_ohm * zi / (1.0 - a * zi)
+
+
+def carrier_loop(path):
+    """The sampled estimator loop of ``path`` (module docstring), PI discrete as in pi_tracking_loop.
+    A baseband model: it holds for ω well below ω_h, so searches stop at ω_h/10."""
+    T_s, w_h = path.T_s_s, path.omega_h_rad_s
+    rot = cmath.exp(1j * path.carrier_phase_difference_rad)
+
+    def admittance(L, nu):
+        return sampled_admittance(path.R_ohm, L, T_s, path.delay_periods, nu)
+
+    def band(nu):
+        return sos_response(path.bandpass, nu, T_s) if len(path.bandpass) else np.ones_like(nu, dtype=complex)
+
+    def paths(omega):
+        """Demodulated error per unit θ̂ (loop path) and per unit θ (input path). M: the q̂ voltage
+        modulated before the q admittance; N: the d current turned after it; S: the speed voltage
+        −ω_r·ψ_d of the turning rotor on the q axis, ψ_d the HF d flux over the period."""
+        z = np.exp(1j * omega * T_s)
+        y_d = admittance(path.L_d_H, w_h)
+        M = 0.25 * path.u_star * (rot * admittance(path.L_q_H, omega + w_h) * band(omega + w_h)
+                                  + np.conj(rot) * admittance(path.L_q_H, omega - w_h) * band(omega - w_h))
+        N = 0.25 * path.u_star * (rot * y_d * band(omega + w_h) + np.conj(rot * y_d) * band(omega - w_h))
+        psi_d = path.L_d_H * y_d * (cmath.exp(1j * w_h * T_s) + cmath.exp(2j * w_h * T_s)) / 2.0
+        S = 0.25 * path.u_star * (
+            rot * psi_d * admittance(path.L_q_H, omega + w_h) * band(omega + w_h)
+            + np.conj(rot * psi_d) * admittance(path.L_q_H, omega - w_h) * band(omega - w_h))
+        F = sos_response(path.lowpass, omega, T_s)
+        gain = path.error_sign * path.u_h_V
+        rotor = gain * F * (N - (M + 1j * omega * S) * z ** 1.5)
+        if path.alphabeta:
+            return gain * (F * M * z - N), rotor
+        return gain * F * (M * z - N), rotor
+
+    def integrator(omega):
+        zi = np.exp(-1j * omega * T_s)
+        return T_s * zi / (1.0 - zi)
+
+    def rest(omega):
+        return -integrator(omega) * paths(omega)[0]
+
+    def discrete_pi(omega, T_i_s):
+        if math.isinf(T_i_s):
+            return 1.0
+        return 1.0 + (T_s / T_i_s) / (1.0 - np.exp(-1j * omega * T_s))
+
+    def input_path(omega):
+        """Including the estimator's own update at the sample (θ̂ as it outputs it)."""
+        loop, rotor = paths(omega)
+        return -np.exp(1j * omega * T_s) * rotor / loop
+
+    nyquist = 0.999 * math.pi / T_s
+    return TrackingLoop("carrier model", rest, discrete_pi, input_path, min(0.1 * w_h, nyquist), nyquist)
 
 
 @dataclass(frozen=True)
@@ -70,67 +220,88 @@ class Margins:
     crossover_rad_s: float
     phase_margin_deg: float
     gain_margin_dB: float
-    """∞ when the phase never reaches −180° (no phase crossover)."""
+    """∞ when the phase never reaches −180° above the crossover."""
 
 
-def margins(process, A_p, T_i_s, T_f_s, omega_max=1e6):
-    """Gain crossover, phase margin and gain margin of the PLL loop."""
+def margins(loop, A_p, T_i_s):
+    """Gain crossover, phase margin and gain margin of ``loop`` with the PI (A_p, T_i)."""
     def magnitude_minus_one(w):
-        return abs(open_loop(process, A_p, T_i_s, T_f_s, w)) - 1.0
+        return abs(loop.open_loop(A_p, T_i_s, w)) - 1.0
 
-    crossover = brentq(magnitude_minus_one, 1e-3, omega_max)
-    phase_margin = 180.0 + math.degrees(loop_phase(process, A_p, T_i_s, T_f_s, crossover))
-    grid = np.logspace(-1, math.log10(omega_max), 20000)
-    phase = loop_phase(process, A_p, T_i_s, T_f_s, grid)
-    below = np.nonzero(phase <= -math.pi)[0]
+    crossover = brentq(magnitude_minus_one, 1e-2, loop.search_max_rad_s)
+    phase_margin = 180.0 + math.degrees(loop.phase(A_p, T_i_s, crossover))
+    grid = np.logspace(math.log10(crossover), math.log10(loop.search_max_rad_s), 20000)
+    below = np.nonzero(loop.phase(A_p, T_i_s, grid) <= -math.pi)[0]
     if below.size == 0:
         return Margins(crossover, phase_margin, math.inf)
-    w180 = brentq(lambda w: loop_phase(process, A_p, T_i_s, T_f_s, w) + math.pi,
-                  grid[max(below[0] - 1, 0)], grid[below[0]])
-    gain_margin = -20.0 * math.log10(abs(open_loop(process, A_p, T_i_s, T_f_s, w180)))
+    gain_margin = -20.0 * math.log10(abs(loop.open_loop(A_p, T_i_s, grid[below[0]])))
     return Margins(crossover, phase_margin, gain_margin)
 
 
-def loop_phase(process, A_p, T_i_s, T_f_s, omega):
-    """Phase of L(jω) from its factors (so it is continuous): PI, integrator, G_p, T_f."""
-    w = np.asarray(omega, dtype=float)
-    s = 1j * w
-    pi_phase = np.angle(_pi(s, T_i_s))
-    plant = np.angle(process.p1 * s * s + process.p2 * s + process.p3) - np.angle(s - process.lambda_d) \
-        - np.angle(s - process.lambda_q)
-    return pi_phase - math.pi / 2.0 + plant - np.arctan(w * T_f_s)
-
-
-def tune_pi(process, T_f_s, phase_margin_deg, crossover_rad_s):
+def tune_pi(loop, phase_margin_deg, crossover_rad_s):
     """A_p and T_i putting the crossover at ``crossover_rad_s`` with ``phase_margin_deg``: the PI's
-    phase lag −atan(1/(ω_c T_i)) makes up the margin, its gain the magnitude. ValueError when the loop
-    without PI already has less margin than asked (a PI only takes phase away)."""
+    phase lag makes up the margin, its gain the magnitude. ValueError when the loop without PI already
+    has less margin than asked (a PI only takes phase away)."""
     w = crossover_rad_s
-    rest = loop_phase(process, 1.0, math.inf, T_f_s, w)
+    rest = loop.phase(1.0, math.inf, w)
     lag = -math.pi + math.radians(phase_margin_deg) - rest
     if lag >= 0.0:
         available = 180.0 + math.degrees(rest)
         raise ValueError(f"--phase-margin: {phase_margin_deg:g}° at {w:g} rad/s is not reachable with a PI; "
                          f"the loop without it has {available:.1f}°")
-    T_i = 1.0 / (w * math.tan(-lag))
-    A_p = 1.0 / abs(open_loop(process, 1.0, T_i, T_f_s, w))
+    most = float(np.angle(loop.pi(w, 1e-12)))
+    if lag <= most:
+        raise ValueError(f"--phase-margin: {phase_margin_deg:g}° at {w:g} rad/s would need a PI lag of "
+                         f"{-math.degrees(lag):.1f}°, more than a PI gives ({-math.degrees(most):.1f}°): "
+                         f"any PI leaves more margin there")
+    T_i = brentq(lambda T: np.angle(loop.pi(w, T)) - lag, 1e-12, 1e9)
+    A_p = 1.0 / abs(loop.open_loop(1.0, T_i, w))
     return A_p, T_i
 
 
-def highest_crossover(process, T_f_s, phase_margin_deg, pi_zero_ratio=10.0, omega_max=1e6):
+def highest_crossover(loop, phase_margin_deg, pi_zero_ratio=10.0):
     """The highest crossover where ``phase_margin_deg`` holds with the PI zero ``pi_zero_ratio`` below it
     (a PI lag of atan(1/ratio))."""
     lag = math.atan(1.0 / pi_zero_ratio)
-
-    def excess(w):
-        phase = loop_phase(process, 1.0, math.inf, T_f_s, w) - lag
-        return 180.0 + math.degrees(phase) - phase_margin_deg
-
-    grid = np.logspace(0, math.log10(omega_max), 4000)
-    values = np.array([excess(w) for w in grid])
-    if values[0] <= 0.0:
+    grid = np.logspace(0, math.log10(loop.omega_max_rad_s), 4000)
+    excess = 180.0 + np.degrees(loop.phase(1.0, math.inf, grid) - lag) - phase_margin_deg
+    if excess[0] <= 0.0:
         raise ValueError(f"--phase-margin: {phase_margin_deg:g}° is not reachable at any crossover")
-    last = np.nonzero(values > 0.0)[0][-1]
+    last = np.nonzero(excess > 0.0)[0][-1]
     if last == len(grid) - 1:
         return grid[-1]
-    return brentq(excess, grid[last], grid[last + 1])
+    return float(np.interp(0.0, [excess[last + 1], excess[last]], [grid[last + 1], grid[last]]))
+
+
+CARRIERS = {
+    "synchronous": (-math.pi / 2.0, -1.0, False),
+    "conventional": (math.pi / 2.0, 1.0, False),
+    "improved": (math.pi / 2.0, 1.0, True),
+}
+"""How each pulsating-injection estimator maps onto the carrier model: (injection minus demodulation
+carrier phase, error sign, αβ structure). Szabó injects u_h sin ω_h t and demodulates with u* cos ω_h t,
+the PI gets 0 − î_qhf; Wang injects U_h cos ω_h t and demodulates with 2 sin ω_h t."""
+
+
+def carrier_path(estimator, R_ohm, L_dh_H, L_qh_H, delay_periods):
+    """The CarrierPath of a built estimator (``interface.Estimator``) on a motor with HF inductances
+    L_dh, L_qh; KeyError for an estimator this model does not cover."""
+    if estimator.name not in CARRIERS:
+        raise KeyError(f"estimator '{estimator.name}' has no PLL of this form "
+                       f"(covered: {', '.join(CARRIERS)})")
+    phase, sign, alphabeta = CARRIERS[estimator.name]
+    p = estimator.params
+    u_h = getattr(p, "u_h_V", None) or p.U_h_V
+    u_star = getattr(p, "u_star", None) or p.demodulation_amplitude
+    phase -= getattr(p, "demodulation_phase_rad", 0.0)
+    return CarrierPath(R_ohm, L_dh_H, L_qh_H, p.T_s_s, delay_periods, p.omega_h_rad_s, u_h, u_star, phase,
+                       sign, np.zeros((0, 6)) if alphabeta else p.bandpass, p.lowpass, alphabeta)
+
+
+def fastest_pi(loop, phase_margin_deg, pi_zero_ratio=10.0):
+    """(crossover, A_p, T_i): the highest crossover where the margin holds with the PI zero
+    ``pi_zero_ratio`` below it, T_i = ratio/crossover. The margin is the one asked for, or more where
+    the model's range of validity ends first."""
+    crossover = highest_crossover(loop, phase_margin_deg, pi_zero_ratio)
+    T_i = pi_zero_ratio / crossover
+    return crossover, 1.0 / abs(loop.open_loop(1.0, T_i, crossover)), T_i

@@ -17,7 +17,8 @@ loop (Eq. 24) at the requested bandwidth for the physical gain ε ≈ 2(U_h/ω_h
 Δ = ½(1/L_dh − 1/L_qh), from the commissioned HF inductances: Eq. (22)'s k_h = U_h/(ω_h L_dh) is not
 the slope of ε (it is zero on a round rotor, see shared/notes/hf-demodulation.md §1), and tuning for it
 would measure a mistuning rather than the method. With no commissioned saliency there is nothing to
-lock to: the gains are zero and the HF admittance monitor reports low observability.
+lock to: the gains are zero and the HF admittance monitor reports low observability. Settings A_p and
+T_i_s (from `drive tune pll`) replace that rule by k_p = A_p, k_i = A_p/T_i.
 """
 import math
 from typing import NamedTuple
@@ -34,7 +35,7 @@ from .interface import Estimator, check_settings, register
 
 DEFAULTS = {"frequency_Hz": 900.0, "amplitude_V": 5.0, "demodulation_amplitude": 2.0,
             "lowpass_Hz": 300.0, "lowpass_order": 2, "bandpass_Hz": [600.0, 1200.0],
-            "bandpass_order": 2, "pll_bandwidth_Hz": 20.0, "pll_damping": 0.8,
+            "bandpass_order": 2, "pll_bandwidth_Hz": 20.0, "pll_damping": 0.8, "A_p": None, "T_i_s": None,
             "observable_ratio": 0.02}
 
 
@@ -80,6 +81,10 @@ def _make(name, step, defaults, settings, T_s, theta_e0, omega_e0, commissioning
     check_injection_frequency(f_h, T_s)
     gain = s["demodulation_amplitude"] * U_h * commissioning.delta / (2.0 * math.pi * f_h)
     kp, ki = loop_gains(gain, s["pll_bandwidth_Hz"], s["pll_damping"]) if gain > 0.0 else (0.0, 0.0)
+    if (s["A_p"] is None) != (s["T_i_s"] is None):
+        raise ValueError("A_p and T_i_s go together (both from `drive tune pll`, or neither)")
+    if s["A_p"] is not None:
+        kp, ki = float(s["A_p"]), float(s["A_p"]) / float(s["T_i_s"])
     low, high = s["bandpass_Hz"]
     params = WangParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, U_h_V=U_h,

@@ -1,0 +1,49 @@
+"""`drive tune current|speed|pll`: the bandwidth/damping method reproduces Szabó Table 2 where it can,
+the speed loop stays below the PLL, and tune pll reports both models and each estimator's mapping."""
+import json
+
+import pytest
+
+from drive_bridge.cli import main
+from foc_controller.tuning import SZABO_TABLE2
+
+
+def run_json(capsys, *argv):
+    assert main(list(argv) + ["--json"]) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.parametrize("axis, bandwidth, damping", [("q", 377.0, 1.0), ("d", 565.5, 0.78)])
+def test_current_gains_reproduce_table2(capsys, axis, bandwidth, damping):
+    """Table 2's current PIs are this method's at round values: q 60 Hz (377 rad/s) with ζ = 1, d 90 Hz
+    (565.5 rad/s) with ζ = 0.78; within 1 %."""
+    report = run_json(capsys, "tune", "current", "--axis", axis, "--bandwidth", str(bandwidth),
+                      "--damping", str(damping))
+    gains, table = report["gains"][axis], SZABO_TABLE2[axis]
+    assert gains["A_p"] == pytest.approx(table.kp, rel=0.01)
+    assert gains["T_i_s"] == pytest.approx(table.kp / table.ki, rel=0.01)
+    assert report["table2"][axis]["bandwidth_rad_s"] == pytest.approx(bandwidth, rel=0.01)
+
+
+def test_speed_gains_reproduce_table2_and_stay_below_the_pll(capsys):
+    report = run_json(capsys, "tune", "speed", "--bandwidth", "55.9", "--pll-crossover", "350")
+    table = SZABO_TABLE2["speed"]
+    assert not report["limited_by_pll"]
+    assert report["gains"]["A_p"] == pytest.approx(table.kp, rel=0.02)
+    assert report["gains"]["T_i_s"] == pytest.approx(table.kp / table.ki, rel=0.02)
+    report = run_json(capsys, "tune", "speed", "--bandwidth", "55.9")
+    assert report["limited_by_pll"]
+    assert report["pll_crossover_rad_s"] == pytest.approx(68.7, abs=0.5)
+    assert report["bandwidth_rad_s"] == pytest.approx(0.25 * 68.7, abs=0.2)
+
+
+def test_tune_pll_reports_both_models_and_the_mapping(capsys, tmp_path):
+    report = run_json(capsys, "tune", "pll", "--crossover", "175", "--out", str(tmp_path))
+    assert report["tuned"]["szabo"]["A_p"] == pytest.approx(2899.3, abs=1.0)
+    assert report["tuned"]["carrier"]["phase_margin_deg"] == pytest.approx(60.0, abs=1.0)
+    assert report["current_gains"]["szabo"]["crossover_rad_s"] == pytest.approx(268.3, abs=0.5)
+    assert {p.rsplit("_", 1)[-1] for p in report["plots"]} == {"process.png", "loop.png"}
+    report = run_json(capsys, "tune", "pll", "--estimator", "improved", "--motor", "wang_spmsm", "--no-plot")
+    assert "szabo" not in report["tuned"] and "not of Szabó's form" in report["mapping"]
+    assert main(["tune", "pll", "--estimator", "improved", "--motor", "wang_spmsm", "--model", "szabo"]) == 2
+    assert "--model szabo" in capsys.readouterr().err
