@@ -47,3 +47,12 @@ def test_tune_pll_reports_both_models_and_the_mapping(capsys, tmp_path):
     assert "szabo" not in report["tuned"] and "not of Szabó's form" in report["mapping"]
     assert main(["tune", "pll", "--estimator", "improved", "--motor", "wang_spmsm", "--model", "szabo"]) == 2
     assert "--model szabo" in capsys.readouterr().err
+
+
+def test_tune_pll_picks_the_largest_loop_filter_for_a_crossover(capsys):
+    report = run_json(capsys, "tune", "pll", "--crossover", "350", "--T-f", "auto", "--no-plot")
+    assert report["T_f_s"] == pytest.approx(0.488e-3, rel=0.02)
+    tuned = report["tuned"]["carrier"]
+    assert (tuned["crossover_rad_s"], tuned["phase_margin_deg"]) == pytest.approx((350.0, 60.0), abs=1.0)
+    assert main(["tune", "pll", "--crossover", "350", "--T-f", "auto", "--model", "szabo"]) == 2
+    assert "out of reach" in capsys.readouterr().err

@@ -366,16 +366,30 @@ def cmd_tune_pll(args):
     import math
 
     from hf_estimator.pll_model import margins
+    from hf_estimator.szabo import DEFAULTS as SYNCHRONOUS_DEFAULTS
 
-    from .pll_tuning import MAPPINGS, check_tuning, pll_design, tuned
+    from .pll_tuning import MAPPINGS, check_tuning, largest_loop_filter, pll_design, tuned
     from .plots import plot_pll
 
     given = (("frequency_Hz", args.frequency), ("amplitude_V", args.amplitude), ("u_star", args.u_star),
-             ("T_f_s", args.T_f), ("demodulation", args.demodulation))
+             ("demodulation", args.demodulation))
     settings = {key: value for key, value in given if value is not None}
-    if args.estimator != "synchronous" and set(settings) - {"frequency_Hz", "amplitude_V"}:
+    if args.estimator != "synchronous" and (set(settings) - {"frequency_Hz", "amplitude_V"} or args.T_f):
         raise ScenarioError(f"--u-star, --T-f and --demodulation belong to `synchronous`, "
                             f"not `{args.estimator}`")
+    if args.T_f == "auto":
+        if args.crossover is None:
+            raise ScenarioError("--T-f auto: give --crossover (the largest T_f is chosen for it)")
+        try:
+            settings["T_f_s"] = largest_loop_filter(args.motor, settings, args.phase_margin, args.crossover,
+                                                    args.model)
+        except ValueError as error:
+            raise ScenarioError(str(error)) from None
+    elif args.T_f is not None:
+        try:
+            settings["T_f_s"] = float(args.T_f)
+        except ValueError:
+            raise ScenarioError(f"--T-f: a time constant in seconds or 'auto', not {args.T_f!r}") from None
     try:
         design = pll_design(args.motor, args.estimator, settings)
     except KeyError as error:
@@ -391,6 +405,8 @@ def cmd_tune_pll(args):
                             "amplitude_V": design.path.u_h_V, "demodulation_amplitude": design.path.u_star},
               "request": {"phase_margin_deg": args.phase_margin, "crossover_rad_s": args.crossover,
                           "model": args.model},
+              "T_f_s": settings.get("T_f_s", SYNCHRONOUS_DEFAULTS["T_f_s"]) if args.estimator == "synchronous"
+              else None,
               "tuned": {}, "current_gains": {"A_p": A_now, "T_i_s": T_now}}
     for name, loop in models.items():
         if loop is None:
@@ -420,6 +436,8 @@ def cmd_tune_pll(args):
     print(f"PLL of `{args.estimator}` on {args.motor}: {report['injection']['frequency_Hz']:g} Hz, "
           f"{report['injection']['amplitude_V']:g} V")
     print(f"  maps onto the model as: {report['mapping']}")
+    if report["T_f_s"] is not None:
+        print(f"  loop filter T_f {1e3 * report['T_f_s']:.3f} ms")
     rows = [(f"current gains, {m}", A_now, T_now, report["current_gains"][m]) for m in models if models[m]]
     rows += [(f"tuned by the {m} model", t["A_p"], t["T_i_s"], t) for m, t in report["tuned"].items()
              if "error" not in t]
@@ -577,7 +595,8 @@ def build_parser():
     pll.add_argument("--frequency", type=float, help="injection frequency [Hz] (default: the estimator's)")
     pll.add_argument("--amplitude", type=float, help="injection amplitude [V] (default: the estimator's)")
     pll.add_argument("--u-star", type=float, help="synchronous: demodulation amplitude u* (default 1)")
-    pll.add_argument("--T-f", type=float, help="synchronous: loop filter time constant [s] (default 0.53 ms)")
+    pll.add_argument("--T-f", help="synchronous: loop filter time constant [s] (default 0.53 ms), or 'auto': "
+                                   "the largest reaching --crossover at --phase-margin")
     pll.add_argument("--demodulation", choices=("paper", "aligned"),
                      help="synchronous: demodulation carrier as the paper, or turned by the sampled "
                           "current's phase lag (ours)")

@@ -14,7 +14,8 @@ import numpy as np
 
 from hf_estimator.common import commission
 from hf_estimator.interface import make_estimator
-from hf_estimator.pll_model import (carrier_loop, carrier_path, fastest_pi, margins, pll_process,
+from hf_estimator.pll_model import (carrier_loop, carrier_path, fastest_pi, highest_crossover, margins,
+                                    pll_process,
                                     sos_response, szabo_loop, tune_pi)
 from pmsm_plant.presets import get_preset, plant_parameters
 
@@ -72,6 +73,26 @@ def pll_design(motor, estimator_name, settings, T_s=1e-4):
         szabo = szabo_loop(process, lambda omega: sos_response(path.lowpass, omega, T_s),
                            0.999 * math.pi / T_s)
     return PllDesign(motor, estimator, path, carrier_loop(path), szabo)
+
+
+def largest_loop_filter(motor, settings, phase_margin_deg, crossover_rad_s, model="carrier"):
+    """`synchronous`'s largest T_f [s] (most ripple filtering) with which ``model``'s loop still reaches
+    ``phase_margin_deg`` at ``crossover_rad_s`` (PI zero a decade below); ValueError if none does."""
+    def reaches(T_f):
+        design = pll_design(motor, "synchronous", {**settings, "T_f_s": T_f})
+        try:
+            return highest_crossover(getattr(design, model), phase_margin_deg) >= crossover_rad_s
+        except ValueError:
+            return False
+
+    low, high = 1e-6, 1e-2
+    if not reaches(low):
+        raise ValueError(f"--crossover: {crossover_rad_s:g} rad/s at {phase_margin_deg:g}° is out of reach "
+                         f"even with T_f = {low:g} s")
+    for _ in range(40):
+        middle = math.sqrt(low * high)
+        low, high = (middle, high) if reaches(middle) else (low, middle)
+    return low
 
 
 def tuned(loop, phase_margin_deg, crossover_rad_s=None):
