@@ -1,0 +1,183 @@
+/* Host unit test of the C codec against test_vectors.txt (the vectors the Python codec is tested
+ * with), plus stream resynchronisation. Usage: test_inverter_protocol test_vectors.txt */
+#include "inverter_protocol.h"
+
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+static int failures = 0;
+#define CHECK(cond, ...) do { if (!(cond)) { failures++; printf("FAIL line %d: ", line_no); \
+    printf(__VA_ARGS__); printf("\n"); } } while (0)
+static int line_no = 0;
+
+static size_t from_hex(const char *text, uint8_t *out, size_t cap) {
+    size_t n = 0;
+    while (text[0] && text[1] && n < cap) {
+        unsigned v;
+        if (sscanf(text, "%2x", &v) != 1) break;
+        out[n++] = (uint8_t)v;
+        text += 2;
+    }
+    return n;
+}
+
+static float from_bits(unsigned long bits) { uint32_t u = (uint32_t)bits; float f; memcpy(&f, &u, 4); return f; }
+
+/* Parse "TYPE fields..." into m; returns the number of characters consumed, 0 on error. */
+static int parse_message(const char *s, ip_message_t *m) {
+    char type[16];
+    int used = 0, more = 0;
+    memset(m, 0, sizeof *m);
+    if (sscanf(s, "%15s%n", type, &used) != 1) return 0;
+    s += used;
+    if (!strcmp(type, "TELEMETRY")) {
+        unsigned long seq; int a, b, c; unsigned u, e, st;
+        if (sscanf(s, "%lu %d %d %d %u %u %u%n", &seq, &a, &b, &c, &u, &e, &st, &more) != 7) return 0;
+        m->type = IP_TELEMETRY; m->u.telemetry = (ip_telemetry_t){(uint32_t)seq, (int16_t)a, (int16_t)b,
+            (int16_t)c, (uint16_t)u, (uint16_t)e, (uint16_t)st};
+    } else if (!strcmp(type, "HELLO")) {
+        unsigned id, fl, np, wd; unsigned long ts, ci, vo, tr;
+        if (sscanf(s, "%u %u %u %lu %lx %lx %lx %u%n", &id, &fl, &np, &ts, &ci, &vo, &tr, &wd, &more) != 8) return 0;
+        m->type = IP_HELLO; m->u.hello = (ip_hello_t){(uint8_t)id, (uint8_t)fl, (uint8_t)np, (uint32_t)ts,
+            from_bits(ci), from_bits(vo), from_bits(tr), (uint16_t)wd};
+    } else if (!strcmp(type, "COMMAND")) {
+        unsigned long seq; int a, b; unsigned fl;
+        if (sscanf(s, "%lu %d %d %u%n", &seq, &a, &b, &fl, &more) != 4) return 0;
+        m->type = IP_COMMAND; m->u.command = (ip_command_t){(uint32_t)seq, (int16_t)a, (int16_t)b, (uint8_t)fl};
+    } else if (!strcmp(type, "CONTROL")) {
+        unsigned action;
+        if (sscanf(s, "%u%n", &action, &more) != 1) return 0;
+        m->type = IP_CONTROL; m->u.control.action = (uint8_t)action;
+    } else if (!strcmp(type, "HEARTBEAT")) {
+        unsigned long counter;
+        if (sscanf(s, "%lu%n", &counter, &more) != 1) return 0;
+        m->type = IP_HEARTBEAT; m->u.heartbeat.counter = (uint32_t)counter;
+    } else {
+        return 0;
+    }
+    return used + more;
+}
+
+static int same(const ip_message_t *a, const ip_message_t *b, int seq_bits16) {
+    ip_message_t x = *a, y = *b;
+    if (seq_bits16) {
+        if (x.type == IP_TELEMETRY) { x.u.telemetry.seq &= 0xFFFF; y.u.telemetry.seq &= 0xFFFF; }
+        if (x.type == IP_COMMAND) { x.u.command.seq &= 0xFFFF; y.u.command.seq &= 0xFFFF; }
+    }
+    if (x.type != y.type) return 0;
+    switch (x.type) {
+    case IP_TELEMETRY: return !memcmp(&x.u.telemetry, &y.u.telemetry, sizeof x.u.telemetry);
+    case IP_HELLO: {
+        const ip_hello_t *p = &x.u.hello, *q = &y.u.hello;
+        return p->drive_id == q->drive_id && p->flags == q->flags && p->n_p == q->n_p && p->T_s_ns == q->T_s_ns
+            && !memcmp(&p->current_lsb_A, &q->current_lsb_A, 4) && !memcmp(&p->voltage_lsb_V, &q->voltage_lsb_V, 4)
+            && !memcmp(&p->trip_current_A, &q->trip_current_A, 4) && p->watchdog_periods == q->watchdog_periods;
+    }
+    case IP_COMMAND: return x.u.command.seq == y.u.command.seq && x.u.command.u_alpha == y.u.command.u_alpha
+        && x.u.command.u_beta == y.u.command.u_beta && x.u.command.flags == y.u.command.flags;
+    case IP_CONTROL: return x.u.control.action == y.u.control.action;
+    case IP_HEARTBEAT: return x.u.heartbeat.counter == y.u.heartbeat.counter;
+    default: return 0;
+    }
+}
+
+static void serial_vector(const char *s) {
+    ip_message_t m, back;
+    int used = parse_message(s, &m);
+    CHECK(used > 0, "unparsable message");
+    const char *eq = strchr(s + used, '=');
+    uint8_t expected[IP_MAX_WIRE + 8], wire[IP_MAX_WIRE];
+    size_t n_expected = from_hex(eq + 2, expected, sizeof expected);
+    size_t n = ip_encode(&m, wire, sizeof wire);
+    CHECK(n == n_expected && !memcmp(wire, expected, n), "encoding differs from the vector");
+    CHECK(ip_decode(expected, n_expected - 1, &back) == IP_OK && same(&m, &back, 0), "decoding differs");
+    ip_reader_t r;
+    ip_reader_init(&r);
+    int got = 0;
+    for (size_t i = 0; i < n_expected; i++) got = ip_reader_push(&r, expected[i], &back);
+    CHECK(got == 1 && same(&m, &back, 0), "reader did not return the message");
+}
+
+static void can_vector(const char *s) {
+    unsigned drive;
+    int used = 0;
+    ip_message_t m, back;
+    sscanf(s, "%u%n", &drive, &used);
+    int more = parse_message(s + used, &m);
+    CHECK(more > 0, "unparsable message");
+    const char *p = strchr(s + used + more, '=') + 1;
+    ip_can_frame_t frames[3], expected[3];
+    size_t n_expected = 0;
+    unsigned id;
+    char hex[40];
+    int step;
+    while (n_expected < 3 && sscanf(p, " %x:%39s%n", &id, hex, &step) == 2) {
+        expected[n_expected].id = (uint16_t)id;
+        expected[n_expected].dlc = (uint8_t)from_hex(hex, expected[n_expected].data, 8);
+        n_expected++;
+        p += step;
+    }
+    size_t n = ip_can_encode(&m, (uint8_t)drive, frames);
+    CHECK(n == n_expected, "%zu CAN frames, vector has %zu", n, n_expected);
+    for (size_t i = 0; i < n && i < n_expected; i++)
+        CHECK(frames[i].id == expected[i].id && frames[i].dlc == expected[i].dlc
+              && !memcmp(frames[i].data, expected[i].data, frames[i].dlc), "CAN frame %zu differs", i);
+    ip_can_decoder_t d;
+    ip_can_decoder_init(&d, (uint8_t)drive);
+    int got = 0;
+    for (size_t i = 0; i < n_expected; i++) got = ip_can_decode(&d, &expected[i], &back);
+    CHECK(got == 1 && same(&m, &back, 1), "CAN decoding differs");
+}
+
+static void bad_vector(const char *s) {
+    char hex[200], kind[32];
+    uint8_t frame[100];
+    ip_message_t m;
+    CHECK(sscanf(s, "%199s %31s", hex, kind) == 2, "unparsable bad vector");
+    size_t n = from_hex(hex, frame, sizeof frame);
+    int r = ip_decode(frame, n, &m);
+    int expected = !strcmp(kind, "crc") ? IP_ERR_CRC : !strcmp(kind, "version") ? IP_ERR_VERSION
+                 : !strcmp(kind, "unknown_type") ? IP_ERR_TYPE : IP_ERR_FRAMING;
+    CHECK(r == expected, "bad frame %s: got %d, expected %d (%s)", hex, r, expected, kind);
+}
+
+static void stream_resynchronises(void) {
+    ip_message_t m = {.type = IP_COMMAND, .u.command = {42, -5, 6, IP_ENABLE}}, back;
+    uint8_t wire[IP_MAX_WIRE], noise[] = {0x13, 0x37, 0xFF, 0x00, 0x05, 0x00};
+    size_t n = ip_encode(&m, wire, sizeof wire);
+    ip_reader_t r;
+    ip_reader_init(&r);
+    int bad = 0, good = 0;
+    for (size_t i = 0; i < sizeof noise; i++) bad += ip_reader_push(&r, noise[i], &back) < 0;
+    for (int rep = 0; rep < 3; rep++)
+        for (size_t i = 0; i < n; i++) good += ip_reader_push(&r, wire[i], &back) == 1;
+    for (int i = 0; i < 200; i++) ip_reader_push(&r, 0x55, &back);
+    bad += ip_reader_push(&r, 0, &back) < 0;
+    for (size_t i = 0; i < n; i++) good += ip_reader_push(&r, wire[i], &back) == 1;
+    CHECK(bad == 3 && good == 4 && same(&m, &back, 0), "stream: %d bad, %d good frames", bad, good);
+    CHECK(ip_unwrap16(0x0002, 0xFFFFFFFEu) == 2u && ip_unwrap16(0xFFFE, 3u) == 0xFFFFFFFEu
+          && ip_unwrap16(0x1234, 0x00051200u) == 0x00051234u, "unwrap16");
+    uint8_t small[4];
+    CHECK(ip_encode(&m, small, sizeof small) == 0, "encode into a too small buffer must fail");
+    CHECK(ip_crc16((const uint8_t *)"123456789", 9) == 0x29B1, "CRC check value");
+}
+
+int main(int argc, char **argv) {
+    if (argc != 2) { fprintf(stderr, "usage: %s test_vectors.txt\n", argv[0]); return 2; }
+    FILE *f = fopen(argv[1], "r");
+    if (!f) { perror(argv[1]); return 2; }
+    char text[512];
+    int vectors = 0;
+    while (fgets(text, sizeof text, f)) {
+        line_no++;
+        if (!strncmp(text, "serial ", 7)) serial_vector(text + 7), vectors++;
+        else if (!strncmp(text, "can ", 4)) can_vector(text + 4), vectors++;
+        else if (!strncmp(text, "bad ", 4)) bad_vector(text + 4), vectors++;
+    }
+    fclose(f);
+    line_no = 0;
+    stream_resynchronises();
+    printf("%d vectors, %d failures\n", vectors, failures);
+    return failures != 0;
+}

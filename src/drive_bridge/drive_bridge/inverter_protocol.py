@@ -1,0 +1,277 @@
+"""Inverter wire protocol, version 1 (docs/inverter-protocol.md): messages, the serial framing
+(COBS + CRC-16/CCITT-FALSE, 0x00-delimited) and the classic-CAN mapping. Pure Python, no I/O."""
+import binascii
+import struct
+from dataclasses import dataclass
+
+VERSION = 1
+MAX_FRAME = 64
+"""Largest decoded frame (version, type, body, CRC) a receiver accepts [bytes]."""
+
+TELEMETRY, HELLO, COMMAND, CONTROL, HEARTBEAT = 0x01, 0x02, 0x10, 0x11, 0x12
+CONTROL_DISABLE, CONTROL_CLEAR_FAULTS, CONTROL_SEND_HELLO = 1, 2, 3
+ENABLE = 0x01
+HELLO_ENCODER_PRESENT = 0x01
+
+OVERCURRENT, WATCHDOG, PWM_OFF, COMMAND_MISSING = 1 << 0, 1 << 1, 1 << 2, 1 << 3
+HEARTBEAT_LOST, BAD_FRAME, UNDERVOLTAGE, ENCODER_VALID = 1 << 4, 1 << 5, 1 << 6, 1 << 7
+LATCHED = OVERCURRENT | WATCHDOG | HEARTBEAT_LOST
+STATUS_NAMES = {OVERCURRENT: "overcurrent", WATCHDOG: "watchdog", PWM_OFF: "pwm_off",
+                COMMAND_MISSING: "command_missing", HEARTBEAT_LOST: "heartbeat_lost", BAD_FRAME: "bad_frame",
+                UNDERVOLTAGE: "undervoltage", ENCODER_VALID: "encoder_valid"}
+
+
+@dataclass(frozen=True)
+class Telemetry:
+    seq: int
+    i_a: int
+    i_b: int
+    i_c: int
+    u_dc: int
+    encoder: int
+    status: int
+
+
+@dataclass(frozen=True)
+class Hello:
+    drive_id: int
+    flags: int
+    n_p: int
+    T_s_ns: int
+    current_lsb_A: float
+    voltage_lsb_V: float
+    trip_current_A: float
+    watchdog_periods: int
+
+
+@dataclass(frozen=True)
+class Command:
+    seq: int
+    u_alpha: int
+    u_beta: int
+    flags: int
+
+
+@dataclass(frozen=True)
+class Control:
+    action: int
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    counter: int
+
+
+LAYOUTS = {TELEMETRY: (Telemetry, struct.Struct("<IhhhHHH")), HELLO: (Hello, struct.Struct("<BBBxIfffH")),
+           COMMAND: (Command, struct.Struct("<IhhB")), CONTROL: (Control, struct.Struct("<B")),
+           HEARTBEAT: (Heartbeat, struct.Struct("<I"))}
+TYPE_OF = {cls: kind for kind, (cls, _) in LAYOUTS.items()}
+
+
+class FrameError(ValueError):
+    """A received frame is unusable; ``kind`` names the counter it goes to."""
+
+    def __init__(self, kind, message):
+        super().__init__(message)
+        self.kind = kind
+
+
+def crc16(data):
+    """CRC-16/CCITT-FALSE: polynomial 0x1021, initial 0xFFFF, no reflection, no final XOR."""
+    return binascii.crc_hqx(data, 0xFFFF)
+
+
+def cobs_encode(data):
+    """COBS: the bytes without any 0x00 (the frame delimiter is not included)."""
+    out = bytearray()
+    block = bytearray()
+    for byte in data:
+        if byte == 0:
+            out.append(len(block) + 1)
+            out += block
+            block.clear()
+        else:
+            block.append(byte)
+            if len(block) == 254:
+                out.append(255)
+                out += block
+                block.clear()
+    out.append(len(block) + 1)
+    out += block
+    return bytes(out)
+
+
+def cobs_decode(data):
+    """Inverse of cobs_encode; FrameError('framing') for a malformed block."""
+    out = bytearray()
+    i, n = 0, len(data)
+    while i < n:
+        code = data[i]
+        if code == 0 or i + code > n:
+            raise FrameError("framing", f"COBS block of {code} at byte {i} overruns the frame")
+        block = data[i + 1:i + code]
+        if 0 in block:
+            raise FrameError("framing", "0x00 inside a COBS frame")
+        out += block
+        i += code
+        if code < 255 and i < n:
+            out.append(0)
+    return bytes(out)
+
+
+def pack(message):
+    """version, type and body of a message (no CRC)."""
+    kind = TYPE_OF[type(message)]
+    return bytes((VERSION, kind)) + LAYOUTS[kind][1].pack(*vars(message).values())
+
+
+def encode_frame(message):
+    """The serial wire bytes of one message: COBS(version, type, body, CRC16 LE) + 0x00."""
+    payload = pack(message)
+    return cobs_encode(payload + struct.pack("<H", crc16(payload))) + b"\x00"
+
+
+def decode_frame(encoded):
+    """A message from the bytes between two delimiters; FrameError naming the check that failed."""
+    raw = cobs_decode(encoded)
+    if not 4 <= len(raw) <= MAX_FRAME:
+        raise FrameError("framing", f"frame of {len(raw)} bytes (4 to {MAX_FRAME} allowed)")
+    payload, (crc,) = raw[:-2], struct.unpack("<H", raw[-2:])
+    if crc16(payload) != crc:
+        raise FrameError("crc", f"CRC {crc:#06x}, computed {crc16(payload):#06x}")
+    if payload[0] != VERSION:
+        raise FrameError("version", f"protocol version {payload[0]}, this host speaks {VERSION}")
+    layout = LAYOUTS.get(payload[1])
+    if layout is None:
+        raise FrameError("unknown_type", f"message type {payload[1]:#04x}")
+    cls, body = layout
+    if len(payload) - 2 != body.size:
+        raise FrameError("framing", f"{cls.__name__} body of {len(payload) - 2} bytes, expected {body.size}")
+    return cls(*body.unpack(payload[2:]))
+
+
+class FrameReader:
+    """Splits a byte stream at 0x00 and decodes each frame; bad frames are counted by kind and dropped,
+    the next delimiter resynchronises."""
+
+    def __init__(self):
+        self.buffer = bytearray()
+        self.errors = {}
+        self.last_error = ""
+
+    def feed(self, data):
+        """Messages completed by ``data``, in order."""
+        messages = []
+        self.buffer += data
+        while True:
+            end = self.buffer.find(0)
+            if end < 0:
+                if len(self.buffer) > 2 * MAX_FRAME:
+                    self._count(FrameError("framing", f"{len(self.buffer)} bytes without a delimiter"))
+                    self.buffer.clear()
+                return messages
+            frame = bytes(self.buffer[:end])
+            del self.buffer[:end + 1]
+            if not frame:
+                continue
+            try:
+                messages.append(decode_frame(frame))
+            except FrameError as error:
+                self._count(error)
+
+    def _count(self, error):
+        self.errors[error.kind] = self.errors.get(error.kind, 0) + 1
+        self.last_error = str(error)
+
+
+CAN_COMMAND, CAN_CONTROL, CAN_HEARTBEAT = 0x00, 0x01, 0x02
+CAN_TELEMETRY_B, CAN_TELEMETRY_A, CAN_HELLO_A, CAN_HELLO_B, CAN_HELLO_C = 0x08, 0x09, 0x0A, 0x0B, 0x0C
+
+
+def can_base(drive_id):
+    if not 0 <= drive_id <= 15:
+        raise ValueError(f"drive_id {drive_id}: CAN drives are numbered 0 to 15")
+    return 0x100 + 0x20 * drive_id
+
+
+def to_can(message, drive_id, with_status=True):
+    """The (identifier, data) CAN frames of a message; TELEMETRY gives B (if ``with_status``), then A,
+    which completes the sample."""
+    base = can_base(drive_id)
+    m = message
+    if isinstance(m, Command):
+        return [(base + CAN_COMMAND, struct.pack("<HhhBx", m.seq & 0xFFFF, m.u_alpha, m.u_beta, m.flags))]
+    if isinstance(m, Control):
+        return [(base + CAN_CONTROL, struct.pack("<B", m.action))]
+    if isinstance(m, Heartbeat):
+        return [(base + CAN_HEARTBEAT, struct.pack("<I", m.counter))]
+    if isinstance(m, Telemetry):
+        frames = [(base + CAN_TELEMETRY_A, struct.pack("<Hhhh", m.seq & 0xFFFF, m.i_a, m.i_b, m.i_c))]
+        if with_status:
+            frames.insert(0, (base + CAN_TELEMETRY_B, struct.pack("<HHHH", m.seq & 0xFFFF, m.u_dc, m.encoder,
+                                                                  m.status)))
+        return frames
+    if isinstance(m, Hello):
+        return [(base + CAN_HELLO_A, struct.pack("<BBBBI", VERSION, m.drive_id, m.flags, m.n_p, m.T_s_ns)),
+                (base + CAN_HELLO_B, struct.pack("<ff", m.current_lsb_A, m.voltage_lsb_V)),
+                (base + CAN_HELLO_C, struct.pack("<fHxx", m.trip_current_A, m.watchdog_periods))]
+    raise TypeError(f"not a protocol message: {message!r}")
+
+
+def unwrap16(low, last):
+    """The u32 sequence number whose low 16 bits are ``low``, nearest to ``last``."""
+    delta = ((low - last) + 0x8000) % 0x10000 - 0x8000
+    return (last + delta) % 0x100000000
+
+
+class CanDecoder:
+    """Messages from one drive's CAN frames: TELEMETRY_A with the latest B, HELLO_A/B/C assembled,
+    COMMAND/CONTROL/HEARTBEAT; 16-bit sequence numbers unwrapped against the last one."""
+
+    def __init__(self, drive_id):
+        self.base = can_base(drive_id)
+        self.last_seq = 0
+        self.status = (0, 0, 0)
+        self.hello = {}
+        self.errors = {}
+        self.last_error = ""
+
+    def feed(self, identifier, data):
+        """The message a frame completes, or None."""
+        offset = identifier - self.base
+        try:
+            return self._decode(offset, bytes(data))
+        except (struct.error, FrameError) as error:
+            kind = error.kind if isinstance(error, FrameError) else "framing"
+            self.errors[kind] = self.errors.get(kind, 0) + 1
+            self.last_error = f"CAN {identifier:#05x}: {error}"
+            return None
+
+    def _decode(self, offset, data):
+        if offset == CAN_TELEMETRY_A:
+            low, i_a, i_b, i_c = struct.unpack("<Hhhh", data)
+            self.last_seq = unwrap16(low, self.last_seq)
+            return Telemetry(self.last_seq, i_a, i_b, i_c, *self.status)
+        if offset == CAN_TELEMETRY_B:
+            low, u_dc, encoder, status = struct.unpack("<HHHH", data)
+            self.status = (u_dc, encoder, status)
+            return None
+        if offset == CAN_COMMAND:
+            low, u_alpha, u_beta, flags = struct.unpack("<HhhBx", data)
+            self.last_seq = unwrap16(low, self.last_seq)
+            return Command(self.last_seq, u_alpha, u_beta, flags)
+        if offset == CAN_CONTROL:
+            return Control(*struct.unpack("<B", data))
+        if offset == CAN_HEARTBEAT:
+            return Heartbeat(*struct.unpack("<I", data))
+        if offset in (CAN_HELLO_A, CAN_HELLO_B, CAN_HELLO_C):
+            self.hello[offset] = data
+            if len(self.hello) < 3:
+                return None
+            version, drive_id, flags, n_p, T_s_ns = struct.unpack("<BBBBI", self.hello.pop(CAN_HELLO_A))
+            current_lsb, voltage_lsb = struct.unpack("<ff", self.hello.pop(CAN_HELLO_B))
+            trip, watchdog = struct.unpack("<fHxx", self.hello.pop(CAN_HELLO_C))
+            if version != VERSION:
+                raise FrameError("version", f"protocol version {version}, this host speaks {VERSION}")
+            return Hello(drive_id, flags, n_p, T_s_ns, current_lsb, voltage_lsb, trip, watchdog)
+        raise FrameError("unknown_type", f"identifier offset {offset:#04x} is not a protocol frame")
