@@ -319,3 +319,21 @@ def test_controller_follows_the_plant_past_a_lost_sample():
         h.spin_until(lambda: h.error_status("foc_controller", "faults.missed_sample"), what="diagnostics")
     finally:
         h.close()
+
+
+@pytest.mark.parametrize("link, processes", [("pty", "separate"), ("can", "composed")])
+def test_the_bridge_in_the_plants_place(tmp_path, link, processes):
+    """The virtual inverter behind a pty or a CAN bus and the drive_bridge node in the plant's place:
+    the graph closes the loop sample for sample as the one-process loop through the bridge does. The
+    speed is constant: nothing gates the inverter's clock on the launcher's speed commands (as on a
+    robot), so a changing speed would land on whichever sample the graph's timing gives it."""
+    from drive_bridge.bridge_loop import run_through_bridge
+    path = scenario_file(tmp_path, rpm=0.0)
+    result = launch(path, processes=processes, link=link, extra_parameters={"diagnostics_period_s": 0.05})
+    reference = run_through_bridge(load_scenario(path), link)
+    for name in ("i_a_meas", "theta_e_hat", "omega_e_hat", "u_alpha", "u_beta"):
+        np.testing.assert_allclose(result.log[:, COLUMN[name]], reference.log[:, COLUMN[name]], atol=1e-9,
+                                   err_msg=name)
+    values = result.diagnostics["/drive/drive_bridge"]["values"]
+    assert int(values["commands"]) > 0 and values["link"] == "up"
+    assert values["dropped"] == values["safe_state"] == values["faults_cleared"] == "0"

@@ -154,3 +154,28 @@ def hop_latency(round_trips=20000):
         return {"round_trips": round_trips, "us_per_hop": 1e6 * wall / (2 * round_trips)}
     finally:
         context.try_shutdown()
+
+
+def bridge_rates(scenario_ref, links, duration_s, repeats=2):
+    """`drive bench bridge`: the sensorless loop through the bridge and the virtual inverter (paced by
+    the host's answers) per link; best of ``repeats`` after a warm-up. Latency: the inverter's time from
+    sending TELEMETRY(k) to receiving COMMAND(k)."""
+    from .bridge_loop import run_through_bridge
+    from .scenario import load_scenario
+
+    scenario = dataclasses.replace(load_scenario(scenario_ref), duration_s=duration_s)
+    rows = []
+    for link in links:
+        run_through_bridge(dataclasses.replace(scenario, duration_s=min(duration_s, 0.05)), link)
+        best = None
+        for _ in range(repeats):
+            result = run_through_bridge(scenario, link)
+            if best is None or result.wall_time_s < best.wall_time_s:
+                best = result
+        latencies = best.latencies_s * 1e6
+        rows.append({"link": link, "samples_per_s": best.log.shape[0] / best.wall_time_s,
+                     "latency_p50_us": float(np.percentile(latencies, 50)),
+                     "latency_p99_us": float(np.percentile(latencies, 99)),
+                     "missing_commands": int(best.inverter_counters["missing"])})
+    return {"scenario": scenario.name, "samples": scenario.n_samples, "repeats": repeats,
+            "sampling_rate_Hz": 1.0 / scenario.T_s, "links": rows}

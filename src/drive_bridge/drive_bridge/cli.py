@@ -82,10 +82,12 @@ def cmd_launch(args):
     scenario = load_scenario(args.scenario, estimator_override=args.estimator)
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
-                    timeout_s=args.timeout, bag=args.record,
+                    timeout_s=args.timeout, bag=args.record, link=args.link,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
     faults = {name: d["message"] for name, d in (result.diagnostics or {}).items() if d["level"] > 0}
-    extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}",
+    plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
+    extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}, "
+                      f"{plant}",
              "real_time_factor": round(result.scenario.duration_s / result.wall_time_s, 4)
              if result.wall_time_s > 0 else None,
              "interrupted": result.interrupted, "node_faults": faults}
@@ -93,6 +95,44 @@ def cmd_launch(args):
         extra["bag"] = args.record
     _report(result, args, extra)
     return 130 if result.interrupted else 0
+
+
+def cmd_bridge(args):
+    from .bridge_loop import run_through_bridge
+    from .runner import terminal_progress
+
+    scenario = load_scenario(args.scenario, estimator_override=args.estimator)
+    if args.duration is not None:
+        if args.duration <= 0.0:
+            raise ScenarioError(f"--duration: must be positive, not {args.duration}")
+        scenario = dataclasses.replace(scenario, duration_s=args.duration)
+    result = run_through_bridge(scenario, args.link, progress=terminal_progress(
+        f"{scenario.name}/{scenario.estimator} through the bridge ({args.link})"))
+    extra = {"link": f"virtual inverter over {args.link}, bridge core, estimator and controller cores",
+             "samples_per_s": round(result.log.shape[0] / result.wall_time_s),
+             "bridge": result.counters, "frame_errors": result.frame_errors,
+             "inverter": result.inverter_counters}
+    return _report(result, args, extra)
+
+
+def cmd_bench_bridge(args):
+    from .bench import bridge_rates
+
+    links = args.links.split(",")
+    for link in links:
+        if link not in ("pty", "can"):
+            raise ScenarioError(f"--links: 'pty' and/or 'can', not {link!r}")
+    report = bridge_rates(args.scenario, links, args.duration)
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter paced by the "
+          f"host's answers; best of {report['repeats']})")
+    print(f"  {'link':6s} {'samples/s':>10s} {'latency p50':>12s} {'p99':>9s} {'missing':>8s}")
+    for row in report["links"]:
+        print(f"  {row['link']:6s} {row['samples_per_s']:10.0f} {row['latency_p50_us']:9.0f} µs "
+              f"{row['latency_p99_us']:6.0f} µs {row['missing_commands']:8d}")
+    return 0
 
 
 def cmd_scenarios(args):
@@ -562,6 +602,13 @@ def build_parser():
     graph.add_argument("--repeats", type=int, default=2, help="timed runs per configuration (best kept)")
     graph.add_argument("--json", action="store_true")
     graph.set_defaults(func=cmd_bench_graph)
+    bench_bridge = bench_sub.add_parser("bridge", help="sustained closed-loop sample rate and command "
+                                                       "latency through the bridge, over a pty and a CAN bus")
+    bench_bridge.add_argument("--scenario", default="wang_100rpm")
+    bench_bridge.add_argument("--duration", type=float, default=1.0, help="simulated seconds per run")
+    bench_bridge.add_argument("--links", default="pty,can", help="comma-separated: pty, can")
+    bench_bridge.add_argument("--json", action="store_true")
+    bench_bridge.set_defaults(func=cmd_bench_bridge)
 
     compare = bench_sub.add_parser("compare", help="two recorded runs side by side: metrics and angle error")
     compare.add_argument("bag_a")
@@ -645,8 +692,22 @@ def build_parser():
     launch.add_argument("--no-plot", action="store_true")
     launch.add_argument("--record", metavar="BAG",
                         help="record every drive topic into this new rosbag2 directory")
+    launch.add_argument("--link", choices=("pty", "can"),
+                        help="put the virtual inverter (behind this link) and the drive_bridge node in the "
+                             "plant's place")
     launch.add_argument("--json", action="store_true")
     launch.set_defaults(func=cmd_launch)
+
+    bridge = sub.add_parser("bridge", help="the sensorless loop through the inverter bridge and the virtual "
+                                           "inverter, in one process")
+    bridge.add_argument("scenario", help="shipped scenario name or YAML path")
+    bridge.add_argument("--link", choices=("pty", "can"), default="pty")
+    bridge.add_argument("--estimator", help="override the scenario's estimator")
+    bridge.add_argument("--duration", type=float, help="override the duration [s]")
+    bridge.add_argument("--out", help="plot directory (default runs/SCENARIO)")
+    bridge.add_argument("--no-plot", action="store_true")
+    bridge.add_argument("--json", action="store_true")
+    bridge.set_defaults(func=cmd_bridge)
 
     echo = sub.add_parser("echo", help="print a drive topic (like ros2 topic echo)")
     echo.add_argument("topic", help="contract topic, e.g. angle_error, joint_states, /diagnostics")

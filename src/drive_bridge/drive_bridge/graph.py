@@ -10,6 +10,8 @@ import math
 import signal
 import subprocess
 import sys
+import tempfile
+import threading
 import time
 from dataclasses import dataclass
 
@@ -20,7 +22,8 @@ from .runner import RunResult, build_drive
 from .scenario import ScenarioError, load_scenario, resolve
 
 EXECUTORS = ("events", "single")
-ROLES = ("pmsm_plant", "hf_estimator", "foc_controller")
+DRIVE_ROLES = ("pmsm_plant", "hf_estimator", "foc_controller")
+ROLES = DRIVE_ROLES + ("drive_bridge",)
 DEFAULT_NAMESPACE = "/drive"
 DELIVERIES_PER_SAMPLE = 9
 """Messages delivered per lock-step sample without recording: currents → estimator, controller;
@@ -54,8 +57,9 @@ def build_from_parameters(parameters):
     return build_drive(scenario_from_parameters(parameters))
 
 
-def make_node(role, context=None, namespace=None, parameters=None):
-    """One of the drive's nodes, built from its ROS parameters (plus ``parameters`` overrides)."""
+def make_node(role, context=None, namespace=None, parameters=None, link=None):
+    """One of the drive's nodes, built from its ROS parameters (plus ``parameters`` overrides); the
+    drive_bridge node on ``link`` when given (a link object, for composed graphs)."""
     from pmsm_plant.contract import parameter_overrides
     kwargs = {"context": context, "namespace": namespace,
               "parameter_overrides": parameter_overrides(parameters or {})}
@@ -68,6 +72,9 @@ def make_node(role, context=None, namespace=None, parameters=None):
     if role == "foc_controller":
         from foc_controller.node import ControllerNode
         return ControllerNode(build_from_parameters, **kwargs)
+    if role == "drive_bridge":
+        from .bridge_node import InverterBridgeNode
+        return InverterBridgeNode(link=link, **kwargs)
     raise ValueError(f"unknown node '{role}' (known: {', '.join(ROLES)})")
 
 
@@ -99,9 +106,11 @@ class ScenarioDriver:
     which starts the plant (``load_torque_per_sample``); on `voltage_command`(k), after the controller
     has used the speed of k, it publishes those of k+1. With ``record`` it fills a log
     (drive_bridge.loop.LOG_COLUMNS) from the topics; columns no topic carries stay NaN. With a
-    ``recorder`` (drive_bridge.bag.BagWriter) it writes every contract topic as received, serialized."""
+    ``recorder`` (drive_bridge.bag.BagWriter) it writes every contract topic as received, serialized.
+    With a virtual ``inverter`` (the bridge in the plant's place) it starts the inverter at sample 0."""
 
-    def __init__(self, node, scenario, drive, record, settle_s, startup_timeout_s, progress, recorder=None):
+    def __init__(self, node, scenario, drive, record, settle_s, startup_timeout_s, progress, recorder=None,
+                 inverter=None):
         from pmsm_plant.contract import COMMAND_QOS
         from rclpy.serialization import serialize_message
         from std_msgs.msg import Float64
@@ -121,6 +130,7 @@ class ScenarioDriver:
         self.load_pub = node.create_publisher(Float64, "load_torque", COMMAND_QOS)
         self.Float64, self.serialize = Float64, serialize_message
         self.recorder = recorder
+        self.inverter = inverter
         handlers = {"voltage_command": self.on_voltage, "/diagnostics": self.on_diagnostics}
         recorded = ("currents", "rotor_state", "rotor_estimate", "injection", "estimator_state")
         if record:
@@ -169,12 +179,15 @@ class ScenarioDriver:
         return callback
 
     def expected_endpoints(self):
-        """(topic, publishers, subscribers) that must exist before sample 0, this node included."""
+        """(topic, publishers, subscribers) that must exist before sample 0, this node included (with
+        an inverter, which keeps its own load and clock, no plant subscribes to load_torque)."""
         r = 1 if self.record or self.recorder else 0
         sensored = self.drive.estimator.name == "sensored"
-        return [("currents", 1, 2 + r), ("rotor_state", 1, r + sensored), ("rotor_estimate", 1, 2 + r),
-                ("injection", 1, 1 + r), ("voltage_command", 1, 3), ("estimator_state", 1, r),
-                ("speed_command", 1, 1), ("load_torque", 1, 1)]
+        endpoints = [("currents", 1, 2 + r), ("rotor_estimate", 1, 2 + r), ("injection", 1, 1 + r),
+                     ("voltage_command", 1, 3), ("estimator_state", 1, r), ("speed_command", 1, 1)]
+        if self.inverter is None:
+            endpoints += [("rotor_state", 1, r + sensored), ("load_torque", 1, 1)]
+        return endpoints
 
     def missing_endpoints(self):
         missing = []
@@ -212,6 +225,8 @@ class ScenarioDriver:
             if now - self.ready_since >= self.settle_s:
                 self.started_at = now
                 self.command(0)
+                if self.inverter is not None:
+                    threading.Thread(target=self.inverter.run, name="virtual_inverter", daemon=True).start()
             return
         if self.progress:
             self.progress((self.last_sample + 1) / self.n)
@@ -297,16 +312,20 @@ class DriveSpec:
     extra_parameters: dict = None
     bag: str = None
     """Record every contract topic of this drive into this new rosbag2 directory."""
+    link: str = None
+    """None: the simulated plant node. 'pty' or 'can': the virtual inverter behind that link and the
+    drive_bridge node in the plant's place."""
 
 
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
-           progress=None, extra_parameters=None, bag=None):
+           progress=None, extra_parameters=None, bag=None, link=None):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
-    ``interrupted``; a ``bag`` being recorded is closed complete."""
-    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag)
+    ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
+    virtual inverter and the drive_bridge node in the plant's place."""
+    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link)
     return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress)[0]
 
 
@@ -323,7 +342,15 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
     if len({spec.namespace for spec in specs}) < len(specs):
         raise ScenarioError("--namespace: drives side by side need distinct namespaces")
     from .bag import BagWriter
+    for spec in specs:
+        if spec.link not in (None, "pty", "can"):
+            raise ScenarioError(f"--link: 'pty' or 'can', not {spec.link!r}")
+        if spec.link == "can" and processes == "separate":
+            raise ScenarioError("--link can: python-can's virtual bus lives in one process; use --processes "
+                                "composed, or pty")
     recorders = [BagWriter(spec.bag) if spec.bag else None for spec in specs]
+    workdir = tempfile.TemporaryDirectory(prefix="drive_bridge_")
+    inverters = []
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     children, nodes, drivers = [], [], []
@@ -336,9 +363,21 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
                                          spec.extra_parameters)
             scenario = scenario_from_parameters(_all_parameters(parameters))
-            plant_parameters = {**parameters, "load_torque_per_sample": True}
-            for role in ROLES:
-                role_parameters = plant_parameters if role == "pmsm_plant" else parameters
+            roles = {"pmsm_plant": {**parameters, "load_torque_per_sample": True},
+                     "hf_estimator": parameters, "foc_controller": parameters}
+            inverter = None
+            if spec.link:
+                inverter, host_link = _virtual_inverter(scenario, spec.link, workdir.name, i)
+                inverters.append(inverter)
+                del roles["pmsm_plant"]
+                period = float(_all_parameters(parameters)["diagnostics_period_s"])
+                timeouts = {"link_timeout_s": timeout_s, "command_timeout_s": timeout_s,
+                            "diagnostics_period_s": period}
+                if processes == "composed":
+                    nodes.append(make_node("drive_bridge", context, spec.namespace, timeouts, link=host_link))
+                else:
+                    roles["drive_bridge"] = {"link": "serial", "port": host_link.port, **timeouts}
+            for role, role_parameters in roles.items():
                 if processes == "composed":
                     nodes.append(make_node(role, context, spec.namespace, role_parameters))
                 else:
@@ -347,7 +386,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             nodes.append(driver_node)
             driver = ScenarioDriver(driver_node, scenario, build_drive(scenario), record,
                                     0.1 if processes == "composed" else 0.5, startup_timeout_s,
-                                    progress if i == 0 else None, recorders[i])
+                                    progress if i == 0 else None, recorders[i], inverter)
             driver.done = Future()
             drivers.append(driver)
         for node in nodes:
@@ -362,9 +401,14 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         for s, handler in previous.items():
             signal.signal(s, handler)
         _stop_children([child for _, child in children])
+        for inverter in inverters:
+            inverter.stop()
         for node in nodes:
             node.destroy_node()
         context.try_shutdown()
+        for inverter in inverters:
+            inverter.endpoint.close()
+        workdir.cleanup()
         for recorder in recorders:
             if recorder:
                 recorder.close()
@@ -382,6 +426,15 @@ def _result(driver, record, processes, executor, interrupted):
     return GraphResult(scenario, drive.preset, drive.estimator.name, log, wall, drive.controller.i_max_A,
                        processes=processes, executor=executor, interrupted=bool(interrupted),
                        diagnostics=dict(driver.diagnostics))
+
+
+def _virtual_inverter(scenario, link, workdir, drive_id):
+    """A virtual inverter for ``scenario`` (not yet running; paced by the graph's commands) and the
+    host's end of its link."""
+    from .bridge_loop import make_links
+    from .virtual_inverter import VirtualInverter
+    endpoint, host_link = make_links(link, workdir, drive_id)
+    return VirtualInverter(scenario, endpoint, drive_id=drive_id), host_link
 
 
 def _watch(drivers, interrupted, children, all_done):

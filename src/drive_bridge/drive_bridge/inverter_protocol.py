@@ -16,6 +16,9 @@ HELLO_ENCODER_PRESENT = 0x01
 OVERCURRENT, WATCHDOG, PWM_OFF, COMMAND_MISSING = 1 << 0, 1 << 1, 1 << 2, 1 << 3
 HEARTBEAT_LOST, BAD_FRAME, UNDERVOLTAGE, ENCODER_VALID = 1 << 4, 1 << 5, 1 << 6, 1 << 7
 LATCHED = OVERCURRENT | WATCHDOG | HEARTBEAT_LOST
+CLEARED_BY_HOST = WATCHDOG | HEARTBEAT_LOST
+"""Latched faults a link loss or a silent host causes; the host clears them when the link is back,
+never an overcurrent."""
 STATUS_NAMES = {OVERCURRENT: "overcurrent", WATCHDOG: "watchdog", PWM_OFF: "pwm_off",
                 COMMAND_MISSING: "command_missing", HEARTBEAT_LOST: "heartbeat_lost", BAD_FRAME: "bad_frame",
                 UNDERVOLTAGE: "undervoltage", ENCODER_VALID: "encoder_valid"}
@@ -83,6 +86,8 @@ def crc16(data):
 
 def cobs_encode(data):
     """COBS: the bytes without any 0x00 (the frame delimiter is not included)."""
+    if len(data) < 254:
+        return b"".join(bytes((len(part) + 1,)) + part for part in bytes(data).split(b"\x00"))
     out = bytearray()
     block = bytearray()
     for byte in data:

@@ -97,63 +97,22 @@ class Health:
         self.level = DiagnosticStatus.ERROR
 
 
-class DriveNode(Node):
-    """Base of the drive's nodes: declares GLOBAL_PARAMETERS, builds the cores with ``builder``
-    (parameters dict → drive_bridge.runner.Drive, raising ValueError naming the key at fault),
-    publishes drive_config once and /diagnostics periodically.
+class ContractNode(Node):
+    """Base of every drive node: fault counting, callback timing, drive_config (latched) and
+    /diagnostics every ``diagnostics_period_s``."""
 
-    A build error leaves ``self.drive`` None: the node stays up, answers with the safe output and
-    reports the error (``self.health.latched``). Otherwise ``warm_up`` compiles the node's kernels on
-    copies of its state before any endpoint exists, so no first sample waits for the compiler."""
-
-    def __init__(self, node_name, builder, **kwargs):
+    def __init__(self, node_name, **kwargs):
         super().__init__(node_name, **kwargs)
-        for name, (default, text) in GLOBAL_PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor=_descriptor(text))
+        name = "diagnostics_period_s"
+        default, text = GLOBAL_PARAMETERS[name]
+        self.declare_parameter(name, default, descriptor=_descriptor(text))
         self.health = Health()
         self.callback_time_s = 0.0
         self.callback_max_s = 0.0
         self.callbacks = 0
-        self.parameters = {name: self.get_parameter(name).value for name in GLOBAL_PARAMETERS}
-        try:
-            self.drive = builder(self.parameters)
-        except ValueError as error:
-            self.drive = None
-            self.health.latched = str(error)
-            self.health.fault("configuration", str(error))
-            self.get_logger().error(f"configuration rejected, output held safe: {error}")
-        else:
-            self.warm_up()
-        self.T_s = self.drive.scenario.T_s if self.drive else 1e-4
-        self.timeout_s = float(self.parameters["lockstep_timeout_s"])
         self.config_pub = self.create_publisher(String, "drive_config", LATCHED_QOS)
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
-        self.create_timer(float(self.parameters["diagnostics_period_s"]), self.publish_diagnostics)
-
-    def warm_up(self):
-        """Call the node's kernels once on copies of its state, with the argument types of a sample."""
-
-    def open_when_matched(self, subscriptions, open_outputs):
-        """Call ``open_outputs`` (creating the node's per-sample answer publishers) once every input
-        subscription is matched to a publisher. An answer sent before its reader matched is lost, and a
-        graph entry is not yet a match: gated so, the answer publishers' appearance tells the plant, at
-        the end of the chain, that every node before it can hear its inputs."""
-        def check():
-            if all(s.get_publisher_count() >= 1 for s in subscriptions):
-                timer.cancel()
-                open_outputs()
-        timer = self.create_timer(0.02, check)
-
-    def publish_config(self, config):
-        config = {"node": self.get_fully_qualified_name(), "parameters": self.parameters,
-                  "error": self.health.latched, **config}
-        if self.drive:
-            config.update(motor=self.drive.scenario.motor, n_p=self.drive.machine.n_p, T_s_s=self.T_s)
-        self.config_pub.publish(String(data=json.dumps(_plain(config))))
-
-    def trip_current_A(self):
-        given = float(self.parameters["trip_current_A"])
-        return given if given > 0.0 else 3.0 * self.drive.preset.current_limit_A
+        self.create_timer(float(self.get_parameter(name).value), self.publish_diagnostics)
 
     def fault(self, kind, message):
         """Count a fault, log it (throttled) and show it at the next /diagnostics."""
@@ -195,6 +154,57 @@ class DriveNode(Node):
         self.callback_max_s = 0.0
 
 
+class DriveNode(ContractNode):
+    """Base of the simulated drive's nodes: declares GLOBAL_PARAMETERS, builds the cores with ``builder``
+    (parameters dict → drive_bridge.runner.Drive, raising ValueError naming the key at fault) and
+    publishes drive_config once.
+
+    A build error leaves ``self.drive`` None: the node stays up, answers with the safe output and
+    reports the error (``self.health.latched``). Otherwise ``warm_up`` compiles the node's kernels on
+    copies of its state before any per-sample endpoint exists, so no first sample waits for the compiler."""
+
+    def __init__(self, node_name, builder, **kwargs):
+        super().__init__(node_name, **kwargs)
+        for name, (default, text) in GLOBAL_PARAMETERS.items():
+            if not self.has_parameter(name):
+                self.declare_parameter(name, default, descriptor=_descriptor(text))
+        self.parameters = {name: self.get_parameter(name).value for name in GLOBAL_PARAMETERS}
+        try:
+            self.drive = builder(self.parameters)
+        except ValueError as error:
+            self.drive = None
+            self.health.latched = str(error)
+            self.health.fault("configuration", str(error))
+            self.get_logger().error(f"configuration rejected, output held safe: {error}")
+        else:
+            self.warm_up()
+        self.T_s = self.drive.scenario.T_s if self.drive else 1e-4
+        self.timeout_s = float(self.parameters["lockstep_timeout_s"])
+
+    def warm_up(self):
+        """Call the node's kernels once on copies of its state, with the argument types of a sample."""
+
+    def open_when_matched(self, subscriptions, open_outputs):
+        """Call ``open_outputs`` (creating the node's per-sample answer publishers) once every input
+        subscription is matched to a publisher. An answer sent before its reader matched is lost, and a
+        graph entry is not yet a match: gated so, the answer publishers' appearance tells the plant, at
+        the end of the chain, that every node before it can hear its inputs."""
+        def check():
+            if all(s.get_publisher_count() >= 1 for s in subscriptions):
+                timer.cancel()
+                open_outputs()
+        timer = self.create_timer(0.02, check)
+
+    def publish_config(self, config):
+        config = {"node": self.get_fully_qualified_name(), "parameters": self.parameters,
+                  "error": self.health.latched, **config}
+        if self.drive:
+            config.update(motor=self.drive.scenario.motor, n_p=self.drive.machine.n_p, T_s_s=self.T_s)
+        self.config_pub.publish(String(data=json.dumps(_plain(config))))
+
+    def trip_current_A(self):
+        given = float(self.parameters["trip_current_A"])
+        return given if given > 0.0 else 3.0 * self.drive.preset.current_limit_A
 def _descriptor(text):
     from rcl_interfaces.msg import ParameterDescriptor
     return ParameterDescriptor(description=text)

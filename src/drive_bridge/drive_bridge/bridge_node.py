@@ -1,0 +1,156 @@
+"""The ``drive_bridge`` node: a real (or the virtual) inverter in the plant's place in the graph.
+
+It publishes what `pmsm_plant` publishes — `currents` stamped k·T_s from the inverter's sample
+counter, `rotor_state` and `angle_error` when the encoder is valid, `/clock`, `drive_config`,
+`/diagnostics` — and answers `voltage_command`(k) with COMMAND(k). Frames are read on a thread of their
+own, so the graph never waits on the link; the inverter's clock paces everything. Link faults are
+counted and reported, never raised (docs/inverter-protocol.md, "The host")."""
+import math
+import threading
+
+from diagnostic_msgs.msg import DiagnosticStatus
+from geometry_msgs.msg import Vector3Stamped
+from rcl_interfaces.msg import ParameterDescriptor
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+
+from pmsm_plant.contract import COMMAND_QOS, PER_SAMPLE_QOS, ContractNode, finite, sample_of, stamp
+from pmsm_plant.frames import wrap
+
+from .inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
+from .inverter_link import CanLink, SerialLink
+
+PARAMETERS = {
+    "link": ("serial", "serial or can"),
+    "port": ("/dev/ttyACM0", "serial port path (a /dev/serial/by-id/ symlink survives re-plugging)"),
+    "baudrate": (3_000_000, "serial baud rate (ignored by USB CDC and ptys)"),
+    "can_channel": ("can0", "CAN channel (SocketCAN interface, or python-can virtual channel name)"),
+    "can_interface": ("", "python-can interface (empty: socketcan where present, else virtual)"),
+    "drive_id": (0, "CAN drive number 0-15"),
+    "link_timeout_s": (LINK_TIMEOUT_S, "no telemetry for this long: link lost [s]"),
+    "command_timeout_s": (COMMAND_TIMEOUT_S, "no voltage_command for this long: safe state [s]"),
+}
+HISTORY_SAMPLES = 64
+
+
+class InverterBridgeNode(ContractNode):
+    def __init__(self, link=None, **kwargs):
+        super().__init__("drive_bridge", **kwargs)
+        for name, (default, text) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor=ParameterDescriptor(description=text))
+        p = {name: self.get_parameter(name).value for name in PARAMETERS}
+        self.parameters = p
+        if link is None:
+            if p["link"] == "serial":
+                link = SerialLink(p["port"], int(p["baudrate"]))
+            elif p["link"] == "can":
+                link = CanLink(p["can_channel"], int(p["drive_id"]), p["can_interface"] or None)
+            else:
+                raise ValueError(f"parameter link: 'serial' or 'can', not {p['link']!r}")
+        self.bridge = InverterBridge(link, float(p["link_timeout_s"]), float(p["command_timeout_s"]))
+        self.currents_pub = self.create_publisher(Vector3Stamped, "currents", PER_SAMPLE_QOS)
+        self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", PER_SAMPLE_QOS)
+        self.clock_pub = self.create_publisher(Clock, "/clock", PER_SAMPLE_QOS)
+        self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", COMMAND_QOS)
+        self.create_subscription(Vector3Stamped, "voltage_command", self.timed(self.on_voltage_command),
+                                 PER_SAMPLE_QOS)
+        self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate, PER_SAMPLE_QOS)
+        self.T_s = None
+        self.n_p = None
+        self.history = {}
+        self.reported = {}
+        self.configured = False
+        self.running = True
+        self.thread = threading.Thread(target=self.read_link, name="drive_bridge_link", daemon=True)
+        self.thread.start()
+
+    def read_link(self):
+        """The link thread: poll, publish each sample, report new faults."""
+        currents, rotor, clock = Vector3Stamped(), JointState(name=["rotor"]), Clock()
+        currents.header.frame_id = "abc"
+        previous = None
+        while self.running:
+            samples = self.bridge.poll(0.02)
+            hello = self.bridge.hello
+            if hello is not None and not self.configured:
+                self.configure(hello)
+            for s in samples:
+                t = stamp(s.k, self.T_s)
+                clock.clock = t
+                self.clock_pub.publish(clock)
+                if not math.isnan(s.theta_m):
+                    rotor.header.stamp = t
+                    velocity = (s.theta_m - previous[1]) / ((s.k - previous[0]) * self.T_s) \
+                        if previous and s.k > previous[0] else 0.0
+                    rotor.position, rotor.velocity, rotor.effort = [s.theta_m], [velocity], [math.nan]
+                    self.rotor_state_pub.publish(rotor)
+                    self.history[s.k] = (s.theta_m, velocity)
+                    self.history.pop(s.k - HISTORY_SAMPLES, None)
+                    previous = (s.k, s.theta_m)
+                currents.header.stamp = t
+                currents.vector.x, currents.vector.y, currents.vector.z = s.i_a, s.i_b, s.i_c
+                self.currents_pub.publish(currents)
+            self.report_new_faults()
+
+    def configure(self, hello):
+        self.T_s, self.n_p = hello.T_s_ns * 1e-9, hello.n_p
+        self.configured = True
+        self.config_pub.publish(self.config_message(hello))
+
+    def config_message(self, hello):
+        import json
+
+        from std_msgs.msg import String
+        return String(data=json.dumps({"node": self.get_fully_qualified_name(), "parameters": self.parameters,
+                                       "T_s_s": self.T_s, "n_p": hello.n_p, "inverter": vars(hello)}))
+
+    def report_new_faults(self):
+        counts = {**self.bridge.counters, **{f"frame_{k}": v for k, v in self.bridge.frame_errors().items()}}
+        for kind in ("dropped", "duplicated", "reordered", "link_lost", "bus_off", "safe_state",
+                     "inverter_faults", "command_errors", "frame_crc", "frame_framing", "frame_version",
+                     "frame_unknown_type"):
+            new = counts.get(kind, 0) - self.reported.get(kind, 0)
+            if new > 0:
+                detail = self.bridge.last_error or ", ".join(self.bridge.status_names())
+                self.fault(kind, f"{kind}: {new} new ({detail})")
+        self.reported = counts
+        if self.bridge.lost or self.bridge.safe:
+            self.health.level = DiagnosticStatus.ERROR
+            self.health.last_fault = self.bridge.last_error or "link down"
+
+    def on_voltage_command(self, msg):
+        if self.T_s is None:
+            return
+        k = sample_of(msg.header, self.T_s)
+        u = msg.vector
+        if k is None or not finite(u.x, u.y):
+            self.fault("bad_input", f"voltage_command {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: "
+                                    f"({u.x}, {u.y}) is not a sample's voltage; safe state")
+            self.bridge.safe_state("bad voltage_command")
+            return
+        self.bridge.command(k, u.x, u.y)
+
+    def on_rotor_estimate(self, msg):
+        if self.T_s is None:
+            return
+        k = sample_of(msg.header, self.T_s)
+        if k not in self.history or not finite(*msg.position, *msg.velocity):
+            return
+        theta_m, omega_m = self.history[k]
+        error = Vector3Stamped()
+        error.header.stamp = msg.header.stamp
+        error.vector.x = wrap(self.n_p * (theta_m - msg.position[0]))
+        error.vector.y = omega_m - msg.velocity[0]
+        self.angle_error_pub.publish(error)
+
+    def status_values(self):
+        b = self.bridge
+        return {"link": "lost" if b.lost else "up", "inverter_status": ",".join(b.status_names()) or "ok",
+                "last_sample": b.last_seq if b.last_seq is not None else -1,
+                **b.counters, **{f"frame_errors.{k}": v for k, v in b.frame_errors().items()}}
+
+    def destroy_node(self):
+        self.running = False
+        self.thread.join(timeout=1.0)
+        self.bridge.close()
+        return super().destroy_node()

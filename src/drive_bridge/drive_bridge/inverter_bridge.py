@@ -1,0 +1,207 @@
+"""The host side of the inverter link (no rclpy): telemetry in SI units with its sample counter,
+commands out, every dropped or odd frame counted, link loss and a silent graph answered with the safe
+state (docs/inverter-protocol.md, "The host"). The ROS node and the one-process loop both use it."""
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+from .inverter_link import LinkDown
+from .inverter_protocol import (CLEARED_BY_HOST, CONTROL_CLEAR_FAULTS, CONTROL_SEND_HELLO, ENABLE,
+                                ENCODER_VALID, OVERCURRENT, STATUS_NAMES, Command, Control, Hello, Telemetry)
+
+LINK_TIMEOUT_S = 0.05
+COMMAND_TIMEOUT_S = 0.05
+RECONNECT_S = 0.1
+
+
+@dataclass(frozen=True)
+class BridgeSample:
+    k: int
+    """Sample counter, unwrapped past 2³²."""
+    i_a: float
+    i_b: float
+    i_c: float
+    """Phase currents [A]."""
+    u_dc_V: float
+    theta_m: float
+    """Encoder angle, continuous [rad, mechanical]; NaN without a valid encoder."""
+    status: int
+
+
+class InverterBridge:
+    """One inverter behind ``link`` (SerialLink or CanLink). ``poll`` from one thread, ``command`` from
+    any; both never raise on link trouble, they count it."""
+
+    def __init__(self, link, link_timeout_s=LINK_TIMEOUT_S, command_timeout_s=COMMAND_TIMEOUT_S,
+                 reconnect_s=RECONNECT_S):
+        self.link = link
+        self.link_timeout_s, self.command_timeout_s = link_timeout_s, command_timeout_s
+        self.reconnect_s = reconnect_s
+        self.counters = dict.fromkeys(("samples", "dropped", "duplicated", "reordered", "link_lost", "bus_off",
+                                       "reconnects", "safe_state", "faults_cleared", "before_hello", "commands",
+                                       "command_errors", "inverter_faults"), 0)
+        self.hello = None
+        self.open = False
+        self.lost = True
+        self.last_error = ""
+        self.last_seq = None
+        self.k_offset = 0
+        self.theta_m = math.nan
+        self.status = 0
+        self.last_telemetry_at = None
+        self.last_command_at = None
+        self.safe = False
+        self.next_open_at = 0.0
+        self.send_lock = threading.Lock()
+
+    def frame_errors(self):
+        """CRC, framing, version and unknown-type counts of the link's decoder."""
+        return dict(self.link.errors)
+
+    def poll(self, timeout_s):
+        """Samples received within ``timeout_s`` (in order, duplicates and late ones dropped)."""
+        now = time.monotonic()
+        if not self.open:
+            if now < self.next_open_at:
+                time.sleep(min(timeout_s, self.next_open_at - now))
+                return []
+            self._open()
+            if not self.open:
+                return []
+        try:
+            messages = self.link.receive(timeout_s)
+        except LinkDown as error:
+            self._link_down(str(error))
+            return []
+        samples = []
+        for message in messages:
+            if isinstance(message, Hello):
+                self.hello = message
+            elif isinstance(message, Telemetry):
+                sample = self._telemetry(message)
+                if sample is not None:
+                    samples.append(sample)
+        self._check_timeouts()
+        return samples
+
+    def _open(self):
+        try:
+            self.link.open()
+        except LinkDown as error:
+            self.last_error = str(error)
+            self.next_open_at = time.monotonic() + self.reconnect_s
+            return
+        self.open = True
+        self.counters["reconnects"] += self.counters["link_lost"] > 0
+        self._send(Control(CONTROL_SEND_HELLO))
+
+    def _link_down(self, reason):
+        self.open = False
+        self.next_open_at = time.monotonic() + self.reconnect_s
+        self.last_error = reason
+        if "bus-off" in reason:
+            self.counters["bus_off"] += 1
+        if not self.lost:
+            self.lost = True
+            self.counters["link_lost"] += 1
+
+    def _telemetry(self, t):
+        if self.hello is None:
+            self.counters["before_hello"] += 1
+            if self.counters["before_hello"] % 100 == 1:
+                self._send(Control(CONTROL_SEND_HELLO))
+            return None
+        if self.last_seq is not None:
+            step = (t.seq - self.last_seq) % 2 ** 32
+            if step == 0:
+                self.counters["duplicated"] += 1
+                return None
+            if step >= 2 ** 31:
+                self.counters["reordered"] += 1
+                return None
+            self.counters["dropped"] += step - 1
+            if t.seq < self.last_seq:
+                self.k_offset += 2 ** 32
+        self.last_seq = t.seq
+        now = time.monotonic()
+        self.last_telemetry_at = now
+        if self.lost:
+            self.lost = False
+            self.last_command_at = None
+        new_faults = t.status & ~self.status & (OVERCURRENT | CLEARED_BY_HOST)
+        self.counters["inverter_faults"] += bin(new_faults).count("1")
+        self.status = t.status
+        if t.status & CLEARED_BY_HOST and not t.status & OVERCURRENT:
+            self.counters["faults_cleared"] += 1
+            self._send(Control(CONTROL_CLEAR_FAULTS))
+        self.counters["samples"] += 1
+        h = self.hello
+        theta = math.nan
+        if t.status & ENCODER_VALID:
+            turn = t.encoder / 65536.0 * 2.0 * math.pi
+            if math.isnan(self.theta_m):
+                theta = turn
+            else:
+                theta = self.theta_m + math.remainder(turn - self.theta_m, 2.0 * math.pi)
+        self.theta_m = theta
+        return BridgeSample(self.k_offset + t.seq, t.i_a * h.current_lsb_A, t.i_b * h.current_lsb_A,
+                            t.i_c * h.current_lsb_A, t.u_dc * h.voltage_lsb_V, theta, t.status)
+
+    def _check_timeouts(self):
+        now = time.monotonic()
+        silent = self.last_telemetry_at is not None and now - self.last_telemetry_at > self.link_timeout_s
+        if silent and not self.lost:
+            self.lost = True
+            self.counters["link_lost"] += 1
+            self.last_error = f"no telemetry for {self.link_timeout_s * 1e3:g} ms"
+        if (not self.lost and not self.safe and self.last_command_at is not None
+                and now - self.last_command_at > self.command_timeout_s):
+            self.safe_state(f"no voltage_command for {self.command_timeout_s * 1e3:g} ms")
+
+    def command(self, k, u_alpha_V, u_beta_V, enable=True):
+        """COMMAND(k) with the voltage rounded to the inverter's resolution (clipped to int16)."""
+        if self.hello is None:
+            self.counters["command_errors"] += 1
+            return
+        lsb = self.hello.voltage_lsb_V
+        message = Command(k % 2 ** 32, _int16(u_alpha_V / lsb), _int16(u_beta_V / lsb),
+                          ENABLE if enable else 0)
+        self.last_command_at = time.monotonic()
+        self.safe = not enable
+        if self._send(message):
+            self.counters["commands"] += 1
+
+    def safe_state(self, reason):
+        """PWM off: a COMMAND with ENABLE clear for the last sample."""
+        self.safe = True
+        self.counters["safe_state"] += 1
+        self.last_error = f"safe state: {reason}"
+        if self.hello is not None and self.last_seq is not None:
+            self._send(Command(self.last_seq, 0, 0, 0))
+
+    def _send(self, message):
+        if not self.open:
+            self.counters["command_errors"] += isinstance(message, Command)
+            return False
+        try:
+            with self.send_lock:
+                self.link.send(message)
+            return True
+        except LinkDown as error:
+            self.counters["command_errors"] += isinstance(message, Command)
+            self._link_down(str(error))
+            return False
+
+    def status_names(self):
+        return [name for bit, name in STATUS_NAMES.items() if self.status & bit]
+
+    def close(self):
+        self.link.close()
+        self.open = False
+
+
+def _int16(value):
+    if not math.isfinite(value):
+        return 0
+    return int(max(-32768, min(32767, round(value))))

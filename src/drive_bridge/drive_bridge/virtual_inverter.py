@@ -1,0 +1,210 @@
+"""A virtual inverter: the plant core (motor, inverter, current sensors, the scenario's load or
+dynamometer) behind the inverter protocol, on a pseudo-terminal or a CAN bus. It keeps an inverter's
+duties (docs/inverter-protocol.md): telemetry at each period start, the command of sample k applied
+during period k + 1, zero volts for a missing command, PWM off after ``watchdog_periods`` missing ones
+or 100 ms without the host, and an overcurrent trip. PWM off is modelled as zero volts.
+
+Clock: ``rate_Hz`` paces the periods in wall time (a real inverter's clock; a late command is missing,
+100 ms of host silence trips); without it the inverter waits up to ``command_wait_s`` for each command
+(lock-step over the link, for simulations faster or slower than real time; a missing command is one
+that did not come within that wait, and host silence is left to the watchdog)."""
+import math
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
+
+from .inverter_protocol import (COMMAND_MISSING, CONTROL_CLEAR_FAULTS, CONTROL_DISABLE, CONTROL_SEND_HELLO,
+                                ENABLE, ENCODER_VALID, HEARTBEAT_LOST, HELLO_ENCODER_PRESENT,
+                                OVERCURRENT, PWM_OFF, WATCHDOG, Command, Control, Heartbeat, Hello,
+                                Telemetry, encode_frame)
+from .runner import build_drive
+
+HOST_SILENCE_S = 0.1
+"""Nothing from the host for this long: PWM off, HEARTBEAT_LOST latched (the protocol's 100 ms)."""
+
+
+@dataclass
+class FaultPlan:
+    """Link faults the virtual inverter injects into its telemetry, every Nth frame (0: never)."""
+
+    corrupt_every: int = 0
+    """Flip one byte of the frame."""
+    drop_every: int = 0
+    duplicate_every: int = 0
+    reorder_every: int = 0
+    """Hold the frame back and send it after the next one."""
+    garbage_every: int = 0
+    """Insert random bytes before the frame (resynchronisation)."""
+    seed: int = 1
+    counts: dict = field(default_factory=dict)
+
+
+def _clip16(value):
+    return int(max(-32768, min(32767, round(value))))
+
+
+class VirtualInverter:
+    """The plant of ``scenario`` behind the protocol on ``endpoint`` (PtyEndpoint or an opened
+    CanLink); ``run`` in a thread, ``stop`` to end. ``truth`` holds θ_m, ω_m, τ_e, τ_load and the true
+    currents per sample for scoring."""
+
+    def __init__(self, scenario, endpoint, rate_Hz=None, command_wait_s=0.5, watchdog_periods=10,
+                 trip_current_A=None, drive_id=0, faults=None, encoder=True):
+        self.drive = build_drive(scenario)
+        self.scenario = scenario
+        self.endpoint = endpoint
+        self.rate_Hz, self.command_wait_s = rate_Hz, command_wait_s
+        self.watchdog_periods = watchdog_periods
+        self.trip_current_A = trip_current_A or 3.0 * self.drive.preset.current_limit_A
+        self.encoder = encoder
+        self.faults = faults or FaultPlan()
+        self.random = np.random.default_rng(self.faults.seed)
+        self.current_lsb = float(np.float32(2.0 * self.trip_current_A / 32767.0))
+        self.voltage_lsb = float(np.float32(2.0 * self.drive.inverter.U_dc_V / 32767.0))
+        self.hello = Hello(drive_id, HELLO_ENCODER_PRESENT if encoder else 0, self.drive.machine.n_p,
+                           round(scenario.T_s * 1e9), self.current_lsb, self.voltage_lsb,
+                           float(np.float32(self.trip_current_A)), watchdog_periods)
+        self.k = 0
+        self.enabled = False
+        self.latched = 0
+        self.missing = 0
+        self.last_heard = time.monotonic()
+        self.held_back = None
+        self.sent_frames = 0
+        self.stopped = threading.Event()
+        self.counters = {"commands": 0, "missing": 0, "discarded": 0, "trips": 0, "watchdog_trips": 0,
+                         "host_silent_trips": 0}
+        self.latencies_s = []
+        self.truth = np.full((scenario.n_samples, 7), np.nan)
+
+    def stop(self):
+        self.stopped.set()
+
+    def run(self):
+        d, s = self.drive, self.scenario
+        self.endpoint.send(self.hello)
+        start = self.last_heard = time.monotonic()
+        hello_at = start + 1.0
+        while not self.stopped.is_set() and self.k < s.n_samples:
+            k = self.k
+            i_a, i_b, i_c, tau_e = plant_outputs(d.plant_x, d.machine)
+            m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, d.sensor, s.seed, k)
+            if max(abs(m_a), abs(m_b), abs(m_c)) > self.trip_current_A and not self.latched & OVERCURRENT:
+                self.latched |= OVERCURRENT
+                self.counters["trips"] += 1
+            if (self.rate_Hz and time.monotonic() - self.last_heard > HOST_SILENCE_S
+                    and not self.latched & HEARTBEAT_LOST):
+                self.latched |= HEARTBEAT_LOST
+                self.counters["host_silent_trips"] += 1
+            status = self.latched | (0 if self.switching() else PWM_OFF)
+            status |= COMMAND_MISSING if self.missing else 0
+            theta_m = d.plant_x[THETA_M]
+            encoder = round((theta_m % (2.0 * math.pi)) / (2.0 * math.pi) * 65536.0) % 65536
+            status |= ENCODER_VALID if self.encoder else 0
+            lsb = self.current_lsb
+            telemetry = Telemetry(k % 2 ** 32, _clip16(m_a / lsb), _clip16(m_b / lsb), _clip16(m_c / lsb),
+                                  min(65535, round(d.inverter.U_dc_V / self.voltage_lsb)),
+                                  encoder if self.encoder else 0, status)
+            self.truth[k] = (theta_m, d.plant_x[OMEGA_M], tau_e, d.tau_load[k], i_a, i_b, i_c)
+            sent_at = time.monotonic()
+            self.transmit(telemetry)
+            if time.monotonic() >= hello_at:
+                self.endpoint.send(self.hello)
+                hello_at += 1.0
+            deadline = (start + (k + 1) / self.rate_Hz) if self.rate_Hz else sent_at + self.command_wait_s
+            command = self.await_command(k, deadline, sent_at)
+            if command is None:
+                self.missing += 1
+                self.counters["missing"] += 1
+                if self.missing >= self.watchdog_periods and not self.latched & WATCHDOG:
+                    self.latched |= WATCHDOG
+                    self.counters["watchdog_trips"] += 1
+                u_alpha = u_beta = 0.0
+            else:
+                self.missing = 0
+                self.enabled = bool(command.flags & ENABLE)
+                u_alpha, u_beta = command.u_alpha * self.voltage_lsb, command.u_beta * self.voltage_lsb
+            if not self.switching():
+                u_alpha = u_beta = 0.0
+            plant_advance(d.plant_x, u_alpha, u_beta, d.tau_load[k], s.mode == "imposed_speed",
+                          d.speed_ref[k], d.machine, d.preset.mechanics, d.inverter, s.T_s, s.substeps)
+            self.k += 1
+            if self.rate_Hz:
+                wait = start + (k + 1) / self.rate_Hz - time.monotonic()
+                if wait > 0.0:
+                    time.sleep(wait)
+
+    def switching(self):
+        return self.enabled and not self.latched
+
+    def await_command(self, k, deadline, sent_at):
+        """The command for sample k, handling whatever else arrives, until ``deadline`` (monotonic)."""
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0.0 or self.stopped.is_set():
+                return None
+            for message in self.endpoint.receive(min(remaining, 0.05)):
+                self.last_heard = time.monotonic()
+                if isinstance(message, Command):
+                    if message.seq == k % 2 ** 32:
+                        self.counters["commands"] += 1
+                        self.latencies_s.append(time.monotonic() - sent_at)
+                        return message
+                    self.counters["discarded"] += 1
+                elif isinstance(message, Control):
+                    if message.action == CONTROL_CLEAR_FAULTS:
+                        self.latched = 0
+                        self.missing = 0
+                    elif message.action == CONTROL_DISABLE:
+                        self.enabled = False
+                    elif message.action == CONTROL_SEND_HELLO:
+                        self.endpoint.send(self.hello)
+                elif isinstance(message, Heartbeat):
+                    pass
+
+    def transmit(self, telemetry):
+        """Send a telemetry frame through the fault plan."""
+        f = self.faults
+        self.sent_frames += 1
+        n = self.sent_frames
+
+        def due(every):
+            return every and n % every == 0
+
+        def count(kind):
+            f.counts[kind] = f.counts.get(kind, 0) + 1
+
+        if not hasattr(self.endpoint, "send_bytes"):
+            if due(f.drop_every):
+                count("dropped")
+                return
+            self.endpoint.send(telemetry)
+            if due(f.duplicate_every):
+                count("duplicated")
+                self.endpoint.send(telemetry)
+            return
+        frame = bytearray(encode_frame(telemetry))
+        if due(f.drop_every):
+            count("dropped")
+            return
+        if due(f.corrupt_every):
+            count("corrupted")
+            frame[int(self.random.integers(0, len(frame) - 1))] ^= 0x5A
+        if due(f.garbage_every):
+            count("garbage")
+            self.endpoint.send_bytes(bytes(self.random.integers(1, 256, 7, dtype=np.uint8)) + b"\x00")
+        if due(f.reorder_every) and self.held_back is None:
+            count("reordered")
+            self.held_back = bytes(frame)
+            return
+        self.endpoint.send_bytes(bytes(frame))
+        if self.held_back is not None:
+            self.endpoint.send_bytes(self.held_back)
+            self.held_back = None
+        if due(f.duplicate_every):
+            count("duplicated")
+            self.endpoint.send_bytes(bytes(frame))
