@@ -156,10 +156,62 @@ def hop_latency(round_trips=20000):
         context.try_shutdown()
 
 
+def link_echo_us(link, rounds=2000):
+    """Median round trip [µs] of a bare 22-byte echo over the link kind (a pty between two threads, or
+    python-can's virtual bus): the floor under one closed-loop sample, without any protocol work."""
+    import os
+    import select
+    import threading
+    import tty
+
+    times = np.zeros(rounds)
+    if link == "pty":
+        master, slave = os.openpty()
+        tty.setraw(master)
+        tty.setraw(slave)
+
+        def echo():
+            for _ in range(rounds):
+                select.select([master], [], [])
+                os.write(master, os.read(master, 64))
+        thread = threading.Thread(target=echo, daemon=True)
+        thread.start()
+        for i in range(rounds):
+            start = time.perf_counter()
+            os.write(slave, bytes(22))
+            select.select([slave], [], [])
+            os.read(slave, 64)
+            times[i] = time.perf_counter() - start
+        thread.join()
+        os.close(master)
+        os.close(slave)
+    else:
+        import can
+        channel = f"echo_{os.getpid()}"
+        near, far = (can.Bus(interface="virtual", channel=channel) for _ in range(2))
+
+        def echo():
+            for _ in range(rounds):
+                far.send(far.recv())
+        thread = threading.Thread(target=echo, daemon=True)
+        thread.start()
+        frame = can.Message(arbitration_id=0x109, data=bytes(8), is_extended_id=False)
+        for i in range(rounds):
+            start = time.perf_counter()
+            near.send(frame)
+            near.recv()
+            times[i] = time.perf_counter() - start
+        thread.join()
+        near.shutdown()
+        far.shutdown()
+    return float(np.median(times) * 1e6)
+
+
 def bridge_rates(scenario_ref, links, duration_s, repeats=2):
     """`drive bench bridge`: the sensorless loop through the bridge and the virtual inverter (paced by
     the host's answers) per link; best of ``repeats`` after a warm-up. Latency: the inverter's time from
-    sending TELEMETRY(k) to receiving COMMAND(k)."""
+    sending TELEMETRY(k) to receiving COMMAND(k); host: the host's part of it (telemetry decoded,
+    estimator and controller run, command encoded and written)."""
     from .bridge_loop import run_through_bridge
     from .scenario import load_scenario
 
@@ -172,10 +224,12 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=2):
             result = run_through_bridge(scenario, link)
             if best is None or result.wall_time_s < best.wall_time_s:
                 best = result
-        latencies = best.latencies_s * 1e6
+        latencies, host = best.latencies_s * 1e6, best.host_s * 1e6
         rows.append({"link": link, "samples_per_s": best.log.shape[0] / best.wall_time_s,
                      "latency_p50_us": float(np.percentile(latencies, 50)),
                      "latency_p99_us": float(np.percentile(latencies, 99)),
+                     "host_p50_us": float(np.percentile(host, 50)), "host_p99_us": float(np.percentile(host, 99)),
+                     "link_echo_us": link_echo_us(link),
                      "missing_commands": int(best.inverter_counters["missing"])})
     return {"scenario": scenario.name, "samples": scenario.n_samples, "repeats": repeats,
             "sampling_rate_Hz": 1.0 / scenario.T_s, "links": rows}

@@ -31,6 +31,8 @@ class BridgeRunResult(RunResult):
     """Inverter-side time from sending TELEMETRY(k) to receiving COMMAND(k), per answered sample."""
     received: np.ndarray = None
     """Per sample: True when the host received its telemetry."""
+    host_s: np.ndarray = None
+    """Per answered sample: the host's time from the telemetry's arrival to its command written."""
 
 
 def make_links(link, workdir, drive_id=0, channel=None):
@@ -70,6 +72,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     cx, cz, cp = host.controller_x, host.controller_z, host.controller
     log = np.zeros((n, len(LOG_COLUMNS)))
     received = np.zeros(n, dtype=bool)
+    host_s = np.zeros(n)
     bridge.poll(0.0)
     thread = threading.Thread(target=inverter.run, name="virtual_inverter", daemon=True)
     start = time.perf_counter()
@@ -77,6 +80,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     last_report = 0
     while thread.is_alive() or bridge.open:
         samples = bridge.poll(0.05)
+        arrived = time.perf_counter()
         if not samples and not thread.is_alive():
             break
         for s in samples:
@@ -89,6 +93,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
             u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
                 cx, cz, cp, s.i_a, s.i_b, s.i_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b)
             bridge.command(k, u_a, u_b)
+            host_s[k] = time.perf_counter() - arrived
             received[k] = True
             row = log[k]
             row[COLUMN["i_a_meas"]], row[COLUMN["i_b_meas"]], row[COLUMN["i_c_meas"]] = s.i_a, s.i_b, s.i_c
@@ -119,4 +124,5 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     return BridgeRunResult(scenario, host.preset, e.name, log, wall, cp.i_max_A, link=link,
                            counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
                            inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
-                           latencies_s=np.asarray(inverter.latencies_s), received=received[:done])
+                           latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
+                           host_s=host_s[:done][received[:done]])

@@ -128,10 +128,12 @@ def cmd_bench_bridge(args):
         return 0
     print(f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter paced by the "
           f"host's answers; best of {report['repeats']})")
-    print(f"  {'link':6s} {'samples/s':>10s} {'latency p50':>12s} {'p99':>9s} {'missing':>8s}")
+    print(f"  {'link':6s} {'samples/s':>10s} {'latency p50':>12s} {'p99':>9s} {'host p50':>9s} {'p99':>9s} "
+          f"{'bare echo':>10s} {'missing':>8s}")
     for row in report["links"]:
         print(f"  {row['link']:6s} {row['samples_per_s']:10.0f} {row['latency_p50_us']:9.0f} µs "
-              f"{row['latency_p99_us']:6.0f} µs {row['missing_commands']:8d}")
+              f"{row['latency_p99_us']:6.0f} µs {row['host_p50_us']:6.0f} µs {row['host_p99_us']:6.0f} µs "
+              f"{row['link_echo_us']:7.0f} µs {row['missing_commands']:8d}")
     return 0
 
 
