@@ -12,7 +12,7 @@ from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.inverter_protocol import OVERCURRENT, PWM_OFF, WATCHDOG
 from drive_bridge.metrics import angle_error, compute_metrics
 from drive_bridge.runner import run_scenario
-from drive_bridge.scenario import load_scenario
+from drive_bridge.scenario import Table, load_scenario
 from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter
 
 SCENARIO = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.6)
@@ -148,9 +148,12 @@ def test_a_silent_graph_gets_the_safe_state(tmp_path):
 
 
 def test_overcurrent_trips_and_stays_latched(tmp_path):
-    """A trip current below the start-up current: the inverter latches OVERCURRENT and switches PWM
-    off; the bridge counts it and does not clear it."""
-    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, SCENARIO, trip_current_A=0.05)
+    """A trip current below the current 2 V drives: the inverter latches OVERCURRENT and switches PWM
+    off; the bridge counts it and does not clear it by itself, only on the operator's clear_faults.
+    The shaft is held (imposed zero speed): PWM off is modelled as zero volts, which on a turning rotor
+    would brake it with short-circuit current."""
+    held = dataclasses.replace(SCENARIO, mode="imposed_speed", speed=Table((0.0,), (0.0,), "step"))
+    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, held, trip_current_A=0.3, rate_Hz=1000.0)
     try:
         statuses = []
         while inverter.k < 400 and thread.is_alive():
@@ -158,8 +161,11 @@ def test_overcurrent_trips_and_stays_latched(tmp_path):
                 statuses.append(s.status)
                 bridge.command(s.k, 2.0, 0.0)
         assert inverter.counters["trips"] == 1 and bridge.counters["inverter_faults"] >= 1
-        assert statuses[-1] & OVERCURRENT and statuses[-1] & PWM_OFF
-        assert bridge.counters["faults_cleared"] == 0
+        tripped = [status & OVERCURRENT != 0 for status in statuses]
+        assert all(tripped[tripped.index(True):]) and statuses[-1] & PWM_OFF
+        assert bridge.clear_faults()
+        after = [s.status for _ in range(20) for s in bridge.poll(0.02)]
+        assert after and not after[-1] & OVERCURRENT
     finally:
         inverter.stop()
         thread.join(2.0)

@@ -337,3 +337,49 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes):
     values = result.diagnostics["/drive/drive_bridge"]["values"]
     assert int(values["commands"]) > 0 and values["link"] == "up"
     assert values["dropped"] == values["safe_state"] == values["faults_cleared"] == "0"
+
+
+def test_the_bridge_node_reports_link_faults_on_diagnostics(tmp_path):
+    """A virtual inverter on its own 2 kHz clock behind a faulty pty, nobody commanding: the
+    drive_bridge node publishes currents, and /diagnostics shows an ERROR with the corrupt and dropped
+    frames counted and the inverter's watchdog (left latched: nobody asked to drive); when the inverter
+    stops, the link is reported lost."""
+    from drive_bridge.bridge_loop import make_links
+    from drive_bridge.graph import make_node
+    from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter
+
+    endpoint, host_link = make_links("pty", tmp_path)
+    inverter = VirtualInverter(load_scenario(scenario_file(tmp_path)), endpoint, rate_Hz=2000.0,
+                               faults=FaultPlan(corrupt_every=20, drop_every=30))
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    statuses, currents = [], []
+    try:
+        node = make_node("drive_bridge", context, "/drive", {"diagnostics_period_s": 0.05}, link=host_link)
+        listener = rclpy.node.Node("listener", context=context, namespace="/drive")
+        listener.create_subscription(DiagnosticArray, "/diagnostics",
+                                     lambda m: statuses.extend(s for s in m.status if s.name.endswith("bridge")), 10)
+        listener.create_subscription(Vector3Stamped, "currents", currents.append, PER_SAMPLE_QOS)
+        executor = EventsExecutor(context=context)
+        executor.add_node(node)
+        executor.add_node(listener)
+        thread = __import__("threading").Thread(target=inverter.run, daemon=True)
+        thread.start()
+        deadline = time.monotonic() + 10.0
+        while thread.is_alive() and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end:
+            executor.spin_once(timeout_sec=0.05)
+        values = {v.key: v.value for v in statuses[-1].values}
+        assert len(currents) > 300
+        assert any(int.from_bytes(s.level, "little") == 2 for s in statuses)
+        assert int(values["frame_errors.crc"]) + int(values.get("frame_errors.framing", 0)) > 0
+        assert int(values["dropped"]) > 0 and "watchdog" in values["inverter_status"]
+        assert values["faults_cleared"] == "0"
+        assert values["link"] == "lost" and "no telemetry" in statuses[-1].message
+    finally:
+        inverter.stop()
+        node.destroy_node()
+        context.try_shutdown()
+        endpoint.close()

@@ -2,7 +2,8 @@
 
 It publishes what `pmsm_plant` publishes — `currents` stamped k·T_s from the inverter's sample
 counter, `rotor_state` and `angle_error` when the encoder is valid, `/clock`, `drive_config`,
-`/diagnostics` — and answers `voltage_command`(k) with COMMAND(k). Frames are read on a thread of their
+`/diagnostics` — and answers `voltage_command`(k) with COMMAND(k). The service `clear_faults`
+(std_srvs/Trigger) clears the inverter's latched faults, an overcurrent included. Frames are read on a thread of their
 own, so the graph never waits on the link; the inverter's clock paces everything. Link faults are
 counted and reported, never raised (docs/inverter-protocol.md, "The host")."""
 import math
@@ -13,6 +14,7 @@ from geometry_msgs.msg import Vector3Stamped
 from rcl_interfaces.msg import ParameterDescriptor
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
 from pmsm_plant.contract import COMMAND_QOS, PER_SAMPLE_QOS, ContractNode, finite, sample_of, stamp
 from pmsm_plant.frames import wrap
@@ -55,6 +57,7 @@ class InverterBridgeNode(ContractNode):
         self.create_subscription(Vector3Stamped, "voltage_command", self.timed(self.on_voltage_command),
                                  PER_SAMPLE_QOS)
         self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate, PER_SAMPLE_QOS)
+        self.create_service(Trigger, "clear_faults", self.on_clear_faults)
         self.T_s = None
         self.n_p = None
         self.history = {}
@@ -129,6 +132,12 @@ class InverterBridgeNode(ContractNode):
             self.bridge.safe_state("bad voltage_command")
             return
         self.bridge.command(k, u.x, u.y)
+
+    def on_clear_faults(self, request, response):
+        """The operator's reset (service `clear_faults`): CONTROL 2, the only way an overcurrent clears."""
+        response.success = self.bridge.clear_faults()
+        response.message = "sent" if response.success else f"not sent: {self.bridge.last_error or 'link down'}"
+        return response
 
     def on_rotor_estimate(self, msg):
         if self.T_s is None:

@@ -52,6 +52,7 @@ class InverterBridge:
         self.last_telemetry_at = None
         self.last_command_at = None
         self.safe = False
+        self.clear_sent = False
         self.next_open_at = 0.0
         self.send_lock = threading.Lock()
 
@@ -132,9 +133,8 @@ class InverterBridge:
         new_faults = t.status & ~self.status & (OVERCURRENT | CLEARED_BY_HOST)
         self.counters["inverter_faults"] += bin(new_faults).count("1")
         self.status = t.status
-        if t.status & CLEARED_BY_HOST and not t.status & OVERCURRENT:
-            self.counters["faults_cleared"] += 1
-            self._send(Control(CONTROL_CLEAR_FAULTS))
+        if not t.status & CLEARED_BY_HOST:
+            self.clear_sent = False
         self.counters["samples"] += 1
         h = self.hello
         theta = math.nan
@@ -160,17 +160,27 @@ class InverterBridge:
             self.safe_state(f"no voltage_command for {self.command_timeout_s * 1e3:g} ms")
 
     def command(self, k, u_alpha_V, u_beta_V, enable=True):
-        """COMMAND(k) with the voltage rounded to the inverter's resolution (clipped to int16)."""
+        """COMMAND(k) with the voltage rounded to the inverter's resolution (clipped to int16). An enabling
+        command first clears the latches a link loss causes (watchdog, host silence), once, never an
+        overcurrent."""
         if self.hello is None:
             self.counters["command_errors"] += 1
             return
         lsb = self.hello.voltage_lsb_V
         message = Command(k % 2 ** 32, _int16(u_alpha_V / lsb), _int16(u_beta_V / lsb),
                           ENABLE if enable else 0)
+        if enable and self.status & CLEARED_BY_HOST and not self.status & OVERCURRENT and not self.clear_sent:
+            self.clear_sent = True
+            self.counters["faults_cleared"] += 1
+            self._send(Control(CONTROL_CLEAR_FAULTS))
         self.last_command_at = time.monotonic()
         self.safe = not enable
         if self._send(message):
             self.counters["commands"] += 1
+
+    def clear_faults(self):
+        """CONTROL 2 (every latched fault, an overcurrent included: the operator's reset)."""
+        return self._send(Control(CONTROL_CLEAR_FAULTS))
 
     def safe_state(self, reason):
         """PWM off: a COMMAND with ENABLE clear for the last sample."""

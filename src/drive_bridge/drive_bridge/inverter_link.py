@@ -196,10 +196,7 @@ class CanLink:
         messages = []
         try:
             while not messages:
-                remaining = deadline - time.monotonic()
-                if remaining <= 0.0:
-                    break
-                frame = self.bus.recv(remaining)
+                frame = self.bus.recv(max(0.0, deadline - time.monotonic()))
                 if frame is None:
                     break
                 base = self.decoder.base

@@ -10,6 +10,7 @@ Clock: ``rate_Hz`` paces the periods in wall time (a real inverter's clock; a la
 that did not come within that wait, and host silence is left to the watchdog)."""
 import math
 import threading
+from collections import deque
 import time
 from dataclasses import dataclass, field
 
@@ -19,7 +20,7 @@ from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sen
 
 from .inverter_protocol import (COMMAND_MISSING, CONTROL_CLEAR_FAULTS, CONTROL_DISABLE, CONTROL_SEND_HELLO,
                                 ENABLE, ENCODER_VALID, HEARTBEAT_LOST, HELLO_ENCODER_PRESENT,
-                                OVERCURRENT, PWM_OFF, WATCHDOG, Command, Control, Heartbeat, Hello,
+                                OVERCURRENT, PWM_OFF, WATCHDOG, Command, Control, Hello,
                                 Telemetry, encode_frame)
 from .runner import build_drive
 
@@ -74,6 +75,7 @@ class VirtualInverter:
         self.missing = 0
         self.last_heard = time.monotonic()
         self.held_back = None
+        self.inbox = deque()
         self.sent_frames = 0
         self.stopped = threading.Event()
         self.counters = {"commands": 0, "missing": 0, "discarded": 0, "trips": 0, "watchdog_trips": 0,
@@ -142,12 +144,15 @@ class VirtualInverter:
         return self.enabled and not self.latched
 
     def await_command(self, k, deadline, sent_at):
-        """The command for sample k, handling whatever else arrives, until ``deadline`` (monotonic)."""
+        """The command for sample k, handling whatever else arrives, until ``deadline`` (monotonic);
+        what has arrived is read even when the deadline has passed, and what arrived after the command
+        waits in the inbox for the next period."""
         while True:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0.0 or self.stopped.is_set():
-                return None
-            for message in self.endpoint.receive(min(remaining, 0.05)):
+            remaining = max(0.0, deadline - time.monotonic())
+            if not self.inbox:
+                self.inbox.extend(self.endpoint.receive(min(remaining, 0.05)))
+            while self.inbox:
+                message = self.inbox.popleft()
                 self.last_heard = time.monotonic()
                 if isinstance(message, Command):
                     if message.seq == k % 2 ** 32:
@@ -163,8 +168,8 @@ class VirtualInverter:
                         self.enabled = False
                     elif message.action == CONTROL_SEND_HELLO:
                         self.endpoint.send(self.hello)
-                elif isinstance(message, Heartbeat):
-                    pass
+            if remaining <= 0.0 or self.stopped.is_set():
+                return None
 
     def transmit(self, telemetry):
         """Send a telemetry frame through the fault plan."""
