@@ -207,7 +207,7 @@ def link_echo_us(link, rounds=2000):
     return float(np.median(times) * 1e6)
 
 
-def bridge_rates(scenario_ref, links, duration_s, repeats=2):
+def bridge_rates(scenario_ref, links, duration_s, repeats=3):
     """`drive bench bridge`: the sensorless loop through the bridge and the virtual inverter (paced by
     the host's answers) per link; best of ``repeats`` after a warm-up. Latency: the inverter's time from
     sending TELEMETRY(k) to receiving COMMAND(k); host: the host's part of it (telemetry decoded,

@@ -122,7 +122,7 @@ def cmd_bench_bridge(args):
     for link in links:
         if link not in ("pty", "can"):
             raise ScenarioError(f"--links: 'pty' and/or 'can', not {link!r}")
-    report = bridge_rates(args.scenario, links, args.duration)
+    report = bridge_rates(args.scenario, links, args.duration, args.repeats)
     if args.json:
         _print_json(report)
         return 0
@@ -609,6 +609,7 @@ def build_parser():
     bench_bridge.add_argument("--scenario", default="wang_100rpm")
     bench_bridge.add_argument("--duration", type=float, default=1.0, help="simulated seconds per run")
     bench_bridge.add_argument("--links", default="pty,can", help="comma-separated: pty, can")
+    bench_bridge.add_argument("--repeats", type=int, default=3, help="timed runs per link (best kept)")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
 

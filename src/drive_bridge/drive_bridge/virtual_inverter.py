@@ -176,6 +176,9 @@ class VirtualInverter:
         f = self.faults
         self.sent_frames += 1
         n = self.sent_frames
+        if not (f.corrupt_every or f.drop_every or f.duplicate_every or f.reorder_every or f.garbage_every):
+            self.endpoint.send(telemetry)
+            return
 
         def due(every):
             return every and n % every == 0
