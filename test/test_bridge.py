@@ -171,3 +171,19 @@ def test_overcurrent_trips_and_stays_latched(tmp_path):
         thread.join(2.0)
         bridge.close()
         endpoint.close()
+
+
+def test_a_can_inverter_off_the_bus_and_back():
+    """At sample 2000 the inverter's CAN interface goes down for 0.3 s (its frames are lost); the bridge
+    reports the link lost, and when telemetry returns it clears the watchdog and drives on."""
+    def off_the_bus(inverter, endpoint, k):
+        if k == 2000:
+            endpoint.close()
+            threading.Timer(0.3, endpoint.open).start()
+
+    scenario = dataclasses.replace(SCENARIO, duration_s=1.0)
+    result = run_through_bridge(scenario, "can", command_wait_s=0.02, inverter_hook=off_the_bus)
+    assert result.counters["link_lost"] == 1 and result.counters["faults_cleared"] >= 1
+    assert result.inverter_counters["link_down"] > 0 and result.inverter_counters["watchdog_trips"] == 1
+    assert result.received[-1000:].all()
+    assert np.abs(angle_error(result.log, result.preset.machine.n_p)[4000:]).max() < 0.2

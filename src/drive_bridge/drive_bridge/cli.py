@@ -17,14 +17,20 @@ def _print_json(data):
     print(json.dumps(data, indent=2, ensure_ascii=False))
 
 
-def cmd_run(args):
-    from .runner import run_scenario, terminal_progress
-
+def _scenario_arg(args):
+    """The scenario named on the command line, with --estimator and --duration applied."""
     scenario = load_scenario(args.scenario, estimator_override=args.estimator)
     if args.duration is not None:
         if args.duration <= 0.0:
             raise ScenarioError(f"--duration: must be positive, not {args.duration}")
         scenario = dataclasses.replace(scenario, duration_s=args.duration)
+    return scenario
+
+
+def cmd_run(args):
+    from .runner import run_scenario, terminal_progress
+
+    scenario = _scenario_arg(args)
     if args.record and Path(args.record).exists():
         raise ScenarioError(f"--record: {args.record} already exists; choose a new bag name")
     result = run_scenario(scenario, progress=terminal_progress(f"{scenario.name}/{scenario.estimator}"))
@@ -53,8 +59,9 @@ def _report(result, args, extra=None):
     print(f"scenario {metrics['scenario']} ({metrics['motor']}), estimator {metrics['estimator']}, "
           f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
     for key, value in (extra or {}).items():
-        if not isinstance(value, dict):
-            print(f"  {key:36s} {value}")
+        if isinstance(value, dict):
+            value = ", ".join(f"{k} {v}" for k, v in value.items() if v) or "none"
+        print(f"  {key:36s} {value}")
     rows = [("angle error RMS (steady)", "angle_error_rms", "rad"),
             ("angle error bias (steady)", "angle_error_bias", "rad"),
             ("angle error peak (all after start)", "angle_error_peak", "rad"),
@@ -101,11 +108,7 @@ def cmd_bridge(args):
     from .bridge_loop import run_through_bridge
     from .runner import terminal_progress
 
-    scenario = load_scenario(args.scenario, estimator_override=args.estimator)
-    if args.duration is not None:
-        if args.duration <= 0.0:
-            raise ScenarioError(f"--duration: must be positive, not {args.duration}")
-        scenario = dataclasses.replace(scenario, duration_s=args.duration)
+    scenario = _scenario_arg(args)
     result = run_through_bridge(scenario, args.link, progress=terminal_progress(
         f"{scenario.name}/{scenario.estimator} through the bridge ({args.link})"))
     extra = {"link": f"virtual inverter over {args.link}, bridge core, estimator and controller cores",

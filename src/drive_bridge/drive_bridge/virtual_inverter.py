@@ -22,6 +22,7 @@ from .inverter_protocol import (COMMAND_MISSING, CONTROL_CLEAR_FAULTS, CONTROL_D
                                 ENABLE, ENCODER_VALID, HEARTBEAT_LOST, HELLO_ENCODER_PRESENT,
                                 OVERCURRENT, PWM_OFF, WATCHDOG, Command, Control, Hello,
                                 Telemetry, encode_frame)
+from .inverter_link import LinkDown
 from .runner import build_drive
 
 HOST_SILENCE_S = 0.1
@@ -79,7 +80,7 @@ class VirtualInverter:
         self.sent_frames = 0
         self.stopped = threading.Event()
         self.counters = {"commands": 0, "missing": 0, "discarded": 0, "trips": 0, "watchdog_trips": 0,
-                         "host_silent_trips": 0}
+                         "host_silent_trips": 0, "link_down": 0}
         self.latencies_s = []
         self.truth = np.full((scenario.n_samples, 7), np.nan)
 
@@ -88,7 +89,7 @@ class VirtualInverter:
 
     def run(self):
         d, s = self.drive, self.scenario
-        self.endpoint.send(self.hello)
+        self.send(self.hello)
         start = self.last_heard = time.monotonic()
         hello_at = start + 1.0
         while not self.stopped.is_set() and self.k < s.n_samples:
@@ -115,7 +116,7 @@ class VirtualInverter:
             sent_at = time.monotonic()
             self.transmit(telemetry)
             if time.monotonic() >= hello_at:
-                self.endpoint.send(self.hello)
+                self.send(self.hello)
                 hello_at += 1.0
             deadline = (start + (k + 1) / self.rate_Hz) if self.rate_Hz else sent_at + self.command_wait_s
             command = self.await_command(k, deadline, sent_at)
@@ -150,7 +151,7 @@ class VirtualInverter:
         while True:
             remaining = max(0.0, deadline - time.monotonic())
             if not self.inbox:
-                self.inbox.extend(self.endpoint.receive(min(remaining, 0.05)))
+                self.inbox.extend(self.receive(min(remaining, 0.05)))
             while self.inbox:
                 message = self.inbox.popleft()
                 self.last_heard = time.monotonic()
@@ -167,9 +168,23 @@ class VirtualInverter:
                     elif message.action == CONTROL_DISABLE:
                         self.enabled = False
                     elif message.action == CONTROL_SEND_HELLO:
-                        self.endpoint.send(self.hello)
+                        self.send(self.hello)
             if remaining <= 0.0 or self.stopped.is_set():
                 return None
+
+    def send(self, message):
+        """Send, or lose the frame while the link is down (an unplugged cable, a bus being reopened)."""
+        try:
+            self.endpoint.send(message)
+        except LinkDown:
+            self.counters["link_down"] += 1
+
+    def receive(self, timeout_s):
+        try:
+            return self.endpoint.receive(timeout_s)
+        except LinkDown:
+            time.sleep(timeout_s)
+            return []
 
     def transmit(self, telemetry):
         """Send a telemetry frame through the fault plan."""
@@ -177,7 +192,7 @@ class VirtualInverter:
         self.sent_frames += 1
         n = self.sent_frames
         if not (f.corrupt_every or f.drop_every or f.duplicate_every or f.reorder_every or f.garbage_every):
-            self.endpoint.send(telemetry)
+            self.send(telemetry)
             return
 
         def due(every):
@@ -190,10 +205,10 @@ class VirtualInverter:
             if due(f.drop_every):
                 count("dropped")
                 return
-            self.endpoint.send(telemetry)
+            self.send(telemetry)
             if due(f.duplicate_every):
                 count("duplicated")
-                self.endpoint.send(telemetry)
+                self.send(telemetry)
             return
         frame = bytearray(encode_frame(telemetry))
         if due(f.drop_every):
