@@ -357,8 +357,9 @@ def test_the_bridge_node_reports_link_faults_on_diagnostics(tmp_path):
     try:
         node = make_node("drive_bridge", context, "/drive", {"diagnostics_period_s": 0.05}, link=host_link)
         listener = rclpy.node.Node("listener", context=context, namespace="/drive")
-        listener.create_subscription(DiagnosticArray, "/diagnostics",
-                                     lambda m: statuses.extend(s for s in m.status if s.name.endswith("bridge")), 10)
+        listener.create_subscription(
+            DiagnosticArray, "/diagnostics",
+            lambda m: statuses.extend(s for s in m.status if s.name.endswith("bridge")), 10)
         listener.create_subscription(Vector3Stamped, "currents", currents.append, PER_SAMPLE_QOS)
         executor = EventsExecutor(context=context)
         executor.add_node(node)

@@ -228,7 +228,8 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3):
         rows.append({"link": link, "samples_per_s": best.log.shape[0] / best.wall_time_s,
                      "latency_p50_us": float(np.percentile(latencies, 50)),
                      "latency_p99_us": float(np.percentile(latencies, 99)),
-                     "host_p50_us": float(np.percentile(host, 50)), "host_p99_us": float(np.percentile(host, 99)),
+                     "host_p50_us": float(np.percentile(host, 50)),
+                     "host_p99_us": float(np.percentile(host, 99)),
                      "link_echo_us": link_echo_us(link),
                      "missing_commands": int(best.inverter_counters["missing"])})
     return {"scenario": scenario.name, "samples": scenario.n_samples, "repeats": repeats,

@@ -3,9 +3,9 @@
 It publishes what `pmsm_plant` publishes — `currents` stamped k·T_s from the inverter's sample
 counter, `rotor_state` and `angle_error` when the encoder is valid, `/clock`, `drive_config`,
 `/diagnostics` — and answers `voltage_command`(k) with COMMAND(k). The service `clear_faults`
-(std_srvs/Trigger) clears the inverter's latched faults, an overcurrent included. Frames are read on a thread of their
-own, so the graph never waits on the link; the inverter's clock paces everything. Link faults are
-counted and reported, never raised (docs/inverter-protocol.md, "The host")."""
+(std_srvs/Trigger) clears the inverter's latched faults, an overcurrent included. Frames are read on a
+thread of their own, so the graph never waits on the link; the inverter's clock paces everything. Link
+faults are counted and reported, never raised (docs/inverter-protocol.md, "The host")."""
 import math
 import threading
 
@@ -136,7 +136,8 @@ class InverterBridgeNode(ContractNode):
     def on_clear_faults(self, request, response):
         """The operator's reset (service `clear_faults`): CONTROL 2, the only way an overcurrent clears."""
         response.success = self.bridge.clear_faults()
-        response.message = "sent" if response.success else f"not sent: {self.bridge.last_error or 'link down'}"
+        reason = self.bridge.last_error or "link down"
+        response.message = "sent" if response.success else f"not sent: {reason}"
         return response
 
     def on_rotor_estimate(self, msg):

@@ -15,7 +15,6 @@ HELLO_ENCODER_PRESENT = 0x01
 
 OVERCURRENT, WATCHDOG, PWM_OFF, COMMAND_MISSING = 1 << 0, 1 << 1, 1 << 2, 1 << 3
 HEARTBEAT_LOST, BAD_FRAME, UNDERVOLTAGE, ENCODER_VALID = 1 << 4, 1 << 5, 1 << 6, 1 << 7
-LATCHED = OVERCURRENT | WATCHDOG | HEARTBEAT_LOST
 CLEARED_BY_HOST = WATCHDOG | HEARTBEAT_LOST
 """Latched faults a link loss or a silent host causes; the host clears them when the link is back,
 never an overcurrent."""

@@ -18,8 +18,8 @@ import numpy as np
 
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
-from .inverter_protocol import (COMMAND_MISSING, CONTROL_CLEAR_FAULTS, CONTROL_DISABLE, CONTROL_SEND_HELLO,
-                                ENABLE, ENCODER_VALID, HEARTBEAT_LOST, HELLO_ENCODER_PRESENT,
+from .inverter_protocol import (BAD_FRAME, COMMAND_MISSING, CONTROL_CLEAR_FAULTS, CONTROL_DISABLE,
+                                CONTROL_SEND_HELLO, ENABLE, ENCODER_VALID, HEARTBEAT_LOST, HELLO_ENCODER_PRESENT,
                                 OVERCURRENT, PWM_OFF, WATCHDOG, Command, Control, Hello,
                                 Telemetry, encode_frame)
 from .inverter_link import LinkDown
@@ -77,6 +77,7 @@ class VirtualInverter:
         self.last_heard = time.monotonic()
         self.held_back = None
         self.inbox = deque()
+        self.bad_frames = 0
         self.sent_frames = 0
         self.stopped = threading.Event()
         self.counters = {"commands": 0, "missing": 0, "discarded": 0, "trips": 0, "watchdog_trips": 0,
@@ -105,6 +106,9 @@ class VirtualInverter:
                 self.counters["host_silent_trips"] += 1
             status = self.latched | (0 if self.switching() else PWM_OFF)
             status |= COMMAND_MISSING if self.missing else 0
+            bad_frames = sum(self.endpoint.errors.values())
+            status |= BAD_FRAME if bad_frames > self.bad_frames else 0
+            self.bad_frames = bad_frames
             theta_m = d.plant_x[THETA_M]
             encoder = round((theta_m % (2.0 * math.pi)) / (2.0 * math.pi) * 65536.0) % 65536
             status |= ENCODER_VALID if self.encoder else 0
