@@ -13,7 +13,8 @@ setup(
     package_data={"drive_bridge": ["scenarios/*.yaml"]},
     install_requires=["setuptools"],
     zip_safe=False,
-    description="One-process runner, scenarios, metrics, benchmarks and the drive command line.",
+    description="One-process runner, scenarios, metrics, benchmarks, the drive command line and the "
+                "inverter bridge.",
     license="Apache-2.0",
     entry_points={"console_scripts": ["drive = drive_bridge.cli:main",
                                       "drive_node = drive_bridge.graph:node_main"]},
