@@ -27,8 +27,8 @@ def direct():
 
 @pytest.mark.parametrize("link", ["pty", "can"])
 def test_the_loop_through_the_bridge_matches_the_direct_run(direct, link):
-    """Quantisation to the protocol's integers (currents to 1/16384 of 2 × trip, voltages to 1/16384
-    of 2 × U_dc, the encoder to 16 bits) is all that differs from `drive run`."""
+    """Quantisation to the protocol's integers (currents in steps of trip/16384, voltages of
+    U_dc/16384, the encoder to 16 bits) is all that differs from `drive run`."""
     result = run_through_bridge(SCENARIO, link)
     metrics = compute_metrics(result)
     assert result.received.all() and result.counters["samples"] == SCENARIO.n_samples
