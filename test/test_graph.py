@@ -261,16 +261,33 @@ def test_plant_discards_a_wrongly_stamped_command_and_applies_zero_voltage_on_ti
         h.close()
 
 
+def wait_for_subscriber(topic, timeout_s=30.0):
+    """Wait until another process's subscription to ``topic`` shows in the graph."""
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        node = rclpy.node.Node("graph_watcher", context=context)
+        deadline = time.monotonic() + timeout_s
+        while node.count_subscribers(topic) < 1:
+            assert time.monotonic() < deadline, f"no subscriber on {topic} after {timeout_s} s"
+            time.sleep(0.1)
+    finally:
+        context.try_shutdown()
+
+
 def test_launch_json_and_echo_from_a_second_process(tmp_path):
+    """The echo is in the graph before the launch, and the run lasts long enough (0.3 s simulated,
+    about a second) for the plant's new angle_error publisher to match it: volatile topics reach only
+    matched readers."""
     path = scenario_file(tmp_path)
     echo = subprocess.Popen(DRIVE + ["echo", "angle_error", "--namespace", "/echoed", "--count", "3",
                                      "--json", "--timeout", "60"], stdout=subprocess.PIPE, text=True)
-    time.sleep(3.0)
-    run = subprocess.run(DRIVE + ["launch", path, "--namespace", "/echoed", "--json", "--no-plot"],
-                         capture_output=True, text=True, timeout=120)
+    wait_for_subscriber("/echoed/angle_error")
+    run = subprocess.run(DRIVE + ["launch", path, "--namespace", "/echoed", "--duration", "0.3", "--json",
+                                  "--no-plot"], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     metrics = json.loads(run.stdout)
-    assert metrics["samples"] == 600 and metrics["real_time_factor"] > 0.0 and not metrics["node_faults"]
+    assert metrics["samples"] == 3000 and metrics["real_time_factor"] > 0.0 and not metrics["node_faults"]
     lines = echo.communicate(timeout=30)[0].splitlines()
     assert len(lines) == 3
     assert all(abs(json.loads(line)["vector"]["x"]) < math.pi for line in lines)
