@@ -276,19 +276,23 @@ def wait_for_subscriber(topic, timeout_s=30.0):
 
 
 def test_launch_json_and_echo_from_a_second_process(tmp_path):
-    """The echo is in the graph before the launch, and the run lasts long enough (0.3 s simulated,
-    about a second) for the plant's new angle_error publisher to match it: volatile topics reach only
-    matched readers."""
+    """The echo is in the graph before the launch, and the run lasts long enough (1 s simulated, a few
+    seconds) for the plant's new angle_error publisher to match it: volatile topics reach only matched
+    readers."""
     path = scenario_file(tmp_path)
     echo = subprocess.Popen(DRIVE + ["echo", "angle_error", "--namespace", "/echoed", "--count", "3",
                                      "--json", "--timeout", "60"], stdout=subprocess.PIPE, text=True)
     wait_for_subscriber("/echoed/angle_error")
-    run = subprocess.run(DRIVE + ["launch", path, "--namespace", "/echoed", "--duration", "0.3", "--json",
+    run = subprocess.run(DRIVE + ["launch", path, "--namespace", "/echoed", "--duration", "1.0", "--json",
                                   "--no-plot"], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     metrics = json.loads(run.stdout)
-    assert metrics["samples"] == 3000 and metrics["real_time_factor"] > 0.0 and not metrics["node_faults"]
-    lines = echo.communicate(timeout=30)[0].splitlines()
+    assert metrics["samples"] == 10000 and metrics["real_time_factor"] > 0.0 and not metrics["node_faults"]
+    try:
+        lines = echo.communicate(timeout=30)[0].splitlines()
+    except subprocess.TimeoutExpired:
+        echo.kill()
+        pytest.fail(f"drive echo still running 30 s after the run, having printed {echo.communicate()[0]!r}")
     assert len(lines) == 3
     assert all(abs(json.loads(line)["vector"]["x"]) < math.pi for line in lines)
 
