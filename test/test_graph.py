@@ -6,6 +6,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 
 import numpy as np
@@ -261,18 +262,14 @@ def test_plant_discards_a_wrongly_stamped_command_and_applies_zero_voltage_on_ti
         h.close()
 
 
-def wait_for_subscriber(topic, timeout_s=30.0):
+def wait_for_subscriber(namespace, topic, timeout_s=30.0):
     """Wait until another process's subscription to ``topic`` shows in the graph."""
-    context = rclpy.Context()
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    h = Harness(namespace)
     try:
-        node = rclpy.node.Node("graph_watcher", context=context)
-        deadline = time.monotonic() + timeout_s
-        while node.count_subscribers(topic) < 1:
-            assert time.monotonic() < deadline, f"no subscriber on {topic} after {timeout_s} s"
-            time.sleep(0.1)
+        h.spin_until(lambda: h.tester.count_subscribers(f"{namespace}/{topic}") >= 1, timeout_s,
+                     what=f"a subscriber on {namespace}/{topic}")
     finally:
-        context.try_shutdown()
+        h.close()
 
 
 def test_launch_json_and_echo_from_a_second_process(tmp_path):
@@ -282,7 +279,7 @@ def test_launch_json_and_echo_from_a_second_process(tmp_path):
     path = scenario_file(tmp_path)
     echo = subprocess.Popen(DRIVE + ["echo", "angle_error", "--namespace", "/echoed", "--count", "3",
                                      "--json", "--timeout", "60"], stdout=subprocess.PIPE, text=True)
-    wait_for_subscriber("/echoed/angle_error")
+    wait_for_subscriber("/echoed", "angle_error")
     run = subprocess.run(DRIVE + ["launch", path, "--namespace", "/echoed", "--duration", "1.0", "--json",
                                   "--no-plot"], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
@@ -372,36 +369,25 @@ def test_the_bridge_node_reports_link_faults_on_diagnostics(tmp_path):
     endpoint, host_link = make_links("pty", tmp_path)
     inverter = VirtualInverter(load_scenario(scenario_file(tmp_path)), endpoint, rate_Hz=2000.0,
                                faults=FaultPlan(corrupt_every=20, drop_every=30))
-    context = rclpy.Context()
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    statuses, currents = [], []
+    h = Harness("/drive")
     try:
-        node = make_node("drive_bridge", context, "/drive", {"diagnostics_period_s": 0.05}, link=host_link)
-        listener = rclpy.node.Node("listener", context=context, namespace="/drive")
-        listener.create_subscription(
-            DiagnosticArray, "/diagnostics",
-            lambda m: statuses.extend(s for s in m.status if s.name.endswith("bridge")), 10)
-        listener.create_subscription(Vector3Stamped, "currents", currents.append, PER_SAMPLE_QOS)
-        executor = EventsExecutor(context=context)
-        executor.add_node(node)
-        executor.add_node(listener)
-        thread = __import__("threading").Thread(target=inverter.run, daemon=True)
+        h.nodes.append(make_node("drive_bridge", h.context, h.namespace, {"diagnostics_period_s": 0.05},
+                                 link=host_link))
+        h.listen(Vector3Stamped, "currents")
+        thread = threading.Thread(target=inverter.run, daemon=True)
         thread.start()
-        deadline = time.monotonic() + 10.0
-        while thread.is_alive() and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
+        h.spin_until(lambda: not thread.is_alive(), what="the inverter's run")
         end = time.monotonic() + 0.5
-        while time.monotonic() < end:
-            executor.spin_once(timeout_sec=0.05)
+        h.spin_until(lambda: time.monotonic() > end, what="the link timeout")
+        statuses = [s for s in h.statuses if s.name.endswith("bridge")]
         values = {v.key: v.value for v in statuses[-1].values}
-        assert len(currents) > 300
-        assert any(int.from_bytes(s.level, "little") == 2 for s in statuses)
+        assert len(h.received["currents"]) > 300
+        assert any(s.level == b"\x02" for s in statuses)
         assert int(values["frame_errors.crc"]) + int(values.get("frame_errors.framing", 0)) > 0
         assert int(values["dropped"]) > 0 and "watchdog" in values["inverter_status"]
         assert values["faults_cleared"] == "0"
         assert values["link"] == "lost" and "no telemetry" in statuses[-1].message
     finally:
         inverter.stop()
-        node.destroy_node()
-        context.try_shutdown()
+        h.close()
         endpoint.close()

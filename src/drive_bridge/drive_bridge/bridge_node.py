@@ -62,7 +62,6 @@ class InverterBridgeNode(ContractNode):
         self.n_p = None
         self.history = {}
         self.reported = {}
-        self.configured = False
         self.running = True
         self.thread = threading.Thread(target=self.read_link, name="drive_bridge_link", daemon=True)
         self.thread.start()
@@ -75,7 +74,7 @@ class InverterBridgeNode(ContractNode):
         while self.running:
             samples = self.bridge.poll(0.02)
             hello = self.bridge.hello
-            if hello is not None and not self.configured:
+            if hello is not None and self.T_s is None:
                 self.configure(hello)
             for s in samples:
                 t = stamp(s.k, self.T_s)
@@ -96,16 +95,9 @@ class InverterBridgeNode(ContractNode):
             self.report_new_faults()
 
     def configure(self, hello):
-        self.T_s, self.n_p = hello.T_s_ns * 1e-9, hello.n_p
-        self.configured = True
-        self.config_pub.publish(self.config_message(hello))
-
-    def config_message(self, hello):
-        import json
-
-        from std_msgs.msg import String
-        return String(data=json.dumps({"node": self.get_fully_qualified_name(), "parameters": self.parameters,
-                                       "T_s_s": self.T_s, "n_p": hello.n_p, "inverter": vars(hello)}))
+        """The inverter's HELLO sets the sampling period and is published in drive_config."""
+        self.n_p, self.T_s = hello.n_p, hello.T_s_ns * 1e-9
+        self.publish_config({"T_s_s": self.T_s, "n_p": self.n_p, "inverter": vars(hello)})
 
     def report_new_faults(self):
         counts = {**self.bridge.counters, **{f"frame_{k}": v for k, v in self.bridge.frame_errors().items()}}

@@ -39,8 +39,8 @@ class InverterBridge:
         self.link_timeout_s, self.command_timeout_s = link_timeout_s, command_timeout_s
         self.reconnect_s = reconnect_s
         self.counters = dict.fromkeys(("samples", "dropped", "duplicated", "reordered", "link_lost",
-                                       "bus_off", "reconnects", "safe_state", "faults_cleared", "before_hello",
-                                       "commands", "command_errors", "inverter_faults"), 0)
+                                       "bus_off", "reconnects", "safe_state", "faults_cleared",
+                                       "before_hello", "commands", "command_errors", "inverter_faults"), 0)
         self.hello = None
         self.open = False
         self.lost = True

@@ -5,7 +5,7 @@ import os
 import select
 import time
 
-from .inverter_protocol import CanDecoder, FrameReader, encode_frame, to_can
+from .inverter_protocol import CanDecoder, FrameReader, Telemetry, encode_frame, to_can
 
 
 class LinkDown(OSError):
@@ -215,7 +215,7 @@ class CanLink:
         if self.bus is None:
             raise LinkDown(f"CAN {self.channel}: not open")
         with_status = True
-        if type(message).__name__ == "Telemetry":
+        if isinstance(message, Telemetry):
             with_status = self.sent_telemetry % self.status_every == 0
             self.sent_telemetry += 1
         try:

@@ -19,8 +19,8 @@ import numpy as np
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
 from .inverter_protocol import (BAD_FRAME, COMMAND_MISSING, CONTROL_CLEAR_FAULTS, CONTROL_DISABLE,
-                                CONTROL_SEND_HELLO, ENABLE, ENCODER_VALID, HEARTBEAT_LOST, HELLO_ENCODER_PRESENT,
-                                OVERCURRENT, PWM_OFF, WATCHDOG, Command, Control, Hello,
+                                CONTROL_SEND_HELLO, ENABLE, ENCODER_VALID, HEARTBEAT_LOST,
+                                HELLO_ENCODER_PRESENT, OVERCURRENT, PWM_OFF, WATCHDOG, Command, Control, Hello,
                                 Telemetry, encode_frame)
 from .inverter_link import LinkDown
 from .runner import build_drive
@@ -34,13 +34,13 @@ class FaultPlan:
     """Link faults the virtual inverter injects into its telemetry, every Nth frame (0: never)."""
 
     corrupt_every: int = 0
-    """Flip one byte of the frame."""
+    """Flip one byte of the frame (serial only)."""
     drop_every: int = 0
     duplicate_every: int = 0
     reorder_every: int = 0
     """Hold the frame back and send it after the next one."""
     garbage_every: int = 0
-    """Insert random bytes before the frame (resynchronisation)."""
+    """Insert random bytes before the frame (resynchronisation; serial only)."""
     seed: int = 1
     counts: dict = field(default_factory=dict)
 
@@ -191,47 +191,37 @@ class VirtualInverter:
             return []
 
     def transmit(self, telemetry):
-        """Send a telemetry frame through the fault plan."""
+        """Send a telemetry frame through the fault plan: on a byte link (pty) the encoded frame, on CAN
+        the message; corruption and garbage exist on byte links only (CAN's own CRC would turn them
+        into error frames, which never arrive)."""
         f = self.faults
         self.sent_frames += 1
         n = self.sent_frames
-        if not (f.corrupt_every or f.drop_every or f.duplicate_every or f.reorder_every or f.garbage_every):
-            self.send(telemetry)
-            return
+        byte_link = hasattr(self.endpoint, "send_bytes")
+        if byte_link:
+            frame = bytearray(encode_frame(telemetry))
+            item, emit = frame, lambda x: self.endpoint.send_bytes(bytes(x))
+        else:
+            item, emit = telemetry, self.send
 
-        def due(every):
-            return every and n % every == 0
+        def due(every, kind):
+            if every and n % every == 0:
+                f.counts[kind] = f.counts.get(kind, 0) + 1
+                return True
+            return False
 
-        def count(kind):
-            f.counts[kind] = f.counts.get(kind, 0) + 1
-
-        if not hasattr(self.endpoint, "send_bytes"):
-            if due(f.drop_every):
-                count("dropped")
-                return
-            self.send(telemetry)
-            if due(f.duplicate_every):
-                count("duplicated")
-                self.send(telemetry)
+        if due(f.drop_every, "dropped"):
             return
-        frame = bytearray(encode_frame(telemetry))
-        if due(f.drop_every):
-            count("dropped")
-            return
-        if due(f.corrupt_every):
-            count("corrupted")
+        if byte_link and due(f.corrupt_every, "corrupted"):
             frame[int(self.random.integers(0, len(frame) - 1))] ^= 0x5A
-        if due(f.garbage_every):
-            count("garbage")
+        if byte_link and due(f.garbage_every, "garbage"):
             self.endpoint.send_bytes(bytes(self.random.integers(1, 256, 7, dtype=np.uint8)) + b"\x00")
-        if due(f.reorder_every) and self.held_back is None:
-            count("reordered")
-            self.held_back = bytes(frame)
+        if self.held_back is None and due(f.reorder_every, "reordered"):
+            self.held_back = bytes(frame) if byte_link else telemetry
             return
-        self.endpoint.send_bytes(bytes(frame))
+        emit(item)
         if self.held_back is not None:
-            self.endpoint.send_bytes(self.held_back)
+            emit(self.held_back)
             self.held_back = None
-        if due(f.duplicate_every):
-            count("duplicated")
-            self.endpoint.send_bytes(bytes(frame))
+        if due(f.duplicate_every, "duplicated"):
+            emit(item)

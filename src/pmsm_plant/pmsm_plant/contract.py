@@ -114,6 +114,12 @@ class ContractNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", DIAGNOSTICS_QOS)
         self.create_timer(float(self.get_parameter(name).value), self.publish_diagnostics)
 
+    def publish_config(self, config):
+        """drive_config: this node, its parameters (``self.parameters``), a latched error, and ``config``."""
+        config = {"node": self.get_fully_qualified_name(), "parameters": self.parameters,
+                  "error": self.health.latched, **config}
+        self.config_pub.publish(String(data=json.dumps(_plain(config))))
+
     def fault(self, kind, message):
         """Count a fault, log it (throttled) and show it at the next /diagnostics."""
         self.health.fault(kind, message)
@@ -196,11 +202,10 @@ class DriveNode(ContractNode):
         timer = self.create_timer(0.02, check)
 
     def publish_config(self, config):
-        config = {"node": self.get_fully_qualified_name(), "parameters": self.parameters,
-                  "error": self.health.latched, **config}
         if self.drive:
-            config.update(motor=self.drive.scenario.motor, n_p=self.drive.machine.n_p, T_s_s=self.T_s)
-        self.config_pub.publish(String(data=json.dumps(_plain(config))))
+            config = {"motor": self.drive.scenario.motor, "n_p": self.drive.machine.n_p, "T_s_s": self.T_s,
+                      **config}
+        super().publish_config(config)
 
     def trip_current_A(self):
         given = float(self.parameters["trip_current_A"])
