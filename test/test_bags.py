@@ -13,12 +13,15 @@ import pytest
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ["ROS_DOMAIN_ID"] = str(30 + (os.getpid() + 7) % 60)
 
-from drive_bridge.bag import DRIVE_TOPICS, BagError, bag_info, bag_log, write_run_bag  # noqa: E402
-from drive_bridge.loop import COLUMN  # noqa: E402
-from drive_bridge.runner import run_scenario  # noqa: E402
-from drive_bridge.scenario import load_scenario  # noqa: E402
+from drive_bags.common import BagCutError, BagError  # noqa: E402
+from drive_bags.reader import bag_info, bag_log  # noqa: E402
+from drive_bags.writer import write_run_bag  # noqa: E402
+from drive_interface.log import COLUMN  # noqa: E402
+from drive_interface.topics import TOPICS  # noqa: E402
+from drive_runner.runner import run_scenario  # noqa: E402
+from drive_scenarios.scenario import load_scenario  # noqa: E402
 
-DRIVE = [sys.executable, "-m", "drive_bridge.cli"]
+DRIVE = [sys.executable, "-m", "drive_cli.cli"]
 PER_SAMPLE = ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state",
               "angle_error", "/clock", "load_torque")
 SCENARIO = """\
@@ -47,7 +50,7 @@ def mcap_stamps(bag, topic):
 @pytest.fixture(scope="module")
 def bags(tmp_path_factory):
     pytest.importorskip("rclpy")
-    from drive_bridge.graph import launch
+    from drive_launch.launcher import launch
     root = tmp_path_factory.mktemp("bags")
     path = root / "scenario.yaml"
     path.write_text(SCENARIO)
@@ -64,7 +67,7 @@ def test_graph_and_runner_bags_have_the_contract_layout(bags):
         counts = {t["topic"]: (t["type"], t["count"]) for t in info["topics"]}
         for topic in PER_SAMPLE:
             name = topic if topic.startswith("/") else f"/drive/{topic}"
-            assert counts[name] == (DRIVE_TOPICS[topic], n), (bag.name, topic)
+            assert counts[name] == (TOPICS[topic].type, n), (bag.name, topic)
         assert counts["/drive/drive_config"][1] >= 1
         assert all(t["serialization"] == "cdr" and t["offered_qos"] for t in info["topics"])
     graph_topics = {t["topic"] for t in bag_info(graph)["topics"]}
@@ -99,8 +102,10 @@ def test_a_cut_recording_is_rebuilt_losing_at_most_the_last_chunk(tmp_path):
     (bag / "metadata.yaml").unlink()
     with mcap.open("r+b") as f:
         f.truncate(int(mcap.stat().st_size * 0.7))
-    with pytest.raises(BagError, match="drive bag reindex"):
+    with pytest.raises(BagCutError, match="cut before it closed"):
         bag_info(bag)
+    out = subprocess.run(DRIVE + ["bag", "info", str(bag)], capture_output=True, text=True)
+    assert out.returncode == 2 and f"`drive bag reindex {bag}` rebuilds it" in out.stderr
     out = subprocess.run(DRIVE + ["bag", "reindex", str(bag), "--json"], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     rebuilt = json.loads(out.stdout)
@@ -135,7 +140,8 @@ def test_compare_scores_the_graph_and_runner_bags_alike(bags, tmp_path):
 
 def foreign_bag(path, topics):
     """A bag written by someone else: {topic: (msgtype, [serialized messages])}."""
-    from drive_bridge.bag import BagWriter, rosbags_qos
+    from drive_bags.common import rosbags_qos
+    from drive_bags.writer import BagWriter
     writer = BagWriter(path)
     for topic, (msgtype, messages) in topics.items():
         writer.add(topic, msgtype, rosbags_qos())
@@ -146,7 +152,7 @@ def foreign_bag(path, topics):
 
 
 def test_foreign_bags_with_missing_or_mistyped_topics_are_named(tmp_path):
-    from drive_bridge.bag import typestore
+    from drive_bags.common import typestore
     store = typestore()
     Float64 = store.types["std_msgs/msg/Float64"]
     data = [store.serialize_cdr(Float64(data=1.0), "std_msgs/msg/Float64")] * 3
@@ -167,8 +173,8 @@ def test_replay_reproduces_the_recorded_estimator_and_flags_foreign_excitation(b
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     own, other = report["results"]
-    from drive_bridge.bag import bag_result
-    from drive_bridge.metrics import compute_metrics
+    from drive_bags.reader import bag_result
+    from drive_evaluation.metrics import compute_metrics
     recorded = compute_metrics(bag_result(graph))
     assert report["ground_truth"] and report["recorded_estimator"] == "injection_frame"
     assert own["excitation_mismatch"] == 0.0
@@ -183,7 +189,8 @@ def copy_without(source, target, dropped):
     """A copy of a bag without some topics (as a bag recorded without ground truth would be)."""
     from rosbags.rosbag2 import Reader
 
-    from drive_bridge.bag import BagWriter, rosbags_qos
+    from drive_bags.common import rosbags_qos
+    from drive_bags.writer import BagWriter
     writer = BagWriter(target)
     with Reader(source) as reader:
         kept = [c for c in reader.connections if c.topic not in dropped]
@@ -243,7 +250,7 @@ def test_a_truncated_mcap_under_a_complete_metadata_is_named(tmp_path):
 
 
 def test_bulk_cdr_records_equal_the_rosbags_serialiser():
-    from drive_bridge.bag import (CDR_LITTLE_ENDIAN, _cdr_joint_state, _cdr_scalars, _cdr_vector3_stamped,
+    from drive_bags.writer import (CDR_LITTLE_ENDIAN, _cdr_joint_state, _cdr_scalars, _cdr_vector3_stamped,
                                   typestore)
     store = typestore()
     T = store.types

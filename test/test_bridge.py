@@ -7,12 +7,13 @@ import time
 import numpy as np
 import pytest
 
-from drive_bridge.bridge_loop import make_links, run_through_bridge
+from drive_bridge.virtual_inverter import make_links
 from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.inverter_protocol import OVERCURRENT, PWM_OFF, WATCHDOG
-from drive_bridge.metrics import angle_error, compute_metrics
-from drive_bridge.runner import run_scenario
-from drive_bridge.scenario import Table, load_scenario
+from drive_evaluation.metrics import angle_error, compute_metrics
+from drive_runner.bridge_loop import run_through_bridge
+from drive_runner.runner import run_scenario
+from drive_scenarios.scenario import Table, load_scenario
 from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter
 
 SCENARIO = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.6)
@@ -80,7 +81,7 @@ def test_unplugged_pty_trips_the_inverter_and_the_bridge_recovers():
     assert c["link_lost"] == 1 and c["reconnects"] >= 1 and c["faults_cleared"] >= 1
     assert result.inverter_counters["watchdog_trips"] == 1
     assert result.received[-1000:].all()
-    error = angle_error(result.log, result.preset.machine.n_p)
+    error = angle_error(result.log, result.n_p)
     assert np.abs(error[2000 + 2000:]).max() < 0.2
 
 
@@ -186,4 +187,4 @@ def test_a_can_inverter_off_the_bus_and_back():
     assert result.counters["link_lost"] == 1 and result.counters["faults_cleared"] >= 1
     assert result.inverter_counters["link_down"] > 0 and result.inverter_counters["watchdog_trips"] == 1
     assert result.received[-1000:].all()
-    assert np.abs(angle_error(result.log, result.preset.machine.n_p)[4000:]).max() < 0.2
+    assert np.abs(angle_error(result.log, result.n_p)[4000:]).max() < 0.2

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from drive_bridge.loop import COLUMN
+from drive_interface.log import COLUMN
+from motor_params.nameplate import INVERTER_RATINGS
 from foc_controller.tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
 from helpers import run, scenario
 
@@ -61,7 +62,7 @@ def test_voltage_command_respects_inverter_limit():
                  initial=dict(omega_m_rpm=3000.0), load=dict(unit="rated", points=[[0.0, 0.5]]))
     result, _ = run(s)
     u = np.hypot(result.log[:, COLUMN["u_alpha"]], result.log[:, COLUMN["u_beta"]])
-    limit = result.preset.inverter.U_dc_V / math.sqrt(3.0)
+    limit = INVERTER_RATINGS[result.scenario.motor].U_dc_V / math.sqrt(3.0)
     assert u.max() <= limit * (1.0 + 1e-12)
     assert np.mean(u > 0.999 * limit) > 0.01
 

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 
 from helpers import run, scenario, shipped
-from drive_bridge.loop import COLUMN
-from drive_bridge.runner import run_scenario
-from hf_estimator.common import MIN_CONVERGENCE_SLOPE, commission
+from drive_interface.log import COLUMN
+from drive_runner.runner import run_scenario
 from hf_estimator.registry import make_estimator
+from motor_params.commissioning import MIN_CONVERGENCE_SLOPE
+from pmsm_plant.commissioning import ideal_commissioning as commission
 from pmsm_plant.model import (N_STATE, plant_advance, plant_outputs, plant_reset,
                               saturation_saliency_angle)
 from pmsm_plant.presets import PRESETS, plant_parameters
@@ -26,8 +27,8 @@ def held_shaft_response(name, error_e, saturation=True, samples=600):
     machine, inverter, _ = plant_parameters(WANG, flags)
     x = np.zeros(N_STATE)
     plant_reset(x, 0.0, 0.0, machine)
-    c = commission(machine, WANG.current_limit_A)
-    e = make_estimator(name, WANG, 1e-4, {"pll_bandwidth_Hz": 1e-9}, -error_e, 0.0, c,
+    c = commission(machine, WANG.nameplate.current_limit_A)
+    e = make_estimator(name, WANG.nameplate, 1e-4, {"pll_bandwidth_Hz": 1e-9}, -error_e, 0.0, c,
                        inverter.delay_periods)
     u_a = u_b = 0.0
     for k in range(samples):
@@ -106,7 +107,7 @@ def test_improved_bias_follows_sigma_term_formula(rpm):
                  metrics={"settle_s": 0.3})
     _, m = run(s)
     machine = WANG.machine
-    c = commission(machine, WANG.current_limit_A)
+    c = commission(machine, WANG.nameplate.current_limit_A)
     omega_e = machine.n_p * rpm * 2.0 * math.pi / 60.0
     predicted = 0.5 * (c.sigma / c.delta) * omega_e * math.sqrt(2.0) / (2.0 * math.pi * 300.0)
     assert m["angle_error_bias"] == pytest.approx(predicted, rel=0.25)
@@ -129,7 +130,7 @@ def test_convergence_slope_is_how_the_saliency_axis_follows_the_rotor(i_q):
     """Commissioned slope F = 1 + i_q·∂δ/∂i_d equals d(saliency-axis angle)/d(rotor angle) with the
     current vector held still in the stator, found by turning the rotor ±1 mrad (within 0.01)."""
     machine = WANG.machine
-    c = commission(machine, WANG.current_limit_A)
+    c = commission(machine, WANG.nameplate.current_limit_A)
     step = 1e-3
 
     def axis_in_stator(theta):
@@ -146,8 +147,8 @@ def test_drive_keeps_current_where_saliency_tracking_holds():
     rated limit (the HF axis then says nothing of the rotor). Injecting estimators run with the current
     limit where F ≥ ¾ (between rated and 1.25× rated); the sensored drive and an explicit setting keep
     theirs."""
-    c = commission(WANG.machine, WANG.current_limit_A)
-    no_load, rated, limit = np.interp([0.0, WANG.rated_current_A, WANG.current_limit_A],
+    c = commission(WANG.machine, WANG.nameplate.current_limit_A)
+    no_load, rated, limit = np.interp([0.0, WANG.nameplate.rated_current_A, WANG.nameplate.current_limit_A],
                                       c.saliency_shift_i_q_A, c.convergence_slope)
     assert no_load == pytest.approx(1.0, abs=1e-3)
     assert rated > MIN_CONVERGENCE_SLOPE
@@ -157,9 +158,9 @@ def test_drive_keeps_current_where_saliency_tracking_holds():
                                   ("injection_frame", {"current_limit_A": 6.0})]:
         result = run_scenario(scenario(estimator=estimator, controller=controller, duration_s=0.01))
         limits[estimator, bool(controller)] = result.current_limit_A
-    assert WANG.rated_current_A < limits["injection_frame", False] < 1.25 * WANG.rated_current_A
+    assert WANG.nameplate.rated_current_A < limits["injection_frame", False] < 1.25 * WANG.nameplate.rated_current_A
     assert limits["improved", False] == limits["injection_frame", False]
-    assert limits["sensored", False] == pytest.approx(WANG.current_limit_A)
+    assert limits["sensored", False] == pytest.approx(WANG.nameplate.current_limit_A)
     assert limits["injection_frame", True] == 6.0
 
 

@@ -25,17 +25,21 @@ from sensor_msgs.msg import JointState  # noqa: E402
 from std_msgs.msg import Float64  # noqa: E402
 
 from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from drive_bridge.graph import DriveSpec, build_from_parameters, launch, launch_many  # noqa: E402
-from drive_bridge.loop import COLUMN  # noqa: E402
-from drive_bridge.runner import run_scenario  # noqa: E402
-from drive_bridge.scenario import load_scenario  # noqa: E402
+from drive_interface.log import COLUMN  # noqa: E402
+from drive_interface.node import parameter_overrides, stamp, topic_qos  # noqa: E402
+from drive_interface.stamps import sample_of  # noqa: E402
+from drive_launch.launcher import DriveSpec, launch, launch_many  # noqa: E402
+from drive_runner.runner import run_scenario  # noqa: E402
+from drive_scenarios.scenario import load_scenario  # noqa: E402
 from foc_controller.node import SPEED_LIMIT, ControllerNode  # noqa: E402
 from hf_estimator.node import EstimatorNode  # noqa: E402
-from pmsm_plant.contract import (COMMAND_QOS, PER_SAMPLE_QOS, parameter_overrides, sample_of,  # noqa: E402
-                                 stamp)
 from pmsm_plant.node import PlantNode  # noqa: E402
+from std_msgs.msg import String  # noqa: E402
 
-DRIVE = [sys.executable, "-m", "drive_bridge.cli"]
+DRIVE = [sys.executable, "-m", "drive_cli.cli"]
+PER_SAMPLE_QOS = topic_qos("currents")
+COMMAND_QOS = topic_qos("speed_command")
+COMMISSIONING = os.path.join(os.path.dirname(__file__), os.pardir, "commissioning", "wang_spmsm.yaml")
 COMPARED = ("theta_m", "omega_m", "tau_e", "i_a_meas", "i_b_meas", "i_c_meas", "theta_e_hat", "omega_e_hat",
             "u_alpha", "u_beta", "u_inj_alpha", "u_inj_beta", "eps", "signal", "observable")
 SCENARIO = """\
@@ -93,6 +97,7 @@ class Harness:
         rclpy.init(context=self.context, signal_handler_options=SignalHandlerOptions.NO)
         self.namespace = namespace
         self.parameters = {"scenario": "wang_100rpm", "diagnostics_period_s": 0.1, **parameters}
+        self.config_pub = None
         self.executor = EventsExecutor(context=self.context)
         self.tester = rclpy.node.Node("tester", context=self.context, namespace=namespace)
         self.statuses = []
@@ -101,10 +106,22 @@ class Harness:
         self.nodes = [self.tester]
 
     def add(self, node_class, **extra):
-        node = node_class(build_from_parameters, context=self.context, namespace=self.namespace,
-                          parameter_overrides=parameter_overrides({**self.parameters, **extra}))
+        parameters = {**self.parameters, **extra}
+        if node_class is EstimatorNode:
+            parameters.setdefault("commissioning", COMMISSIONING)
+        node = node_class(context=self.context, namespace=self.namespace,
+                          parameter_overrides=parameter_overrides(parameters))
         self.nodes.append(node)
         return node
+
+    def estimator_config(self, injection_frequency_Hz=909.0909090909091, tracking_bandwidth_Hz=18.0,
+                         tracking_current_limit_A=5.6):
+        """Stand in for the estimator's drive_config, which the controller builds its core from."""
+        self.config_pub = self.tester.create_publisher(String, "drive_config", topic_qos("drive_config"))
+        self.config_pub.publish(String(data=json.dumps({
+            "node": f"{self.namespace}/hf_estimator", "estimator": "injection_frame",
+            "injection_frequency_Hz": injection_frequency_Hz, "tracking_bandwidth_Hz": tracking_bandwidth_Hz,
+            "tracking_current_limit_A": tracking_current_limit_A})))
 
     def publisher(self, msg_type, topic, qos=PER_SAMPLE_QOS):
         return self.tester.create_publisher(msg_type, topic, qos)
@@ -155,6 +172,7 @@ def test_controller_answers_bad_input_with_zero_voltage_and_keeps_running():
     h = Harness("/bad_controller")
     try:
         node = h.add(ControllerNode)
+        h.estimator_config()
         currents = h.publisher(Vector3Stamped, "currents")
         estimates = h.publisher(JointState, "rotor_estimate")
         injection, speed = h.publisher(Vector3Stamped, "injection"), h.publisher(Float64, "speed_command",
@@ -194,7 +212,7 @@ def test_controller_with_a_negative_speed_limit_at_start_holds_zero_voltage():
     h = Harness("/bad_start", **{SPEED_LIMIT: -1.0})
     try:
         node = h.add(ControllerNode)
-        assert node.drive is None and "speed_limit_rad_s" in node.health.latched
+        assert not node.configured and "speed_limit_rad_s" in node.health.latched
         currents = h.publisher(Vector3Stamped, "currents")
         estimates = h.publisher(JointState, "rotor_estimate")
         injection = h.publisher(Vector3Stamped, "injection")
@@ -295,7 +313,7 @@ def test_launch_json_and_echo_from_a_second_process(tmp_path):
 
 
 def test_sigterm_stops_the_launcher_and_its_node_processes_leaving_a_complete_bag(tmp_path):
-    from drive_bridge.bag import bag_info
+    from drive_bags.reader import bag_info
     bag = tmp_path / "stopped"
     launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--processes", "separate", "--namespace",
                                          "/sigterm_test", "--json", "--no-plot", "--record", str(bag)],
@@ -321,6 +339,7 @@ def test_controller_follows_the_plant_past_a_lost_sample():
     h = Harness("/lost_sample")
     try:
         node = h.add(ControllerNode)
+        h.estimator_config()
         currents = h.publisher(Vector3Stamped, "currents")
         estimates = h.publisher(JointState, "rotor_estimate")
         injection = h.publisher(Vector3Stamped, "injection")
@@ -345,7 +364,7 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes):
     the graph closes the loop sample for sample as the one-process loop through the bridge does. The
     speed is constant: nothing gates the inverter's clock on the launcher's speed commands (as on a
     robot), so a changing speed would land on whichever sample the graph's timing gives it."""
-    from drive_bridge.bridge_loop import run_through_bridge
+    from drive_runner.bridge_loop import run_through_bridge
     path = scenario_file(tmp_path, rpm=0.0)
     result = launch(path, processes=processes, link=link, extra_parameters={"diagnostics_period_s": 0.05})
     reference = run_through_bridge(load_scenario(path), link)
@@ -362,9 +381,8 @@ def test_the_bridge_node_reports_link_faults_on_diagnostics(tmp_path):
     drive_bridge node publishes currents, and /diagnostics shows an ERROR with the corrupt and dropped
     frames counted and the inverter's watchdog (left latched: nobody asked to drive); when the inverter
     stops, the link is reported lost."""
-    from drive_bridge.bridge_loop import make_links
-    from drive_bridge.graph import make_node
-    from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter
+    from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
+    from drive_launch.launcher import make_node
 
     endpoint, host_link = make_links("pty", tmp_path)
     inverter = VirtualInverter(load_scenario(scenario_file(tmp_path)), endpoint, rate_Hz=2000.0,

@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from drive_bridge.pll_tuning import (check_scenario, closed_loop_figures, measure_tracking_response,
-                                     model_figures, pll_design)
+from drive_evaluation.pll_check import (check_scenario, closed_loop_figures, design_for_motor,
+                                        measure_tracking_response, model_figures)
 from hf_estimator.pll_model import (CarrierPath, carrier_loop, first_order_response, highest_crossover,
                                     margins, pll_process, szabo_loop, tune_pi)
-from hf_estimator.szabo import first_order_lowpass
+from hf_estimator.synchronous import first_order_lowpass
 
 TABLE1 = dict(R_ohm=6.2, L_d_H=20.025e-3, L_q_H=40.17e-3, f_h_Hz=1500.0, u_h_V=40.0, u_star=1.0)
 T_F = 0.53e-3
@@ -74,11 +74,11 @@ def test_carrier_model_tends_to_szabos_gain_when_sampling_is_fast():
 def test_carrier_model_of_the_sampled_synchronous_estimator():
     """At 10 kHz the sampled q̂ current lags by ω_h·1.5·T_s = 81°: Table 2's loop crosses over at 69 rad/s;
     aligned demodulation recovers the gain and 60° at 350 rad/s becomes reachable."""
-    paper = pll_design("szabo_ipmsm", "synchronous", {})
+    paper = design_for_motor("szabo_ipmsm", "synchronous", {})
     m = margins(paper.carrier, 4853.0, 0.136)
     assert m.crossover_rad_s == pytest.approx(68.7, abs=0.5)
     assert m.phase_margin_deg == pytest.approx(78.9, abs=0.3)
-    aligned = pll_design("szabo_ipmsm", "synchronous", {"demodulation": "aligned"})
+    aligned = design_for_motor("szabo_ipmsm", "synchronous", {"demodulation": "aligned"})
     assert margins(aligned.carrier, 4853.0, 0.136).crossover_rad_s == pytest.approx(263.8, abs=1.0)
     A_p, T_i = tune_pi(aligned.carrier, 60.0, 350.0)
     m = margins(aligned.carrier, A_p, T_i)
@@ -86,7 +86,7 @@ def test_carrier_model_of_the_sampled_synchronous_estimator():
 
 
 def test_improved_is_covered_by_the_carrier_model_only():
-    design = pll_design("wang_spmsm", "improved", {})
+    design = design_for_motor("wang_spmsm", "improved", {})
     assert design.szabo is None
     assert margins(design.carrier, *design.current_gains).crossover_rad_s == pytest.approx(87.9, abs=1.0)
 
@@ -95,7 +95,7 @@ def test_closed_loop_bandwidth_matches_the_carrier_model():
     """A short stepped-sine run on the ideal plant (no dead time or sensor errors): θ̂/θ at 8 frequencies up
     to ω_h/10, where the baseband model holds, against the carrier model, for the aligned PLL tuned to
     60° at 350 rad/s (measured: within 2 % and 5°)."""
-    design = pll_design("szabo_ipmsm", "synchronous", {"demodulation": "aligned"})
+    design = design_for_motor("szabo_ipmsm", "synchronous", {"demodulation": "aligned"})
     A_p, T_i = tune_pi(design.carrier, 60.0, 350.0)
     settings = {"demodulation": "aligned", "A_p": A_p, "T_i_s": T_i}
     scenario = check_scenario("szabo_ipmsm", "synchronous", settings, ideal_plant=True)

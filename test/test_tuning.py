@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from drive_bridge.cli import main
+from drive_cli.cli import main
 from foc_controller.tuning import SZABO_TABLE2
 
 

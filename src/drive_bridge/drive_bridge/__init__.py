@@ -1,1 +1,2 @@
-"""Composition of the cores: the one-process runner, scenarios, metrics, benchmarks and the CLI."""
+"""The bridge to a real inverter (no rclpy but the node): the wire protocol, serial and CAN links, the host
+bridge core, the drive_bridge node, and a virtual inverter (the plant behind the protocol) for tests."""

@@ -7,6 +7,7 @@ counter, `rotor_state` and `angle_error` when the encoder is valid, `/clock`, `d
 thread of their own, so the graph never waits on the link; the inverter's clock paces everything. Link
 faults are counted and reported, never raised (docs/inverter-protocol.md, "The host")."""
 import math
+import sys
 import threading
 
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -16,8 +17,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from pmsm_plant.contract import COMMAND_QOS, PER_SAMPLE_QOS, ContractNode, finite, sample_of, stamp
-from pmsm_plant.frames import wrap
+from control_math.frames import wrap
+from drive_interface.node import ContractNode, finite, run_node, stamp, topic_qos
+from drive_interface.stamps import sample_of
 
 from .inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from .inverter_link import CanLink, SerialLink
@@ -50,13 +52,13 @@ class InverterBridgeNode(ContractNode):
             else:
                 raise ValueError(f"parameter link: 'serial' or 'can', not {p['link']!r}")
         self.bridge = InverterBridge(link, float(p["link_timeout_s"]), float(p["command_timeout_s"]))
-        self.currents_pub = self.create_publisher(Vector3Stamped, "currents", PER_SAMPLE_QOS)
-        self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", PER_SAMPLE_QOS)
-        self.clock_pub = self.create_publisher(Clock, "/clock", PER_SAMPLE_QOS)
-        self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", COMMAND_QOS)
+        self.currents_pub = self.create_publisher(Vector3Stamped, "currents", topic_qos("currents"))
+        self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", topic_qos("rotor_state"))
+        self.clock_pub = self.create_publisher(Clock, "/clock", topic_qos("/clock"))
+        self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", topic_qos("angle_error"))
         self.create_subscription(Vector3Stamped, "voltage_command", self.timed(self.on_voltage_command),
-                                 PER_SAMPLE_QOS)
-        self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate, PER_SAMPLE_QOS)
+                                 topic_qos("voltage_command"))
+        self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate, topic_qos("rotor_estimate"))
         self.create_service(Trigger, "clear_faults", self.on_clear_faults)
         self.T_s = None
         self.n_p = None
@@ -156,3 +158,13 @@ class InverterBridgeNode(ContractNode):
         self.thread.join(timeout=1.0)
         self.bridge.close()
         return super().destroy_node()
+
+
+def main(argv=None):
+    """``bridge_node [--executor events|single] --ros-args -p link:=serial|can ...`` (``ros2 run drive_bridge
+    bridge_node``)."""
+    return run_node(InverterBridgeNode, "bridge_node", argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -10,20 +10,24 @@ Clock: ``rate_Hz`` paces the periods in wall time (a real inverter's clock; a la
 that did not come within that wait, and host silence is left to the watchdog)."""
 import math
 import threading
-from collections import deque
 import time
+from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from motor_params.nameplate import nameplate
+from pmsm_plant.build import plant_for_scenario
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
+from .inverter_link import CanLink, LinkDown, PtyEndpoint, SerialLink
 from .inverter_protocol import (BAD_FRAME, COMMAND_MISSING, CONTROL_CLEAR_FAULTS, CONTROL_DISABLE,
                                 CONTROL_SEND_HELLO, ENABLE, ENCODER_VALID, HEARTBEAT_LOST,
                                 HELLO_ENCODER_PRESENT, OVERCURRENT, PWM_OFF, WATCHDOG, Command, Control, Hello,
                                 Telemetry, encode_frame)
-from .inverter_link import LinkDown
-from .runner import build_drive
+
+LINKS = ("pty", "can")
 
 HOST_SILENCE_S = 0.1
 """Nothing from the host for this long: PWM off, HEARTBEAT_LOST latched (the protocol's 100 ms)."""
@@ -56,18 +60,19 @@ class VirtualInverter:
 
     def __init__(self, scenario, endpoint, rate_Hz=None, command_wait_s=0.5, watchdog_periods=10,
                  trip_current_A=None, drive_id=0, faults=None, encoder=True):
-        self.drive = build_drive(scenario)
+        self.plant = plant_for_scenario(scenario)
+        self.speed_ref, self.tau_load = scenario.schedule()
         self.scenario = scenario
         self.endpoint = endpoint
         self.rate_Hz, self.command_wait_s = rate_Hz, command_wait_s
         self.watchdog_periods = watchdog_periods
-        self.trip_current_A = trip_current_A or 3.0 * self.drive.preset.current_limit_A
+        self.trip_current_A = trip_current_A or 3.0 * nameplate(scenario.motor).current_limit_A
         self.encoder = encoder
         self.faults = faults or FaultPlan()
         self.random = np.random.default_rng(self.faults.seed)
         self.current_lsb = float(np.float32(2.0 * self.trip_current_A / 32767.0))
-        self.voltage_lsb = float(np.float32(2.0 * self.drive.inverter.U_dc_V / 32767.0))
-        self.hello = Hello(drive_id, HELLO_ENCODER_PRESENT if encoder else 0, self.drive.machine.n_p,
+        self.voltage_lsb = float(np.float32(2.0 * self.plant.inverter.U_dc_V / 32767.0))
+        self.hello = Hello(drive_id, HELLO_ENCODER_PRESENT if encoder else 0, self.plant.machine.n_p,
                            round(scenario.T_s * 1e9), self.current_lsb, self.voltage_lsb,
                            float(np.float32(self.trip_current_A)), watchdog_periods)
         self.k = 0
@@ -89,14 +94,14 @@ class VirtualInverter:
         self.stopped.set()
 
     def run(self):
-        d, s = self.drive, self.scenario
+        p, s = self.plant, self.scenario
         self.send(self.hello)
         start = self.last_heard = time.monotonic()
         hello_at = start + 1.0
         while not self.stopped.is_set() and self.k < s.n_samples:
             k = self.k
-            i_a, i_b, i_c, tau_e = plant_outputs(d.plant_x, d.machine)
-            m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, d.sensor, s.seed, k)
+            i_a, i_b, i_c, tau_e = plant_outputs(p.x, p.machine)
+            m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, p.sensor, p.seed, k)
             if max(abs(m_a), abs(m_b), abs(m_c)) > self.trip_current_A and not self.latched & OVERCURRENT:
                 self.latched |= OVERCURRENT
                 self.counters["trips"] += 1
@@ -109,14 +114,14 @@ class VirtualInverter:
             bad_frames = sum(self.endpoint.errors.values())
             status |= BAD_FRAME if bad_frames > self.bad_frames else 0
             self.bad_frames = bad_frames
-            theta_m = d.plant_x[THETA_M]
+            theta_m = p.x[THETA_M]
             encoder = round((theta_m % (2.0 * math.pi)) / (2.0 * math.pi) * 65536.0) % 65536
             status |= ENCODER_VALID if self.encoder else 0
             lsb = self.current_lsb
             telemetry = Telemetry(k % 2 ** 32, _clip16(m_a / lsb), _clip16(m_b / lsb), _clip16(m_c / lsb),
-                                  min(65535, round(d.inverter.U_dc_V / self.voltage_lsb)),
+                                  min(65535, round(p.inverter.U_dc_V / self.voltage_lsb)),
                                   encoder if self.encoder else 0, status)
-            self.truth[k] = (theta_m, d.plant_x[OMEGA_M], tau_e, d.tau_load[k], i_a, i_b, i_c)
+            self.truth[k] = (theta_m, p.x[OMEGA_M], tau_e, self.tau_load[k], i_a, i_b, i_c)
             sent_at = time.monotonic()
             self.transmit(telemetry)
             if time.monotonic() >= hello_at:
@@ -137,8 +142,8 @@ class VirtualInverter:
                 u_alpha, u_beta = command.u_alpha * self.voltage_lsb, command.u_beta * self.voltage_lsb
             if not self.switching():
                 u_alpha = u_beta = 0.0
-            plant_advance(d.plant_x, u_alpha, u_beta, d.tau_load[k], s.mode == "imposed_speed",
-                          d.speed_ref[k], d.machine, d.preset.mechanics, d.inverter, s.T_s, s.substeps)
+            plant_advance(p.x, u_alpha, u_beta, self.tau_load[k], p.imposed_speed, self.speed_ref[k], p.machine,
+                          p.mechanics, p.inverter, p.T_s, p.substeps)
             self.k += 1
             if self.rate_Hz:
                 wait = start + (k + 1) / self.rate_Hz - time.monotonic()
@@ -225,3 +230,17 @@ class VirtualInverter:
             self.held_back = None
         if due(f.duplicate_every, "duplicated"):
             emit(item)
+
+
+def make_links(link, workdir, drive_id=0, channel=None):
+    """(inverter endpoint, host link) of a fresh virtual link: a pty whose slave the host opens by a
+    symlink in ``workdir``, or a CAN channel (python-can's virtual bus unless SocketCAN has it)."""
+    if link == "pty":
+        endpoint = PtyEndpoint(Path(workdir) / f"inverter{drive_id}")
+        return endpoint, SerialLink(endpoint.link_path)
+    if link == "can":
+        channel = channel or f"drive_bridge_{id(workdir)}"
+        endpoint = CanLink(channel, drive_id)
+        endpoint.open()
+        return endpoint, CanLink(channel, drive_id)
+    raise ValueError(f"unknown virtual link '{link}' (known: {', '.join(LINKS)})")

@@ -1,1 +1,2 @@
-"""Cascade FOC core (speed PI, d/q current PIs, voltage limiting) and PI tuning (no rclpy)."""
+"""Cascade FOC core (speed PI, d/q current PIs, voltage limiting), PI tuning (no rclpy), and the
+controller node."""

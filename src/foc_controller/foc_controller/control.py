@@ -11,9 +11,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from pmsm_plant.frames import SQRT3, clarke_contract, rotate
-
-from .discrete import pi_limited, sos_step
+from control_math.filters import sos_step
+from control_math.frames import SQRT3, clarke_contract, rotate
+from control_math.pi import pi_limited
 
 # Controller state layout (integrators, filtered speed, last command); the notch states (d, q) live
 # in a separate array.
@@ -53,12 +53,15 @@ class ControllerParams(NamedTuple):
 @njit(cache=True)
 def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omega_m_ref,
                     u_inj_alpha, u_inj_beta):
-    """One control period from sample k: returns the stator voltage command (u_α, u_β) for the next
-    period and the (HF-rejected) feedback currents i_d, i_q and references i_d*, i_q*.
+    """One control period from sample k: measured phase currents [A], the estimate θ̂_e [rad] and ω̂_e
+    [rad/s] (electrical), the speed reference ω*_m [rad/s] and the estimator's injection [V, αβ] →
+    the stator voltage command (u_α, u_β) [V] for the next period, the (HF-rejected) feedback currents
+    i_d, i_q and the references i_d*, i_q* [A]. State x: INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED,
+    LAST_U_ALPHA, LAST_U_BETA; z_notch: the notch sections of d (z_notch[0]) and q (z_notch[1]).
 
     The estimated speed is low-pass filtered once and that value feeds the speed loop, the back-EMF
     decoupling and the delay compensation: a raw PLL speed in the feed-forward closes a fast loop
-    through the estimator (shared/notes/hf-demodulation.md §3)."""
+    through the estimator (docs/hf-demodulation.md §3)."""
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     i_d, i_q = rotate(i_alpha, i_beta, -theta_e_hat)
     if c.hf_notch_sos.shape[0] > 0:

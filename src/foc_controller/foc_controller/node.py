@@ -4,34 +4,49 @@ For sample k it joins `currents`, `rotor_estimate` and `injection` stamped k, ru
 latest `speed_command`, and answers `voltage_command`(k). The robot-facing `joint_states` (estimated
 position, speed, torque) is published every ``joint_states_decimation`` samples. Bad currents or
 estimates, or a rejected speed limit, give zero voltage and a reported fault; the node keeps answering.
+
+The core is built once the estimator's drive_config tells what the controller needs of it: its
+injection frequency (the notch), its tracking bandwidth (the speed loop stays below it) and the current
+up to which its angle holds (the current limit). Until then `voltage_command` is not offered, so the
+plant does not start.
 """
+import dataclasses
+import json
 import math
+import sys
 
 from geometry_msgs.msg import Vector3Stamped
-from pmsm_plant.contract import (COMMAND_QOS, PER_SAMPLE_QOS, RESYNC_SAMPLES, DriveNode, finite, sample_of,
-                                 stamp)
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64
+from std_msgs.msg import Float64, String
 
-from .control import OMEGA_FILTERED, controller_step, estimated_torque
+from drive_interface.node import finite, run_node, stamp, topic_qos
+from drive_interface.stamps import RESYNC_SAMPLES, sample_of
+from drive_scenarios.node import ScenarioNode
+
+from .build import check_controller_settings, controller_for_scenario
+from .control import OMEGA_FILTERED, controller_state, controller_step, estimated_torque
 from .params import check_speed_limit
 
 SPEED_LIMIT = "controller.speed_limit_rad_s"
+ESTIMATOR_NODE = "hf_estimator"
 
 
-class ControllerNode(DriveNode):
-    def __init__(self, builder, **kwargs):
-        super().__init__("foc_controller", builder, **kwargs)
+class ControllerNode(ScenarioNode):
+    def __init__(self, **kwargs):
+        self.params = None
+        super().__init__("foc_controller", **kwargs)
         self.declare_parameter("joint_states_decimation", 100)
         self.decimation = max(1, int(self.get_parameter("joint_states_decimation").value))
-        self.joint_pub = self.create_publisher(JointState, "joint_states", COMMAND_QOS)
+        self.joint_pub = self.create_publisher(JointState, "joint_states", topic_qos("joint_states"))
         inputs = [self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents),
-                                           PER_SAMPLE_QOS),
-                  self.create_subscription(JointState, "rotor_estimate", self.on_estimate, PER_SAMPLE_QOS),
-                  self.create_subscription(Vector3Stamped, "injection", self.on_injection, PER_SAMPLE_QOS)]
-        self.open_when_matched(inputs, self.open_outputs)
-        self.create_subscription(Float64, "speed_command", self.on_speed_command, COMMAND_QOS)
+                                           topic_qos("currents")),
+                  self.create_subscription(JointState, "rotor_estimate", self.on_estimate,
+                                           topic_qos("rotor_estimate")),
+                  self.create_subscription(Vector3Stamped, "injection", self.on_injection, topic_qos("injection"))]
+        self.open_when_matched(inputs, self.open_outputs, ready=lambda: self.params or not self.configured)
+        self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
+        self.create_subscription(String, "drive_config", self.on_drive_config, topic_qos("drive_config"))
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.currents, self.estimates, self.injections = {}, {}, {}
         self.k = 0
@@ -40,21 +55,42 @@ class ControllerNode(DriveNode):
         self.voltage_msg = Vector3Stamped()
         self.voltage_msg.header.frame_id = "alpha_beta"
         self.joint_msg = JointState(name=["rotor"])
-        if self.drive:
-            self.params = self.drive.controller
-            self.n_p = self.params.n_p
-            self.trip_A = self.trip_current_A()
-            self.publish_config({"controller": self.params})
-        else:
+        if not self.configured:
             self.publish_config({})
 
-    def warm_up(self):
-        d = self.drive
-        controller_step(d.controller_x.copy(), d.controller_z.copy(), d.controller, 0.0, 0.0, 0.0, 0.0, 0.0,
-                        0.0, 0.0, 0.0)
+    def build(self, scenario):
+        check_controller_settings(scenario)
+
+    def on_drive_config(self, msg):
+        """Build the core from the estimator's facts, once."""
+        if self.params is not None or not self.configured:
+            return
+        try:
+            config = json.loads(msg.data)
+        except ValueError:
+            return
+        if not str(config.get("node", "")).endswith(f"/{ESTIMATOR_NODE}"):
+            return
+        try:
+            if "estimator" not in config:
+                raise ValueError(f"the estimator's configuration was rejected ({config.get('error')}); "
+                                 f"nothing to control with")
+            self.params = controller_for_scenario(self.scenario, config["injection_frequency_Hz"],
+                                                  config["tracking_bandwidth_Hz"],
+                                                  config["tracking_current_limit_A"])
+        except ValueError as error:
+            self.configured = False
+            self.reject(error)
+            self.publish_config({})
+            return
+        self.n_p = self.params.n_p
+        self.trip_A = self.trip_current_A()
+        self.x, self.z = controller_state(self.params, self.n_p * self.scenario.initial_omega_m_rad_s)
+        controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self.publish_config({"controller": self.params, "estimator": config["estimator"]})
 
     def open_outputs(self):
-        self.voltage_pub = self.create_publisher(Vector3Stamped, "voltage_command", PER_SAMPLE_QOS)
+        self.voltage_pub = self.create_publisher(Vector3Stamped, "voltage_command", topic_qos("voltage_command"))
 
     def on_set_parameters(self, parameters):
         for p in parameters:
@@ -67,8 +103,11 @@ class ControllerNode(DriveNode):
                                       f"valid limit is set"
                 self.fault("parameter", self.health.latched)
                 return SetParametersResult(successful=False, reason=str(error))
-            if self.drive:
+            if self.params:
                 self.params = self.params._replace(speed_limit_rad_s=float(p.value))
+            elif self.scenario:
+                self.scenario = dataclasses.replace(
+                    self.scenario, controller={**self.scenario.controller, "speed_limit_rad_s": float(p.value)})
             if self.health.latched and SPEED_LIMIT in self.health.latched:
                 self.health.latched = None
         return SetParametersResult(successful=True)
@@ -115,7 +154,7 @@ class ControllerNode(DriveNode):
 
     def step(self, k, currents, estimate, injection):
         u_alpha = u_beta = 0.0
-        if not self.drive or self.health.latched:
+        if not self.params or self.health.latched:
             pass
         elif not finite(*currents) or max(map(abs, currents)) > self.trip_A:
             self.fault("bad_input", f"currents at sample {k}: {currents} A are not finite or beyond the "
@@ -123,16 +162,15 @@ class ControllerNode(DriveNode):
         elif not finite(*estimate, *injection):
             self.fault("bad_input", f"rotor_estimate/injection at sample {k} not finite; zero voltage")
         else:
-            d = self.drive
             u_alpha, u_beta, i_d, i_q, _, i_q_ref = controller_step(
-                d.controller_x, d.controller_z, self.params, *currents, self.n_p * estimate[0],
-                self.n_p * estimate[1], self.omega_m_ref, *injection)
+                self.x, self.z, self.params, *currents, self.n_p * estimate[0], self.n_p * estimate[1],
+                self.omega_m_ref, *injection)
             self.current_limited = abs(i_q_ref) >= self.params.i_max_A
             if k % self.decimation == 0:
                 j = self.joint_msg
                 j.header.stamp = stamp(k, self.T_s)
                 j.position = [estimate[0]]
-                j.velocity = [d.controller_x[OMEGA_FILTERED] / self.n_p]
+                j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
                 j.effort = [estimated_torque(self.params, i_d, i_q)]
                 self.joint_pub.publish(j)
         m = self.voltage_msg
@@ -143,3 +181,13 @@ class ControllerNode(DriveNode):
     def status_values(self):
         return {"sample": self.k, "speed_command_rad_s": self.omega_m_ref,
                 "current_limited": self.current_limited}
+
+
+def main(argv=None):
+    """``controller_node [--executor events|single] --ros-args ...`` (``ros2 run foc_controller
+    controller_node``)."""
+    return run_node(ControllerNode, "controller_node", argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

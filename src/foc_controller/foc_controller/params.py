@@ -1,11 +1,12 @@
-"""Controller parameters for a motor preset: estimated motor values from the nameplate, gains from
-Szabó Table 2 or from the bandwidth/damping rule of ``tuning``."""
+"""Controller parameters for a motor known by its nameplate and inverter rating: the motor values are
+the nameplate's, the gains Szabó Table 2 or the bandwidth/damping rule of ``tuning``."""
 import math
 
 import numpy as np
 
+from control_math.filters import notch
+
 from .control import ControllerParams
-from .discrete import notch
 from .tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
 
 DEFAULTS = {
@@ -24,9 +25,10 @@ DEFAULTS = {
 }
 
 
-def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.0,
+def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
                            estimator_bandwidth_Hz=math.inf):
-    """ControllerParams for ``preset`` at sampling period T_s.
+    """ControllerParams for a motor with this ``nameplate`` (motor_params.nameplate.Nameplate) on an
+    ``inverter`` (InverterRating) at sampling period T_s.
 
     settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s,
     current_damping, speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A,
@@ -36,40 +38,46 @@ def make_controller_params(preset, T_s, settings=None, injection_frequency_Hz=0.
     angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · estimator_bandwidth_Hz
     (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
     """
-    s = dict(DEFAULTS)
-    unknown = set(settings or {}) - set(DEFAULTS)
-    if unknown:
-        raise KeyError(f"controller: unknown setting(s) {', '.join(sorted(unknown))} "
-                       f"(known: {', '.join(sorted(DEFAULTS))})")
-    s.update(settings or {})
-    m = preset.nameplate
+    s = check_settings(settings)
+    m = nameplate
     k_t = 1.5 * m.n_p * m.psi_f_Wb
     if s["gains"] == "szabo_table2":
         d, q, w = SZABO_TABLE2["d"], SZABO_TABLE2["q"], SZABO_TABLE2["speed"]
     elif s["gains"] == "rule":
         d = current_pi_gains(m.L_d_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
         q = current_pi_gains(m.L_q_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
-        w = speed_pi_gains(preset.mechanics.J_kgm2, preset.mechanics.B_Nms, k_t,
+        w = speed_pi_gains(m.J_kgm2, m.B_Nms, k_t,
                            _capped_speed_bandwidth(s, estimator_bandwidth_Hz), s["speed_damping"])
-    else:
-        raise ValueError(f"controller: gains must be 'rule' or 'szabo_table2', not '{s['gains']}'")
-    i_max = s["current_limit_A"] if s["current_limit_A"] is not None else preset.current_limit_A
-    if i_max <= 0.0:
-        raise ValueError(f"controller: current_limit_A must be positive, got {i_max}")
-    check_speed_limit(s["speed_limit_rad_s"])
-    delay = preset.inverter.delay_periods + 0.5 if s["delay_compensation"] else 0.0
+    i_max = s["current_limit_A"] if s["current_limit_A"] is not None else m.current_limit_A
+    delay = inverter.delay_periods + 0.5 if s["delay_compensation"] else 0.0
     if injection_frequency_Hz > 0.0:
         sos = notch(injection_frequency_Hz, s["hf_notch_quality"], T_s)
     else:
         sos = np.zeros((0, 6))
     return ControllerParams(
         T_s_s=T_s, n_p=m.n_p, R_s_ohm=m.R_s_ohm, L_d_H=m.L_d_H, L_q_H=m.L_q_H, psi_f_Wb=m.psi_f_Wb,
-        U_dc_V=preset.inverter.U_dc_V, kp_d=d.kp, ki_d=d.ki, kp_q=q.kp, ki_q=q.ki,
+        U_dc_V=inverter.U_dc_V, kp_d=d.kp, ki_d=d.ki, kp_q=q.kp, ki_q=q.ki,
         kp_speed=w.kp, ki_speed=w.ki, i_max_A=float(i_max), decoupling=bool(s["decoupling"]),
         delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos),
         speed_filter_gain=(1.0 - math.exp(-2.0 * math.pi * s["speed_filter_Hz"] * T_s)
                            if s["speed_filter_Hz"] > 0.0 else 1.0),
         speed_limit_rad_s=float(s["speed_limit_rad_s"]))
+
+
+def check_settings(settings):
+    """The defaults with ``settings`` applied; KeyError for an unknown key, ValueError for an unusable
+    value of ``gains``, ``current_limit_A`` or ``speed_limit_rad_s``, each naming the key."""
+    unknown = set(settings or {}) - set(DEFAULTS)
+    if unknown:
+        raise KeyError(f"controller: unknown setting(s) {', '.join(sorted(unknown))} "
+                       f"(known: {', '.join(sorted(DEFAULTS))})")
+    s = {**DEFAULTS, **(settings or {})}
+    if s["gains"] not in ("rule", "szabo_table2"):
+        raise ValueError(f"controller: gains must be 'rule' or 'szabo_table2', not '{s['gains']}'")
+    if s["current_limit_A"] is not None and s["current_limit_A"] <= 0.0:
+        raise ValueError(f"controller: current_limit_A must be positive, got {s['current_limit_A']}")
+    check_speed_limit(s["speed_limit_rad_s"])
+    return s
 
 
 def check_speed_limit(value):

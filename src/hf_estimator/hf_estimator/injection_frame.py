@@ -1,6 +1,6 @@
 """``injection_frame`` — our estimator: the incremental admittance identified from current steps in
-the injection frame, with an alternating injection axis (shared/notes/hf-demodulation.md §2-4 turned
-into a design).
+the injection frame, with an alternating injection axis (docs/hf-demodulation.md §2-4 turned into a
+design).
 
 1. Carrier synchronous with sampling: c_k = cos(2πk/N), N = round(f_s/f_h) samples per period
    (900 Hz at 10 kHz becomes 909.1 Hz), injected along θ_axis ± δ (δ = π/8, sign alternating every
@@ -34,10 +34,11 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from pmsm_plant.frames import clarke_contract, rotate
+from control_math.frames import clarke_contract, rotate
+from control_math.tables import table_value
 
-from .common import commissioned_value, pi_tracking_loop
 from .interface import Estimator, check_settings, register
+from .tracking_loop import pi_tracking_loop
 
 THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH, I_Q_SMOOTH = range(7)
 SUMS = 7
@@ -100,6 +101,11 @@ def _fit_error(x, n, p):
 @njit(cache=True)
 def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder,
                          omega_e_encoder):
+    """One sample (interface.py): currents i_a, i_b, i_c [A] and the command issued at k−1 (u_prev) [V] →
+    (θ̂_e, ω̂_e = the loop's integrator, u_inj_α, u_inj_β, ε [rad], |Δ̂| [1/H], observable). State x:
+    θ̂, integrator, previous currents, fit count, smoothed |Δ̂| and î_q (indices THETA..I_Q_SMOOTH), the
+    10 sliding sums (SUMS), the ring of (axis, command α, β) per sample × (d + 2), the regressor ring
+    (a, b, y1, y2) × 2N; z unused; p: InjectionFrameParams."""
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     depth = p.delay_periods + 2
     issued = HISTORY
@@ -148,7 +154,7 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
             x[DELTA_SMOOTH] += p.smoothing * (delta - x[DELTA_SMOOTH])
             if x[DELTA_SMOOTH] > p.observable_ratio * abs(sigma):
                 observable = 1.0
-                eps = error - commissioned_value(x[I_Q_SMOOTH], p.shift_i_q_A, p.shift_rad)
+                eps = error - table_value(x[I_Q_SMOOTH], p.shift_i_q_A, p.shift_rad)
 
     pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
     omega = x[INTEGRAL]
@@ -162,15 +168,16 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
 
 
 @register("injection_frame", "ours: incremental admittance fitted from current steps and the applied "
-                             "voltage in the injection frame; alternating axis; model-free observability")
-def make_injection_frame(preset, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+                             "voltage in the injection frame; alternating axis; model-free observability",
+          "ours, after docs/hf-demodulation.md §2-4")
+def make_injection_frame(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
     s = check_settings("injection_frame", settings, DEFAULTS)
     N = int(round(1.0 / (float(s["frequency_Hz"]) * T_s)))
     if N < 3:
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     params = InjectionFrameParams(
-        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), R_s_ohm=preset.nameplate.R_s_ohm,
+        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), R_s_ohm=nameplate.R_s_ohm,
         dither_rad=float(s["dither_rad"]),
         delay_periods=int(delay_periods), kp=2.0 * float(s["pll_damping"]) * omega_n, ki=omega_n ** 2,
         observable_ratio=float(s["observable_ratio"]),

@@ -12,14 +12,15 @@ strength (estimator-specific units, documented per estimator) and ``observable``
 is strong enough to trust θ̂, else 0.0. u_prev is the voltage command the controller issued at sample
 k−1 (the `voltage_command` topic; the papers' methods ignore it). x (1-D) and z (filter sections) are
 the estimator's state; p its parameters. The encoder inputs are read only by the ``sensored`` pass-through.
+
+What an estimator knows of the motor is its nameplate (``motor_params.nameplate``) and the commissioning
+record measured on it (``motor_params.commissioning``); never the plant.
 """
 import math
 from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
-
-from .common import commission
 
 
 @dataclass(frozen=True)
@@ -34,16 +35,25 @@ class Estimator:
     injection_frequency_Hz: float
     tracking_bandwidth_Hz: float = math.inf
     """Natural frequency of the angle-tracking loop (∞ for a sensor): the speed loop is kept below it."""
+    tracking_current_limit_A: float = None
+    """The largest current at which its angle information holds (injecting estimators; None: no limit)."""
+
+    def facts(self):
+        """What the controller needs to know of this estimator (published in its drive_config)."""
+        return {"estimator": self.name, "injection_frequency_Hz": self.injection_frequency_Hz,
+                "tracking_bandwidth_Hz": self.tracking_bandwidth_Hz,
+                "tracking_current_limit_A": self.tracking_current_limit_A}
 
 
 _REGISTRY = {}
 
 
-def register(name, description, injects=True):
-    """Register ``factory(preset, T_s, settings, θ_e0, ω_e0, commissioning, delay_periods) -> Estimator``;
-    ``injects``: it takes the settings frequency_Hz and amplitude_V for its HF injection."""
+def register(name, description, paper, injects=True):
+    """Register ``factory(nameplate, T_s, settings, θ_e0, ω_e0, commissioning, delay_periods) -> Estimator``
+    from the module named ``name``; ``paper``: the section it implements; ``injects``: it takes the
+    settings frequency_Hz and amplitude_V for its HF injection."""
     def wrap(factory):
-        _REGISTRY[name] = (factory, description, injects)
+        _REGISTRY[name] = (factory, description, injects, paper)
         return factory
     return wrap
 
@@ -63,23 +73,18 @@ def estimator_names():
 
 
 def describe(name):
-    return _entry(name)[1]
+    """{name, description, paper, module} of a registered estimator."""
+    factory, description, _, paper = _entry(name)
+    return {"name": name, "description": description, "paper": paper, "module": factory.__module__}
 
 
-def make_estimator(name, preset, T_s, settings=None, theta_e0=0.0, omega_e0=0.0, commissioning=None,
-                   delay_periods=None):
-    """Build the estimator ``name`` for a motor preset; θ_e0, ω_e0 are its initial estimates.
-
-    ``commissioning`` (hf_estimator.common.Commissioning) holds the HF inductances measured on the
-    drive's own motor at standstill (default: the preset's motor); ``delay_periods`` the inverter's
-    computation delay (default: the preset's).
-    """
+def make_estimator(name, nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+    """Build the estimator ``name`` for a motor known by its ``nameplate`` (motor_params.nameplate) and
+    ``commissioning`` record (the HF inductances and saliency-shift tables measured at standstill);
+    θ_e0, ω_e0 are its initial estimates [rad, rad/s electrical], ``delay_periods`` the inverter's
+    computation delay. KeyError or ValueError name the setting at fault."""
     factory = _entry(name)[0]
-    if commissioning is None:
-        commissioning = commission(preset.machine, preset.current_limit_A)
-    if delay_periods is None:
-        delay_periods = preset.inverter.delay_periods
-    return factory(preset, T_s, dict(settings or {}), theta_e0, omega_e0, commissioning, delay_periods)
+    return factory(nameplate, T_s, dict(settings or {}), theta_e0, omega_e0, commissioning, delay_periods)
 
 
 def check_settings(name, settings, defaults):

@@ -6,17 +6,36 @@ timeout, which is what the plant then applied) and, for `sensored` only, `rotor_
 `rotor_estimate`(k), `injection`(k) and `estimator_state`(k) (x = ε, y = signal, z = observable).
 Non-finite or absurd currents are not fed to the core: the node answers with its last estimate and
 no injection, and reports the fault.
+
+What it knows of the motor: the scenario's nameplate and the commissioning file named by the parameter
+``commissioning`` (default: ``commissioning/MOTOR.yaml`` in the working directory). Its drive_config
+carries what the controller needs of it (``Estimator.facts``).
 """
+import sys
 import time
+from pathlib import Path
 
 from geometry_msgs.msg import Vector3Stamped
-from pmsm_plant.contract import PER_SAMPLE_QOS, RESYNC_SAMPLES, DriveNode, finite, sample_of, stamp
 from sensor_msgs.msg import JointState
 
+from drive_interface.node import describe, finite, run_node, stamp, topic_qos
+from drive_interface.stamps import RESYNC_SAMPLES, sample_of
+from drive_scenarios.node import ScenarioNode
+from motor_params.commissioning import CommissioningError, load_commissioning
 
-class EstimatorNode(DriveNode):
-    def __init__(self, builder, **kwargs):
-        super().__init__("hf_estimator", builder, **kwargs)
+from .build import estimator_for_scenario
+
+COMMISSIONING = "commissioning"
+
+
+def default_commissioning_file(motor):
+    """Where a motor's commissioning file is looked for when none is named."""
+    return Path("commissioning") / f"{motor}.yaml"
+
+
+class EstimatorNode(ScenarioNode):
+    def __init__(self, **kwargs):
+        super().__init__("hf_estimator", **kwargs)
         self.currents = {}
         self.voltages = {}
         self.encoder = {}
@@ -27,38 +46,57 @@ class EstimatorNode(DriveNode):
         self.state_msg = Vector3Stamped()
         self.observable = 0.0
         self.signal = 0.0
-        if not self.drive:
+        if not self.configured:
             self.open_outputs()
             self.publish_config({})
             return
-        e, s = self.drive.estimator, self.drive.scenario
+        e, s = self.estimator, self.scenario
         self.sensored = e.name == "sensored"
-        self.n_p = self.drive.machine.n_p
+        self.n_p = self.nameplate().n_p
         self.k = 0
         self.theta_hat = s.initial_theta_m_rad * self.n_p - s.initial_angle_error_e_rad
         self.omega_hat = self.n_p * s.initial_omega_m_rad_s
         self.trip_A = self.trip_current_A()
         inputs = [self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents),
-                                           PER_SAMPLE_QOS)]
-        self.create_subscription(Vector3Stamped, "voltage_command", self.on_voltage_command, PER_SAMPLE_QOS)
+                                           topic_qos("currents"))]
+        self.create_subscription(Vector3Stamped, "voltage_command", self.on_voltage_command,
+                                 topic_qos("voltage_command"))
         if self.sensored:
             inputs.append(self.create_subscription(JointState, "rotor_state", self.on_rotor_state,
-                                                   PER_SAMPLE_QOS))
+                                                   topic_qos("rotor_state")))
         self.open_when_matched(inputs, self.open_outputs)
         self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
-        self.publish_config({"estimator": e.name, "injection_frequency_Hz": e.injection_frequency_Hz,
-                             "tracking_bandwidth_Hz": e.tracking_bandwidth_Hz,
+        self.publish_config({**e.facts(), "commissioning": self.commissioning_source,
                              "estimator_parameters": e.params})
+
+    def build(self, scenario):
+        self.declare_parameter(COMMISSIONING, "", descriptor=describe(
+            "commissioning file (empty: commissioning/MOTOR.yaml in the working directory)"))
+        given = self.get_parameter(COMMISSIONING).value
+        self.parameters[COMMISSIONING] = given
+        path = Path(given) if given else default_commissioning_file(scenario.motor)
+        if not given and not path.is_file():
+            raise CommissioningError(f"parameter {COMMISSIONING}: none given and no {path} for motor "
+                                     f"{scenario.motor} (write one with `drive commission`)")
+        try:
+            commissioning, metadata = load_commissioning(path)
+        except CommissioningError as error:
+            raise CommissioningError(f"parameter {COMMISSIONING}: {error}") from None
+        if metadata.get("motor") not in (None, scenario.motor):
+            raise CommissioningError(f"parameter {COMMISSIONING}: {path} is for motor {metadata['motor']}, "
+                                     f"the scenario's is {scenario.motor}")
+        self.commissioning_source = str(path)
+        self.estimator = estimator_for_scenario(scenario, commissioning)
 
     def open_outputs(self):
         """The answer publishers; `voltage_command` is not waited for (the controller opens its own
         publisher only after these match, and sample 0 needs no previous command)."""
-        self.estimate_pub = self.create_publisher(JointState, "rotor_estimate", PER_SAMPLE_QOS)
-        self.injection_pub = self.create_publisher(Vector3Stamped, "injection", PER_SAMPLE_QOS)
-        self.state_pub = self.create_publisher(Vector3Stamped, "estimator_state", PER_SAMPLE_QOS)
+        self.estimate_pub = self.create_publisher(JointState, "rotor_estimate", topic_qos("rotor_estimate"))
+        self.injection_pub = self.create_publisher(Vector3Stamped, "injection", topic_qos("injection"))
+        self.state_pub = self.create_publisher(Vector3Stamped, "estimator_state", topic_qos("estimator_state"))
 
     def warm_up(self):
-        e = self.drive.estimator
+        e = self.estimator
         e.step(e.x.copy(), e.z.copy(), e.params, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
     def on_currents(self, msg):
@@ -109,7 +147,7 @@ class EstimatorNode(DriveNode):
                                     f"beyond the {self.trip_A:g} A trip; estimate held, no injection")
             self.answer(k, self.theta_hat, self.omega_hat, 0.0, 0.0, 0.0, self.signal, 0.0)
         else:
-            e = self.drive.estimator
+            e = self.estimator
             self.answer(k, *e.step(e.x, e.z, e.params, k, i_a, i_b, i_c, u_alpha, u_beta, theta_enc,
                                    omega_enc))
         self.try_step()
@@ -140,7 +178,16 @@ class EstimatorNode(DriveNode):
             self.try_step(force_voltage=True)
 
     def status_values(self):
-        if not self.drive:
+        if not self.configured:
             return {}
         return {"sample": getattr(self, "k", 0), "observable": bool(self.observable > 0.5),
-                "signal": self.signal, "estimator": self.drive.estimator.name}
+                "signal": self.signal, "estimator": self.estimator.name}
+
+
+def main(argv=None):
+    """``estimator_node [--executor events|single] --ros-args ...`` (``ros2 run hf_estimator estimator_node``)."""
+    return run_node(EstimatorNode, "estimator_node", argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

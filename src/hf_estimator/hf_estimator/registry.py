@@ -1,5 +1,5 @@
 """Importing this module registers every estimator core."""
-from . import injection_frame, sensored, szabo, wang  # noqa: F401
+from . import conventional, improved, injection_frame, sensored, synchronous  # noqa: F401
 from .interface import describe, estimator_names, make_estimator  # noqa: F401
 
 DEFAULT_ESTIMATOR = "injection_frame"

@@ -1,1 +1,2 @@
-"""PMSM plant core: continuous-time motor, averaged inverter and current sensing (no rclpy)."""
+"""PMSM plant core: continuous-time motor, averaged inverter and current sensing (no rclpy), and the
+plant node."""

@@ -10,7 +10,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .frames import clarke, inverse_clarke, rotate
+from control_math.frames import clarke, inverse_clarke, rotate
 
 # Plant state vector layout.
 PSI_ALPHA, PSI_BETA, OMEGA_M, THETA_M, U_PENDING_ALPHA, U_PENDING_BETA = range(6)

@@ -9,6 +9,7 @@ With ``load_torque_per_sample`` (a scenario driver acting as the dyno) the plant
 `load_torque` message per sample and starts sample k only once it has the k-th; the shaft speed of
 imposed-speed scenarios is the latest `speed_command` at that moment. Otherwise the latest load applies.
 """
+import sys
 import time
 from collections import deque
 
@@ -17,30 +18,35 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
-from .contract import (COMMAND_QOS, PER_SAMPLE_QOS, DriveNode, finite, sample_of, stamp,
-                       stamp_ns)
-from .frames import wrap
+from control_math.frames import wrap
+from drive_interface.node import finite, run_node, stamp, topic_qos
+from drive_interface.stamps import sample_of, stamp_ns
+from drive_scenarios.node import ScenarioNode
+
+from .build import plant_for_scenario
 from .model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
 HISTORY_SAMPLES = 8
 
 
-class PlantNode(DriveNode):
-    def __init__(self, builder, **kwargs):
-        super().__init__("pmsm_plant", builder, **kwargs)
+class PlantNode(ScenarioNode):
+    def __init__(self, **kwargs):
+        super().__init__("pmsm_plant", **kwargs)
         self.declare_parameter("load_torque_per_sample", False)
         self.declare_parameter("angle_error_decimation", 1)
         self.load_per_sample = self.get_parameter("load_torque_per_sample").value
         self.angle_error_decimation = max(1, int(self.get_parameter("angle_error_decimation").value))
-        self.currents_pub = self.create_publisher(Vector3Stamped, "currents", PER_SAMPLE_QOS)
-        self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", PER_SAMPLE_QOS)
-        self.clock_pub = self.create_publisher(Clock, "/clock", PER_SAMPLE_QOS)
-        self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", COMMAND_QOS)
+        self.currents_pub = self.create_publisher(Vector3Stamped, "currents", topic_qos("currents"))
+        self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", topic_qos("rotor_state"))
+        self.clock_pub = self.create_publisher(Clock, "/clock", topic_qos("/clock"))
+        self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", topic_qos("angle_error"))
         self.voltage_sub = self.create_subscription(Vector3Stamped, "voltage_command",
-                                                    self.timed(self.on_voltage_command), PER_SAMPLE_QOS)
-        self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate, PER_SAMPLE_QOS)
-        self.create_subscription(Float64, "load_torque", self.on_load_torque, COMMAND_QOS)
-        self.create_subscription(Float64, "speed_command", self.on_speed_command, COMMAND_QOS)
+                                                    self.timed(self.on_voltage_command),
+                                                    topic_qos("voltage_command"))
+        self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate,
+                                 topic_qos("rotor_estimate"))
+        self.create_subscription(Float64, "load_torque", self.on_load_torque, topic_qos("load_torque"))
+        self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
         self.k = 0
         self.tau_load = 0.0
         self.loads = deque()
@@ -58,25 +64,26 @@ class PlantNode(DriveNode):
         self.rotor_state_msg = JointState(name=["rotor"])
         self.error_msg = Vector3Stamped()
         self.clock_msg = Clock()
-        if self.drive:
-            s = self.drive.scenario
+        if self.configured:
+            s, p = self.scenario, self.plant
             self.n_samples = s.n_samples
-            self.imposed = s.mode == "imposed_speed"
             self.publish_config({"scenario": s.name, "T_s_s": s.T_s, "samples": s.n_samples,
-                                 "mode": s.mode, "machine": self.drive.machine,
-                                 "mechanics": self.drive.preset.mechanics, "inverter": self.drive.inverter,
-                                 "sensor": self.drive.sensor, "non_idealities": s.non_idealities})
+                                 "mode": s.mode, "machine": p.machine, "mechanics": p.mechanics,
+                                 "inverter": p.inverter, "sensor": p.sensor, "non_idealities": s.non_idealities})
             self.create_timer(min(self.timeout_s / 4.0, 0.05), self.watchdog)
         else:
             self.publish_config({})
 
+    def build(self, scenario):
+        self.plant = plant_for_scenario(scenario)
+
     def warm_up(self):
-        d, s = self.drive, self.drive.scenario
-        x = d.plant_x.copy()
-        i_a, i_b, i_c, _ = plant_outputs(x, d.machine)
-        sense_currents(i_a, i_b, i_c, d.sensor, s.seed, 0)
-        plant_advance(x, 0.0, 0.0, 0.0, s.mode == "imposed_speed", 0.0, d.machine, d.preset.mechanics,
-                      d.inverter, s.T_s, s.substeps)
+        p = self.plant
+        x = p.x.copy()
+        i_a, i_b, i_c, _ = plant_outputs(x, p.machine)
+        sense_currents(i_a, i_b, i_c, p.sensor, p.seed, 0)
+        plant_advance(x, 0.0, 0.0, 0.0, p.imposed_speed, 0.0, p.machine, p.mechanics, p.inverter, p.T_s,
+                      p.substeps)
         wrap(0.0)
 
     def on_load_torque(self, msg):
@@ -126,16 +133,16 @@ class PlantNode(DriveNode):
             self.advance(0.0, 0.0, safe_state=True)
 
     def publish_sample(self):
-        d, k = self.drive, self.k
+        p, k = self.plant, self.k
         if self.load_per_sample:
             self.waiting_for_load = not self.loads
             if self.waiting_for_load:
                 return
             self.tau_load = self.loads.popleft()
         self.omega_imposed = self.latest_speed
-        x = d.plant_x
-        i_a, i_b, i_c, tau_e = plant_outputs(x, d.machine)
-        m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, d.sensor, d.scenario.seed, k)
+        x = p.x
+        i_a, i_b, i_c, tau_e = plant_outputs(x, p.machine)
+        m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, p.sensor, p.seed, k)
         self.history[k] = (x[THETA_M], x[OMEGA_M])
         self.history.pop(k - HISTORY_SAMPLES, None)
         t = stamp(k, self.T_s)
@@ -163,7 +170,7 @@ class PlantNode(DriveNode):
                                       f"sample {self.k} ({stamp_ns(self.k, self.T_s)} ns); discarded")
             return
         u = msg.vector
-        limit = self.drive.inverter.U_dc_V
+        limit = self.plant.inverter.U_dc_V
         if not finite(u.x, u.y) or abs(u.x) > limit or abs(u.y) > limit:
             self.fault("bad_input", f"voltage_command at sample {k}: ({u.x}, {u.y}) V is not a voltage the "
                                     f"inverter can apply; zero voltage applied")
@@ -173,10 +180,10 @@ class PlantNode(DriveNode):
 
     def advance(self, u_alpha, u_beta, safe_state=False):
         """Apply the command of sample k (zero voltage as the safe state after a fault) and go to k+1."""
-        d, s = self.drive, self.drive.scenario
+        p = self.plant
         self.zero_voltage_periods += safe_state
-        plant_advance(d.plant_x, u_alpha, u_beta, self.tau_load, self.imposed, self.omega_imposed, d.machine,
-                      d.preset.mechanics, d.inverter, s.T_s, s.substeps)
+        plant_advance(p.x, u_alpha, u_beta, self.tau_load, p.imposed_speed, self.omega_imposed, p.machine,
+                      p.mechanics, p.inverter, p.T_s, p.substeps)
         self.k += 1
         if self.k >= self.n_samples:
             self.finished = True
@@ -191,7 +198,7 @@ class PlantNode(DriveNode):
         if k % self.angle_error_decimation or not finite(*msg.position, *msg.velocity):
             return
         theta_m, omega_m = self.history[k]
-        n_p = self.drive.machine.n_p
+        n_p = self.plant.machine.n_p
         e = self.error_msg
         e.header.stamp = msg.header.stamp
         e.vector.x = wrap(n_p * (theta_m - msg.position[0]))
@@ -201,3 +208,12 @@ class PlantNode(DriveNode):
     def status_values(self):
         return {"sample": self.k, "started": self.started, "finished": self.finished,
                 "sim_time_s": self.k * self.T_s, "safe_state_periods": self.zero_voltage_periods}
+
+
+def main(argv=None):
+    """``plant_node [--executor events|single] --ros-args ...`` (``ros2 run pmsm_plant plant_node``)."""
+    return run_node(PlantNode, "plant_node", argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,8 +1,9 @@
 """True (plant-side) parameters of the motor, its mechanics, the inverter and the current sensors.
 
 Parameters are immutable ``NamedTuple``s: frozen like motulator's dataclasses, with SI units in the
-field names, and passable unchanged into the numba kernels. Estimated parameters, used by controllers
-and estimators, live elsewhere (``foc_controller.params``) and are never read from here at run time.
+field names, and passable unchanged into the numba kernels. What the drive knows of the motor (its
+nameplate and commissioning record) lives in ``motor_params``; the estimators and the controller never
+read these.
 """
 from typing import NamedTuple
 

@@ -1,11 +1,13 @@
-"""Motor presets: the papers' machines, with every assumption written down where the paper is silent.
+"""Motor presets: the papers' machines as the simulator integrates them, with every assumption written
+down where the paper is silent.
 
-A preset holds the true plant (``machine``: what the simulator integrates, saturation included) and the
-``nameplate`` model a user would know from the datasheet (linear, used to derive estimated parameters for
-controllers and estimators). The two are kept apart on purpose.
+A preset holds the true plant (``machine``: saturation included; mechanics, inverter, sensors) beside the
+``nameplate`` a user would know from the datasheet (``motor_params.nameplate``, what the drive is told).
+The two are kept apart on purpose: only the plant reads the truth.
 """
-import math
 from dataclasses import dataclass, field
+
+from motor_params.nameplate import NAMEPLATES, Nameplate
 
 from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
 
@@ -14,16 +16,10 @@ from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
 class MotorPreset:
     name: str
     machine: MachineParams
-    nameplate: MachineParams
+    nameplate: Nameplate
     mechanics: MechanicsParams
     inverter: InverterParams
     sensor: SensorParams
-    rated_power_W: float
-    rated_current_A: float
-    """Peak phase current (amplitude-invariant), the current limit's basis."""
-    rated_speed_rpm: float
-    rated_torque_Nm: float
-    current_limit_A: float
     source: str
     assumptions: tuple = field(default_factory=tuple)
 
@@ -43,34 +39,27 @@ def _spmsm_saturation(L_0_H, L_dh0_H, L_qh0_H, psi_f_Wb, psi_q_rated_Wb, L_qh_dr
 
 
 def _wang_spmsm():
-    n_p = 2
-    rated_speed_rpm = 3000.0
-    rated_power_W = 70.0
-    rated_current_A = 4.6
-    rated_torque = rated_power_W / (rated_speed_rpm * 2.0 * math.pi / 60.0)
-    psi_f = rated_torque / (1.5 * n_p * rated_current_A)
+    nameplate = NAMEPLATES["wang_spmsm"]
+    psi_f = nameplate.psi_f_Wb
     a_d, a_q, a_dq = _spmsm_saturation(L_0_H=0.97e-3, L_dh0_H=0.84e-3, L_qh0_H=0.96e-3,
-                                       psi_f_Wb=psi_f, psi_q_rated_Wb=0.96e-3 * rated_current_A,
+                                       psi_f_Wb=psi_f, psi_q_rated_Wb=0.96e-3 * nameplate.rated_current_A,
                                        L_qh_drop_rated=0.05)
     return MotorPreset(
         name="wang_spmsm",
-        machine=MachineParams(n_p=n_p, R_s_ohm=0.27, L_d_H=0.97e-3, L_q_H=0.97e-3, psi_f_Wb=psi_f,
+        machine=MachineParams(n_p=nameplate.n_p, R_s_ohm=0.27, L_d_H=0.97e-3, L_q_H=0.97e-3, psi_f_Wb=psi_f,
                               a_d=a_d, a_q=a_q, a_dq=a_dq),
-        nameplate=MachineParams(n_p=n_p, R_s_ohm=0.27, L_d_H=0.9e-3, L_q_H=0.9e-3, psi_f_Wb=psi_f),
+        nameplate=nameplate,
         mechanics=MechanicsParams(J_kgm2=4.0e-4, B_Nms=1.0e-5),
         inverter=InverterParams(U_dc_V=24.0, t_dead_s=0.5e-6, i_dead_A=0.05, delay_periods=1),
         sensor=SensorParams(noise_std_A=0.01, offset_a_A=0.005, offset_b_A=-0.004, offset_c_A=0.003,
                             gain_a=1.002, gain_b=0.998, gain_c=1.0, adc_bits=12, adc_range_A=10.0),
-        rated_power_W=rated_power_W, rated_current_A=rated_current_A,
-        rated_speed_rpm=rated_speed_rpm, rated_torque_Nm=rated_torque,
-        current_limit_A=1.5 * rated_current_A,
         source="Wang et al. 2019, §III-C and §IV: 70 W, 24 V, 4.6 A, 2 pole pairs, 0.27 Ω, 0.9 mH SPMSM",
         assumptions=(
             "rated speed 3000 rpm (not given) → rated torque 0.223 N·m and ψ_f = 16.2 mWb from "
             "τ = 1.5·p·ψ_f·i with 4.6 A taken as the peak phase current",
             "0.9 mH is the nameplate inductance; the true rotor is round (L_0 = 0.97 mH both axes) and the "
             "magnet saturates the iron: incremental L_dh = 0.84 mH, L_qh = 0.96 mH at no load "
-            "(Σ/Δ ≈ 15, as in shared/notes/hf-demodulation.md)",
+            "(Σ/Δ ≈ 15, as in docs/hf-demodulation.md)",
             "cross-saturation from the same magnetic energy turns the HF saliency axis by 0.088 rad at "
             "rated q-current (0.032 rad at half); L_qh falls 4.8 % at rated current",
             "J = 4e-4 kg·m²: motor ≈ 0.5e-4 plus coupling and magnetic-powder brake (Wang Fig. 10); "
@@ -85,13 +74,11 @@ def _szabo_ipmsm():
     return MotorPreset(
         name="szabo_ipmsm",
         machine=MachineParams(n_p=3, R_s_ohm=6.2, L_d_H=20.025e-3, L_q_H=40.17e-3, psi_f_Wb=0.305),
-        nameplate=MachineParams(n_p=3, R_s_ohm=6.2, L_d_H=20.025e-3, L_q_H=40.17e-3, psi_f_Wb=0.305),
+        nameplate=NAMEPLATES["szabo_ipmsm"],
         mechanics=MechanicsParams(J_kgm2=3.5e-3, B_Nms=0.0011),
         inverter=InverterParams(U_dc_V=560.0, t_dead_s=1.5e-6, i_dead_A=0.05, delay_periods=1),
         sensor=SensorParams(noise_std_A=0.005, offset_a_A=0.004, offset_b_A=-0.003, offset_c_A=0.002,
                             gain_a=1.002, gain_b=0.998, gain_c=1.0, adc_bits=12, adc_range_A=8.0),
-        rated_power_W=1100.0, rated_current_A=2.53, rated_speed_rpm=3000.0, rated_torque_Nm=3.5,
-        current_limit_A=1.5 * 2.53,
         source="Szabó & Veszprémi, Table 1: 1.1 kW, 400 V, 2.53 A, 6.2 Ω, L_d 20.025 mH, L_q 40.17 mH, "
                "ψ_p 0.305 V·s, p = 3, F = 0.0011 N·m·s, m_n = 3.5 N·m",
         assumptions=(

@@ -1,0 +1,43 @@
+"""Digital filters shared by the controller and the estimators.
+
+Filters are second-order sections (rows b0 b1 b2 1 a1 a2, as scipy's ``sos``) run in transposed
+direct form II by one numba kernel; they are designed once in Python with scipy.
+"""
+import numpy as np
+from numba import njit
+from scipy import signal
+
+
+def butterworth_lowpass(order, cutoff_Hz, T_s):
+    """Digital Butterworth low-pass (bilinear transform, pre-warped), as SOS rows."""
+    return signal.butter(order, cutoff_Hz, btype="lowpass", fs=1.0 / T_s, output="sos")
+
+
+def butterworth_bandpass(order, low_Hz, high_Hz, T_s):
+    """Digital Butterworth band-pass; ``order`` is the prototype order, as in Wang §III-A."""
+    return signal.butter(order, [low_Hz, high_Hz], btype="bandpass", fs=1.0 / T_s, output="sos")
+
+
+def notch(frequency_Hz, quality, T_s):
+    """Second-order IIR notch (one SOS row)."""
+    b, a = signal.iirnotch(frequency_Hz, quality, fs=1.0 / T_s)
+    return signal.tf2sos(b, a)
+
+
+def group_delay_s(sos, frequency_Hz, T_s):
+    """Group delay of an SOS filter at one frequency."""
+    w = 2.0 * np.pi * frequency_Hz * T_s
+    b, a = signal.sos2tf(sos)
+    _, gd = signal.group_delay((b, a), w=[w])
+    return float(gd[0]) * T_s
+
+
+@njit(cache=True)
+def sos_step(sos, z, x):
+    """Filter one sample x through the sections ``sos`` with state ``z`` (n_sections × 2)."""
+    for s in range(sos.shape[0]):
+        y = sos[s, 0] * x + z[s, 0]
+        z[s, 0] = sos[s, 1] * x - sos[s, 4] * y + z[s, 1]
+        z[s, 1] = sos[s, 2] * x - sos[s, 5] * y
+        x = y
+    return x

@@ -1,0 +1,205 @@
+"""Reading recordings: what `ros2 bag info` shows, the contract topics deserialised, a run's log filled
+from its per-sample topics, and a recorded run rebuilt with its scenario so it is scored as `drive run`
+is."""
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from drive_interface.log import COLUMN, LOG_COLUMNS, fill_sample
+from drive_interface.topics import HELD_LOGGED, SAMPLE_LOGGED, TOPICS, full_name
+from drive_runner.runner import RunResult
+from drive_scenarios.parameters import scenario_from_parameters
+from drive_scenarios.scenario import ScenarioError, load_scenario
+
+from .common import BagCutError, BagError, typestore
+
+def open_bag(path):
+    """A rosbags Reader for a rosbag2 directory; a cut or foreign bag gives a BagError naming it."""
+    from rosbags.rosbag2 import Reader
+    from rosbags.rosbag2.errors import ReaderError
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f"{path}: no such bag")
+    if path.is_dir() and not (path / "metadata.yaml").exists():
+        mcaps = sorted(path.glob("*.mcap"))
+        if mcaps:
+            raise BagCutError(f"{path}: no metadata.yaml, the recording was cut before it closed (killed?); "
+                              f"its {mcaps[0].name} can be rebuilt into a complete bag", path)
+    try:
+        reader = Reader(path)
+        reader.open()
+    except ReaderError as error:
+        if path.is_dir():
+            raise BagCutError(f"{path}: not a readable rosbag2 bag ({error}); if its .mcap was cut, it can "
+                              f"be rebuilt into a complete bag", path) from None
+        raise BagError(f"{path}: not a readable rosbag2 bag ({error})") from None
+    return reader
+
+
+def bag_info(path):
+    """What `ros2 bag info` shows: storage, duration, message counts, topics with type, count and QoS."""
+    reader = open_bag(path)
+    try:
+        topics = [{"topic": c.topic, "type": c.msgtype, "count": c.msgcount,
+                   "serialization": c.ext.serialization_format,
+                   "offered_qos": [_qos_dict(q) for q in c.ext.offered_qos_profiles]}
+                  for c in sorted(reader.connections, key=lambda c: c.topic)]
+        path = Path(path)
+        stored = sorted(path.glob("*.mcap")) + sorted(path.glob("*.db3")) if path.is_dir() else [path]
+        files = [{"path": p.name, "bytes": p.stat().st_size} for p in stored]
+        return {"bag": str(path), "storage": _storage_identifier(path),
+                "compression": f"{reader.compression_mode} {reader.compression_format}"
+                if reader.compression_mode else _chunk_compression(path),
+                "files": files, "start_s": reader.start_time / 1e9, "end_s": reader.end_time / 1e9,
+                "duration_s": reader.duration / 1e9, "messages": reader.message_count, "topics": topics}
+    finally:
+        reader.close()
+
+
+def _chunk_compression(path):
+    """How the MCAP chunks are compressed, from the first file's summary."""
+    from mcap.reader import make_reader
+    for file in (sorted(path.glob("*.mcap")) if path.is_dir() else [path] if path.suffix == ".mcap" else []):
+        with file.open("rb") as stream:
+            summary = make_reader(stream).get_summary()
+        kinds = sorted({c.compression or "none" for c in summary.chunk_indexes}) if summary else []
+        return f"MCAP chunks: {', '.join(kinds) or 'none'}"
+    return "none"
+
+
+def _storage_identifier(path):
+    if not path.is_dir():
+        return path.suffix.lstrip(".")
+    import yaml
+    metadata = yaml.safe_load((path / "metadata.yaml").read_text())
+    return metadata["rosbag2_bagfile_information"]["storage_identifier"]
+
+
+def _qos_dict(qos):
+    return {"history": qos.history.name, "depth": qos.depth, "reliability": qos.reliability.name,
+            "durability": qos.durability.name}
+
+
+def read_topics(path, wanted, namespace=None):
+    """{topic (relative): [(log_time_ns, message), ...]} of the wanted contract topics, deserialised.
+
+    ``namespace``: the drive's; by default the one namespace the bag's `currents` topic is in. A topic in
+    the wrong type is a BagError naming bag and topic."""
+    reader = open_bag(path)
+    store = typestore()
+    try:
+        connections = {c.topic: c for c in reader.connections}
+        if namespace is None:
+            namespaces = sorted(t.rsplit("/", 1)[0] or "/" for t in connections if t.endswith("/currents"))
+            if len(namespaces) > 1:
+                raise BagError(f"{path}: drives in {', '.join(namespaces)}; which one is ambiguous")
+            namespace = namespaces[0] if namespaces else "/drive"
+        chosen = {}
+        for topic in wanted:
+            name = full_name(namespace, topic)
+            if name not in connections:
+                continue
+            c = connections[name]
+            if c.msgtype != TOPICS[topic].type:
+                raise BagError(f"{path}: {name} is {c.msgtype}, the contract says {TOPICS[topic].type}")
+            chosen[c.id] = topic
+        out = {topic: [] for topic in chosen.values()}
+        try:
+            for connection, t, data in reader.messages([c for c in reader.connections if c.id in chosen]):
+                out[chosen[connection.id]].append((t, store.deserialize_cdr(data, connection.msgtype)))
+        except Exception as error:
+            raise BagError(f"{path}: unreadable message data ({type(error).__name__}: {error})") from None
+        return namespace, out
+    finally:
+        reader.close()
+
+
+def bag_log(path, T_s=None, namespace=None):
+    """The runner's log layout (LOG_COLUMNS) filled from a bag's per-sample topics (NaN where the bag
+    says nothing), the sample period and the bag's drive_config entries."""
+    wanted = SAMPLE_LOGGED + HELD_LOGGED + ("drive_config",)
+    namespace, topics = read_topics(path, wanted, namespace)
+    if not topics.get("currents"):
+        raise BagError(f"{path}: no {full_name(namespace, 'currents')} messages; the contract needs them")
+    stamps = np.array([_stamp_ns(m.header.stamp) for _, m in topics["currents"]], dtype=np.int64)
+    if T_s is None:
+        steps = np.diff(stamps)
+        if steps.size == 0 or steps.min() <= 0:
+            raise BagError(f"{path}: {full_name(namespace, 'currents')} stamps are not increasing sample "
+                           f"instants")
+        T_s = float(np.median(steps)) * 1e-9
+    n = int(round(stamps[-1] * 1e-9 / T_s)) + 1
+    log = np.full((n, len(LOG_COLUMNS)), np.nan)
+    log[:, COLUMN["t"]] = np.arange(n) * T_s
+    configs = [json.loads(m.data) for _, m in topics.get("drive_config", [])]
+    n_p = _pole_pairs(configs)
+
+    def index(stamp):
+        k = int(round(_stamp_ns(stamp) * 1e-9 / T_s))
+        return k if 0 <= k < n else None
+
+    for topic in SAMPLE_LOGGED:
+        for _, m in topics.get(topic, []):
+            k = index(m.header.stamp)
+            if k is not None:
+                fill_sample(log[k], topic, m, n_p)
+    for topic in HELD_LOGGED:
+        _hold(log[:, COLUMN[TOPICS[topic].log_columns[0]]], topics.get(topic, []), T_s, n)
+    return log, T_s, configs
+
+
+def _hold(column, messages, T_s, n):
+    """Fill a column with unstamped commands, each held from its log time on."""
+    for t, m in messages:
+        k = int(round(t * 1e-9 / T_s))
+        if 0 <= k < n:
+            column[k:] = m.data
+
+
+def _pole_pairs(configs):
+    """p from the bag's drive_config (every node's carries ``n_p``); 1 when the bag has none."""
+    for config in configs:
+        if "n_p" in config:
+            return int(config["n_p"])
+    return 1
+
+
+def _stamp_ns(stamp):
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
+def bag_result(path, namespace=None):
+    """A recorded run as drive_runner.runner.RunResult, its scenario rebuilt from the bag's drive_config
+    (the scenario file and overrides the nodes or the runner used), so it is scored as `drive run` is."""
+    log, T_s, configs = bag_log(path, namespace=namespace)
+    scenario = _bag_scenario(path, configs)
+    scenario = dataclasses.replace(scenario, duration_s=log.shape[0] * T_s, T_s=T_s)
+    recorded = next((c["estimator"] for c in configs if "estimator" in c), scenario.estimator)
+    from_nodes = (c["parameters"]["estimator"] or scenario.estimator for c in configs if "parameters" in c)
+    estimator = next(from_nodes, recorded)
+    limit = next((c["current_limit_A"] for c in configs if "current_limit_A" in c),
+                 next((c["controller"]["i_max_A"] for c in configs if isinstance(c.get("controller"), dict)
+                       and "i_max_A" in c["controller"]), math.nan))
+    return RunResult(scenario, estimator, log, 0.0, limit)
+
+
+def _bag_scenario(path, configs):
+    for config in configs:
+        try:
+            if "parameters" in config:
+                return scenario_from_parameters(config["parameters"])
+            if "source" in config:
+                s = load_scenario(config["source"], estimator_override=config.get("estimator"))
+                return dataclasses.replace(s, injection=config.get("injection", s.injection),
+                                           controller=config.get("controller", s.controller))
+        except ScenarioError as error:
+            raise BagError(f"{path}: drive_config names a scenario that cannot be loaded ({error})") from None
+    raise BagError(f"{path}: no drive_config, so no scenario to score the run against (its windows and "
+                   f"motor)")
+
+
+def has_ground_truth(log):
+    return bool(np.isfinite(log[:, COLUMN["theta_m"]]).any())

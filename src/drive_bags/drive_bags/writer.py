@@ -1,0 +1,186 @@
+"""Recordings as the contract says: a rosbag2 directory (metadata.yaml + one zstd-chunked .mcap), storage
+`mcap`, serialization `cdr`, standard message types, offered QoS stored, written with the `mcap` library
+from serialized bytes (message definitions and type hashes from the `rosbags` typestore). Log times are
+sim time: a message's own stamp when it carries the sample instant, otherwise the instant of the latest
+sample recorded.
+
+The one-process runner writes the same topics from its log (``write_run_bag``), except `/diagnostics`
+and `joint_states`, which only nodes produce.
+"""
+import json
+from pathlib import Path
+
+import numpy as np
+
+from control_math.frames import wrap
+from drive_interface.log import COLUMN, LOG_COLUMNS
+from drive_interface.topics import TOPICS, full_name
+
+from .common import BagError, offered_qos, sample_stamp_ns, typestore
+
+CHUNK_BYTES = 1 << 20
+"""MCAP chunk size before zstd: what a killed recorder can lose (≈ 0.1 s of a 10 kHz drive)."""
+
+
+class BagWriter:
+    """A rosbag2 directory (metadata.yaml version 9 + one .mcap written by the `mcap` library) taking
+    serialized messages; ``close`` makes the bag complete."""
+
+    def __init__(self, path):
+        from mcap.writer import CompressionType, Writer
+        self.path = Path(path)
+        if self.path.exists():
+            raise BagError(f"{self.path}: already exists; choose a new bag name")
+        self.path.mkdir(parents=True)
+        self.file_name = f"{self.path.name}.mcap"
+        self.stream = (self.path / self.file_name).open("xb")
+        self.writer = Writer(self.stream, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
+        self.writer.start(profile="ros2", library="drive_bridge")
+        self.store = typestore()
+        self.schemas, self.channels, self.topics, self.counts = {}, {}, {}, {}
+        self.latest_ns = 0
+        self.start_ns, self.end_ns = None, None
+
+    def add(self, topic, msgtype, qos):
+        import yaml
+        from rosbags.rosbag2.metadata import dump_qos_v9
+        if msgtype not in self.schemas:
+            msgdef, _ = self.store.generate_msgdef(msgtype, ros_version=2)
+            self.schemas[msgtype] = self.writer.register_schema(msgtype, "ros2msg", msgdef.encode())
+        profiles = dump_qos_v9([qos])
+        self.channels[topic] = self.writer.register_channel(
+            topic, "cdr", self.schemas[msgtype], {"offered_qos_profiles": yaml.safe_dump(profiles)})
+        self.topics[topic] = {"name": topic, "type": msgtype, "serialization_format": "cdr",
+                              "offered_qos_profiles": profiles,
+                              "type_description_hash": self.store.hash_rihs01(msgtype)}
+        self.counts[topic] = 0
+
+    def write(self, topic, data, stamped, t_ns=None):
+        """Write one serialized message at ``t_ns``, or at its own sample instant when ``stamped``
+        (its first field is one), or else at the latest sample instant written."""
+        if stamped:
+            t_ns = sample_stamp_ns(data)
+            self.latest_ns = max(self.latest_ns, t_ns)
+        elif t_ns is None:
+            t_ns = self.latest_ns
+        self.writer.add_message(self.channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
+                                sequence=self.counts[topic])
+        self.counts[topic] += 1
+        self.start_ns = t_ns if self.start_ns is None else min(self.start_ns, t_ns)
+        self.end_ns = t_ns if self.end_ns is None else max(self.end_ns, t_ns)
+
+    def close(self):
+        import yaml
+        self.writer.finish()
+        self.stream.close()
+        start = self.start_ns or 0
+        duration = (self.end_ns - start + 1) if self.end_ns is not None else 0
+        count = sum(self.counts.values())
+        information = {
+            "version": 9, "storage_identifier": "mcap", "relative_file_paths": [self.file_name],
+            "duration": {"nanoseconds": duration}, "starting_time": {"nanoseconds_since_epoch": start},
+            "message_count": count,
+            "topics_with_message_count": [{"topic_metadata": meta, "message_count": self.counts[topic]}
+                                          for topic, meta in self.topics.items()],
+            "compression_format": "", "compression_mode": "",
+            "files": [{"path": self.file_name, "starting_time": {"nanoseconds_since_epoch": start},
+                       "duration": {"nanoseconds": duration}, "message_count": count}],
+            "custom_data": None, "ros_distro": "jazzy"}
+        (self.path / "metadata.yaml").write_text(
+            yaml.safe_dump({"rosbag2_bagfile_information": information}, sort_keys=False))
+
+
+CDR_LITTLE_ENDIAN = 0x0100
+"""The 4-byte CDR encapsulation header 00 01 00 00 read as a little-endian uint32."""
+
+
+def _cdr_vector3_stamped(sec, nanosec, frame, x, y, z):
+    """n geometry_msgs/Vector3Stamped as CDR records (n × size bytes), vectorised."""
+    length = len(frame) + 1
+    pad = -(12 + length) % 8
+    fields = [("enc", "<u4"), ("sec", "<i4"), ("nanosec", "<u4"), ("length", "<u4"), ("frame", f"S{length}")]
+    fields += [("pad", "u1", (pad,))] if pad else []
+    records = np.zeros(len(sec), dtype=fields + [("x", "<f8"), ("y", "<f8"), ("z", "<f8")])
+    records["length"], records["frame"] = length, frame.encode()
+    for name, values in (("sec", sec), ("nanosec", nanosec), ("x", x), ("y", y), ("z", z)):
+        records[name] = values
+    return records
+
+
+def _cdr_joint_state(sec, nanosec, position, velocity, effort=None):
+    """n sensor_msgs/JointState of the one joint `rotor` (frame ''), as CDR records."""
+    fields = [("enc", "<u4"), ("sec", "<i4"), ("nanosec", "<u4"), ("frame_length", "<u4"), ("frame", "S1"),
+              ("pad0", "u1", (3,)), ("names", "<u4"), ("name_length", "<u4"), ("name", "S6"),
+              ("pad1", "u1", (2,)),
+              ("positions", "<u4"), ("pad2", "u1", (4,)), ("position", "<f8"),
+              ("velocities", "<u4"), ("pad3", "u1", (4,)), ("velocity", "<f8"), ("efforts", "<u4")]
+    fields += [("pad4", "u1", (4,)), ("effort", "<f8")] if effort is not None else []
+    records = np.zeros(len(sec), dtype=fields)
+    records["frame_length"] = records["names"] = records["positions"] = records["velocities"] = 1
+    records["name_length"], records["name"] = 6, b"rotor"
+    records["position"], records["velocity"] = position, velocity
+    if effort is not None:
+        records["efforts"], records["effort"] = 1, effort
+    records["sec"], records["nanosec"] = sec, nanosec
+    return records
+
+
+def _cdr_scalars(dtype, *columns):
+    """n messages of fixed scalar fields (Float64: one f8; Clock: i4 sec, u4 nanosec) as CDR records."""
+    records = np.zeros(len(columns[0]), dtype=[("enc", "<u4")] + [(f"f{i}", t) for i, t in enumerate(dtype)])
+    for i, values in enumerate(columns):
+        records[f"f{i}"] = values
+    return records
+
+
+def write_run_bag(result, path, namespace="/drive", progress=None):
+    """Write a one-process run (drive_bridge.runner.RunResult) as the graph would have recorded it,
+    its messages serialised to CDR in bulk with numpy."""
+    log, scenario = result.log, result.scenario
+    n, n_p, c = log.shape[0], result.n_p, COLUMN
+    writer = BagWriter(path)
+    for topic, t in TOPICS.items():
+        if topic in ("/diagnostics", "joint_states"):
+            continue
+        writer.add(full_name(namespace, topic), t.type, offered_qos(topic))
+    config = {"node": "drive run", "n_p": n_p, "scenario": scenario.name, "source": scenario.source,
+              "motor": scenario.motor, "estimator": result.estimator, "T_s_s": scenario.T_s, "samples": n,
+              "injection": scenario.injection, "controller": scenario.controller,
+              "current_limit_A": result.current_limit_A, "non_idealities": scenario.non_idealities}
+    t_ns = np.round(np.arange(n) * scenario.T_s * 1e9).astype(np.int64)
+    sec, nanosec = np.divmod(t_ns, 1_000_000_000)
+    col = {name: log[:, c[name]] for name in LOG_COLUMNS}
+    theta_hat_m, omega_hat_m = col["theta_e_hat"] / n_p, col["omega_e_hat"] / n_p
+    speed_changes = np.ones(n, dtype=bool)
+    speed_changes[1:] = col["omega_m_ref"][1:] != col["omega_m_ref"][:-1]
+    vector = _cdr_vector3_stamped
+    per_sample = [
+        ("/clock", _cdr_scalars(("<i4", "<u4"), sec, nanosec), None),
+        ("speed_command", _cdr_scalars(("<f8",), col["omega_m_ref"]), speed_changes),
+        ("load_torque", _cdr_scalars(("<f8",), col["tau_load"]), None),
+        ("rotor_state", _cdr_joint_state(sec, nanosec, col["theta_m"], col["omega_m"], col["tau_e"]), None),
+        ("currents", vector(sec, nanosec, "abc", col["i_a_meas"], col["i_b_meas"], col["i_c_meas"]), None),
+        ("injection", vector(sec, nanosec, "alpha_beta", col["u_inj_alpha"], col["u_inj_beta"], 0.0), None),
+        ("rotor_estimate", _cdr_joint_state(sec, nanosec, theta_hat_m, omega_hat_m), None),
+        ("estimator_state", vector(sec, nanosec, "", col["eps"], col["signal"], col["observable"]), None),
+        ("angle_error", vector(sec, nanosec, "", wrap.py_func(n_p * (col["theta_m"] - theta_hat_m)),
+                               col["omega_m"] - omega_hat_m, 0.0), None),
+        ("voltage_command", vector(sec, nanosec, "alpha_beta", col["u_alpha"], col["u_beta"], 0.0), None)]
+    streams = []
+    for topic, records in ((t, r) for t, r, _ in per_sample):
+        records["enc"] = CDR_LITTLE_ENDIAN
+        streams.append((full_name(namespace, topic), memoryview(records.tobytes()), records.dtype.itemsize))
+    masks = [mask for _, _, mask in per_sample]
+    config_data = writer.store.serialize_cdr(writer.store.types["std_msgs/msg/String"](
+        data=json.dumps(config, default=str)), "std_msgs/msg/String")
+    writer.write(full_name(namespace, "drive_config"), config_data, False, 0)
+    write = writer.write
+    for k in range(n):
+        t = int(t_ns[k])
+        for (topic, data, size), mask in zip(streams, masks):
+            if mask is None or mask[k]:
+                write(topic, data[k * size:(k + 1) * size], False, t)
+        if progress and k % 10000 == 0:
+            progress(k / n)
+    writer.close()
+    return Path(path)

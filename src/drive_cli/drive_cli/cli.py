@@ -1,0 +1,800 @@
+"""The ``drive`` command line: one entry, a subcommand per job; every result-printing command also has
+``--json``. Domain errors (drive_interface.errors.DriveError) are printed as one line, exit code 2."""
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+
+from drive_interface.errors import DriveError
+from drive_interface.graph import DEFAULT_NAMESPACE, EXECUTORS
+from drive_scenarios.scenario import load_scenario, scenario_names
+from hf_estimator.registry import describe, estimator_names
+from motor_params.nameplate import nameplate
+from pmsm_plant.presets import PRESETS
+
+PLL_ESTIMATORS = ("synchronous", "conventional", "improved")
+
+
+class CommandLineError(DriveError):
+    """An option's value is unusable; the message names the option."""
+
+
+def _print_json(data):
+    print(json.dumps(data, indent=2, ensure_ascii=False))
+
+
+def _scenario_arg(args):
+    """The scenario named on the command line, with --estimator and --duration applied."""
+    scenario = load_scenario(args.scenario, estimator_override=args.estimator)
+    if args.duration is not None:
+        if args.duration <= 0.0:
+            raise CommandLineError(f"--duration: must be positive, not {args.duration}")
+        scenario = dataclasses.replace(scenario, duration_s=args.duration)
+    return scenario
+
+
+def cmd_run(args):
+    from drive_runner.runner import run_scenario, terminal_progress
+
+    scenario = _scenario_arg(args)
+    if args.record and Path(args.record).exists():
+        raise CommandLineError(f"--record: {args.record} already exists; choose a new bag name")
+    result = run_scenario(scenario, progress=terminal_progress(f"{scenario.name}/{scenario.estimator}"))
+    extra = {}
+    if args.record:
+        from drive_bags.writer import write_run_bag
+        progress = terminal_progress(f"writing {args.record}")
+        extra["bag"] = str(write_run_bag(result, args.record, progress=progress))
+    return _report(result, args, extra)
+
+
+def _report(result, args, extra=None):
+    """Print a run's metrics (drive run and drive launch), write its plot unless --no-plot."""
+    from drive_evaluation.metrics import compute_metrics
+    from drive_evaluation.plots import plot_run
+
+    scenario = result.scenario
+    metrics = compute_metrics(result)
+    metrics.update(extra or {})
+    if not args.no_plot and result.log.shape[0]:
+        out_dir = Path(args.out) if args.out else Path("runs") / scenario.name
+        metrics["plots"] = [str(plot_run(result, out_dir))]
+    if args.json:
+        _print_json(metrics)
+        return 0
+    print(f"scenario {metrics['scenario']} ({metrics['motor']}), estimator {metrics['estimator']}, "
+          f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
+    for key, value in (extra or {}).items():
+        if isinstance(value, dict):
+            value = ", ".join(f"{k} {v}" for k, v in value.items() if v) or "none"
+        print(f"  {key:36s} {value}")
+    rows = [("angle error RMS (steady)", "angle_error_rms", "rad"),
+            ("angle error bias (steady)", "angle_error_bias", "rad"),
+            ("angle error peak (all after start)", "angle_error_peak", "rad"),
+            ("angle error peak (transients)", "angle_error_peak_transient", "rad"),
+            ("speed estimation error RMS", "speed_error_rms", "rad/s"),
+            ("speed tracking error RMS", "speed_tracking_error_rms", "rad/s"),
+            ("settling time (worst step)", "settling_time_s", "s"),
+            ("observable fraction", "observable_fraction", ""),
+            ("current limit", "current_limit_A", "A")]
+    for label, key, unit in rows:
+        value = metrics[key]
+        text = "n/a" if value is None else f"{value:+.4f} {unit}"
+        print(f"  {label:36s} {text}")
+    for path in metrics.get("plots", []):
+        print(f"  plot: {path}")
+    return 0
+
+
+def cmd_launch(args):
+    from drive_launch.launcher import launch
+    from drive_runner.runner import terminal_progress
+
+    if args.duration is not None and args.duration <= 0.0:
+        raise CommandLineError(f"--duration: must be positive, not {args.duration}")
+    scenario = load_scenario(args.scenario, estimator_override=args.estimator)
+    result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
+                    processes=args.processes, executor=args.executor, namespace=args.namespace,
+                    timeout_s=args.timeout, bag=args.record, link=args.link,
+                    progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
+    faults = {name: d["message"] for name, d in (result.diagnostics or {}).items() if d["level"] > 0}
+    plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
+    extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}, "
+                      f"{plant}",
+             "real_time_factor": round(result.scenario.duration_s / result.wall_time_s, 4)
+             if result.wall_time_s > 0 else None,
+             "interrupted": result.interrupted, "node_faults": faults}
+    if args.record:
+        extra["bag"] = args.record
+    _report(result, args, extra)
+    return 130 if result.interrupted else 0
+
+
+def cmd_bridge(args):
+    from drive_runner.bridge_loop import run_through_bridge
+    from drive_runner.runner import terminal_progress
+
+    scenario = _scenario_arg(args)
+    result = run_through_bridge(scenario, args.link, progress=terminal_progress(
+        f"{scenario.name}/{scenario.estimator} through the bridge ({args.link})"))
+    extra = {"link": f"virtual inverter over {args.link}, bridge core, estimator and controller cores",
+             "samples_per_s": round(result.log.shape[0] / result.wall_time_s),
+             "bridge": result.counters, "frame_errors": result.frame_errors,
+             "inverter": result.inverter_counters}
+    return _report(result, args, extra)
+
+
+def cmd_bench_bridge(args):
+    from drive_evaluation.bench import bridge_rates
+
+    links = args.links.split(",")
+    for link in links:
+        if link not in ("pty", "can"):
+            raise CommandLineError(f"--links: 'pty' and/or 'can', not {link!r}")
+    report = bridge_rates(args.scenario, links, args.duration, args.repeats)
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter paced by the "
+          f"host's answers; best of {report['repeats']})")
+    print(f"  {'link':6s} {'samples/s':>10s} {'latency p50':>12s} {'p99':>9s} {'host p50':>9s} {'p99':>9s} "
+          f"{'bare echo':>10s} {'missing':>8s}")
+    for row in report["links"]:
+        print(f"  {row['link']:6s} {row['samples_per_s']:10.0f} {row['latency_p50_us']:9.0f} µs "
+              f"{row['latency_p99_us']:6.0f} µs {row['host_p50_us']:6.0f} µs {row['host_p99_us']:6.0f} µs "
+              f"{row['link_echo_us']:7.0f} µs {row['missing_commands']:8d}")
+    return 0
+
+
+def cmd_scenarios(args):
+    entries = []
+    for name in scenario_names():
+        s = load_scenario(name)
+        entries.append({"name": name, "motor": s.motor, "estimator": s.estimator,
+                        "duration_s": s.duration_s, "description": s.description})
+    if args.json:
+        _print_json(entries)
+    else:
+        for e in entries:
+            print(f"{e['name']:18s} {e['motor']:12s} {e['estimator']:12s} {e['duration_s']:5g} s  "
+                  f"{e['description']}")
+    return 0
+
+
+def cmd_estimators(args):
+    entries = [describe(n) for n in estimator_names()]
+    if args.json:
+        _print_json(entries)
+    else:
+        for e in entries:
+            print(f"{e['name']:16s} {e['description']}\n{'':16s} {e['paper']}; module {e['module']}")
+    return 0
+
+
+def cmd_commission(args):
+    from drive_runner.runner import simulated_commissioning
+    from hf_estimator.node import default_commissioning_file
+    from motor_params.commissioning import save_commissioning
+    from pmsm_plant.commissioning import METHOD
+
+    scenario = load_scenario(args.scenario)
+    out = Path(args.out) if args.out else default_commissioning_file(scenario.motor)
+    if out.exists() and not args.force:
+        raise CommandLineError(f"--out: {out} already exists (--force replaces it)")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    commissioning = simulated_commissioning(scenario)
+    save_commissioning(out, commissioning, scenario.motor, METHOD,
+                       {"scenario": scenario.name, "non_idealities": scenario.non_idealities})
+    report = {"file": str(out), "motor": scenario.motor, "method": METHOD,
+              "identified": {"L_dh_H": commissioning.L_dh_H, "L_qh_H": commissioning.L_qh_H,
+                             "tracking_current_limit_A": commissioning.tracking_current_limit_A()}}
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"{out}: {scenario.motor}, method {METHOD} (the simulated motor's model: an ideal measurement)")
+    for key, value in report["identified"].items():
+        print(f"  {key:26s} {value:.6g}")
+    return 0
+
+
+def cmd_presets(args):
+    entries = [{"name": p.name, "source": p.source, "assumptions": list(p.assumptions),
+                "machine": p.machine._asdict(), "nameplate": p.nameplate._asdict(),
+                "mechanics": p.mechanics._asdict(), "inverter": p.inverter._asdict(),
+                "sensor": p.sensor._asdict()} for p in PRESETS.values()]
+    if args.json:
+        _print_json(entries)
+    else:
+        for e in entries:
+            print(f"{e['name']}: {e['source']}")
+            for a in e["assumptions"]:
+                print(f"  - {a}")
+    return 0
+
+
+def cmd_echo(args):
+    from drive_launch.echo import echo
+    for flag, value in (("--count", args.count), ("--every", args.every)):
+        if value is not None and value < 1:
+            raise CommandLineError(f"{flag}: must be at least 1, not {value}")
+    return echo(args.topic, args.namespace, args.count, args.every, args.json, args.timeout)
+
+
+def cmd_bag_info(args):
+    from drive_bags.reader import bag_info
+    info = bag_info(args.bag)
+    if args.json:
+        _print_json(info)
+        return 0
+    print(f"bag {info['bag']}: storage {info['storage']}, compression {info['compression']}")
+    for f in info["files"]:
+        print(f"  file {f['path']} ({f['bytes']:,} bytes)")
+    print(f"  duration {info['duration_s']:.6f} s (start {info['start_s']:.6f} s, "
+          f"end {info['end_s']:.6f} s), {info['messages']:,} messages")
+    width = max((len(t["topic"]) for t in info["topics"]), default=0)
+    for t in info["topics"]:
+        qos = t["offered_qos"][0] if t["offered_qos"] else {}
+        qos_text = "/".join(str(qos.get(key, "?")).lower() for key in ("reliability", "durability", "depth"))
+        print(f"  {t['topic']:{width}s}  {t['type']:38s} {t['count']:8d}  {t['serialization']}  {qos_text}")
+    return 0
+
+
+def cmd_bag_reindex(args):
+    from drive_bags.reindex import reindex
+    info = reindex(args.bag, force=args.force)
+    if args.json:
+        _print_json(info)
+    else:
+        print(f"{info['bag']}: rebuilt, {info['messages']:,} messages over {info['duration_s']:.6f} s")
+    return 0
+
+
+COMPARED_METRICS = (("angle error RMS (steady)", "angle_error_rms", "rad"),
+                    ("angle error bias (steady)", "angle_error_bias", "rad"),
+                    ("angle error peak", "angle_error_peak", "rad"),
+                    ("speed estimation error RMS", "speed_error_rms", "rad/s"),
+                    ("observable fraction", "observable_fraction", ""))
+
+
+def cmd_bench_compare(args):
+    from drive_bags.reader import bag_result, has_ground_truth
+    from drive_evaluation.metrics import compute_metrics
+    from drive_evaluation.plots import plot_angle_errors
+
+    results, entries = [], []
+    for bag in (args.bag_a, args.bag_b):
+        result = bag_result(bag)
+        entry = {"bag": bag, "scenario": result.scenario.name, "estimator": result.estimator,
+                 "samples": int(result.log.shape[0]), "ground_truth": has_ground_truth(result.log)}
+        metrics = compute_metrics(result)
+        entry.update({key: metrics[key] if entry["ground_truth"] or key == "observable_fraction" else None
+                      for _, key, _ in COMPARED_METRICS})
+        results.append(result)
+        entries.append(entry)
+    names = [Path(bag).name for bag in (args.bag_a, args.bag_b)]
+    report = {"benchmark": "compare", "runs": entries}
+    if not args.no_plot:
+        out = Path(args.out) if args.out else Path("runs") / "compare"
+        report["plot"] = str(plot_angle_errors(results, names, out / f"{names[0]}_vs_{names[1]}.png"))
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"  {'':30s} {names[0]:>24s} {names[1]:>24s}")
+    for label, key, unit in (("scenario", "scenario", ""), ("estimator", "estimator", ""),
+                             ("samples", "samples", "")) + COMPARED_METRICS:
+        cells = [e[key] for e in entries]
+        text = ["n/a" if v is None else f"{v:+.4f} {unit}" if isinstance(v, float) else str(v)
+                for v in cells]
+        print(f"  {label:30s} {text[0]:>24s} {text[1]:>24s}")
+    for entry in entries:
+        if not entry["ground_truth"]:
+            print(f"  {entry['bag']}: no ground truth (rotor_state); only consistency is scored")
+    if "plot" in report:
+        print(f"  plot: {report['plot']}")
+    return 0
+
+
+def cmd_bench_replay(args):
+    from drive_evaluation.plots import plot_angle_errors
+    from drive_evaluation.replay import replay
+
+    names = args.estimators.split(",") if args.estimators else estimator_names()
+    for name in names:
+        if name not in estimator_names():
+            raise CommandLineError(f"--estimators: unknown estimator '{name}' "
+                                f"(known: {', '.join(estimator_names())})")
+    recorded, entries, results = replay(args.bag, names)
+    truth = "rotor_state" if "angle_error_rms" in entries[0] else None
+    out = Path(args.out) if args.out else Path("runs") / "replay" / Path(args.bag).name
+    report = {"benchmark": "replay", "bag": args.bag, "scenario": recorded.scenario.name,
+              "recorded_estimator": recorded.estimator, "samples": int(recorded.log.shape[0]),
+              "ground_truth": truth is not None, "results": entries}
+    if not args.no_plot and truth:
+        report["plot"] = str(plot_angle_errors(results, names, out / "angle_error.png"))
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "replay.json").write_text(json.dumps(report, indent=2))
+    report["json"] = str(out / "replay.json")
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"replay of {args.bag}: {report['samples']} samples of {report['scenario']}, recorded with "
+          f"{recorded.estimator}")
+    if not truth:
+        print("  no ground truth (rotor_state) in this bag: scored for consistency only")
+    columns = [("samples/s", "samples_per_second", "{:,.0f}"),
+               ("exc. mismatch", "excitation_mismatch", "{:.3f}"),
+               ("observable", "observable_fraction", "{:.3f}")]
+    if truth:
+        columns += [("RMS [rad]", "angle_error_rms", "{:.4f}"), ("bias [rad]", "angle_error_bias", "{:+.4f}"),
+                    ("peak [rad]", "angle_error_peak", "{:.4f}"), ("speed RMS", "speed_error_rms", "{:.3f}"),
+                    ("lock [s]", "time_to_lock_s", "{:.4f}")]
+    print(f"  {'estimator':16s}" + "".join(f"{label:>14s}" for label, _, _ in columns))
+    for e in entries:
+        cells = ["n/a" if e.get(key) is None else fmt.format(e[key]) for _, key, fmt in columns]
+        print(f"  {e['estimator']:16s}" + "".join(f"{c:>14s}" for c in cells))
+    for key in ("plot", "json"):
+        if key in report:
+            print(f"  {key}: {report[key]}")
+    return 0
+
+
+def _nameplate_arg(name):
+    try:
+        return nameplate(name)
+    except KeyError as error:
+        raise CommandLineError(f"--motor: {error.args[0]}") from None
+
+
+def _gains_entry(gains):
+    return {"A_p": gains.kp, "T_i_s": gains.kp / gains.ki, "kp": gains.kp, "ki": gains.ki}
+
+
+def cmd_tune_current(args):
+    from foc_controller.params import DEFAULTS
+    from foc_controller.tuning import SZABO_TABLE2, current_bandwidth_damping, current_pi_gains
+
+    m = _nameplate_arg(args.motor)
+    omega_n = args.bandwidth or DEFAULTS["current_bandwidth_rad_s"]
+    zeta = args.damping or DEFAULTS["current_damping"]
+    axes = ("d", "q") if args.axis == "both" else (args.axis,)
+    inductance = {"d": m.L_d_H, "q": m.L_q_H}
+    report = {"motor": args.motor, "bandwidth_rad_s": omega_n, "damping": zeta,
+              "method": "closed-loop poles of the PI around 1/(Ls + R): k_p = 2ζω_n L − R, k_i = ω_n² L "
+                        "(Szabó ref. [16])", "gains": {}}
+    try:
+        for axis in axes:
+            report["gains"][axis] = _gains_entry(current_pi_gains(inductance[axis], m.R_s_ohm, omega_n, zeta))
+    except ValueError as error:
+        raise CommandLineError(f"--bandwidth: {error}") from None
+    if args.motor == "szabo_ipmsm":
+        report["table2"] = {axis: {**_gains_entry(SZABO_TABLE2[axis]), **dict(zip(
+            ("bandwidth_rad_s", "damping"),
+            current_bandwidth_damping(inductance[axis], m.R_s_ohm, SZABO_TABLE2[axis])))} for axis in axes}
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"current PI on {args.motor}: ω_n {omega_n:.1f} rad/s, ζ {zeta:g} ({report['method']})")
+    for axis, g in report["gains"].items():
+        line = f"  {axis}: A_p {g['A_p']:8.3f} V/A  T_i {1e3 * g['T_i_s']:7.3f} ms"
+        if "table2" in report:
+            t = report["table2"][axis]
+            line += (f"   (Table 2: A_p {t['A_p']:.2f}, T_i {1e3 * t['T_i_s']:.1f} ms, "
+                     f"which this method gives "
+                     f"for ω_n {t['bandwidth_rad_s']:.1f} rad/s, ζ {t['damping']:.3f})")
+        print(line)
+    return 0
+
+
+def cmd_tune_speed(args):
+    from foc_controller.params import DEFAULTS
+    from foc_controller.tuning import SZABO_TABLE2, speed_bandwidth_damping, speed_pi_gains
+    from hf_estimator.pll_model import margins
+
+    m = _nameplate_arg(args.motor)
+    k_t = 1.5 * m.n_p * m.psi_f_Wb
+    requested = args.bandwidth or DEFAULTS["speed_bandwidth_rad_s"]
+    zeta = args.damping or DEFAULTS["speed_damping"]
+    pll = args.pll_crossover
+    source = "--pll-crossover"
+    if pll is None:
+        from drive_evaluation.pll_check import design_for_motor
+        try:
+            design = design_for_motor(args.motor, args.estimator, {})
+        except (KeyError, ValueError) as error:
+            raise CommandLineError(f"--estimator {args.estimator}: {error.args[0]} "
+                                f"(give --pll-crossover)") from None
+        pll = margins(design.carrier, *design.current_gains).crossover_rad_s
+        source = f"carrier model of `{args.estimator}` with its current gains"
+    cap = args.ratio * pll
+    omega_n = min(requested, cap)
+    try:
+        gains = speed_pi_gains(m.J_kgm2, m.B_Nms, k_t, omega_n, zeta)
+    except ValueError as error:
+        raise CommandLineError(f"--bandwidth: {error}") from None
+    report = {"motor": args.motor, "requested_bandwidth_rad_s": requested, "bandwidth_rad_s": omega_n,
+              "damping": zeta, "pll_crossover_rad_s": pll, "pll_crossover_from": source,
+              "ratio": args.ratio, "limited_by_pll": requested > cap,
+              "method": "closed-loop poles of the PI around k_t/(Js + B), current loop ideal: "
+                        "k_p = (2ζω_n J − B)/k_t, k_i = ω_n² J/k_t (Szabó ref. [16])",
+              "gains": _gains_entry(gains)}
+    if args.motor == "szabo_ipmsm":
+        table = SZABO_TABLE2["speed"]
+        report["table2"] = {**_gains_entry(table), **dict(zip(
+            ("bandwidth_rad_s", "damping"), speed_bandwidth_damping(m.J_kgm2, m.B_Nms, k_t, table)))}
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"speed PI on {args.motor}: ω_n {omega_n:.1f} rad/s, ζ {zeta:g} (J {m.J_kgm2:g} kg·m², "
+          f"k_t {k_t:.4f} N·m/A)")
+    print(f"  PLL crossover {pll:.1f} rad/s ({source}); the speed loop is kept at ≤ {args.ratio:g} × it"
+          + (f": the requested {requested:g} rad/s was lowered to {cap:.1f}" if requested > cap else ""))
+    g = report["gains"]
+    print(f"  A_p {g['A_p']:.4f} A·s/rad  T_i {1e3 * g['T_i_s']:.2f} ms")
+    if "table2" in report:
+        t = report["table2"]
+        print(f"  Table 2: A_p {t['A_p']:.3f}, T_i {1e3 * t['T_i_s']:.0f} ms, which this method gives for "
+              f"ω_n {t['bandwidth_rad_s']:.1f} rad/s, ζ {t['damping']:.3f} with the nameplate's J")
+    return 0
+
+
+def cmd_tune_pll(args):
+    import math
+
+    from drive_evaluation.pll_check import check_tuning, design_for_motor, largest_loop_filter_for_motor
+    from drive_evaluation.plots import plot_pll
+    from hf_estimator.pll_model import margins
+    from hf_estimator.pll_tuning import MAPPINGS, tuned
+    from hf_estimator.synchronous import DEFAULTS as SYNCHRONOUS_DEFAULTS
+
+    given = (("frequency_Hz", args.frequency), ("amplitude_V", args.amplitude), ("u_star", args.u_star),
+             ("demodulation", args.demodulation))
+    settings = {key: value for key, value in given if value is not None}
+    if args.estimator != "synchronous" and (set(settings) - {"frequency_Hz", "amplitude_V"} or args.T_f):
+        raise CommandLineError(f"--u-star, --T-f and --demodulation belong to `synchronous`, "
+                               f"not `{args.estimator}`")
+    if args.T_f == "auto":
+        if args.crossover is None:
+            raise CommandLineError("--T-f auto: give --crossover (the largest T_f is chosen for it)")
+        try:
+            settings["T_f_s"] = largest_loop_filter_for_motor(args.motor, settings, args.phase_margin,
+                                                              args.crossover, args.model)
+        except ValueError as error:
+            raise CommandLineError(f"--crossover: {error}") from None
+    elif args.T_f is not None:
+        try:
+            settings["T_f_s"] = float(args.T_f)
+        except ValueError:
+            raise CommandLineError(f"--T-f: a time constant in seconds or 'auto', not {args.T_f!r}") from None
+    try:
+        design = design_for_motor(args.motor, args.estimator, settings)
+    except KeyError as error:
+        raise CommandLineError(f"--motor/--estimator: {error.args[0]}") from None
+    except ValueError as error:
+        raise CommandLineError(f"--estimator {args.estimator}: {error}") from None
+    models = {"carrier": design.carrier, "szabo": design.szabo}
+    if models[args.model] is None:
+        raise CommandLineError(f"--model szabo: {MAPPINGS[args.estimator]}")
+    A_now, T_now = design.current_gains
+    report = {"motor": args.motor, "estimator": args.estimator, "mapping": MAPPINGS[args.estimator],
+              "injection": {"frequency_Hz": design.path.omega_h_rad_s / (2.0 * math.pi),
+                            "amplitude_V": design.path.u_h_V, "demodulation_amplitude": design.path.u_star},
+              "request": {"phase_margin_deg": args.phase_margin, "crossover_rad_s": args.crossover,
+                          "model": args.model},
+              "T_f_s": settings.get("T_f_s", SYNCHRONOUS_DEFAULTS["T_f_s"]) if args.estimator == "synchronous"
+              else None,
+              "tuned": {}, "current_gains": {"A_p": A_now, "T_i_s": T_now}}
+    for name, loop in models.items():
+        if loop is None:
+            continue
+        try:
+            report["tuned"][name] = tuned(loop, args.phase_margin, args.crossover)
+        except ValueError as error:
+            report["tuned"][name] = {"error": str(error)}
+        report["current_gains"][name] = dataclasses.asdict(margins(loop, A_now, T_now))
+    if "error" in report["tuned"][args.model]:
+        raise CommandLineError(f"--crossover: {report['tuned'][args.model]['error']}")
+    choice = report["tuned"][args.model]
+    if args.check:
+        from drive_runner.runner import terminal_progress
+        report["check"] = [check_tuning(design, A, T, settings, ideal, args.check_speed_loop,
+                                        terminal_progress(f"closed-loop check, {label}, {plant} plant"))
+                           for label, A, T in (("current gains", A_now, T_now),
+                                               ("tuned gains", choice["A_p"], choice["T_i_s"]))
+                           for ideal, plant in ((True, "ideal"), (False, "full"))]
+    if not args.no_plot:
+        out = Path(args.out) if args.out else Path("runs") / "tune"
+        report["plots"] = plot_pll(design, choice["A_p"], choice["T_i_s"], report.get("check"),
+                                   out / f"{args.motor}_{args.estimator}")
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"PLL of `{args.estimator}` on {args.motor}: {report['injection']['frequency_Hz']:g} Hz, "
+          f"{report['injection']['amplitude_V']:g} V")
+    print(f"  maps onto the model as: {report['mapping']}")
+    if report["T_f_s"] is not None:
+        print(f"  loop filter T_f {1e3 * report['T_f_s']:.3f} ms")
+    rows = [(f"current gains, {m}", A_now, T_now, report["current_gains"][m]) for m in models if models[m]]
+    rows += [(f"tuned by the {m} model", t["A_p"], t["T_i_s"], t) for m, t in report["tuned"].items()
+             if "error" not in t]
+    print(f"  {'':34s} {'A_p':>10s} {'T_i [ms]':>9s} {'crossover':>10s} {'margin':>7s} {'gain margin':>11s}")
+    for label, A, T, m in rows:
+        print(f"  {label:34s} {A:10.1f} {1e3 * T:9.2f} {m['crossover_rad_s']:10.1f} "
+              f"{m['phase_margin_deg']:6.1f}° {m['gain_margin_dB']:8.1f} dB")
+    for m, t in report["tuned"].items():
+        if "error" in t:
+            print(f"  tuned by the {m} model: {t['error']}")
+    for check in report.get("check", []):
+        print(f"  closed loop, A_p {check['A_p']:.1f}, T_i {1e3 * check['T_i_s']:.2f} ms "
+              f"({check['plant']} plant): "
+              f"{'bandwidth':>10s} {'peak':>8s} {'crossover':>10s} {'margin':>7s}")
+        for label in ("measured", "carrier_model", "szabo_model"):
+            if label in check:
+                f = check[label]
+                print(f"    {label:30s} {f['bandwidth_rad_s']:10.1f} {f['peak_dB']:6.2f} dB "
+                      f"{f['crossover_rad_s']:10.1f} {f['phase_margin_deg']:6.1f}°")
+    for path in report.get("plots", []):
+        print(f"  plot: {path}")
+    return 0
+
+
+def cmd_bench_graph(args):
+    from drive_evaluation.bench import graph_throughput
+    if args.duration <= 0.0:
+        raise CommandLineError(f"--duration: must be positive, not {args.duration}")
+    if args.repeats < 1:
+        raise CommandLineError(f"--repeats: must be at least 1, not {args.repeats}")
+    report = graph_throughput(args.scenario, args.duration, record=args.record, repeats=args.repeats,
+                              progress=None if args.json else print)
+    if args.json:
+        _print_json(report)
+    return 0
+
+
+def cmd_bench(args):
+    from drive_evaluation.bench import motulator_python, motulator_throughput, throughput
+
+    for flag, value in (("--samples", args.samples), ("--repeats", args.repeats)):
+        if value < 1:
+            raise CommandLineError(f"{flag}: must be at least 1, not {value}")
+    names = args.estimators.split(",") if args.estimators else estimator_names()
+    for name in names:
+        if name not in estimator_names():
+            raise CommandLineError(f"--estimators: unknown estimator '{name}' "
+                                f"(known: {', '.join(estimator_names())})")
+    results = []
+    for name in names:
+        if not args.json:
+            print(f"  {name:14s} ...", end="", flush=True)
+        r = throughput(name, samples=args.samples, repeats=args.repeats)
+        results.append(r)
+        if not args.json:
+            print(f"\r  {name:14s} {r['samples_per_second']:12,.0f} samples/s "
+                  f"(best of {r['repeats']} × {r['samples']} samples; median "
+                  f"{r['samples_per_second_median']:,.0f})")
+    report = {"benchmark": "throughput", "results": results,
+              "samples_per_second": {r["estimator"]: r["samples_per_second"] for r in results}}
+    python = None if args.no_motulator else motulator_python()
+    if python:
+        if not args.json:
+            print("  motulator 2.2-kW PMSM signal-injection example ...", end="", flush=True)
+        reference = motulator_throughput(python)
+        report["motulator"] = reference
+        if "error" not in reference:
+            report["ratio_to_motulator"] = {r["estimator"]: r["samples_per_second"]
+                                            / reference["samples_per_second"] for r in results}
+        if not args.json:
+            if "error" in reference:
+                print(f"\r  motulator: not timed ({reference['error']})")
+            else:
+                print(f"\r  motulator      {reference['samples_per_second']:12,.0f} samples/s "
+                      f"({reference['samples']} samples in {reference['wall_time_s']:.2f} s, {python})")
+                for name, ratio in report["ratio_to_motulator"].items():
+                    print(f"  {name:14s} {ratio:12,.0f} × motulator")
+    elif not args.json:
+        print("  motulator: not installed (./setup.sh --with-motulator, or DRIVE_MOTULATOR_PYTHON)")
+    if args.json:
+        _print_json(report)
+    return 0
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(prog="drive", description="Sensorless PMSM drive stack.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    run = sub.add_parser("run", help="run a scenario in one process, print metrics, write plots")
+    run.add_argument("scenario", help="shipped scenario name (see 'drive scenarios') or YAML path")
+    run.add_argument("--estimator", help="override the scenario's estimator")
+    run.add_argument("--duration", type=float, help="override the duration [s]")
+    run.add_argument("--out", help="plot directory (default runs/SCENARIO)")
+    run.add_argument("--no-plot", action="store_true", help="skip the PNG plot")
+    run.add_argument("--record", metavar="BAG",
+                     help="write the run as a rosbag2/MCAP bag into this new directory")
+    run.add_argument("--json", action="store_true", help="print the metrics as JSON")
+    run.set_defaults(func=cmd_run)
+
+    for name, func, text in (("scenarios", cmd_scenarios, "list shipped scenarios"),
+                             ("estimators", cmd_estimators, "list estimators"),
+                             ("presets", cmd_presets, "list motor presets and their assumptions")):
+        p = sub.add_parser(name, help=text)
+        p.add_argument("--json", action="store_true")
+        p.set_defaults(func=func)
+
+    commission = sub.add_parser("commission", help="write the commissioning file of a scenario's motor (in "
+                                                   "simulation: the ideal measurement on its model)")
+    commission.add_argument("scenario", help="shipped scenario name or YAML path")
+    commission.add_argument("--out", help="file to write (default commissioning/MOTOR.yaml)")
+    commission.add_argument("--force", action="store_true", help="replace an existing file")
+    commission.add_argument("--json", action="store_true")
+    commission.set_defaults(func=cmd_commission)
+
+    bench = sub.add_parser("bench", help="benchmarks")
+    bench_sub = bench.add_subparsers(dest="bench", required=True)
+    tp = bench_sub.add_parser("throughput", help="closed-loop samples/s in one process, per estimator")
+    tp.add_argument("--estimators", help="comma-separated (default: all)")
+    tp.add_argument("--samples", type=int, default=1_000_000)
+    tp.add_argument("--repeats", type=int, default=3, help="timed runs per estimator (best reported)")
+    tp.add_argument("--no-motulator", action="store_true",
+                    help="skip timing motulator's signal-injection example")
+    tp.add_argument("--json", action="store_true")
+    tp.set_defaults(func=cmd_bench)
+    graph = bench_sub.add_parser("graph", help="real-time factor of the lock-step ROS graph at the "
+                                               "scenario's sampling rate, composed and separate")
+    graph.add_argument("--scenario", default="wang_100rpm")
+    graph.add_argument("--duration", type=float, default=0.5, help="simulated seconds per run")
+    graph.add_argument("--record", action="store_true", help="also record every per-sample topic")
+    graph.add_argument("--repeats", type=int, default=2, help="timed runs per configuration (best kept)")
+    graph.add_argument("--json", action="store_true")
+    graph.set_defaults(func=cmd_bench_graph)
+    bench_bridge = bench_sub.add_parser("bridge", help="sustained closed-loop sample rate and command "
+                                                       "latency through the bridge, over a pty and a CAN bus")
+    bench_bridge.add_argument("--scenario", default="wang_100rpm")
+    bench_bridge.add_argument("--duration", type=float, default=1.0, help="simulated seconds per run")
+    bench_bridge.add_argument("--links", default="pty,can", help="comma-separated: pty, can")
+    bench_bridge.add_argument("--repeats", type=int, default=3, help="timed runs per link (best kept)")
+    bench_bridge.add_argument("--json", action="store_true")
+    bench_bridge.set_defaults(func=cmd_bench_bridge)
+
+    compare = bench_sub.add_parser("compare", help="two recorded runs side by side: metrics and angle error")
+    compare.add_argument("bag_a")
+    compare.add_argument("bag_b")
+    compare.add_argument("--out", help="plot directory (default runs/compare)")
+    compare.add_argument("--no-plot", action="store_true")
+    compare.add_argument("--json", action="store_true")
+    compare.set_defaults(func=cmd_bench_compare)
+
+    rp = bench_sub.add_parser("replay",
+                              help="estimators on a recording's currents, scored against its ground truth")
+    rp.add_argument("bag")
+    rp.add_argument("--estimators", help="comma-separated (default: all)")
+    rp.add_argument("--out", help="directory for angle_error.png and replay.json (default runs/replay/BAG)")
+    rp.add_argument("--no-plot", action="store_true")
+    rp.add_argument("--json", action="store_true")
+    rp.set_defaults(func=cmd_bench_replay)
+
+    tune = sub.add_parser("tune", help="controller tuning from models")
+    tune_sub = tune.add_subparsers(dest="tune", required=True)
+    pll = tune_sub.add_parser("pll", help="PI of a pulsating-injection estimator's PLL from Szabó's model "
+                                          "(§2.4) and our carrier model, with a closed-loop check")
+    pll.add_argument("--motor", default="szabo_ipmsm",
+                     help="motor preset (nameplate R, commissioned L_dh, L_qh)")
+    pll.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS)
+    pll.add_argument("--model", default="carrier", choices=("carrier", "szabo"),
+                     help="model the tuned gains come from (both are reported)")
+    pll.add_argument("--phase-margin", type=float, default=60.0, help="[deg]")
+    pll.add_argument("--crossover", type=float, help="[rad/s] (default: the highest reaching the margin "
+                                                     "with the PI zero a decade below)")
+    pll.add_argument("--frequency", type=float, help="injection frequency [Hz] (default: the estimator's)")
+    pll.add_argument("--amplitude", type=float, help="injection amplitude [V] (default: the estimator's)")
+    pll.add_argument("--u-star", type=float, help="synchronous: demodulation amplitude u* (default 1)")
+    pll.add_argument("--T-f", help="synchronous: loop filter time constant [s] (default 0.53 ms), or 'auto': "
+                                   "the largest reaching --crossover at --phase-margin")
+    pll.add_argument("--demodulation", choices=("paper", "aligned"),
+                     help="synchronous: demodulation carrier as the paper, or turned by the sampled "
+                          "current's phase lag (ours)")
+    pll.add_argument("--check", action="store_true",
+                     help="measure the closed loop in the runner with the current and the tuned gains, on "
+                          "the ideal plant (no dead time or sensor errors: the models' assumptions) and the "
+                          "full one")
+    pll.add_argument("--check-speed-loop", choices=("off", "rule", "table2"), default="off",
+                     help="speed loop during the check: 1 rad/s (the PLL alone), the controller's rule, or "
+                          "Szabó's Table 2 cascade")
+    pll.add_argument("--out", help="plot directory (default runs/tune)")
+    pll.add_argument("--no-plot", action="store_true")
+    pll.add_argument("--json", action="store_true")
+    pll.set_defaults(func=cmd_tune_pll)
+    current = tune_sub.add_parser("current", help="d/q current PI gains from a bandwidth and damping")
+    current.add_argument("--motor", default="szabo_ipmsm", help="motor preset (nameplate R, L_d, L_q)")
+    current.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default 2π·250)")
+    current.add_argument("--damping", type=float, help="ζ (default 0.8)")
+    current.add_argument("--axis", choices=("d", "q", "both"), default="both")
+    current.add_argument("--json", action="store_true")
+    current.set_defaults(func=cmd_tune_current)
+    speed = tune_sub.add_parser("speed",
+                                help="speed PI gains from a bandwidth and damping, kept below the PLL")
+    speed.add_argument("--motor", default="szabo_ipmsm", help="motor preset (J, B, k_t)")
+    speed.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default 40)")
+    speed.add_argument("--damping", type=float, help="ζ (default 1)")
+    speed.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS,
+                       help="whose PLL crossover (carrier model, current gains) bounds the speed loop")
+    speed.add_argument("--pll-crossover", type=float, help="[rad/s] instead of the estimator's model")
+    speed.add_argument("--ratio", type=float, default=0.25, help="speed bandwidth ≤ ratio × PLL crossover")
+    speed.add_argument("--json", action="store_true")
+    speed.set_defaults(func=cmd_tune_speed)
+
+    launch = sub.add_parser("launch", help="run a scenario through the ROS 2 graph (nodes over topics)")
+    launch.add_argument("scenario", help="shipped scenario name or YAML path")
+    launch.add_argument("--estimator", help="override the scenario's estimator")
+    launch.add_argument("--duration", type=float, help="override the duration [s]")
+    launch.add_argument("--processes", choices=("composed", "separate"), default="composed",
+                        help="nodes in this process (default) or one process per node")
+    launch.add_argument("--executor", choices=EXECUTORS, default="events",
+                        help="events (rclpy.experimental.EventsExecutor, default) or single (fallback)")
+    launch.add_argument("--namespace", default=DEFAULT_NAMESPACE)
+    launch.add_argument("--timeout", type=float, default=1.0, help="lock-step answer timeout [s]")
+    launch.add_argument("--out", help="plot directory (default runs/SCENARIO)")
+    launch.add_argument("--no-plot", action="store_true")
+    launch.add_argument("--record", metavar="BAG",
+                        help="record every drive topic into this new rosbag2 directory")
+    launch.add_argument("--link", choices=("pty", "can"),
+                        help="put the virtual inverter (behind this link) and the drive_bridge node in the "
+                             "plant's place")
+    launch.add_argument("--json", action="store_true")
+    launch.set_defaults(func=cmd_launch)
+
+    bridge = sub.add_parser("bridge", help="the sensorless loop through the inverter bridge and the virtual "
+                                           "inverter, in one process")
+    bridge.add_argument("scenario", help="shipped scenario name or YAML path")
+    bridge.add_argument("--link", choices=("pty", "can"), default="pty")
+    bridge.add_argument("--estimator", help="override the scenario's estimator")
+    bridge.add_argument("--duration", type=float, help="override the duration [s]")
+    bridge.add_argument("--out", help="plot directory (default runs/SCENARIO)")
+    bridge.add_argument("--no-plot", action="store_true")
+    bridge.add_argument("--json", action="store_true")
+    bridge.set_defaults(func=cmd_bridge)
+
+    echo = sub.add_parser("echo", help="print a drive topic (like ros2 topic echo)")
+    echo.add_argument("topic", help="contract topic, e.g. angle_error, joint_states, /diagnostics")
+    echo.add_argument("--namespace", default=DEFAULT_NAMESPACE)
+    echo.add_argument("--count", type=int, help="stop after this many printed messages")
+    echo.add_argument("--every", type=int, default=1, help="print every N-th message")
+    echo.add_argument("--timeout", type=float, help="stop after this many seconds")
+    echo.add_argument("--json", action="store_true", help="one JSON object per line")
+    echo.set_defaults(func=cmd_echo)
+
+    bag = sub.add_parser("bag", help="recordings (rosbag2 directories with MCAP storage)")
+    bag_sub = bag.add_subparsers(dest="bag_command", required=True)
+    info = bag_sub.add_parser("info", help="topics, types, counts, duration (like ros2 bag info)")
+    info.add_argument("bag")
+    info.add_argument("--json", action="store_true")
+    info.set_defaults(func=cmd_bag_info)
+    reindex = bag_sub.add_parser("reindex", help="make a cut recording (killed recorder) a complete bag")
+    reindex.add_argument("bag")
+    reindex.add_argument("--force", action="store_true", help="also when metadata.yaml exists (a cut .mcap)")
+    reindex.add_argument("--json", action="store_true")
+    reindex.set_defaults(func=cmd_bag_reindex)
+    return parser
+
+
+def _remedy(error, args):
+    """What the user can do about a domain error, in the command line's words."""
+    from drive_bags.common import BagCompleteError, BagCutError
+    if isinstance(error, BagCutError):
+        force = " --force" if (Path(error.path) / "metadata.yaml").exists() else ""
+        return f"; `drive bag reindex {error.path}{force}` rebuilds it"
+    if isinstance(error, BagCompleteError):
+        return "; --force rebuilds it anyway"
+    return ""
+
+
+def main(argv=None):
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except DriveError as error:
+        print(f"drive: {error}{_remedy(error, args)}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

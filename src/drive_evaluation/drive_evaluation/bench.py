@@ -1,0 +1,237 @@
+"""``drive bench throughput``: closed-loop samples per second of the one-process runner, per estimator,
+and of motulator's signal-injection example when motulator is installed (a side environment is fine).
+``drive bench graph``: real-time factor of the lock-step ROS graph."""
+import dataclasses
+import importlib.util
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from drive_interface.errors import DriveError
+from drive_interface.log import LOG_COLUMNS
+from drive_runner.runner import build_drive
+from drive_scenarios.scenario import load_scenario
+
+BENCH_SCENARIO = "wang_100rpm"
+
+
+def throughput(estimator, samples=1_000_000, chunk=50_000, repeats=3, scenario_name=BENCH_SCENARIO):
+    """Samples/s of the compiled closed loop (plant + estimator + controller + logging) on one core.
+
+    The loop is compiled and warmed up first; each of ``repeats`` timed runs continues the same drive for
+    ``samples`` samples in chunks that reuse one log buffer, as a long ``drive run`` does between
+    progress reports. Reports the best run (as timeit does: the others lost time to the machine) and
+    the median.
+    """
+    scenario = load_scenario(scenario_name, estimator_override=estimator)
+    scenario = dataclasses.replace(scenario, duration_s=(repeats * samples + chunk) * scenario.T_s)
+    drive = build_drive(scenario)
+    log = np.zeros((chunk, len(LOG_COLUMNS)))
+    drive.run(0, chunk, log)
+    walls = []
+    for r in range(repeats):
+        first = chunk + r * samples
+        start = time.perf_counter()
+        for k0 in range(first, first + samples, chunk):
+            k1 = min(k0 + chunk, first + samples)
+            drive.run(k0, k1, log[:k1 - k0])
+        walls.append(time.perf_counter() - start)
+    return {"estimator": estimator, "scenario": scenario_name, "samples": samples, "repeats": repeats,
+            "wall_time_s": min(walls), "samples_per_second": samples / min(walls),
+            "samples_per_second_median": samples / float(np.median(walls))}
+
+
+MOTULATOR_VENV = Path(__file__).resolve().parents[3] / ".venv-motulator" / "bin" / "python"
+"""Where ``./setup.sh --with-motulator`` puts the side environment (motulator needs Python ≥ 3.12)."""
+
+
+def motulator_python():
+    """The interpreter that has motulator: $DRIVE_MOTULATOR_PYTHON, the repository's .venv-motulator,
+    or this one; None if none has it."""
+    candidates = [os.environ.get("DRIVE_MOTULATOR_PYTHON"), str(MOTULATOR_VENV)]
+    for candidate in candidates:
+        if candidate and Path(candidate).is_file():
+            return candidate
+    return sys.executable if importlib.util.find_spec("motulator") else None
+
+
+def motulator_throughput(python, timeout_s=900.0):
+    """Time motulator's 2.2-kW PMSM signal-injection example with ``python`` (drive_evaluation.
+    motulator_reference); returns its JSON result, or {"error": ...} naming what failed."""
+    script = Path(__file__).with_name("motulator_reference.py")
+    try:
+        proc = subprocess.run([python, str(script)], capture_output=True, text=True, timeout=timeout_s)
+    except (OSError, subprocess.TimeoutExpired) as error:
+        return {"error": f"{python} {script.name}: {error}"}
+    if proc.returncode != 0:
+        last = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        return {"error": f"{python} {script.name} exited {proc.returncode}: {last}"}
+    return {**json.loads(proc.stdout.strip().splitlines()[-1]), "python": python}
+
+
+GRAPH_CONFIGURATIONS = (("composed", "events"), ("composed", "single"), ("separate", "events"))
+
+
+def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False, repeats=2, progress=None):
+    """Real-time factor (simulated / wall time) of the lock-step graph per (processes, executor), best
+    of ``repeats`` runs after a short warm-up run; the wall time per sample and per delivered message
+    (graph.DELIVERIES_PER_SAMPLE), and the ping-pong hop time that bounds it."""
+    from drive_launch.launcher import DELIVERIES_PER_SAMPLE, launch
+
+    launch(scenario_name, duration_s=0.05, record=record)
+    results = []
+    for processes, executor in GRAPH_CONFIGURATIONS:
+        wall, samples = math.inf, 0
+        for _ in range(repeats):
+            r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
+                       record=record)
+            wall, samples = min(wall, r.wall_time_s), r.scenario.n_samples
+        entry = {"processes": processes, "executor": executor, "samples": samples, "repeats": repeats,
+                 "wall_time_s": wall, "real_time_factor": samples * r.scenario.T_s / wall,
+                 "us_per_sample": 1e6 * wall / samples,
+                 "us_per_delivered_message": 1e6 * wall / samples / DELIVERIES_PER_SAMPLE}
+        results.append(entry)
+        if progress:
+            progress(f"  {processes:9s} {executor:7s} real-time factor {entry['real_time_factor']:.3f} "
+                     f"({entry['us_per_sample']:.0f} µs per sample, "
+                     f"{entry['us_per_delivered_message']:.0f} µs per delivered message)")
+    hop = hop_latency()
+    if progress:
+        progress(f"  ping-pong of one Vector3Stamped between two nodes in one process (events executor): "
+                 f"{hop['us_per_hop']:.1f} µs per hop")
+    return {"benchmark": "graph", "scenario": scenario_name, "duration_s": duration_s, "record": record,
+            "sampling_rate_Hz": 1.0 / load_scenario(scenario_name).T_s, "results": results,
+            "ping_pong": hop}
+
+
+def hop_latency(round_trips=20000):
+    """Wall time of one message hop (publish → take → callback) between two nodes of one process on
+    the events executor, from a ping-pong of Vector3Stamped with the lock-step QoS: the floor under
+    every sample of the graph."""
+    import rclpy
+    from geometry_msgs.msg import Vector3Stamped
+    from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.task import Future
+
+    from drive_interface.node import make_executor, topic_qos
+
+    PER_SAMPLE_QOS = topic_qos("currents")
+
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        a, b = Node("bench_ping", context=context), Node("bench_pong", context=context)
+        ping = a.create_publisher(Vector3Stamped, "bench_ping", PER_SAMPLE_QOS)
+        pong = b.create_publisher(Vector3Stamped, "bench_pong", PER_SAMPLE_QOS)
+        done, count, message = Future(), [0], Vector3Stamped()
+
+        def on_pong(_):
+            count[0] += 1
+            if count[0] >= round_trips:
+                done.set_result(True)
+            else:
+                ping.publish(message)
+        b.create_subscription(Vector3Stamped, "bench_ping", pong.publish, PER_SAMPLE_QOS)
+        a.create_subscription(Vector3Stamped, "bench_pong", on_pong, PER_SAMPLE_QOS)
+        executor = make_executor("events", context)
+        executor.add_node(a)
+        executor.add_node(b)
+        end = time.monotonic() + 10.0
+        while min(ping.get_subscription_count(), pong.get_subscription_count()) < 1:
+            if time.monotonic() > end:
+                raise DriveError("the ping-pong nodes of the hop benchmark did not match within 10 s")
+            executor.spin_once(timeout_sec=0.05)
+        start = time.perf_counter()
+        ping.publish(message)
+        while not done.done():
+            executor.spin_until_future_complete(done, timeout_sec=1.0)
+        wall = time.perf_counter() - start
+        return {"round_trips": round_trips, "us_per_hop": 1e6 * wall / (2 * round_trips)}
+    finally:
+        context.try_shutdown()
+
+
+def link_echo_us(link, rounds=2000):
+    """Median round trip [µs] of a bare 22-byte echo over the link kind (a pty between two threads, or
+    python-can's virtual bus): the floor under one closed-loop sample, without any protocol work."""
+    import os
+    import select
+    import threading
+    import tty
+
+    times = np.zeros(rounds)
+    if link == "pty":
+        master, slave = os.openpty()
+        tty.setraw(master)
+        tty.setraw(slave)
+
+        def echo():
+            for _ in range(rounds):
+                select.select([master], [], [])
+                os.write(master, os.read(master, 64))
+        thread = threading.Thread(target=echo, daemon=True)
+        thread.start()
+        for i in range(rounds):
+            start = time.perf_counter()
+            os.write(slave, bytes(22))
+            select.select([slave], [], [])
+            os.read(slave, 64)
+            times[i] = time.perf_counter() - start
+        thread.join()
+        os.close(master)
+        os.close(slave)
+    else:
+        import can
+        channel = f"echo_{os.getpid()}"
+        near, far = (can.Bus(interface="virtual", channel=channel) for _ in range(2))
+
+        def echo():
+            for _ in range(rounds):
+                far.send(far.recv())
+        thread = threading.Thread(target=echo, daemon=True)
+        thread.start()
+        frame = can.Message(arbitration_id=0x109, data=bytes(8), is_extended_id=False)
+        for i in range(rounds):
+            start = time.perf_counter()
+            near.send(frame)
+            near.recv()
+            times[i] = time.perf_counter() - start
+        thread.join()
+        near.shutdown()
+        far.shutdown()
+    return float(np.median(times) * 1e6)
+
+
+def bridge_rates(scenario_ref, links, duration_s, repeats=3):
+    """`drive bench bridge`: the sensorless loop through the bridge and the virtual inverter (paced by
+    the host's answers) per link; best of ``repeats`` after a warm-up. Latency: the inverter's time from
+    sending TELEMETRY(k) to receiving COMMAND(k); host: the host's part of it (telemetry decoded,
+    estimator and controller run, command encoded and written)."""
+    from drive_runner.bridge_loop import run_through_bridge
+
+    scenario = dataclasses.replace(load_scenario(scenario_ref), duration_s=duration_s)
+    rows = []
+    for link in links:
+        run_through_bridge(dataclasses.replace(scenario, duration_s=min(duration_s, 0.05)), link)
+        best = None
+        for _ in range(repeats):
+            result = run_through_bridge(scenario, link)
+            if best is None or result.wall_time_s < best.wall_time_s:
+                best = result
+        latencies, host = best.latencies_s * 1e6, best.host_s * 1e6
+        rows.append({"link": link, "samples_per_s": best.log.shape[0] / best.wall_time_s,
+                     "latency_p50_us": float(np.percentile(latencies, 50)),
+                     "latency_p99_us": float(np.percentile(latencies, 99)),
+                     "host_p50_us": float(np.percentile(host, 50)),
+                     "host_p99_us": float(np.percentile(host, 99)),
+                     "link_echo_us": link_echo_us(link),
+                     "missing_commands": int(best.inverter_counters["missing"])})
+    return {"scenario": scenario.name, "samples": scenario.n_samples, "repeats": repeats,
+            "sampling_rate_Hz": 1.0 / scenario.T_s, "links": rows}

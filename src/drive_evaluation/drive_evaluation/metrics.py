@@ -1,0 +1,118 @@
+"""Scores of a run: electrical angle error in steady and transient windows, speed errors, settling.
+
+Windows: the run is cut at every table event (speed or load change). The ``settle_s`` after each
+event (and after ``start_s`` at the beginning) is transient; the rest, up to the next event, is steady.
+"""
+import numpy as np
+
+from control_math import frames
+from drive_interface.log import COLUMN
+
+
+def wrap(angle):
+    """Wrap to (−π, π] for arrays: the plain-Python body of control_math.frames.wrap."""
+    return frames.wrap.py_func(angle)
+
+
+def angle_error(log, n_p):
+    """wrap(θ_e − θ̂_e) per sample [rad, electrical]."""
+    return wrap(n_p * log[:, COLUMN["theta_m"]] - log[:, COLUMN["theta_e_hat"]])
+
+
+def windows(scenario):
+    """(steady, transient) lists of (t0, t1) intervals."""
+    cuts = [scenario.metrics_start_s] + [e for e in scenario.events_s() if e > scenario.metrics_start_s]
+    ends = cuts[1:] + [scenario.duration_s]
+    steady, transient = [], []
+    for i, (t0, t1) in enumerate(zip(cuts, ends)):
+        settle = 0.0 if i == 0 else scenario.settle_s
+        if settle > 0.0:
+            transient.append((t0, min(t0 + settle, t1)))
+        if t0 + settle < t1:
+            steady.append((t0 + settle, t1))
+    return steady, transient
+
+
+def _mask(t, intervals):
+    mask = np.zeros(t.shape, dtype=bool)
+    for t0, t1 in intervals:
+        mask |= (t >= t0) & (t < t1)
+    return mask
+
+
+def _stats(values):
+    if values.size == 0:
+        return None, None, None
+    return float(np.sqrt(np.mean(values ** 2))), float(np.mean(values)), float(np.max(np.abs(values)))
+
+
+def settling_times(scenario, log, band_fraction=0.05, band_min_rad_s=0.1):
+    """For each speed-reference step: time until |ω_m − ω*| stays within the band until the next event."""
+    t = log[:, COLUMN["t"]]
+    omega = log[:, COLUMN["omega_m"]]
+    events = scenario.events_s() + [scenario.duration_s]
+    table = scenario.speed
+    results = []
+    for i in range(1, len(table.times_s)):
+        t_step = table.times_s[i]
+        step = table.values[i] - table.values[i - 1]
+        if step == 0.0 or not 0.0 < t_step < scenario.duration_s:
+            continue
+        t_next = min(e for e in events if e > t_step)
+        band = max(band_fraction * abs(step), band_min_rad_s)
+        inside = (t >= t_step) & (t < t_next)
+        outside = inside & (np.abs(omega - table.values[i]) > band)
+        if not outside.any():
+            settle = 0.0
+        elif outside[inside][-1]:
+            settle = None
+        else:
+            settle = float(t[np.nonzero(outside)[0][-1] + 1] - t_step)
+        results.append({"t_s": t_step, "from_rad_s": table.values[i - 1], "to_rad_s": table.values[i],
+                        "band_rad_s": band, "settling_time_s": settle})
+    return results
+
+
+def compute_metrics(result):
+    """The metrics dictionary printed by ``drive run`` (SI units: rad, rad/s, s)."""
+    scenario, log, n_p = result.scenario, result.log, result.n_p
+    t = log[:, COLUMN["t"]]
+    error = angle_error(log, n_p)
+    steady, transient = windows(scenario)
+    steady_mask = _mask(t, steady)
+    transient_mask = _mask(t, transient)
+    evaluated = t >= scenario.metrics_start_s
+    rms, bias, peak_steady = _stats(error[steady_mask])
+    _, _, peak_transient = _stats(error[transient_mask])
+    _, _, peak = _stats(error[evaluated])
+    speed_estimation_error = log[:, COLUMN["omega_m"]] - log[:, COLUMN["omega_e_hat"]] / n_p
+    speed_tracking_error = log[:, COLUMN["omega_m_ref"]] - log[:, COLUMN["omega_m"]]
+    steps = settling_times(scenario, log)
+    settle_values = [s["settling_time_s"] for s in steps]
+    per_window = []
+    for t0, t1 in steady:
+        w_rms, w_bias, w_peak = _stats(error[_mask(t, [(t0, t1)])])
+        per_window.append({"t0_s": t0, "t1_s": t1, "angle_error_rms": w_rms,
+                           "angle_error_bias": w_bias, "angle_error_peak": w_peak})
+    return {
+        "scenario": scenario.name,
+        "motor": scenario.motor,
+        "estimator": result.estimator,
+        "duration_s": scenario.duration_s,
+        "samples": int(log.shape[0]),
+        "current_limit_A": result.current_limit_A,
+        "angle_error_rms": rms,
+        "angle_error_bias": bias,
+        "angle_error_peak": peak,
+        "angle_error_peak_steady": peak_steady,
+        "angle_error_peak_transient": peak_transient,
+        "speed_error_rms": _stats(speed_estimation_error[steady_mask])[0],
+        "speed_tracking_error_rms": _stats(speed_tracking_error[steady_mask])[0],
+        "settling_time_s": (None if not steps or None in settle_values else max(settle_values)),
+        "speed_steps": steps,
+        "observable_fraction": (float(np.mean(log[evaluated, COLUMN["observable"]] > 0.5))
+                                if evaluated.any() else None),
+        "steady_windows": per_window,
+        "wall_time_s": result.wall_time_s,
+        "samples_per_second": log.shape[0] / result.wall_time_s if result.wall_time_s > 0 else None,
+    }

@@ -1,0 +1,33 @@
+"""A run's log: one row per sample, one column per quantity (SI units, angles as named). The runner's
+kernel, the graph's recorder and the bag reader all fill this layout; messages go into rows through
+``fill_sample`` and the topic table."""
+import math
+
+from .topics import TOPICS
+
+LOG_COLUMNS = ("t", "theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c",
+               "i_a_meas", "i_b_meas", "i_c_meas", "theta_e_hat", "omega_e_hat", "u_alpha", "u_beta",
+               "u_inj_alpha", "u_inj_beta", "omega_m_ref", "i_d", "i_q", "i_d_ref", "i_q_ref",
+               "eps", "signal", "observable")
+"""t [s]; θ_m, ω_m: true mechanical angle [rad] and speed [rad/s]; τ_e, τ_load [N·m]; true and measured
+phase currents [A]; θ̂_e, ω̂_e: electrical estimates; the voltage command and the injection in it [V,
+αβ]; ω*_m [rad/s]; the controller's i_d, i_q and references [A]; the estimator's ε, signal and
+observable flag."""
+COLUMN = {name: i for i, name in enumerate(LOG_COLUMNS)}
+
+
+def fill_sample(row, topic, msg, n_p):
+    """Write what a per-sample message of ``topic`` says into its log row: rclpy and rosbags messages
+    alike, so a recording from the graph and one read back from a bag fill the same columns."""
+    t = TOPICS[topic]
+    if t.type.endswith("Vector3Stamped"):
+        v = msg.vector
+        for column, value in zip(t.log_columns, (v.x, v.y, v.z)):
+            row[COLUMN[column]] = value
+        return
+    if not len(msg.position):
+        return
+    scale = n_p if t.electrical else 1.0
+    values = (msg.position[0], msg.velocity[0], msg.effort[0] if len(msg.effort) else math.nan)
+    for column, value in zip(t.log_columns, values):
+        row[COLUMN[column]] = scale * value

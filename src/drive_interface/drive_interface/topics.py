@@ -1,0 +1,71 @@
+"""The contract's topics, in one table: name, message type, QoS, whether it is per-sample, whether its
+first field is the sample instant, and the log columns its fields fill. Nodes, the launcher, the
+recorder, the bag reader and the runner's logs all read this table."""
+from typing import NamedTuple
+
+
+class QosSpec(NamedTuple):
+    """A topic's QoS, independent of rclpy: reliable, keep-last ``depth``, volatile or transient local."""
+
+    depth: int
+    transient_local: bool = False
+
+
+PER_SAMPLE_QOS = QosSpec(depth=1000)
+"""Lock-step topics: reliable, in order, and deep enough that a slow observer (recorder, echo) loses
+nothing within a second of lag at 1 kHz and far more than the one message in flight."""
+COMMAND_QOS = QosSpec(depth=100)
+"""speed_command / load_torque / angle_error / joint_states: reliable; volatile so `ros2 topic pub`
+and Foxglove publishers match."""
+LATCHED_QOS = QosSpec(depth=10, transient_local=True)
+"""drive_config: published once per node start, delivered to late joiners (10 deep, so a subscriber
+keeps the configs of all the drive's nodes)."""
+DIAGNOSTICS_QOS = QosSpec(depth=10)
+
+
+class Topic(NamedTuple):
+    name: str
+    """Relative to the drive's namespace unless absolute."""
+    type: str
+    qos: QosSpec
+    per_sample: bool
+    """One message per control period."""
+    stamped: bool
+    """The first field is the sample instant (header.stamp, or the clock)."""
+    log_columns: tuple = ()
+    """Log columns (``drive_interface.log``) filled by the message's fields in order: x, y, z of a
+    Vector3Stamped; position, velocity, effort of a JointState; data of a Float64 (held until the next)."""
+    electrical: bool = False
+    """The JointState's mechanical values are logged as electrical ones (× pole pairs)."""
+
+
+VECTOR3 = "geometry_msgs/msg/Vector3Stamped"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+FLOAT64 = "std_msgs/msg/Float64"
+
+TOPICS = {t.name: t for t in (
+    Topic("currents", VECTOR3, PER_SAMPLE_QOS, True, True, ("i_a_meas", "i_b_meas", "i_c_meas")),
+    Topic("rotor_state", JOINT_STATE, PER_SAMPLE_QOS, True, True, ("theta_m", "omega_m", "tau_e")),
+    Topic("rotor_estimate", JOINT_STATE, PER_SAMPLE_QOS, True, True, ("theta_e_hat", "omega_e_hat"),
+          electrical=True),
+    Topic("injection", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_inj_alpha", "u_inj_beta")),
+    Topic("voltage_command", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_alpha", "u_beta")),
+    Topic("estimator_state", VECTOR3, PER_SAMPLE_QOS, True, True, ("eps", "signal", "observable")),
+    Topic("/clock", "rosgraph_msgs/msg/Clock", PER_SAMPLE_QOS, True, True),
+    Topic("angle_error", VECTOR3, COMMAND_QOS, False, True),
+    Topic("joint_states", JOINT_STATE, COMMAND_QOS, False, True),
+    Topic("speed_command", FLOAT64, COMMAND_QOS, False, False, ("omega_m_ref",)),
+    Topic("load_torque", FLOAT64, COMMAND_QOS, False, False, ("tau_load",)),
+    Topic("drive_config", "std_msgs/msg/String", LATCHED_QOS, False, False),
+    Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS, False, False),
+)}
+
+SAMPLE_LOGGED = tuple(t.name for t in TOPICS.values() if t.per_sample and t.log_columns)
+"""The per-sample topics whose content goes into a run's log, each message into its sample's row."""
+HELD_LOGGED = tuple(t.name for t in TOPICS.values() if not t.stamped and t.log_columns)
+"""Unstamped commands logged from their arrival on, held until the next."""
+
+
+def full_name(namespace, topic):
+    """A contract topic's name in a drive's namespace."""
+    return topic if topic.startswith("/") else f"{namespace.rstrip('/')}/{topic}"

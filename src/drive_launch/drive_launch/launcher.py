@@ -1,0 +1,257 @@
+"""The drive as a ROS 2 graph: the launcher (there is no `ros2 launch` here) composes the drive's nodes in
+one process or starts them as separate processes (each node's own executable module), with the scenario
+driver commanding speed and load and recording the per-sample topics into the runner's log layout.
+
+The estimator is handed a commissioning file: in simulation, what commissioning measures on the
+scenario's motor (``drive_runner.runner.simulated_commissioning``)."""
+import dataclasses
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from drive_bags.writer import BagWriter
+from drive_interface.errors import DriveError
+from drive_interface.graph import DEFAULT_NAMESPACE, NODES
+from drive_runner.runner import RunResult, build_drive, simulated_commissioning
+from drive_scenarios.parameters import all_parameters, scenario_from_parameters
+from drive_scenarios.scenario import resolve
+from motor_params.commissioning import save_commissioning
+
+PROCESSES = ("composed", "separate")
+LINKS = ("pty", "can")
+DELIVERIES_PER_SAMPLE = 9
+"""Messages delivered per lock-step sample without recording: currents → estimator, controller;
+rotor_estimate → controller, plant; injection → controller; voltage_command → plant, estimator,
+launcher; load_torque → plant. Composed on one executor thread, a sample costs their sum."""
+
+
+class GraphError(DriveError):
+    """The graph could not run as asked."""
+
+
+def make_node(name, context=None, namespace=None, parameters=None, link=None):
+    """One of the drive's nodes (``drive_interface.graph.NODES``) with ``parameters`` as overrides; the
+    drive_bridge node on ``link`` when given (a link object, for composed graphs)."""
+    from drive_interface.node import parameter_overrides
+    kwargs = {"context": context, "namespace": namespace,
+              "parameter_overrides": parameter_overrides(parameters or {})}
+    if name == "pmsm_plant":
+        from pmsm_plant.node import PlantNode
+        return PlantNode(**kwargs)
+    if name == "hf_estimator":
+        from hf_estimator.node import EstimatorNode
+        return EstimatorNode(**kwargs)
+    if name == "foc_controller":
+        from foc_controller.node import ControllerNode
+        return ControllerNode(**kwargs)
+    if name == "drive_bridge":
+        from drive_bridge.bridge_node import InverterBridgeNode
+        return InverterBridgeNode(link=link, **kwargs)
+    raise GraphError(f"unknown node '{name}' (known: {', '.join(NODES)})")
+
+
+@dataclass
+class GraphResult(RunResult):
+    processes: str = "composed"
+    executor: str = "events"
+    interrupted: bool = False
+    diagnostics: dict = None
+    """Last /diagnostics status per node: level, message, values."""
+
+
+def node_parameters(scenario_ref, estimator=None, duration_s=None, timeout_s=1.0, extra=None):
+    """The parameter overrides the launcher gives every node."""
+    parameters = {"scenario": str(resolve(scenario_ref)), "lockstep_timeout_s": float(timeout_s)}
+    if estimator:
+        parameters["estimator"] = estimator
+    if duration_s:
+        parameters["duration_s"] = float(duration_s)
+    parameters.update(extra or {})
+    return parameters
+
+
+@dataclass(frozen=True)
+class DriveSpec:
+    """One drive of a graph: its scenario (name or path), namespace and overrides."""
+
+    scenario: str
+    namespace: str = DEFAULT_NAMESPACE
+    estimator: str = None
+    duration_s: float = None
+    extra_parameters: dict = None
+    bag: str = None
+    """Record every contract topic of this drive into this new rosbag2 directory."""
+    link: str = None
+    """None: the simulated plant node. 'pty' or 'can': the virtual inverter behind that link and the
+    drive_bridge node in the plant's place."""
+
+
+def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
+           namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
+           progress=None, extra_parameters=None, bag=None, link=None):
+    """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
+
+    SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
+    ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
+    virtual inverter and the drive_bridge node in the plant's place."""
+    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link)
+    return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress)[0]
+
+
+def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
+                startup_timeout_s=60.0, progress=None):
+    """Run several drives side by side in one graph (one namespace each); one GraphResult per spec."""
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.task import Future
+
+    from drive_interface.node import make_executor
+
+    from .scenario_driver import ScenarioDriver
+
+    if processes not in PROCESSES:
+        raise GraphError(f"processes: must be one of {', '.join(PROCESSES)}, not '{processes}'")
+    if len({spec.namespace for spec in specs}) < len(specs):
+        raise GraphError("drives side by side need distinct namespaces")
+    for spec in specs:
+        if spec.link not in (None,) + LINKS:
+            raise GraphError(f"unknown virtual link {spec.link!r} (known: {', '.join(LINKS)})")
+        if spec.link == "can" and processes == "separate":
+            raise GraphError("a virtual CAN bus (python-can's) lives in one process: it needs the nodes "
+                             "composed, or a pty link")
+    recorders = [BagWriter(spec.bag) if spec.bag else None for spec in specs]
+    workdir = tempfile.TemporaryDirectory(prefix="drive_bridge_")
+    inverters = []
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    children, nodes, drivers, limits = [], [], [], []
+    interrupted = []
+    previous = {s: signal.signal(s, lambda signum, frame: interrupted.append(signum))
+                for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        ex = make_executor(executor, context)
+        for i, spec in enumerate(specs):
+            parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
+                                         spec.extra_parameters)
+            scenario = scenario_from_parameters(all_parameters(parameters))
+            drive = build_drive(scenario)
+            commissioning = save_commissioning(Path(workdir.name) / f"commissioning{i}.yaml",
+                                               simulated_commissioning(scenario), scenario.motor,
+                                               "plant_model", {"scenario": scenario.source})
+            roles = {"pmsm_plant": {**parameters, "load_torque_per_sample": True},
+                     "hf_estimator": {**parameters, "commissioning": str(commissioning)},
+                     "foc_controller": parameters}
+            inverter = None
+            if spec.link:
+                inverter, host_link = _virtual_inverter(scenario, spec.link, workdir.name, i)
+                inverters.append(inverter)
+                del roles["pmsm_plant"]
+                period = float(all_parameters(parameters)["diagnostics_period_s"])
+                timeouts = {"link_timeout_s": timeout_s, "command_timeout_s": timeout_s,
+                            "diagnostics_period_s": period}
+                if processes == "composed":
+                    nodes.append(make_node("drive_bridge", context, spec.namespace, timeouts, link=host_link))
+                else:
+                    roles["drive_bridge"] = {"link": "serial", "port": host_link.port, **timeouts}
+            for role, role_parameters in roles.items():
+                if processes == "composed":
+                    nodes.append(make_node(role, context, spec.namespace, role_parameters))
+                else:
+                    children.append((role, _spawn(role, spec.namespace, role_parameters, executor)))
+            driver_node = Node("drive_launcher", context=context, namespace=spec.namespace)
+            nodes.append(driver_node)
+            driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
+                                    startup_timeout_s, progress if i == 0 else None, recorders[i], inverter)
+            driver.done = Future()
+            limits.append(drive.controller.i_max_A)
+            drivers.append(driver)
+        for node in nodes:
+            ex.add_node(node)
+        all_done = Future()
+        watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, interrupted, children, all_done))
+        while not all_done.done():
+            ex.spin_until_future_complete(all_done, timeout_sec=1.0)
+        nodes[-1].destroy_timer(watcher)
+        return [_result(driver, limit, record, processes, executor, interrupted)
+                for driver, limit in zip(drivers, limits)]
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        _stop_children([child for _, child in children])
+        for inverter in inverters:
+            inverter.stop()
+        for node in nodes:
+            node.destroy_node()
+        context.try_shutdown()
+        for inverter in inverters:
+            inverter.endpoint.close()
+        workdir.cleanup()
+        for recorder in recorders:
+            if recorder:
+                recorder.close()
+
+
+def _result(driver, current_limit_A, record, processes, executor, interrupted):
+    scenario = driver.scenario
+    if driver.error and not interrupted:
+        raise GraphError(f"{driver.node.get_namespace()} ({scenario.name}): {driver.error}")
+    end = driver.finished_at or time.monotonic()
+    wall = end - driver.started_at if driver.started_at else 0.0
+    log = driver.log[:driver.last_sample + 1] if record else driver.log[:0]
+    if driver.last_sample + 1 < scenario.n_samples:
+        scenario = dataclasses.replace(scenario, duration_s=(driver.last_sample + 1) * scenario.T_s)
+    return GraphResult(scenario, scenario.estimator, log, wall, current_limit_A,
+                       processes=processes, executor=executor, interrupted=bool(interrupted),
+                       diagnostics=dict(driver.diagnostics))
+
+
+def _virtual_inverter(scenario, link, workdir, drive_id):
+    """A virtual inverter for ``scenario`` (not yet running; paced by the graph's commands) and the
+    host's end of its link."""
+    from drive_bridge.virtual_inverter import VirtualInverter, make_links
+    endpoint, host_link = make_links(link, workdir, drive_id)
+    return VirtualInverter(scenario, endpoint, drive_id=drive_id), host_link
+
+
+def _watch(drivers, interrupted, children, all_done):
+    for driver in drivers:
+        if interrupted:
+            driver.finish("interrupted")
+        for role, child in children:
+            if child.poll() is not None:
+                driver.finish(f"node process {role} exited with code {child.returncode}")
+    if all(driver.done.done() for driver in drivers) and not all_done.done():
+        all_done.set_result(True)
+
+
+def _spawn(name, namespace, parameters, executor):
+    args = [sys.executable, "-m", NODES[name], "--executor", executor, "--ros-args", "-r", f"__ns:={namespace}"]
+    for name, value in parameters.items():
+        args += ["-p", f"{name}:={_ros_value(value)}"]
+    return subprocess.Popen(args)
+
+
+def _ros_value(value):
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f"'{value}'"
+    return repr(value)
+
+
+def _stop_children(children, grace_s=5.0):
+    for child in children:
+        if child.poll() is None:
+            child.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + grace_s
+    for child in children:
+        try:
+            child.wait(max(deadline - time.monotonic(), 0.0))
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()

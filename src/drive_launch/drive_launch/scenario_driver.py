@@ -1,0 +1,185 @@
+"""The launcher's scenario driver: the node that stands in for the dyno and the operator of a simulated
+drive, and records what the graph says."""
+import threading
+import time
+
+import numpy as np
+from rclpy.serialization import deserialize_message, serialize_message
+from std_msgs.msg import Float64
+
+from drive_bags.common import offered_qos
+from drive_interface.log import COLUMN, LOG_COLUMNS, fill_sample
+from drive_interface.node import message_class, topic_qos
+from drive_interface.stamps import sample_of, stamp_ns
+from drive_interface.topics import SAMPLE_LOGGED, TOPICS
+from motor_params.nameplate import nameplate
+
+
+class ScenarioDriver:
+    """The launcher's own node, the dyno and operator of the scenario: waits until every lock-step
+    endpoint is matched, then publishes the speed (when it changes) and the load torque of sample 0,
+    which starts the plant (``load_torque_per_sample``); on `voltage_command`(k), after the controller
+    has used the speed of k, it publishes those of k+1. With ``record`` it fills a log
+    (drive_interface.log.LOG_COLUMNS) from the topics; columns no topic carries stay NaN. With a
+    ``recorder`` (drive_bags.writer.BagWriter) it writes every contract topic as received, serialized.
+    With a virtual ``inverter`` (the bridge in the plant's place) it starts the inverter at sample 0."""
+
+    def __init__(self, node, scenario, record, settle_s, startup_timeout_s, progress, recorder=None,
+                 inverter=None):
+        self.node, self.scenario = node, scenario
+        self.n = scenario.n_samples
+        self.n_p = nameplate(scenario.motor).n_p
+        self.record = record
+        self.settle_s, self.startup_timeout_s, self.progress = settle_s, startup_timeout_s, progress
+        self.speed, self.load = scenario.schedule()
+        self.log = np.full((self.n if record else 1, len(LOG_COLUMNS)), np.nan)
+        if record:
+            self.log[:, COLUMN["t"]] = np.arange(self.n) * scenario.T_s
+            self.log[:, COLUMN["omega_m_ref"]] = self.speed
+            self.log[:, COLUMN["tau_load"]] = self.load
+        self.speed_pub = node.create_publisher(Float64, "speed_command", topic_qos("speed_command"))
+        self.load_pub = node.create_publisher(Float64, "load_torque", topic_qos("load_torque"))
+        self.recorder = recorder
+        self.inverter = inverter
+        handlers = {"voltage_command": self.on_voltage, "/diagnostics": self.on_diagnostics}
+        recorded = tuple(topic for topic in SAMPLE_LOGGED if topic != "voltage_command")
+        if record:
+            handlers.update({topic: self.logger_of(topic) for topic in recorded})
+        self.subscribe(handlers)
+        self.received = dict.fromkeys(("voltage_command",) + (recorded if record else ()), 0)
+        self.sent_speed = None
+        self.created = time.monotonic()
+        self.ready_since = None
+        self.started_at = self.finished_at = None
+        self.last_sample = -1
+        self.error = None
+        self.diagnostics = {}
+        self.done = None
+        node.create_timer(0.05, self.tick)
+
+    def subscribe(self, handlers):
+        """Subscribe the handlers; with a recorder, every contract topic raw, written as it comes and
+        deserialised only for a handler. The launcher's own commands are written where published."""
+        topics = set(handlers)
+        if self.recorder:
+            topics |= set(TOPICS) - {"speed_command", "load_torque"}
+        for topic in sorted(topics):
+            cls, qos = message_class(topic), topic_qos(topic)
+            handler = handlers.get(topic)
+            if not self.recorder:
+                self.node.create_subscription(cls, topic, handler, qos)
+                continue
+            callback = self.recording(topic, cls, handler, TOPICS[topic].stamped)
+            self.node.create_subscription(cls, topic, callback, qos, raw=True)
+        if self.recorder:
+            for topic in sorted(TOPICS):
+                name = self.node.resolve_topic_name(topic)
+                self.recorder.add(name, TOPICS[topic].type, offered_qos(topic))
+
+    def recording(self, topic, cls, handler, stamped):
+        name = self.node.resolve_topic_name(topic)
+
+        def callback(data):
+            self.recorder.write(name, data, stamped)
+            if handler:
+                handler(deserialize_message(data, cls))
+        return callback
+
+    def expected_endpoints(self):
+        """(topic, publishers, subscribers) that must exist before sample 0, this node included (with
+        an inverter, which keeps its own load and clock, no plant subscribes to load_torque)."""
+        r = 1 if self.record or self.recorder else 0
+        sensored = self.scenario.estimator == "sensored"
+        endpoints = [("currents", 1, 2 + r), ("rotor_estimate", 1, 2 + r), ("injection", 1, 1 + r),
+                     ("voltage_command", 1, 3), ("estimator_state", 1, r), ("speed_command", 1, 1)]
+        if self.inverter is None:
+            endpoints += [("rotor_state", 1, r + sensored), ("load_torque", 1, 1)]
+        return endpoints
+
+    def missing_endpoints(self):
+        missing = []
+        for topic, pubs, subs in self.expected_endpoints():
+            name = self.node.resolve_topic_name(topic)
+            have_pubs, have_subs = self.node.count_publishers(name), self.node.count_subscribers(name)
+            if have_pubs < pubs or have_subs < subs:
+                missing.append(f"{name} ({have_pubs}/{pubs} publishers, {have_subs}/{subs} subscribers)")
+        return missing
+
+    def command(self, k):
+        published = []
+        if self.speed[k] != self.sent_speed:
+            self.sent_speed = self.speed[k]
+            published.append((self.speed_pub, Float64(data=float(self.sent_speed))))
+        published.append((self.load_pub, Float64(data=float(self.load[k]))))
+        for publisher, msg in published:
+            publisher.publish(msg)
+            if self.recorder:
+                self.recorder.write(publisher.topic_name, serialize_message(msg), False,
+                                    stamp_ns(k, self.scenario.T_s))
+
+    def tick(self):
+        now = time.monotonic()
+        if self.started_at is None:
+            missing = self.missing_endpoints()
+            if missing:
+                self.ready_since = None
+                if now - self.created > self.startup_timeout_s:
+                    self.finish(f"graph not complete after {self.startup_timeout_s:g} s: missing "
+                                + "; ".join(missing))
+                return
+            self.ready_since = self.ready_since or now
+            if now - self.ready_since >= self.settle_s:
+                self.started_at = now
+                self.command(0)
+                if self.inverter is not None:
+                    threading.Thread(target=self.inverter.run, name="virtual_inverter", daemon=True).start()
+            return
+        if self.progress:
+            self.progress((self.last_sample + 1) / self.n)
+        if self.finished_at is not None and (self.complete() or now - self.finished_at > 1.0):
+            self.finish()
+
+    def complete(self):
+        return all(count >= self.n for count in self.received.values())
+
+    def finish(self, error=None):
+        if self.done is not None and not self.done.done():
+            self.error = error
+            self.done.set_result(error is None)
+
+    def sample(self, msg, topic):
+        k = sample_of(msg.header, self.scenario.T_s)
+        if k is None or not 0 <= k < self.n:
+            return None
+        self.received[topic] += 1
+        return k
+
+    def logger_of(self, topic):
+        """A handler writing what a per-sample message of ``topic`` says into its log row."""
+        def log_sample(msg):
+            k = self.sample(msg, topic)
+            if k is not None:
+                fill_sample(self.log[k], topic, msg, self.n_p)
+        return log_sample
+
+    def on_voltage(self, msg):
+        k = self.sample(msg, "voltage_command")
+        if k is None:
+            return
+        self.last_sample = max(self.last_sample, k)
+        if k + 1 < self.n:
+            self.command(k + 1)
+        if self.record:
+            fill_sample(self.log[k], "voltage_command", msg, self.n_p)
+        if k == self.n - 1:
+            self.finished_at = time.monotonic()
+            if self.complete():
+                self.finish()
+
+    def on_diagnostics(self, msg):
+        prefix = self.node.get_namespace().rstrip("/") + "/"
+        for status in msg.status:
+            if status.name.startswith(prefix):
+                self.diagnostics[status.name] = {"level": int.from_bytes(status.level, "little"),
+                                                 "message": status.message,
+                                                 "values": {v.key: v.value for v in status.values}}

@@ -1,0 +1,105 @@
+"""The sensorless loop through the inverter bridge in one process: the virtual inverter on its own
+thread behind a pseudo-terminal or a CAN bus, the bridge core, and the estimator and controller cores
+answering each telemetry frame. For tests, `drive bridge` and `drive bench bridge`."""
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drive_bridge.inverter_bridge import InverterBridge
+from drive_bridge.virtual_inverter import VirtualInverter, make_links
+from drive_interface.log import COLUMN, LOG_COLUMNS
+from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, controller_step
+
+from .loop import write_row
+from .runner import RunResult, build_drive
+
+
+@dataclass
+class BridgeRunResult(RunResult):
+    link: str = ""
+    counters: dict = field(default_factory=dict)
+    frame_errors: dict = field(default_factory=dict)
+    inverter_counters: dict = field(default_factory=dict)
+    injected: dict = field(default_factory=dict)
+    latencies_s: np.ndarray = None
+    """Inverter-side time from sending TELEMETRY(k) to receiving COMMAND(k), per answered sample."""
+    received: np.ndarray = None
+    """Per sample: True when the host received its telemetry."""
+    host_s: np.ndarray = None
+    """Per answered sample: the host's time from the telemetry's arrival to its command written."""
+
+
+def run_through_bridge(scenario, link="pty", faults=None, rate_Hz=None, command_wait_s=0.5, progress=None,
+                       inverter_hook=None):
+    """Run ``scenario`` with its plant behind the virtual inverter and the bridge. ``inverter_hook(
+    inverter, endpoint, k)`` is called by the host loop after each sample (tests unplug links with it)."""
+    with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
+        endpoint, host_link = make_links(link, workdir)
+        inverter = VirtualInverter(scenario, endpoint, rate_Hz=rate_Hz, command_wait_s=command_wait_s,
+                                   faults=faults)
+        bridge = InverterBridge(host_link)
+        try:
+            return _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook)
+        finally:
+            inverter.stop()
+            bridge.close()
+            endpoint.close()
+
+
+def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
+    host = build_drive(scenario)
+    e, n_p, n = host.estimator, host.controller.n_p, scenario.n_samples
+    cx, cz, cp = host.controller_x, host.controller_z, host.controller
+    log = np.zeros((n, len(LOG_COLUMNS)))
+    received = np.zeros(n, dtype=bool)
+    host_s = np.zeros(n)
+    bridge.poll(0.0)
+    thread = threading.Thread(target=inverter.run, name="virtual_inverter", daemon=True)
+    start = time.perf_counter()
+    thread.start()
+    last_report = 0
+    while thread.is_alive() or bridge.open:
+        samples = bridge.poll(0.05)
+        arrived = time.perf_counter()
+        if not samples and not thread.is_alive():
+            break
+        for s in samples:
+            k = s.k
+            if k >= n:
+                continue
+            theta_e = n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+            theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = e.step(
+                e.x, e.z, e.params, k, s.i_a, s.i_b, s.i_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
+            u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
+                cx, cz, cp, s.i_a, s.i_b, s.i_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b)
+            bridge.command(k, u_a, u_b)
+            host_s[k] = time.perf_counter() - arrived
+            received[k] = True
+            write_row(log[k], k * scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c, theta_hat,
+                      omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref, i_q_ref, eps,
+                      signal, observable)
+            if inverter_hook:
+                inverter_hook(inverter, endpoint, k)
+            if progress and k - last_report >= n // 100:
+                last_report = k
+                progress(k / n)
+        if received[n - 1]:
+            break
+    thread.join(timeout=2.0)
+    wall = time.perf_counter() - start
+    if progress:
+        progress(1.0)
+    truth = inverter.truth
+    done = inverter.k
+    log = log[:done]
+    for column, name in enumerate(("theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c")):
+        log[:, COLUMN[name]] = truth[:done, column]
+    log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
+    return BridgeRunResult(scenario, e.name, log, wall, cp.i_max_A, link=link,
+                           counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
+                           inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
+                           latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
+                           host_s=host_s[:done][received[:done]])

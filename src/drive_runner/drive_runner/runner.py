@@ -1,0 +1,98 @@
+"""The one-process runner: composes the plant, estimator and controller cores for a scenario (the same
+builders the nodes use) and runs the compiled loop in chunks between progress reports."""
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from drive_interface.log import LOG_COLUMNS
+from foc_controller.build import controller_for_scenario
+from foc_controller.control import controller_state
+from hf_estimator.build import estimator_for_scenario
+from motor_params.nameplate import nameplate
+from pmsm_plant.build import plant_for_scenario
+from pmsm_plant.commissioning import ideal_commissioning
+
+from .loop import run_samples
+
+
+@dataclass
+class RunResult:
+    scenario: object
+    estimator: str
+    log: np.ndarray
+    """One row per sample, columns drive_interface.log.LOG_COLUMNS."""
+    wall_time_s: float
+    current_limit_A: float
+    """The controller's current limit (for injecting estimators: where saliency tracking holds)."""
+
+    @property
+    def n_p(self):
+        """Pole pairs of the run's motor (its nameplate)."""
+        return nameplate(self.scenario.motor).n_p
+
+
+@dataclass
+class Drive:
+    """Every core of one drive, built for a scenario, with fresh state."""
+
+    scenario: object
+    plant: object
+    """pmsm_plant.build.Plant."""
+    estimator: object
+    controller: object
+    controller_x: np.ndarray
+    controller_z: np.ndarray
+    speed_ref: np.ndarray
+    tau_load: np.ndarray
+
+    def run(self, k_start, k_end, log):
+        """Run samples k_start..k_end−1 of the compiled loop; ``log`` receives one row per sample."""
+        p, e = self.plant, self.estimator
+        run_samples(k_start, k_end, p.x, p.machine, p.mechanics, p.inverter, p.sensor, p.seed, p.T_s,
+                    p.substeps, e.step, e.x, e.z, e.params, self.controller_x, self.controller_z,
+                    self.controller, self.speed_ref, self.tau_load, p.imposed_speed, log)
+
+
+def simulated_commissioning(scenario):
+    """What commissioning measures on the scenario's simulated motor (the ideal measurement)."""
+    return ideal_commissioning(plant_for_scenario(scenario).machine, nameplate(scenario.motor).current_limit_A)
+
+
+def build_drive(scenario):
+    """Plant, estimator and controller for a scenario; ScenarioError names the scenario key at fault."""
+    plant = plant_for_scenario(scenario)
+    estimator = estimator_for_scenario(scenario, simulated_commissioning(scenario))
+    controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz,
+                                         estimator.tracking_bandwidth_Hz, estimator.tracking_current_limit_A)
+    controller_x, controller_z = controller_state(controller, controller.n_p * scenario.initial_omega_m_rad_s)
+    speed_ref, tau_load = scenario.schedule()
+    return Drive(scenario, plant, estimator, controller, controller_x, controller_z, speed_ref, tau_load)
+
+
+def run_scenario(scenario, progress=None, chunk_samples=20000):
+    """Run a scenario to the end; ``progress(fraction)`` is called between chunks."""
+    drive = build_drive(scenario)
+    n = scenario.n_samples
+    log = np.zeros((n, len(LOG_COLUMNS)))
+    start = time.perf_counter()
+    for k0 in range(0, n, chunk_samples):
+        k1 = min(k0 + chunk_samples, n)
+        drive.run(k0, k1, log[k0:k1])
+        if progress:
+            progress(k1 / n)
+    return RunResult(scenario, drive.estimator.name, log, time.perf_counter() - start, drive.controller.i_max_A)
+
+
+def terminal_progress(label):
+    """A progress callback printing to stderr when it is a terminal."""
+    if not sys.stderr.isatty():
+        return None
+
+    def report(fraction):
+        sys.stderr.write(f"\r{label}: {100.0 * fraction:5.1f} %")
+        if fraction >= 1.0:
+            sys.stderr.write("\n")
+        sys.stderr.flush()
+    return report

@@ -1,0 +1,73 @@
+"""The base of the simulated drive's nodes: a ContractNode configured by a scenario file and the
+override parameters (``parameters.NODE_PARAMETERS``)."""
+from drive_interface.node import ContractNode, describe
+from motor_params.nameplate import nameplate
+
+from .parameters import NODE_PARAMETERS, scenario_from_parameters
+
+
+class ScenarioNode(ContractNode):
+    """Declares NODE_PARAMETERS, loads the scenario they name and calls ``build(scenario)``, the node's
+    own core (a ValueError there names the key at fault).
+
+    A configuration error leaves ``self.configured`` False: the node stays up, answers with the safe
+    output and reports the error (``self.health.latched``). Otherwise ``warm_up`` compiles the node's
+    kernels on copies of its state before any per-sample endpoint exists, so no first sample waits for
+    the compiler."""
+
+    def __init__(self, node_name, **kwargs):
+        super().__init__(node_name, **kwargs)
+        for name, (default, text) in NODE_PARAMETERS.items():
+            if not self.has_parameter(name):
+                self.declare_parameter(name, default, descriptor=describe(text))
+        self.parameters = {name: self.get_parameter(name).value for name in NODE_PARAMETERS}
+        self.scenario = None
+        self.configured = False
+        try:
+            scenario = scenario_from_parameters(self.parameters)
+            self.build(scenario)
+        except ValueError as error:
+            self.reject(error)
+        else:
+            self.scenario = scenario
+            self.configured = True
+            self.warm_up()
+        self.T_s = self.scenario.T_s if self.scenario else 1e-4
+        self.timeout_s = float(self.parameters["lockstep_timeout_s"])
+
+    def reject(self, error):
+        """Latch a configuration error: the output is held safe and /diagnostics says why."""
+        self.health.latched = str(error)
+        self.health.fault("configuration", str(error))
+        self.get_logger().error(f"configuration rejected, output held safe: {error}")
+
+    def build(self, scenario):
+        """Build the node's core for ``scenario``."""
+
+    def warm_up(self):
+        """Call the node's kernels once on copies of its state, with the argument types of a sample."""
+
+    def open_when_matched(self, subscriptions, open_outputs, ready=lambda: True):
+        """Call ``open_outputs`` (creating the node's per-sample answer publishers) once every input
+        subscription is matched to a publisher and ``ready()``. An answer sent before its reader matched
+        is lost, and a graph entry is not yet a match: gated so, the answer publishers' appearance tells
+        the plant, at the end of the chain, that every node before it can hear its inputs."""
+        def check():
+            if ready() and all(s.get_publisher_count() >= 1 for s in subscriptions):
+                timer.cancel()
+                open_outputs()
+        timer = self.create_timer(0.02, check)
+
+    def nameplate(self):
+        """The nameplate of the scenario's motor."""
+        return nameplate(self.scenario.motor)
+
+    def publish_config(self, config):
+        if self.scenario:
+            config = {"motor": self.scenario.motor, "n_p": self.nameplate().n_p, "T_s_s": self.T_s,
+                      **config}
+        super().publish_config(config)
+
+    def trip_current_A(self):
+        given = float(self.parameters["trip_current_A"])
+        return given if given > 0.0 else 3.0 * self.nameplate().current_limit_A

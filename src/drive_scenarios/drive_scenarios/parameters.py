@@ -1,0 +1,48 @@
+"""The ROS parameters every scenario-configured node declares: the scenario file (the one `drive run`
+reads) and the overrides applied on top of it."""
+import dataclasses
+import math
+
+from .scenario import load_scenario
+
+NODE_PARAMETERS = {
+    "scenario": ("wang_100rpm", "shipped scenario name or YAML path: the file `drive run` reads"),
+    "estimator": ("", "estimator type (empty: the scenario's)"),
+    "seed": (-1, "sensor-noise seed (−1: the scenario's)"),
+    "injection.frequency_Hz": (0.0, "HF injection frequency [Hz] (0: the scenario's)"),
+    "injection.amplitude_V": (0.0, "HF injection amplitude [V] (0: the scenario's)"),
+    "controller.current_limit_A": (0.0, "current limit [A] (0: the scenario's or commissioned)"),
+    "controller.speed_limit_rad_s": (math.inf, "mechanical speed reference limit [rad/s], positive"),
+    "duration_s": (0.0, "run length [s] (0: the scenario's)"),
+    "lockstep_timeout_s": (1.0, "wall time to wait for an answer before declaring a fault [s]"),
+    "diagnostics_period_s": (1.0, "period of /diagnostics [s]"),
+    "trip_current_A": (0.0, "|phase current| above this is absurd input (0: 3 × the nameplate's limit) [A]"),
+}
+"""name → (default, description); settable with --ros-args -p NAME:=VALUE or a params file."""
+
+
+def all_parameters(overrides):
+    """Every node parameter: the defaults with ``overrides`` applied."""
+    merged = {name: default for name, (default, _) in NODE_PARAMETERS.items()}
+    merged.update(overrides)
+    return merged
+
+
+def scenario_from_parameters(parameters):
+    """The scenario the nodes run: the file named by ``scenario`` with the override parameters applied."""
+    scenario = load_scenario(parameters["scenario"], estimator_override=parameters["estimator"] or None)
+    changes = {}
+    if parameters["seed"] >= 0:
+        changes["seed"] = int(parameters["seed"])
+    if parameters["duration_s"] > 0.0:
+        changes["duration_s"] = float(parameters["duration_s"])
+    injection = dict(scenario.injection)
+    for key in ("frequency_Hz", "amplitude_V"):
+        if parameters[f"injection.{key}"] > 0.0:
+            injection[key] = float(parameters[f"injection.{key}"])
+    controller = dict(scenario.controller)
+    if parameters["controller.current_limit_A"] > 0.0:
+        controller["current_limit_A"] = float(parameters["controller.current_limit_A"])
+    if parameters["controller.speed_limit_rad_s"] != math.inf:
+        controller["speed_limit_rad_s"] = parameters["controller.speed_limit_rad_s"]
+    return dataclasses.replace(scenario, injection=injection, controller=controller, **changes)

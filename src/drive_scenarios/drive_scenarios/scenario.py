@@ -1,0 +1,249 @@
+"""Scenario files (YAML): motor, estimator, speed and load time tables, duration, sampling period
+and non-idealities. Every error names the file and the key at fault in one line."""
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from drive_interface.errors import DriveError
+from motor_params.nameplate import INVERTER_RATINGS, NAMEPLATES
+
+SCENARIO_DIR = Path(__file__).parent / "scenarios"
+NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
+TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
+            "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps"}
+RPM = 2.0 * math.pi / 60.0
+
+
+class ScenarioError(DriveError):
+    """A scenario is unusable; the message names its source (file, command line, parameter) and key."""
+
+
+@dataclass(frozen=True)
+class Table:
+    """A time table [[t_s, value], ...] in SI units, held ('step') or interpolated ('linear')."""
+
+    times_s: tuple
+    values: tuple
+    interpolation: str
+
+    def sample(self, t):
+        times = np.asarray(self.times_s)
+        values = np.asarray(self.values)
+        if self.interpolation == "linear":
+            return np.interp(t, times, values)
+        index = np.searchsorted(times, t, side="right") - 1
+        return values[np.clip(index, 0, len(values) - 1)]
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    source: str
+    description: str
+    motor: str
+    estimator: str
+    estimator_settings: dict
+    injection: dict
+    """frequency_Hz and amplitude_V of the HF injection, for whichever injecting estimator runs."""
+    duration_s: float
+    T_s: float
+    mode: str
+    speed: Table
+    """Mechanical speed [rad/s]: the reference, and in imposed_speed mode also the shaft speed."""
+    load: Table
+    """External load torque [N·m]."""
+    non_idealities: dict
+    initial_theta_m_rad: float
+    initial_omega_m_rad_s: float
+    initial_angle_error_e_rad: float
+    controller: dict
+    settle_s: float
+    metrics_start_s: float
+    seed: int
+    substeps: int
+
+    @property
+    def n_samples(self):
+        return int(round(self.duration_s / self.T_s))
+
+    def schedule(self):
+        """(ω*_m [rad/s], τ_load [N·m]) per sample k, arrays of n_samples."""
+        t = np.arange(self.n_samples) * self.T_s
+        return self.speed.sample(t).astype(float), self.load.sample(t).astype(float)
+
+    def drive_delay_periods(self):
+        """The computation delay the drive's estimator is told: its inverter's, none when the scenario turns
+        the delay off."""
+        return INVERTER_RATINGS[self.motor].delay_periods if self.non_idealities["delay"] else 0
+
+    def events_s(self):
+        """Instants where a table changes (transient starts), sorted."""
+        events = set()
+        for table in (self.speed, self.load):
+            for i in range(1, len(table.times_s)):
+                if table.values[i] != table.values[i - 1] or table.interpolation == "linear":
+                    events.add(table.times_s[i])
+        return sorted(e for e in events if 0.0 < e < self.duration_s)
+
+
+def scenario_names():
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
+
+
+def resolve(name_or_path):
+    """A shipped scenario by name, or a YAML file by path."""
+    path = Path(name_or_path)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        if not path.is_file():
+            raise ScenarioError(f"{name_or_path}: no such scenario file")
+        return path
+    shipped = SCENARIO_DIR / f"{name_or_path}.yaml"
+    if not shipped.is_file():
+        raise ScenarioError(f"{name_or_path}: unknown scenario (shipped: {', '.join(scenario_names())})")
+    return shipped
+
+
+def load_scenario(name_or_path, estimator_override=None):
+    path = resolve(name_or_path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ScenarioError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
+    return parse_scenario(data, path.stem, str(path), estimator_override)
+
+
+def parse_scenario(data, name, source, estimator_override=None):
+    def fail(key, problem):
+        raise ScenarioError(f"{source}: {key}: {problem}")
+
+    if not isinstance(data, dict):
+        raise ScenarioError(f"{source}: top level must be a mapping of keys")
+    for key in sorted(set(data) - TOP_KEYS):
+        fail(key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
+    for key in ("motor", "estimator", "duration_s", "sampling_period_s", "speed"):
+        if key not in data:
+            fail(key, "missing")
+
+    motor = data["motor"]
+    if motor not in NAMEPLATES:
+        fail("motor", f"unknown motor '{motor}' (known: {', '.join(sorted(NAMEPLATES))})")
+
+    estimator_spec = data["estimator"]
+    if isinstance(estimator_spec, str):
+        estimator, settings = estimator_spec, {}
+    elif isinstance(estimator_spec, dict) and "type" in estimator_spec:
+        estimator = estimator_spec["type"]
+        settings = dict(estimator_spec.get("settings") or {})
+        for key in sorted(set(estimator_spec) - {"type", "settings"}):
+            fail(f"estimator.{key}", "unknown key (known: type, settings)")
+    else:
+        fail("estimator", "must be a name or a mapping with 'type' (and optional 'settings')")
+    if estimator_override:
+        estimator, settings = estimator_override, (settings if estimator_override == estimator else {})
+
+    injection = data.get("injection", {}) or {}
+    if not isinstance(injection, dict):
+        fail("injection", "must be a mapping with frequency_Hz and amplitude_V")
+    for key in sorted(set(injection) - {"frequency_Hz", "amplitude_V"}):
+        fail(f"injection.{key}", "unknown key (known: frequency_Hz, amplitude_V)")
+    injection = {key: _positive(value, f"injection.{key}", fail) for key, value in injection.items()}
+
+    duration = _positive(data["duration_s"], "duration_s", fail)
+    T_s = _positive(data["sampling_period_s"], "sampling_period_s", fail)
+    if T_s > duration:
+        fail("sampling_period_s", f"{T_s} s is longer than duration_s {duration} s")
+    mode = data.get("mode", "speed_control")
+    if mode not in ("speed_control", "imposed_speed"):
+        fail("mode", f"must be 'speed_control' or 'imposed_speed', not '{mode}'")
+
+    speed = _table(data["speed"], "speed", {"rpm": RPM, "rad_s": 1.0}, fail, duration)
+    load = _table(data.get("load", {"unit": "Nm", "points": [[0.0, 0.0]]}), "load",
+                  {"Nm": 1.0, "rated": NAMEPLATES[motor].rated_torque_Nm}, fail, duration)
+
+    non_idealities = {key: True for key in NON_IDEALITIES}
+    given = data.get("non_idealities", {}) or {}
+    if not isinstance(given, dict):
+        fail("non_idealities", "must be a mapping of on/off flags")
+    for key, value in given.items():
+        if key not in NON_IDEALITIES:
+            fail(f"non_idealities.{key}", f"unknown (known: {', '.join(NON_IDEALITIES)})")
+        if not isinstance(value, bool):
+            fail(f"non_idealities.{key}", f"must be true or false, not {value!r}")
+        non_idealities[key] = value
+
+    initial = data.get("initial", {}) or {}
+    for key in sorted(set(initial) - {"theta_m_rad", "omega_m_rpm", "angle_error_e_rad"}):
+        fail(f"initial.{key}", "unknown key (known: theta_m_rad, omega_m_rpm, angle_error_e_rad)")
+    metrics = data.get("metrics", {}) or {}
+    for key in sorted(set(metrics) - {"settle_s", "start_s"}):
+        fail(f"metrics.{key}", "unknown key (known: settle_s, start_s)")
+    settle = _nonnegative(metrics.get("settle_s", 0.3), "metrics.settle_s", fail)
+    start = _nonnegative(metrics.get("start_s", settle), "metrics.start_s", fail)
+    substeps = data.get("substeps", 1)
+    if not isinstance(substeps, int) or substeps < 1:
+        fail("substeps", f"must be a whole number ≥ 1, not {substeps!r}")
+    controller = data.get("controller", {}) or {}
+    if not isinstance(controller, dict):
+        fail("controller", "must be a mapping of controller settings")
+
+    return Scenario(
+        name=name, source=source, description=str(data.get("description", "")), motor=motor,
+        estimator=estimator, estimator_settings=settings, injection=injection, duration_s=duration,
+        T_s=T_s, mode=mode, speed=speed, load=load, non_idealities=non_idealities,
+        initial_theta_m_rad=_number(initial.get("theta_m_rad", 0.0), "initial.theta_m_rad", fail),
+        initial_omega_m_rad_s=RPM * _number(initial.get("omega_m_rpm", 0.0), "initial.omega_m_rpm", fail),
+        initial_angle_error_e_rad=_number(initial.get("angle_error_e_rad", 0.0),
+                                          "initial.angle_error_e_rad", fail),
+        controller=controller, settle_s=settle, metrics_start_s=start,
+        seed=int(data.get("seed", 1)), substeps=substeps)
+
+
+def _number(value, key, fail):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        fail(key, f"must be a finite number, not {value!r}")
+    return float(value)
+
+
+def _positive(value, key, fail):
+    value = _number(value, key, fail)
+    if value <= 0.0:
+        fail(key, f"must be positive, not {value}")
+    return value
+
+
+def _nonnegative(value, key, fail):
+    value = _number(value, key, fail)
+    if value < 0.0:
+        fail(key, f"must not be negative, not {value}")
+    return value
+
+
+def _table(spec, key, units, fail, duration):
+    if not isinstance(spec, dict):
+        fail(key, "must be a mapping with unit, points and optional interpolation")
+    for extra in sorted(set(spec) - {"unit", "points", "interpolation"}):
+        fail(f"{key}.{extra}", "unknown key (known: unit, points, interpolation)")
+    unit = spec.get("unit")
+    if unit not in units:
+        fail(f"{key}.unit", f"must be one of {', '.join(units)}, not {unit!r}")
+    interpolation = spec.get("interpolation", "step")
+    if interpolation not in ("step", "linear"):
+        fail(f"{key}.interpolation", f"must be 'step' or 'linear', not {interpolation!r}")
+    points = spec.get("points")
+    if not isinstance(points, list) or not points:
+        fail(f"{key}.points", "missing or empty: give [[time_s, value], ...]")
+    times, values = [], []
+    for i, point in enumerate(points):
+        if not isinstance(point, (list, tuple)) or len(point) != 2:
+            fail(f"{key}.points[{i}]", f"must be [time_s, value], not {point!r}")
+        t = _nonnegative(point[0], f"{key}.points[{i}] time", fail)
+        if times and t < times[-1]:
+            fail(f"{key}.points[{i}]", f"time {t} s goes backwards")
+        if t > duration:
+            fail(f"{key}.points[{i}]", f"time {t} s is after duration_s {duration} s")
+        times.append(t)
+        values.append(units[unit] * _number(point[1], f"{key}.points[{i}] value", fail))
+    return Table(tuple(times), tuple(values), interpolation)

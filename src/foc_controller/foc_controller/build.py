@@ -1,0 +1,28 @@
+"""The controller a scenario configures, for its motor's nameplate and the estimator it runs with."""
+from drive_scenarios.scenario import ScenarioError
+from motor_params.nameplate import INVERTER_RATINGS, nameplate
+
+from .params import check_settings, make_controller_params
+
+
+def check_controller_settings(scenario):
+    """Validate the scenario's controller settings before the estimator is known; ScenarioError names
+    the scenario and the key."""
+    try:
+        check_settings(scenario.controller)
+    except (KeyError, ValueError) as error:
+        raise ScenarioError(f"{scenario.source}: controller: {error.args[0]}") from None
+
+
+def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth_Hz, tracking_current_limit_A):
+    """ControllerParams for ``scenario`` with an estimator that injects at ``injection_frequency_Hz`` (0:
+    none), tracks with ``tracking_bandwidth_Hz`` and holds its angle up to ``tracking_current_limit_A``
+    (None: no limit of its own); the scenario's current_limit_A overrides that limit."""
+    settings = dict(scenario.controller)
+    if tracking_current_limit_A is not None:
+        settings.setdefault("current_limit_A", tracking_current_limit_A)
+    try:
+        return make_controller_params(nameplate(scenario.motor), INVERTER_RATINGS[scenario.motor], scenario.T_s,
+                                      settings, injection_frequency_Hz, tracking_bandwidth_Hz)
+    except (KeyError, ValueError) as error:
+        raise ScenarioError(f"{scenario.source}: controller: {error.args[0]}") from None

@@ -1,0 +1,92 @@
+"""``conventional`` — Wang et al. 2019 §II (Fig. 2, Eq. 7-11), pulsating sinusoidal injection
+U_h cos ω_h t on the estimated d̂ axis: î_q → 4th-order Butterworth band-pass (600-1200 Hz) → × 2 sin ω_h t
+→ low-pass → PI tracking loop. This module also holds what ``improved`` (§III) shares with it.
+
+Where the paper is silent: the low-pass is 2nd-order Butterworth; the band-pass is scipy's Butterworth
+band-pass of prototype order 2 (overall order 4); the carriers are evaluated at the sampling instant
+(no delay compensation, as in the paper). The speed handed to the speed loop is the PI's integrator
+state: the PI output carries the fundamental current that ×2 sin ω_h t moves to ω_h and the low-pass
+passes (docs/hf-demodulation.md §3), and fed to the speed loop it destabilised every closed-loop run.
+PLL bandwidth 20 Hz. The PI gains place the linearised loop (Eq. 24) at the requested bandwidth for
+the physical gain ε ≈ 2(U_h/ω_h)Δ·(θ − θ̂), Δ = ½(1/L_dh − 1/L_qh), from the commissioned HF
+inductances: Eq. (22)'s k_h = U_h/(ω_h L_dh) is not the slope of ε (it is zero on a round rotor, see
+docs/hf-demodulation.md §1), and tuning for it would measure a mistuning rather than the method. With no
+commissioned saliency there is nothing to lock to: the gains are zero and the HF admittance monitor
+reports low observability. Settings A_p and T_i_s (from `drive tune pll`) replace that rule by
+k_p = A_p, k_i = A_p/T_i.
+"""
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from control_math.filters import butterworth_bandpass, butterworth_lowpass
+from control_math.frames import clarke_contract
+
+from .admittance_monitor import MonitorParams, make_monitor
+from .interface import Estimator, check_settings, register
+from .pulsating import (INTEGRAL, THETA, check_injection_frequency, pulsating_state, pulsating_track_and_inject,
+                        q_axis_demodulation)
+from .tracking_loop import loop_gains
+
+DEFAULTS = {"frequency_Hz": 900.0, "amplitude_V": 5.0, "demodulation_amplitude": 2.0,
+            "lowpass_Hz": 300.0, "lowpass_order": 2, "bandpass_Hz": [600.0, 1200.0],
+            "bandpass_order": 2, "pll_bandwidth_Hz": 20.0, "pll_damping": 0.8, "A_p": None, "T_i_s": None,
+            "observable_ratio": 0.02}
+
+
+class WangParams(NamedTuple):
+    T_s_s: float
+    omega_h_rad_s: float
+    U_h_V: float
+    demodulation_amplitude: float
+    kp: float
+    ki: float
+    lowpass: np.ndarray
+    bandpass: np.ndarray
+    monitor: MonitorParams
+
+
+@njit(cache=True)
+def conventional_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
+    """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI integrator, u_inj_α,
+    u_inj_β, ε [A], |Δ̂| [1/H], observable). State x: θ̂, the PI integrator, the admittance monitor
+    (pulsating.py); z: band-pass sections z[0], low-pass sections z[1]; p: WangParams."""
+    t = k * p.T_s_s
+    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
+    eps = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA],
+                              p.demodulation_amplitude, math.sin(p.omega_h_rad_s * t))
+    _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
+        x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
+    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, observable
+
+
+def make_wang(name, step, defaults, settings, T_s, theta_e0, omega_e0, commissioning, delay_periods):
+    """A Wang estimator (``conventional`` or ``improved``) with the kernel ``step`` and its settings."""
+    s = check_settings(name, settings, defaults)
+    f_h, U_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
+    check_injection_frequency(f_h, T_s)
+    gain = s["demodulation_amplitude"] * U_h * commissioning.delta / (2.0 * math.pi * f_h)
+    kp, ki = loop_gains(gain, s["pll_bandwidth_Hz"], s["pll_damping"]) if gain > 0.0 else (0.0, 0.0)
+    if (s["A_p"] is None) != (s["T_i_s"] is None):
+        raise ValueError("A_p and T_i_s go together (both from `drive tune pll`, or neither)")
+    if s["A_p"] is not None:
+        kp, ki = float(s["A_p"]), float(s["A_p"]) / float(s["T_i_s"])
+    low, high = s["bandpass_Hz"]
+    params = WangParams(
+        T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, U_h_V=U_h,
+        demodulation_amplitude=float(s["demodulation_amplitude"]), kp=kp, ki=ki,
+        lowpass=butterworth_lowpass(s["lowpass_order"], s["lowpass_Hz"], T_s),
+        bandpass=butterworth_bandpass(s["bandpass_order"], low, high, T_s),
+        monitor=make_monitor(T_s, U_h, f_h, delay_periods, commissioning, s["observable_ratio"]))
+    sections = max(params.lowpass.shape[0], params.bandpass.shape[0])
+    return Estimator(name, step, params, pulsating_state(params.monitor, theta_e0, omega_e0),
+                     np.zeros((2, sections, 2)), f_h, float(s["pll_bandwidth_Hz"]))
+
+
+@register("conventional", "d̂ injection, band-pass, q̂ demodulation, low-pass, PI (faithful)",
+          "Wang et al. 2019, §II, Fig. 2, Eq. (7)-(11)")
+def make_conventional(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+    return make_wang("conventional", conventional_step, DEFAULTS, settings, T_s, theta_e0, omega_e0,
+                 commissioning, delay_periods)

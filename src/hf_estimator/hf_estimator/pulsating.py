@@ -1,0 +1,46 @@
+"""What the papers' pulsating-injection estimators share: their state layout, the q̂-axis demodulation,
+and the step after demodulation (tracking loop, admittance monitor, next injection)."""
+import numpy as np
+from numba import njit
+
+from control_math.filters import sos_step
+from control_math.frames import rotate
+
+from .admittance_monitor import monitor_size, monitor_step
+from .tracking_loop import pi_tracking_loop
+
+
+# State layout of the papers' pulsating-injection estimators: θ̂, the PI integrator, then the monitor.
+THETA, INTEGRAL, MONITOR = 0, 1, 2
+
+
+def check_injection_frequency(f_h, T_s):
+    if not 0.0 < f_h < 0.5 / T_s:
+        raise ValueError(f"frequency_Hz {f_h} must lie between 0 and Nyquist {0.5 / T_s} Hz")
+
+
+def pulsating_state(monitor, theta_e0, omega_e0):
+    """Fresh state for a pulsating-injection estimator with monitor parameters ``monitor``."""
+    x = np.zeros(MONITOR + monitor_size(monitor))
+    x[THETA] = theta_e0
+    x[INTEGRAL] = omega_e0
+    return x
+
+
+@njit(cache=True)
+def q_axis_demodulation(z, bandpass, lowpass, i_alpha, i_beta, theta, amplitude, carrier):
+    """The q̂-axis demodulation of Wang §II (Eq. 8-11) and Szabó §2.3 (Eq. 15-21): î_q in the θ̂ frame →
+    band-pass (state z[0]) → × amplitude·carrier → low-pass (state z[1])."""
+    _, i_q = rotate(i_alpha, i_beta, -theta)
+    return sos_step(lowpass, z[1], sos_step(bandpass, z[0], i_q) * amplitude * carrier)
+
+
+@njit(cache=True)
+def pulsating_track_and_inject(x, monitor, k, i_alpha, i_beta, carrier, U_h, kp, ki, T_s, error):
+    """What the papers' methods do after demodulating ε: the PI tracking loop, the HF admittance
+    monitor, and the next injection U_h·carrier along the new d̂ (Wang Eq. 7, Szabó Eq. 6).
+    Returns (ω_PI, u_inj_α, u_inj_β, signal, observable)."""
+    omega = pi_tracking_loop(x, THETA, INTEGRAL, kp, ki, T_s, error)
+    signal, observable = monitor_step(x, MONITOR, monitor, k, i_alpha, i_beta, carrier, x[THETA])
+    u_alpha, u_beta = rotate(U_h * carrier, 0.0, x[THETA])
+    return omega, u_alpha, u_beta, signal, observable

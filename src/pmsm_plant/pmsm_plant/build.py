@@ -1,0 +1,35 @@
+"""The plant of a scenario: the preset's true machine with the scenario's non-idealities, its state at
+the scenario's initial shaft angle and speed, and what a period's integration needs."""
+from dataclasses import dataclass
+
+import numpy as np
+
+from .model import N_STATE, plant_reset
+from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
+from .presets import get_preset, plant_parameters
+
+
+@dataclass
+class Plant:
+    machine: MachineParams
+    mechanics: MechanicsParams
+    inverter: InverterParams
+    sensor: SensorParams
+    x: np.ndarray
+    """State (model.N_STATE)."""
+    seed: int
+    """Sensor-noise seed."""
+    T_s: float
+    substeps: int
+    imposed_speed: bool
+    """The shaft follows the speed table (dynamometer) instead of its torque balance."""
+
+
+def plant_for_scenario(scenario):
+    """A fresh Plant for ``scenario`` (drive_scenarios.scenario.Scenario)."""
+    preset = get_preset(scenario.motor)
+    machine, inverter, sensor = plant_parameters(preset, scenario.non_idealities)
+    x = np.zeros(N_STATE)
+    plant_reset(x, scenario.initial_theta_m_rad, scenario.initial_omega_m_rad_s, machine)
+    return Plant(machine, preset.mechanics, inverter, sensor, x, scenario.seed, scenario.T_s, scenario.substeps,
+                 scenario.mode == "imposed_speed")
