@@ -13,13 +13,13 @@ import pytest
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ["ROS_DOMAIN_ID"] = str(30 + (os.getpid() + 7) % 60)
 
-from drive_bags.common import BagCutError, BagError  # noqa: E402
-from drive_bags.reader import bag_info, bag_log  # noqa: E402
-from drive_bags.writer import write_run_bag  # noqa: E402
-from drive_interface.log import COLUMN  # noqa: E402
-from drive_interface.topics import TOPICS  # noqa: E402
-from drive_runner.runner import run_scenario  # noqa: E402
-from drive_scenarios.scenario import load_scenario  # noqa: E402
+from drive_bags.common import BagCutError, BagError
+from drive_bags.reader import bag_info, bag_log
+from drive_bags.writer import write_run_bag
+from drive_interface.log import COLUMN
+from drive_interface.topics import TOPICS
+from drive_runner.runner import run_scenario
+from drive_scenarios.scenario import load_scenario
 
 DRIVE = [sys.executable, "-m", "drive_cli.cli"]
 PER_SAMPLE = ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state",
@@ -250,8 +250,7 @@ def test_a_truncated_mcap_under_a_complete_metadata_is_named(tmp_path):
 
 
 def test_bulk_cdr_records_equal_the_rosbags_serialiser():
-    from drive_bags.writer import (CDR_LITTLE_ENDIAN, _cdr_joint_state, _cdr_scalars, _cdr_vector3_stamped,
-                                  typestore)
+    from drive_bags.writer import CDR_LITTLE_ENDIAN, _cdr_joint_state, _cdr_scalars, _cdr_vector3_stamped, typestore
     store = typestore()
     T = store.types
     stamp = T["builtin_interfaces/msg/Time"](sec=3, nanosec=700)

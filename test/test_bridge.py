@@ -7,14 +7,13 @@ import time
 import numpy as np
 import pytest
 
-from drive_bridge.virtual_inverter import make_links
 from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.inverter_protocol import OVERCURRENT, PWM_OFF, WATCHDOG
+from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
 from drive_evaluation.metrics import angle_error, compute_metrics
 from drive_runner.bridge_loop import run_through_bridge
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import Table, load_scenario
-from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter
 
 SCENARIO = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.6)
 CLEAN = ("dropped", "duplicated", "reordered", "link_lost", "bus_off", "safe_state", "command_errors",

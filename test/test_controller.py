@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from drive_interface.log import COLUMN
-from motor_params.nameplate import INVERTER_RATINGS
 from foc_controller.tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
 from helpers import run, scenario
+from motor_params.nameplate import INVERTER_RATINGS
 
 
 def test_current_rule_places_closed_loop_poles():

@@ -5,14 +5,13 @@ import math
 import numpy as np
 import pytest
 
-from helpers import run, scenario, shipped
 from drive_interface.log import COLUMN
 from drive_runner.runner import run_scenario
+from helpers import run, scenario, shipped
 from hf_estimator.registry import make_estimator
 from motor_params.commissioning import MIN_CONVERGENCE_SLOPE
 from pmsm_plant.commissioning import ideal_commissioning as commission
-from pmsm_plant.model import (N_STATE, plant_advance, plant_outputs, plant_reset,
-                              saturation_saliency_angle)
+from pmsm_plant.model import N_STATE, plant_advance, plant_outputs, plant_reset, saturation_saliency_angle
 from pmsm_plant.presets import PRESETS, plant_parameters
 
 WANG = PRESETS["wang_spmsm"]
@@ -99,7 +98,7 @@ def test_each_estimator_locks_from_half_a_radian(name, motor, f_h, U_h, peak_rad
 
 @pytest.mark.parametrize("rpm", [100.0, 200.0, -100.0])
 def test_improved_bias_follows_sigma_term_formula(rpm):
-    """Faithful `improved` at imposed speed lags by the Σ-term bias of shared/notes/hf-demodulation.md
+    """Faithful `improved` at imposed speed lags by the Σ-term bias of docs/hf-demodulation.md
     §2, ½(Σ/Δ)·ω_e·τ_g (τ_g: the 300 Hz 2nd-order Butterworth's group delay √2/ω_c), within ±25 %."""
     s = scenario(estimator="improved", mode="imposed_speed", duration_s=0.6,
                  injection={"frequency_Hz": 900.0, "amplitude_V": 5.0},

@@ -15,26 +15,26 @@ import pytest
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ["ROS_DOMAIN_ID"] = str(30 + os.getpid() % 60)
 
-rclpy = pytest.importorskip("rclpy")
-import rclpy.node  # noqa: E402
-from geometry_msgs.msg import Vector3Stamped  # noqa: E402
-from rclpy.experimental import EventsExecutor  # noqa: E402
-from rclpy.parameter import Parameter  # noqa: E402
-from rclpy.signals import SignalHandlerOptions  # noqa: E402
-from sensor_msgs.msg import JointState  # noqa: E402
-from std_msgs.msg import Float64  # noqa: E402
+pytest.importorskip("rclpy")
+import rclpy
+import rclpy.node
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import Vector3Stamped
+from rclpy.experimental import EventsExecutor
+from rclpy.parameter import Parameter
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64, String
 
-from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
-from drive_interface.log import COLUMN  # noqa: E402
-from drive_interface.node import parameter_overrides, stamp, topic_qos  # noqa: E402
-from drive_interface.stamps import sample_of  # noqa: E402
-from drive_launch.launcher import DriveSpec, launch, launch_many  # noqa: E402
-from drive_runner.runner import run_scenario  # noqa: E402
-from drive_scenarios.scenario import load_scenario  # noqa: E402
-from foc_controller.node import SPEED_LIMIT, ControllerNode  # noqa: E402
-from hf_estimator.node import EstimatorNode  # noqa: E402
-from pmsm_plant.node import PlantNode  # noqa: E402
-from std_msgs.msg import String  # noqa: E402
+from drive_interface.log import COLUMN
+from drive_interface.node import parameter_overrides, stamp, topic_qos
+from drive_interface.stamps import sample_of
+from drive_launch.launcher import DriveSpec, launch, launch_many
+from drive_runner.runner import run_scenario
+from drive_scenarios.scenario import load_scenario
+from foc_controller.node import SPEED_LIMIT, ControllerNode
+from hf_estimator.node import EstimatorNode
+from pmsm_plant.node import PlantNode
 
 DRIVE = [sys.executable, "-m", "drive_cli.cli"]
 PER_SAMPLE_QOS = topic_qos("currents")
@@ -271,7 +271,7 @@ def test_plant_discards_a_wrongly_stamped_command_and_applies_zero_voltage_on_ti
         assert "silent topic: /bad_plant/rotor_estimate" in timeout.message
         for k, u_alpha in ((1, 10.0), (2, 0.0)):
             voltage.publish(vector(k, u_alpha, 0.0))
-            h.spin_until(lambda: len(currents) > k + 1, what=f"sample {k + 1}")
+            h.spin_until(lambda k=k: len(currents) > k + 1, what=f"sample {k + 1}")
         # One period of computation delay: currents(2) show the period after sample 0 (zero voltage
         # instead of the discarded 10 V), currents(3) the 10 V commanded at sample 1.
         assert abs(currents[2].vector.x) < 0.1 and currents[3].vector.x > 0.3

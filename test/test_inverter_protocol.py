@@ -8,9 +8,23 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drive_bridge.inverter_protocol import (CanDecoder, Command, Control, FrameError, FrameReader, Heartbeat,
-                                            Hello, Telemetry, cobs_decode, cobs_encode, crc16, decode_frame,
-                                            encode_frame, to_can, unwrap16)
+from drive_bridge.inverter_protocol import (
+    CanDecoder,
+    Command,
+    Control,
+    FrameError,
+    FrameReader,
+    Heartbeat,
+    Hello,
+    Telemetry,
+    cobs_decode,
+    cobs_encode,
+    crc16,
+    decode_frame,
+    encode_frame,
+    to_can,
+    unwrap16,
+)
 
 FIRMWARE = Path(__file__).resolve().parents[1] / "firmware" / "inverter_protocol"
 VECTORS = FIRMWARE / "test_vectors.txt"

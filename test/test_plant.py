@@ -7,9 +7,21 @@ import pytest
 from scipy.linalg import expm
 
 from control_math.frames import clarke, inverse_clarke, rotate, wrap
-from pmsm_plant.model import (N_STATE, OMEGA_M, PSI_ALPHA, PSI_BETA, current_from_flux, duty_cycles,
-                              flux_from_current, incremental_inductances,
-                              inverter_voltage, plant_advance, plant_outputs, plant_reset, sense_currents)
+from pmsm_plant.model import (
+    N_STATE,
+    OMEGA_M,
+    PSI_ALPHA,
+    PSI_BETA,
+    current_from_flux,
+    duty_cycles,
+    flux_from_current,
+    incremental_inductances,
+    inverter_voltage,
+    plant_advance,
+    plant_outputs,
+    plant_reset,
+    sense_currents,
+)
 from pmsm_plant.params import InverterParams, MechanicsParams, SensorParams
 from pmsm_plant.presets import PRESETS, plant_parameters
 

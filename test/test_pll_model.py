@@ -5,10 +5,23 @@ import math
 import numpy as np
 import pytest
 
-from drive_evaluation.pll_check import (check_scenario, closed_loop_figures, design_for_motor,
-                                        measure_tracking_response, model_figures)
-from hf_estimator.pll_model import (CarrierPath, carrier_loop, first_order_response, highest_crossover,
-                                    margins, pll_process, szabo_loop, tune_pi)
+from drive_evaluation.pll_check import (
+    check_scenario,
+    closed_loop_figures,
+    design_for_motor,
+    measure_tracking_response,
+    model_figures,
+)
+from hf_estimator.pll_model import (
+    CarrierPath,
+    carrier_loop,
+    first_order_response,
+    highest_crossover,
+    margins,
+    pll_process,
+    szabo_loop,
+    tune_pi,
+)
 from hf_estimator.synchronous import first_order_lowpass
 
 TABLE1 = dict(R_ohm=6.2, L_d_H=20.025e-3, L_q_H=40.17e-3, f_h_Hz=1500.0, u_h_V=40.0, u_star=1.0)

@@ -28,8 +28,7 @@ def typestore():
 
 def rosbags_qos(history=1, depth=10, reliability=1, durability=2):
     """A rosbags Qos from the rmw enum values (KEEP_LAST 1, RELIABLE 1, VOLATILE 2, TRANSIENT_LOCAL 1)."""
-    from rosbags.interfaces import (Qos, QosDurability, QosHistory, QosLiveliness, QosReliability,
-                                    QosTime)
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
     return Qos(QosHistory(history), depth, QosReliability(reliability), QosDurability(durability),
                QosTime(0, 0), QosTime(0, 0), QosLiveliness.AUTOMATIC, QosTime(0, 0), False)
 

@@ -16,6 +16,7 @@ from drive_scenarios.scenario import ScenarioError, load_scenario
 
 from .common import BagCutError, BagError, typestore
 
+
 def open_bag(path):
     """A rosbags Reader for a rosbag2 directory; a cut or foreign bag gives a BagError naming it."""
     from rosbags.rosbag2 import Reader

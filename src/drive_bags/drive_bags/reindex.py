@@ -5,6 +5,7 @@ from .common import BagCompleteError, BagError, rosbags_qos
 from .reader import bag_info
 from .writer import BagWriter
 
+
 def reindex(path, force=False):
     """Rebuild a cut recording (no metadata.yaml: the recorder was killed) into a complete bag from the
     chunks that reached the disk; the chunk being written when it died is lost. ``force``: also when a

@@ -7,8 +7,19 @@ import time
 from dataclasses import dataclass
 
 from .inverter_link import LinkDown
-from .inverter_protocol import (CLEARED_BY_HOST, CONTROL_CLEAR_FAULTS, CONTROL_SEND_HELLO, ENABLE,
-                                ENCODER_VALID, OVERCURRENT, STATUS_NAMES, Command, Control, Hello, Telemetry)
+from .inverter_protocol import (
+    CLEARED_BY_HOST,
+    CONTROL_CLEAR_FAULTS,
+    CONTROL_SEND_HELLO,
+    ENABLE,
+    ENCODER_VALID,
+    OVERCURRENT,
+    STATUS_NAMES,
+    Command,
+    Control,
+    Hello,
+    Telemetry,
+)
 
 LINK_TIMEOUT_S = 0.05
 COMMAND_TIMEOUT_S = 0.05

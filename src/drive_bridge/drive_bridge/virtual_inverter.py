@@ -22,10 +22,25 @@ from pmsm_plant.build import plant_for_scenario
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
 from .inverter_link import CanLink, LinkDown, PtyEndpoint, SerialLink
-from .inverter_protocol import (BAD_FRAME, COMMAND_MISSING, CONTROL_CLEAR_FAULTS, CONTROL_DISABLE,
-                                CONTROL_SEND_HELLO, ENABLE, ENCODER_VALID, HEARTBEAT_LOST,
-                                HELLO_ENCODER_PRESENT, OVERCURRENT, PWM_OFF, WATCHDOG, Command, Control, Hello,
-                                Telemetry, encode_frame)
+from .inverter_protocol import (
+    BAD_FRAME,
+    COMMAND_MISSING,
+    CONTROL_CLEAR_FAULTS,
+    CONTROL_DISABLE,
+    CONTROL_SEND_HELLO,
+    ENABLE,
+    ENCODER_VALID,
+    HEARTBEAT_LOST,
+    HELLO_ENCODER_PRESENT,
+    OVERCURRENT,
+    PWM_OFF,
+    WATCHDOG,
+    Command,
+    Control,
+    Hello,
+    Telemetry,
+    encode_frame,
+)
 
 LINKS = ("pty", "can")
 

@@ -493,7 +493,7 @@ def cmd_tune_pll(args):
             report["tuned"][name] = {"error": str(error)}
         report["current_gains"][name] = dataclasses.asdict(margins(loop, A_now, T_now))
     if "error" in report["tuned"][args.model]:
-        raise CommandLineError(f"--crossover: {report['tuned'][args.model]['error']}")
+        raise CommandLineError(f"--phase-margin/--crossover: {report['tuned'][args.model]['error']}")
     choice = report["tuned"][args.model]
     if args.check:
         from drive_runner.runner import terminal_progress

@@ -8,9 +8,8 @@ solver between samples, so 'samples' are controller periods."""
 import json
 import time
 
-import numpy as np
-
 import motulator.drive.control.sm as control
+import numpy as np
 from motulator.drive import model, utils
 
 

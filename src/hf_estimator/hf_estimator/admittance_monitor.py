@@ -41,7 +41,9 @@ def monitor_step(x, base, p, k, i_alpha, i_beta, carrier_now, angle_now):
     The current step i[k] − i[k−1] answers the voltage applied during period k−1, i.e. the injection
     issued at sample k−1−delay. Rotated into that injection's frame and correlated with its carrier
     over one carrier period, it gives D = Σ + Δ cos 2e (in-phase) and Q = Δ sin 2e (quadrature) [1/H],
-    e = θ − θ_inj. Returns (|Δ̂| smoothed, observable flag)."""
+    e = θ − θ_inj. Returns (|Δ̂| smoothed [1/H], observable flag). State in x from ``base``: MON_PREV_IA
+    .. MON_COUNT, then the ring of issued (carrier, angle) × (delay + 2) and the product ring (d, q, c²) ×
+    window (monitor_size)."""
     hist = base + MON_HISTORY
     depth = p.delay_periods + 2
     ring = hist + 2 * depth

@@ -26,8 +26,14 @@ from control_math.frames import clarke_contract
 
 from .admittance_monitor import MonitorParams, make_monitor
 from .interface import Estimator, check_settings, register
-from .pulsating import (INTEGRAL, THETA, check_injection_frequency, pulsating_state, pulsating_track_and_inject,
-                        q_axis_demodulation)
+from .pulsating import (
+    INTEGRAL,
+    THETA,
+    check_injection_frequency,
+    pulsating_state,
+    pulsating_track_and_inject,
+    q_axis_demodulation,
+)
 from .tracking_loop import loop_gains
 
 DEFAULTS = {"frequency_Hz": 900.0, "amplitude_V": 5.0, "demodulation_amplitude": 2.0,

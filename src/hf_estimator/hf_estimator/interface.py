@@ -17,8 +17,9 @@ What an estimator knows of the motor is its nameplate (``motor_params.nameplate`
 record measured on it (``motor_params.commissioning``); never the plant.
 """
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

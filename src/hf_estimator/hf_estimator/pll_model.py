@@ -17,8 +17,8 @@ demodulation keep out of the envelope; what it has instead is the carrier's phas
 """
 import cmath
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 from scipy.optimize import brentq
@@ -247,11 +247,11 @@ def tune_pi(loop, phase_margin_deg, crossover_rad_s):
     lag = -math.pi + math.radians(phase_margin_deg) - rest
     if lag >= 0.0:
         available = 180.0 + math.degrees(rest)
-        raise ValueError(f"--phase-margin: {phase_margin_deg:g}° at {w:g} rad/s is not reachable with a PI; "
+        raise ValueError(f"a phase margin of {phase_margin_deg:g}° at {w:g} rad/s is not reachable with a PI; "
                          f"the loop without it has {available:.1f}°")
     most = float(np.angle(loop.pi(w, 1e-12)))
     if lag <= most:
-        raise ValueError(f"--phase-margin: {phase_margin_deg:g}° at {w:g} rad/s would need a PI lag of "
+        raise ValueError(f"a phase margin of {phase_margin_deg:g}° at {w:g} rad/s would need a PI lag of "
                          f"{-math.degrees(lag):.1f}°, more than a PI gives ({-math.degrees(most):.1f}°): "
                          f"any PI leaves more margin there")
     T_i = brentq(lambda T: np.angle(loop.pi(w, T)) - lag, 1e-12, 1e9)
@@ -266,7 +266,7 @@ def highest_crossover(loop, phase_margin_deg, pi_zero_ratio=10.0):
     grid = np.logspace(0, math.log10(loop.omega_max_rad_s), 4000)
     excess = 180.0 + np.degrees(loop.phase(1.0, math.inf, grid) - lag) - phase_margin_deg
     if excess[0] <= 0.0:
-        raise ValueError(f"--phase-margin: {phase_margin_deg:g}° is not reachable at any crossover")
+        raise ValueError(f"a phase margin of {phase_margin_deg:g}° is not reachable at any crossover")
     last = np.nonzero(excess > 0.0)[0][-1]
     if last == len(grid) - 1:
         return grid[-1]

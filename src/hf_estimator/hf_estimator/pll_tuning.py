@@ -6,8 +6,17 @@ import dataclasses
 import math
 
 from .interface import make_estimator
-from .pll_model import (carrier_loop, carrier_path, fastest_pi, highest_crossover, margins, pll_process,
-                        sos_response, szabo_loop, tune_pi)
+from .pll_model import (
+    carrier_loop,
+    carrier_path,
+    fastest_pi,
+    highest_crossover,
+    margins,
+    pll_process,
+    sos_response,
+    szabo_loop,
+    tune_pi,
+)
 
 MAPPINGS = {
     "synchronous": "Szabó's own loop (Fig. 4): u_h sin ω_h t on d̂, î_q̂ band-pass, × u* cos ω_h t, "

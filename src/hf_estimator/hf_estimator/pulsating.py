@@ -9,7 +9,6 @@ from control_math.frames import rotate
 from .admittance_monitor import monitor_size, monitor_step
 from .tracking_loop import pi_tracking_loop
 
-
 # State layout of the papers' pulsating-injection estimators: θ̂, the PI integrator, then the monitor.
 THETA, INTEGRAL, MONITOR = 0, 1, 2
 

@@ -25,7 +25,13 @@ from control_math.frames import clarke_contract
 from .admittance_monitor import MonitorParams, make_monitor
 from .interface import Estimator, check_settings, register
 from .pll_model import sampled_admittance, sos_response
-from .pulsating import THETA, check_injection_frequency, pulsating_state, pulsating_track_and_inject, q_axis_demodulation
+from .pulsating import (
+    THETA,
+    check_injection_frequency,
+    pulsating_state,
+    pulsating_track_and_inject,
+    q_axis_demodulation,
+)
 
 DEFAULTS = {"frequency_Hz": 1500.0, "amplitude_V": 40.0, "u_star": 1.0, "A_p": 4853.0,
             "T_i_s": 0.136, "T_f_s": 0.53e-3, "bandpass_ratio": math.sqrt(2.0),

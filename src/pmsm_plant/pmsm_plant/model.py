@@ -86,6 +86,9 @@ def inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s):
 
 @njit(cache=True)
 def _derivatives(psi_a, psi_b, omega_m, theta_m, u_a, u_b, tau_load, imposed, omega_imposed, m, mech):
+    """Time derivatives of the state (ψ_α, ψ_β [Wb], ω_m [rad/s], θ_m [rad]) under the stator voltage
+    (u_a, u_b) [V, αβ] and the load torque [N·m]: dψ/dt = u − R i, the shaft's torque balance (or the
+    imposed speed)."""
     i_a, i_b = stator_current(psi_a, psi_b, theta_m, m)
     tau_e = electromagnetic_torque(psi_a, psi_b, i_a, i_b, m.n_p)
     if imposed:
@@ -100,7 +103,10 @@ def _derivatives(psi_a, psi_b, omega_m, theta_m, u_a, u_b, tau_load, imposed, om
 @njit(cache=True)
 def plant_advance(x, u_cmd_alpha, u_cmd_beta, tau_load_Nm, imposed, omega_imposed, m, mech, inv,
                   T_s, n_substeps):
-    """Advance the plant state x by one control period.
+    """Advance the plant state x by one control period T_s [s] under the command (u_cmd_α, u_cmd_β) [V]
+    and the load torque [N·m]. State x (N_STATE): PSI_ALPHA, PSI_BETA [Wb], OMEGA_M [rad/s], THETA_M [rad],
+    U_PENDING_ALPHA, U_PENDING_BETA (the delayed command [V]); m, mech, inv: MachineParams,
+    MechanicsParams, InverterParams.
 
     ``u_cmd`` is the controller's command computed from the sample at the start of this period. With
     ``inv.delay_periods == 1`` the command stored from the previous call is applied now and this one
@@ -140,7 +146,7 @@ def plant_advance(x, u_cmd_alpha, u_cmd_beta, tau_load_Nm, imposed, omega_impose
 
 @njit(cache=True)
 def plant_outputs(x, m):
-    """True (i_a, i_b, i_c, τ_e) at the current state."""
+    """True phase currents (i_a, i_b, i_c) [A] and torque τ_e [N·m] at the state x (MachineParams m)."""
     i_a, i_b = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
     tau_e = electromagnetic_torque(x[PSI_ALPHA], x[PSI_BETA], i_a, i_b, m.n_p)
     p_a, p_b, p_c = inverse_clarke(i_a, i_b)
@@ -149,7 +155,7 @@ def plant_outputs(x, m):
 
 @njit(cache=True)
 def plant_reset(x, theta_m, omega_m, m):
-    """Start at rest electrically (i = 0) at the given shaft angle and speed."""
+    """Reset the state x to rest electrically (i = 0) at the shaft angle θ_m [rad] and speed ω_m [rad/s]."""
     x[:] = 0.0
     psi_a, psi_b = rotate(m.psi_f_Wb, 0.0, m.n_p * theta_m)
     x[PSI_ALPHA] = psi_a
@@ -160,6 +166,7 @@ def plant_reset(x, theta_m, omega_m, m):
 
 @njit(cache=True)
 def _splitmix64(z):
+    """SplitMix64: a uint64 → a well-mixed uint64 (the counter-based generator's hash)."""
     z = z + np.uint64(0x9E3779B97F4A7C15)
     z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
     z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
@@ -179,6 +186,7 @@ def gaussian(seed, k, channel):
 
 @njit(cache=True)
 def _adc(value, s):
+    """A current reading [A] quantised by the ADC of SensorParams ``s`` (clipped to its range)."""
     if s.adc_bits <= 0:
         return value
     lsb = 2.0 * s.adc_range_A / (1 << s.adc_bits)
@@ -190,7 +198,8 @@ def _adc(value, s):
 
 @njit(cache=True)
 def sense_currents(i_a, i_b, i_c, s, seed, k):
-    """Measured phase currents: gain and offset errors, Gaussian noise and ADC quantisation."""
+    """Measured phase currents [A] of the true ones at sample k: gain and offset errors, Gaussian noise
+    (seeded by ``seed`` and k) and ADC quantisation (SensorParams s). No state."""
     m_a = s.gain_a * i_a + s.offset_a_A
     m_b = s.gain_b * i_b + s.offset_b_A
     m_c = s.gain_c * i_c + s.offset_c_A
