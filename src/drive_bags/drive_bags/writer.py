@@ -14,7 +14,7 @@ import numpy as np
 
 from control_math.frames import wrap
 from drive_interface.log import COLUMN, LOG_COLUMNS
-from drive_interface.topics import TOPICS, full_name
+from drive_interface.topics import TOPICS, VECTOR3, full_name
 
 from .common import BagError, offered_qos, sample_stamp_ns, typestore
 
@@ -150,22 +150,31 @@ def write_run_bag(result, path, namespace="/drive", progress=None):
     t_ns = np.round(np.arange(n) * scenario.T_s * 1e9).astype(np.int64)
     sec, nanosec = np.divmod(t_ns, 1_000_000_000)
     col = {name: log[:, c[name]] for name in LOG_COLUMNS}
+
+    def logged(topic):
+        """A per-sample topic's records from its log columns (drive_interface.topics)."""
+        t = TOPICS[topic]
+        values = [col[name] / n_p if t.electrical else col[name] for name in t.log_columns]
+        if t.type == VECTOR3:
+            return _cdr_vector3_stamped(sec, nanosec, t.frame_id, *values, *[0.0] * (3 - len(values)))
+        return _cdr_joint_state(sec, nanosec, *values)
+
     theta_hat_m, omega_hat_m = col["theta_e_hat"] / n_p, col["omega_e_hat"] / n_p
     speed_changes = np.ones(n, dtype=bool)
     speed_changes[1:] = col["omega_m_ref"][1:] != col["omega_m_ref"][:-1]
-    vector = _cdr_vector3_stamped
     per_sample = [
         ("/clock", _cdr_scalars(("<i4", "<u4"), sec, nanosec), None),
         ("speed_command", _cdr_scalars(("<f8",), col["omega_m_ref"]), speed_changes),
         ("load_torque", _cdr_scalars(("<f8",), col["tau_load"]), None),
-        ("rotor_state", _cdr_joint_state(sec, nanosec, col["theta_m"], col["omega_m"], col["tau_e"]), None),
-        ("currents", vector(sec, nanosec, "abc", col["i_a_meas"], col["i_b_meas"], col["i_c_meas"]), None),
-        ("injection", vector(sec, nanosec, "alpha_beta", col["u_inj_alpha"], col["u_inj_beta"], 0.0), None),
-        ("rotor_estimate", _cdr_joint_state(sec, nanosec, theta_hat_m, omega_hat_m), None),
-        ("estimator_state", vector(sec, nanosec, "", col["eps"], col["signal"], col["observable"]), None),
-        ("angle_error", vector(sec, nanosec, "", wrap.py_func(n_p * (col["theta_m"] - theta_hat_m)),
-                               col["omega_m"] - omega_hat_m, 0.0), None),
-        ("voltage_command", vector(sec, nanosec, "alpha_beta", col["u_alpha"], col["u_beta"], 0.0), None)]
+        ("rotor_state", logged("rotor_state"), None),
+        ("currents", logged("currents"), None),
+        ("injection", logged("injection"), None),
+        ("rotor_estimate", logged("rotor_estimate"), None),
+        ("estimator_state", logged("estimator_state"), None),
+        ("angle_error", _cdr_vector3_stamped(sec, nanosec, TOPICS["angle_error"].frame_id,
+                                             wrap.py_func(n_p * (col["theta_m"] - theta_hat_m)),
+                                             col["omega_m"] - omega_hat_m, 0.0), None),
+        ("voltage_command", logged("voltage_command"), None)]
     streams = []
     for topic, records in ((t, r) for t, r, _ in per_sample):
         records["enc"] = CDR_LITTLE_ENDIAN

@@ -20,6 +20,7 @@ from std_srvs.srv import Trigger
 from control_math.frames import wrap
 from drive_interface.node import ContractNode, finite, run_node, stamp, topic_qos
 from drive_interface.stamps import sample_of
+from drive_interface.topics import TOPICS
 
 from .inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from .inverter_link import CanLink, SerialLink
@@ -71,7 +72,7 @@ class InverterBridgeNode(ContractNode):
     def read_link(self):
         """The link thread: poll, publish each sample, report new faults."""
         currents, rotor, clock = Vector3Stamped(), JointState(name=["rotor"]), Clock()
-        currents.header.frame_id = "abc"
+        currents.header.frame_id = TOPICS["currents"].frame_id
         previous = None
         while self.running:
             samples = self.bridge.poll(0.02)

@@ -37,6 +37,8 @@ class Topic(NamedTuple):
     Vector3Stamped; position, velocity, effort of a JointState; data of a Float64 (held until the next)."""
     electrical: bool = False
     """The JointState's mechanical values are logged as electrical ones (× pole pairs)."""
+    frame_id: str = ""
+    """header.frame_id of its messages."""
 
 
 VECTOR3 = "geometry_msgs/msg/Vector3Stamped"
@@ -44,12 +46,12 @@ JOINT_STATE = "sensor_msgs/msg/JointState"
 FLOAT64 = "std_msgs/msg/Float64"
 
 TOPICS = {t.name: t for t in (
-    Topic("currents", VECTOR3, PER_SAMPLE_QOS, True, True, ("i_a_meas", "i_b_meas", "i_c_meas")),
+    Topic("currents", VECTOR3, PER_SAMPLE_QOS, True, True, ("i_a_meas", "i_b_meas", "i_c_meas"), frame_id="abc"),
     Topic("rotor_state", JOINT_STATE, PER_SAMPLE_QOS, True, True, ("theta_m", "omega_m", "tau_e")),
     Topic("rotor_estimate", JOINT_STATE, PER_SAMPLE_QOS, True, True, ("theta_e_hat", "omega_e_hat"),
           electrical=True),
-    Topic("injection", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_inj_alpha", "u_inj_beta")),
-    Topic("voltage_command", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_alpha", "u_beta")),
+    Topic("injection", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_inj_alpha", "u_inj_beta"), frame_id="alpha_beta"),
+    Topic("voltage_command", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_alpha", "u_beta"), frame_id="alpha_beta"),
     Topic("estimator_state", VECTOR3, PER_SAMPLE_QOS, True, True, ("eps", "signal", "observable")),
     Topic("/clock", "rosgraph_msgs/msg/Clock", PER_SAMPLE_QOS, True, True),
     Topic("angle_error", VECTOR3, COMMAND_QOS, False, True),

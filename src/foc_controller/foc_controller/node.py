@@ -22,6 +22,7 @@ from std_msgs.msg import Float64, String
 
 from drive_interface.node import finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_of
+from drive_interface.topics import TOPICS
 from drive_scenarios.node import ScenarioNode
 
 from .build import check_controller_settings, controller_for_scenario
@@ -53,7 +54,7 @@ class ControllerNode(ScenarioNode):
         self.omega_m_ref = 0.0
         self.current_limited = False
         self.voltage_msg = Vector3Stamped()
-        self.voltage_msg.header.frame_id = "alpha_beta"
+        self.voltage_msg.header.frame_id = TOPICS["voltage_command"].frame_id
         self.joint_msg = JointState(name=["rotor"])
         if not self.configured:
             self.publish_config({})

@@ -20,6 +20,7 @@ from sensor_msgs.msg import JointState
 
 from drive_interface.node import describe, finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_of
+from drive_interface.topics import TOPICS
 from drive_scenarios.node import ScenarioNode
 from motor_params.commissioning import CommissioningError, load_commissioning
 
@@ -42,7 +43,7 @@ class EstimatorNode(ScenarioNode):
         self.waiting_since = None
         self.estimate_msg = JointState(name=["rotor"])
         self.injection_msg = Vector3Stamped()
-        self.injection_msg.header.frame_id = "alpha_beta"
+        self.injection_msg.header.frame_id = TOPICS["injection"].frame_id
         self.state_msg = Vector3Stamped()
         self.observable = 0.0
         self.signal = 0.0

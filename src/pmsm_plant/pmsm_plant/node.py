@@ -21,6 +21,7 @@ from std_msgs.msg import Float64
 from control_math.frames import wrap
 from drive_interface.node import finite, run_node, stamp, topic_qos
 from drive_interface.stamps import sample_of, stamp_ns
+from drive_interface.topics import TOPICS
 from drive_scenarios.node import ScenarioNode
 
 from .build import plant_for_scenario
@@ -60,7 +61,7 @@ class PlantNode(ScenarioNode):
         self.estimate_seen = -1
         self.zero_voltage_periods = 0
         self.currents_msg = Vector3Stamped()
-        self.currents_msg.header.frame_id = "abc"
+        self.currents_msg.header.frame_id = TOPICS["currents"].frame_id
         self.rotor_state_msg = JointState(name=["rotor"])
         self.error_msg = Vector3Stamped()
         self.clock_msg = Clock()
