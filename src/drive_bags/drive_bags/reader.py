@@ -11,7 +11,7 @@ import numpy as np
 from drive_interface.log import COLUMN, LOG_COLUMNS, fill_sample
 from drive_interface.topics import HELD_LOGGED, SAMPLE_LOGGED, TOPICS, full_name
 from drive_runner.runner import RunResult
-from drive_scenarios.parameters import scenario_from_parameters
+from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import ScenarioError, load_scenario
 
 from .common import BagCutError, BagError, typestore
@@ -191,7 +191,8 @@ def _bag_scenario(path, configs):
     for config in configs:
         try:
             if "parameters" in config:
-                return scenario_from_parameters(config["parameters"])
+                given = {k: v for k, v in config["parameters"].items() if v is not None}
+                return scenario_from_parameters(all_parameters(given))
             if "source" in config:
                 s = load_scenario(config["source"], estimator_override=config.get("estimator"))
                 return dataclasses.replace(s, injection=config.get("injection", s.injection),

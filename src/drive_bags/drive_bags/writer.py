@@ -7,13 +7,13 @@ sample recorded.
 The one-process runner writes the same topics from its log (``write_run_bag``), except `/diagnostics`
 and `joint_states`, which only nodes produce.
 """
-import json
 from pathlib import Path
 
 import numpy as np
 
 from control_math.frames import wrap
 from drive_interface.log import COLUMN, LOG_COLUMNS
+from drive_interface.strict_json import dumps
 from drive_interface.topics import TOPICS, VECTOR3, full_name
 
 from .common import BagError, offered_qos, sample_stamp_ns, typestore
@@ -181,7 +181,7 @@ def write_run_bag(result, path, namespace="/drive", progress=None):
         streams.append((full_name(namespace, topic), memoryview(records.tobytes()), records.dtype.itemsize))
     masks = [mask for _, _, mask in per_sample]
     config_data = writer.store.serialize_cdr(writer.store.types["std_msgs/msg/String"](
-        data=json.dumps(config, default=str)), "std_msgs/msg/String")
+        data=dumps(config)), "std_msgs/msg/String")
     writer.write(full_name(namespace, "drive_config"), config_data, False, 0)
     write = writer.write
     for k in range(n):

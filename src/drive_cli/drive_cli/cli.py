@@ -2,12 +2,12 @@
 ``--json``. Domain errors (drive_interface.errors.DriveError) are printed as one line, exit code 2."""
 import argparse
 import dataclasses
-import json
 import sys
 from pathlib import Path
 
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, EXECUTORS
+from drive_interface.strict_json import dumps
 from drive_scenarios.scenario import load_scenario, scenario_names
 from hf_estimator.registry import describe, estimator_names
 from motor_params.nameplate import nameplate
@@ -21,7 +21,7 @@ class CommandLineError(DriveError):
 
 
 def _print_json(data):
-    print(json.dumps(data, indent=2, ensure_ascii=False))
+    print(dumps(data, indent=2, ensure_ascii=False))
 
 
 def _scenario_arg(args):
@@ -313,7 +313,7 @@ def cmd_bench_replay(args):
     if not args.no_plot and truth:
         report["plot"] = str(plot_angle_errors(results, names, out / "angle_error.png"))
     out.mkdir(parents=True, exist_ok=True)
-    (out / "replay.json").write_text(json.dumps(report, indent=2))
+    (out / "replay.json").write_text(dumps(report, indent=2))
     report["json"] = str(out / "replay.json")
     if args.json:
         _print_json(report)

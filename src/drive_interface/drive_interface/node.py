@@ -4,7 +4,6 @@ sample k, drive_config, /diagnostics with fault counting and callback timing, ex
 import it."""
 import argparse
 import importlib
-import json
 import math
 import signal
 import sys
@@ -20,6 +19,7 @@ from std_msgs.msg import String
 
 from .graph import EXECUTORS
 from .stamps import stamp_ns
+from .strict_json import dumps
 from .topics import TOPICS
 
 
@@ -90,7 +90,7 @@ class ContractNode(Node):
         """drive_config: this node, its parameters (``self.parameters``), a latched error, and ``config``."""
         config = {"node": self.get_fully_qualified_name(), "parameters": self.parameters,
                   "error": self.health.latched, **config}
-        self.config_pub.publish(String(data=json.dumps(plain(config))))
+        self.config_pub.publish(String(data=dumps(config)))
 
     def fault(self, kind, message):
         """Count a fault, log it (throttled) and show it at the next /diagnostics."""
@@ -139,21 +139,6 @@ def describe(text):
 
 def _text(value):
     return f"{value:.6g}" if isinstance(value, float) else str(value)
-
-
-def plain(value):
-    """JSON-ready data: parameter tuples become dicts, arrays lists, anything else unknown text."""
-    if hasattr(value, "_asdict"):
-        return {k: plain(v) for k, v in value._asdict().items()}
-    if isinstance(value, dict):
-        return {str(k): plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [plain(v) for v in value]
-    if hasattr(value, "tolist"):
-        return value.tolist()
-    if value is None or isinstance(value, (bool, int, float, str)):
-        return value
-    return str(value)
 
 
 def parameter_overrides(values):

@@ -1,5 +1,4 @@
 """`drive echo`: print a drive topic as `ros2 topic echo` does (there is none in a PyPI-only install)."""
-import json
 import signal
 
 import rclpy
@@ -10,6 +9,7 @@ from rclpy.task import Future
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE
 from drive_interface.node import make_executor, message_class, topic_qos
+from drive_interface.strict_json import dumps
 from drive_interface.topics import TOPICS
 
 
@@ -43,7 +43,7 @@ def echo(topic, namespace=DEFAULT_NAMESPACE, count=None, every=1, as_json=False,
         if (seen[0] - 1) % every or done.done():
             return
         data = message_dict(msg)
-        print(json.dumps(data) if as_json else _yaml_like(data) + "\n---", flush=True)
+        print(dumps(data) if as_json else _yaml_like(data) + "\n---", flush=True)
         printed[0] += 1
         if count and printed[0] >= count:
             done.set_result(True)

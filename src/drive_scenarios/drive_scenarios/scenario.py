@@ -15,6 +15,12 @@ NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_of
 TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
             "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps"}
 RPM = 2.0 * math.pi / 60.0
+MAX_FILE_BYTES = 1 << 20
+MAX_SAMPLES = 10_000_000
+"""A run's log holds 200 bytes per sample: 10 M samples are 2 GB."""
+SAMPLING_PERIOD_RANGE_S = (1e-6, 1e-2)
+MAX_TABLE_POINTS = 10_000
+MAX_SUBSTEPS = 100
 
 
 class ScenarioError(DriveError):
@@ -109,9 +115,17 @@ def resolve(name_or_path):
 def load_scenario(name_or_path, estimator_override=None):
     path = resolve(name_or_path)
     try:
-        data = yaml.safe_load(path.read_text())
+        if path.stat().st_size > MAX_FILE_BYTES:
+            raise ScenarioError(f"{path}: larger than {MAX_FILE_BYTES} bytes; not a scenario file")
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise ScenarioError(f"{path}: cannot be read ({error.strerror})") from None
+    except UnicodeDecodeError:
+        raise ScenarioError(f"{path}: not UTF-8 text") from None
     except yaml.YAMLError as error:
         raise ScenarioError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
+    except RecursionError:
+        raise ScenarioError(f"{path}: nested too deeply to be a scenario") from None
     return parse_scenario(data, path.stem, str(path), estimator_override)
 
 
@@ -121,23 +135,28 @@ def parse_scenario(data, name, source, estimator_override=None):
 
     if not isinstance(data, dict):
         raise ScenarioError(f"{source}: top level must be a mapping of keys")
-    for key in sorted(set(data) - TOP_KEYS):
+    for key in sorted(set(data) - TOP_KEYS, key=str):
         fail(key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
     for key in ("motor", "estimator", "duration_s", "sampling_period_s", "speed"):
         if key not in data:
             fail(key, "missing")
 
+    for key in ("initial", "metrics", "controller", "injection", "non_idealities"):
+        if data.get(key) is not None and not isinstance(data[key], dict):
+            fail(key, "must be a mapping of keys")
     motor = data["motor"]
-    if motor not in NAMEPLATES:
+    if not isinstance(motor, str) or motor not in NAMEPLATES:
         fail("motor", f"unknown motor '{motor}' (known: {', '.join(sorted(NAMEPLATES))})")
 
     estimator_spec = data["estimator"]
     if isinstance(estimator_spec, str):
         estimator, settings = estimator_spec, {}
-    elif isinstance(estimator_spec, dict) and "type" in estimator_spec:
+    elif isinstance(estimator_spec, dict) and isinstance(estimator_spec.get("type"), str):
         estimator = estimator_spec["type"]
+        if not isinstance(estimator_spec.get("settings") or {}, dict):
+            fail("estimator.settings", "must be a mapping of settings")
         settings = dict(estimator_spec.get("settings") or {})
-        for key in sorted(set(estimator_spec) - {"type", "settings"}):
+        for key in sorted(set(estimator_spec) - {"type", "settings"}, key=str):
             fail(f"estimator.{key}", "unknown key (known: type, settings)")
     else:
         fail("estimator", "must be a name or a mapping with 'type' (and optional 'settings')")
@@ -147,16 +166,21 @@ def parse_scenario(data, name, source, estimator_override=None):
     injection = data.get("injection", {}) or {}
     if not isinstance(injection, dict):
         fail("injection", "must be a mapping with frequency_Hz and amplitude_V")
-    for key in sorted(set(injection) - {"frequency_Hz", "amplitude_V"}):
+    for key in sorted(set(injection) - {"frequency_Hz", "amplitude_V"}, key=str):
         fail(f"injection.{key}", "unknown key (known: frequency_Hz, amplitude_V)")
     injection = {key: _positive(value, f"injection.{key}", fail) for key, value in injection.items()}
 
     duration = _positive(data["duration_s"], "duration_s", fail)
     T_s = _positive(data["sampling_period_s"], "sampling_period_s", fail)
+    low, high = SAMPLING_PERIOD_RANGE_S
+    if not low <= T_s <= high:
+        fail("sampling_period_s", f"must lie in [{low:g}, {high:g}] s, not {T_s!r}")
     if T_s > duration:
         fail("sampling_period_s", f"{T_s} s is longer than duration_s {duration} s")
+    if duration / T_s > MAX_SAMPLES:
+        fail("duration_s", f"{duration!r} s at {T_s:g} s per sample is more than {MAX_SAMPLES} samples")
     mode = data.get("mode", "speed_control")
-    if mode not in ("speed_control", "imposed_speed"):
+    if not isinstance(mode, str) or mode not in ("speed_control", "imposed_speed"):
         fail("mode", f"must be 'speed_control' or 'imposed_speed', not '{mode}'")
 
     speed = _table(data["speed"], "speed", {"rpm": RPM, "rad_s": 1.0}, fail, duration)
@@ -175,22 +199,30 @@ def parse_scenario(data, name, source, estimator_override=None):
         non_idealities[key] = value
 
     initial = data.get("initial", {}) or {}
-    for key in sorted(set(initial) - {"theta_m_rad", "omega_m_rpm", "angle_error_e_rad"}):
+    for key in sorted(set(initial) - {"theta_m_rad", "omega_m_rpm", "angle_error_e_rad"}, key=str):
         fail(f"initial.{key}", "unknown key (known: theta_m_rad, omega_m_rpm, angle_error_e_rad)")
     metrics = data.get("metrics", {}) or {}
-    for key in sorted(set(metrics) - {"settle_s", "start_s"}):
+    for key in sorted(set(metrics) - {"settle_s", "start_s"}, key=str):
         fail(f"metrics.{key}", "unknown key (known: settle_s, start_s)")
     settle = _nonnegative(metrics.get("settle_s", 0.3), "metrics.settle_s", fail)
-    start = _nonnegative(metrics.get("start_s", settle), "metrics.start_s", fail)
+    start = _nonnegative(metrics.get("start_s", settle if settle < duration else 0.0), "metrics.start_s", fail)
+    if start >= duration:
+        fail("metrics.start_s", f"{start!r} s is not before the end of the run ({duration!r} s)")
     substeps = data.get("substeps", 1)
-    if not isinstance(substeps, int) or substeps < 1:
-        fail("substeps", f"must be a whole number ≥ 1, not {substeps!r}")
+    if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= MAX_SUBSTEPS:
+        fail("substeps", f"must be a whole number from 1 to {MAX_SUBSTEPS}, not {substeps!r}")
+    seed = data.get("seed", 1)
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 63:
+        fail("seed", f"must be a whole number from 0 to 2⁶³ − 1, not {seed!r}")
+    description = data.get("description", "")
+    if not isinstance(description, str):
+        fail("description", f"must be text, not {description!r}")
     controller = data.get("controller", {}) or {}
     if not isinstance(controller, dict):
         fail("controller", "must be a mapping of controller settings")
 
     return Scenario(
-        name=name, source=source, description=str(data.get("description", "")), motor=motor,
+        name=name, source=source, description=description, motor=motor,
         estimator=estimator, estimator_settings=settings, injection=injection, duration_s=duration,
         T_s=T_s, mode=mode, speed=speed, load=load, non_idealities=non_idealities,
         initial_theta_m_rad=_number(initial.get("theta_m_rad", 0.0), "initial.theta_m_rad", fail),
@@ -198,7 +230,7 @@ def parse_scenario(data, name, source, estimator_override=None):
         initial_angle_error_e_rad=_number(initial.get("angle_error_e_rad", 0.0),
                                           "initial.angle_error_e_rad", fail),
         controller=controller, settle_s=settle, metrics_start_s=start,
-        seed=int(data.get("seed", 1)), substeps=substeps)
+        seed=seed, substeps=substeps)
 
 
 def _number(value, key, fail):
@@ -224,17 +256,19 @@ def _nonnegative(value, key, fail):
 def _table(spec, key, units, fail, duration):
     if not isinstance(spec, dict):
         fail(key, "must be a mapping with unit, points and optional interpolation")
-    for extra in sorted(set(spec) - {"unit", "points", "interpolation"}):
+    for extra in sorted(set(spec) - {"unit", "points", "interpolation"}, key=str):
         fail(f"{key}.{extra}", "unknown key (known: unit, points, interpolation)")
     unit = spec.get("unit")
-    if unit not in units:
+    if not isinstance(unit, str) or unit not in units:
         fail(f"{key}.unit", f"must be one of {', '.join(units)}, not {unit!r}")
     interpolation = spec.get("interpolation", "step")
-    if interpolation not in ("step", "linear"):
+    if not isinstance(interpolation, str) or interpolation not in ("step", "linear"):
         fail(f"{key}.interpolation", f"must be 'step' or 'linear', not {interpolation!r}")
     points = spec.get("points")
     if not isinstance(points, list) or not points:
         fail(f"{key}.points", "missing or empty: give [[time_s, value], ...]")
+    if len(points) > MAX_TABLE_POINTS:
+        fail(f"{key}.points", f"{len(points)} points; at most {MAX_TABLE_POINTS}")
     times, values = [], []
     for i, point in enumerate(points):
         if not isinstance(point, (list, tuple)) or len(point) != 2:

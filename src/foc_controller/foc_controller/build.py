@@ -9,7 +9,7 @@ def check_controller_settings(scenario):
     """Validate the scenario's controller settings before the estimator is known; ScenarioError names
     the scenario and the key."""
     try:
-        check_settings(scenario.controller)
+        check_settings(scenario.controller, scenario.T_s)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source}: controller: {error.args[0]}") from None
 

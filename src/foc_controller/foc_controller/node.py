@@ -76,8 +76,9 @@ class ControllerNode(ScenarioNode):
             if "estimator" not in config:
                 raise ValueError(f"the estimator's configuration was rejected ({config.get('error')}); "
                                  f"nothing to control with")
+            bandwidth = config["tracking_bandwidth_Hz"]
             self.params = controller_for_scenario(self.scenario, config["injection_frequency_Hz"],
-                                                  config["tracking_bandwidth_Hz"],
+                                                  math.inf if bandwidth is None else bandwidth,
                                                   config["tracking_current_limit_A"])
         except ValueError as error:
             self.configured = False

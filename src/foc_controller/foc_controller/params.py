@@ -5,6 +5,7 @@ import math
 import numpy as np
 
 from control_math.filters import notch
+from drive_interface.settings import choice, flag, number, positive
 
 from .control import ControllerParams
 from .tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
@@ -38,7 +39,7 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · estimator_bandwidth_Hz
     (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
     """
-    s = check_settings(settings)
+    s = check_settings(settings, T_s)
     m = nameplate
     k_t = 1.5 * m.n_p * m.psi_f_Wb
     if s["gains"] == "szabo_table2":
@@ -49,6 +50,9 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         w = speed_pi_gains(m.J_kgm2, m.B_Nms, k_t,
                            _capped_speed_bandwidth(s, estimator_bandwidth_Hz), s["speed_damping"])
     i_max = s["current_limit_A"] if s["current_limit_A"] is not None else m.current_limit_A
+    if i_max > m.current_limit_A:
+        raise ValueError(f"controller: current_limit_A: {i_max:g} A exceeds the motor's limit "
+                         f"{m.current_limit_A:g} A (its nameplate)")
     delay = inverter.delay_periods + 0.5 if s["delay_compensation"] else 0.0
     if injection_frequency_Hz > 0.0:
         sos = notch(injection_frequency_Hz, s["hf_notch_quality"], T_s)
@@ -64,26 +68,37 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         speed_limit_rad_s=float(s["speed_limit_rad_s"]))
 
 
-def check_settings(settings):
-    """The defaults with ``settings`` applied; KeyError for an unknown key, ValueError for an unusable
-    value of ``gains``, ``current_limit_A`` or ``speed_limit_rad_s``, each naming the key."""
+def check_settings(settings, T_s=None):
+    """The defaults with ``settings`` applied; KeyError for an unknown key, ValueError naming the key
+    whose value is unusable (wrong type, not finite, out of range). ``T_s``: the sampling period, which
+    bounds the filter frequencies by Nyquist."""
     unknown = set(settings or {}) - set(DEFAULTS)
     if unknown:
         raise KeyError(f"controller: unknown setting(s) {', '.join(sorted(unknown))} "
                        f"(known: {', '.join(sorted(DEFAULTS))})")
     s = {**DEFAULTS, **(settings or {})}
-    if s["gains"] not in ("rule", "szabo_table2"):
-        raise ValueError(f"controller: gains must be 'rule' or 'szabo_table2', not '{s['gains']}'")
-    if s["current_limit_A"] is not None and s["current_limit_A"] <= 0.0:
-        raise ValueError(f"controller: current_limit_A must be positive, got {s['current_limit_A']}")
-    check_speed_limit(s["speed_limit_rad_s"])
+    nyquist_Hz = 0.5 / T_s if T_s else None
+    try:
+        choice("gains", s["gains"], ("rule", "szabo_table2"))
+        for key in ("current_bandwidth_rad_s", "current_damping", "speed_bandwidth_rad_s", "speed_damping",
+                    "hf_notch_quality"):
+            s[key] = positive(key, s[key])
+        s["speed_to_estimator_ratio"] = positive("speed_to_estimator_ratio", s["speed_to_estimator_ratio"], 1.0)
+        if s["current_limit_A"] is not None:
+            s["current_limit_A"] = positive("current_limit_A", s["current_limit_A"])
+        flag("decoupling", s["decoupling"])
+        flag("delay_compensation", s["delay_compensation"])
+        s["speed_filter_Hz"] = number("speed_filter_Hz", s["speed_filter_Hz"], 0.0, nyquist_Hz, low_inclusive=True,
+                                      high_inclusive=False)
+        s["speed_limit_rad_s"] = check_speed_limit(s["speed_limit_rad_s"])
+    except ValueError as error:
+        raise ValueError(f"controller: {error}") from None
     return s
 
 
 def check_speed_limit(value):
     """A speed limit must be a positive number of rad/s (∞ allowed); otherwise ValueError naming it."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0.0:
-        raise ValueError(f"controller: speed_limit_rad_s must be positive, got {value!r}")
+    return positive("speed_limit_rad_s", value, allow_infinite=True)
 
 
 def _capped_speed_bandwidth(s, estimator_bandwidth_Hz):

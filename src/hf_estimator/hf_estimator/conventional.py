@@ -29,7 +29,6 @@ from .interface import Estimator, check_settings, register
 from .pulsating import (
     INTEGRAL,
     THETA,
-    check_injection_frequency,
     pulsating_state,
     pulsating_track_and_inject,
     q_axis_demodulation,
@@ -70,9 +69,8 @@ def conventional_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, thet
 
 def make_wang(name, step, defaults, settings, T_s, theta_e0, omega_e0, commissioning, delay_periods):
     """A Wang estimator (``conventional`` or ``improved``) with the kernel ``step`` and its settings."""
-    s = check_settings(name, settings, defaults)
+    s = check_settings(name, settings, defaults, T_s)
     f_h, U_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
-    check_injection_frequency(f_h, T_s)
     gain = s["demodulation_amplitude"] * U_h * commissioning.delta / (2.0 * math.pi * f_h)
     kp, ki = loop_gains(gain, s["pll_bandwidth_Hz"], s["pll_damping"]) if gain > 0.0 else (0.0, 0.0)
     if (s["A_p"] is None) != (s["T_i_s"] is None):

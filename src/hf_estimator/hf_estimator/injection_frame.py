@@ -171,7 +171,7 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
                              "voltage in the injection frame; alternating axis; model-free observability",
           "ours, after docs/hf-demodulation.md §2-4")
 def make_injection_frame(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
-    s = check_settings("injection_frame", settings, DEFAULTS)
+    s = check_settings("injection_frame", settings, DEFAULTS, T_s)
     N = int(round(1.0 / (float(s["frequency_Hz"]) * T_s)))
     if N < 3:
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")

@@ -23,6 +23,8 @@ from typing import Any
 
 import numpy as np
 
+from drive_interface.settings import choice, number, positive
+
 
 @dataclass(frozen=True)
 class Estimator:
@@ -88,12 +90,69 @@ def make_estimator(name, nameplate, T_s, settings, theta_e0, omega_e0, commissio
     return factory(nameplate, T_s, dict(settings or {}), theta_e0, omega_e0, commissioning, delay_periods)
 
 
-def check_settings(name, settings, defaults):
-    """Defaults overridden by settings; an unknown key is an error naming it."""
+def _frequency(key, value, T_s):
+    return number(key, value, 0.0, 0.5 / T_s, high_inclusive=False)
+
+
+MIN_INJECTION_FREQUENCY_HZ = 10.0
+"""An HF carrier lies far above the fundamental; below this it is a mistake (and its period overflows)."""
+
+
+def _injection_frequency(key, value, T_s):
+    return number(key, value, MIN_INJECTION_FREQUENCY_HZ, 0.5 / T_s, low_inclusive=True, high_inclusive=False)
+
+
+def _order(key, value, T_s):
+    return number(key, value, 1, 8, low_inclusive=True, integer=True)
+
+
+def _optional_positive(key, value, T_s):
+    return None if value is None else positive(key, value)
+
+
+def _band(key, value, T_s):
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ValueError(f"{key}: must be [low_Hz, high_Hz], not {value!r}")
+    low, high = (_frequency(key, v, T_s) for v in value)
+    if low >= high:
+        raise ValueError(f"{key}: the low edge must lie below the high one, not {value!r}")
+    return [low, high]
+
+
+SETTING_CHECKS = {
+    "frequency_Hz": _injection_frequency,
+    "amplitude_V": lambda key, value, T_s: positive(key, value),
+    "demodulation_amplitude": lambda key, value, T_s: positive(key, value),
+    "lowpass_Hz": _frequency,
+    "lowpass_order": _order,
+    "bandpass_Hz": _band,
+    "bandpass_order": _order,
+    "bandpass_ratio": lambda key, value, T_s: number(key, value, 1.0, None),
+    "pll_bandwidth_Hz": _frequency,
+    "pll_damping": lambda key, value, T_s: positive(key, value),
+    "A_p": _optional_positive,
+    "T_i_s": _optional_positive,
+    "T_f_s": lambda key, value, T_s: positive(key, value),
+    "u_star": lambda key, value, T_s: positive(key, value),
+    "observable_ratio": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True,
+                                                       high_inclusive=False),
+    "demodulation": lambda key, value, T_s: choice(key, value, ("paper", "aligned")),
+    "dither_rad": lambda key, value, T_s: number(key, value, 0.0, math.pi / 4.0),
+    "signal_smoothing_Hz": _frequency,
+}
+"""How each estimator setting is checked: (key, value, T_s) → the value, or ValueError naming the key."""
+
+
+def check_settings(name, settings, defaults, T_s):
+    """Defaults overridden by settings, each value checked (SETTING_CHECKS); KeyError for an unknown key,
+    ValueError for an unusable value, each naming the estimator and the key."""
     unknown = set(settings) - set(defaults)
     if unknown:
         raise KeyError(f"estimator '{name}': unknown setting(s) {', '.join(sorted(unknown))} "
                        f"(known: {', '.join(sorted(defaults))})")
     merged = dict(defaults)
     merged.update(settings)
-    return merged
+    try:
+        return {key: SETTING_CHECKS[key](key, value, T_s) for key, value in merged.items()}
+    except ValueError as error:
+        raise ValueError(f"estimator '{name}': {error}") from None

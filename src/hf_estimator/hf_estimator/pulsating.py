@@ -13,11 +13,6 @@ from .tracking_loop import pi_tracking_loop
 THETA, INTEGRAL, MONITOR = 0, 1, 2
 
 
-def check_injection_frequency(f_h, T_s):
-    if not 0.0 < f_h < 0.5 / T_s:
-        raise ValueError(f"frequency_Hz {f_h} must lie between 0 and Nyquist {0.5 / T_s} Hz")
-
-
 def pulsating_state(monitor, theta_e0, omega_e0):
     """Fresh state for a pulsating-injection estimator with monitor parameters ``monitor``."""
     x = np.zeros(MONITOR + monitor_size(monitor))

@@ -22,6 +22,6 @@ def sensored_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_
 @register("sensored", "encoder pass-through (no injection): validates plant and controller", "none",
           injects=False)
 def make_sensored(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
-    check_settings("sensored", settings, {})
+    check_settings("sensored", settings, {}, T_s)
     return Estimator("sensored", sensored_step, SensoredParams(nameplate.n_p),
                      np.zeros(1), np.zeros((1, 1, 2)), 0.0)

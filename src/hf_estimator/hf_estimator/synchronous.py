@@ -27,7 +27,6 @@ from .interface import Estimator, check_settings, register
 from .pll_model import sampled_admittance, sos_response
 from .pulsating import (
     THETA,
-    check_injection_frequency,
     pulsating_state,
     pulsating_track_and_inject,
     q_axis_demodulation,
@@ -83,13 +82,10 @@ def first_order_lowpass(T_f, T_s):
 @register("synchronous", "d̂ sine injection, q̂ phase detector, T_f low-pass, PI (faithful; "
                         "demodulation: aligned is ours)", "Szabó & Veszprémi, §2.2-2.3, Eq. (6), (15)-(22), Table 2")
 def make_synchronous(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
-    s = check_settings("synchronous", settings, DEFAULTS)
+    s = check_settings("synchronous", settings, DEFAULTS, T_s)
     f_h, u_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
-    check_injection_frequency(f_h, T_s)
     ratio = float(s["bandpass_ratio"])
     bandpass = butterworth_bandpass(1, f_h / ratio, min(f_h * ratio, 0.49 / T_s), T_s)
-    if s["demodulation"] not in ("paper", "aligned"):
-        raise ValueError(f"demodulation must be 'paper' or 'aligned', not {s['demodulation']!r}")
     phase = 0.0
     if s["demodulation"] == "aligned":
         phase = aligned_demodulation_phase(nameplate.R_s_ohm, commissioning, T_s, delay_periods,

@@ -1,0 +1,114 @@
+"""Misuse of the command line and scenario files: unsafe or non-finite settings are refused with one
+line naming the key and the file, and no generated scenario file (≥ 200, mutated with hostile values)
+gives a traceback, a hang past the bound or NaN/Infinity in the JSON output."""
+import json
+import random
+import time
+
+import pytest
+
+from drive_cli.cli import main
+
+BASE = {"motor": "wang_spmsm", "estimator": {"type": "injection_frame", "settings": {"pll_bandwidth_Hz": 18.0}},
+        "injection": {"frequency_Hz": 900.0, "amplitude_V": 5.0}, "duration_s": 0.02,
+        "sampling_period_s": 1.0e-4, "speed": {"unit": "rpm", "points": [[0.0, 0.0], [0.01, 60.0]]},
+        "load": {"unit": "rated", "points": [[0.0, 0.0]]}, "initial": {"angle_error_e_rad": 0.3},
+        "controller": {"current_limit_A": 5.0, "hf_notch_quality": 1.0, "speed_limit_rad_s": 100.0},
+        "metrics": {"settle_s": 0.005}, "seed": 1, "substeps": 1}
+HOSTILE = [float("nan"), float("inf"), -float("inf"), -1, 0, 0.0, 1e308, 5e-324, 1e12, 1e-12, "abc", "5", True,
+           None, [], {}, [[1, 2]], 2 ** 70, -2 ** 70, "", [1.0, 2.0, 3.0], {"a": 1}]
+RUN_BOUND_S = 30.0
+"""The longest a single mutated run may take (the largest valid run here is a few thousand samples)."""
+
+
+def write(tmp_path, name, document):
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(json.dumps(document, allow_nan=True).replace("NaN", ".nan").replace("-Infinity", "-.inf")
+                    .replace("Infinity", ".inf"))
+    return str(path)
+
+
+def run_cli(capsys, argv):
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def strict(text):
+    def refuse(constant):
+        raise AssertionError(f"non-strict JSON constant {constant}")
+    return json.loads(text, parse_constant=refuse)
+
+
+@pytest.mark.parametrize("section, key, value", [
+    ("controller", "current_limit_A", float("nan")),
+    ("controller", "current_limit_A", float("inf")),
+    ("controller", "current_limit_A", "5"),
+    ("controller", "current_limit_A", 17.7),
+    ("controller", "hf_notch_quality", 0),
+    ("controller", "speed_limit_rad_s", float("nan")),
+    ("controller", "speed_filter_Hz", 6000.0),
+    ("injection", "frequency_Hz", 5e-324),
+    ("injection", "amplitude_V", float("inf")),
+])
+def test_unsafe_settings_are_refused_naming_key_and_file(tmp_path, capsys, section, key, value):
+    document = json.loads(json.dumps(BASE))
+    document[section][key] = value
+    path = write(tmp_path, "unsafe", document)
+    code, out, err = run_cli(capsys, ["run", path, "--no-plot", "--json"])
+    assert code == 2 and out == "", out
+    assert err.count("\n") == 1 and path in err and key in err, err
+
+
+def test_a_nan_current_limit_parameter_leaves_the_scenarios_limit():
+    from drive_scenarios.parameters import all_parameters, scenario_from_parameters
+    scenario = scenario_from_parameters(all_parameters({"controller.current_limit_A": float("nan")}))
+    assert "current_limit_A" not in scenario.controller
+
+
+def mutations(rng, count):
+    """(name, file content) pairs: one value replaced by a hostile one, a key dropped, or the file
+    itself broken."""
+    paths = []
+
+    def walk(node, trail):
+        for key, value in node.items():
+            paths.append(trail + (key,))
+            if isinstance(value, dict):
+                walk(value, trail + (key,))
+    walk(BASE, ())
+    yield "non_utf8", b"motor: \xff\xfe wang\n"
+    yield "deep", ("a: " + "[" * 5000 + "]" * 5000 + "\n").encode()
+    yield "list_top", b"- 1\n- 2\n"
+    yield "aliases", b"a: &a [1, 2]\nb: *a\n"
+    for i in range(count):
+        document = json.loads(json.dumps(BASE))
+        trail = rng.choice(paths)
+        parent = document
+        for key in trail[:-1]:
+            parent = parent[key]
+        if rng.random() < 0.1:
+            del parent[trail[-1]]
+        else:
+            parent[trail[-1]] = rng.choice(HOSTILE)
+        text = json.dumps(document, allow_nan=True).replace("NaN", ".nan").replace("-Infinity", "-.inf")
+        yield f"m{i}_{'_'.join(map(str, trail))}", text.replace("Infinity", ".inf").encode()
+
+
+def test_generated_scenario_files_give_one_line_or_a_strict_result(tmp_path, capsys):
+    rng = random.Random(20261122)
+    outcomes = {0: 0, 2: 0}
+    for name, content in mutations(rng, 220):
+        path = tmp_path / f"{name}.yaml"
+        path.write_bytes(content)
+        start = time.monotonic()
+        code, out, err = run_cli(capsys, ["run", str(path), "--no-plot", "--json"])
+        assert time.monotonic() - start < RUN_BOUND_S, name
+        assert code in outcomes, (name, code, err)
+        outcomes[code] += 1
+        if code == 2:
+            assert err.count("\n") == 1 and str(path) in err and "Traceback" not in err, (name, err)
+        else:
+            metrics = strict(out)
+            assert metrics["samples"] > 0, name
+    assert outcomes[0] > 10 and outcomes[2] > 100, outcomes
