@@ -324,7 +324,7 @@ def test_sigterm_stops_the_launcher_and_its_node_processes_leaving_a_complete_ba
         time.sleep(0.05)
     launcher.send_signal(signal.SIGTERM)
     out, _ = launcher.communicate(timeout=30)
-    assert launcher.returncode == 130, (tmp_path / "stderr").read_text()
+    assert launcher.returncode == 143, (tmp_path / "stderr").read_text()
     metrics = json.loads(out)
     assert metrics["interrupted"] is True and metrics["samples"] > 100
     counts = {t["topic"]: t["count"] for t in bag_info(bag)["topics"]}
@@ -409,3 +409,11 @@ def test_the_bridge_node_reports_link_faults_on_diagnostics(tmp_path):
         inverter.stop()
         h.close()
         endpoint.close()
+
+
+def test_a_full_disk_while_recording_the_graph_keeps_its_metrics(tmp_path, small_disk):
+    path = scenario_file(tmp_path)
+    result = launch(path, namespace="/full_disk", duration_s=0.3, bag=str(small_disk / "graph"))
+    assert result.recording_error and "No space left on device" in result.recording_error
+    assert result.log.shape[0] == 3000 and np.isfinite(result.log[:, COLUMN["theta_e_hat"]]).all()
+    assert (small_disk / "graph" / "graph_0.mcap").stat().st_size > 0

@@ -112,3 +112,30 @@ def test_generated_scenario_files_give_one_line_or_a_strict_result(tmp_path, cap
             metrics = strict(out)
             assert metrics["samples"] > 0, name
     assert outcomes[0] > 10 and outcomes[2] > 100, outcomes
+
+
+def test_a_full_disk_while_recording_keeps_the_metrics_and_what_was_written(small_disk, capsys, tmp_path):
+    bag = small_disk / "full"
+    code, out, err = run_cli(capsys, ["run", "wang_100rpm", "--duration", "0.6", "--no-plot", "--json",
+                                      "--record", str(bag)])
+    assert code == 4, err
+    metrics = strict(out)
+    assert metrics["angle_error_rms"] is not None and "No space left" in metrics["recording_error"]
+    assert err.count("\n") == 1 and "No space left on device" in err and str(bag) in err
+    assert not (bag / "metadata.yaml").exists() and (bag / "full_0.mcap").stat().st_size > 0
+    copy = tmp_path / "copy"
+    import shutil
+    shutil.copytree(bag, copy)
+    code, out, err = run_cli(capsys, ["bag", "reindex", str(copy), "--json"])
+    assert code == 0, err
+    assert strict(out)["messages"] > 0
+
+
+@pytest.mark.parametrize("target, message", [("/nonexistent/x/bag", "does not exist"),
+                                             ("/proc/drive_bag", "cannot write")])
+def test_a_record_target_that_cannot_be_written_is_refused_before_running(capsys, target, message):
+    code, out, err = run_cli(capsys, ["run", "wang_100rpm", "--duration", "0.01", "--no-plot",
+                                      "--record", target])
+    assert code == 2 and out == "" and message in err and err.count("\n") == 1, err
+    import os
+    assert not os.path.exists("/nonexistent")

@@ -17,6 +17,10 @@ class BagCutError(BagError):
         self.path = path
 
 
+class BagWriteError(BagCutError):
+    """A recording could not be written to the end (a full disk, a lost device)."""
+
+
 class BagCompleteError(BagError):
     """A bag asked to be rebuilt is complete already."""
 

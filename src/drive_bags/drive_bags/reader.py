@@ -32,43 +32,80 @@ def open_bag(path):
     try:
         reader = Reader(path)
         reader.open()
-    except ReaderError as error:
+    except Exception as error:
+        reason = str(error) if isinstance(error, ReaderError) else f"{type(error).__name__}: {error}"
         if path.is_dir():
-            raise BagCutError(f"{path}: not a readable rosbag2 bag ({error}); if its .mcap was cut, it can "
-                              f"be rebuilt into a complete bag", path) from None
-        raise BagError(f"{path}: not a readable rosbag2 bag ({error})") from None
+            raise BagCutError(f"{path}: not a readable rosbag2 bag ({reason}); if its .mcap was cut or "
+                              f"damaged, it can be rebuilt into a complete bag", path) from None
+        raise BagError(f"{path}: not a readable rosbag2 bag ({reason})") from None
     return reader
 
 
 def bag_info(path):
-    """What `ros2 bag info` shows: storage, duration, message counts, topics with type, count and QoS."""
+    """What `ros2 bag info` shows: storage, duration, message counts, topics with type, count and QoS,
+    and ``warnings`` where metadata.yaml and the files disagree."""
     reader = open_bag(path)
+    path = Path(path)
     try:
         topics = [{"topic": c.topic, "type": c.msgtype, "count": c.msgcount,
                    "serialization": c.ext.serialization_format,
                    "offered_qos": [_qos_dict(q) for q in c.ext.offered_qos_profiles]}
                   for c in sorted(reader.connections, key=lambda c: c.topic)]
-        path = Path(path)
         stored = sorted(path.glob("*.mcap")) + sorted(path.glob("*.db3")) if path.is_dir() else [path]
-        files = [{"path": p.name, "bytes": p.stat().st_size} for p in stored]
-        return {"bag": str(path), "storage": _storage_identifier(path),
+        info = {"bag": str(path), "storage": _storage_identifier(path),
                 "compression": f"{reader.compression_mode} {reader.compression_format}"
-                if reader.compression_mode else _chunk_compression(path),
-                "files": files, "start_s": reader.start_time / 1e9, "end_s": reader.end_time / 1e9,
+                if reader.compression_mode else _chunk_compression(stored),
+                "files": [{"path": p.name, "bytes": p.stat().st_size} for p in stored],
+                "start_s": reader.start_time / 1e9, "end_s": reader.end_time / 1e9,
                 "duration_s": reader.duration / 1e9, "messages": reader.message_count, "topics": topics}
+    except Exception as error:
+        raise BagCutError(f"{path}: not a readable rosbag2 bag ({type(error).__name__}: {error}); it can be "
+                          f"rebuilt into a complete bag", path) from None
     finally:
         reader.close()
+    info["warnings"] = _disagreements(path, stored, info["messages"])
+    return info
 
 
-def _chunk_compression(path):
-    """How the MCAP chunks are compressed, from the first file's summary."""
+def _summary(file):
+    """The .mcap file's summary, or None when it has none that reads."""
     from mcap.reader import make_reader
-    for file in (sorted(path.glob("*.mcap")) if path.is_dir() else [path] if path.suffix == ".mcap" else []):
+    try:
         with file.open("rb") as stream:
-            summary = make_reader(stream).get_summary()
+            return make_reader(stream).get_summary()
+    except Exception:
+        return None
+
+
+def _chunk_compression(files):
+    """How the MCAP chunks are compressed, from the first file's summary."""
+    for file in (f for f in files if f.suffix == ".mcap"):
+        summary = _summary(file)
         kinds = sorted({c.compression or "none" for c in summary.chunk_indexes}) if summary else []
-        return f"MCAP chunks: {', '.join(kinds) or 'none'}"
+        return f"MCAP chunks: {', '.join(kinds) or 'unknown (no summary)'}"
     return "none"
+
+
+def _disagreements(path, files, metadata_messages):
+    """Where metadata.yaml and the .mcap files it describes disagree, one sentence each."""
+    if not path.is_dir():
+        return []
+    import yaml
+    listed = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    listed = set(listed.get("relative_file_paths") or [])
+    warnings = [f"{name} is listed in metadata.yaml but missing" for name in sorted(listed)
+                if not (path / name).is_file()]
+    warnings += [f"{f.name} is not listed in metadata.yaml (not read)" for f in files if f.name not in listed]
+    counted = 0
+    for file in (f for f in files if f.name in listed and f.suffix == ".mcap"):
+        summary = _summary(file)
+        if summary is None or summary.statistics is None:
+            warnings.append(f"{file.name} has no readable summary: cut or damaged after the bag was closed")
+            return warnings
+        counted += summary.statistics.message_count
+    if counted != metadata_messages:
+        warnings.append(f"metadata.yaml says {metadata_messages} messages, the files hold {counted}")
+    return warnings
 
 
 def _storage_identifier(path):

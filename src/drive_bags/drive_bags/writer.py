@@ -16,65 +16,98 @@ from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.strict_json import dumps
 from drive_interface.topics import TOPICS, VECTOR3, full_name
 
-from .common import BagError, offered_qos, sample_stamp_ns, typestore
+from .common import BagError, BagWriteError, offered_qos, sample_stamp_ns, typestore
 
 CHUNK_BYTES = 1 << 20
 """MCAP chunk size before zstd: what a killed recorder can lose (≈ 0.1 s of a 10 kHz drive)."""
 
 
 class BagWriter:
-    """A rosbag2 directory (metadata.yaml version 9 + one .mcap written by the `mcap` library) taking
-    serialized messages; ``close`` makes the bag complete."""
+    """A rosbag2 directory (metadata.yaml version 9 + ``NAME_0.mcap`` written by the `mcap` library)
+    taking serialized messages; ``close`` makes the bag complete.
 
-    def __init__(self, path):
+    A write that fails (a full disk, a lost device) stops the recording: later messages are counted as
+    dropped, ``close`` closes the file as far as it was written and raises BagWriteError saying so."""
+
+    def __init__(self, path, chunk_bytes=CHUNK_BYTES):
         from mcap.writer import CompressionType, Writer
         self.path = Path(path)
         if self.path.exists():
             raise BagError(f"{self.path}: already exists; choose a new bag name")
-        self.path.mkdir(parents=True)
-        self.file_name = f"{self.path.name}.mcap"
-        self.stream = (self.path / self.file_name).open("xb")
-        self.writer = Writer(self.stream, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD)
-        self.writer.start(profile="ros2", library="drive_bridge")
+        if not self.path.parent.is_dir():
+            raise BagError(f"{self.path}: its directory {self.path.parent} does not exist")
+        try:
+            self.path.mkdir()
+            self.file_name = f"{self.path.name}_0.mcap"
+            self.stream = (self.path / self.file_name).open("xb")
+            self.writer = Writer(self.stream, chunk_size=chunk_bytes, compression=CompressionType.ZSTD)
+            self.writer.start(profile="ros2", library="drive_bags")
+        except OSError as error:
+            raise BagError(f"{self.path}: cannot be written ({error.strerror})") from None
         self.store = typestore()
         self.schemas, self.channels, self.topics, self.counts = {}, {}, {}, {}
         self.latest_ns = 0
         self.start_ns, self.end_ns = None, None
+        self.error = None
+        self.dropped = 0
 
-    def add(self, topic, msgtype, qos):
+    def add(self, topic, msgtype, qos, schema=None):
+        """Register ``topic`` of ``msgtype`` with its offered QoS (a rosbags Qos, or rosbag2's profile list);
+        ``schema``: (encoding, data) as recorded, for a type the typestore does not know."""
         import yaml
         from rosbags.rosbag2.metadata import dump_qos_v9
+        known = msgtype in self.store.types
         if msgtype not in self.schemas:
-            msgdef, _ = self.store.generate_msgdef(msgtype, ros_version=2)
-            self.schemas[msgtype] = self.writer.register_schema(msgtype, "ros2msg", msgdef.encode())
-        profiles = dump_qos_v9([qos])
+            encoding, data = schema if schema and not known else ("ros2msg", None)
+            if data is None:
+                data = self.store.generate_msgdef(msgtype, ros_version=2)[0].encode()
+            self.schemas[msgtype] = self.writer.register_schema(msgtype, encoding, data)
+        profiles = qos if isinstance(qos, list) else dump_qos_v9([qos])
+        type_hash = self.store.hash_rihs01(msgtype) if known else ""
         self.channels[topic] = self.writer.register_channel(
-            topic, "cdr", self.schemas[msgtype], {"offered_qos_profiles": yaml.safe_dump(profiles)})
+            topic, "cdr", self.schemas[msgtype],
+            {"offered_qos_profiles": yaml.safe_dump(profiles), "topic_type_hash": type_hash})
         self.topics[topic] = {"name": topic, "type": msgtype, "serialization_format": "cdr",
-                              "offered_qos_profiles": profiles,
-                              "type_description_hash": self.store.hash_rihs01(msgtype)}
+                              "offered_qos_profiles": profiles, "type_description_hash": type_hash}
         self.counts[topic] = 0
 
     def write(self, topic, data, stamped, t_ns=None):
         """Write one serialized message at ``t_ns``, or at its own sample instant when ``stamped``
         (its first field is one), or else at the latest sample instant written."""
+        if self.error:
+            self.dropped += 1
+            return
         if stamped:
             t_ns = sample_stamp_ns(data)
             self.latest_ns = max(self.latest_ns, t_ns)
         elif t_ns is None:
             t_ns = self.latest_ns
-        self.writer.add_message(self.channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
-                                sequence=self.counts[topic])
+        try:
+            self.writer.add_message(self.channels[topic], log_time=t_ns, data=data, publish_time=t_ns,
+                                    sequence=self.counts[topic])
+        except OSError as error:
+            self.error = error
+            self.dropped += 1
+            return
         self.counts[topic] += 1
         self.start_ns = t_ns if self.start_ns is None else min(self.start_ns, t_ns)
         self.end_ns = t_ns if self.end_ns is None else max(self.end_ns, t_ns)
 
     def close(self):
+        """Finish the .mcap and write metadata.yaml; BagWriteError when a write failed (the file then
+        holds what reached the disk, and `reindex` rebuilds the bag from it)."""
         import yaml
-        self.writer.finish()
-        self.stream.close()
+        try:
+            if not self.error:
+                self.writer.finish()
+        except OSError as error:
+            self.error = error
+        try:
+            self.stream.close()
+        except OSError as error:
+            self.error = self.error or error
         start = self.start_ns or 0
-        duration = (self.end_ns - start + 1) if self.end_ns is not None else 0
+        duration = (self.end_ns - start) if self.end_ns is not None else 0
         count = sum(self.counts.values())
         information = {
             "version": 9, "storage_identifier": "mcap", "relative_file_paths": [self.file_name],
@@ -86,8 +119,18 @@ class BagWriter:
             "files": [{"path": self.file_name, "starting_time": {"nanoseconds_since_epoch": start},
                        "duration": {"nanoseconds": duration}, "message_count": count}],
             "custom_data": None, "ros_distro": "jazzy"}
-        (self.path / "metadata.yaml").write_text(
-            yaml.safe_dump({"rosbag2_bagfile_information": information}, sort_keys=False))
+        if not self.error:
+            try:
+                (self.path / "metadata.yaml").write_text(
+                    yaml.safe_dump({"rosbag2_bagfile_information": information}, sort_keys=False))
+            except OSError as error:
+                self.error = error
+        if self.error:
+            (self.path / "metadata.yaml").unlink(missing_ok=True)
+            raise BagWriteError(f"{self.path}: recording stopped at {start / 1e9 + duration / 1e9:.4f} s "
+                                f"({self.error.strerror or self.error}); {count} messages written, "
+                                f"{self.dropped} dropped; the file is closed as far as it was written",
+                                self.path)
 
 
 CDR_LITTLE_ENDIAN = 0x0100
@@ -133,12 +176,12 @@ def _cdr_scalars(dtype, *columns):
     return records
 
 
-def write_run_bag(result, path, namespace="/drive", progress=None):
+def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=CHUNK_BYTES):
     """Write a one-process run (drive_bridge.runner.RunResult) as the graph would have recorded it,
     its messages serialised to CDR in bulk with numpy."""
     log, scenario = result.log, result.scenario
     n, n_p, c = log.shape[0], result.n_p, COLUMN
-    writer = BagWriter(path)
+    writer = BagWriter(path, chunk_bytes)
     for topic, t in TOPICS.items():
         if topic in ("/diagnostics", "joint_states"):
             continue

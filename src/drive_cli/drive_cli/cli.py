@@ -20,6 +20,44 @@ class CommandLineError(DriveError):
     """An option's value is unusable; the message names the option."""
 
 
+EXIT_REFUSED = 2
+"""The request was refused (bad input, a file or topic at fault); one line on stderr says why."""
+EXIT_NODE_FAULTS = 3
+"""The run finished, but a node reported a fault during it (node_faults)."""
+EXIT_RECORDING_FAILED = 4
+"""The run finished and its metrics are printed, but the recording stopped early (closed as far as
+written)."""
+
+
+def _exit_code(interrupted=0, node_faults=None, recording_error=None):
+    """128 + the signal that stopped the run, else the worst of the codes above, else 0."""
+    if interrupted:
+        return 128 + interrupted
+    if recording_error:
+        return EXIT_RECORDING_FAILED
+    return EXIT_NODE_FAULTS if node_faults else 0
+
+
+def _record_arg(path):
+    """Refuse a --record target before running: it must be new, in a writable directory that exists."""
+    import tempfile
+    if path is None:
+        return
+    target = Path(path)
+    if target.exists():
+        raise CommandLineError(f"--record: {path} already exists; choose a new bag name")
+    if not target.parent.is_dir():
+        raise CommandLineError(f"--record: the directory {target.parent} does not exist")
+    try:
+        tempfile.TemporaryDirectory(dir=target.parent).cleanup()
+    except OSError as error:
+        raise CommandLineError(f"--record: cannot write in {target.parent} ({error.strerror})") from None
+
+
+def _recording_failed(message):
+    print(f"drive: {' '.join(message.split())}", file=sys.stderr)
+
+
 def _print_json(data):
     print(dumps(data, indent=2, ensure_ascii=False))
 
@@ -38,15 +76,21 @@ def cmd_run(args):
     from drive_runner.runner import run_scenario, terminal_progress
 
     scenario = _scenario_arg(args)
-    if args.record and Path(args.record).exists():
-        raise CommandLineError(f"--record: {args.record} already exists; choose a new bag name")
+    _record_arg(args.record)
     result = run_scenario(scenario, progress=terminal_progress(f"{scenario.name}/{scenario.estimator}"))
-    extra = {}
+    extra, recording_error = {}, None
     if args.record:
+        from drive_bags.common import BagWriteError
         from drive_bags.writer import write_run_bag
         progress = terminal_progress(f"writing {args.record}")
-        extra["bag"] = str(write_run_bag(result, args.record, progress=progress))
-    return _report(result, args, extra)
+        try:
+            extra["bag"] = str(write_run_bag(result, args.record, progress=progress))
+        except BagWriteError as error:
+            recording_error = extra["recording_error"] = str(error)
+    _report(result, args, extra)
+    if recording_error:
+        _recording_failed(recording_error)
+    return _exit_code(recording_error=recording_error)
 
 
 def _report(result, args, extra=None):
@@ -94,6 +138,7 @@ def cmd_launch(args):
     if args.duration is not None and args.duration <= 0.0:
         raise CommandLineError(f"--duration: must be positive, not {args.duration}")
     scenario = load_scenario(args.scenario, estimator_override=args.estimator)
+    _record_arg(args.record)
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
                     timeout_s=args.timeout, bag=args.record, link=args.link,
@@ -104,11 +149,15 @@ def cmd_launch(args):
                       f"{plant}",
              "real_time_factor": round(result.scenario.duration_s / result.wall_time_s, 4)
              if result.wall_time_s > 0 else None,
-             "interrupted": result.interrupted, "node_faults": faults}
+             "interrupted": bool(result.interrupted), "node_faults": faults}
     if args.record:
         extra["bag"] = args.record
+    if result.recording_error:
+        extra["recording_error"] = result.recording_error
     _report(result, args, extra)
-    return 130 if result.interrupted else 0
+    if result.recording_error:
+        _recording_failed(result.recording_error)
+    return _exit_code(result.interrupted, faults, result.recording_error)
 
 
 def cmd_bridge(args):
@@ -237,6 +286,8 @@ def cmd_bag_info(args):
         qos = t["offered_qos"][0] if t["offered_qos"] else {}
         qos_text = "/".join(str(qos.get(key, "?")).lower() for key in ("reliability", "durability", "depth"))
         print(f"  {t['topic']:{width}s}  {t['type']:38s} {t['count']:8d}  {t['serialization']}  {qos_text}")
+    for warning in info["warnings"]:
+        print(f"  warning: {warning}")
     return 0
 
 
@@ -246,7 +297,10 @@ def cmd_bag_reindex(args):
     if args.json:
         _print_json(info)
     else:
-        print(f"{info['bag']}: rebuilt, {info['messages']:,} messages over {info['duration_s']:.6f} s")
+        recovery = info["recovery"]
+        skipped = ", ".join(f"{n} {what}" for what, n in recovery["skipped"].items()) or "nothing"
+        print(f"{info['bag']}: rebuilt, {info['messages']:,} messages over {info['duration_s']:.6f} s; "
+              f"skipped: {skipped}; the original files are kept in {recovery['originals']}")
     return 0
 
 
@@ -792,7 +846,8 @@ def main(argv=None):
     try:
         return args.func(args)
     except DriveError as error:
-        print(f"drive: {error}{_remedy(error, args)}", file=sys.stderr)
+        text = " ".join(f"{error}{_remedy(error, args)}".split())
+        print(f"drive: {text}", file=sys.stderr)
         return 2
 
 

@@ -13,6 +13,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from drive_bags.common import BagWriteError
 from drive_bags.writer import BagWriter
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, NODES
@@ -58,7 +59,10 @@ def make_node(name, context=None, namespace=None, parameters=None, link=None):
 class GraphResult(RunResult):
     processes: str = "composed"
     executor: str = "events"
-    interrupted: bool = False
+    interrupted: int = 0
+    """The signal that stopped the run (SIGINT, SIGTERM), or 0."""
+    recording_error: str = None
+    """Why the recording stopped early (it is closed as far as it was written), or None."""
     diagnostics: dict = None
     """Last /diagnostics status per node: level, message, values."""
 
@@ -177,8 +181,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         while not all_done.done():
             ex.spin_until_future_complete(all_done, timeout_sec=1.0)
         nodes[-1].destroy_timer(watcher)
-        return [_result(driver, limit, record, processes, executor, interrupted)
-                for driver, limit in zip(drivers, limits)]
+        results = [_result(driver, limit, record, processes, executor, interrupted)
+                   for driver, limit in zip(drivers, limits)]
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
@@ -191,9 +195,21 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         for inverter in inverters:
             inverter.endpoint.close()
         workdir.cleanup()
-        for recorder in recorders:
-            if recorder:
-                recorder.close()
+        recording_errors = [_close(recorder) for recorder in recorders]
+    for result, error in zip(results, recording_errors):
+        result.recording_error = error
+    return results
+
+
+def _close(recorder):
+    """Close a recording; what went wrong with it (a full disk), or None."""
+    if recorder is None:
+        return None
+    try:
+        recorder.close()
+    except BagWriteError as error:
+        return str(error)
+    return None
 
 
 def _result(driver, current_limit_A, record, processes, executor, interrupted):
@@ -206,7 +222,7 @@ def _result(driver, current_limit_A, record, processes, executor, interrupted):
     if driver.last_sample + 1 < scenario.n_samples:
         scenario = dataclasses.replace(scenario, duration_s=(driver.last_sample + 1) * scenario.T_s)
     return GraphResult(scenario, scenario.estimator, log, wall, current_limit_A,
-                       processes=processes, executor=executor, interrupted=bool(interrupted),
+                       processes=processes, executor=executor, interrupted=interrupted[0] if interrupted else 0,
                        diagnostics=dict(driver.diagnostics))
 
 

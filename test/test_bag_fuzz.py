@@ -1,0 +1,160 @@
+"""Corrupted bags (≥ 100: flipped bits, zeroed ranges, truncations, duplicated chunks, inserted garbage,
+broken or missing metadata, extra files) through `bag info`, `bench replay`, `bench compare` and `bag
+reindex`: no traceback, and reindex keeps every message that survived the corruption.
+
+What survived is decided here with the mcap library, not with the code under test: every message of a
+chunk whose bytes the corruption did not touch, provided its channel's definition survived too (in the
+first chunk or in the file's summary)."""
+import dataclasses
+import io
+import random
+import shutil
+
+import pytest
+from mcap.data_stream import ReadDataStream
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message
+from mcap.stream_reader import breakup_chunk
+
+from drive_bags.writer import write_run_bag
+from drive_cli.cli import main
+from drive_runner.runner import run_scenario
+from drive_scenarios.scenario import load_scenario
+
+CASES = 110
+
+
+@dataclasses.dataclass
+class Layout:
+    """Where the original .mcap keeps its chunks and summary, and the messages of each chunk."""
+
+    size: int
+    chunks: list
+    """(start, end, [(topic, log_time, data)]) per chunk, in file order."""
+    summary_start: int
+    channels_in_first_chunk: bool
+
+
+def layout(data):
+    summary = make_reader(io.BytesIO(data)).get_summary()
+    topics = {c.id: c.topic for c in summary.channels.values()}
+    chunks, first_defines = [], False
+    for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+        start, end = index.chunk_start_offset, index.chunk_start_offset + index.chunk_length
+        chunk = Chunk.read(ReadDataStream(io.BytesIO(data[start + 9:end])))
+        records = breakup_chunk(chunk, validate_crc=True)
+        if not chunks:
+            first_defines = {r.id for r in records if isinstance(r, Channel)} == set(topics)
+        chunks.append((start, end, [(topics[r.channel_id], r.log_time, r.data) for r in records
+                                    if isinstance(r, Message)]))
+    footer = len(data) - 8 - 29
+    assert data[footer] == 0x02
+    summary_start = int.from_bytes(data[footer + 9:footer + 17], "little")
+    assert chunks[-1][1] <= summary_start < footer
+    return Layout(len(data), chunks, summary_start, first_defines)
+
+
+def surviving(lay, touched, cut=None):
+    """Messages that survive when the byte ranges ``touched`` changed and the file was cut at ``cut``."""
+    def intact(start, end):
+        return (cut is None or end <= cut) and all(end <= a or b <= start for a, b in touched)
+    definitions = (lay.channels_in_first_chunk and lay.chunks and intact(*lay.chunks[0][:2])) or (
+        cut is None and intact(lay.summary_start, lay.size))
+    if not definitions:
+        return set()
+    return {m for start, end, messages in lay.chunks if intact(start, end) for m in messages}
+
+
+def messages_of(bag):
+    found = set()
+    for path in bag.glob("*.mcap"):
+        with path.open("rb") as stream:
+            for _, channel, message in make_reader(stream).iter_messages():
+                found.add((channel.topic, message.log_time, message.data))
+    return found
+
+
+@pytest.fixture(scope="module")
+def original(tmp_path_factory):
+    root = tmp_path_factory.mktemp("fuzz")
+    scenario = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.02)
+    bag = write_run_bag(run_scenario(scenario), root / "original", chunk_bytes=4096)
+    (mcap,) = bag.glob("*.mcap")
+    data = mcap.read_bytes()
+    lay = layout(data)
+    assert len(lay.chunks) > 10
+    return root, bag, data, lay
+
+
+def corruptions(rng, data, lay):
+    """(kind, new .mcap bytes, touched ranges, cut, metadata action, extra file) per case."""
+    kinds = ["flip", "flips", "zero", "truncate", "duplicate", "garbage", "no_metadata", "bad_metadata",
+             "extra_copy", "empty_extra"]
+    for i in range(CASES):
+        kind = kinds[i % len(kinds)]
+        d, touched, cut, metadata, extra = bytearray(data), [], None, "keep", None
+        if kind in ("flip", "flips"):
+            for _ in range(1 if kind == "flip" else 5):
+                at = rng.randrange(len(d))
+                d[at] ^= 1 << rng.randrange(8)
+                touched.append((at, at + 1))
+        elif kind == "zero":
+            at = rng.randrange(len(d) - 64)
+            d[at:at + 64] = bytes(64)
+            touched.append((at, at + 64))
+        elif kind == "truncate":
+            cut = rng.randrange(8, len(d))
+            del d[cut:]
+        elif kind == "duplicate":
+            start, end, _ = rng.choice(lay.chunks)
+            d[end:end] = data[start:end]
+            touched.append((lay.summary_start, lay.size))
+        elif kind == "garbage":
+            _, end, _ = rng.choice(lay.chunks)
+            d[end:end] = bytes(rng.randrange(256) for _ in range(100))
+            touched.append((lay.summary_start, lay.size))
+        elif kind == "no_metadata":
+            metadata = "delete"
+        elif kind == "bad_metadata":
+            metadata = "garbage"
+        elif kind == "extra_copy":
+            extra = bytes(data)
+        elif kind == "empty_extra":
+            extra = b""
+        yield f"{i:03d}_{kind}", bytes(d), touched, cut, metadata, extra
+
+
+def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survived(original, tmp_path, capsys):
+    root, bag, data, lay = original
+    rng = random.Random(20261122)
+    rebuilt = 0
+    for name, content, touched, cut, metadata, extra in corruptions(rng, data, lay):
+        case = tmp_path / name
+        shutil.copytree(bag, case)
+        (mcap,) = case.glob("*.mcap")
+        mcap.write_bytes(content)
+        if metadata == "delete":
+            (case / "metadata.yaml").unlink()
+        elif metadata == "garbage":
+            (case / "metadata.yaml").write_bytes(bytes(rng.randrange(256) for _ in range(200)))
+        if extra is not None:
+            (case / f"{case.name}_1.mcap").write_bytes(extra)
+        out = tmp_path / "out"
+        for argv in (["bag", "info", str(case)],
+                     ["bench", "replay", str(case), "--estimators", "sensored", "--no-plot", "--out", str(out)],
+                     ["bench", "compare", str(case), str(bag), "--no-plot", "--out", str(out)],
+                     ["bag", "reindex", str(case), "--force"]):
+            code = main(argv)
+            _, err = capsys.readouterr()
+            assert code in (0, 2), (name, argv[:2], err)
+            assert code == 0 or (err.count("\n") == 1 and "Traceback" not in err), (name, argv[:2], err)
+        expected = surviving(lay, touched, cut)
+        if code == 0:
+            rebuilt += 1
+            assert expected <= messages_of(case), (name, str(case), touched, len(expected - messages_of(case)))
+            kept = case / "reindex-original" / mcap.name
+            assert kept.read_bytes() == content, name
+        else:
+            assert not expected, name
+            assert mcap.read_bytes() == content, name
+    assert rebuilt > CASES // 2
