@@ -82,10 +82,29 @@ def test_graph_gives_the_runners_samples(tmp_path, processes):
 def test_two_drives_side_by_side_do_not_cross_talk(tmp_path):
     left = scenario_file(tmp_path, "left", rpm=60.0)
     right = scenario_file(tmp_path, "right", "improved", -90.0)
-    results = launch_many([DriveSpec(left, "/left_wheel"), DriveSpec(right, "/right_wheel")])
+    results = launch_many([DriveSpec(left, "/left_wheel", bag=str(tmp_path / "left")),
+                           DriveSpec(right, "/right_wheel", bag=str(tmp_path / "right"))])
     assert_same_samples(results[0], left)
     assert_same_samples(results[1], right)
     assert results[0].estimator == "injection_frame" and results[1].estimator == "improved"
+    assert not results[0].node_faults and not results[1].node_faults
+
+
+def test_two_drives_share_one_clock_and_name_their_own_joints(tmp_path):
+    """One /clock publisher in a graph of two drives; joint_states carries each wheel's name."""
+    from rosbags.highlevel import AnyReader
+
+    from drive_bags.common import typestore
+    left = scenario_file(tmp_path, "left", rpm=60.0)
+    launch_many([DriveSpec(left, "/left_wheel", bag=str(tmp_path / "left")),
+                 DriveSpec(left, "/right_wheel", bag=str(tmp_path / "right"))])
+    for wheel in ("left", "right"):
+        with AnyReader([tmp_path / wheel], default_typestore=typestore()) as reader:
+            clock = reader.topics["/clock"]
+            assert clock.msgcount == 600
+            joints = [c for c in reader.connections if c.topic == f"/{wheel}_wheel/joint_states"]
+            names = {tuple(reader.deserialize(data, c.msgtype).name) for c, _, data in reader.messages(joints)}
+            assert names == {(f"{wheel}_wheel",)}
 
 
 class Harness:
@@ -417,3 +436,152 @@ def test_a_full_disk_while_recording_the_graph_keeps_its_metrics(tmp_path, small
     assert result.recording_error and "No space left on device" in result.recording_error
     assert result.log.shape[0] == 3000 and np.isfinite(result.log[:, COLUMN["theta_e_hat"]]).all()
     assert (small_disk / "graph" / "graph_0.mcap").stat().st_size > 0
+
+
+def wait_for_bag_data(bag, process, stderr_path, size=100_000, timeout_s=60.0):
+    """Wait until a recording launcher has written ``size`` bytes (the run is under way)."""
+    deadline = time.monotonic() + timeout_s
+    while sum(f.stat().st_size for f in bag.glob("*.mcap")) < size:
+        assert time.monotonic() < deadline and process.poll() is None, stderr_path.read_text()
+        time.sleep(0.05)
+
+
+def test_a_node_stopped_for_two_seconds_shows_in_node_faults_and_the_exit_code(tmp_path):
+    """SIGSTOP on the estimator process for 2 s (twice the lock-step timeout): the plant applies zero
+    voltage and counts timeouts; the launcher sees the cumulative counters, not only the last status."""
+    bag, stderr = tmp_path / "stopped_node", tmp_path / "stderr"
+    launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--processes", "separate", "--namespace",
+                                         "/sigstop_test", "--duration", "1.0", "--json", "--no-plot",
+                                         "--record", str(bag)],
+                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=stderr.open("w"), text=True)
+    wait_for_bag_data(bag, launcher, stderr)
+    estimator = subprocess.run(["pgrep", "-f", "hf_estimator.node .*__ns:=/sigstop_test"], capture_output=True,
+                               text=True).stdout.split()
+    assert len(estimator) == 1
+    os.kill(int(estimator[0]), signal.SIGSTOP)
+    time.sleep(2.0)
+    os.kill(int(estimator[0]), signal.SIGCONT)
+    out, _ = launcher.communicate(timeout=120)
+    assert launcher.returncode == 3, stderr.read_text()
+    metrics = json.loads(out)
+    plant = metrics["node_faults"]["/sigstop_test/pmsm_plant"]
+    assert plant["faults"]["timeout"] >= 1 and any("zero voltage" in m for m in plant["messages"])
+    assert metrics["samples"] == 10000 and not metrics["interrupted"]
+
+
+def test_nodes_started_by_hand_exit_when_the_plant_is_gone(tmp_path):
+    """The plant is killed mid-run: the estimator and the controller say so and exit with code 3 (their
+    run was not complete); their outputs stay what they were (nothing is commanded without a plant)."""
+    namespace = "/peer_gone_test"
+    common = ["--ros-args", "-r", f"__ns:={namespace}", "-p", "scenario:=wang_100rpm", "-p", "duration_s:=100.0"]
+    roles = {"pmsm_plant": [], "hf_estimator": ["-p", f"commissioning:={COMMISSIONING}"], "foc_controller": []}
+    processes = {role: subprocess.Popen([sys.executable, "-m", f"{role}.node"] + common + extra, cwd=tmp_path,
+                                        stderr=(tmp_path / f"{role}.log").open("w"))
+                 for role, extra in roles.items()}
+    try:
+        h = Harness(namespace)
+        counted = []
+        h.tester.create_subscription(Vector3Stamped, f"{namespace}/voltage_command", counted.append,
+                                     PER_SAMPLE_QOS)
+        h.spin_until(lambda: len(counted) > 100, 60.0, what="the hand-started drive running")
+        h.close()
+        processes["pmsm_plant"].kill()
+        for role in ("hf_estimator", "foc_controller"):
+            assert processes[role].wait(timeout=30) == 3, (tmp_path / f"{role}.log").read_text()
+            assert "the plant is gone" in (tmp_path / f"{role}.log").read_text()
+    finally:
+        for process in processes.values():
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+
+
+def test_a_second_drive_in_the_same_namespace_is_refused(tmp_path):
+    """The second launch exits 2 with one line naming the namespace; the first runs on undisturbed (its
+    nodes discard and count the second's samples; faults, if any, show in its node_faults)."""
+    bag, stderr = tmp_path / "first", tmp_path / "stderr"
+    first = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--namespace", "/two_drives_test", "--duration",
+                                      "2.0", "--json", "--no-plot", "--record", str(bag)],
+                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=stderr.open("w"), text=True)
+    wait_for_bag_data(bag, first, stderr)
+    second = subprocess.run(DRIVE + ["launch", "wang_100rpm", "--namespace", "/two_drives_test", "--duration",
+                                     "0.5", "--no-plot"], cwd=tmp_path, capture_output=True, text=True,
+                            timeout=120)
+    assert second.returncode == 2
+    lines = [line for line in second.stderr.splitlines() if line.startswith("drive:")]
+    assert len(lines) == 1 and "namespace /two_drives_test is in use" in lines[0], second.stderr
+    assert "Traceback" not in second.stderr
+    out, _ = first.communicate(timeout=120)
+    metrics = json.loads(out)
+    assert first.returncode in (0, 3) and bool(metrics["node_faults"]) == (first.returncode == 3)
+    assert metrics["samples"] == 20000 and metrics["angle_error_rms"] < 0.05
+
+
+def test_a_drive_is_refused_where_nodes_started_by_hand_are(tmp_path):
+    """No launcher holds the namespace: the launcher finds the other drive's node in the graph, before it
+    creates its own nodes or, when discovery is slower than its look (the hand-started plant compiles its
+    kernels at start), at its start-up check, before sample 0."""
+    plant = subprocess.Popen([sys.executable, "-m", "pmsm_plant.node", "--ros-args", "-r", "__ns:=/by_hand_test"],
+                             cwd=tmp_path, stderr=subprocess.DEVNULL)
+    try:
+        h = Harness("/by_hand_test")
+        h.spin_until(lambda: h.tester.count_publishers("/by_hand_test/currents") >= 1, 60.0, what="the plant")
+        h.close()
+        second = subprocess.run(DRIVE + ["launch", "wang_100rpm", "--namespace", "/by_hand_test", "--no-plot"],
+                                cwd=tmp_path, capture_output=True, text=True, timeout=120)
+        assert second.returncode == 2
+        lines = [line for line in second.stderr.splitlines() if line.startswith("drive:")]
+        assert len(lines) == 1 and "namespace /by_hand_test is in use" in lines[0], second.stderr
+        assert "Traceback" not in second.stderr
+    finally:
+        plant.kill()
+        plant.wait()
+
+
+@pytest.mark.parametrize("content, message", [
+    ("pmsm_plant:\n  ros__parameters:\n    bogus: 1\n",
+     "params file {path}: unknown parameter 'bogus' for /pmsm_plant"),
+    ("/**:\n  ros__parameters:\n    duration_s: abc\n", "params file {path}: parameter duration_s: 'abc'"),
+    ("[not, a, mapping]\n", "params file {path}: not a mapping of node names"),
+])
+def test_a_node_executable_names_the_params_file_at_fault(tmp_path, content, message):
+    path = tmp_path / "params.yaml"
+    path.write_text(content)
+    run = subprocess.run([sys.executable, "-m", "pmsm_plant.node", "--ros-args", "--params-file", str(path)],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2
+    assert run.stderr.startswith(f"plant_node: {message.format(path=path)}") and run.stderr.count("\n") == 1, \
+        run.stderr
+
+
+def test_a_params_file_value_out_of_range_is_latched_naming_the_file(tmp_path):
+    """The node stays up in its safe state; its configuration error names the params file."""
+    from drive_interface import parameter_sources
+    path = tmp_path / "params.yaml"
+    path.write_text("/**:\n  ros__parameters:\n    duration_s: -1.0\n")
+    parameter_sources.ROS_ARGS[:] = ["--ros-args", "--params-file", str(path)]
+    h = Harness("/params_file_test")
+    try:
+        node = h.add(PlantNode, duration_s=-1.0)
+        assert not node.configured
+        assert node.health.latched.startswith(f"params file {path}: parameter duration_s: must be a finite number")
+    finally:
+        parameter_sources.ROS_ARGS.clear()
+        h.close()
+
+
+def test_the_launcher_blames_the_command_line_for_an_unknown_estimator(tmp_path):
+    run = subprocess.run(DRIVE + ["launch", "wang_100rpm", "--estimator", "improvd"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and run.stderr.startswith("drive: --estimator: unknown estimator 'improvd'")
+
+
+def test_the_bridge_node_logs_a_missing_port_at_start(tmp_path):
+    bridge = subprocess.Popen([sys.executable, "-m", "drive_bridge.bridge_node", "--ros-args", "-p",
+                               "port:=/dev/no_such_inverter", "-r", "__ns:=/missing_port_test"],
+                              cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+    time.sleep(3.0)
+    bridge.send_signal(signal.SIGINT)
+    err = bridge.communicate(timeout=30)[1]
+    assert bridge.returncode == 0
+    assert err.count("inverter link: /dev/no_such_inverter") == 1 and "Traceback" not in err, err

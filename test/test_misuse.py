@@ -60,10 +60,14 @@ def test_unsafe_settings_are_refused_naming_key_and_file(tmp_path, capsys, secti
     assert err.count("\n") == 1 and path in err and key in err, err
 
 
-def test_a_nan_current_limit_parameter_leaves_the_scenarios_limit():
+@pytest.mark.parametrize("name, value", [("controller.current_limit_A", float("nan")), ("duration_s", -1.0),
+                                         ("lockstep_timeout_s", float("inf")), ("seed", -5),
+                                         ("injection.frequency_Hz", float("-inf"))])
+def test_an_unsafe_node_parameter_is_refused_naming_it(name, value):
     from drive_scenarios.parameters import all_parameters, scenario_from_parameters
-    scenario = scenario_from_parameters(all_parameters({"controller.current_limit_A": float("nan")}))
-    assert "current_limit_A" not in scenario.controller
+    from drive_scenarios.scenario import ScenarioError
+    with pytest.raises(ScenarioError, match=f"^parameter {name}: must be a finite number"):
+        scenario_from_parameters(all_parameters({name: value}))
 
 
 def mutations(rng, count):

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from control_math.frames import wrap
+from drive_interface.interrupt import deferred
 from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.strict_json import dumps
 from drive_interface.topics import TOPICS, VECTOR3, full_name
@@ -227,12 +228,15 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
         data=dumps(config)), "std_msgs/msg/String")
     writer.write(full_name(namespace, "drive_config"), config_data, False, 0)
     write = writer.write
-    for k in range(n):
-        t = int(t_ns[k])
-        for (topic, data, size), mask in zip(streams, masks):
-            if mask is None or mask[k]:
-                write(topic, data[k * size:(k + 1) * size], False, t)
-        if progress and k % 10000 == 0:
-            progress(k / n)
-    writer.close()
+    try:
+        for k in range(n):
+            t = int(t_ns[k])
+            for (topic, data, size), mask in zip(streams, masks):
+                if mask is None or mask[k]:
+                    write(topic, data[k * size:(k + 1) * size], False, t)
+            if progress and k % 10000 == 0:
+                progress(k / n)
+    finally:
+        with deferred():
+            writer.close()
     return Path(path)

@@ -55,7 +55,8 @@ class InverterBridgeNode(ContractNode):
         self.bridge = InverterBridge(link, float(p["link_timeout_s"]), float(p["command_timeout_s"]))
         self.currents_pub = self.create_publisher(Vector3Stamped, "currents", topic_qos("currents"))
         self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", topic_qos("rotor_state"))
-        self.clock_pub = self.create_publisher(Clock, "/clock", topic_qos("/clock"))
+        self.offer_clock()
+        self.clock_pub = self.claim_clock()
         self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", topic_qos("angle_error"))
         self.create_subscription(Vector3Stamped, "voltage_command", self.timed(self.on_voltage_command),
                                  topic_qos("voltage_command"))
@@ -73,16 +74,20 @@ class InverterBridgeNode(ContractNode):
         """The link thread: poll, publish each sample, report new faults."""
         currents, rotor, clock = Vector3Stamped(), JointState(name=["rotor"]), Clock()
         currents.header.frame_id = TOPICS["currents"].frame_id
-        previous = None
+        previous, logged = None, ""
         while self.running:
             samples = self.bridge.poll(0.02)
+            if not self.bridge.open and self.bridge.last_error not in ("", logged):
+                logged = self.bridge.last_error
+                self.get_logger().error(f"inverter link: {logged}; retrying every {self.bridge.reconnect_s:g} s")
             hello = self.bridge.hello
             if hello is not None and self.T_s is None:
                 self.configure(hello)
             for s in samples:
                 t = stamp(s.k, self.T_s)
-                clock.clock = t
-                self.clock_pub.publish(clock)
+                if self.clock_pub:
+                    clock.clock = t
+                    self.clock_pub.publish(clock)
                 if not math.isnan(s.theta_m):
                     rotor.header.stamp = t
                     velocity = (s.theta_m - previous[1]) / ((s.k - previous[0]) * self.T_s) \
@@ -112,9 +117,12 @@ class InverterBridgeNode(ContractNode):
                 detail = self.bridge.last_error or ", ".join(self.bridge.status_names())
                 self.fault(kind, f"{kind}: {new} new ({detail})")
         self.reported = counts
-        if self.bridge.lost or self.bridge.safe:
+        if self.bridge.safe or (self.bridge.lost and self.bridge.counters["samples"]):
             self.health.level = DiagnosticStatus.ERROR
             self.health.last_fault = self.bridge.last_error or "link down"
+        elif self.bridge.lost and self.health.level == DiagnosticStatus.OK:
+            self.health.level = DiagnosticStatus.WARN
+            self.health.last_fault = f"waiting for the inverter ({self.bridge.last_error or 'no telemetry yet'})"
 
     def on_voltage_command(self, msg):
         if self.T_s is None:

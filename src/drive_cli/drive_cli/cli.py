@@ -2,11 +2,21 @@
 ``--json``. Domain errors (drive_interface.errors.DriveError) are printed as one line, exit code 2."""
 import argparse
 import dataclasses
+import os
 import sys
 from pathlib import Path
 
+from drive_interface import interrupt
 from drive_interface.errors import DriveError
+from drive_interface.exit_codes import (
+    EXIT_NODE_FAULTS,
+    EXIT_READER_GONE,
+    EXIT_RECORDING_FAILED,
+    EXIT_REFUSED,
+    EXIT_SIGNAL_BASE,
+)
 from drive_interface.graph import DEFAULT_NAMESPACE, EXECUTORS
+from drive_interface.interrupt import Interrupted
 from drive_interface.strict_json import dumps
 from drive_scenarios.scenario import load_scenario, scenario_names
 from hf_estimator.registry import describe, estimator_names
@@ -20,19 +30,10 @@ class CommandLineError(DriveError):
     """An option's value is unusable; the message names the option."""
 
 
-EXIT_REFUSED = 2
-"""The request was refused (bad input, a file or topic at fault); one line on stderr says why."""
-EXIT_NODE_FAULTS = 3
-"""The run finished, but a node reported a fault during it (node_faults)."""
-EXIT_RECORDING_FAILED = 4
-"""The run finished and its metrics are printed, but the recording stopped early (closed as far as
-written)."""
-
-
 def _exit_code(interrupted=0, node_faults=None, recording_error=None):
-    """128 + the signal that stopped the run, else the worst of the codes above, else 0."""
+    """128 + the signal that stopped the run, else the worst of drive_interface.exit_codes, else 0."""
     if interrupted:
-        return 128 + interrupted
+        return EXIT_SIGNAL_BASE + interrupted
     if recording_error:
         return EXIT_RECORDING_FAILED
     return EXIT_NODE_FAULTS if node_faults else 0
@@ -62,9 +63,18 @@ def _print_json(data):
     print(dumps(data, indent=2, ensure_ascii=False))
 
 
+def _estimator_arg(args):
+    """Refuse an unknown --estimator before anything runs, naming the option."""
+    if args.estimator and args.estimator not in estimator_names():
+        raise CommandLineError(f"--estimator: unknown estimator '{args.estimator}' "
+                               f"(known: {', '.join(estimator_names())})")
+
+
 def _scenario_arg(args):
     """The scenario named on the command line, with --estimator and --duration applied."""
-    scenario = load_scenario(args.scenario, estimator_override=args.estimator)
+    _estimator_arg(args)
+    scenario = load_scenario(args.scenario, estimator_override=args.estimator,
+                             override_source="command line --estimator")
     if args.duration is not None:
         if args.duration <= 0.0:
             raise CommandLineError(f"--duration: must be positive, not {args.duration}")
@@ -78,7 +88,8 @@ def cmd_run(args):
     scenario = _scenario_arg(args)
     _record_arg(args.record)
     result = run_scenario(scenario, progress=terminal_progress(f"{scenario.name}/{scenario.estimator}"))
-    extra, recording_error = {}, None
+    interrupted = result.interrupted
+    extra, recording_error = {"interrupted": bool(interrupted)}, None
     if args.record:
         from drive_bags.common import BagWriteError
         from drive_bags.writer import write_run_bag
@@ -86,11 +97,17 @@ def cmd_run(args):
         try:
             extra["bag"] = str(write_run_bag(result, args.record, progress=progress))
         except BagWriteError as error:
-            recording_error = extra["recording_error"] = str(error)
+            recording_error = str(error)
+        except Interrupted as stop:
+            interrupted = interrupted or stop.signum
+            extra["interrupted"] = True
+            recording_error = f"{args.record}: writing interrupted; the bag is closed as far as written"
+        if recording_error:
+            extra["recording_error"] = recording_error
     _report(result, args, extra)
     if recording_error:
         _recording_failed(recording_error)
-    return _exit_code(recording_error=recording_error)
+    return _exit_code(interrupted, recording_error=recording_error)
 
 
 def _report(result, args, extra=None):
@@ -110,7 +127,12 @@ def _report(result, args, extra=None):
     print(f"scenario {metrics['scenario']} ({metrics['motor']}), estimator {metrics['estimator']}, "
           f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
     for key, value in (extra or {}).items():
-        if isinstance(value, dict):
+        if value is False:
+            continue
+        if key == "node_faults":
+            value = "; ".join(f"{name} ({', '.join(f'{kind} ×{n}' for kind, n in d['faults'].items())}): "
+                              f"{' | '.join(d['messages'])}" for name, d in value.items()) or "none"
+        elif isinstance(value, dict):
             value = ", ".join(f"{k} {v}" for k, v in value.items() if v) or "none"
         print(f"  {key:36s} {value}")
     rows = [("angle error RMS (steady)", "angle_error_rms", "rad"),
@@ -137,13 +159,15 @@ def cmd_launch(args):
 
     if args.duration is not None and args.duration <= 0.0:
         raise CommandLineError(f"--duration: must be positive, not {args.duration}")
-    scenario = load_scenario(args.scenario, estimator_override=args.estimator)
+    _estimator_arg(args)
+    scenario = load_scenario(args.scenario, estimator_override=args.estimator,
+                             override_source="command line --estimator")
     _record_arg(args.record)
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
                     timeout_s=args.timeout, bag=args.record, link=args.link,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
-    faults = {name: d["message"] for name, d in (result.diagnostics or {}).items() if d["level"] > 0}
+    faults = result.node_faults
     plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
     extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}, "
                       f"{plant}",
@@ -168,10 +192,11 @@ def cmd_bridge(args):
     result = run_through_bridge(scenario, args.link, progress=terminal_progress(
         f"{scenario.name}/{scenario.estimator} through the bridge ({args.link})"))
     extra = {"link": f"virtual inverter over {args.link}, bridge core, estimator and controller cores",
-             "samples_per_s": round(result.log.shape[0] / result.wall_time_s),
+             "samples_per_s": round(result.log.shape[0] / result.wall_time_s) if result.wall_time_s > 0 else None,
              "bridge": result.counters, "frame_errors": result.frame_errors,
-             "inverter": result.inverter_counters}
-    return _report(result, args, extra)
+             "inverter": result.inverter_counters, "interrupted": bool(result.interrupted)}
+    _report(result, args, extra)
+    return _exit_code(result.interrupted)
 
 
 def cmd_bench_bridge(args):
@@ -549,20 +574,25 @@ def cmd_tune_pll(args):
     if "error" in report["tuned"][args.model]:
         raise CommandLineError(f"--phase-margin/--crossover: {report['tuned'][args.model]['error']}")
     choice = report["tuned"][args.model]
+    interrupted = 0
     if args.check:
         from drive_runner.runner import terminal_progress
-        report["check"] = [check_tuning(design, A, T, settings, ideal, args.check_speed_loop,
-                                        terminal_progress(f"closed-loop check, {label}, {plant} plant"))
-                           for label, A, T in (("current gains", A_now, T_now),
-                                               ("tuned gains", choice["A_p"], choice["T_i_s"]))
-                           for ideal, plant in ((True, "ideal"), (False, "full"))]
+        report["check"] = []
+        try:
+            for label, A, T in (("current gains", A_now, T_now), ("tuned gains", choice["A_p"], choice["T_i_s"])):
+                for ideal, plant in ((True, "ideal"), (False, "full")):
+                    report["check"].append(check_tuning(design, A, T, settings, ideal, args.check_speed_loop,
+                                                        terminal_progress(f"closed-loop check, {label}, "
+                                                                          f"{plant} plant")))
+        except Interrupted as stop:
+            interrupted = report["interrupted"] = stop.signum
     if not args.no_plot:
         out = Path(args.out) if args.out else Path("runs") / "tune"
         report["plots"] = plot_pll(design, choice["A_p"], choice["T_i_s"], report.get("check"),
                                    out / f"{args.motor}_{args.estimator}")
     if args.json:
         _print_json(report)
-        return 0
+        return _exit_code(interrupted)
     print(f"PLL of `{args.estimator}` on {args.motor}: {report['injection']['frequency_Hz']:g} Hz, "
           f"{report['injection']['amplitude_V']:g} V")
     print(f"  maps onto the model as: {report['mapping']}")
@@ -589,7 +619,9 @@ def cmd_tune_pll(args):
                       f"{f['crossover_rad_s']:10.1f} {f['phase_margin_deg']:6.1f}°")
     for path in report.get("plots", []):
         print(f"  plot: {path}")
-    return 0
+    if interrupted:
+        print(f"  closed-loop check interrupted after {len(report['check'])} of 4 runs")
+    return _exit_code(interrupted)
 
 
 def cmd_bench_graph(args):
@@ -602,7 +634,9 @@ def cmd_bench_graph(args):
                               progress=None if args.json else print)
     if args.json:
         _print_json(report)
-    return 0
+    elif report["interrupted"]:
+        print("  interrupted: the configuration being timed is not reported")
+    return _exit_code(report["interrupted"])
 
 
 def cmd_bench(args):
@@ -838,17 +872,26 @@ def _remedy(error, args):
         return f"; `drive bag reindex {error.path}{force}` rebuilds it"
     if isinstance(error, BagCompleteError):
         return "; --force rebuilds it anyway"
+    if type(error).__name__ == "NamespaceOccupiedError":
+        return " (--namespace NAME)"
     return ""
 
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        with interrupt.handled():
+            return args.func(args)
     except DriveError as error:
         text = " ".join(f"{error}{_remedy(error, args)}".split())
         print(f"drive: {text}", file=sys.stderr)
-        return 2
+        return EXIT_REFUSED
+    except Interrupted as stop:
+        print(f"drive: {args.command}: interrupted by {stop}", file=sys.stderr)
+        return EXIT_SIGNAL_BASE + stop.signum
+    except BrokenPipeError:
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_READER_GONE
 
 
 if __name__ == "__main__":

@@ -81,17 +81,25 @@ GRAPH_CONFIGURATIONS = (("composed", "events"), ("composed", "single"), ("separa
 def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False, repeats=2, progress=None):
     """Real-time factor (simulated / wall time) of the lock-step graph per (processes, executor), best
     of ``repeats`` runs after a short warm-up run; the wall time per sample and per delivered message
-    (graph.DELIVERIES_PER_SAMPLE), and the ping-pong hop time that bounds it."""
+    (graph.DELIVERIES_PER_SAMPLE), and the ping-pong hop time that bounds it. A signal stops it: the
+    configurations done are returned, ``interrupted`` names the signal, and the one cut is left out."""
     from drive_launch.launcher import DELIVERIES_PER_SAMPLE, launch
 
-    launch(scenario_name, duration_s=0.05, record=record)
-    results = []
+    report = {"benchmark": "graph", "scenario": scenario_name, "duration_s": duration_s, "record": record,
+              "sampling_rate_Hz": 1.0 / load_scenario(scenario_name).T_s, "results": [], "interrupted": 0}
+    results = report["results"]
+    report["interrupted"] = launch(scenario_name, duration_s=0.05, record=record).interrupted
     for processes, executor in GRAPH_CONFIGURATIONS:
         wall, samples = math.inf, 0
         for _ in range(repeats):
+            if report["interrupted"]:
+                return report
             r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
                        record=record)
+            report["interrupted"] = r.interrupted
             wall, samples = min(wall, r.wall_time_s), r.scenario.n_samples
+        if report["interrupted"]:
+            return report
         entry = {"processes": processes, "executor": executor, "samples": samples, "repeats": repeats,
                  "wall_time_s": wall, "real_time_factor": samples * r.scenario.T_s / wall,
                  "us_per_sample": 1e6 * wall / samples,
@@ -105,9 +113,8 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
     if progress:
         progress(f"  ping-pong of one Vector3Stamped between two nodes in one process (events executor): "
                  f"{hop['us_per_hop']:.1f} µs per hop")
-    return {"benchmark": "graph", "scenario": scenario_name, "duration_s": duration_s, "record": record,
-            "sampling_rate_Hz": 1.0 / load_scenario(scenario_name).T_s, "results": results,
-            "ping_pong": hop}
+    report["ping_pong"] = hop
+    return report
 
 
 def hop_latency(round_trips=20000):

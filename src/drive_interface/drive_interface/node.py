@@ -15,12 +15,21 @@ from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
+from .exit_codes import EXIT_NODE_FAULTS, EXIT_REFUSED
 from .graph import EXECUTORS
+from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sources, label, unknown_parameters
 from .stamps import stamp_ns
 from .strict_json import dumps
 from .topics import TOPICS
+
+FAULT_REPORT_MIN_S = 0.1
+PEER_CHECK_PERIOD_S = 0.5
+PEER_GONE_CHECKS = 3
+"""Consecutive checks without the peer's publisher before a node gives up on it (graph changes are
+seen through discovery, which can lag)."""
 
 
 def qos_profile(spec):
@@ -75,10 +84,15 @@ class ContractNode(Node):
 
     def __init__(self, node_name, **kwargs):
         super().__init__(node_name, **kwargs)
+        self.parameter_sources = command_line_sources(ROS_ARGS, self.get_name(), self.get_namespace())
         name = "diagnostics_period_s"
         if not self.has_parameter(name):
             self.declare_parameter(name, 1.0, descriptor=describe("period of /diagnostics [s]"))
         self.health = Health()
+        self.run_complete = False
+        self.exit_code = None
+        """Set when the node decides to end (its peer is gone); its executable then exits with it."""
+        self.diagnostics_sent_at = 0.0
         self.callback_time_s = 0.0
         self.callback_max_s = 0.0
         self.callbacks = 0
@@ -93,9 +107,68 @@ class ContractNode(Node):
         self.config_pub.publish(String(data=dumps(config)))
 
     def fault(self, kind, message):
-        """Count a fault, log it (throttled) and show it at the next /diagnostics."""
+        """Count a fault, log it (throttled) and show it on /diagnostics: at once when the last status
+        said ok (at most every ``FAULT_REPORT_MIN_S``), else at the next period. Counters are cumulative."""
+        first = self.health.level == DiagnosticStatus.OK
         self.health.fault(kind, message)
         self.get_logger().error(message, throttle_duration_sec=1.0)
+        if first and time.monotonic() - self.diagnostics_sent_at >= FAULT_REPORT_MIN_S:
+            self.publish_diagnostics()
+
+    def complete_run(self):
+        """The node has handled its run's last sample: say so on /diagnostics now (``run_complete``), so
+        that a launcher collects every fault of the run before it stops."""
+        if not self.run_complete:
+            self.run_complete = True
+            self.publish_diagnostics()
+
+    def offer_clock(self):
+        """Declare ``publish_clock`` (default true): this node may publish /clock (sim time)."""
+        self.declare_parameter("publish_clock", True, descriptor=describe(
+            "publish /clock (sim time) unless another node already does"))
+
+    def claim_clock(self):
+        """The /clock publisher, when this node is to publish sim time (``offer_clock``): its parameter
+        ``publish_clock`` and no other publisher of /clock in the graph (one clock per graph); else None,
+        and the node says which."""
+        if not self.get_parameter("publish_clock").value:
+            return None
+        if self.count_publishers("/clock"):
+            self.get_logger().info("/clock is published by another node of the graph; this node does not")
+            return None
+        return self.create_publisher(Clock, "/clock", topic_qos("/clock"))
+
+    def watch_foreign_publishers(self, topics):
+        """Count a ``foreign_publisher`` fault each time one of the lock-step input ``topics`` gets more
+        than one publisher (another drive in this namespace); its samples, not of this drive's sample,
+        are discarded by stamp and counted there."""
+        names = [self.resolve_topic_name(topic) for topic in topics]
+        expected = dict.fromkeys(names, 1)
+
+        def check():
+            for name in names:
+                count = self.count_publishers(name)
+                if count > expected[name]:
+                    self.fault("foreign_publisher", f"{count} publishers of {name}, 1 expected: another drive "
+                                                    f"in this namespace; its samples are discarded")
+                expected[name] = max(count, 1)
+        self.create_timer(PEER_CHECK_PERIOD_S, check)
+
+    def watch_peer(self, topic, peer):
+        """End the node (``exit_code``) when ``topic``'s publishers (the ``peer``, e.g. the plant) are gone
+        for good after having been there: the node's outputs stay in their safe state, and it says so."""
+        name = self.resolve_topic_name(topic)
+        seen, absent = [False], [0]
+
+        def check():
+            count = self.count_publishers(name)
+            seen[0] = seen[0] or count > 0
+            absent[0] = absent[0] + 1 if seen[0] and count == 0 else 0
+            if absent[0] >= PEER_GONE_CHECKS and self.exit_code is None:
+                self.exit_code = 0 if self.run_complete and not self.health.counters else EXIT_NODE_FAULTS
+                self.get_logger().error(f"{peer} is gone (no publisher of {name}): outputs stay safe, "
+                                        f"the node exits")
+        self.create_timer(PEER_CHECK_PERIOD_S, check)
 
     def timed(self, callback):
         """Wrap a per-sample callback to accumulate its wall time for /diagnostics."""
@@ -108,13 +181,22 @@ class ContractNode(Node):
             self.callbacks += 1
         return run
 
+    def start_line(self):
+        """The one line a node logs when it starts: role, namespace and what it runs."""
+        return f"{self.get_name()} started in namespace {self.get_namespace()}"
+
+    def data_time(self):
+        """The time of the data the node handles now (the stamp of /diagnostics): its clock's now; nodes
+        in lock-step on sim time give their sample's stamp."""
+        return self.get_clock().now().to_msg()
+
     def status_values(self):
         """Node-specific key/values for /diagnostics (lock, observability, saturation...)."""
         return {}
 
     def publish_diagnostics(self):
         h = self.health
-        values = {"callbacks": self.callbacks,
+        values = {"run_complete": self.run_complete, "callbacks": self.callbacks,
                   "callback_mean_us": 1e6 * self.callback_time_s / max(self.callbacks, 1),
                   "callback_max_us": 1e6 * self.callback_max_s,
                   **{f"faults.{kind}": n for kind, n in sorted(h.counters.items())},
@@ -125,8 +207,9 @@ class ContractNode(Node):
                                   message=message, hardware_id=self.get_namespace(),
                                   values=[KeyValue(key=k, value=_text(v)) for k, v in values.items()])
         array = DiagnosticArray(status=[status])
-        array.header.stamp = self.get_clock().now().to_msg()
+        array.header.stamp = self.data_time()
         self.diagnostics_pub.publish(array)
+        self.diagnostics_sent_at = time.monotonic()
         h.level = DiagnosticStatus.OK
         h.last_fault = ""
         self.callback_max_s = 0.0
@@ -161,8 +244,10 @@ def make_executor(name, context):
 
 def run_node(make_node, program, argv=None):
     """A node executable's main: ``[--executor E] --ros-args ...``; spins ``make_node()`` until SIGINT or
-    SIGTERM. Returns the exit code."""
+    SIGTERM (exit code 0, as ROS nodes do) or until the node sets ``exit_code`` (its peer is gone)."""
     import rclpy
+    from rclpy._rclpy_pybind11 import RCLError
+    from rclpy.exceptions import ParameterException
     from rclpy.signals import SignalHandlerOptions
     from rclpy.task import Future
 
@@ -171,17 +256,46 @@ def run_node(make_node, program, argv=None):
     parser = argparse.ArgumentParser(prog=program)
     parser.add_argument("--executor", choices=EXECUTORS, default="events")
     args = parser.parse_args(argv[:len(argv) - len(ros_args)])
-    rclpy.init(args=[program] + ros_args, signal_handler_options=SignalHandlerOptions.NO)
+    ROS_ARGS[:] = ros_args
+    try:
+        command_line_sources(ros_args)
+        rclpy.init(args=[program] + ros_args, signal_handler_options=SignalHandlerOptions.NO)
+    except (ParameterSourceError, RCLError) as error:
+        return _refuse(program, str(error).split(", at ")[0])
     stop = Future()
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, lambda *_: stop.done() or stop.set_result(True))
-    node = make_node()
+    try:
+        node = make_node()
+    except ParameterException as error:
+        rclpy.try_shutdown()
+        return _refuse(program, _parameter_error(error, ros_args))
+    unknown = unknown_parameters(node, node.parameter_sources)
+    if unknown:
+        node.destroy_node()
+        rclpy.try_shutdown()
+        return _refuse(program, "; ".join(unknown))
+    node.get_logger().info(node.start_line())
     executor = make_executor(args.executor, rclpy.get_default_context())
     executor.add_node(node)
     try:
-        while not stop.done():
+        while not stop.done() and node.exit_code is None:
             executor.spin_until_future_complete(stop, timeout_sec=0.25)
     finally:
         node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return node.exit_code or 0
+
+
+def _refuse(program, message):
+    print(f"{program}: {' '.join(message.split())}", file=sys.stderr)
+    return EXIT_REFUSED
+
+
+
+def _parameter_error(error, ros_args):
+    """A parameter value of the wrong type, named by its source (params file or command line)."""
+    text = str(error)
+    name = text.rsplit(": ", 1)[-1].strip()
+    reason = text.rsplit(": ", 1)[0].replace(f"Trying to set parameter '{name}' to", "").strip()
+    return f"{label(command_line_sources(ros_args), name)}: {reason}"

@@ -1,6 +1,4 @@
 """`drive echo`: print a drive topic as `ros2 topic echo` does (there is none in a PyPI-only install)."""
-import signal
-
 import rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -8,6 +6,7 @@ from rclpy.task import Future
 
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE
+from drive_interface.interrupt import polled, requested
 from drive_interface.node import make_executor, message_class, topic_qos
 from drive_interface.strict_json import dumps
 from drive_interface.topics import TOPICS
@@ -26,7 +25,8 @@ def message_dict(msg):
 
 def echo(topic, namespace=DEFAULT_NAMESPACE, count=None, every=1, as_json=False, timeout_s=None):
     """Print messages of a contract topic until ``count`` were printed, ``timeout_s`` passed or
-    SIGINT/SIGTERM."""
+    SIGINT/SIGTERM; returns the exit code (128 + the signal when one stopped it). BrokenPipeError
+    when the reader of the output went away."""
     key = topic if topic in TOPICS else topic.rsplit("/", 1)[-1]
     if key not in TOPICS:
         raise DriveError(f"{topic}: not a drive topic (known: {', '.join(TOPICS)})")
@@ -34,35 +34,41 @@ def echo(topic, namespace=DEFAULT_NAMESPACE, count=None, every=1, as_json=False,
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     done = Future()
-    previous = {s: signal.signal(s, lambda *_: done.done() or done.set_result(True))
-                for s in (signal.SIGINT, signal.SIGTERM)}
-    seen, printed = [0], [0]
+    seen, printed, reader_gone = [0], [0], []
 
     def show(msg):
         seen[0] += 1
         if (seen[0] - 1) % every or done.done():
             return
         data = message_dict(msg)
-        print(dumps(data) if as_json else _yaml_like(data) + "\n---", flush=True)
+        try:
+            print(dumps(data) if as_json else _yaml_like(data) + "\n---", flush=True)
+        except BrokenPipeError:
+            reader_gone.append(True)
+            done.set_result(True)
+            return
         printed[0] += 1
         if count and printed[0] >= count:
             done.set_result(True)
 
     node = Node("drive_echo", context=context, namespace=namespace)
     try:
-        node.create_subscription(message_type, topic if topic.startswith("/") else key, show, qos)
-        if timeout_s:
-            node.create_timer(timeout_s, lambda: done.done() or done.set_result(True))
-        executor = make_executor("events", context)
-        executor.add_node(node)
-        while not done.done():
-            executor.spin_until_future_complete(done, timeout_sec=0.25)
+        with polled():
+            node.create_subscription(message_type, topic if topic.startswith("/") else key, show, qos)
+            if timeout_s:
+                node.create_timer(timeout_s, lambda: done.done() or done.set_result(True))
+            node.create_timer(0.1, lambda: requested() and not done.done() and done.set_result(True))
+            executor = make_executor("events", context)
+            executor.add_node(node)
+            while not done.done():
+                executor.spin_until_future_complete(done, timeout_sec=0.25)
+            stopped_by = requested()
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
         node.destroy_node()
         context.try_shutdown()
-    return 0
+    if reader_gone:
+        raise BrokenPipeError("the reader of the output went away")
+    return 128 + stopped_by if stopped_by else 0
 
 
 def _yaml_like(data, indent=""):

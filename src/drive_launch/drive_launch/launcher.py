@@ -4,7 +4,6 @@ driver commanding speed and load and recording the per-sample topics into the ru
 
 The estimator is handed a commissioning file: in simulation, what commissioning measures on the
 scenario's motor (``drive_runner.runner.simulated_commissioning``)."""
-import dataclasses
 import signal
 import subprocess
 import sys
@@ -17,7 +16,8 @@ from drive_bags.common import BagWriteError
 from drive_bags.writer import BagWriter
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, NODES
-from drive_runner.runner import RunResult, build_drive, simulated_commissioning
+from drive_interface.interrupt import polled, requested
+from drive_runner.runner import RunResult, build_drive, cut, simulated_commissioning
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import resolve
 from motor_params.commissioning import save_commissioning
@@ -32,6 +32,84 @@ launcher; load_torque → plant. Composed on one executor thread, a sample costs
 
 class GraphError(DriveError):
     """The graph could not run as asked."""
+
+
+class NamespaceOccupiedError(GraphError):
+    """Another drive's nodes are in the namespace asked for."""
+
+
+DRIVE_NODE_NAMES = set(NODES) | {"drive_launcher"}
+DISCOVERY_S = 1.0
+"""How long the launcher looks at the graph for another drive in its namespaces before it creates its
+nodes. Discovery of a busy process can take longer (2-3 s measured here); a drive found later is refused
+by the scenario driver's start-up check (more publishers than its own), and one that appears during a
+run is counted by the nodes (``foreign_publisher``)."""
+
+
+def check_namespace(namespace):
+    """GraphError unless ``namespace`` is a valid absolute ROS namespace."""
+    from rclpy.exceptions import InvalidNamespaceException
+    from rclpy.validate_namespace import validate_namespace
+    try:
+        validate_namespace(namespace)
+    except InvalidNamespaceException as error:
+        reason = str(error).splitlines()[0].split(": ", 1)[-1]
+        raise GraphError(f"namespace {namespace!r} is not a ROS namespace ({reason})") from None
+
+
+class NamespaceLock:
+    """This host's claim on (ROS_DOMAIN_ID, namespace) for a launcher's lifetime: an exclusive flock on
+    a file in the temporary directory, released when the process ends however it ends. It closes the
+    gap discovery leaves (a busy process can take seconds to show in another's graph)."""
+
+    def __init__(self, namespace):
+        import fcntl
+        import os
+        directory = Path(tempfile.gettempdir()) / f"drive-namespaces-{os.getuid()}"
+        directory.mkdir(exist_ok=True)
+        domain = os.environ.get("ROS_DOMAIN_ID", "0") or "0"
+        self.path = directory / f"domain{domain}{namespace.replace('/', '%')}.lock"
+        self.file = self.path.open("a+")
+        try:
+            fcntl.flock(self.file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.file.seek(0)
+            holder = self.file.read().strip() or "?"
+            self.file.close()
+            raise NamespaceOccupiedError(f"namespace {namespace} is in use: another drive runs there (process "
+                                         f"{holder} on this host, domain {domain}); run this one in another "
+                                         f"namespace") from None
+        self.file.truncate(0)
+        self.file.write(str(os.getpid()))
+        self.file.flush()
+
+    def release(self):
+        self.file.close()
+
+
+def refuse_occupied(context, namespaces, discovery_s=DISCOVERY_S):
+    """NamespaceOccupiedError when a drive's node or a publisher is already in one of ``namespaces``
+    (looked for during ``discovery_s``); readers (`drive echo`, a recorder) are welcome."""
+    from rclpy.node import Node
+    probe = Node("drive_namespace_probe", context=context, namespace="/")
+    try:
+        deadline = time.monotonic() + discovery_s
+        while True:
+            for namespace in namespaces:
+                prefix = namespace.rstrip("/") + "/"
+                nodes = sorted(name for name, ns in probe.get_node_names_and_namespaces()
+                               if ns == namespace and name in DRIVE_NODE_NAMES)
+                topics = [t for t, _ in probe.get_topic_names_and_types()
+                          if t.startswith(prefix) and probe.count_publishers(t)]
+                if nodes or topics:
+                    found = f"nodes {', '.join(nodes)}" if nodes else f"publishers on {', '.join(topics[:3])}"
+                    raise NamespaceOccupiedError(f"namespace {namespace} is in use ({found}): another drive "
+                                                 f"runs there; run this one in another namespace")
+            if time.monotonic() >= deadline:
+                return
+            time.sleep(0.05)
+    finally:
+        probe.destroy_node()
 
 
 def make_node(name, context=None, namespace=None, parameters=None, link=None):
@@ -59,12 +137,13 @@ def make_node(name, context=None, namespace=None, parameters=None, link=None):
 class GraphResult(RunResult):
     processes: str = "composed"
     executor: str = "events"
-    interrupted: int = 0
-    """The signal that stopped the run (SIGINT, SIGTERM), or 0."""
     recording_error: str = None
     """Why the recording stopped early (it is closed as far as it was written), or None."""
     diagnostics: dict = None
-    """Last /diagnostics status per node: level, message, values."""
+    """Per node: its last /diagnostics status (level, message, values), the worst level of the run, its
+    cumulative fault counters and fault messages."""
+    node_faults: dict = None
+    """{node: {"faults": {kind: count}, "messages": [...]}} of every node that reported a fault."""
 
 
 def node_parameters(scenario_ref, estimator=None, duration_s=None, timeout_s=1.0, extra=None):
@@ -123,20 +202,31 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
     if len({spec.namespace for spec in specs}) < len(specs):
         raise GraphError("drives side by side need distinct namespaces")
     for spec in specs:
+        check_namespace(spec.namespace)
+    for spec in specs:
         if spec.link not in (None,) + LINKS:
             raise GraphError(f"unknown virtual link {spec.link!r} (known: {', '.join(LINKS)})")
         if spec.link == "can" and processes == "separate":
             raise GraphError("a virtual CAN bus (python-can's) lives in one process: it needs the nodes "
                              "composed, or a pty link")
+    locks = []
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        for spec in specs:
+            locks.append(NamespaceLock(spec.namespace))
+        refuse_occupied(context, [spec.namespace for spec in specs])
+    except GraphError:
+        context.try_shutdown()
+        for lock in locks:
+            lock.release()
+        raise
     recorders = [BagWriter(spec.bag) if spec.bag else None for spec in specs]
     workdir = tempfile.TemporaryDirectory(prefix="drive_bridge_")
     inverters = []
-    context = rclpy.Context()
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     children, nodes, drivers, limits = [], [], [], []
-    interrupted = []
-    previous = {s: signal.signal(s, lambda signum, frame: interrupted.append(signum))
-                for s in (signal.SIGINT, signal.SIGTERM)}
+    polling = polled()
+    polling.__enter__()
     try:
         ex = make_executor(executor, context)
         for i, spec in enumerate(specs):
@@ -147,7 +237,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             commissioning = save_commissioning(Path(workdir.name) / f"commissioning{i}.yaml",
                                                simulated_commissioning(scenario), scenario.motor,
                                                "plant_model", {"scenario": scenario.source})
-            roles = {"pmsm_plant": {**parameters, "load_torque_per_sample": True},
+            roles = {"pmsm_plant": {**parameters, "load_torque_per_sample": True, "publish_clock": i == 0},
                      "hf_estimator": {**parameters, "commissioning": str(commissioning)},
                      "foc_controller": parameters}
             inverter = None
@@ -157,7 +247,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                 del roles["pmsm_plant"]
                 period = float(all_parameters(parameters)["diagnostics_period_s"])
                 timeouts = {"link_timeout_s": timeout_s, "command_timeout_s": timeout_s,
-                            "diagnostics_period_s": period}
+                            "diagnostics_period_s": period, "publish_clock": i == 0}
                 if processes == "composed":
                     nodes.append(make_node("drive_bridge", context, spec.namespace, timeouts, link=host_link))
                 else:
@@ -177,15 +267,14 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         for node in nodes:
             ex.add_node(node)
         all_done = Future()
-        watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, interrupted, children, all_done))
+        watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
         while not all_done.done():
             ex.spin_until_future_complete(all_done, timeout_sec=1.0)
         nodes[-1].destroy_timer(watcher)
-        results = [_result(driver, limit, record, processes, executor, interrupted)
+        results = [_result(driver, limit, record, processes, executor, requested())
                    for driver, limit in zip(drivers, limits)]
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+        polling.__exit__(None, None, None)
         _stop_children([child for _, child in children])
         for inverter in inverters:
             inverter.stop()
@@ -196,6 +285,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             inverter.endpoint.close()
         workdir.cleanup()
         recording_errors = [_close(recorder) for recorder in recorders]
+        for lock in locks:
+            lock.release()
     for result, error in zip(results, recording_errors):
         result.recording_error = error
     return results
@@ -219,11 +310,10 @@ def _result(driver, current_limit_A, record, processes, executor, interrupted):
     end = driver.finished_at or time.monotonic()
     wall = end - driver.started_at if driver.started_at else 0.0
     log = driver.log[:driver.last_sample + 1] if record else driver.log[:0]
-    if driver.last_sample + 1 < scenario.n_samples:
-        scenario = dataclasses.replace(scenario, duration_s=(driver.last_sample + 1) * scenario.T_s)
+    scenario = cut(scenario, driver.last_sample + 1)
     return GraphResult(scenario, scenario.estimator, log, wall, current_limit_A,
-                       processes=processes, executor=executor, interrupted=interrupted[0] if interrupted else 0,
-                       diagnostics=dict(driver.diagnostics))
+                       processes=processes, executor=executor, interrupted=interrupted,
+                       diagnostics=dict(driver.diagnostics), node_faults=driver.faults())
 
 
 def _virtual_inverter(scenario, link, workdir, drive_id):
@@ -234,9 +324,9 @@ def _virtual_inverter(scenario, link, workdir, drive_id):
     return VirtualInverter(scenario, endpoint, drive_id=drive_id), host_link
 
 
-def _watch(drivers, interrupted, children, all_done):
+def _watch(drivers, children, all_done):
     for driver in drivers:
-        if interrupted:
+        if requested():
             driver.finish("interrupted")
         for role, child in children:
             if child.poll() is not None:

@@ -14,6 +14,12 @@ from drive_interface.stamps import sample_of, stamp_ns
 from drive_interface.topics import SAMPLE_LOGGED, TOPICS
 from motor_params.nameplate import nameplate
 
+ERROR = 2
+"""diagnostic_msgs/DiagnosticStatus.ERROR: a fault (WARN, e.g. a bridge waiting for its inverter, is not)."""
+MAX_FAULT_MESSAGES = 5
+FINAL_WAIT_S = 1.0
+"""After the last sample, how long to wait for the last recorded messages and final /diagnostics."""
+
 
 class ScenarioDriver:
     """The launcher's own node, the dyno and operator of the scenario: waits until every lock-step
@@ -54,6 +60,9 @@ class ScenarioDriver:
         self.last_sample = -1
         self.error = None
         self.diagnostics = {}
+        self.nodes_complete = set()
+        self.lockstep_nodes = 2 if inverter is not None else 3
+        """Nodes that report ``run_complete``: estimator, controller and the plant (not the bridge)."""
         self.done = None
         node.create_timer(0.05, self.tick)
 
@@ -105,6 +114,15 @@ class ScenarioDriver:
                 missing.append(f"{name} ({have_pubs}/{pubs} publishers, {have_subs}/{subs} subscribers)")
         return missing
 
+    def foreign_publishers(self):
+        """Lock-step topics with more publishers than this drive has: another drive in the namespace."""
+        surplus = []
+        for topic, pubs, _ in self.expected_endpoints():
+            name = self.node.resolve_topic_name(topic)
+            if self.node.count_publishers(name) > pubs:
+                surplus.append(f"{self.node.count_publishers(name)} publishers of {name}, {pubs} expected")
+        return surplus
+
     def command(self, k):
         published = []
         if self.speed[k] != self.sent_speed:
@@ -120,6 +138,11 @@ class ScenarioDriver:
     def tick(self):
         now = time.monotonic()
         if self.started_at is None:
+            foreign = self.foreign_publishers()
+            if foreign:
+                self.finish(f"namespace {self.node.get_namespace()} is in use ({'; '.join(foreign[:2])}): another "
+                            f"drive runs there; run this one in another namespace")
+                return
             missing = self.missing_endpoints()
             if missing:
                 self.ready_since = None
@@ -136,11 +159,13 @@ class ScenarioDriver:
             return
         if self.progress:
             self.progress((self.last_sample + 1) / self.n)
-        if self.finished_at is not None and (self.complete() or now - self.finished_at > 1.0):
+        if self.finished_at is not None and (self.complete() or now - self.finished_at > FINAL_WAIT_S):
             self.finish()
 
     def complete(self):
-        return all(count >= self.n for count in self.received.values())
+        """Every recorded topic has its last sample and every lock-step node said its run is complete."""
+        return (all(count >= self.n for count in self.received.values())
+                and len(self.nodes_complete) >= self.lockstep_nodes)
 
     def finish(self, error=None):
         if self.done is not None and not self.done.done():
@@ -177,9 +202,28 @@ class ScenarioDriver:
                 self.finish()
 
     def on_diagnostics(self, msg):
+        """Keep, per node of this namespace, its last status and what the run saw of it: the worst level,
+        its cumulative fault counters and the distinct fault messages (the first MAX_FAULT_MESSAGES)."""
         prefix = self.node.get_namespace().rstrip("/") + "/"
         for status in msg.status:
-            if status.name.startswith(prefix):
-                self.diagnostics[status.name] = {"level": int.from_bytes(status.level, "little"),
-                                                 "message": status.message,
-                                                 "values": {v.key: v.value for v in status.values}}
+            if not status.name.startswith(prefix):
+                continue
+            level = int.from_bytes(status.level, "little")
+            values = {v.key: v.value for v in status.values}
+            seen = self.diagnostics.setdefault(status.name, {"worst_level": 0, "faults": {}, "messages": []})
+            seen.update(level=level, message=status.message, values=values)
+            seen["worst_level"] = max(seen["worst_level"], level)
+            for key, value in values.items():
+                if key.startswith("faults."):
+                    kind = key[len("faults."):]
+                    seen["faults"][kind] = max(seen["faults"].get(kind, 0), int(value))
+            if level >= ERROR and status.message not in seen["messages"] and len(seen["messages"]) < MAX_FAULT_MESSAGES:
+                seen["messages"].append(status.message)
+            if values.get("run_complete") == "True":
+                self.nodes_complete.add(status.name)
+
+    def faults(self):
+        """{node: {"faults": {kind: count}, "messages": [...]}} for every node that reported a fault
+        during the run (counters are cumulative, so a fault between two statuses is not missed)."""
+        return {name: {"faults": d["faults"], "messages": d["messages"]}
+                for name, d in sorted(self.diagnostics.items()) if d["faults"] or d["worst_level"] >= ERROR}

@@ -10,11 +10,12 @@ import numpy as np
 
 from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.virtual_inverter import VirtualInverter, make_links
+from drive_interface.interrupt import Interrupted
 from drive_interface.log import COLUMN, LOG_COLUMNS
 from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, controller_step
 
 from .loop import write_row
-from .runner import RunResult, build_drive
+from .runner import RunResult, build_drive, cut
 
 
 @dataclass
@@ -61,36 +62,41 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     start = time.perf_counter()
     thread.start()
     last_report = 0
-    while thread.is_alive() or bridge.open:
-        samples = bridge.poll(0.05)
-        arrived = time.perf_counter()
-        if not samples and not thread.is_alive():
-            break
-        for s in samples:
-            k = s.k
-            if k >= n:
-                continue
-            theta_e = n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
-            theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = e.step(
-                e.x, e.z, e.params, k, s.i_a, s.i_b, s.i_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
-            u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-                cx, cz, cp, s.i_a, s.i_b, s.i_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b)
-            bridge.command(k, u_a, u_b)
-            host_s[k] = time.perf_counter() - arrived
-            received[k] = True
-            write_row(log[k], k * scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c, theta_hat,
-                      omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref, i_q_ref, eps,
-                      signal, observable)
-            if inverter_hook:
-                inverter_hook(inverter, endpoint, k)
-            if progress and k - last_report >= n // 100:
-                last_report = k
-                progress(k / n)
-        if received[n - 1]:
-            break
+    interrupted = 0
+    try:
+        while thread.is_alive() or bridge.open:
+            samples = bridge.poll(0.05)
+            arrived = time.perf_counter()
+            if not samples and not thread.is_alive():
+                break
+            for s in samples:
+                k = s.k
+                if k >= n:
+                    continue
+                theta_e = n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+                theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = e.step(
+                    e.x, e.z, e.params, k, s.i_a, s.i_b, s.i_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
+                u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
+                    cx, cz, cp, s.i_a, s.i_b, s.i_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b)
+                bridge.command(k, u_a, u_b)
+                host_s[k] = time.perf_counter() - arrived
+                received[k] = True
+                write_row(log[k], k * scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c, theta_hat,
+                          omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref, i_q_ref, eps,
+                          signal, observable)
+                if inverter_hook:
+                    inverter_hook(inverter, endpoint, k)
+                if progress and k - last_report >= n // 100:
+                    last_report = k
+                    progress(k / n)
+            if received[n - 1]:
+                break
+    except Interrupted as stop:
+        interrupted = stop.signum
+        inverter.stop()
     thread.join(timeout=2.0)
     wall = time.perf_counter() - start
-    if progress:
+    if progress and not interrupted:
         progress(1.0)
     truth = inverter.truth
     done = inverter.k
@@ -98,7 +104,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     for column, name in enumerate(("theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c")):
         log[:, COLUMN[name]] = truth[:done, column]
     log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
-    return BridgeRunResult(scenario, e.name, log, wall, cp.i_max_A, link=link,
+    return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, link=link,
                            counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
                            inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
                            latencies_s=np.asarray(inverter.latencies_s), received=received[:done],

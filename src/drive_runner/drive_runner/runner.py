@@ -1,11 +1,13 @@
 """The one-process runner: composes the plant, estimator and controller cores for a scenario (the same
 builders the nodes use) and runs the compiled loop in chunks between progress reports."""
+import dataclasses
 import sys
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
+from drive_interface.interrupt import Interrupted
 from drive_interface.log import LOG_COLUMNS
 from foc_controller.build import controller_for_scenario
 from foc_controller.control import controller_state
@@ -26,6 +28,9 @@ class RunResult:
     wall_time_s: float
     current_limit_A: float
     """The controller's current limit (for injecting estimators: where saliency tracking holds)."""
+    interrupted: int = 0
+    """The signal that stopped the run early (the log and the scenario's duration then end at the last
+    sample run), or 0."""
 
     @property
     def n_p(self):
@@ -72,17 +77,32 @@ def build_drive(scenario):
 
 
 def run_scenario(scenario, progress=None, chunk_samples=20000):
-    """Run a scenario to the end; ``progress(fraction)`` is called between chunks."""
+    """Run a scenario to the end; ``progress(fraction)`` is called between chunks. A signal
+    (drive_interface.interrupt) stops it after the chunk in progress: the result holds the samples run."""
     drive = build_drive(scenario)
     n = scenario.n_samples
     log = np.zeros((n, len(LOG_COLUMNS)))
     start = time.perf_counter()
-    for k0 in range(0, n, chunk_samples):
-        k1 = min(k0 + chunk_samples, n)
-        drive.run(k0, k1, log[k0:k1])
-        if progress:
-            progress(k1 / n)
-    return RunResult(scenario, drive.estimator.name, log, time.perf_counter() - start, drive.controller.i_max_A)
+    done, interrupted = 0, 0
+    try:
+        for k0 in range(0, n, chunk_samples):
+            k1 = min(k0 + chunk_samples, n)
+            drive.run(k0, k1, log[k0:k1])
+            done = k1
+            if progress:
+                progress(k1 / n)
+    except Interrupted as stop:
+        interrupted = stop.signum
+    wall = time.perf_counter() - start
+    return RunResult(cut(scenario, done), drive.estimator.name, log[:done], wall, drive.controller.i_max_A,
+                     interrupted)
+
+
+def cut(scenario, samples):
+    """``scenario`` with its duration shortened to ``samples`` when a run stopped early."""
+    if samples >= scenario.n_samples:
+        return scenario
+    return dataclasses.replace(scenario, duration_s=samples * scenario.T_s)
 
 
 def terminal_progress(label):

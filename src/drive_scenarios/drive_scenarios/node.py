@@ -1,6 +1,7 @@
 """The base of the simulated drive's nodes: a ContractNode configured by a scenario file and the
 override parameters (``parameters.NODE_PARAMETERS``)."""
-from drive_interface.node import ContractNode, describe
+from drive_interface.node import ContractNode, describe, stamp
+from drive_interface.parameter_sources import label
 from motor_params.nameplate import nameplate
 
 from .parameters import NODE_PARAMETERS, scenario_from_parameters
@@ -15,16 +16,19 @@ class ScenarioNode(ContractNode):
     kernels on copies of its state before any per-sample endpoint exists, so no first sample waits for
     the compiler."""
 
+    node_parameters = {}
+    """The node's own parameters beyond NODE_PARAMETERS: name → (default, description)."""
+
     def __init__(self, node_name, **kwargs):
         super().__init__(node_name, **kwargs)
-        for name, (default, text) in NODE_PARAMETERS.items():
+        for name, (default, text) in {**NODE_PARAMETERS, **self.node_parameters}.items():
             if not self.has_parameter(name):
                 self.declare_parameter(name, default, descriptor=describe(text))
         self.parameters = {name: self.get_parameter(name).value for name in NODE_PARAMETERS}
         self.scenario = None
         self.configured = False
         try:
-            scenario = scenario_from_parameters(self.parameters)
+            scenario = scenario_from_parameters(self.parameters, self.label)
             self.build(scenario)
         except ValueError as error:
             self.reject(error)
@@ -34,6 +38,26 @@ class ScenarioNode(ContractNode):
             self.warm_up()
         self.T_s = self.scenario.T_s if self.scenario else 1e-4
         self.timeout_s = float(self.parameters["lockstep_timeout_s"])
+
+    def label(self, name):
+        """How errors name parameter ``name`` (its params file, the command line, or the parameter)."""
+        return label(self.parameter_sources, name)
+
+    def start_line(self):
+        if not self.scenario:
+            return f"{super().start_line()}: configuration rejected, output held safe"
+        s = self.scenario
+        return (f"{super().start_line()}: scenario {s.name}, motor {s.motor}, estimator {s.estimator}, "
+                f"{1.0 / s.T_s:g} Hz, {s.n_samples} samples")
+
+    def data_time(self):
+        """The stamp of the node's current sample (sim time)."""
+        return stamp(getattr(self, "k", 0), self.T_s)
+
+    def sample_handled(self, k):
+        """Sample k is done; after the scenario's last one, /diagnostics says the run is complete."""
+        if self.scenario and k == self.scenario.n_samples - 1:
+            self.complete_run()
 
     def reject(self, error):
         """Latch a configuration error: the output is held safe and /diagnostics says why."""

@@ -3,7 +3,7 @@ reads) and the overrides applied on top of it."""
 import dataclasses
 import math
 
-from .scenario import load_scenario
+from .scenario import ScenarioError, load_scenario
 
 NODE_PARAMETERS = {
     "scenario": ("wang_100rpm", "shipped scenario name or YAML path: the file `drive run` reads"),
@@ -28,9 +28,36 @@ def all_parameters(overrides):
     return merged
 
 
-def scenario_from_parameters(parameters):
-    """The scenario the nodes run: the file named by ``scenario`` with the override parameters applied."""
-    scenario = load_scenario(parameters["scenario"], estimator_override=parameters["estimator"] or None)
+PARAMETER_RANGES = {
+    "seed": (-1, 2 ** 63 - 1),
+    "injection.frequency_Hz": (0.0, math.inf),
+    "injection.amplitude_V": (0.0, math.inf),
+    "controller.current_limit_A": (0.0, math.inf),
+    "duration_s": (0.0, math.inf),
+    "lockstep_timeout_s": (1e-3, 3600.0),
+    "diagnostics_period_s": (1e-3, 3600.0),
+    "trip_current_A": (0.0, math.inf),
+}
+"""Allowed [low, high] of the numeric parameters (finite unless high is inf, where only inf itself is
+refused); the speed limit is checked by the controller."""
+
+
+def check_parameters(parameters, label=lambda name: f"parameter {name}"):
+    """ScenarioError naming the first parameter out of its range (``label(name)`` says where it came
+    from: a params file, the command line, a launcher)."""
+    for name, (low, high) in PARAMETER_RANGES.items():
+        value = parameters[name]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                or not low <= value <= high:
+            raise ScenarioError(f"{label(name)}: must be a finite number in [{low:g}, {high:g}], not {value!r}")
+
+
+def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}"):
+    """The scenario the nodes run: the file named by ``scenario`` with the override parameters applied;
+    ScenarioError naming the parameter (``label(name)``) or the scenario file's key at fault."""
+    check_parameters(parameters, label)
+    scenario = load_scenario(parameters["scenario"], estimator_override=parameters["estimator"] or None,
+                             override_source=label("estimator"))
     changes = {}
     if parameters["seed"] >= 0:
         changes["seed"] = int(parameters["seed"])

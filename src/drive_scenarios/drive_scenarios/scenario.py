@@ -70,6 +70,9 @@ class Scenario:
     metrics_start_s: float
     seed: int
     substeps: int
+    estimator_source: str = ""
+    """Where the estimator's name came from (the file's key, or an override's command-line option or
+    parameter), for errors that blame it."""
 
     @property
     def n_samples(self):
@@ -112,7 +115,9 @@ def resolve(name_or_path):
     return shipped
 
 
-def load_scenario(name_or_path, estimator_override=None):
+def load_scenario(name_or_path, estimator_override=None, override_source="estimator override"):
+    """The scenario of a shipped name or a YAML path; ``estimator_override`` replaces its estimator
+    (``override_source`` names where it came from: "command line --estimator", "parameter estimator")."""
     path = resolve(name_or_path)
     try:
         if path.stat().st_size > MAX_FILE_BYTES:
@@ -126,10 +131,10 @@ def load_scenario(name_or_path, estimator_override=None):
         raise ScenarioError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
     except RecursionError:
         raise ScenarioError(f"{path}: nested too deeply to be a scenario") from None
-    return parse_scenario(data, path.stem, str(path), estimator_override)
+    return parse_scenario(data, path.stem, str(path), estimator_override, override_source)
 
 
-def parse_scenario(data, name, source, estimator_override=None):
+def parse_scenario(data, name, source, estimator_override=None, override_source="estimator override"):
     def fail(key, problem):
         raise ScenarioError(f"{source}: {key}: {problem}")
 
@@ -160,8 +165,10 @@ def parse_scenario(data, name, source, estimator_override=None):
             fail(f"estimator.{key}", "unknown key (known: type, settings)")
     else:
         fail("estimator", "must be a name or a mapping with 'type' (and optional 'settings')")
+    estimator_source = f"{source}: estimator"
     if estimator_override:
         estimator, settings = estimator_override, (settings if estimator_override == estimator else {})
+        estimator_source = override_source
 
     injection = data.get("injection", {}) or {}
     if not isinstance(injection, dict):
@@ -230,7 +237,7 @@ def parse_scenario(data, name, source, estimator_override=None):
         initial_angle_error_e_rad=_number(initial.get("angle_error_e_rad", 0.0),
                                           "initial.angle_error_e_rad", fail),
         controller=controller, settle_s=settle, metrics_start_s=start,
-        seed=seed, substeps=substeps)
+        seed=seed, substeps=substeps, estimator_source=estimator_source)
 
 
 def _number(value, key, fail):

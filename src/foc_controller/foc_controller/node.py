@@ -20,7 +20,7 @@ from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
-from drive_interface.node import finite, run_node, stamp, topic_qos
+from drive_interface.node import describe, finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_of
 from drive_interface.topics import TOPICS
 from drive_scenarios.node import ScenarioNode
@@ -31,6 +31,11 @@ from .params import check_speed_limit
 
 SPEED_LIMIT = "controller.speed_limit_rad_s"
 ESTIMATOR_NODE = "hf_estimator"
+
+
+def default_joint_name(namespace):
+    """The namespace's last part (``/robot/left_wheel`` → ``left_wheel``), ``rotor`` at the root."""
+    return namespace.rstrip("/").rsplit("/", 1)[-1] or "rotor"
 
 
 class ControllerNode(ScenarioNode):
@@ -49,13 +54,18 @@ class ControllerNode(ScenarioNode):
         self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
         self.create_subscription(String, "drive_config", self.on_drive_config, topic_qos("drive_config"))
         self.add_on_set_parameters_callback(self.on_set_parameters)
+        self.watch_peer("currents", "the plant")
+        self.watch_foreign_publishers(("currents", "rotor_estimate", "injection"))
         self.currents, self.estimates, self.injections = {}, {}, {}
         self.k = 0
         self.omega_m_ref = 0.0
         self.current_limited = False
         self.voltage_msg = Vector3Stamped()
         self.voltage_msg.header.frame_id = TOPICS["voltage_command"].frame_id
-        self.joint_msg = JointState(name=["rotor"])
+        self.declare_parameter("joint_name", "", descriptor=describe(
+            "the joint's name in joint_states (empty: the namespace's last part, e.g. left_wheel)"))
+        self.joint_msg = JointState(name=[self.get_parameter("joint_name").value or default_joint_name(
+            self.get_namespace())])
         if not self.configured:
             self.publish_config({})
 
@@ -179,6 +189,7 @@ class ControllerNode(ScenarioNode):
         m.header.stamp = stamp(k, self.T_s)
         m.vector.x, m.vector.y = u_alpha, u_beta
         self.voltage_pub.publish(m)
+        self.sample_handled(k)
 
     def status_values(self):
         return {"sample": self.k, "speed_command_rad_s": self.omega_m_ref,

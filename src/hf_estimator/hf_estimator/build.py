@@ -24,6 +24,8 @@ def estimator_for_scenario(scenario, commissioning):
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)
         estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings, theta_e0, omega_e0,
                                    commissioning, scenario.drive_delay_periods())
-    except (KeyError, ValueError) as error:
+    except KeyError as error:
+        raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
+    except ValueError as error:
         raise ScenarioError(f"{scenario.source}: estimator: {error.args[0]}") from None
     return dataclasses.replace(estimator, tracking_current_limit_A=limit)

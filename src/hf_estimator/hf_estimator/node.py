@@ -18,7 +18,7 @@ from pathlib import Path
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
 
-from drive_interface.node import describe, finite, run_node, stamp, topic_qos
+from drive_interface.node import finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_of
 from drive_interface.topics import TOPICS
 from drive_scenarios.node import ScenarioNode
@@ -35,6 +35,9 @@ def default_commissioning_file(motor):
 
 
 class EstimatorNode(ScenarioNode):
+    node_parameters = {COMMISSIONING: ("", "commissioning file (empty: commissioning/MOTOR.yaml in the working "
+                                           "directory)")}
+
     def __init__(self, **kwargs):
         super().__init__("hf_estimator", **kwargs)
         self.currents = {}
@@ -67,24 +70,24 @@ class EstimatorNode(ScenarioNode):
                                                    topic_qos("rotor_state")))
         self.open_when_matched(inputs, self.open_outputs)
         self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
+        self.watch_peer("currents", "the plant")
+        self.watch_foreign_publishers(("currents", "voltage_command"))
         self.publish_config({**e.facts(), "commissioning": self.commissioning_source,
                              "estimator_parameters": e.params})
 
     def build(self, scenario):
-        self.declare_parameter(COMMISSIONING, "", descriptor=describe(
-            "commissioning file (empty: commissioning/MOTOR.yaml in the working directory)"))
         given = self.get_parameter(COMMISSIONING).value
         self.parameters[COMMISSIONING] = given
         path = Path(given) if given else default_commissioning_file(scenario.motor)
         if not given and not path.is_file():
-            raise CommissioningError(f"parameter {COMMISSIONING}: none given and no {path} for motor "
+            raise CommissioningError(f"{self.label(COMMISSIONING)}: none given and no {path} for motor "
                                      f"{scenario.motor} (write one with `drive commission`)")
         try:
             commissioning, metadata = load_commissioning(path)
         except CommissioningError as error:
-            raise CommissioningError(f"parameter {COMMISSIONING}: {error}") from None
+            raise CommissioningError(f"{self.label(COMMISSIONING)}: {error}") from None
         if metadata.get("motor") not in (None, scenario.motor):
-            raise CommissioningError(f"parameter {COMMISSIONING}: {path} is for motor {metadata['motor']}, "
+            raise CommissioningError(f"{self.label(COMMISSIONING)}: {path} is for motor {metadata['motor']}, "
                                      f"the scenario's is {scenario.motor}")
         self.commissioning_source = str(path)
         self.estimator = estimator_for_scenario(scenario, commissioning)
@@ -170,6 +173,7 @@ class EstimatorNode(ScenarioNode):
         self.injection_pub.publish(i)
         self.estimate_pub.publish(r)
         self.state_pub.publish(s)
+        self.sample_handled(k)
 
     def watchdog(self):
         if self.waiting_since and time.monotonic() - self.waiting_since > self.timeout_s / 2.0:

@@ -1,8 +1,9 @@
 """The ``pmsm_plant`` node: the plant core over topics, in lock-step on sim time.
 
-Publishes sample k (`currents`, `rotor_state`, `/clock`), waits for `voltage_command` stamped k, then
-advances to k+1. A command with another stamp is discarded and counted; if no valid command comes
-within ``lockstep_timeout_s`` the plant applies zero voltage for that period and names the silent topic.
+Publishes sample k (`currents`, `rotor_state`, `/clock` unless another node does), waits for
+`voltage_command` stamped k, then advances to k+1. A command with another stamp is discarded and
+counted; if no valid command comes within ``lockstep_timeout_s`` the plant applies zero voltage for that
+period and names the silent topic.
 `angle_error` is published for each `rotor_estimate` that matches a recent sample.
 
 With ``load_torque_per_sample`` (a scenario driver acting as the dyno) the plant takes exactly one
@@ -35,11 +36,12 @@ class PlantNode(ScenarioNode):
         super().__init__("pmsm_plant", **kwargs)
         self.declare_parameter("load_torque_per_sample", False)
         self.declare_parameter("angle_error_decimation", 1)
+        self.offer_clock()
         self.load_per_sample = self.get_parameter("load_torque_per_sample").value
         self.angle_error_decimation = max(1, int(self.get_parameter("angle_error_decimation").value))
         self.currents_pub = self.create_publisher(Vector3Stamped, "currents", topic_qos("currents"))
         self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", topic_qos("rotor_state"))
-        self.clock_pub = self.create_publisher(Clock, "/clock", topic_qos("/clock"))
+        self.clock_pub = None
         self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", topic_qos("angle_error"))
         self.voltage_sub = self.create_subscription(Vector3Stamped, "voltage_command",
                                                     self.timed(self.on_voltage_command),
@@ -72,6 +74,7 @@ class PlantNode(ScenarioNode):
                                  "mode": s.mode, "machine": p.machine, "mechanics": p.mechanics,
                                  "inverter": p.inverter, "sensor": p.sensor, "non_idealities": s.non_idealities})
             self.create_timer(min(self.timeout_s / 4.0, 0.05), self.watchdog)
+            self.watch_foreign_publishers(("voltage_command",))
         else:
             self.publish_config({})
 
@@ -118,6 +121,7 @@ class PlantNode(ScenarioNode):
         if not self.started:
             if self.ready():
                 self.started = True
+                self.clock_pub = self.claim_clock()
                 self.publish_sample()
             return
         if time.monotonic() - self.sent_at <= self.timeout_s:
@@ -147,8 +151,9 @@ class PlantNode(ScenarioNode):
         self.history[k] = (x[THETA_M], x[OMEGA_M])
         self.history.pop(k - HISTORY_SAMPLES, None)
         t = stamp(k, self.T_s)
-        self.clock_msg.clock = t
-        self.clock_pub.publish(self.clock_msg)
+        if self.clock_pub:
+            self.clock_msg.clock = t
+            self.clock_pub.publish(self.clock_msg)
         r = self.rotor_state_msg
         r.header.stamp = t
         r.position = [x[THETA_M]]
@@ -185,6 +190,7 @@ class PlantNode(ScenarioNode):
         self.zero_voltage_periods += safe_state
         plant_advance(p.x, u_alpha, u_beta, self.tau_load, p.imposed_speed, self.omega_imposed, p.machine,
                       p.mechanics, p.inverter, p.T_s, p.substeps)
+        self.sample_handled(self.k)
         self.k += 1
         if self.k >= self.n_samples:
             self.finished = True

@@ -1,0 +1,18 @@
+"""Exit codes of the `drive` command and the node executables (docs/drive-interface.md)."""
+import signal
+
+EXIT_OK = 0
+EXIT_REFUSED = 2
+"""The request was refused (bad input, a file, topic or namespace at fault); one line on stderr says
+why."""
+EXIT_NODE_FAULTS = 3
+"""The run finished, but a node reported a fault during it (node_faults); for a node executable: it
+ended because its peer was gone before its run was complete or after faults."""
+EXIT_RECORDING_FAILED = 4
+"""The run finished and its metrics are printed, but the recording stopped early (closed as far as
+written)."""
+EXIT_SIGNAL_BASE = 128
+"""128 + N: stopped by signal N (130 SIGINT, 143 SIGTERM), with what was done printed, marked
+interrupted."""
+EXIT_READER_GONE = EXIT_SIGNAL_BASE + signal.SIGPIPE
+"""The reader of the output went away (`drive echo ... | head`): output stopped quietly."""

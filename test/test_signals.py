@@ -1,0 +1,79 @@
+"""Signals and pipes, by class: every long command stops on the first SIGINT or SIGTERM with exit code
+128 + the signal, no traceback, what it had printed marked interrupted and no process left behind; a
+reader that goes away ends the output quietly (exit 141). Isolated: localhost discovery, own domain."""
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ["ROS_DOMAIN_ID"] = str(100 + os.getpid() % 60)
+
+DRIVE = [sys.executable, "-m", "drive_cli.cli"]
+
+COMMANDS = {
+    "run": (["run", "wang_100rpm", "--duration", "600", "--no-plot", "--json"], 4.0),
+    "bridge": (["bridge", "wang_100rpm", "--duration", "60", "--no-plot", "--json"], 5.0),
+    "tune_check": (["tune", "pll", "--check", "--no-plot", "--json"], 1.5),
+    "bench_graph": (["bench", "graph", "--duration", "2", "--repeats", "1", "--json"], 7.0),
+    "echo": (["echo", "currents", "--namespace", "/nobody_here"], 2.0),
+}
+
+
+def stop(tmp_path, args, after_s, signum):
+    """Run ``drive ARGS`` in its own session, send ``signum`` after ``after_s``; (code, stdout, stderr),
+    once every process of the session is gone."""
+    process = subprocess.Popen(DRIVE + args, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, start_new_session=True)
+    time.sleep(after_s)
+    assert process.poll() is None, f"drive {' '.join(args)} ended before the signal: {process.stderr.read()}"
+    process.send_signal(signum)
+    out, err = process.communicate(timeout=60)
+    deadline = time.monotonic() + 10.0
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(process.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    else:
+        pytest.fail(f"drive {' '.join(args)}: processes left behind in its session")
+    return process.returncode, out, err
+
+
+@pytest.fixture(scope="module", autouse=True)
+def warm_caches(tmp_path_factory):
+    """Compile the kernels once, so the signal lands in the job, not the compiler."""
+    subprocess.run(DRIVE + ["run", "wang_100rpm", "--duration", "0.01", "--no-plot"],
+                   cwd=tmp_path_factory.mktemp("warm"), capture_output=True, check=True)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize("command", COMMANDS)
+def test_the_first_signal_stops_a_command_cleanly(tmp_path, command, signum):
+    args, after_s = COMMANDS[command]
+    code, out, err = stop(tmp_path, args, after_s, signum)
+    assert code == 128 + signum, err
+    assert "Traceback" not in err, err
+    assert len([line for line in err.splitlines() if not line.startswith("[INFO]")]) <= 1, err
+    if command in ("run", "bridge", "bench_graph"):
+        report = json.loads(out)
+        assert report["interrupted"]
+    if command in ("run", "bridge"):
+        asked_s = float(args[args.index("--duration") + 1])
+        assert 0 < report["samples"] and report["duration_s"] < asked_s
+    if command == "bench_graph":
+        assert len(report["results"]) < 3 and "ping_pong" not in report
+
+
+def test_a_reader_that_goes_away_ends_the_output_quietly(tmp_path):
+    process = subprocess.Popen(DRIVE + ["presets"], cwd=tmp_path, stdout=subprocess.PIPE,
+                               stderr=subprocess.PIPE)
+    process.stdout.close()
+    err = process.stderr.read().decode()
+    assert process.wait(timeout=60) == 128 + signal.SIGPIPE
+    assert err == ""
