@@ -1,9 +1,52 @@
+import os
+import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
+ROOT = Path(__file__).resolve().parent.parent
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+os.environ["ROS_DOMAIN_ID"] = str(30 + os.getpid() % 100)
+"""One domain per test session, set before any module starts rclpy; ROS tests isolate from each other
+by namespace."""
+LEFT_BY_BUILDS = ("__pycache__", ".egg-info", ".pytest_cache", ".venv", ".nbi", ".nbc")
+"""Untracked paths a test run may create in the repository: build and cache output, never results."""
+
+
+try:
+    from hypothesis.configuration import set_hypothesis_home_dir
+    set_hypothesis_home_dir(tempfile.mkdtemp(prefix="hypothesis_"))
+except ImportError:
+    pass
+
+
+@pytest.fixture(autouse=True)
+def in_a_temporary_directory(tmp_path, monkeypatch):
+    """Every test runs in its own temporary directory: what a command writes by default (runs/, plots,
+    commissioning files) never lands in the repository."""
+    monkeypatch.chdir(tmp_path)
+
+
+def _untracked():
+    listed = subprocess.run(["git", "ls-files", "--others", "--directory"], cwd=ROOT, capture_output=True,
+                            text=True).stdout.split()
+    return {path for path in listed if not any(part in path for part in LEFT_BY_BUILDS)}
+
+
+def pytest_sessionstart(session):
+    session.config.untracked_before = _untracked()
+
+
+def pytest_sessionfinish(session, exitstatus):
+    """Fail the run when a test left a file in the repository (tests write only to temporary
+    directories)."""
+    left = _untracked() - session.config.untracked_before
+    if left:
+        print(f"\ntests left files in the repository: {', '.join(sorted(left))}", file=sys.stderr)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED
 
 
 @pytest.fixture

@@ -60,7 +60,7 @@ def test_run_json_has_metric_keys(tmp_path):
     metrics = json.loads(proc.stdout)
     assert RUN_KEYS <= set(metrics)
     assert all(isinstance(metrics[k], float) for k in RUN_KEYS)
-    assert metrics["plots"] and (tmp_path / "bad_sensored.png").is_file()
+    assert metrics["plots"] and (tmp_path / "bad_sensored_run.png").is_file()
 
 
 def test_bench_json_reports_samples_per_second_per_estimator():

@@ -12,9 +12,6 @@ import time
 import numpy as np
 import pytest
 
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ["ROS_DOMAIN_ID"] = str(30 + os.getpid() % 60)
-
 pytest.importorskip("rclpy")
 import rclpy
 import rclpy.node
@@ -169,6 +166,7 @@ class Harness:
         return None
 
     def close(self):
+        self.executor.shutdown()
         for node in self.nodes:
             node.destroy_node()
         self.context.try_shutdown()
@@ -519,8 +517,8 @@ def test_a_second_drive_in_the_same_namespace_is_refused(tmp_path):
 
 def test_a_drive_is_refused_where_nodes_started_by_hand_are(tmp_path):
     """No launcher holds the namespace: the launcher finds the other drive's node in the graph, before it
-    creates its own nodes or, when discovery is slower than its look (the hand-started plant compiles its
-    kernels at start), at its start-up check, before sample 0."""
+    creates its own nodes, at its start-up check before sample 0, or, when discovery is slower still,
+    during the run, which it then stops: refused all the same (exit 2, one line)."""
     plant = subprocess.Popen([sys.executable, "-m", "pmsm_plant.node", "--ros-args", "-r", "__ns:=/by_hand_test"],
                              cwd=tmp_path, stderr=subprocess.DEVNULL)
     try:
@@ -585,3 +583,20 @@ def test_the_bridge_node_logs_a_missing_port_at_start(tmp_path):
     err = bridge.communicate(timeout=30)[1]
     assert bridge.returncode == 0
     assert err.count("inverter link: /dev/no_such_inverter") == 1 and "Traceback" not in err, err
+
+
+def test_diagnostics_are_stamped_on_the_datas_clock(tmp_path):
+    """/diagnostics carries the stamp of the sample the node is at (sim time), not wall time; the last
+    status of each lock-step node says its run is complete."""
+    from rosbags.highlevel import AnyReader
+
+    from drive_bags.common import typestore
+    path = scenario_file(tmp_path)
+    result = launch(path, namespace="/stamped", bag=str(tmp_path / "bag"),
+                    extra_parameters={"diagnostics_period_s": 0.05})
+    with AnyReader([tmp_path / "bag"], default_typestore=typestore()) as reader:
+        connections = [c for c in reader.connections if c.topic == "/diagnostics"]
+        stamps = [reader.deserialize(data, c.msgtype).header.stamp for c, _, data in reader.messages(connections)]
+    assert stamps and all(s.sec == 0 and s.nanosec <= 60_000_000 for s in stamps)
+    assert all(d["values"]["run_complete"] == "True" for name, d in result.diagnostics.items()
+               if not name.endswith("drive_launcher"))

@@ -143,3 +143,27 @@ def test_a_record_target_that_cannot_be_written_is_refused_before_running(capsys
     assert code == 2 and out == "" and message in err and err.count("\n") == 1, err
     import os
     assert not os.path.exists("/nonexistent")
+
+
+def test_a_plot_that_cannot_be_written_keeps_the_metrics(capsys):
+    code, out, err = run_cli(capsys, ["run", "wang_100rpm", "--duration", "0.6", "--json", "--out",
+                                      "/proc/drive_plots"])
+    assert code == 4 and err.count("\n") == 1 and "/proc/drive_plots" in err, err
+    metrics = strict(out)
+    assert metrics["angle_error_rms"] is not None and "plots" not in metrics and metrics["plot_error"]
+
+
+@pytest.mark.parametrize("argv", [["bag", "info", "{d}"], ["bench", "replay", "{d}"], ["bag", "reindex", "{d}"],
+                                  ["bench", "compare", "{d}", "{d}"]])
+def test_a_directory_that_is_not_a_bag_gives_one_line(tmp_path, capsys, argv):
+    directory = tmp_path / "not_a_bag"
+    (directory / "sub").mkdir(parents=True)
+    code, out, err = run_cli(capsys, [a.format(d=directory) for a in argv])
+    assert code == 2 and out == "" and err.count("\n") == 1 and str(directory) in err, err
+    assert "reindex" not in err or argv[1] == "reindex"
+
+
+def test_an_invalid_namespace_is_refused_in_one_line(capsys):
+    code, out, err = run_cli(capsys, ["launch", "wang_100rpm", "--namespace", "/bad-ns", "--no-plot"])
+    assert code == 2 and err.startswith("drive: namespace '/bad-ns' is not a ROS namespace") and \
+        err.count("\n") == 1

@@ -1,6 +1,7 @@
 """Signals and pipes, by class: every long command stops on the first SIGINT or SIGTERM with exit code
 128 + the signal, no traceback, what it had printed marked interrupted and no process left behind; a
-reader that goes away ends the output quietly (exit 141). Isolated: localhost discovery, own domain."""
+reader that goes away ends the output quietly (exit 141). Isolated: localhost discovery, the session's
+domain (conftest)."""
 import json
 import os
 import signal
@@ -9,9 +10,6 @@ import sys
 import time
 
 import pytest
-
-os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ["ROS_DOMAIN_ID"] = str(100 + os.getpid() % 60)
 
 DRIVE = [sys.executable, "-m", "drive_cli.cli"]
 

@@ -29,6 +29,7 @@ def open_bag(path):
         if mcaps:
             raise BagCutError(f"{path}: no metadata.yaml, the recording was cut before it closed (killed?); "
                               f"its {mcaps[0].name} can be rebuilt into a complete bag", path)
+        raise BagError(f"{path}: not a rosbag2 bag (a directory without metadata.yaml or a .mcap file)")
     try:
         reader = Reader(path)
         reader.open()

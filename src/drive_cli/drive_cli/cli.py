@@ -30,11 +30,12 @@ class CommandLineError(DriveError):
     """An option's value is unusable; the message names the option."""
 
 
-def _exit_code(interrupted=0, node_faults=None, recording_error=None):
-    """128 + the signal that stopped the run, else the worst of drive_interface.exit_codes, else 0."""
+def _exit_code(interrupted=0, node_faults=None, output_error=None):
+    """128 + the signal that stopped the run, else the worst of drive_interface.exit_codes (an output, bag
+    or plot, not written in full; a node fault), else 0."""
     if interrupted:
         return EXIT_SIGNAL_BASE + interrupted
-    if recording_error:
+    if output_error:
         return EXIT_RECORDING_FAILED
     return EXIT_NODE_FAULTS if node_faults else 0
 
@@ -104,14 +105,15 @@ def cmd_run(args):
             recording_error = f"{args.record}: writing interrupted; the bag is closed as far as written"
         if recording_error:
             extra["recording_error"] = recording_error
-    _report(result, args, extra)
+    plot_error = _report(result, args, extra)
     if recording_error:
         _recording_failed(recording_error)
-    return _exit_code(interrupted, recording_error=recording_error)
+    return _exit_code(interrupted, output_error=recording_error or plot_error)
 
 
 def _report(result, args, extra=None):
-    """Print a run's metrics (drive run and drive launch), write its plot unless --no-plot."""
+    """Print a run's metrics (drive run, launch, bridge), write its plot unless --no-plot; returns why
+    the plot could not be written, or None (the metrics are printed either way)."""
     from drive_evaluation.metrics import compute_metrics
     from drive_evaluation.plots import plot_run
 
@@ -120,10 +122,13 @@ def _report(result, args, extra=None):
     metrics.update(extra or {})
     if not args.no_plot and result.log.shape[0]:
         out_dir = Path(args.out) if args.out else Path("runs") / scenario.name
-        metrics["plots"] = [str(plot_run(result, out_dir))]
+        try:
+            metrics["plots"] = [str(plot_run(result, out_dir, args.command))]
+        except OSError as error:
+            metrics["plot_error"] = _os_error_line(error)
     if args.json:
         _print_json(metrics)
-        return 0
+        return _output_failed(metrics.get("plot_error"))
     print(f"scenario {metrics['scenario']} ({metrics['motor']}), estimator {metrics['estimator']}, "
           f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
     for key, value in (extra or {}).items():
@@ -147,10 +152,23 @@ def _report(result, args, extra=None):
     for label, key, unit in rows:
         value = metrics[key]
         text = "n/a" if value is None else f"{value:+.4f} {unit}"
+        if key == "settling_time_s" and metrics["settling_note"]:
+            text = metrics["settling_note"]
         print(f"  {label:36s} {text}")
+    lost = metrics["lock_lost_s"]
+    lock = ("n/a (no ground truth in the scored window)" if lost is None else "held" if not lost else
+            f"LOST for {lost:.4f} s (|angle error| > π/2), first at {metrics['lock_lost_at_s']:.4f} s")
+    print(f"  {'lock':36s} {lock}")
     for path in metrics.get("plots", []):
         print(f"  plot: {path}")
-    return 0
+    return _output_failed(metrics.get("plot_error"))
+
+
+def _output_failed(error):
+    """Say on stderr, in one line, that an output could not be written; return the error."""
+    if error:
+        print(f"drive: {' '.join(error.split())}", file=sys.stderr)
+    return error
 
 
 def cmd_launch(args):
@@ -178,10 +196,10 @@ def cmd_launch(args):
         extra["bag"] = args.record
     if result.recording_error:
         extra["recording_error"] = result.recording_error
-    _report(result, args, extra)
+    plot_error = _report(result, args, extra)
     if result.recording_error:
         _recording_failed(result.recording_error)
-    return _exit_code(result.interrupted, faults, result.recording_error)
+    return _exit_code(result.interrupted, faults, result.recording_error or plot_error)
 
 
 def cmd_bridge(args):
@@ -195,8 +213,8 @@ def cmd_bridge(args):
              "samples_per_s": round(result.log.shape[0] / result.wall_time_s) if result.wall_time_s > 0 else None,
              "bridge": result.counters, "frame_errors": result.frame_errors,
              "inverter": result.inverter_counters, "interrupted": bool(result.interrupted)}
-    _report(result, args, extra)
-    return _exit_code(result.interrupted)
+    plot_error = _report(result, args, extra)
+    return _exit_code(result.interrupted, output_error=plot_error)
 
 
 def cmd_bench_bridge(args):
@@ -374,6 +392,17 @@ def cmd_bench_compare(args):
     return 0
 
 
+REPLAY_COLUMNS = (
+    ("samples/s", "replay speed, best of the timed runs"),
+    ("exc. mismatch", "RMS of (the injection the estimator asks − the recorded one) / RMS recorded; 0: a "
+                      "faithful replay, above 0.2: not applicable (not drawn)"),
+    ("observable", "fraction of samples the estimator reports observable"),
+    ("RMS [rad]", "electrical angle error θ_e − θ̂_e against the recorded rotor_state, steady windows"),
+    ("bias [rad]", "its mean, steady windows"), ("peak [rad]", "its largest magnitude after the start"),
+    ("speed RMS", "speed estimation error [rad/s], steady windows"),
+    ("lock [s]", "time until |θ_e − θ̂_e| stays within π/8 to the end"))
+
+
 def cmd_bench_replay(args):
     from drive_evaluation.plots import plot_angle_errors
     from drive_evaluation.replay import replay
@@ -389,8 +418,13 @@ def cmd_bench_replay(args):
     report = {"benchmark": "replay", "bag": args.bag, "scenario": recorded.scenario.name,
               "recorded_estimator": recorded.estimator, "samples": int(recorded.log.shape[0]),
               "ground_truth": truth is not None, "results": entries}
+    drawn = [(result, entry["estimator"]) for result, entry in zip(results, entries) if not entry["not_applicable"]]
     if not args.no_plot and truth:
-        report["plot"] = str(plot_angle_errors(results, names, out / "angle_error.png"))
+        skipped = [f"{e['estimator']}: {e['not_applicable']}" for e in entries if e["not_applicable"]]
+        report["plot"] = str(plot_angle_errors([r for r, _ in drawn], [n for _, n in drawn],
+                                               out / "angle_error.png", not_drawn=skipped,
+                                               title=f"replay of {Path(args.bag).name} (recorded with "
+                                                     f"{recorded.estimator}): θ_e − θ̂_e per estimator"))
     out.mkdir(parents=True, exist_ok=True)
     (out / "replay.json").write_text(dumps(report, indent=2))
     report["json"] = str(out / "replay.json")
@@ -411,7 +445,11 @@ def cmd_bench_replay(args):
     print(f"  {'estimator':16s}" + "".join(f"{label:>14s}" for label, _, _ in columns))
     for e in entries:
         cells = ["n/a" if e.get(key) is None else fmt.format(e[key]) for _, key, fmt in columns]
-        print(f"  {e['estimator']:16s}" + "".join(f"{c:>14s}" for c in cells))
+        print(f"  {e['estimator']:16s}" + "".join(f"{c:>14s}" for c in cells)
+              + (f"   not applicable: {e['not_applicable']}" if e["not_applicable"] else ""))
+    for label, explanation in REPLAY_COLUMNS:
+        if label in [c[0] for c in columns]:
+            print(f"  {label:>14s}: {explanation}")
     for key in ("plot", "json"):
         if key in report:
             print(f"  {key}: {report[key]}")
@@ -892,6 +930,15 @@ def main(argv=None):
     except BrokenPipeError:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return EXIT_READER_GONE
+    except OSError as error:
+        print(f"drive: {_os_error_line(error)}", file=sys.stderr)
+        return EXIT_REFUSED
+
+
+def _os_error_line(error):
+    """An OS error as one line naming the file (an unwritable working directory, a full disk)."""
+    where = error.filename or "output"
+    return f"{where}: cannot be written ({error.strerror or error})"
 
 
 if __name__ == "__main__":

@@ -133,6 +133,7 @@ def hop_latency(round_trips=20000):
 
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    executor = make_executor("events", context)
     try:
         a, b = Node("bench_ping", context=context), Node("bench_pong", context=context)
         ping = a.create_publisher(Vector3Stamped, "bench_ping", PER_SAMPLE_QOS)
@@ -147,7 +148,6 @@ def hop_latency(round_trips=20000):
                 ping.publish(message)
         b.create_subscription(Vector3Stamped, "bench_ping", pong.publish, PER_SAMPLE_QOS)
         a.create_subscription(Vector3Stamped, "bench_pong", on_pong, PER_SAMPLE_QOS)
-        executor = make_executor("events", context)
         executor.add_node(a)
         executor.add_node(b)
         end = time.monotonic() + 10.0
@@ -162,6 +162,7 @@ def hop_latency(round_trips=20000):
         wall = time.perf_counter() - start
         return {"round_trips": round_trips, "us_per_hop": 1e6 * wall / (2 * round_trips)}
     finally:
+        executor.shutdown()
         context.try_shutdown()
 
 

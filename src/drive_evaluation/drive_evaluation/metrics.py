@@ -46,31 +46,72 @@ def _stats(values):
     return float(np.sqrt(np.mean(values ** 2))), float(np.mean(values)), float(np.max(np.abs(values)))
 
 
+LOCK_LOST_RAD = np.pi / 2
+"""|θ_e − θ̂_e| beyond which the estimate is on the wrong side: the lock is lost (ground truth)."""
+
+
 def settling_times(scenario, log, band_fraction=0.05, band_min_rad_s=0.1):
-    """For each speed-reference step: time until |ω_m − ω*| stays within the band until the next event."""
+    """For each change of the speed reference (a step, or a ramp's end): the time from the change's end
+    until ω_m enters its settled envelope and stays in it up to the next event.
+
+    Settled means what the speed does over the window's last half: its mean is within the tolerance
+    (``band_fraction`` of the change, at least ``band_min_rad_s``) of the reference, else the step
+    "never settled" (``settling_time_s`` None). The envelope is that tolerance, widened to the settled
+    mean's offset plus its peak ripple, so ripple alone never reads as unsettled."""
     t = log[:, COLUMN["t"]]
     omega = log[:, COLUMN["omega_m"]]
     events = scenario.events_s() + [scenario.duration_s]
     table = scenario.speed
     results = []
     for i in range(1, len(table.times_s)):
-        t_step = table.times_s[i]
-        step = table.values[i] - table.values[i - 1]
+        t_step, target = table.times_s[i], table.values[i]
+        step = target - table.values[i - 1]
         if step == 0.0 or not 0.0 < t_step < scenario.duration_s:
             continue
         t_next = min(e for e in events if e > t_step)
-        band = max(band_fraction * abs(step), band_min_rad_s)
         inside = (t >= t_step) & (t < t_next)
-        outside = inside & (np.abs(omega - table.values[i]) > band)
-        if not outside.any():
-            settle = 0.0
-        elif outside[inside][-1]:
+        last_half = inside & (t >= (t_step + t_next) / 2.0)
+        if not last_half.any():
+            continue
+        tolerance = max(band_fraction * abs(step), band_min_rad_s)
+        settled_mean = float(np.mean(omega[last_half]))
+        ripple = float(np.max(np.abs(omega[last_half] - settled_mean)))
+        offset = abs(settled_mean - target)
+        band = max(tolerance, offset + ripple)
+        outside = inside & (np.abs(omega - target) > band)
+        if offset > tolerance:
             settle = None
+        elif not outside.any():
+            settle = 0.0
         else:
             settle = float(t[np.nonzero(outside)[0][-1] + 1] - t_step)
-        results.append({"t_s": t_step, "from_rad_s": table.values[i - 1], "to_rad_s": table.values[i],
-                        "band_rad_s": band, "settling_time_s": settle})
+        results.append({"t_s": t_step, "from_rad_s": table.values[i - 1], "to_rad_s": target,
+                        "tolerance_rad_s": tolerance, "band_rad_s": band, "ripple_rad_s": ripple,
+                        "settled_offset_rad_s": offset, "settling_time_s": settle})
     return results
+
+
+def settling_summary(steps):
+    """(worst settling time or None, a note saying why it is None: no step, or a step never settled)."""
+    if not steps:
+        return None, "no speed step in the run"
+    never = [s for s in steps if s["settling_time_s"] is None]
+    if never:
+        s = never[0]
+        return None, (f"never settled after the step at {s['t_s']:g} s (settled offset "
+                      f"{s['settled_offset_rad_s']:.3g} rad/s > tolerance {s['tolerance_rad_s']:.3g} rad/s)")
+    return max(s["settling_time_s"] for s in steps), None
+
+
+def lock_loss(t, error, start_s):
+    """Time [s] with |angle error| beyond LOCK_LOST_RAD after ``start_s``, and when it first happened
+    (None, None without ground truth)."""
+    evaluated = (t >= start_s) & np.isfinite(error)
+    if not evaluated.any():
+        return None, None
+    lost = evaluated & (np.abs(error) > LOCK_LOST_RAD)
+    T_s = float(t[1] - t[0]) if t.size > 1 else 0.0
+    return float(lost.sum() * T_s), (float(t[np.argmax(lost)]) if lost.any() else None)
 
 
 def compute_metrics(result):
@@ -88,7 +129,8 @@ def compute_metrics(result):
     speed_estimation_error = log[:, COLUMN["omega_m"]] - log[:, COLUMN["omega_e_hat"]] / n_p
     speed_tracking_error = log[:, COLUMN["omega_m_ref"]] - log[:, COLUMN["omega_m"]]
     steps = settling_times(scenario, log)
-    settle_values = [s["settling_time_s"] for s in steps]
+    settling_time, settling_note = settling_summary(steps)
+    lock_lost_s, lock_lost_at_s = lock_loss(t, error, scenario.metrics_start_s)
     per_window = []
     for t0, t1 in steady:
         w_rms, w_bias, w_peak = _stats(error[_mask(t, [(t0, t1)])])
@@ -108,8 +150,11 @@ def compute_metrics(result):
         "angle_error_peak_transient": peak_transient,
         "speed_error_rms": _stats(speed_estimation_error[steady_mask])[0],
         "speed_tracking_error_rms": _stats(speed_tracking_error[steady_mask])[0],
-        "settling_time_s": (None if not steps or None in settle_values else max(settle_values)),
+        "settling_time_s": settling_time,
+        "settling_note": settling_note,
         "speed_steps": steps,
+        "lock_lost_s": lock_lost_s,
+        "lock_lost_at_s": lock_lost_at_s,
         "observable_fraction": (float(np.mean(log[evaluated, COLUMN["observable"]] > 0.5))
                                 if evaluated.any() else None),
         "steady_windows": per_window,

@@ -1,4 +1,5 @@
-"""PNG plots of a run: true vs estimated angle, angle error, speed, phase currents."""
+"""PNG plots: a run (angle, angle error, speed, load, phase currents), angle errors side by side (replay,
+compare), and the PLL tuning's Bode plots."""
 from pathlib import Path
 
 import matplotlib
@@ -9,34 +10,49 @@ import matplotlib.pyplot as plt  # noqa: E402
 from drive_interface.log import COLUMN  # noqa: E402
 from drive_scenarios.scenario import RPM  # noqa: E402
 
-from .metrics import angle_error, wrap  # noqa: E402
+from .metrics import LOCK_LOST_RAD, angle_error, wrap  # noqa: E402
 
 
-def plot_run(result, out_dir):
-    """Write ``<out_dir>/<scenario>_<estimator>.png`` and return its path."""
+def plot_run(result, out_dir, command="run"):
+    """Write ``<out_dir>/<scenario>_<estimator>_<command>.png`` (``command``: run, launch or bridge, so
+    one never overwrites another) and return its path. Panels: true and estimated angle; angle error with
+    any lost lock shaded; speed; load torque; phase currents. Dotted lines mark the scenario's events."""
+    import numpy as np
     log, n_p = result.log, result.n_p
     t = log[:, COLUMN["t"]]
-    fig, axes = plt.subplots(4, 1, figsize=(10, 10), sharex=True)
+    error = angle_error(log, n_p)
+    fig, axes = plt.subplots(5, 1, figsize=(10, 12), sharex=True,
+                             gridspec_kw={"height_ratios": [1, 1, 1, 0.6, 1]})
     axes[0].plot(t, wrap(n_p * log[:, COLUMN["theta_m"]]), label="true θ_e")
     axes[0].plot(t, wrap(log[:, COLUMN["theta_e_hat"]]), "--", label="estimated θ̂_e")
     axes[0].set_ylabel("electrical angle [rad]")
-    axes[1].plot(t, angle_error(log, n_p), color="tab:red")
-    axes[1].set_ylabel("θ_e − θ̂_e [rad]")
+    axes[1].plot(t, error, color="tab:red", lw=0.7, label="θ_e − θ̂_e")
+    lost = np.abs(error) > LOCK_LOST_RAD
+    if lost.any():
+        axes[1].fill_between(t, -np.pi, np.pi, where=lost, color="tab:red", alpha=0.15, step="mid",
+                             label="lock lost (|error| > π/2)")
+    axes[1].set_ylabel("angle error [rad]")
     axes[2].plot(t, log[:, COLUMN["omega_m_ref"]] / RPM, label="reference")
     axes[2].plot(t, log[:, COLUMN["omega_m"]] / RPM, label="true")
     axes[2].plot(t, log[:, COLUMN["omega_e_hat"]] / n_p / RPM, alpha=0.7, label="estimated")
     axes[2].set_ylabel("speed [rpm]")
-    for name in ("i_a_meas", "i_b_meas", "i_c_meas"):
-        axes[3].plot(t, log[:, COLUMN[name]], lw=0.6, label=name[:3])
-    axes[3].set_ylabel("phase current [A]")
-    axes[3].set_xlabel("time [s]")
+    axes[3].plot(t, log[:, COLUMN["tau_load"]], color="tab:brown", label="load τ_L")
+    axes[3].set_ylabel("load [N·m]")
+    for name, color in (("i_a_meas", "tab:blue"), ("i_b_meas", "tab:orange"), ("i_c_meas", "tab:green")):
+        axes[4].plot(t, log[:, COLUMN[name]], lw=0.5, alpha=0.55, color=color, label=f"{name[:3]} (measured)")
+    axes[4].set_ylabel("phase current [A]")
+    axes[4].set_xlabel("time [s]")
+    events = [e for e in result.scenario.events_s() if 0.0 < e < result.scenario.duration_s]
     for ax in axes:
+        for event in events:
+            ax.axvline(event, color="k", lw=0.6, ls=":")
         ax.grid(True, alpha=0.3)
         if ax.get_legend_handles_labels()[0]:
             ax.legend(loc="upper right", fontsize=8)
-    fig.suptitle(f"{result.scenario.name}: {result.scenario.motor}, estimator {result.estimator}")
+    fig.suptitle(f"{result.scenario.name}: {result.scenario.motor}, estimator {result.estimator} ({command}); "
+                 f"dotted: speed and load events")
     fig.tight_layout()
-    return _save(fig, Path(out_dir) / f"{result.scenario.name}_{result.estimator}.png")
+    return _save(fig, Path(out_dir) / f"{result.scenario.name}_{result.estimator}_{command}.png")
 
 
 def _save(fig, path):
@@ -48,17 +64,23 @@ def _save(fig, path):
     return path
 
 
-def plot_angle_errors(results, labels, path):
-    """One PNG with the angle error of several runs over time, overlaid; returns its path."""
-    fig, ax = plt.subplots(1, 1, figsize=(10, 4))
+def plot_angle_errors(results, labels, path, not_drawn=(), title=None):
+    """One PNG with the electrical angle error θ_e − θ̂_e of several runs over time, overlaid (legend:
+    label and estimator); ``not_drawn`` lines are listed under the plot. Returns its path."""
+    fig, ax = plt.subplots(1, 1, figsize=(10, 4 + 0.25 * len(not_drawn)))
     for result, label in zip(results, labels):
-        ax.plot(result.log[:, COLUMN["t"]], angle_error(result.log, result.n_p), lw=0.7,
-                label=f"{label} ({result.estimator})")
+        name = label if label == result.estimator else f"{label} ({result.estimator})"
+        ax.plot(result.log[:, COLUMN["t"]], angle_error(result.log, result.n_p), lw=0.7, label=name)
     ax.set_xlabel("time [s]")
-    ax.set_ylabel("θ_e − θ̂_e [rad]")
+    ax.set_ylabel("θ_e − θ̂_e [rad, electrical]")
     ax.grid(True, alpha=0.3)
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
+    if results:
+        ax.legend(loc="upper right", fontsize=8, title="estimator", title_fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=10)
+    if not_drawn:
+        fig.text(0.01, 0.01, "not drawn: " + "\n".join(not_drawn), fontsize=7, va="bottom")
+    fig.tight_layout(rect=(0, min(0.4, 0.04 * len(not_drawn)), 1, 1))
     return _save(fig, path)
 
 
@@ -99,13 +121,14 @@ def plot_pll(design, A_p, T_i_s, checks, stem):
         paths.append(plot_bode([("|K|·G_p·filter (Szabó)", omega, process,
                                  np.degrees(design.szabo.phase(1.0, math.inf, omega)) + 90.0, "-")],
                                stem.with_name(stem.name + "_process.png"),
-                               f"{name}: PLL process (Szabó Fig. 8)"))
+                               f"{name}: PLL process, no PLL gains (Szabó Fig. 8)"))
     paths.append(plot_bode([(f"{label}, A_p {A_p:.0f}, T_i {1e3 * T_i_s:.1f} ms", omega,
                              loop.open_loop(A_p, T_i_s, omega),
                              np.degrees(loop.phase(A_p, T_i_s, omega)), "-")
                             for label, loop in loops],
                            stem.with_name(stem.name + "_open_loop.png"),
-                           f"{name}: PLL open loop (Szabó Fig. 9)"))
+                           f"{name}: PLL open loop with the tuned gains A_p {A_p:.0f}, T_i {1e3 * T_i_s:.1f} ms "
+                           f"(Szabó Fig. 9)"))
     for i, check in enumerate(checks or []):
         w = np.asarray(check["response"]["omega_rad_s"])
         T = np.asarray(check["response"]["T_re"]) + 1j * np.asarray(check["response"]["T_im"])
@@ -115,6 +138,7 @@ def plot_pll(design, A_p, T_i_s, checks, stem):
             model = loop.closed_loop(check["A_p"], check["T_i_s"], dense)
             curves.append((label, dense, model, np.degrees(np.unwrap(np.angle(model))), "-"))
         paths.append(plot_bode(curves, stem.with_name(f"{stem.name}_closed_loop_{i + 1}.png"),
-                               f"{name}: θ̂/θ with A_p {check['A_p']:.0f}, T_i {1e3 * check['T_i_s']:.1f} ms "
-                               f"({check['plant']} plant)"))
+                               f"{name}: closed loop θ̂/θ with the "
+                               f"{'tuned' if math.isclose(check['A_p'], A_p) else 'current'} gains A_p "
+                               f"{check['A_p']:.0f}, T_i {1e3 * check['T_i_s']:.1f} ms ({check['plant']} plant)"))
     return [str(p) for p in paths]

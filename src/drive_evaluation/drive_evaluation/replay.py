@@ -22,6 +22,9 @@ from drive_runner.runner import RunResult, build_drive
 
 from .metrics import angle_error, compute_metrics
 
+MAX_APPLICABLE_MISMATCH = 0.2
+"""Replay measures an estimator when the injection it asks for is within this relative RMS of the
+recorded one (its currents then answer an excitation close to its own)."""
 TIMED_RUNS = 3
 """Each estimator replays the bag this many times from its fresh state; the fastest run is reported."""
 OUTPUTS = ("theta_e_hat", "omega_e_hat", "u_inj_alpha", "u_inj_beta", "eps", "signal", "observable")
@@ -74,9 +77,10 @@ def replay(path, estimators):
             log[:, COLUMN[column]] = out[:, j]
         result = RunResult(scenario, name, log, wall, recorded.current_limit_A)
         metrics = compute_metrics(result)
+        mismatch = _relative_rms(out[:, 2:4] - applied, applied)
         entry = {"estimator": name, "samples": len(currents), "samples_per_second": len(currents) / wall,
-                 "excitation_mismatch": _relative_rms(out[:, 2:4] - applied, applied),
-                 "observable_fraction": metrics["observable_fraction"]}
+                 "excitation_mismatch": mismatch, "observable_fraction": metrics["observable_fraction"],
+                 "not_applicable": _not_applicable(mismatch, out[:, 2:4])}
         if truth:
             scored = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms")
             entry.update({key: metrics[key] for key in scored})
@@ -96,5 +100,20 @@ def time_to_lock(result):
 
 
 def _relative_rms(difference, reference):
+    """RMS of ``difference`` over RMS of ``reference``; 0 when both are zero, None when only the
+    reference is."""
     scale = float(np.sqrt(np.mean(reference ** 2)))
-    return float(np.sqrt(np.mean(difference ** 2))) / scale if scale > 0.0 else None
+    spread = float(np.sqrt(np.mean(difference ** 2)))
+    if scale > 0.0:
+        return spread / scale
+    return 0.0 if spread == 0.0 else None
+
+
+def _not_applicable(mismatch, requested):
+    """Why replay on this bag does not measure an estimator (None when it does): the bag has no
+    injection and the estimator needs one, or its injection differs from the recorded one."""
+    if mismatch is None:
+        return "the recording has no injection and this estimator needs one"
+    if mismatch > MAX_APPLICABLE_MISMATCH:
+        return f"its injection differs from the recorded one (excitation mismatch {mismatch:.2f})"
+    return None

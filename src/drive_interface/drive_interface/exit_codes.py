@@ -9,8 +9,8 @@ EXIT_NODE_FAULTS = 3
 """The run finished, but a node reported a fault during it (node_faults); for a node executable: it
 ended because its peer was gone before its run was complete or after faults."""
 EXIT_RECORDING_FAILED = 4
-"""The run finished and its metrics are printed, but the recording stopped early (closed as far as
-written)."""
+"""The run finished and its metrics are printed, but an output could not be written in full: the
+recording stopped early (closed as far as written), or the plot (an unwritable directory)."""
 EXIT_SIGNAL_BASE = 128
 """128 + N: stopped by signal N (130 SIGINT, 143 SIGTERM), with what was done printed, marked
 interrupted."""

@@ -282,6 +282,7 @@ def run_node(make_node, program, argv=None):
         while not stop.done() and node.exit_code is None:
             executor.spin_until_future_complete(stop, timeout_sec=0.25)
     finally:
+        executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
     return node.exit_code or 0

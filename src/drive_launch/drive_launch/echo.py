@@ -1,6 +1,7 @@
 """`drive echo`: print a drive topic as `ros2 topic echo` does (there is none in a PyPI-only install)."""
 import rclpy
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
@@ -24,7 +25,8 @@ def message_dict(msg):
 
 
 def echo(topic, namespace=DEFAULT_NAMESPACE, count=None, every=1, as_json=False, timeout_s=None):
-    """Print messages of a contract topic until ``count`` were printed, ``timeout_s`` passed or
+    """Print messages of a contract topic (taken serialized, deserialized only when printed, so the
+    reader keeps up with a 10 kHz topic; the contract's QoS) until ``count`` were printed, ``timeout_s`` passed or
     SIGINT/SIGTERM; returns the exit code (128 + the signal when one stopped it). BrokenPipeError
     when the reader of the output went away."""
     key = topic if topic in TOPICS else topic.rsplit("/", 1)[-1]
@@ -36,11 +38,11 @@ def echo(topic, namespace=DEFAULT_NAMESPACE, count=None, every=1, as_json=False,
     done = Future()
     seen, printed, reader_gone = [0], [0], []
 
-    def show(msg):
+    def show(serialized):
         seen[0] += 1
         if (seen[0] - 1) % every or done.done():
             return
-        data = message_dict(msg)
+        data = message_dict(deserialize_message(serialized, message_type))
         try:
             print(dumps(data) if as_json else _yaml_like(data) + "\n---", flush=True)
         except BrokenPipeError:
@@ -52,9 +54,10 @@ def echo(topic, namespace=DEFAULT_NAMESPACE, count=None, every=1, as_json=False,
             done.set_result(True)
 
     node = Node("drive_echo", context=context, namespace=namespace)
+    executor = None
     try:
         with polled():
-            node.create_subscription(message_type, topic if topic.startswith("/") else key, show, qos)
+            node.create_subscription(message_type, topic if topic.startswith("/") else key, show, qos, raw=True)
             if timeout_s:
                 node.create_timer(timeout_s, lambda: done.done() or done.set_result(True))
             node.create_timer(0.1, lambda: requested() and not done.done() and done.set_result(True))
@@ -64,6 +67,8 @@ def echo(topic, namespace=DEFAULT_NAMESPACE, count=None, every=1, as_json=False,
                 executor.spin_until_future_complete(done, timeout_sec=0.25)
             stopped_by = requested()
     finally:
+        if executor is not None:
+            executor.shutdown()
         node.destroy_node()
         context.try_shutdown()
     if reader_gone:

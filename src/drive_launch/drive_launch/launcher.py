@@ -227,6 +227,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
     children, nodes, drivers, limits = [], [], [], []
     polling = polled()
     polling.__enter__()
+    ex = None
     try:
         ex = make_executor(executor, context)
         for i, spec in enumerate(specs):
@@ -278,6 +279,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         _stop_children([child for _, child in children])
         for inverter in inverters:
             inverter.stop()
+        if ex is not None:
+            ex.shutdown()
         for node in nodes:
             node.destroy_node()
         context.try_shutdown()

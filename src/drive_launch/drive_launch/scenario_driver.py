@@ -17,6 +17,9 @@ from motor_params.nameplate import nameplate
 ERROR = 2
 """diagnostic_msgs/DiagnosticStatus.ERROR: a fault (WARN, e.g. a bridge waiting for its inverter, is not)."""
 MAX_FAULT_MESSAGES = 5
+FOREIGN_CHECK_S = 0.5
+"""How often a running drive looks for another drive's publishers in its namespace (discovery can show
+one only after the start-up check)."""
 FINAL_WAIT_S = 1.0
 """After the last sample, how long to wait for the last recorded messages and final /diagnostics."""
 
@@ -56,6 +59,7 @@ class ScenarioDriver:
         self.sent_speed = None
         self.created = time.monotonic()
         self.ready_since = None
+        self.checked_at = 0.0
         self.started_at = self.finished_at = None
         self.last_sample = -1
         self.error = None
@@ -157,6 +161,13 @@ class ScenarioDriver:
                 if self.inverter is not None:
                     threading.Thread(target=self.inverter.run, name="virtual_inverter", daemon=True).start()
             return
+        if now - self.checked_at >= FOREIGN_CHECK_S and self.finished_at is None:
+            self.checked_at = now
+            foreign = self.foreign_publishers()
+            if foreign:
+                self.finish(f"namespace {self.node.get_namespace()} is in use: another drive's publishers "
+                            f"appeared during the run ({'; '.join(foreign[:2])}); the run is stopped")
+                return
         if self.progress:
             self.progress((self.last_sample + 1) / self.n)
         if self.finished_at is not None and (self.complete() or now - self.finished_at > FINAL_WAIT_S):
