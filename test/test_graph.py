@@ -600,3 +600,20 @@ def test_diagnostics_are_stamped_on_the_datas_clock(tmp_path):
     assert stamps and all(s.sec == 0 and s.nanosec <= 60_000_000 for s in stamps)
     assert all(d["values"]["run_complete"] == "True" for name, d in result.diagnostics.items()
                if not name.endswith("drive_launcher"))
+
+
+def test_a_late_echo_gets_every_sample_from_its_first(tmp_path):
+    """`drive echo currents` started while a drive runs: from the first sample it prints, none is
+    missing (it takes messages serialized and keeps up with the writer's 1000-sample history)."""
+    bag, stderr = tmp_path / "running", tmp_path / "stderr"
+    launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--namespace", "/late_echo_test", "--duration",
+                                         "2.0", "--no-plot", "--record", str(bag)],
+                                cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=stderr.open("w"))
+    wait_for_bag_data(bag, launcher, stderr)
+    echo = subprocess.run(DRIVE + ["echo", "currents", "--namespace", "/late_echo_test", "--json", "--timeout",
+                                   "6"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    launcher.wait(timeout=120)
+    samples = [round(1e4 * (s["sec"] + 1e-9 * s["nanosec"]))
+               for s in (json.loads(line)["header"]["stamp"] for line in echo.stdout.splitlines())]
+    assert len(samples) > 1000 and samples[0] > 0
+    assert np.all(np.diff(samples) == 1), f"gaps after sample {samples[0]}"

@@ -75,3 +75,15 @@ def test_a_reader_that_goes_away_ends_the_output_quietly(tmp_path):
     err = process.stderr.read().decode()
     assert process.wait(timeout=60) == 128 + signal.SIGPIPE
     assert err == ""
+
+
+def test_a_signal_inside_a_deferred_block_is_raised_when_it_ends():
+    """A bag's close or a file swap is never cut half-way: the signal waits for the block's end."""
+    from drive_interface import interrupt
+    finished = []
+    with pytest.raises(interrupt.Interrupted) as stopped, interrupt.handled():
+        with interrupt.deferred():
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.05)
+            finished.append(True)
+    assert finished == [True] and stopped.value.signum == signal.SIGTERM

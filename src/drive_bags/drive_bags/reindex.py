@@ -14,6 +14,8 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from drive_interface.interrupt import deferred
+
 from .common import BagCompleteError, BagError
 from .reader import bag_info
 from .writer import BagWriter
@@ -248,14 +250,18 @@ def reindex(path, force=False):
         shutil.rmtree(staging, ignore_errors=True)
         reason = error.strerror if isinstance(error, OSError) else str(error)
         raise BagError(f"{path}: reindex failed ({reason}); the bag is left as it was") from None
-    originals = _free_name(path, ORIGINALS)
-    originals.mkdir()
-    for old in files + [path / "metadata.yaml"]:
-        if old.exists():
-            old.rename(originals / old.name)
-    for new in target.iterdir():
-        new.rename(path / new.name)
-    shutil.rmtree(staging)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    with deferred():
+        originals = _free_name(path, ORIGINALS)
+        originals.mkdir()
+        for old in files + [path / "metadata.yaml"]:
+            if old.exists():
+                old.rename(originals / old.name)
+        for new in target.iterdir():
+            new.rename(path / new.name)
+        shutil.rmtree(staging)
     info = bag_info(path)
     info["recovery"] = {"messages": len(found.messages), "skipped": dict(found.skipped),
                         "originals": str(originals)}

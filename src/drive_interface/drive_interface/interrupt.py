@@ -58,15 +58,22 @@ def requested():
 
 
 @contextmanager
-def deferred():
-    """Hold a signal that arrives inside the block; raise it when the block ends."""
+def _recording_only():
+    """Inside the block a first signal is recorded, not raised; yields whether it raised before."""
     before = _state.raising
     _state.raising = False
     try:
-        yield
+        yield before
     finally:
         _state.raising = before
-    if before and _state.pending:
+
+
+@contextmanager
+def deferred():
+    """Hold a signal that arrives inside the block; raise it when the block ends."""
+    with _recording_only() as raised_before:
+        yield
+    if raised_before and _state.pending:
         _state.pending = False
         raise Interrupted(_state.signum)
 
@@ -82,12 +89,10 @@ def polled():
         _state.signum = 0
         for signum in SIGNALS:
             signal.signal(signum, _handler)
-    before = _state.raising
-    _state.raising = False
     try:
-        yield
+        with _recording_only():
+            yield
     finally:
-        _state.raising = before
         _state.pending = False
         if borrowed:
             for signum, handler in previous.items():
