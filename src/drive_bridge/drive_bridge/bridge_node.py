@@ -63,6 +63,7 @@ class InverterBridgeNode(ContractNode):
         self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate, topic_qos("rotor_estimate"))
         self.create_service(Trigger, "clear_faults", self.on_clear_faults)
         self.T_s = None
+        self.k = None
         self.n_p = None
         self.history = {}
         self.reported = {}
@@ -84,6 +85,7 @@ class InverterBridgeNode(ContractNode):
             if hello is not None and self.T_s is None:
                 self.configure(hello)
             for s in samples:
+                self.k = s.k
                 t = stamp(s.k, self.T_s)
                 if self.clock_pub:
                     clock.clock = t
@@ -161,6 +163,10 @@ class InverterBridgeNode(ContractNode):
         return {"link": "lost" if b.lost else "up", "inverter_status": ",".join(b.status_names()) or "ok",
                 "last_sample": b.last_seq if b.last_seq is not None else -1,
                 **b.counters, **{f"frame_errors.{k}": v for k, v in b.frame_errors().items()}}
+
+    def data_time(self):
+        """The stamp of the inverter's latest sample (the data's clock); the node's clock before any."""
+        return stamp(self.k, self.T_s) if self.k is not None else super().data_time()
 
     def destroy_node(self):
         self.running = False

@@ -43,7 +43,7 @@ DISCOVERY_S = 1.0
 """How long the launcher looks at the graph for another drive in its namespaces before it creates its
 nodes. Discovery of a busy process can take longer (2-3 s measured here); a drive found later is refused
 by the scenario driver's start-up check (more publishers than its own), and one that appears during a
-run is counted by the nodes (``foreign_publisher``)."""
+run stops that run (the same check, every 0.5 s) and is counted by the nodes (``foreign_publisher``)."""
 
 
 def check_namespace(namespace):
