@@ -1,6 +1,7 @@
 """The sensorless loop through the inverter bridge in one process: the virtual inverter on its own
 thread behind a pseudo-terminal or a CAN bus, the bridge core, and the estimator and controller cores
 answering each telemetry frame. For tests, `drive bridge` and `drive bench bridge`."""
+import gc
 import tempfile
 import threading
 import time
@@ -36,7 +37,9 @@ class BridgeRunResult(RunResult):
 def run_through_bridge(scenario, link="pty", faults=None, rate_Hz=None, command_wait_s=0.5, progress=None,
                        inverter_hook=None):
     """Run ``scenario`` with its plant behind the virtual inverter and the bridge. ``inverter_hook(
-    inverter, endpoint, k)`` is called by the host loop after each sample (tests unplug links with it)."""
+    inverter, endpoint, k)`` is called by the host loop after each sample (tests unplug links with it).
+    Python's cyclic garbage collector is held off during the loop: a full collection in a large process
+    pauses for the link timeout (50 ms) and reads as a lost link."""
     with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
         endpoint, host_link = make_links(link, workdir)
         inverter = VirtualInverter(scenario, endpoint, rate_Hz=rate_Hz, command_wait_s=command_wait_s,
@@ -63,6 +66,8 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     thread.start()
     last_report = 0
     interrupted = 0
+    gc.collect()
+    gc.disable()
     try:
         while thread.is_alive() or bridge.open:
             samples = bridge.poll(0.05)
@@ -94,6 +99,8 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     except Interrupted as stop:
         interrupted = stop.signum
         inverter.stop()
+    finally:
+        gc.enable()
     thread.join(timeout=2.0)
     wall = time.perf_counter() - start
     if progress and not interrupted:
