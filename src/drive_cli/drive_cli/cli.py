@@ -56,10 +56,6 @@ def _record_arg(path):
         raise CommandLineError(f"--record: cannot write in {target.parent} ({error.strerror})") from None
 
 
-def _recording_failed(message):
-    print(f"drive: {' '.join(message.split())}", file=sys.stderr)
-
-
 def _print_json(data):
     print(dumps(data, indent=2, ensure_ascii=False))
 
@@ -107,7 +103,7 @@ def cmd_run(args):
             extra["recording_error"] = recording_error
     plot_error = _report(result, args, extra)
     if recording_error:
-        _recording_failed(recording_error)
+        _output_failed(recording_error)
     return _exit_code(interrupted, output_error=recording_error or plot_error)
 
 
@@ -198,7 +194,7 @@ def cmd_launch(args):
         extra["recording_error"] = result.recording_error
     plot_error = _report(result, args, extra)
     if result.recording_error:
-        _recording_failed(result.recording_error)
+        _output_failed(result.recording_error)
     return _exit_code(result.interrupted, faults, result.recording_error or plot_error)
 
 
@@ -447,8 +443,9 @@ def cmd_bench_replay(args):
         cells = ["n/a" if e.get(key) is None else fmt.format(e[key]) for _, key, fmt in columns]
         print(f"  {e['estimator']:16s}" + "".join(f"{c:>14s}" for c in cells)
               + (f"   not applicable: {e['not_applicable']}" if e["not_applicable"] else ""))
+    shown = {label for label, _, _ in columns}
     for label, explanation in REPLAY_COLUMNS:
-        if label in [c[0] for c in columns]:
+        if label in shown:
             print(f"  {label:>14s}: {explanation}")
     for key in ("plot", "json"):
         if key in report:
@@ -910,7 +907,8 @@ def _remedy(error, args):
         return f"; `drive bag reindex {error.path}{force}` rebuilds it"
     if isinstance(error, BagCompleteError):
         return "; --force rebuilds it anyway"
-    if type(error).__name__ == "NamespaceOccupiedError":
+    from drive_launch.launcher import NamespaceOccupiedError
+    if isinstance(error, NamespaceOccupiedError):
         return " (--namespace NAME)"
     return ""
 

@@ -89,17 +89,17 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
               "sampling_rate_Hz": 1.0 / load_scenario(scenario_name).T_s, "results": [], "interrupted": 0}
     results = report["results"]
     report["interrupted"] = launch(scenario_name, duration_s=0.05, record=record).interrupted
+    if report["interrupted"]:
+        return report
     for processes, executor in GRAPH_CONFIGURATIONS:
         wall, samples = math.inf, 0
         for _ in range(repeats):
-            if report["interrupted"]:
-                return report
             r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
                        record=record)
             report["interrupted"] = r.interrupted
+            if report["interrupted"]:
+                return report
             wall, samples = min(wall, r.wall_time_s), r.scenario.n_samples
-        if report["interrupted"]:
-            return report
         entry = {"processes": processes, "executor": executor, "samples": samples, "repeats": repeats,
                  "wall_time_s": wall, "real_time_factor": samples * r.scenario.T_s / wall,
                  "us_per_sample": 1e6 * wall / samples,

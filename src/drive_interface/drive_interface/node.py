@@ -293,7 +293,6 @@ def _refuse(program, message):
     return EXIT_REFUSED
 
 
-
 def _parameter_error(error, ros_args):
     """A parameter value of the wrong type, named by its source (params file or command line)."""
     text = str(error)

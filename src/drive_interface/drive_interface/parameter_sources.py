@@ -9,7 +9,7 @@ ROS_ARGS = []
 
 
 class ParameterSourceError(ValueError):
-    """A params file cannot be read, or names a parameter the node does not have."""
+    """A params file cannot be read or is not a mapping of node names."""
 
 
 def _flatten(values, prefix=""):

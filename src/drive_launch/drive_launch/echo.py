@@ -6,6 +6,7 @@ from rclpy.signals import SignalHandlerOptions
 from rclpy.task import Future
 
 from drive_interface.errors import DriveError
+from drive_interface.exit_codes import EXIT_SIGNAL_BASE
 from drive_interface.graph import DEFAULT_NAMESPACE
 from drive_interface.interrupt import polled, requested
 from drive_interface.node import make_executor, message_class, topic_qos
@@ -73,7 +74,7 @@ def echo(topic, namespace=DEFAULT_NAMESPACE, count=None, every=1, as_json=False,
         context.try_shutdown()
     if reader_gone:
         raise BrokenPipeError("the reader of the output went away")
-    return 128 + stopped_by if stopped_by else 0
+    return EXIT_SIGNAL_BASE + stopped_by if stopped_by else 0
 
 
 def _yaml_like(data, indent=""):

@@ -123,8 +123,9 @@ class ScenarioDriver:
         surplus = []
         for topic, pubs, _ in self.expected_endpoints():
             name = self.node.resolve_topic_name(topic)
-            if self.node.count_publishers(name) > pubs:
-                surplus.append(f"{self.node.count_publishers(name)} publishers of {name}, {pubs} expected")
+            count = self.node.count_publishers(name)
+            if count > pubs:
+                surplus.append(f"{count} publishers of {name}, {pubs} expected")
         return surplus
 
     def command(self, k):
@@ -141,12 +142,15 @@ class ScenarioDriver:
 
     def tick(self):
         now = time.monotonic()
-        if self.started_at is None:
+        if self.started_at is None or (self.finished_at is None and now - self.checked_at >= FOREIGN_CHECK_S):
+            self.checked_at = now
             foreign = self.foreign_publishers()
             if foreign:
-                self.finish(f"namespace {self.node.get_namespace()} is in use ({'; '.join(foreign[:2])}): another "
-                            f"drive runs there; run this one in another namespace")
+                during = "" if self.started_at is None else "; they appeared during the run, which is stopped"
+                self.finish(f"namespace {self.node.get_namespace()} is in use ({'; '.join(foreign[:2])}{during}): "
+                            f"another drive runs there; run this one in another namespace")
                 return
+        if self.started_at is None:
             missing = self.missing_endpoints()
             if missing:
                 self.ready_since = None
@@ -161,13 +165,6 @@ class ScenarioDriver:
                 if self.inverter is not None:
                     threading.Thread(target=self.inverter.run, name="virtual_inverter", daemon=True).start()
             return
-        if now - self.checked_at >= FOREIGN_CHECK_S and self.finished_at is None:
-            self.checked_at = now
-            foreign = self.foreign_publishers()
-            if foreign:
-                self.finish(f"namespace {self.node.get_namespace()} is in use: another drive's publishers "
-                            f"appeared during the run ({'; '.join(foreign[:2])}); the run is stopped")
-                return
         if self.progress:
             self.progress((self.last_sample + 1) / self.n)
         if self.finished_at is not None and (self.complete() or now - self.finished_at > FINAL_WAIT_S):

@@ -3,6 +3,8 @@ reads) and the overrides applied on top of it."""
 import dataclasses
 import math
 
+from drive_interface.settings import number
+
 from .scenario import ScenarioError, load_scenario
 
 NODE_PARAMETERS = {
@@ -47,9 +49,11 @@ def check_parameters(parameters, label=lambda name: f"parameter {name}"):
     from: a params file, the command line, a launcher)."""
     for name, (low, high) in PARAMETER_RANGES.items():
         value = parameters[name]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                or not low <= value <= high:
-            raise ScenarioError(f"{label(name)}: must be a finite number in [{low:g}, {high:g}], not {value!r}")
+        try:
+            number(name, value, low=low, high=None if math.isinf(high) else high, low_inclusive=True)
+        except ValueError:
+            raise ScenarioError(f"{label(name)}: must be a finite number in [{low:g}, {high:g}], "
+                                f"not {value!r}") from None
 
 
 def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}"):
