@@ -1,4 +1,5 @@
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -26,7 +27,9 @@ except ImportError:
 @pytest.fixture(autouse=True)
 def in_a_temporary_directory(tmp_path, monkeypatch):
     """Every test runs in its own temporary directory: what a command writes by default (runs/, plots,
-    commissioning files) never lands in the repository."""
+    commissioning files) never lands in the repository. It holds a copy of the repository's
+    commissioning/ (both motors commissioned, as a robot builder's working directory would)."""
+    shutil.copytree(ROOT / "commissioning", tmp_path / "commissioning")
     monkeypatch.chdir(tmp_path)
 
 

@@ -20,3 +20,20 @@ def shipped(name, estimator=None, duration_s=None):
     import dataclasses
     s = load_scenario(name, estimator_override=estimator)
     return dataclasses.replace(s, duration_s=duration_s) if duration_s else s
+
+
+def ideal_commissioning(machine, i_max_A, points=65, d_sweep_A=0.01):
+    """A test oracle: the record a perfect commissioning would write for ``machine`` (its R_s,
+    incremental inductances and saliency tables over ±i_max_A; ideal sensors, no dead time). Only tests
+    of a core in isolation hand it to an estimator; the drive itself measures (drive_commissioning)."""
+    import numpy as np
+
+    from motor_params.commissioning import Commissioning
+    from pmsm_plant.commissioning import saliency_shift_and_slope
+    from pmsm_plant.model import incremental_inductances
+
+    L_dh, L_qh, _ = incremental_inductances(machine)
+    currents = np.linspace(-i_max_A, i_max_A, points)
+    shift, slope = np.array([saliency_shift_and_slope(machine, i_q, d_sweep_A) for i_q in currents]).T
+    return Commissioning(machine.R_s_ohm, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, L_dh, L_qh, currents, shift, slope,
+                         source="ideal (test oracle)")

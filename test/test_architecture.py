@@ -15,7 +15,8 @@ ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 PACKAGES = sorted(p.name for p in SRC.iterdir() if (p / p.name / "__init__.py").is_file())
 NODE_EXECUTABLES = {"pmsm_plant": "plant_node", "hf_estimator": "estimator_node",
-                    "foc_controller": "controller_node", "drive_bridge": "bridge_node"}
+                    "foc_controller": "controller_node", "drive_bridge": "bridge_node",
+                    "drive_commissioning": "commissioning_node"}
 ROSDEP_KEYS = {"numpy": "python3-numpy", "numba": "python3-numba", "scipy": "python3-scipy",
                "yaml": "python3-yaml", "matplotlib": "python3-matplotlib", "serial": "python3-serial",
                "can": "python3-can", "mcap": "python3-mcap", "rosbags": "python3-rosbags", "rclpy": "rclpy"}
@@ -92,13 +93,18 @@ def test_no_import_cycle_between_modules_or_packages():
     assert find_cycle(package_graph()) is None
 
 
-def test_estimator_and_controller_know_the_motor_only_by_its_nameplate_and_commissioning():
-    """They import nothing of the plant, nor of what composes the drive."""
+def test_the_drive_knows_the_motor_only_by_its_nameplate_and_what_it_measures():
+    """Estimator, controller and commissioning import nothing of the plant, nor of what composes the
+    drive; the commissioning core imports no rclpy."""
     forbidden = {"pmsm_plant", "drive_runner", "drive_launch", "drive_bags", "drive_evaluation", "drive_cli",
                  "drive_bridge"}
     graph = package_graph()
-    for package in ("hf_estimator", "foc_controller"):
+    for package in ("hf_estimator", "foc_controller", "drive_commissioning"):
         assert graph[package] & forbidden == set(), package
+    core = SRC / "drive_commissioning" / "drive_commissioning"
+    for path in (core / "procedure.py", core / "identification.py"):
+        assert not {name.split(".")[0] for name in imports(f"drive_commissioning.{path.stem}", path)} & {
+            "rclpy", "geometry_msgs"}, path
     shared = {"control_math", "motor_params", "drive_interface", "drive_scenarios"}
     assert graph["pmsm_plant"] <= shared
     for package in shared:

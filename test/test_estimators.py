@@ -7,10 +7,10 @@ import pytest
 
 from drive_interface.log import COLUMN
 from drive_runner.runner import run_scenario
+from helpers import ideal_commissioning as commission
 from helpers import run, scenario, shipped
 from hf_estimator.registry import make_estimator
 from motor_params.commissioning import MIN_CONVERGENCE_SLOPE
-from pmsm_plant.commissioning import ideal_commissioning as commission
 from pmsm_plant.model import N_STATE, plant_advance, plant_outputs, plant_reset, saturation_saliency_angle
 from pmsm_plant.presets import PRESETS, plant_parameters
 
@@ -23,7 +23,7 @@ def held_shaft_response(name, error_e, saturation=True, samples=600):
     flags = {k: False for k in ("saturation", "dead_time", "delay", "sensor_noise",
                                 "sensor_offset_gain", "adc")}
     flags.update(saturation=saturation, delay=True)
-    machine, inverter, _ = plant_parameters(WANG, flags)
+    machine, _, inverter, _ = plant_parameters(WANG, flags)
     x = np.zeros(N_STATE)
     plant_reset(x, 0.0, 0.0, machine)
     c = commission(machine, WANG.nameplate.current_limit_A)

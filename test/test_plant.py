@@ -99,7 +99,7 @@ def test_hf_injection_is_integrated_exactly_at_standstill(f_h):
 def test_hf_integration_converged_at_speed_with_saturation():
     """Saturated SPMSM at 3000 rpm with 1 kHz injection and dead time: one RK4 step per period agrees
     with a 64-substep reference within 1e-5 of the HF current amplitude."""
-    machine, inverter, _ = plant_parameters(WANG, {k: True for k in
+    machine, _, inverter, _ = plant_parameters(WANG, {k: True for k in
                                                    ("saturation", "dead_time", "delay", "sensor_noise",
                                                     "sensor_offset_gain", "adc")})
     omega_m = 3000.0 * 2.0 * math.pi / 60.0

@@ -86,12 +86,14 @@ def test_carrier_model_tends_to_szabos_gain_when_sampling_is_fast():
 
 def test_carrier_model_of_the_sampled_synchronous_estimator():
     """At 10 kHz the sampled q̂ current lags by ω_h·1.5·T_s = 81°: Table 2's loop crosses over at 69 rad/s;
-    aligned demodulation recovers the gain and 60° at 350 rad/s becomes reachable."""
-    paper = design_for_motor("szabo_ipmsm", "synchronous", {})
+    aligned demodulation recovers the gain and 60° at 350 rad/s becomes reachable. From Table 1's values
+    (the nameplate alone: the paper's design)."""
+    paper = design_for_motor("szabo_ipmsm", "synchronous", {}, commissioning="nameplate")
     m = margins(paper.carrier, 4853.0, 0.136)
     assert m.crossover_rad_s == pytest.approx(68.7, abs=0.5)
     assert m.phase_margin_deg == pytest.approx(78.9, abs=0.3)
-    aligned = design_for_motor("szabo_ipmsm", "synchronous", {"demodulation": "aligned"})
+    aligned = design_for_motor("szabo_ipmsm", "synchronous", {"demodulation": "aligned"},
+                               commissioning="nameplate")
     assert margins(aligned.carrier, 4853.0, 0.136).crossover_rad_s == pytest.approx(263.8, abs=1.0)
     A_p, T_i = tune_pi(aligned.carrier, 60.0, 350.0)
     m = margins(aligned.carrier, A_p, T_i)

@@ -31,14 +31,15 @@ def test_speed_gains_reproduce_table2_and_stay_below_the_pll(capsys):
     assert not report["limited_by_pll"]
     assert report["gains"]["A_p"] == pytest.approx(table.kp, rel=0.02)
     assert report["gains"]["T_i_s"] == pytest.approx(table.kp / table.ki, rel=0.02)
-    report = run_json(capsys, "tune", "speed", "--bandwidth", "55.9")
+    report = run_json(capsys, "tune", "speed", "--bandwidth", "55.9", "--commissioning", "nameplate")
     assert report["limited_by_pll"]
     assert report["pll_crossover_rad_s"] == pytest.approx(68.7, abs=0.5)
     assert report["bandwidth_rad_s"] == pytest.approx(0.25 * 68.7, abs=0.2)
 
 
 def test_tune_pll_reports_both_models_and_the_mapping(capsys, tmp_path):
-    report = run_json(capsys, "tune", "pll", "--crossover", "175", "--out", str(tmp_path))
+    report = run_json(capsys, "tune", "pll", "--crossover", "175", "--out", str(tmp_path), "--commissioning",
+                      "nameplate")
     assert report["tuned"]["szabo"]["A_p"] == pytest.approx(2899.3, abs=1.0)
     assert report["tuned"]["carrier"]["phase_margin_deg"] == pytest.approx(60.0, abs=1.0)
     assert report["current_gains"]["szabo"]["crossover_rad_s"] == pytest.approx(268.3, abs=0.5)

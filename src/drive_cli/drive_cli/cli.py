@@ -6,6 +6,8 @@ import os
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from drive_interface import interrupt
 from drive_interface.errors import DriveError
 from drive_interface.exit_codes import (
@@ -20,10 +22,12 @@ from drive_interface.interrupt import Interrupted
 from drive_interface.strict_json import dumps
 from drive_scenarios.scenario import load_scenario, scenario_names
 from hf_estimator.registry import describe, estimator_names
-from motor_params.nameplate import nameplate
+from motor_params.nameplate import INVERTER_RATINGS, nameplate
 from pmsm_plant.presets import PRESETS
 
 PLL_ESTIMATORS = ("synchronous", "conventional", "improved")
+COMMISSIONING_HELP = ("the drive's commissioning file (written by `drive commission`), or 'nameplate' for the "
+                      "nameplate alone (default: the scenario's key, else commissioning/MOTOR.yaml when present)")
 
 
 class CommandLineError(DriveError):
@@ -76,6 +80,8 @@ def _scenario_arg(args):
         if args.duration <= 0.0:
             raise CommandLineError(f"--duration: must be positive, not {args.duration}")
         scenario = dataclasses.replace(scenario, duration_s=args.duration)
+    if args.commissioning:
+        scenario = dataclasses.replace(scenario, commissioning=args.commissioning)
     return scenario
 
 
@@ -115,6 +121,10 @@ def _report(result, args, extra=None):
 
     scenario = result.scenario
     metrics = compute_metrics(result)
+    if result.commissioning is not None:
+        from motor_params.knowledge import motor_knowledge
+        metrics["commissioning"] = result.commissioning.source
+        metrics["motor_knowledge"] = motor_knowledge(nameplate(scenario.motor), result.commissioning)
     metrics.update(extra or {})
     if not args.no_plot and result.log.shape[0]:
         out_dir = Path(args.out) if args.out else Path("runs") / scenario.name
@@ -127,6 +137,8 @@ def _report(result, args, extra=None):
         return _output_failed(metrics.get("plot_error"))
     print(f"scenario {metrics['scenario']} ({metrics['motor']}), estimator {metrics['estimator']}, "
           f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
+    if "motor_knowledge" in metrics:
+        print(f"  {'motor known from':36s} {_knowledge_line(metrics['motor_knowledge'])}")
     for key, value in (extra or {}).items():
         if value is False:
             continue
@@ -160,6 +172,20 @@ def _report(result, args, extra=None):
     return _output_failed(metrics.get("plot_error"))
 
 
+def _knowledge_line(knowledge):
+    """One line saying where the drive's motor values came from (drive_config has them value by value)."""
+    by_source = {}
+    for key, entry in knowledge.items():
+        by_source.setdefault(entry["source"], []).append(key)
+    def names(keys):
+        text = ", ".join(keys)
+        for stem in ("sensor_gain_", "sensor_offset_"):
+            unit = "_A" if "offset" in stem else ""
+            text = text.replace(f"{stem}a{unit}, {stem}b{unit}, {stem}c{unit}", f"{stem}a/b/c{unit}")
+        return text
+    return "; ".join(f"{source}: {names(keys)}" for source, keys in by_source.items())
+
+
 def _output_failed(error):
     """Say on stderr, in one line, that an output could not be written; return the error."""
     if error:
@@ -177,9 +203,10 @@ def cmd_launch(args):
     scenario = load_scenario(args.scenario, estimator_override=args.estimator,
                              override_source="command line --estimator")
     _record_arg(args.record)
+    extra = {"commissioning": args.commissioning} if args.commissioning else None
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
-                    timeout_s=args.timeout, bag=args.record, link=args.link,
+                    timeout_s=args.timeout, bag=args.record, link=args.link, extra_parameters=extra,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
     faults = result.node_faults
     plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
@@ -261,44 +288,116 @@ def cmd_estimators(args):
 
 
 def cmd_commission(args):
-    from drive_runner.runner import simulated_commissioning
-    from hf_estimator.node import default_commissioning_file
-    from motor_params.commissioning import save_commissioning
-    from pmsm_plant.commissioning import METHOD
+    from drive_commissioning.procedure import METHOD
+
+    from control_math.tables import table_value
+    from drive_runner.runner import terminal_progress
+    from motor_params.commissioning import default_commissioning_file, save_commissioning
 
     scenario = load_scenario(args.scenario)
     out = Path(args.out) if args.out else default_commissioning_file(scenario.motor)
     if out.exists() and not args.force:
         raise CommandLineError(f"--out: {out} already exists (--force replaces it)")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    commissioning = simulated_commissioning(scenario)
-    save_commissioning(out, commissioning, scenario.motor, METHOD,
-                       {"scenario": scenario.name, "non_idealities": scenario.non_idealities})
-    report = {"file": str(out), "motor": scenario.motor, "method": METHOD,
-              "identified": {"L_dh_H": commissioning.L_dh_H, "L_qh_H": commissioning.L_qh_H,
-                             "tracking_current_limit_A": commissioning.tracking_current_limit_A()}}
+    if not out.parent.is_dir():
+        raise CommandLineError(f"--out: the directory {out.parent} does not exist")
+    progress = terminal_progress(f"commissioning {scenario.motor}")
+    truth, true_currents = None, None
+    if args.graph:
+        from drive_launch.commissioning_graph import commission_over_ros
+        from pmsm_plant.build import plant_for_scenario
+        from pmsm_plant.commissioning import commissioning_truth
+        procedure, wall = commission_over_ros(args.scenario, args.namespace, args.link, progress=progress)
+        host = "ROS graph: " + (f"virtual inverter over {args.link} + drive_bridge node" if args.link
+                                else "pmsm_plant node") + " + drive_commissioning node"
+        truth = commissioning_truth(plant_for_scenario(scenario), nameplate(scenario.motor).rated_current_A)
+    else:
+        from drive_runner.commissioning_run import commission_in_process, commission_through_bridge
+        run = (commission_through_bridge(scenario, args.link, progress=progress) if args.link
+               else commission_in_process(scenario, progress=progress))
+        procedure, wall, host, truth, true_currents = run.procedure, run.wall_time_s, run.host, run.truth, \
+            run.true_currents
+    record = procedure.result()
+    conditions = {"scenario": scenario.name, "host": host, **procedure.conditions()}
+    save_commissioning(out, record, scenario.motor, METHOD, conditions)
+    rated = nameplate(scenario.motor).rated_current_A
+    identified = {key: float(getattr(record, key)) for key in (
+        "R_s_ohm", "dead_time_voltage_V", "sensor_gain_a", "sensor_gain_b", "sensor_gain_c", "sensor_offset_a_A",
+        "sensor_offset_b_A", "sensor_offset_c_A", "L_dh_H", "L_qh_H")}
+    identified["saliency_shift_at_rated_rad"] = table_value(rated, record.saliency_shift_i_q_A,
+                                                            record.saliency_shift_rad)
+    identified["convergence_slope_at_rated"] = table_value(rated, record.saliency_shift_i_q_A,
+                                                           record.convergence_slope)
+    identified["tracking_current_limit_A"] = record.tracking_current_limit_A()
+    report = {"file": str(out), "motor": scenario.motor, "method": METHOD, "host": host,
+              "duration_s": conditions["duration_s"], "wall_time_s": wall, "polarity": conditions["polarity"],
+              "peak_measured_current_A": float(np.max(np.abs(procedure.raw))), "identified": identified}
+    report["current_limit_A"] = procedure.limit_A
+    if truth is not None:
+        report["truth"] = truth
+    if true_currents is not None:
+        report["peak_true_current_A"] = float(np.max(np.abs(true_currents)))
     if args.json:
         _print_json(report)
         return 0
-    print(f"{out}: {scenario.motor}, method {METHOD} (the simulated motor's model: an ideal measurement)")
-    for key, value in report["identified"].items():
-        print(f"  {key:26s} {value:.6g}")
+    print(f"{out}: {scenario.motor} commissioned at standstill, shaft held ({host}), "
+          f"{conditions['duration_s']:.2f} s of motor time in {wall:.2f} s")
+    print(f"  polarity: {conditions['polarity']}")
+    print(f"  {'':30s} {'identified':>12s}" + (f" {'truth':>12s} {'error':>9s}" if truth else ""))
+    for key, value in identified.items():
+        line = f"  {key:30s} {value:12.6g}"
+        if truth and key in truth:
+            error = value - truth[key]
+            relative = "offset" not in key and "shift" not in key and truth[key]
+            line += f" {truth[key]:12.6g} " + (f"{100.0 * error / truth[key]:+8.3f}%" if relative else f"{error:+9.2e}")
+        print(line)
+    peak = report.get("peak_true_current_A", report["peak_measured_current_A"])
+    print(f"  peak phase current {peak:.3f} A (limit {procedure.limit_A:.3f} A)")
     return 0
+
+
+def _side_by_side(preset):
+    """What the drive is told (the nameplate) beside the simulated plant's truth, under the same keys."""
+    from pmsm_plant.model import incremental_inductances
+
+    plate, m, mech, inv, sens = preset.nameplate, preset.machine, preset.mechanics, preset.inverter, preset.sensor
+    L_dh, L_qh, _ = incremental_inductances(m)
+    told = {"n_p": plate.n_p, "R_s_ohm": plate.R_s_ohm, "L_d_H": plate.L_d_H, "L_q_H": plate.L_q_H,
+            "L_dh_H": plate.L_d_H, "L_qh_H": plate.L_q_H, "psi_f_Wb": plate.psi_f_Wb, "J_kgm2": plate.J_kgm2,
+            "B_Nms": plate.B_Nms, "U_dc_V": INVERTER_RATINGS[preset.name].U_dc_V}
+    truth = {"n_p": m.n_p, "R_s_ohm": m.R_s_ohm, "L_d_H": m.L_d_H, "L_q_H": m.L_q_H, "L_dh_H": L_dh, "L_qh_H": L_qh,
+             "psi_f_Wb": m.psi_f_Wb, "J_kgm2": mech.J_kgm2, "B_Nms": mech.B_Nms, "U_dc_V": inv.U_dc_V,
+             "t_dead_s": inv.t_dead_s, "sensor_gains": [sens.gain_a, sens.gain_b, sens.gain_c],
+             "sensor_offsets_A": [sens.offset_a_A, sens.offset_b_A, sens.offset_c_A],
+             "sensor_noise_A": sens.noise_std_A}
+    return told, truth
 
 
 def cmd_presets(args):
-    entries = [{"name": p.name, "source": p.source, "assumptions": list(p.assumptions),
-                "machine": p.machine._asdict(), "nameplate": p.nameplate._asdict(),
-                "mechanics": p.mechanics._asdict(), "inverter": p.inverter._asdict(),
-                "sensor": p.sensor._asdict()} for p in PRESETS.values()]
+    entries = []
+    for p in PRESETS.values():
+        told, truth = _side_by_side(p)
+        entries.append({"name": p.name, "source": p.source, "assumptions": list(p.assumptions),
+                        "nameplate": p.nameplate._asdict(), "told": told, "truth": truth,
+                        "machine": p.machine._asdict(), "mechanics": p.mechanics._asdict(),
+                        "inverter": p.inverter._asdict(), "sensor": p.sensor._asdict()})
     if args.json:
         _print_json(entries)
-    else:
-        for e in entries:
-            print(f"{e['name']}: {e['source']}")
-            for a in e["assumptions"]:
-                print(f"  - {a}")
+        return 0
+    for e in entries:
+        print(f"{e['name']}: {e['source']}")
+        print(f"  {'':14s} {'nameplate (the drive)':>22s} {'plant (truth)':>16s}")
+        for key, value in e["truth"].items():
+            shown = e["told"].get(key, "—")
+            print(f"  {key:14s} {_cell(shown):>22s} {_cell(value):>16s}")
+        for a in e["assumptions"]:
+            print(f"  - {a}")
     return 0
+
+
+def _cell(value):
+    if isinstance(value, list):
+        return " ".join(f"{v:.4g}" for v in value)
+    return value if isinstance(value, str) else f"{value:.5g}"
 
 
 def cmd_echo(args):
@@ -514,7 +613,7 @@ def cmd_tune_speed(args):
     if pll is None:
         from drive_evaluation.pll_check import design_for_motor
         try:
-            design = design_for_motor(args.motor, args.estimator, {})
+            design = design_for_motor(args.motor, args.estimator, {}, commissioning=args.commissioning)
         except (KeyError, ValueError) as error:
             raise CommandLineError(f"--estimator {args.estimator}: {error.args[0]} "
                                 f"(give --pll-crossover)") from None
@@ -572,7 +671,7 @@ def cmd_tune_pll(args):
             raise CommandLineError("--T-f auto: give --crossover (the largest T_f is chosen for it)")
         try:
             settings["T_f_s"] = largest_loop_filter_for_motor(args.motor, settings, args.phase_margin,
-                                                              args.crossover, args.model)
+                                                              args.crossover, args.model, args.commissioning)
         except ValueError as error:
             raise CommandLineError(f"--crossover: {error}") from None
     elif args.T_f is not None:
@@ -581,7 +680,7 @@ def cmd_tune_pll(args):
         except ValueError:
             raise CommandLineError(f"--T-f: a time constant in seconds or 'auto', not {args.T_f!r}") from None
     try:
-        design = design_for_motor(args.motor, args.estimator, settings)
+        design = design_for_motor(args.motor, args.estimator, settings, commissioning=args.commissioning)
     except KeyError as error:
         raise CommandLineError(f"--motor/--estimator: {error.args[0]}") from None
     except ValueError as error:
@@ -729,6 +828,7 @@ def build_parser():
     run.add_argument("scenario", help="shipped scenario name (see 'drive scenarios') or YAML path")
     run.add_argument("--estimator", help="override the scenario's estimator")
     run.add_argument("--duration", type=float, help="override the duration [s]")
+    run.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     run.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     run.add_argument("--no-plot", action="store_true", help="skip the PNG plot")
     run.add_argument("--record", metavar="BAG",
@@ -738,16 +838,24 @@ def build_parser():
 
     for name, func, text in (("scenarios", cmd_scenarios, "list shipped scenarios"),
                              ("estimators", cmd_estimators, "list estimators"),
-                             ("presets", cmd_presets, "list motor presets and their assumptions")):
+                             ("presets", cmd_presets, "motor presets: the nameplate the drive is told beside the "
+                                                      "simulated plant's truth, and the assumptions")):
         p = sub.add_parser(name, help=text)
         p.add_argument("--json", action="store_true")
         p.set_defaults(func=func)
 
-    commission = sub.add_parser("commission", help="write the commissioning file of a scenario's motor (in "
-                                                   "simulation: the ideal measurement on its model)")
-    commission.add_argument("scenario", help="shipped scenario name or YAML path")
+    commission = sub.add_parser("commission", help="measure the scenario's motor at standstill, shaft held "
+                                                   "(R_s, dead time, current sensors, L_dh, L_qh, saliency shift) "
+                                                   "and write its commissioning file")
+    commission.add_argument("scenario", help="shipped scenario name or YAML path (its motor and plant)")
     commission.add_argument("--out", help="file to write (default commissioning/MOTOR.yaml)")
     commission.add_argument("--force", action="store_true", help="replace an existing file")
+    commission.add_argument("--link", choices=("pty", "can"),
+                            help="through the bridge: the virtual inverter behind this link")
+    commission.add_argument("--graph", action="store_true",
+                            help="through the ROS graph (plant node, or with --link the drive_bridge node, and "
+                                 "the drive_commissioning node)")
+    commission.add_argument("--namespace", default=DEFAULT_NAMESPACE, help="the graph's namespace (--graph)")
     commission.add_argument("--json", action="store_true")
     commission.set_defaults(func=cmd_commission)
 
@@ -800,7 +908,8 @@ def build_parser():
     pll = tune_sub.add_parser("pll", help="PI of a pulsating-injection estimator's PLL from Szabó's model "
                                           "(§2.4) and our carrier model, with a closed-loop check")
     pll.add_argument("--motor", default="szabo_ipmsm",
-                     help="motor preset (nameplate R, commissioned L_dh, L_qh)")
+                     help="motor preset (its commissioned R_s, L_dh, L_qh)")
+    pll.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     pll.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS)
     pll.add_argument("--model", default="carrier", choices=("carrier", "szabo"),
                      help="model the tuned gains come from (both are reported)")
@@ -840,6 +949,7 @@ def build_parser():
     speed.add_argument("--damping", type=float, help="ζ (default 1)")
     speed.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS,
                        help="whose PLL crossover (carrier model, current gains) bounds the speed loop")
+    speed.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     speed.add_argument("--pll-crossover", type=float, help="[rad/s] instead of the estimator's model")
     speed.add_argument("--ratio", type=float, default=0.25, help="speed bandwidth ≤ ratio × PLL crossover")
     speed.add_argument("--json", action="store_true")
@@ -849,6 +959,7 @@ def build_parser():
     launch.add_argument("scenario", help="shipped scenario name or YAML path")
     launch.add_argument("--estimator", help="override the scenario's estimator")
     launch.add_argument("--duration", type=float, help="override the duration [s]")
+    launch.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     launch.add_argument("--processes", choices=("composed", "separate"), default="composed",
                         help="nodes in this process (default) or one process per node")
     launch.add_argument("--executor", choices=EXECUTORS, default="events",
@@ -871,6 +982,7 @@ def build_parser():
     bridge.add_argument("--link", choices=("pty", "can"), default="pty")
     bridge.add_argument("--estimator", help="override the scenario's estimator")
     bridge.add_argument("--duration", type=float, help="override the duration [s]")
+    bridge.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     bridge.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     bridge.add_argument("--no-plot", action="store_true")
     bridge.add_argument("--json", action="store_true")

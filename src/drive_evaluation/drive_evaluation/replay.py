@@ -61,16 +61,17 @@ def replay(path, estimators):
     entries, results = [], []
     for name in estimators:
         scenario = dataclasses.replace(recorded.scenario, estimator=name, estimator_settings={})
-        e = build_drive(scenario).estimator
+        drive = build_drive(scenario)
+        e, calibration = drive.estimator, drive.commissioning.calibration()
         n_p = recorded.n_p
         out = np.zeros((len(currents), len(OUTPUTS)))
         replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, n_p, currents[:2], u_prev[:2], theta_m[:2],
-                       omega_m[:2], out[:2])
+                       omega_m[:2], calibration, out[:2])
         wall = math.inf
         for _ in range(TIMED_RUNS):
             x, z = e.x.copy(), e.z.copy()
             start = time.perf_counter()
-            replay_samples(e.step, x, z, e.params, n_p, currents, u_prev, theta_m, omega_m, out)
+            replay_samples(e.step, x, z, e.params, n_p, currents, u_prev, theta_m, omega_m, calibration, out)
             wall = min(wall, time.perf_counter() - start)
         log = recorded.log.copy()
         for j, column in enumerate(OUTPUTS):

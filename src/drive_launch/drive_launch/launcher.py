@@ -2,8 +2,9 @@
 one process or starts them as separate processes (each node's own executable module), with the scenario
 driver commanding speed and load and recording the per-sample topics into the runner's log layout.
 
-The estimator is handed a commissioning file: in simulation, what commissioning measures on the
-scenario's motor (``drive_runner.runner.simulated_commissioning``)."""
+The estimator and controller nodes load the commissioning record the one-process runner would (the
+scenario's ``commissioning``, a --commissioning override, or the default file in the working
+directory, else the nameplate alone)."""
 import signal
 import subprocess
 import sys
@@ -17,10 +18,9 @@ from drive_bags.writer import BagWriter
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
-from drive_runner.runner import RunResult, build_drive, cut, simulated_commissioning
+from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import resolve
-from motor_params.commissioning import save_commissioning
 
 PROCESSES = ("composed", "separate")
 LINKS = ("pty", "can")
@@ -127,6 +127,9 @@ def make_node(name, context=None, namespace=None, parameters=None, link=None):
     if name == "foc_controller":
         from foc_controller.node import ControllerNode
         return ControllerNode(**kwargs)
+    if name == "drive_commissioning":
+        from drive_commissioning.node import CommissioningNode
+        return CommissioningNode(**kwargs)
     if name == "drive_bridge":
         from drive_bridge.bridge_node import InverterBridgeNode
         return InverterBridgeNode(link=link, **kwargs)
@@ -235,12 +238,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                                          spec.extra_parameters)
             scenario = scenario_from_parameters(all_parameters(parameters))
             drive = build_drive(scenario)
-            commissioning = save_commissioning(Path(workdir.name) / f"commissioning{i}.yaml",
-                                               simulated_commissioning(scenario), scenario.motor,
-                                               "plant_model", {"scenario": scenario.source})
             roles = {"pmsm_plant": {**parameters, "load_torque_per_sample": True, "publish_clock": i == 0},
-                     "hf_estimator": {**parameters, "commissioning": str(commissioning)},
-                     "foc_controller": parameters}
+                     "hf_estimator": parameters, "foc_controller": parameters}
             inverter = None
             if spec.link:
                 inverter, host_link = _virtual_inverter(scenario, spec.link, workdir.name, i)
@@ -263,7 +262,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
                                     startup_timeout_s, progress if i == 0 else None, recorders[i], inverter)
             driver.done = Future()
-            limits.append(drive.controller.i_max_A)
+            limits.append(drive)
             drivers.append(driver)
         for node in nodes:
             ex.add_node(node)
@@ -272,8 +271,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         while not all_done.done():
             ex.spin_until_future_complete(all_done, timeout_sec=1.0)
         nodes[-1].destroy_timer(watcher)
-        results = [_result(driver, limit, record, processes, executor, requested())
-                   for driver, limit in zip(drivers, limits)]
+        results = [_result(driver, drive, record, processes, executor, requested())
+                   for driver, drive in zip(drivers, limits)]
     finally:
         polling.__exit__(None, None, None)
         _stop_children([child for _, child in children])
@@ -306,7 +305,9 @@ def _close(recorder):
     return None
 
 
-def _result(driver, current_limit_A, record, processes, executor, interrupted):
+def _result(driver, drive, record, processes, executor, interrupted):
+    """The GraphResult of one drive (``drive``: the runner's composition of the same scenario, for its
+    current limit and commissioning record)."""
     scenario = driver.scenario
     if driver.error and not interrupted:
         raise GraphError(f"{driver.node.get_namespace()} ({scenario.name}): {driver.error}")
@@ -314,8 +315,9 @@ def _result(driver, current_limit_A, record, processes, executor, interrupted):
     wall = end - driver.started_at if driver.started_at else 0.0
     log = driver.log[:driver.last_sample + 1] if record else driver.log[:0]
     scenario = cut(scenario, driver.last_sample + 1)
-    return GraphResult(scenario, scenario.estimator, log, wall, current_limit_A,
-                       processes=processes, executor=executor, interrupted=interrupted,
+    return GraphResult(scenario, scenario.estimator, log, wall, drive.controller.i_max_A,
+                       commissioning=drive.commissioning, processes=processes, executor=executor,
+                       interrupted=interrupted,
                        diagnostics=dict(driver.diagnostics), node_faults=driver.faults())
 
 

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from control_math.current_sensing import corrected_currents
 from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.virtual_inverter import VirtualInverter, make_links
 from drive_interface.interrupt import Interrupted
@@ -57,6 +58,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     host = build_drive(scenario)
     e, n_p, n = host.estimator, host.controller.n_p, scenario.n_samples
     cx, cz, cp = host.controller_x, host.controller_z, host.controller
+    calibration = host.commissioning.calibration()
     log = np.zeros((n, len(LOG_COLUMNS)))
     received = np.zeros(n, dtype=bool)
     host_s = np.zeros(n)
@@ -79,10 +81,11 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
                 if k >= n:
                     continue
                 theta_e = n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+                c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, calibration)
                 theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = e.step(
-                    e.x, e.z, e.params, k, s.i_a, s.i_b, s.i_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
+                    e.x, e.z, e.params, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
                 u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-                    cx, cz, cp, s.i_a, s.i_b, s.i_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b)
+                    cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b)
                 bridge.command(k, u_a, u_b)
                 host_s[k] = time.perf_counter() - arrived
                 received[k] = True
@@ -111,7 +114,8 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     for column, name in enumerate(("theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c")):
         log[:, COLUMN[name]] = truth[:done, column]
     log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
-    return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, link=link,
+    return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
+                           link=link,
                            counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
                            inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
                            latencies_s=np.asarray(inverter.latencies_s), received=received[:done],

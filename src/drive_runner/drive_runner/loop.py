@@ -3,6 +3,7 @@ plant samples currents → estimator answers θ̂, injection → controller answ
 advances to k+1. The cores are the same functions the ROS nodes call."""
 from numba import njit
 
+from control_math.current_sensing import corrected_currents
 from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, controller_step
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
@@ -42,24 +43,26 @@ def write_row(row, t, theta_m, omega_m, tau_e, tau_load, i_a, i_b, i_c, i_a_meas
 
 @njit
 def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, substeps,
-                est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, imposed, log):
+                est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, imposed, calibration, log):
     """Run samples k_start..k_end−1; row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
 
     px: plant state (pmsm_plant.model); ex, ez, ep: the estimator's state, filter state and parameters;
     cx, cz, cp: the controller's. speed_ref [rad/s] and tau_load [N·m] are indexed by k; with ``imposed``
-    the shaft follows speed_ref. Not cached on disk: numba cannot re-save a cache index whose entries are
-    specialised on other processes' step functions ("underlying object has vanished"); the kernels it
-    calls are cached.
+    the shaft follows speed_ref. Both cores read the measured currents corrected by the commissioned
+    ``calibration`` (control_math.current_sensing); the log keeps them as measured. Not cached on disk:
+    numba cannot re-save a cache index whose entries are specialised on other processes' step functions
+    ("underlying object has vanished"); the kernels it calls are cached.
     """
     n_p = machine.n_p
     for k in range(k_start, k_end):
         i_a, i_b, i_c, tau_e = plant_outputs(px, machine)
         m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, sensor, seed, k)
+        c_a, c_b, c_c = corrected_currents(m_a, m_b, m_c, calibration)
         theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = est_step(
-            ex, ez, ep, k, m_a, m_b, m_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], n_p * px[THETA_M],
+            ex, ez, ep, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], n_p * px[THETA_M],
             n_p * px[OMEGA_M])
         u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-            cx, cz, cp, m_a, m_b, m_c, theta_hat, omega_hat, speed_ref[k], u_inj_a, u_inj_b)
+            cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, speed_ref[k], u_inj_a, u_inj_b)
         write_row(log[k - k_start], k * T_s, px[THETA_M], px[OMEGA_M], tau_e, tau_load[k], i_a, i_b, i_c,
                   m_a, m_b, m_c, theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, speed_ref[k], i_d, i_q,
                   i_d_ref, i_q_ref, eps, signal, observable)
@@ -68,14 +71,15 @@ def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, 
 
 
 @njit
-def replay_samples(est_step, ex, ez, ep, n_p, currents, u_prev, theta_m, omega_m, out):
-    """Run an estimator over recorded samples: ``currents`` (n × 3, measured a, b, c), ``u_prev`` (n × 2,
+def replay_samples(est_step, ex, ez, ep, n_p, currents, u_prev, theta_m, omega_m, calibration, out):
+    """Run an estimator over recorded samples: ``currents`` (n × 3, measured a, b, c; corrected by the
+    commissioned ``calibration`` as in the drive), ``u_prev`` (n × 2,
     the voltage command of the sample before), the recorded ground truth θ_m, ω_m (read only by
     `sensored`; NaN becomes 0). ``out`` rows receive θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, observable."""
     for k in range(currents.shape[0]):
         theta = theta_m[k] if theta_m[k] == theta_m[k] else 0.0
         omega = omega_m[k] if omega_m[k] == omega_m[k] else 0.0
-        result = est_step(ex, ez, ep, k, currents[k, 0], currents[k, 1], currents[k, 2], u_prev[k, 0],
-                          u_prev[k, 1], n_p * theta, n_p * omega)
+        c_a, c_b, c_c = corrected_currents(currents[k, 0], currents[k, 1], currents[k, 2], calibration)
+        result = est_step(ex, ez, ep, k, c_a, c_b, c_c, u_prev[k, 0], u_prev[k, 1], n_p * theta, n_p * omega)
         for j in range(7):
             out[k, j] = result[j]

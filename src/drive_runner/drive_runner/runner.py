@@ -12,9 +12,9 @@ from drive_interface.log import LOG_COLUMNS
 from foc_controller.build import controller_for_scenario
 from foc_controller.control import controller_state
 from hf_estimator.build import estimator_for_scenario
+from motor_params.commissioning import resolve_commissioning
 from motor_params.nameplate import nameplate
 from pmsm_plant.build import plant_for_scenario
-from pmsm_plant.commissioning import ideal_commissioning
 
 from .loop import run_samples
 
@@ -31,6 +31,8 @@ class RunResult:
     interrupted: int = 0
     """The signal that stopped the run early (the log and the scenario's duration then end at the last
     sample run), or 0."""
+    commissioning: object = None
+    """The commissioning record the drive ran on (motor_params.commissioning), when known."""
 
     @property
     def n_p(self):
@@ -51,29 +53,38 @@ class Drive:
     controller_z: np.ndarray
     speed_ref: np.ndarray
     tau_load: np.ndarray
+    commissioning: object
+    """motor_params.commissioning.Commissioning: what the drive knows beyond its nameplate."""
 
     def run(self, k_start, k_end, log):
         """Run samples k_start..k_end−1 of the compiled loop; ``log`` receives one row per sample."""
         p, e = self.plant, self.estimator
         run_samples(k_start, k_end, p.x, p.machine, p.mechanics, p.inverter, p.sensor, p.seed, p.T_s,
                     p.substeps, e.step, e.x, e.z, e.params, self.controller_x, self.controller_z,
-                    self.controller, self.speed_ref, self.tau_load, p.imposed_speed, log)
+                    self.controller, self.speed_ref, self.tau_load, p.imposed_speed,
+                    self.commissioning.calibration(), log)
 
 
-def simulated_commissioning(scenario):
-    """What commissioning measures on the scenario's simulated motor (the ideal measurement)."""
-    return ideal_commissioning(plant_for_scenario(scenario).machine, nameplate(scenario.motor).current_limit_A)
+def scenario_commissioning(scenario):
+    """The commissioning record the scenario's drive loads (its ``commissioning`` key or override, the
+    default file, or the nameplate alone)."""
+    return resolve_commissioning(nameplate(scenario.motor), scenario.commissioning,
+                                 f"{scenario.source}: commissioning")
 
 
 def build_drive(scenario):
-    """Plant, estimator and controller for a scenario; ScenarioError names the scenario key at fault."""
+    """Plant, estimator and controller for a scenario; ScenarioError or CommissioningError name the key
+    at fault."""
     plant = plant_for_scenario(scenario)
-    estimator = estimator_for_scenario(scenario, simulated_commissioning(scenario))
+    commissioning = scenario_commissioning(scenario)
+    estimator = estimator_for_scenario(scenario, commissioning)
     controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz,
-                                         estimator.tracking_bandwidth_Hz, estimator.tracking_current_limit_A)
+                                         estimator.tracking_bandwidth_Hz, estimator.tracking_current_limit_A,
+                                         commissioning)
     controller_x, controller_z = controller_state(controller, controller.n_p * scenario.initial_omega_m_rad_s)
     speed_ref, tau_load = scenario.schedule()
-    return Drive(scenario, plant, estimator, controller, controller_x, controller_z, speed_ref, tau_load)
+    return Drive(scenario, plant, estimator, controller, controller_x, controller_z, speed_ref, tau_load,
+                 commissioning)
 
 
 def run_scenario(scenario, progress=None, chunk_samples=20000):
@@ -95,7 +106,7 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
         interrupted = stop.signum
     wall = time.perf_counter() - start
     return RunResult(cut(scenario, done), drive.estimator.name, log[:done], wall, drive.controller.i_max_A,
-                     interrupted)
+                     interrupted, drive.commissioning)
 
 
 def cut(scenario, samples):

@@ -2,6 +2,7 @@
 override parameters (``parameters.NODE_PARAMETERS``)."""
 from drive_interface.node import ContractNode, describe, stamp
 from drive_interface.parameter_sources import label
+from motor_params.commissioning import resolve_commissioning
 from motor_params.nameplate import nameplate
 
 from .parameters import NODE_PARAMETERS, scenario_from_parameters
@@ -85,6 +86,14 @@ class ScenarioNode(ContractNode):
     def nameplate(self):
         """The nameplate of the scenario's motor."""
         return nameplate(self.scenario.motor)
+
+    def load_commissioning(self, scenario):
+        """What the drive knows beyond the nameplate (motor_params.commissioning.resolve_commissioning):
+        the file of the parameter ``commissioning`` or the scenario's key, the default file, or the
+        nameplate alone; CommissioningError names the parameter or scenario key at fault."""
+        label = (self.label("commissioning") if self.parameters["commissioning"]
+                 else f"{scenario.source}: commissioning")
+        return resolve_commissioning(nameplate(scenario.motor), scenario.commissioning, label)
 
     def publish_config(self, config):
         if self.scenario:

@@ -5,17 +5,21 @@ import math
 
 from drive_interface.settings import number
 
-from .scenario import ScenarioError, load_scenario
+from .scenario import ScenarioError, load_scenario, shaft_held
 
 NODE_PARAMETERS = {
     "scenario": ("wang_100rpm", "shipped scenario name or YAML path: the file `drive run` reads"),
     "estimator": ("", "estimator type (empty: the scenario's)"),
+    "commissioning": ("", "commissioning file, or 'nameplate' (empty: the scenario's, else "
+                          "commissioning/MOTOR.yaml in the working directory when present, else the nameplate)"),
     "seed": (-1, "sensor-noise seed (−1: the scenario's)"),
     "injection.frequency_Hz": (0.0, "HF injection frequency [Hz] (0: the scenario's)"),
     "injection.amplitude_V": (0.0, "HF injection amplitude [V] (0: the scenario's)"),
     "controller.current_limit_A": (0.0, "current limit [A] (0: the scenario's or commissioned)"),
     "controller.speed_limit_rad_s": (math.inf, "mechanical speed reference limit [rad/s], positive"),
     "duration_s": (0.0, "run length [s] (0: the scenario's)"),
+    "shaft_held": (False, "hold the shaft at its initial angle, no load (a brake: commissioning; the plant "
+                          "then starts without an estimator in the graph)"),
     "lockstep_timeout_s": (1.0, "wall time to wait for an answer before declaring a fault [s]"),
     "diagnostics_period_s": (1.0, "period of /diagnostics [s]"),
     "trip_current_A": (0.0, "|phase current| above this is absurd input (0: 3 × the nameplate's limit) [A]"),
@@ -63,6 +67,8 @@ def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}")
     scenario = load_scenario(parameters["scenario"], estimator_override=parameters["estimator"] or None,
                              override_source=label("estimator"))
     changes = {}
+    if parameters["commissioning"]:
+        changes["commissioning"] = str(parameters["commissioning"])
     if parameters["seed"] >= 0:
         changes["seed"] = int(parameters["seed"])
     if parameters["duration_s"] > 0.0:
@@ -76,4 +82,5 @@ def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}")
         controller["current_limit_A"] = float(parameters["controller.current_limit_A"])
     if parameters["controller.speed_limit_rad_s"] != math.inf:
         controller["speed_limit_rad_s"] = parameters["controller.speed_limit_rad_s"]
-    return dataclasses.replace(scenario, injection=injection, controller=controller, **changes)
+    scenario = dataclasses.replace(scenario, injection=injection, controller=controller, **changes)
+    return shaft_held(scenario, scenario.duration_s) if parameters["shaft_held"] else scenario

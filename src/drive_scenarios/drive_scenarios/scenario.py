@@ -1,5 +1,6 @@
 """Scenario files (YAML): motor, estimator, speed and load time tables, duration, sampling period
 and non-idealities. Every error names the file and the key at fault in one line."""
+import dataclasses
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,7 +14,16 @@ from motor_params.nameplate import INVERTER_RATINGS, NAMEPLATES
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
 TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
-            "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps"}
+            "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps",
+            "plant_deviation", "commissioning"}
+NO_DEVIATION = {"R_s": 1.0, "L_d": 1.0, "L_q": 1.0, "psi_f": 1.0, "J": 1.0, "friction": 1.0,
+                "sensor_gain_a": 1.0, "sensor_gain_b": 1.0, "sensor_gain_c": 1.0,
+                "sensor_offset_a": 0.0, "sensor_offset_b": 0.0, "sensor_offset_c": 0.0, "dead_time": 1.0}
+"""``plant_deviation`` keys and their neutral values: factors on the preset's R_s, the flux map's L_d, L_q
+and ψ_f, the inertia J, the friction, each current sensor's gain and the dead time; sensor offsets
+[A] added to the preset's. The plant alone deviates; the drive still knows only the nameplate."""
+NAMEPLATE_ONLY = "nameplate"
+"""The ``commissioning`` value (and --commissioning) that runs the drive on its nameplate alone."""
 RPM = 2.0 * math.pi / 60.0
 MAX_FILE_BYTES = 1 << 20
 MAX_SAMPLES = 10_000_000
@@ -70,6 +80,11 @@ class Scenario:
     metrics_start_s: float
     seed: int
     substeps: int
+    plant_deviation: dict
+    """NO_DEVIATION's keys: how the simulated plant differs from its preset (the drive is not told)."""
+    commissioning: str = ""
+    """The commissioning file the drive loads (a path, resolved against the scenario file's folder), or
+    NAMEPLATE_ONLY; empty: the default (drive_interface.commissioning_file)."""
     estimator_source: str = ""
     """Where the estimator's name came from (the file's key, or an override's command-line option or
     parameter), for errors that blame it."""
@@ -96,6 +111,14 @@ class Scenario:
                 if table.values[i] != table.values[i - 1] or table.interpolation == "linear":
                     events.add(table.times_s[i])
         return sorted(e for e in events if 0.0 < e < self.duration_s)
+
+
+def shaft_held(scenario, duration_s):
+    """``scenario`` with its shaft held at the initial angle (imposed zero speed, no load: a brake) for
+    ``duration_s``: the plant of a commissioning run."""
+    still = Table((0.0,), (0.0,), "step")
+    return dataclasses.replace(scenario, mode="imposed_speed", speed=still, load=still, initial_omega_m_rad_s=0.0,
+                               duration_s=duration_s)
 
 
 def scenario_names():
@@ -227,6 +250,18 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     controller = data.get("controller", {}) or {}
     if not isinstance(controller, dict):
         fail("controller", "must be a mapping of controller settings")
+    deviation = data.get("plant_deviation", {}) or {}
+    if not isinstance(deviation, dict):
+        fail("plant_deviation", "must be a mapping of factors and sensor offsets")
+    for key in sorted(set(deviation) - set(NO_DEVIATION), key=str):
+        fail(f"plant_deviation.{key}", f"unknown key (known: {', '.join(NO_DEVIATION)})")
+    deviation = {key: (_number(value, f"plant_deviation.{key}", fail) if key.startswith("sensor_offset")
+                       else _factor(value, f"plant_deviation.{key}", fail)) for key, value in deviation.items()}
+    commissioning = data.get("commissioning", "")
+    if not isinstance(commissioning, str):
+        fail("commissioning", f"must be a file path or '{NAMEPLATE_ONLY}', not {commissioning!r}")
+    if commissioning and commissioning != NAMEPLATE_ONLY and source.endswith((".yaml", ".yml")):
+        commissioning = str(Path(source).parent / commissioning)
 
     return Scenario(
         name=name, source=source, description=description, motor=motor,
@@ -237,7 +272,8 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         initial_angle_error_e_rad=_number(initial.get("angle_error_e_rad", 0.0),
                                           "initial.angle_error_e_rad", fail),
         controller=controller, settle_s=settle, metrics_start_s=start,
-        seed=seed, substeps=substeps, estimator_source=estimator_source)
+        seed=seed, substeps=substeps, plant_deviation={**NO_DEVIATION, **deviation},
+        commissioning=commissioning, estimator_source=estimator_source)
 
 
 def _number(value, key, fail):
@@ -250,6 +286,13 @@ def _positive(value, key, fail):
     value = _number(value, key, fail)
     if value <= 0.0:
         fail(key, f"must be positive, not {value}")
+    return value
+
+
+def _factor(value, key, fail):
+    value = _positive(value, key, fail)
+    if not 0.1 <= value <= 10.0:
+        fail(key, f"a factor must lie in [0.1, 10], not {value!r}")
     return value
 
 

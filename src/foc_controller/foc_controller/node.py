@@ -8,7 +8,8 @@ estimates, or a rejected speed limit, give zero voltage and a reported fault; th
 The core is built once the estimator's drive_config tells what the controller needs of it: its
 injection frequency (the notch), its tracking bandwidth (the speed loop stays below it) and the current
 up to which its angle holds (the current limit). Until then `voltage_command` is not offered, so the
-plant does not start.
+plant does not start. The current loops use the commissioning record's R_s
+(``ScenarioNode.load_commissioning``) and read the currents corrected by its sensor calibration.
 """
 import dataclasses
 import json
@@ -20,10 +21,12 @@ from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
+from control_math.current_sensing import corrected_currents
 from drive_interface.node import describe, finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_of
 from drive_interface.topics import TOPICS
 from drive_scenarios.node import ScenarioNode
+from motor_params.knowledge import motor_knowledge
 
 from .build import check_controller_settings, controller_for_scenario
 from .control import OMEGA_FILTERED, controller_state, controller_step, estimated_torque
@@ -71,6 +74,8 @@ class ControllerNode(ScenarioNode):
 
     def build(self, scenario):
         check_controller_settings(scenario)
+        self.commissioning = self.load_commissioning(scenario)
+        self.calibration = self.commissioning.calibration()
 
     def on_drive_config(self, msg):
         """Build the core from the estimator's facts, once."""
@@ -89,7 +94,7 @@ class ControllerNode(ScenarioNode):
             bandwidth = config["tracking_bandwidth_Hz"]
             self.params = controller_for_scenario(self.scenario, config["injection_frequency_Hz"],
                                                   math.inf if bandwidth is None else bandwidth,
-                                                  config["tracking_current_limit_A"])
+                                                  config["tracking_current_limit_A"], self.commissioning)
         except ValueError as error:
             self.configured = False
             self.reject(error)
@@ -99,7 +104,8 @@ class ControllerNode(ScenarioNode):
         self.trip_A = self.trip_current_A()
         self.x, self.z = controller_state(self.params, self.n_p * self.scenario.initial_omega_m_rad_s)
         controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        self.publish_config({"controller": self.params, "estimator": config["estimator"]})
+        self.publish_config({"controller": self.params, "estimator": config["estimator"],
+                             "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
 
     def open_outputs(self):
         self.voltage_pub = self.create_publisher(Vector3Stamped, "voltage_command", topic_qos("voltage_command"))
@@ -175,8 +181,8 @@ class ControllerNode(ScenarioNode):
             self.fault("bad_input", f"rotor_estimate/injection at sample {k} not finite; zero voltage")
         else:
             u_alpha, u_beta, i_d, i_q, _, i_q_ref = controller_step(
-                self.x, self.z, self.params, *currents, self.n_p * estimate[0], self.n_p * estimate[1],
-                self.omega_m_ref, *injection)
+                self.x, self.z, self.params, *corrected_currents(*currents, self.calibration),
+                self.n_p * estimate[0], self.n_p * estimate[1], self.omega_m_ref, *injection)
             self.current_limited = abs(i_q_ref) >= self.params.i_max_A
             if k % self.decimation == 0:
                 j = self.joint_msg

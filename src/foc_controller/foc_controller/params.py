@@ -27,9 +27,12 @@ DEFAULTS = {
 
 
 def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
-                           estimator_bandwidth_Hz=math.inf):
+                           estimator_bandwidth_Hz=math.inf, commissioning=None):
     """ControllerParams for a motor with this ``nameplate`` (motor_params.nameplate.Nameplate) on an
-    ``inverter`` (InverterRating) at sampling period T_s.
+    ``inverter`` (InverterRating) at sampling period T_s; R_s of the current loops comes from the
+    ``commissioning`` record when given, else the nameplate. Their inductances stay the nameplate's:
+    the commissioned ones are incremental at no load (for the estimators), and the loops' gains tuned on
+    them overshoot the current limit further in a speed reversal (docs/commissioning.md §1).
 
     settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s,
     current_damping, speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A,
@@ -41,6 +44,8 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     """
     s = check_settings(settings, T_s)
     m = nameplate
+    if commissioning is not None:
+        m = m._replace(R_s_ohm=commissioning.R_s_ohm)
     k_t = 1.5 * m.n_p * m.psi_f_Wb
     if s["gains"] == "szabo_table2":
         d, q, w = SZABO_TABLE2["d"], SZABO_TABLE2["q"], SZABO_TABLE2["speed"]

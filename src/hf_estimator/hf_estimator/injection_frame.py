@@ -9,15 +9,20 @@ design).
 2. Exact pairing, no carrier-phase error: the current step i[k] − i[k−1] answers the voltage applied
    during that period, i.e. the command issued d + 1 samples earlier. That whole voltage (fundamental +
    injection, from `voltage_command`) is known, so nothing of it leaks: Δi = T_s·Γ·(u − R̂·ī) + r,
-   with ī the period's mean current (mean of its end samples) and r the slow back-EMF/dead-time/offset
-   drift. The resistive drop must be in the regressor: the current loop makes u follow i, so left in r
-   it biases Γ̂ (under rated load and fast current-loop action the fit lost the angle without it).
+   with ī the period's mean current (mean of its end samples) and r the slow back-EMF/offset drift.
+   The resistive drop must be in the regressor: the current loop makes u follow i, so left in r it
+   biases Γ̂ (under rated load and fast current-loop action the fit lost the angle without it). With
+   the setting ``dead_time_model`` the commissioned dead-time voltage at the phase currents of the
+   period's start (control_math.dead_time) is subtracted too: where a phase current crosses zero the loss
+   switches with the HF current and turns the measured axis. It removes that error but lets sensor noise
+   in through the steep sign (measured trade-off in docs/commissioning.md §6), so it is off by default.
 3. In the frame θ_axis of each period, the last 2N samples (one + and one − carrier period) give a
    least-squares fit of Γ̂ = [[g_dd, g_dq], [g_dq, g_qq]] and r (intercepts removed by centring, a 3 × 3
    normal system). On a salient rotor Γ̂ = Σ·I + Δ·[[cos 2e, sin 2e], [sin 2e, −cos 2e]], e = θ − θ_axis:
-   the Σ term stays on the diagonal (no Σ-term bias), e = ½ atan2(2g_dq, g_dd − g_qq) is measured in
-   radians whatever the saliency, and |Δ̂| = ½ hypot(g_dd − g_qq, 2g_dq) against Σ̂ = ½(g_dd + g_qq) is
-   a model-free observability measure. The ±δ axes make g_qq and g_dq identifiable.
+   the Σ term stays on the diagonal (no Σ-term bias), e = ½ atan2(2s·g_dq, s·(g_dd − g_qq)) is measured
+   in radians whatever the saliency (s = −1 where the commissioning found L_dh > L_qh), and
+   |Δ̂| = ½ hypot(g_dd − g_qq, 2g_dq) against Σ̂ = ½(g_dd + g_qq) is a model-free observability measure.
+   The ±δ axes make g_qq and g_dq identifiable.
 4. Load turns the saliency axis (cross-saturation: 0.09 rad at rated current on `wang_spmsm`, 0.3 rad
    at 1.5× rated). The commissioned shift δ(i_q) is subtracted at the q current of the fit window
    (ε = e − δ(î_q), î_q low-passed in the θ̂ frame). Load also makes the axis turn back as the rotor
@@ -34,7 +39,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.frames import clarke_contract, rotate
+from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
+from control_math.frames import clarke_contract, inverse_clarke, rotate
 from control_math.tables import table_value
 
 from .interface import Estimator, check_settings, register
@@ -50,7 +56,7 @@ HISTORY = SUMS + N_SUMS
 
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
-            "signal_smoothing_Hz": 20.0}
+            "signal_smoothing_Hz": 20.0, "dead_time_model": False}
 
 
 class InjectionFrameParams(NamedTuple):
@@ -58,7 +64,7 @@ class InjectionFrameParams(NamedTuple):
     N: int
     U_h_V: float
     R_s_ohm: float
-    """Nameplate stator resistance (an estimate, not the plant's)."""
+    """Commissioned stator resistance (the nameplate's when not commissioned)."""
     dither_rad: float
     delay_periods: int
     kp: float
@@ -69,6 +75,12 @@ class InjectionFrameParams(NamedTuple):
     """First-order smoothing per sample of î_q (window-centred: time constant N/2 samples)."""
     shift_i_q_A: np.ndarray
     shift_rad: np.ndarray
+    dead_time_voltage_V: float
+    """Commissioned per-phase dead-time voltage subtracted from the applied voltage (0: not modelled)."""
+    dead_time_smoothing_A: float
+    saliency_sign: float
+    """+1 when the commissioned L_dh < L_qh (or no saliency known), −1 when L_dh > L_qh: the d axis is then
+    the axis of the smaller admittance."""
 
 
 @njit(cache=True)
@@ -94,7 +106,8 @@ def _fit_error(x, n, p):
     g_qq *= scale
     g_dq *= scale
     half_difference = 0.5 * (g_dd - g_qq)
-    return (0.5 * math.atan2(g_dq, half_difference), math.hypot(half_difference, g_dq),
+    s = p.saliency_sign
+    return (0.5 * math.atan2(s * g_dq, s * half_difference), math.hypot(half_difference, g_dq),
             0.5 * (g_dd + g_qq))
 
 
@@ -122,8 +135,10 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
     u_then_beta = x[issued + 3 * slot_then + 2]
     d_alpha = i_alpha - x[PREV_IA]
     d_beta = i_beta - x[PREV_IB]
-    drive_alpha = u_then_alpha - p.R_s_ohm * 0.5 * (i_alpha + x[PREV_IA])
-    drive_beta = u_then_beta - p.R_s_ohm * 0.5 * (i_beta + x[PREV_IB])
+    start_a, start_b, start_c = inverse_clarke(x[PREV_IA], x[PREV_IB])
+    loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
+    drive_alpha = u_then_alpha - p.dead_time_voltage_V * loss_alpha - p.R_s_ohm * 0.5 * (i_alpha + x[PREV_IA])
+    drive_beta = u_then_beta - p.dead_time_voltage_V * loss_beta - p.R_s_ohm * 0.5 * (i_beta + x[PREV_IB])
     x[PREV_IA] = i_alpha
     x[PREV_IB] = i_beta
 
@@ -177,13 +192,16 @@ def make_injection_frame(nameplate, T_s, settings, theta_e0, omega_e0, commissio
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     params = InjectionFrameParams(
-        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), R_s_ohm=nameplate.R_s_ohm,
+        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), R_s_ohm=commissioning.R_s_ohm,
         dither_rad=float(s["dither_rad"]),
         delay_periods=int(delay_periods), kp=2.0 * float(s["pll_damping"]) * omega_n, ki=omega_n ** 2,
         observable_ratio=float(s["observable_ratio"]),
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
         current_smoothing=1.0 - math.exp(-2.0 / N),
-        shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad)
+        shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad,
+        dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] else 0.0,
+        dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
+        saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0)
     x = np.zeros(HISTORY + 3 * (delay_periods + 2) + 4 * 2 * N)
     x[THETA] = theta_e0
     x[INTEGRAL] = omega_e0

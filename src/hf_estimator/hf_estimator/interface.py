@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from drive_interface.settings import choice, number, positive
+from drive_interface.settings import choice, flag, number, positive
 
 
 @dataclass(frozen=True)
@@ -139,6 +139,7 @@ SETTING_CHECKS = {
     "demodulation": lambda key, value, T_s: choice(key, value, ("paper", "aligned")),
     "dither_rad": lambda key, value, T_s: number(key, value, 0.0, math.pi / 4.0),
     "signal_smoothing_Hz": _frequency,
+    "dead_time_model": lambda key, value, T_s: flag(key, value),
 }
 """How each estimator setting is checked: (key, value, T_s) → the value, or ValueError naming the key."""
 

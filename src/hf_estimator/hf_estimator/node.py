@@ -7,37 +7,28 @@ timeout, which is what the plant then applied) and, for `sensored` only, `rotor_
 Non-finite or absurd currents are not fed to the core: the node answers with its last estimate and
 no injection, and reports the fault.
 
-What it knows of the motor: the scenario's nameplate and the commissioning file named by the parameter
-``commissioning`` (default: ``commissioning/MOTOR.yaml`` in the working directory). Its drive_config
-carries what the controller needs of it (``Estimator.facts``).
+What it knows of the motor: the scenario's nameplate and the commissioning record
+(``ScenarioNode.load_commissioning``); it reads the currents corrected by the record's sensor
+calibration. Its drive_config carries what the controller needs of it (``Estimator.facts``) and every
+motor value it uses with its source (``motor_knowledge``).
 """
 import sys
 import time
-from pathlib import Path
 
 from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
 
+from control_math.current_sensing import corrected_currents
 from drive_interface.node import finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_of
 from drive_interface.topics import TOPICS
 from drive_scenarios.node import ScenarioNode
-from motor_params.commissioning import CommissioningError, load_commissioning
+from motor_params.knowledge import motor_knowledge
 
 from .build import estimator_for_scenario
 
-COMMISSIONING = "commissioning"
-
-
-def default_commissioning_file(motor):
-    """Where a motor's commissioning file is looked for when none is named."""
-    return Path("commissioning") / f"{motor}.yaml"
-
 
 class EstimatorNode(ScenarioNode):
-    node_parameters = {COMMISSIONING: ("", "commissioning file (empty: commissioning/MOTOR.yaml in the working "
-                                           "directory)")}
-
     def __init__(self, **kwargs):
         super().__init__("hf_estimator", **kwargs)
         self.currents = {}
@@ -72,25 +63,13 @@ class EstimatorNode(ScenarioNode):
         self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
         self.watch_peer("currents", "the plant")
         self.watch_foreign_publishers(("currents", "voltage_command"))
-        self.publish_config({**e.facts(), "commissioning": self.commissioning_source,
+        self.publish_config({**e.facts(), "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning),
                              "estimator_parameters": e.params})
 
     def build(self, scenario):
-        given = self.get_parameter(COMMISSIONING).value
-        self.parameters[COMMISSIONING] = given
-        path = Path(given) if given else default_commissioning_file(scenario.motor)
-        if not given and not path.is_file():
-            raise CommissioningError(f"{self.label(COMMISSIONING)}: none given and no {path} for motor "
-                                     f"{scenario.motor} (write one with `drive commission`)")
-        try:
-            commissioning, metadata = load_commissioning(path)
-        except CommissioningError as error:
-            raise CommissioningError(f"{self.label(COMMISSIONING)}: {error}") from None
-        if metadata.get("motor") not in (None, scenario.motor):
-            raise CommissioningError(f"{self.label(COMMISSIONING)}: {path} is for motor {metadata['motor']}, "
-                                     f"the scenario's is {scenario.motor}")
-        self.commissioning_source = str(path)
-        self.estimator = estimator_for_scenario(scenario, commissioning)
+        self.commissioning = self.load_commissioning(scenario)
+        self.calibration = self.commissioning.calibration()
+        self.estimator = estimator_for_scenario(scenario, self.commissioning)
 
     def open_outputs(self):
         """The answer publishers; `voltage_command` is not waited for (the controller opens its own
@@ -152,6 +131,7 @@ class EstimatorNode(ScenarioNode):
             self.answer(k, self.theta_hat, self.omega_hat, 0.0, 0.0, 0.0, self.signal, 0.0)
         else:
             e = self.estimator
+            i_a, i_b, i_c = corrected_currents(i_a, i_b, i_c, self.calibration)
             self.answer(k, *e.step(e.x, e.z, e.params, k, i_a, i_b, i_c, u_alpha, u_beta, theta_enc,
                                    omega_enc))
         self.try_step()

@@ -49,10 +49,10 @@ class PllDesign:
 
 def pll_design(nameplate, commissioning, delay_periods, estimator_name, settings, T_s=1e-4):
     """Both models of ``estimator_name``'s loop with estimator ``settings`` on a motor known by its
-    ``nameplate`` (R) and ``commissioning`` record (the HF inductances), with the inverter's computation
+    ``nameplate`` and ``commissioning`` record (R_s and the HF inductances), with the inverter's computation
     delay ``delay_periods``."""
     estimator = make_estimator(estimator_name, nameplate, T_s, settings, 0.0, 0.0, commissioning, delay_periods)
-    R = nameplate.R_s_ohm
+    R = commissioning.R_s_ohm
     path = carrier_path(estimator, R, commissioning.L_dh_H, commissioning.L_qh_H, delay_periods)
     szabo = None
     if not path.alphabeta:

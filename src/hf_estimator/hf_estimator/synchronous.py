@@ -9,7 +9,7 @@ band-pass from f_h/√2 to f_h·√2 (without one, the fundamental q current lea
 PI of gain 4853). The carriers are evaluated at the sampling instant (no delay compensation): at
 1500 Hz and 10 kHz the sampled q̂ current lags the paper's by ω_h·1.5·T_s = 81°, so the phase detector
 keeps cos 81° ≈ 0.16 of its gain (``pll_model`` carrier model). ``demodulation: aligned`` (ours, not the
-paper's) turns the demodulation carrier by that lag, computed from the nameplate R, the commissioned
+paper's) turns the demodulation carrier by that lag, computed from the commissioned R_s, the commissioned
 L_dh, L_qh, the band-pass and the inverter delay.
 """
 import math
@@ -88,7 +88,7 @@ def make_synchronous(nameplate, T_s, settings, theta_e0, omega_e0, commissioning
     bandpass = butterworth_bandpass(1, f_h / ratio, min(f_h * ratio, 0.49 / T_s), T_s)
     phase = 0.0
     if s["demodulation"] == "aligned":
-        phase = aligned_demodulation_phase(nameplate.R_s_ohm, commissioning, T_s, delay_periods,
+        phase = aligned_demodulation_phase(commissioning.R_s_ohm, commissioning, T_s, delay_periods,
                                            2.0 * math.pi * f_h, bandpass)
     params = SynchronousParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, u_h_V=u_h, u_star=float(s["u_star"]),

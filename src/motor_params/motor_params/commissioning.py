@@ -1,4 +1,5 @@
-"""The commissioning record: what a standstill HF test measures on the drive's own motor, and its file.
+"""The commissioning record: what the drive's standstill tests measure on its own motor and inverter
+(docs/commissioning.md), the record a drive assumes from its nameplate alone, and the file.
 
 The file (YAML) holds the values with their units in the keys, how they were obtained (``method``),
 the motor, the conditions and the date. Every error names the file and the key at fault.
@@ -11,22 +12,37 @@ from typing import NamedTuple
 import numpy as np
 import yaml
 
+from control_math.current_sensing import CurrentCalibration
 from drive_interface.errors import DriveError
+from drive_interface.settings import number
 
 MIN_CONVERGENCE_SLOPE = 0.75
 """Sensorless operation keeps the current where a saliency tracker keeps three quarters of its loop gain
 (on `wang_spmsm`: 5.6 A, 1.22× rated; at 1.5× rated the slope is −0.2)."""
-
-
+NAMEPLATE_ONLY = "nameplate"
+"""The commissioning source of a drive told its nameplate only."""
+DEFAULT = "default"
 class CommissioningError(DriveError):
     """A commissioning file is unusable; the message names the file and the key."""
 
 
 class Commissioning(NamedTuple):
-    """HF inductances at no load, and how load current turns the saliency axis (rotor locked at a known
-    angle, the current vector stepped along the q axis up to the current limit and swept a little about
-    it, the HF admittance's axis recorded: the cross-saturation shift and its dependence on i_d)."""
+    """What the drive knows of its motor beyond the nameplate: the stator resistance, the inverter's
+    dead-time voltage, the current sensors' relative gains and offsets, the HF inductances at no load, and
+    how load current turns the saliency axis (shaft held, the current vector stepped along q up to the
+    current limit and swept a little about it in d). ``source`` says where each value came from: a
+    file's path, or NAMEPLATE_ONLY (``sources()`` itemises)."""
 
+    R_s_ohm: float
+    dead_time_voltage_V: float
+    """Per-phase average voltage lost to the dead time at full conduction (t_dead/T_s · U_dc)."""
+    sensor_gain_a: float
+    """Relative gain of the phase-a current sensor (the three have mean 1)."""
+    sensor_gain_b: float
+    sensor_gain_c: float
+    sensor_offset_a_A: float
+    sensor_offset_b_A: float
+    sensor_offset_c_A: float
     L_dh_H: float
     L_qh_H: float
     saliency_shift_i_q_A: np.ndarray
@@ -37,6 +53,20 @@ class Commissioning(NamedTuple):
     """d(saliency-axis angle)/d(rotor angle) with the current vector held still, at those currents:
     1 + i_q·∂δ/∂i_d [1]. It is the slope of every saliency tracker's error signal; at 0 the HF
     admittance no longer tells the rotor angle (the axis turns back as fast as the rotor turns)."""
+    source: str = NAMEPLATE_ONLY
+
+    def calibration(self):
+        """The current sensors' correction (control_math.current_sensing)."""
+        return CurrentCalibration(self.sensor_gain_a, self.sensor_gain_b, self.sensor_gain_c,
+                                  self.sensor_offset_a_A, self.sensor_offset_b_A, self.sensor_offset_c_A)
+
+    def sources(self):
+        """Each value's origin: ``nameplate`` (R_s, L_dh = L_d, L_qh = L_q), ``default`` (ideal sensors,
+        no dead time, no saliency shift) or ``commissioning file PATH``."""
+        if self.source != NAMEPLATE_ONLY:
+            return {key: f"commissioning file {self.source}" for key in SCALARS + TABLES}
+        from_plate = ("R_s_ohm", "L_dh_H", "L_qh_H")
+        return {key: NAMEPLATE_ONLY if key in from_plate else DEFAULT for key in SCALARS + TABLES}
 
     @property
     def sigma(self):
@@ -49,16 +79,64 @@ class Commissioning(NamedTuple):
         return 0.5 * (1.0 / self.L_dh_H - 1.0 / self.L_qh_H)
 
     def tracking_current_limit_A(self, min_slope=MIN_CONVERGENCE_SLOPE):
-        """The largest table current |i_q| [A] up to which the convergence slope stays at or above
-        ``min_slope`` on both signs of the current."""
-        magnitude = np.abs(self.saliency_shift_i_q_A)
-        failing = magnitude[self.convergence_slope < min_slope]
-        inside = magnitude < failing.min() if failing.size else np.ones_like(magnitude, dtype=bool)
-        return float(magnitude[inside].max())
+        """The largest current |i_q| [A] up to which the convergence slope (interpolated linearly in the
+        table) stays at or above ``min_slope`` on both signs of the current; the table's end if it never
+        falls below."""
+        currents, slopes = self.saliency_shift_i_q_A, self.convergence_slope
+        if slopes[np.argmin(np.abs(currents))] < min_slope:
+            return 0.0
+        limit = float(np.max(np.abs(currents)))
+        for j in range(len(currents) - 1):
+            (i0, i1), (f0, f1) = currents[j:j + 2], slopes[j:j + 2]
+            for inner, outer, f_inner, f_outer in ((i1, i0, f1, f0), (i0, i1, f0, f1)):
+                if abs(outer) > abs(inner) and f_inner >= min_slope > f_outer:
+                    crossing = inner + (outer - inner) * (f_inner - min_slope) / (f_inner - f_outer)
+                    limit = min(limit, abs(float(crossing)))
+        return limit
 
 
-SCALARS = ("L_dh_H", "L_qh_H")
+SCALARS = ("R_s_ohm", "dead_time_voltage_V", "sensor_gain_a", "sensor_gain_b", "sensor_gain_c",
+           "sensor_offset_a_A", "sensor_offset_b_A", "sensor_offset_c_A", "L_dh_H", "L_qh_H")
 TABLES = ("saliency_shift_i_q_A", "saliency_shift_rad", "convergence_slope")
+
+
+SCALAR_RANGES = {"R_s_ohm": (0.0, None, False), "dead_time_voltage_V": (0.0, None, True),
+                 "L_dh_H": (0.0, None, False), "L_qh_H": (0.0, None, False),
+                 **{f"sensor_gain_{x}": (0.5, 2.0, True) for x in "abc"},
+                 **{f"sensor_offset_{x}_A": (None, None, False) for x in "abc"}}
+"""(low, high, low inclusive) of each scalar (drive_interface.settings.number); None: open."""
+
+
+def nameplate_commissioning(plate):
+    """The record of a drive told only its nameplate (motor_params.nameplate.Nameplate): R_s, L_dh = L_d
+    and L_qh = L_q from it; ideal current sensors, no dead-time voltage, no saliency shift (slope 1)
+    over ± the current limit."""
+    currents = np.array([-plate.current_limit_A, 0.0, plate.current_limit_A])
+    return Commissioning(plate.R_s_ohm, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, plate.L_d_H, plate.L_q_H,
+                         currents, np.zeros(3), np.ones(3), NAMEPLATE_ONLY)
+
+
+def default_commissioning_file(motor):
+    """Where a motor's commissioning file is looked for when none is named (the working directory)."""
+    return Path("commissioning") / f"{motor}.yaml"
+
+
+def resolve_commissioning(plate, given="", label="commissioning"):
+    """What the drive knows beyond the nameplate ``plate``: the file ``given`` (``label`` says where that
+    name came from: a command-line option, a parameter, a scenario key), NAMEPLATE_ONLY, or when empty the
+    default file when present, else the nameplate alone. CommissioningError names the file and key."""
+    if given == NAMEPLATE_ONLY:
+        return nameplate_commissioning(plate)
+    path = Path(given) if given else default_commissioning_file(plate.name)
+    if not given and not path.is_file():
+        return nameplate_commissioning(plate)
+    try:
+        commissioning, metadata = load_commissioning(path)
+    except CommissioningError as error:
+        raise CommissioningError(f"{label}: {error}") from None
+    if metadata.get("motor") not in (None, plate.name):
+        raise CommissioningError(f"{label}: {path} is for motor {metadata['motor']}, this drive's is {plate.name}")
+    return commissioning
 
 
 def save_commissioning(path, commissioning, motor, method, conditions=None):
@@ -87,9 +165,14 @@ def load_commissioning(path):
     parsed = {}
     for key in SCALARS:
         value = values.get(key)
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                or value <= 0.0:
-            raise CommissioningError(f"{path}: values.{key}: must be a positive inductance in H, not {value!r}")
+        if value is None:
+            raise CommissioningError(f"{path}: values.{key}: missing (a file written before the drive measured "
+                                     f"it: run `drive commission` again)")
+        low, high, low_inclusive = SCALAR_RANGES[key]
+        try:
+            number(key, value, low, high, low_inclusive=low_inclusive)
+        except ValueError as error:
+            raise CommissioningError(f"{path}: values.{error}") from None
         parsed[key] = float(value)
     lengths = set()
     for key in TABLES:
@@ -105,4 +188,4 @@ def load_commissioning(path):
     if np.any(np.diff(parsed["saliency_shift_i_q_A"]) <= 0.0):
         raise CommissioningError(f"{path}: values.saliency_shift_i_q_A: must be ascending")
     metadata = {key: value for key, value in document.items() if key != "values"}
-    return Commissioning(**parsed), metadata
+    return Commissioning(**parsed, source=str(path)), metadata

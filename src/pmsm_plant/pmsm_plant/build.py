@@ -28,8 +28,9 @@ class Plant:
 def plant_for_scenario(scenario):
     """A fresh Plant for ``scenario`` (drive_scenarios.scenario.Scenario)."""
     preset = get_preset(scenario.motor)
-    machine, inverter, sensor = plant_parameters(preset, scenario.non_idealities)
+    machine, mechanics, inverter, sensor = plant_parameters(preset, scenario.non_idealities,
+                                                            scenario.plant_deviation)
     x = np.zeros(N_STATE)
     plant_reset(x, scenario.initial_theta_m_rad, scenario.initial_omega_m_rad_s, machine)
-    return Plant(machine, preset.mechanics, inverter, sensor, x, scenario.seed, scenario.T_s, scenario.substeps,
+    return Plant(machine, mechanics, inverter, sensor, x, scenario.seed, scenario.T_s, scenario.substeps,
                  scenario.mode == "imposed_speed")

@@ -1,27 +1,32 @@
-"""The ideal commissioning measurement: what a perfect standstill HF test would measure on the
-simulated machine, computed from its model. Only the simulation's composition calls this; the drive
-itself reads a commissioning file (``motor_params.commissioning``)."""
-import functools
-
+"""What a perfect commissioning would identify on the simulated plant, with the record's keys: the
+truth `drive commission --json` scores its measurement against. Only the composition's scoring calls
+this; the drive itself never sees it."""
 import numpy as np
-
-from motor_params.commissioning import Commissioning
 
 from .model import incremental_inductances, saturation_saliency_angle
 
-METHOD = "plant_model"
-"""How an ideal record was obtained, as written in its file."""
 
-
-@functools.lru_cache(maxsize=8)
-def ideal_commissioning(machine, i_q_max_A, points=65, d_sweep_A=0.01):
-    """The standstill HF test's result on ``machine`` (MachineParams): tables over ±i_q_max_A (the
-    drive's current limit); the d current is swept by ±d_sweep_A about zero for the convergence slope.
-    Cached: a pure function of the machine, shared by the cores of one process."""
+def saliency_shift_and_slope(machine, i_q_A, d_sweep_A=0.01):
+    """(δ [rad], F = 1 + i_q·∂δ/∂i_d) of ``machine`` at (0, i_q_A); δ from d whichever axis has the
+    smaller inductance at no load."""
     L_dh, L_qh, _ = incremental_inductances(machine)
-    currents = np.linspace(-i_q_max_A, i_q_max_A, points)
-    shift = np.array([saturation_saliency_angle(machine, 0.0, i_q) for i_q in currents])
-    slope = np.array([1.0 + i_q * (saturation_saliency_angle(machine, d_sweep_A, i_q)
-                                   - saturation_saliency_angle(machine, -d_sweep_A, i_q))
-                      / (2.0 * d_sweep_A) for i_q in currents])
-    return Commissioning(L_dh, L_qh, currents, shift, slope)
+    sign = 1.0 if L_dh <= L_qh else -1.0
+    shift = saturation_saliency_angle(machine, 0.0, i_q_A, sign)
+    slope = 1.0 + i_q_A * (saturation_saliency_angle(machine, d_sweep_A, i_q_A, sign)
+                           - saturation_saliency_angle(machine, -d_sweep_A, i_q_A, sign)) / (2.0 * d_sweep_A)
+    return shift, slope
+
+
+def commissioning_truth(plant, rated_current_A):
+    """The plant's (pmsm_plant.build.Plant) true values under the commissioning record's keys, and the
+    saliency shift and convergence slope at rated current (δ at rated, F at rated)."""
+    m, inv, s = plant.machine, plant.inverter, plant.sensor
+    L_dh, L_qh, _ = incremental_inductances(m)
+    gains = np.array([s.gain_a, s.gain_b, s.gain_c])
+    gains = gains / gains.mean()
+    shift, slope = saliency_shift_and_slope(m, rated_current_A)
+    return {"R_s_ohm": m.R_s_ohm, "dead_time_voltage_V": inv.t_dead_s / plant.T_s * inv.U_dc_V,
+            "sensor_gain_a": gains[0], "sensor_gain_b": gains[1], "sensor_gain_c": gains[2],
+            "sensor_offset_a_A": s.offset_a_A, "sensor_offset_b_A": s.offset_b_A,
+            "sensor_offset_c_A": s.offset_c_A, "L_dh_H": L_dh, "L_qh_H": L_qh,
+            "saliency_shift_at_rated_rad": shift, "convergence_slope_at_rated": slope}

@@ -231,8 +231,9 @@ def flux_from_current(machine, i_d_A, i_q_A):
     return float(psi[0]), float(psi[1])
 
 
-def saturation_saliency_angle(machine, i_d_A=0.0, i_q_A=0.0):
-    """Angle [rad, electrical] by which cross-saturation turns the HF saliency axis from d."""
+def saturation_saliency_angle(machine, i_d_A=0.0, i_q_A=0.0, saliency_sign=1.0):
+    """Angle [rad, electrical] by which cross-saturation turns the HF saliency axis from d; with
+    ``saliency_sign`` −1 (L_dh > L_qh) the axis of the smaller admittance is the one that starts on d."""
     psi_d, psi_q = flux_from_current(machine, i_d_A, i_q_A)
     g_dd, g_qq, g_dq = incremental_inverse_inductance(psi_d, psi_q, machine)
-    return 0.5 * math.atan2(2.0 * g_dq, g_dd - g_qq)
+    return 0.5 * math.atan2(2.0 * saliency_sign * g_dq, saliency_sign * (g_dd - g_qq))

@@ -108,11 +108,13 @@ class PlantNode(ScenarioNode):
     def ready(self):
         """Every lock-step partner is matched: `currents` reaches every subscriber the graph shows (at
         least estimator and controller; a graph entry is not yet a match), a `voltage_command` publisher
-        is matched, and the first load is in when taken per sample."""
+        is matched, and the first load is in when taken per sample. With the shaft held (commissioning)
+        one partner answers currents with voltages and no estimator runs."""
         matched = self.currents_pub.get_subscription_count()
-        return (matched >= max(2, self.count_subscribers("currents"))
+        held = self.parameters["shaft_held"]
+        return (matched >= max(1 if held else 2, self.count_subscribers("currents"))
                 and self.voltage_sub.get_publisher_count() >= 1
-                and self.count_publishers("rotor_estimate") >= 1
+                and (held or self.count_publishers("rotor_estimate") >= 1)
                 and (self.loads or not self.load_per_sample))
 
     def watchdog(self):
@@ -132,7 +134,8 @@ class PlantNode(ScenarioNode):
             self.loads.append(self.tau_load)
             self.publish_sample()
         else:
-            silent = "rotor_estimate" if self.estimate_seen < self.k else "voltage_command"
+            estimating = not self.parameters["shaft_held"] and self.estimate_seen < self.k
+            silent = "rotor_estimate" if estimating else "voltage_command"
             self.fault("timeout", f"sample {self.k}: no answer within {self.timeout_s:g} s "
                                   f"(silent topic: {self.resolve_topic_name(silent)}); zero voltage applied")
             self.advance(0.0, 0.0, safe_state=True)

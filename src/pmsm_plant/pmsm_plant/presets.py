@@ -7,6 +7,7 @@ The two are kept apart on purpose: only the plant reads the truth.
 """
 from dataclasses import dataclass, field
 
+from drive_scenarios.scenario import NO_DEVIATION
 from motor_params.nameplate import NAMEPLATES, Nameplate
 
 from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
@@ -104,13 +105,24 @@ def get_preset(name):
         raise KeyError(f"unknown motor preset '{name}' (known: {', '.join(sorted(PRESETS))})") from None
 
 
-def plant_parameters(preset, non_idealities):
-    """(machine, inverter, sensor) of a preset with each non-ideality switched on or off.
+def plant_parameters(preset, non_idealities, deviation=None):
+    """(machine, mechanics, inverter, sensor) of a preset with each non-ideality switched on or off and
+    the scenario's ``deviation`` of the plant from the preset (drive_scenarios.scenario.DEVIATION_KEYS:
+    factors, sensor offsets added in A) applied.
 
-    Keys: saturation, dead_time, delay, sensor_noise, sensor_offset_gain, adc. Without saturation the
-    machine is linear with its unsaturated inductances (a round rotor for ``wang_spmsm``).
+    Keys of non_idealities: saturation, dead_time, delay, sensor_noise, sensor_offset_gain, adc. Without
+    saturation the machine is linear with its unsaturated inductances (a round rotor for ``wang_spmsm``).
     """
-    machine, inverter, sensor = preset.machine, preset.inverter, preset.sensor
+    d = {**NO_DEVIATION, **(deviation or {})}
+    machine = scaled_flux_map(preset.machine, d["L_d"], d["L_q"], d["psi_f"])._replace(
+        R_s_ohm=preset.machine.R_s_ohm * d["R_s"])
+    mechanics = preset.mechanics._replace(J_kgm2=preset.mechanics.J_kgm2 * d["J"],
+                                          B_Nms=preset.mechanics.B_Nms * d["friction"])
+    inverter = preset.inverter._replace(t_dead_s=preset.inverter.t_dead_s * d["dead_time"])
+    sensor = preset.sensor._replace(**{f"gain_{x}": getattr(preset.sensor, f"gain_{x}") * d[f"sensor_gain_{x}"]
+                                       for x in "abc"},
+                                    **{f"offset_{x}_A": getattr(preset.sensor, f"offset_{x}_A")
+                                       + d[f"sensor_offset_{x}"] for x in "abc"})
     if not non_idealities["saturation"]:
         machine = machine._replace(a_d=0.0, a_q=0.0, a_dq=0.0)
     if not non_idealities["dead_time"]:
@@ -124,4 +136,17 @@ def plant_parameters(preset, non_idealities):
                                  gain_a=1.0, gain_b=1.0, gain_c=1.0)
     if not non_idealities["adc"]:
         sensor = sensor._replace(adc_bits=0)
-    return machine, inverter, sensor
+    return machine, mechanics, inverter, sensor
+
+
+def scaled_flux_map(machine, k_d, k_q, k_f):
+    """MachineParams whose whole flux map is scaled: the magnetic energy becomes
+    W'(ψ) = c·W(ψ_d/a, ψ_q/b) with a = k_f, c = k_f²/k_d, b = k_f·√(k_q/k_d). It stays a gradient (the
+    incremental inductance matrix symmetric), the magnet flux becomes k_f·ψ_f and, at corresponding
+    operating points (ψ' = (aψ_d, bψ_q), currents scaled by c/a and c/b), the incremental inductances are
+    k_d and k_q times the preset's: saturation and cross-saturation move with the map."""
+    a, c = k_f, k_f * k_f / k_d
+    b = k_f * (k_q / k_d) ** 0.5
+    return machine._replace(L_d_H=machine.L_d_H * k_d, L_q_H=machine.L_q_H * k_q, psi_f_Wb=machine.psi_f_Wb * k_f,
+                            a_d=machine.a_d * c / a ** 6, a_q=machine.a_q * c / b ** 4,
+                            a_dq=machine.a_dq * c / (a ** 3 * b * b))

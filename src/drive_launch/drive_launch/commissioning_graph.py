@@ -1,0 +1,87 @@
+"""Commissioning through the ROS graph: the plant node with its shaft held (or, with a link, the virtual
+inverter behind the drive_bridge node) and the drive_commissioning node in the controller's place,
+composed in this process. The procedure is the same core the one-process host runs."""
+import tempfile
+import time
+
+from drive_commissioning.procedure import procedure_for_scenario
+
+from drive_interface.graph import DEFAULT_NAMESPACE
+from drive_interface.interrupt import Interrupted, polled, requested
+from drive_scenarios.parameters import all_parameters, scenario_from_parameters
+
+from .launcher import GraphError, NamespaceLock, _virtual_inverter, make_node, node_parameters, refuse_occupied
+
+
+def commission_over_ros(scenario_ref, namespace=DEFAULT_NAMESPACE, link=None, timeout_s=1.0,
+                        startup_timeout_s=60.0, progress=None):
+    """Run the commissioning procedure over topics; returns (the finished procedure, wall time [s]).
+    GraphError when the graph does not finish; Interrupted on SIGINT/SIGTERM (the plant is left at zero
+    volts)."""
+    import rclpy
+    from rclpy.signals import SignalHandlerOptions
+
+    from drive_interface.node import make_executor
+
+    base = scenario_from_parameters(all_parameters(node_parameters(scenario_ref)))
+    seconds = procedure_for_scenario(base).total_samples * base.T_s
+    parameters = node_parameters(scenario_ref, duration_s=seconds, timeout_s=timeout_s,
+                                 extra={"shaft_held": True})
+    scenario = scenario_from_parameters(all_parameters(parameters))
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    lock = None
+    nodes, inverter, ex = [], None, None
+    workdir = tempfile.TemporaryDirectory(prefix="drive_commission_")
+    polling = polled()
+    polling.__enter__()
+    try:
+        lock = NamespaceLock(namespace)
+        refuse_occupied(context, [namespace])
+        ex = make_executor("events", context)
+        if link:
+            inverter, host_link = _virtual_inverter(scenario, link, workdir.name, 0)
+            plant = make_node("drive_bridge", context, namespace, {"link_timeout_s": timeout_s,
+                                                                    "command_timeout_s": timeout_s}, link=host_link)
+        else:
+            plant = make_node("pmsm_plant", context, namespace, parameters)
+        commissioning = make_node("drive_commissioning", context, namespace, parameters)
+        if commissioning.health.latched:
+            raise GraphError(f"{namespace}: {commissioning.health.latched}")
+        nodes = [plant, commissioning]
+        for node in nodes:
+            ex.add_node(node)
+        start = time.monotonic()
+        started = inverter is None
+        while not commissioning.procedure.done:
+            if not started and commissioning.voltage_pub and commissioning.voltage_pub.get_subscription_count():
+                import threading
+                threading.Thread(target=inverter.run, name="virtual_inverter", daemon=True).start()
+                started = True
+            if requested():
+                raise Interrupted(requested())
+            if commissioning.aborted:
+                raise GraphError(f"{namespace}: {commissioning.aborted}")
+            ex.spin_once(timeout_sec=0.05)
+            waited = time.monotonic() - start
+            if commissioning.k == 0 and waited > startup_timeout_s:
+                raise GraphError(f"{namespace}: the plant did not start within {startup_timeout_s:g} s")
+            if progress and commissioning.k % 1000 == 0:
+                progress(commissioning.k / scenario.n_samples)
+        if progress:
+            progress(1.0)
+        return commissioning.procedure, time.monotonic() - start
+    finally:
+        polling.__exit__(None, None, None)
+        if inverter:
+            inverter.stop()
+        if ex is not None:
+            ex.shutdown()
+        for node in nodes:
+            node.destroy_node()
+        context.try_shutdown()
+        if inverter:
+            inverter.endpoint.close()
+        workdir.cleanup()
+        if lock:
+            lock.release()

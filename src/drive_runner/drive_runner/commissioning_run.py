@@ -1,0 +1,96 @@
+"""Commissioning the simulated motor in one process: the plant with its shaft held (imposed zero
+speed, as a brake would) sampled and driven by the commissioning procedure core, one sample at a time,
+in the contract's order (sample → command → delay → PWM)."""
+import time
+from dataclasses import dataclass
+
+import numpy as np
+from drive_commissioning.procedure import procedure_for_scenario
+
+from drive_interface.errors import DriveError
+from drive_scenarios.scenario import shaft_held
+from motor_params.nameplate import nameplate
+from pmsm_plant.build import plant_for_scenario
+from pmsm_plant.commissioning import commissioning_truth
+from pmsm_plant.model import plant_advance, plant_outputs, sense_currents
+
+
+class BridgeCommissioningError(DriveError):
+    """The link to the virtual inverter ended before the procedure did."""
+
+
+@dataclass
+class CommissioningRun:
+    procedure: object
+    """drive_commissioning.procedure.CommissioningProcedure, finished."""
+    truth: dict
+    """The plant's true values (commissioning_truth), for scoring."""
+    true_currents: np.ndarray
+    """Per sample: the true phase currents (a, b, c) [A]."""
+    wall_time_s: float
+    host: str
+
+
+def commission_in_process(scenario, settings=None, progress=None):
+    """Run the procedure against the scenario's simulated plant (its deviation and non-idealities
+    included) in this process; returns a CommissioningRun."""
+    procedure = procedure_for_scenario(scenario, settings)
+    plant = plant_for_scenario(shaft_held(scenario, procedure.total_samples * scenario.T_s))
+    n = procedure.total_samples
+    true_currents = np.zeros((n, 3))
+    start = time.perf_counter()
+    for k in range(n):
+        i_a, i_b, i_c, _ = plant_outputs(plant.x, plant.machine)
+        true_currents[k] = (i_a, i_b, i_c)
+        m = sense_currents(i_a, i_b, i_c, plant.sensor, plant.seed, k)
+        u_alpha, u_beta = procedure.step(k, *m)
+        plant_advance(plant.x, u_alpha, u_beta, 0.0, True, 0.0, plant.machine, plant.mechanics, plant.inverter,
+                      plant.T_s, plant.substeps)
+        if progress and k % 1000 == 0:
+            progress(k / n)
+    if progress:
+        progress(1.0)
+    truth = commissioning_truth(plant, nameplate(scenario.motor).rated_current_A)
+    return CommissioningRun(procedure, truth, true_currents, time.perf_counter() - start, "one process, plant core")
+
+
+def commission_through_bridge(scenario, link="pty", settings=None, progress=None):
+    """Run the procedure with the simulated plant behind the virtual inverter and the bridge core on
+    ``link`` ('pty' or 'can'), in this process; returns a CommissioningRun (truth from the inverter)."""
+    import tempfile
+    import threading
+
+    from drive_bridge.inverter_bridge import InverterBridge
+    from drive_bridge.virtual_inverter import VirtualInverter, make_links
+
+    procedure = procedure_for_scenario(scenario, settings)
+    n = procedure.total_samples
+    held = shaft_held(scenario, n * scenario.T_s)
+    with tempfile.TemporaryDirectory(prefix="drive_commission_") as workdir:
+        endpoint, host_link = make_links(link, workdir)
+        inverter = VirtualInverter(held, endpoint)
+        bridge = InverterBridge(host_link)
+        thread = threading.Thread(target=inverter.run, name="virtual_inverter", daemon=True)
+        start = time.perf_counter()
+        try:
+            bridge.poll(0.0)
+            thread.start()
+            while not procedure.done and (thread.is_alive() or bridge.open):
+                for s in bridge.poll(0.05):
+                    if s.k == procedure.k:
+                        bridge.command(s.k, *procedure.step(s.k, s.i_a, s.i_b, s.i_c))
+                        if progress and s.k % 1000 == 0:
+                            progress(s.k / n)
+            thread.join(timeout=2.0)
+        finally:
+            inverter.stop()
+            bridge.close()
+            endpoint.close()
+    if not procedure.done:
+        raise BridgeCommissioningError(f"the virtual inverter over {link} stopped at sample {procedure.k} of {n}")
+    if progress:
+        progress(1.0)
+    truth = commissioning_truth(inverter.plant, nameplate(scenario.motor).rated_current_A)
+    return CommissioningRun(procedure, truth, inverter.truth[:, 4:7], time.perf_counter() - start,
+                            f"virtual inverter over {link}, bridge core")
+
