@@ -177,3 +177,26 @@ def test_the_procedure_refuses_bad_settings_and_counts_its_samples():
         procedure_for_scenario(scenario, {"q_points": 8})
     with pytest.raises(ValueError, match="out of order"):
         procedure.step(3, 0.0, 0.0, 0.0)
+
+
+def test_a_round_rotor_is_reported_without_saliency():
+    """Saturation off, `wang_spmsm` is round: the record says no saliency is measurable and keeps flat
+    tables; the paper methods then get no gain rather than an enormous one."""
+    scenario = load_scenario("wang_100rpm")
+    scenario = dataclasses.replace(scenario, non_idealities={**scenario.non_idealities, "saturation": False})
+    run = commission_in_process(scenario)
+    record = run.procedure.result()
+    assert run.procedure.conditions()["saliency"].startswith("none measurable")
+    assert not record.salient() and not record.saliency_shift_rad.any() and (record.convergence_slope == 1).all()
+    assert record.R_s_ohm == pytest.approx(0.27, rel=0.03)
+
+
+def test_commission_keeps_an_existing_file_and_prints_identified_beside_truth(capsys):
+    from drive_cli.cli import main
+    assert main(["commission", "wang_100rpm"]) == 2
+    assert "--out: commissioning/wang_spmsm.yaml already exists (--force replaces it)" in capsys.readouterr().err
+    assert main(["commission", "szabo_profile", "--out", "new.yaml", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert set(report["truth"]) <= set(report["identified"]) and report["file"] == "new.yaml"
+    assert report["peak_true_current_A"] <= report["current_limit_A"]
+    assert load_commissioning("new.yaml")[1]["conditions"]["host"] == "one process, plant core"

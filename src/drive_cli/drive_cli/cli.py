@@ -330,6 +330,7 @@ def cmd_commission(args):
     identified["tracking_current_limit_A"] = record.tracking_current_limit_A()
     report = {"file": str(out), "motor": scenario.motor, "method": METHOD, "host": host,
               "duration_s": conditions["duration_s"], "wall_time_s": wall, "polarity": conditions["polarity"],
+              "saliency": conditions["saliency"],
               "peak_measured_current_A": float(np.max(np.abs(procedure.raw))), "identified": identified}
     report["current_limit_A"] = procedure.limit_A
     if truth is not None:
@@ -342,6 +343,8 @@ def cmd_commission(args):
     print(f"{out}: {scenario.motor} commissioned at standstill, shaft held ({host}), "
           f"{conditions['duration_s']:.2f} s of motor time in {wall:.2f} s")
     print(f"  polarity: {conditions['polarity']}")
+    if conditions["saliency"] != "measured":
+        print(f"  saliency: {conditions['saliency']}")
     print(f"  {'':30s} {'identified':>12s}" + (f" {'truth':>12s} {'error':>9s}" if truth else ""))
     for key, value in identified.items():
         line = f"  {key:30s} {value:12.6g}"

@@ -23,7 +23,7 @@ import numpy as np
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from control_math.frames import SQRT3
 from drive_interface.settings import number
-from motor_params.commissioning import Commissioning
+from motor_params.commissioning import MIN_SALIENCY_RATIO, Commissioning
 from motor_params.nameplate import INVERTER_RATINGS, nameplate
 
 from .identification import (
@@ -193,6 +193,11 @@ class CommissioningProcedure:
         shift_of, slope_of, self.surface_residual = saliency_surface(points_d, points_q, shifts.ravel())
         table = np.linspace(-i_q_top, i_q_top, TABLE_POINTS)
         shift, slope = shift_of(table), slope_of(table)
+        self.saliency = "measured"
+        if abs(self.saliency_ratio) < MIN_SALIENCY_RATIO:
+            shift, slope = np.zeros(TABLE_POINTS), np.ones(TABLE_POINTS)
+            self.saliency = (f"none measurable (|Δ|/Σ = {abs(self.saliency_ratio):.4f} < {MIN_SALIENCY_RATIO:g}): "
+                             f"HF injection cannot tell this rotor's angle; tables left flat")
         self.peak_planned_A = top + ripple
         self.ripple_A = ripple
         self.d_axis = d_axis
@@ -273,7 +278,7 @@ class CommissioningProcedure:
                                                                for lv in self.settings["dc_levels"]],
                 "current_limit_A": self.limit_A, "peak_planned_A": self.peak_planned_A,
                 "polarity": self.polarity, "polarity_L_dh_asymmetry": self.asymmetry,
-                "saliency_ratio": float(self.saliency_ratio),
+                "saliency_ratio": float(self.saliency_ratio), "saliency": self.saliency,
                 "saliency_fit_residual_rad": float(self.surface_residual)}
 
 

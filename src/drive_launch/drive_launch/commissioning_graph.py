@@ -2,6 +2,7 @@
 inverter behind the drive_bridge node) and the drive_commissioning node in the controller's place,
 composed in this process. The procedure is the same core the one-process host runs."""
 import tempfile
+import threading
 import time
 
 from drive_commissioning.procedure import procedure_for_scenario
@@ -10,7 +11,15 @@ from drive_interface.graph import DEFAULT_NAMESPACE
 from drive_interface.interrupt import Interrupted, polled, requested
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 
-from .launcher import GraphError, NamespaceLock, _virtual_inverter, make_node, node_parameters, refuse_occupied
+from .launcher import (
+    GraphError,
+    NamespaceLock,
+    _virtual_inverter,
+    make_node,
+    node_parameters,
+    refuse_occupied,
+    tear_down,
+)
 
 
 def commission_over_ros(scenario_ref, namespace=DEFAULT_NAMESPACE, link=None, timeout_s=1.0,
@@ -41,21 +50,21 @@ def commission_over_ros(scenario_ref, namespace=DEFAULT_NAMESPACE, link=None, ti
         ex = make_executor("events", context)
         if link:
             inverter, host_link = _virtual_inverter(scenario, link, workdir.name, 0)
-            plant = make_node("drive_bridge", context, namespace, {"link_timeout_s": timeout_s,
-                                                                    "command_timeout_s": timeout_s}, link=host_link)
+            nodes.append(make_node("drive_bridge", context, namespace, {"link_timeout_s": timeout_s,
+                                                                        "command_timeout_s": timeout_s},
+                                   link=host_link))
         else:
-            plant = make_node("pmsm_plant", context, namespace, parameters)
+            nodes.append(make_node("pmsm_plant", context, namespace, parameters))
         commissioning = make_node("drive_commissioning", context, namespace, parameters)
+        nodes.append(commissioning)
         if commissioning.health.latched:
             raise GraphError(f"{namespace}: {commissioning.health.latched}")
-        nodes = [plant, commissioning]
         for node in nodes:
             ex.add_node(node)
         start = time.monotonic()
         started = inverter is None
         while not commissioning.procedure.done:
             if not started and commissioning.voltage_pub and commissioning.voltage_pub.get_subscription_count():
-                import threading
                 threading.Thread(target=inverter.run, name="virtual_inverter", daemon=True).start()
                 started = True
             if requested():
@@ -73,15 +82,6 @@ def commission_over_ros(scenario_ref, namespace=DEFAULT_NAMESPACE, link=None, ti
         return commissioning.procedure, time.monotonic() - start
     finally:
         polling.__exit__(None, None, None)
-        if inverter:
-            inverter.stop()
-        if ex is not None:
-            ex.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        context.try_shutdown()
-        if inverter:
-            inverter.endpoint.close()
-        workdir.cleanup()
+        tear_down(ex, nodes, context, [inverter] if inverter else [], workdir)
         if lock:
             lock.release()

@@ -276,22 +276,28 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
     finally:
         polling.__exit__(None, None, None)
         _stop_children([child for _, child in children])
-        for inverter in inverters:
-            inverter.stop()
-        if ex is not None:
-            ex.shutdown()
-        for node in nodes:
-            node.destroy_node()
-        context.try_shutdown()
-        for inverter in inverters:
-            inverter.endpoint.close()
-        workdir.cleanup()
+        tear_down(ex, nodes, context, inverters, workdir)
         recording_errors = [_close(recorder) for recorder in recorders]
         for lock in locks:
             lock.release()
     for result, error in zip(results, recording_errors):
         result.recording_error = error
     return results
+
+
+def tear_down(ex, nodes, context, inverters, workdir):
+    """End a graph in order: the virtual inverters stop, the executor shuts down before its nodes are
+    destroyed, the context ends, then the inverters' links close and the working directory goes."""
+    for inverter in inverters:
+        inverter.stop()
+    if ex is not None:
+        ex.shutdown()
+    for node in nodes:
+        node.destroy_node()
+    context.try_shutdown()
+    for inverter in inverters:
+        inverter.endpoint.close()
+    workdir.cleanup()
 
 
 def _close(recorder):

@@ -11,9 +11,9 @@ PLL bandwidth 20 Hz. The PI gains place the linearised loop (Eq. 24) at the requ
 the physical gain ε ≈ 2(U_h/ω_h)Δ·(θ − θ̂), Δ = ½(1/L_dh − 1/L_qh), from the commissioned HF
 inductances: Eq. (22)'s k_h = U_h/(ω_h L_dh) is not the slope of ε (it is zero on a round rotor, see
 docs/hf-demodulation.md §1), and tuning for it would measure a mistuning rather than the method. With no
-commissioned saliency there is nothing to lock to: the gains are zero and the HF admittance monitor
-reports low observability. Settings A_p and T_i_s (from `drive tune pll`) replace that rule by
-k_p = A_p, k_i = A_p/T_i.
+commissioned saliency (|Δ|/Σ below 1 %, ``Commissioning.salient``; or L_dh > L_qh, which the method
+does not assume) there is nothing to lock to: the gains are zero. Settings A_p and T_i_s (from
+`drive tune pll`) replace that rule by k_p = A_p, k_i = A_p/T_i.
 """
 import math
 from typing import NamedTuple
@@ -72,7 +72,8 @@ def make_wang(name, step, defaults, settings, T_s, theta_e0, omega_e0, commissio
     s = check_settings(name, settings, defaults, T_s)
     f_h, U_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
     gain = s["demodulation_amplitude"] * U_h * commissioning.delta / (2.0 * math.pi * f_h)
-    kp, ki = loop_gains(gain, s["pll_bandwidth_Hz"], s["pll_damping"]) if gain > 0.0 else (0.0, 0.0)
+    salient = gain > 0.0 and commissioning.salient()
+    kp, ki = loop_gains(gain, s["pll_bandwidth_Hz"], s["pll_damping"]) if salient else (0.0, 0.0)
     if (s["A_p"] is None) != (s["T_i_s"] is None):
         raise ValueError("A_p and T_i_s go together (both from `drive tune pll`, or neither)")
     if s["A_p"] is not None:

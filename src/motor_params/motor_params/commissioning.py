@@ -19,6 +19,8 @@ from drive_interface.settings import number
 MIN_CONVERGENCE_SLOPE = 0.75
 """Sensorless operation keeps the current where a saliency tracker keeps three quarters of its loop gain
 (on `wang_spmsm`: 5.6 A, 1.22× rated; at 1.5× rated the slope is −0.2)."""
+MIN_SALIENCY_RATIO = 0.01
+"""Below this |Δ|/Σ the saliency is not measurable: HF injection cannot tell the rotor's angle."""
 NAMEPLATE_ONLY = "nameplate"
 """The commissioning source of a drive told its nameplate only."""
 DEFAULT = "default"
@@ -77,6 +79,10 @@ class Commissioning(NamedTuple):
     def delta(self):
         """Δ = ½(1/L_dh − 1/L_qh) [1/H]."""
         return 0.5 * (1.0 / self.L_dh_H - 1.0 / self.L_qh_H)
+
+    def salient(self):
+        """|Δ|/Σ reaches MIN_SALIENCY_RATIO: there is an angle for HF injection to find."""
+        return abs(self.delta) >= MIN_SALIENCY_RATIO * abs(self.sigma)
 
     def tracking_current_limit_A(self, min_slope=MIN_CONVERGENCE_SLOPE):
         """The largest current |i_q| [A] up to which the convergence slope (interpolated linearly in the
