@@ -117,8 +117,6 @@ class CommissioningProcedure:
         self.V_dt = 0.0
         self.integral = np.zeros(2)
         self.reference = np.zeros(2)
-        self.target = None
-        self.measured = {}
         self.plan = self._plan()
         self.segment = next(self.plan)
         self.segment_start = 0
@@ -183,9 +181,9 @@ class CommissioningProcedure:
         i_q_top = math.sqrt(max(top * top - sweep * sweep, 0.0))
         grid = np.linspace(-i_q_top, i_q_top, s["q_points"])
         shifts = np.zeros((len(grid), 3))
+        c, sn = math.cos(d_axis), math.sin(d_axis)
         for j, i_q in enumerate(grid):
             for m, i_d in enumerate((-sweep, 0.0, sweep)):
-                c, sn = math.cos(d_axis), math.sin(d_axis)
                 window = yield self._segment("table", (c * i_d - sn * i_q, sn * i_d + c * i_q), hf=True)
                 shifts[j, m] = axis_shift(self._admittance(window), d_axis, saliency_sign)
         points_d = np.tile([-sweep, 0.0, sweep], len(grid))
@@ -200,7 +198,6 @@ class CommissioningProcedure:
                              f"HF injection cannot tell this rotor's angle; tables left flat")
         self.peak_planned_A = top + ripple
         self.ripple_A = ripple
-        self.d_axis = d_axis
         self.record = Commissioning(self.R, self.V_dt, *self.gains, *self.offsets, self.L_dh, self.L_qh,
                                     table, shift, slope, source="")
         yield self._segment("end")
