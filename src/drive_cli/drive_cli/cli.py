@@ -122,8 +122,12 @@ def _report(result, args, extra=None):
     scenario = result.scenario
     metrics = compute_metrics(result)
     if result.commissioning is not None:
+        from motor_params.commissioning import NAMEPLATE_ONLY, default_commissioning_file
         from motor_params.knowledge import motor_knowledge
         metrics["commissioning"] = result.commissioning.source
+        if result.commissioning.source == NAMEPLATE_ONLY and scenario.commissioning != NAMEPLATE_ONLY:
+            print(f"drive: no {default_commissioning_file(scenario.motor)} here and none named: the drive ran on "
+                  f"its nameplate alone (`drive commission {scenario.name}` measures the motor)", file=sys.stderr)
         metrics["motor_knowledge"] = motor_knowledge(nameplate(scenario.motor), result.commissioning)
     metrics.update(extra or {})
     if not args.no_plot and result.log.shape[0]:
@@ -298,7 +302,9 @@ def cmd_commission(args):
     out = Path(args.out) if args.out else default_commissioning_file(scenario.motor)
     if out.exists() and not args.force:
         raise CommandLineError(f"--out: {out} already exists (--force replaces it)")
-    if not out.parent.is_dir():
+    if not args.out:
+        out.parent.mkdir(exist_ok=True)
+    elif not out.parent.is_dir():
         raise CommandLineError(f"--out: the directory {out.parent} does not exist")
     progress = terminal_progress(f"commissioning {scenario.motor}")
     truth, true_currents = None, None
