@@ -6,6 +6,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -204,3 +205,19 @@ def test_commission_keeps_an_existing_file_and_prints_identified_beside_truth(ca
     assert set(report["truth"]) <= set(report["identified"]) and report["file"] == "new.yaml"
     assert report["peak_true_current_A"] <= report["current_limit_A"]
     assert load_commissioning("new.yaml")[1]["conditions"]["host"] == "one process, plant core"
+
+
+def test_a_scenario_names_its_commissioning_file_beside_it(tmp_path):
+    """The key `commissioning:` is a path relative to the scenario file (or 'nameplate'); the drive loads
+    what it names."""
+    record = commission_in_process(load_scenario("wang_100rpm")).procedure.result()
+    folder = tmp_path / "robot"
+    folder.mkdir()
+    save_commissioning(folder / "left_wheel.yaml", record, "wang_spmsm", "standstill_tests")
+    text = Path(load_scenario("wang_100rpm").source).read_text()
+    (folder / "run.yaml").write_text(text + "commissioning: left_wheel.yaml\n")
+    (folder / "plate.yaml").write_text(text + "commissioning: nameplate\n")
+    named = run_scenario(dataclasses.replace(load_scenario(str(folder / "run.yaml")), duration_s=0.01))
+    assert named.commissioning.source == str(folder / "left_wheel.yaml")
+    plate = run_scenario(dataclasses.replace(load_scenario(str(folder / "plate.yaml")), duration_s=0.01))
+    assert plate.commissioning.source == "nameplate" and plate.commissioning.sensor_gain_b == 1.0

@@ -9,6 +9,7 @@ import numpy as np
 import yaml
 
 from drive_interface.errors import DriveError
+from motor_params.commissioning import NAMEPLATE_ONLY
 from motor_params.nameplate import INVERTER_RATINGS, NAMEPLATES
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
@@ -22,8 +23,6 @@ NO_DEVIATION = {"R_s": 1.0, "L_d": 1.0, "L_q": 1.0, "psi_f": 1.0, "J": 1.0, "fri
 """``plant_deviation`` keys and their neutral values: factors on the preset's R_s, the flux map's L_d, L_q
 and ψ_f, the inertia J, the friction, each current sensor's gain and the dead time; sensor offsets
 [A] added to the preset's. The plant alone deviates; the drive still knows only the nameplate."""
-NAMEPLATE_ONLY = "nameplate"
-"""The ``commissioning`` value (and --commissioning) that runs the drive on its nameplate alone."""
 RPM = 2.0 * math.pi / 60.0
 MAX_FILE_BYTES = 1 << 20
 MAX_SAMPLES = 10_000_000
@@ -84,7 +83,7 @@ class Scenario:
     """NO_DEVIATION's keys: how the simulated plant differs from its preset (the drive is not told)."""
     commissioning: str = ""
     """The commissioning file the drive loads (a path, resolved against the scenario file's folder), or
-    NAMEPLATE_ONLY; empty: the default (drive_interface.commissioning_file)."""
+    'nameplate'; empty: the default (motor_params.commissioning.resolve_commissioning)."""
     estimator_source: str = ""
     """Where the estimator's name came from (the file's key, or an override's command-line option or
     parameter), for errors that blame it."""
