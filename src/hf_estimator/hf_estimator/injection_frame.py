@@ -14,8 +14,9 @@ design).
    biases Γ̂ (under rated load and fast current-loop action the fit lost the angle without it). With
    the setting ``dead_time_model`` the commissioned dead-time voltage at the phase currents of the
    period's start (control_math.dead_time) is subtracted too: where a phase current crosses zero the loss
-   switches with the HF current and turns the measured axis. It removes that error but lets sensor noise
-   in through the steep sign (measured trade-off in docs/commissioning.md §6), so it is off by default.
+   switches with the HF current and turns the measured axis. It removes that error, but in closed loop
+   the drive's own sensor noise then costs more than it gains (docs/results.md, "A plant off its
+   nameplate"), so it is off by default.
 3. In the frame θ_axis of each period, the last 2N samples (one + and one − carrier period) give a
    least-squares fit of Γ̂ = [[g_dd, g_dq], [g_dq, g_qq]] and r (intercepts removed by centring, a 3 × 3
    normal system). On a salient rotor Γ̂ = Σ·I + Δ·[[cos 2e, sin 2e], [sin 2e, −cos 2e]], e = θ − θ_axis:
