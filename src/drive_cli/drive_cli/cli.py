@@ -296,7 +296,7 @@ def cmd_commission(args):
 
     from control_math.tables import table_value
     from drive_runner.runner import terminal_progress
-    from motor_params.commissioning import default_commissioning_file, save_commissioning
+    from motor_params.commissioning import SCALARS, default_commissioning_file, save_commissioning
 
     scenario = load_scenario(args.scenario)
     out = Path(args.out) if args.out else default_commissioning_file(scenario.motor)
@@ -307,6 +307,7 @@ def cmd_commission(args):
     elif not out.parent.is_dir():
         raise CommandLineError(f"--out: the directory {out.parent} does not exist")
     progress = terminal_progress(f"commissioning {scenario.motor}")
+    rated = nameplate(scenario.motor).rated_current_A
     truth, true_currents = None, None
     if args.graph:
         from drive_launch.commissioning_graph import commission_over_ros
@@ -315,7 +316,7 @@ def cmd_commission(args):
         procedure, wall = commission_over_ros(args.scenario, args.namespace, args.link, progress=progress)
         host = "ROS graph: " + (f"virtual inverter over {args.link} + drive_bridge node" if args.link
                                 else "pmsm_plant node") + " + drive_commissioning node"
-        truth = commissioning_truth(plant_for_scenario(scenario), nameplate(scenario.motor).rated_current_A)
+        truth = commissioning_truth(plant_for_scenario(scenario), rated)
     else:
         from drive_runner.commissioning_run import commission_in_process, commission_through_bridge
         run = (commission_through_bridge(scenario, args.link, progress=progress) if args.link
@@ -325,10 +326,7 @@ def cmd_commission(args):
     record = procedure.result()
     conditions = {"scenario": scenario.name, "host": host, **procedure.conditions()}
     save_commissioning(out, record, scenario.motor, METHOD, conditions)
-    rated = nameplate(scenario.motor).rated_current_A
-    identified = {key: float(getattr(record, key)) for key in (
-        "R_s_ohm", "dead_time_voltage_V", "sensor_gain_a", "sensor_gain_b", "sensor_gain_c", "sensor_offset_a_A",
-        "sensor_offset_b_A", "sensor_offset_c_A", "L_dh_H", "L_qh_H")}
+    identified = {key: float(getattr(record, key)) for key in SCALARS}
     identified["saliency_shift_at_rated_rad"] = table_value(rated, record.saliency_shift_i_q_A,
                                                             record.saliency_shift_rad)
     identified["convergence_slope_at_rated"] = table_value(rated, record.saliency_shift_i_q_A,
@@ -336,9 +334,8 @@ def cmd_commission(args):
     identified["tracking_current_limit_A"] = record.tracking_current_limit_A()
     report = {"file": str(out), "motor": scenario.motor, "method": METHOD, "host": host,
               "duration_s": conditions["duration_s"], "wall_time_s": wall, "polarity": conditions["polarity"],
-              "saliency": conditions["saliency"],
+              "saliency": conditions["saliency"], "current_limit_A": procedure.limit_A,
               "peak_measured_current_A": float(np.max(np.abs(procedure.raw))), "identified": identified}
-    report["current_limit_A"] = procedure.limit_A
     if truth is not None:
         report["truth"] = truth
     if true_currents is not None:

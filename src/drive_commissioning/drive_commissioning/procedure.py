@@ -21,7 +21,7 @@ from typing import NamedTuple
 import numpy as np
 
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
-from control_math.frames import SQRT3
+from control_math.frames import SQRT3, clarke
 from drive_interface.settings import number
 from motor_params.commissioning import MIN_SALIENCY_RATIO, Commissioning
 from motor_params.nameplate import INVERTER_RATINGS, nameplate
@@ -96,11 +96,11 @@ class CommissioningProcedure:
 
     def __init__(self, nameplate, rating, T_s, settings=None):
         s = check_settings(settings, T_s)
-        self.plate, self.rating, self.T_s, self.settings = nameplate, rating, T_s, s
+        self.plate, self.T_s, self.settings = nameplate, T_s, s
         self.N = int(round(1.0 / (s["hf_frequency_Hz"] * T_s)))
-        self.omega_h = 2.0 * math.pi / (self.N * T_s)
         L_mean = 0.5 * (nameplate.L_d_H + nameplate.L_q_H)
-        self.U_h = s["hf_current_fraction"] * nameplate.rated_current_A * self.omega_h * L_mean
+        omega_h = 2.0 * math.pi / (self.N * T_s)
+        self.U_h = s["hf_current_fraction"] * nameplate.rated_current_A * omega_h * L_mean
         w = 2.0 * math.pi * s["current_bandwidth_Hz"]
         self.kp, self.ki = w * L_mean, w * nameplate.R_s_ohm * T_s
         self.u_max = rating.U_dc_V / SQRT3
@@ -147,12 +147,11 @@ class CommissioningProcedure:
         readings = np.array([r for r, _ in dc])
         self.gains = relative_gains(readings)
         phase = readings / self.gains
-        self.R, self.V_dt = resistance_and_dead_time(np.column_stack(_clarke(phase)), np.array([u for _, u in dc]),
-                                                     phase)
+        self.R, self.V_dt = resistance_and_dead_time(_alpha_beta(phase), np.array([u for _, u in dc]), phase)
         window = yield self._segment("hf_zero", (0.0, 0.0), hf=True)
         gamma0 = self._admittance(window)
         low_axis, _, _ = saliency_axis(gamma0)
-        current = np.column_stack(_clarke(window["phase"]))
+        current = _alpha_beta(window["phase"])
         ripple = float(np.max(np.hypot(*(current - current.mean(axis=0)).T)))
         i_p = plate.rated_current_A
         asymmetries = []
@@ -210,12 +209,11 @@ class CommissioningProcedure:
         phase = window["phase"][:-1]
         k_a, k_b = dead_time_direction.py_func(*phase.T, SMOOTHING_PER_RATED_CURRENT * self.plate.rated_current_A)
         applied = window["applied"] - self.V_dt * np.column_stack([k_a, k_b])
-        return admittance(np.column_stack(_clarke(window["phase"])), applied, self.R, self.T_s)
+        return admittance(_alpha_beta(window["phase"]), applied, self.R, self.T_s)
 
     def corrected(self, raw):
-        """Phase currents corrected by what is known so far (offsets, gains) → (i_α, i_β)."""
-        phase = (np.asarray(raw) - self.offsets) / self.gains
-        return np.array(_clarke(phase))
+        """Phase currents (… × 3) corrected by what is known so far (offsets, gains)."""
+        return (np.asarray(raw) - self.offsets) / self.gains
 
     def step(self, k, m_a, m_b, m_c):
         """Sample k's measured currents [A] → the command (u_α, u_β) [V] for the period after it."""
@@ -232,7 +230,7 @@ class CommissioningProcedure:
                 self.ramp_from = self.reference.copy()
             ramp = min(1.0, (n_in + 1) / RAMP_SAMPLES)
             self.reference = self.ramp_from + ramp * (np.asarray(seg.i_ref_ab) - self.ramp_from)
-            error = self.reference - self.corrected(self.raw[max(0, k - self.N + 1):k + 1].mean(axis=0))
+            error = self.reference - _alpha_beta(self.corrected(self.raw[max(0, k - self.N + 1):k + 1].mean(axis=0)))
             self.integral += self.ki * error
             u = self.kp * error + self.integral
             if seg.hf:
@@ -251,7 +249,7 @@ class CommissioningProcedure:
         seg, start = self.segment, self.segment_start
         first, end = start + seg.settle, self.k
         raw = self.raw[first:end]
-        phase = (self.raw[first - 1:end] - self.offsets) / self.gains if first > 0 else None
+        phase = self.corrected(self.raw[first - 1:end]) if first > 0 else None
         lag = self.delay + 1
         applied = self.issued[first - lag:end - lag] if first >= lag else None
         window = {"raw": raw, "issued": self.issued[first:end], "phase": phase, "applied": applied}
@@ -285,8 +283,7 @@ def procedure_for_scenario(scenario, settings=None):
                                   settings)
 
 
-def _clarke(phase):
-    """Amplitude-invariant Clarke of phase currents (… × 3) → (α, β)."""
+def _alpha_beta(phase):
+    """Phase quantities (… × 3) → (… × 2) by the amplitude-invariant Clarke transform (control_math.frames)."""
     phase = np.asarray(phase, dtype=float)
-    a, b, c = phase[..., 0], phase[..., 1], phase[..., 2]
-    return (2.0 * a - b - c) / 3.0, (b - c) / SQRT3
+    return np.stack(clarke.py_func(phase[..., 0], phase[..., 1], phase[..., 2]), axis=-1)

@@ -227,7 +227,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
     recorders = [BagWriter(spec.bag) if spec.bag else None for spec in specs]
     workdir = tempfile.TemporaryDirectory(prefix="drive_bridge_")
     inverters = []
-    children, nodes, drivers, limits = [], [], [], []
+    children, nodes, drivers, drives = [], [], [], []
     polling = polled()
     polling.__enter__()
     ex = None
@@ -262,7 +262,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
                                     startup_timeout_s, progress if i == 0 else None, recorders[i], inverter)
             driver.done = Future()
-            limits.append(drive)
+            drives.append(drive)
             drivers.append(driver)
         for node in nodes:
             ex.add_node(node)
@@ -272,7 +272,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             ex.spin_until_future_complete(all_done, timeout_sec=1.0)
         nodes[-1].destroy_timer(watcher)
         results = [_result(driver, drive, record, processes, executor, requested())
-                   for driver, drive in zip(drivers, limits)]
+                   for driver, drive in zip(drivers, drives)]
     finally:
         polling.__exit__(None, None, None)
         _stop_children([child for _, child in children])

@@ -136,10 +136,13 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
     u_then_beta = x[issued + 3 * slot_then + 2]
     d_alpha = i_alpha - x[PREV_IA]
     d_beta = i_beta - x[PREV_IB]
-    start_a, start_b, start_c = inverse_clarke(x[PREV_IA], x[PREV_IB])
-    loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
-    drive_alpha = u_then_alpha - p.dead_time_voltage_V * loss_alpha - p.R_s_ohm * 0.5 * (i_alpha + x[PREV_IA])
-    drive_beta = u_then_beta - p.dead_time_voltage_V * loss_beta - p.R_s_ohm * 0.5 * (i_beta + x[PREV_IB])
+    drive_alpha = u_then_alpha - p.R_s_ohm * 0.5 * (i_alpha + x[PREV_IA])
+    drive_beta = u_then_beta - p.R_s_ohm * 0.5 * (i_beta + x[PREV_IB])
+    if p.dead_time_voltage_V != 0.0:
+        start_a, start_b, start_c = inverse_clarke(x[PREV_IA], x[PREV_IB])
+        loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
+        drive_alpha -= p.dead_time_voltage_V * loss_alpha
+        drive_beta -= p.dead_time_voltage_V * loss_beta
     x[PREV_IA] = i_alpha
     x[PREV_IB] = i_beta
 
