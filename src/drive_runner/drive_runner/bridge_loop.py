@@ -1,6 +1,7 @@
 """The sensorless loop through the inverter bridge in one process: the virtual inverter on its own
 thread behind a pseudo-terminal or a CAN bus, the bridge core, and the estimator and controller cores
 answering each telemetry frame. For tests, `drive bridge` and `drive bench bridge`."""
+import contextlib
 import gc
 import tempfile
 import threading
@@ -39,19 +40,39 @@ def run_through_bridge(scenario, link="pty", faults=None, rate_Hz=None, command_
                        inverter_hook=None):
     """Run ``scenario`` with its plant behind the virtual inverter and the bridge. ``inverter_hook(
     inverter, endpoint, k)`` is called by the host loop after each sample (tests unplug links with it).
-    Python's cyclic garbage collector is held off during the loop: a full collection in a large process
-    pauses for the link timeout (50 ms) and reads as a lost link."""
+    The garbage collector is held off during the loop (``collector_held``)."""
+    with virtual_inverter_link(scenario, link, rate_Hz=rate_Hz, command_wait_s=command_wait_s,
+                               faults=faults) as (inverter, endpoint, bridge):
+        return _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook)
+
+
+@contextlib.contextmanager
+def virtual_inverter_link(scenario, link, **inverter_options):
+    """(virtual inverter, its link endpoint, the host's bridge core) for ``scenario`` on ``link`` ('pty',
+    'can') in a temporary directory; the inverter is not started. All three are stopped and closed on
+    exit."""
     with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
         endpoint, host_link = make_links(link, workdir)
-        inverter = VirtualInverter(scenario, endpoint, rate_Hz=rate_Hz, command_wait_s=command_wait_s,
-                                   faults=faults)
+        inverter = VirtualInverter(scenario, endpoint, **inverter_options)
         bridge = InverterBridge(host_link)
         try:
-            return _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook)
+            yield inverter, endpoint, bridge
         finally:
             inverter.stop()
             bridge.close()
             endpoint.close()
+
+
+@contextlib.contextmanager
+def collector_held():
+    """Python's cyclic garbage collector off (after one collection) for a loop through the bridge: a
+    full collection in a large process pauses past the link timeout (50 ms) and reads as a lost link."""
+    gc.collect()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.enable()
 
 
 def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
@@ -68,42 +89,39 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     thread.start()
     last_report = 0
     interrupted = 0
-    gc.collect()
-    gc.disable()
     try:
-        while thread.is_alive() or bridge.open:
-            samples = bridge.poll(0.05)
-            arrived = time.perf_counter()
-            if not samples and not thread.is_alive():
-                break
-            for s in samples:
-                k = s.k
-                if k >= n:
-                    continue
-                theta_e = n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
-                c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, calibration)
-                theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = e.step(
-                    e.x, e.z, e.params, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
-                u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-                    cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b)
-                bridge.command(k, u_a, u_b)
-                host_s[k] = time.perf_counter() - arrived
-                received[k] = True
-                write_row(log[k], k * scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c, theta_hat,
-                          omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref, i_q_ref, eps,
-                          signal, observable)
-                if inverter_hook:
-                    inverter_hook(inverter, endpoint, k)
-                if progress and k - last_report >= n // 100:
-                    last_report = k
-                    progress(k / n)
-            if received[n - 1]:
-                break
+        with collector_held():
+            while thread.is_alive() or bridge.open:
+                samples = bridge.poll(0.05)
+                arrived = time.perf_counter()
+                if not samples and not thread.is_alive():
+                    break
+                for s in samples:
+                    k = s.k
+                    if k >= n:
+                        continue
+                    theta_e = n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+                    c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, calibration)
+                    theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = e.step(
+                        e.x, e.z, e.params, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
+                    u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
+                        cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b)
+                    bridge.command(k, u_a, u_b)
+                    host_s[k] = time.perf_counter() - arrived
+                    received[k] = True
+                    write_row(log[k], k * scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c,
+                              theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref,
+                              i_q_ref, eps, signal, observable)
+                    if inverter_hook:
+                        inverter_hook(inverter, endpoint, k)
+                    if progress and k - last_report >= n // 100:
+                        last_report = k
+                        progress(k / n)
+                if received[n - 1]:
+                    break
     except Interrupted as stop:
         interrupted = stop.signum
         inverter.stop()
-    finally:
-        gc.enable()
     thread.join(timeout=2.0)
     wall = time.perf_counter() - start
     if progress and not interrupted:

@@ -56,36 +56,27 @@ def commission_in_process(scenario, settings=None, progress=None):
 
 def commission_through_bridge(scenario, link="pty", settings=None, progress=None):
     """Run the procedure with the simulated plant behind the virtual inverter and the bridge core on
-    ``link`` ('pty' or 'can'), in this process; returns a CommissioningRun (truth from the inverter)."""
-    import tempfile
+    ``link`` ('pty' or 'can'), in this process (bridge_loop's link and garbage-collector handling);
+    returns a CommissioningRun (truth from the inverter)."""
     import threading
 
-    from drive_bridge.inverter_bridge import InverterBridge
-    from drive_bridge.virtual_inverter import VirtualInverter, make_links
+    from .bridge_loop import collector_held, virtual_inverter_link
 
     procedure = procedure_for_scenario(scenario, settings)
     n = procedure.total_samples
-    held = shaft_held(scenario, n * scenario.T_s)
-    with tempfile.TemporaryDirectory(prefix="drive_commission_") as workdir:
-        endpoint, host_link = make_links(link, workdir)
-        inverter = VirtualInverter(held, endpoint)
-        bridge = InverterBridge(host_link)
+    with virtual_inverter_link(shaft_held(scenario, n * scenario.T_s), link) as (inverter, _, bridge):
         thread = threading.Thread(target=inverter.run, name="virtual_inverter", daemon=True)
         start = time.perf_counter()
-        try:
-            bridge.poll(0.0)
-            thread.start()
+        bridge.poll(0.0)
+        thread.start()
+        with collector_held():
             while not procedure.done and (thread.is_alive() or bridge.open):
                 for s in bridge.poll(0.05):
                     if s.k == procedure.k:
                         bridge.command(s.k, *procedure.step(s.k, s.i_a, s.i_b, s.i_c))
                         if progress and s.k % 1000 == 0:
                             progress(s.k / n)
-            thread.join(timeout=2.0)
-        finally:
-            inverter.stop()
-            bridge.close()
-            endpoint.close()
+        thread.join(timeout=2.0)
     if not procedure.done:
         raise BridgeCommissioningError(f"the virtual inverter over {link} stopped at sample {procedure.k} of {n}")
     if progress:
