@@ -24,7 +24,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
 from drive_interface.log import COLUMN
-from drive_interface.node import parameter_overrides, stamp, topic_qos
+from drive_interface.node import Health, parameter_overrides, stamp, topic_qos
 from drive_interface.stamps import sample_of
 from drive_launch.launcher import DriveSpec, launch, launch_many
 from drive_runner.runner import run_scenario
@@ -295,6 +295,20 @@ def test_plant_discards_a_wrongly_stamped_command_and_applies_zero_voltage_on_ti
         assert plant.k == 3
     finally:
         h.close()
+
+
+def test_a_status_names_the_first_fault_since_the_last_and_counts_the_rest():
+    """A timeout followed by the stale answers it causes: the status names the timeout (the cause);
+    the counters keep every fault across statuses."""
+    health = Health()
+    health.fault("timeout", "sample 7: no answer; zero voltage applied")
+    health.fault("wrong_stamp", "voltage_command stamped for sample 6")
+    health.fault("wrong_stamp", "voltage_command stamped for sample 7")
+    assert health.status_message() == "sample 7: no answer; zero voltage applied (and 2 more faults since)"
+    health.reset()
+    health.fault("wrong_stamp", "voltage_command stamped for sample 8")
+    assert health.status_message() == "voltage_command stamped for sample 8"
+    assert health.counters == {"timeout": 1, "wrong_stamp": 3}
 
 
 def wait_for_subscriber(namespace, topic, timeout_s=30.0):

@@ -121,10 +121,10 @@ class InverterBridgeNode(ContractNode):
         self.reported = counts
         if self.bridge.safe or (self.bridge.lost and self.bridge.counters["samples"]):
             self.health.level = DiagnosticStatus.ERROR
-            self.health.last_fault = self.bridge.last_error or "link down"
+            self.health.message = self.bridge.last_error or "link down"
         elif self.bridge.lost and self.health.level == DiagnosticStatus.OK:
             self.health.level = DiagnosticStatus.WARN
-            self.health.last_fault = f"waiting for the inverter ({self.bridge.last_error or 'no telemetry yet'})"
+            self.health.message = f"waiting for the inverter ({self.bridge.last_error or 'no telemetry yet'})"
 
     def on_voltage_command(self, msg):
         if self.T_s is None:

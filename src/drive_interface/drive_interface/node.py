@@ -61,18 +61,33 @@ def finite(*values):
 
 
 class Health:
-    """Fault counters and the worst level since the last /diagnostics message."""
+    """Cumulative fault counters; the worst level and the first fault since the last /diagnostics
+    message (the first is the cause, the ones that follow are often its consequences)."""
 
     def __init__(self):
         self.counters = {}
-        self.last_fault = ""
+        self.message = ""
+        self.faults_since = 0
         self.level = DiagnosticStatus.OK
         self.latched = None
 
     def fault(self, kind, message):
         self.counters[kind] = self.counters.get(kind, 0) + 1
-        self.last_fault = message
+        if not self.faults_since:
+            self.message = message
+        self.faults_since += 1
         self.level = DiagnosticStatus.ERROR
+
+    def status_message(self):
+        """The status message: the first fault since the last status, and how many followed it."""
+        more = self.faults_since - 1
+        return self.message + (f" (and {more} more fault{'s' * (more > 1)} since)" if more > 0 else "")
+
+    def reset(self):
+        """A status was published: the next one reports what happens from now on."""
+        self.level = DiagnosticStatus.OK
+        self.message = ""
+        self.faults_since = 0
 
 
 class ContractNode(Node):
@@ -202,7 +217,7 @@ class ContractNode(Node):
                   **{f"faults.{kind}": n for kind, n in sorted(h.counters.items())},
                   **self.status_values()}
         level = DiagnosticStatus.ERROR if h.latched else h.level
-        message = h.latched or (h.last_fault if level != DiagnosticStatus.OK else "ok")
+        message = h.latched or (h.status_message() if level != DiagnosticStatus.OK else "ok")
         status = DiagnosticStatus(level=level, name=self.get_fully_qualified_name(),
                                   message=message, hardware_id=self.get_namespace(),
                                   values=[KeyValue(key=k, value=_text(v)) for k, v in values.items()])
@@ -210,8 +225,7 @@ class ContractNode(Node):
         array.header.stamp = self.data_time()
         self.diagnostics_pub.publish(array)
         self.diagnostics_sent_at = time.monotonic()
-        h.level = DiagnosticStatus.OK
-        h.last_fault = ""
+        h.reset()
         self.callback_max_s = 0.0
 
 
