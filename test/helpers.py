@@ -35,5 +35,5 @@ def ideal_commissioning(machine, i_max_A, points=65, d_sweep_A=0.01):
     L_dh, L_qh, _ = incremental_inductances(machine)
     currents = np.linspace(-i_max_A, i_max_A, points)
     shift, slope = np.array([saliency_shift_and_slope(machine, i_q, d_sweep_A) for i_q in currents]).T
-    return Commissioning(machine.R_s_ohm, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, L_dh, L_qh, currents, shift, slope,
+    return Commissioning(machine.R_s_ohm, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, L_dh, L_qh, currents, shift, slope,
                          source="ideal (test oracle)")

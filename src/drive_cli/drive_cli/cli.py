@@ -129,6 +129,10 @@ def _report(result, args, extra=None):
             print(f"drive: no {default_commissioning_file(scenario.motor)} here and none named: the drive ran on "
                   f"its nameplate alone (`drive commission {scenario.name}` measures the motor)", file=sys.stderr)
         metrics["motor_knowledge"] = motor_knowledge(nameplate(scenario.motor), result.commissioning)
+    facts = result.estimator_facts or {}
+    if facts.get("injection_amplitude_V") is not None:
+        metrics["injection"] = {"frequency_Hz": facts["injection_frequency_Hz"],
+                                "amplitude_V": facts["injection_amplitude_V"], "note": facts["injection_note"]}
     metrics.update(extra or {})
     if not args.no_plot and result.log.shape[0]:
         out_dir = Path(args.out) if args.out else Path("runs") / scenario.name
@@ -143,6 +147,10 @@ def _report(result, args, extra=None):
           f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
     if "motor_knowledge" in metrics:
         print(f"  {'motor known from':36s} {_knowledge_line(metrics['motor_knowledge'])}")
+    if metrics.get("injection", {}).get("note"):
+        injection = metrics["injection"]
+        print(f"  {'injection':36s} {injection['amplitude_V']:.3g} V at {injection['frequency_Hz']:.1f} Hz "
+              f"({injection['note']})")
     for key, value in (extra or {}).items():
         if value is False:
             continue

@@ -49,9 +49,9 @@ SAMPLES = {"offsets": (30, 1000), "dc": (150, 100), "hf_zero": (100, 500), "pola
            "table": (60, 420), "end": (0, 20)}
 """(settle, measure) samples of each kind of segment."""
 RAMP_SAMPLES = 40
+"""A reference change is ramped over this many samples (no overshoot past the current limit)."""
 TABLE_POINTS = 65
 """The record's tables sample the fitted surface on this many currents (the drive interpolates them)."""
-"""A reference change is ramped over this many samples (no overshoot past the current limit)."""
 
 
 class Segment(NamedTuple):
@@ -112,6 +112,7 @@ class CommissioningProcedure:
         self.issued = np.zeros((n, 2))
         self.k = 0
         self.offsets = np.zeros(3)
+        self.noise = 0.0
         self.gains = np.ones(3)
         self.R = nameplate.R_s_ohm
         self.V_dt = 0.0
@@ -137,6 +138,7 @@ class CommissioningProcedure:
         s, plate = self.settings, self.plate
         window = yield self._segment("offsets")
         self.offsets = window["raw"].mean(axis=0)
+        self.noise = float(np.sqrt(np.mean(window["raw"].var(axis=0))))
         dc = []
         for level in s["dc_levels"]:
             for j in range(6):
@@ -197,7 +199,7 @@ class CommissioningProcedure:
                              f"HF injection cannot tell this rotor's angle; tables left flat")
         self.peak_planned_A = top + ripple
         self.ripple_A = ripple
-        self.record = Commissioning(self.R, self.V_dt, *self.gains, *self.offsets, self.L_dh, self.L_qh,
+        self.record = Commissioning(self.R, self.V_dt, *self.gains, *self.offsets, self.noise, self.L_dh, self.L_qh,
                                     table, shift, slope, source="")
         yield self._segment("end")
         yield None

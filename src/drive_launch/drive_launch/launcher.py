@@ -322,7 +322,8 @@ def _result(driver, drive, record, processes, executor, interrupted):
     log = driver.log[:driver.last_sample + 1] if record else driver.log[:0]
     scenario = cut(scenario, driver.last_sample + 1)
     return GraphResult(scenario, scenario.estimator, log, wall, drive.controller.i_max_A,
-                       commissioning=drive.commissioning, processes=processes, executor=executor,
+                       commissioning=drive.commissioning, estimator_facts=drive.estimator.facts(),
+                       processes=processes, executor=executor,
                        interrupted=interrupted,
                        diagnostics=dict(driver.diagnostics), node_faults=driver.faults())
 

@@ -133,6 +133,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
         log[:, COLUMN[name]] = truth[:done, column]
     log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
     return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
+                           host.estimator.facts(),
                            link=link,
                            counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
                            inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),

@@ -33,6 +33,8 @@ class RunResult:
     sample run), or 0."""
     commissioning: object = None
     """The commissioning record the drive ran on (motor_params.commissioning), when known."""
+    estimator_facts: dict = None
+    """What the estimator says of itself and its injection (hf_estimator Estimator.facts()), when known."""
 
     @property
     def n_p(self):
@@ -106,7 +108,7 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
         interrupted = stop.signum
     wall = time.perf_counter() - start
     return RunResult(cut(scenario, done), drive.estimator.name, log[:done], wall, drive.controller.i_max_A,
-                     interrupted, drive.commissioning)
+                     interrupted, drive.commissioning, drive.estimator.facts())
 
 
 def cut(scenario, samples):

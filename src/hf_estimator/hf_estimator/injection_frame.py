@@ -30,7 +30,13 @@ design).
    turns under a still current vector, so ε moves by only F = 1 + i_q·∂δ/∂i_d per radian of angle
    error (0.91 at rated current, −0.2 at 1.5× rated: no angle information); the drive keeps the current
    where F ≥ ¾ (Commissioning.tracking_current_limit_A).
-5. A type-2 loop (PI + integrator) on ε with ω_n, ζ placed directly (ε has unit slope); its integrator
+5. The amplitude is the scenario's, raised where the commissioned motor needs it: a weak saliency gives a
+   weak angle signal, the saliency current I_Δ = U_h·|Δ|/ω_h, against the commissioned sensor noise σ.
+   Below ``saliency_snr_min`` σ (8) the error grows faster than 1/I_Δ (noise and dead-time voltage near
+   the phase currents' zero crossings), so U_h is raised to reach it, at most to HF_RIPPLE_MAX_PER_RATED
+   of the rated current in HF ripple and HF_VOLTAGE_MAX_PER_LINEAR of the linear voltage range
+   (docs/results.md, "A plant off its nameplate").
+6. A type-2 loop (PI + integrator) on ε with ω_n, ζ placed directly (ε has unit slope); its integrator
    state is the speed handed to the speed loop (the proportional path stays out of it). While |Δ̂|/Σ̂ is
    below the threshold the loop is held (ε = 0) and the flag says so.
 """
@@ -43,6 +49,7 @@ from numba import njit
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from control_math.frames import clarke_contract, inverse_clarke, rotate
 from control_math.tables import table_value
+from motor_params.nameplate import INVERTER_RATINGS
 
 from .interface import Estimator, check_settings, register
 from .tracking_loop import pi_tracking_loop
@@ -57,7 +64,35 @@ HISTORY = SUMS + N_SUMS
 
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
-            "signal_smoothing_Hz": 20.0, "dead_time_model": False}
+            "signal_smoothing_Hz": 20.0, "dead_time_model": False, "saliency_snr_min": 8.0}
+HF_RIPPLE_MAX_PER_RATED = 0.5
+"""The largest HF current ripple U_h·Σ/ω_h ours allows itself when it raises its amplitude, per rated
+current (Wang's own reversal runs at 0.38)."""
+HF_VOLTAGE_MAX_PER_LINEAR = 0.8
+"""The largest amplitude ours raises itself to, per linear voltage range U_dc/√3 (the rest is the current
+loop's at low speed)."""
+
+
+def injection_amplitude(requested_V, commissioning, nameplate, omega_h, snr_min):
+    """Ours' HF amplitude [V] and what it says of it: ``requested_V`` raised so that the saliency current
+    U_h·|Δ|/ω_h reaches ``snr_min`` times the commissioned sensor noise, within the ripple and voltage
+    caps; unchanged when the saliency or the noise is not measured, or ``snr_min`` is 0."""
+    noise, delta = commissioning.sensor_noise_A, abs(commissioning.delta)
+    if snr_min <= 0.0 or noise <= 0.0 or not commissioning.salient():
+        return requested_V, ""
+    wanted = snr_min * noise * omega_h / delta
+    if wanted <= requested_V:
+        return requested_V, ""
+    caps = {"HF ripple": HF_RIPPLE_MAX_PER_RATED * nameplate.rated_current_A * omega_h / abs(commissioning.sigma)}
+    rating = INVERTER_RATINGS.get(nameplate.name)
+    if rating is not None:
+        caps["voltage"] = HF_VOLTAGE_MAX_PER_LINEAR * rating.U_dc_V / math.sqrt(3.0)
+    cap_name = min(caps, key=caps.get)
+    amplitude = max(requested_V, min(wanted, caps[cap_name]))
+    reached = amplitude * delta / omega_h / noise
+    limited = f"; held by the {cap_name} cap" if wanted > amplitude else ""
+    return amplitude, (f"raised from {requested_V:g} V: saliency current {reached:.1f} σ of the commissioned "
+                       f"sensor noise, {snr_min:g} wanted{limited}")
 
 
 class InjectionFrameParams(NamedTuple):
@@ -195,8 +230,10 @@ def make_injection_frame(nameplate, T_s, settings, theta_e0, omega_e0, commissio
     if N < 3:
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
+    amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, 2.0 * math.pi / (N * T_s),
+                                          float(s["saliency_snr_min"]))
     params = InjectionFrameParams(
-        T_s_s=T_s, N=N, U_h_V=float(s["amplitude_V"]), R_s_ohm=commissioning.R_s_ohm,
+        T_s_s=T_s, N=N, U_h_V=amplitude, R_s_ohm=commissioning.R_s_ohm,
         dither_rad=float(s["dither_rad"]),
         delay_periods=int(delay_periods), kp=2.0 * float(s["pll_damping"]) * omega_n, ki=omega_n ** 2,
         observable_ratio=float(s["observable_ratio"]),
@@ -210,4 +247,5 @@ def make_injection_frame(nameplate, T_s, settings, theta_e0, omega_e0, commissio
     x[THETA] = theta_e0
     x[INTEGRAL] = omega_e0
     return Estimator("injection_frame", injection_frame_step, params, x, np.zeros((1, 1, 2)),
-                     1.0 / (N * T_s), float(s["pll_bandwidth_Hz"]))
+                     1.0 / (N * T_s), float(s["pll_bandwidth_Hz"]), injection_amplitude_V=amplitude,
+                     injection_note=note)

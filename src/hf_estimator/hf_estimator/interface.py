@@ -40,10 +40,15 @@ class Estimator:
     """Natural frequency of the angle-tracking loop (∞ for a sensor): the speed loop is kept below it."""
     tracking_current_limit_A: float = None
     """The largest current at which its angle information holds (injecting estimators; None: no limit)."""
+    injection_amplitude_V: float = None
+    """The HF amplitude it injects when it chooses it itself (None: the scenario's)."""
+    injection_note: str = ""
+    """Why it raised the scenario's amplitude ("" when it did not)."""
 
     def facts(self):
-        """What the controller needs to know of this estimator (published in its drive_config)."""
+        """What the controller needs to know of this estimator and how it injects (its drive_config)."""
         return {"estimator": self.name, "injection_frequency_Hz": self.injection_frequency_Hz,
+                "injection_amplitude_V": self.injection_amplitude_V, "injection_note": self.injection_note,
                 "tracking_bandwidth_Hz": self.tracking_bandwidth_Hz,
                 "tracking_current_limit_A": self.tracking_current_limit_A}
 
@@ -140,6 +145,7 @@ SETTING_CHECKS = {
     "dither_rad": lambda key, value, T_s: number(key, value, 0.0, math.pi / 4.0),
     "signal_smoothing_Hz": _frequency,
     "dead_time_model": lambda key, value, T_s: flag(key, value),
+    "saliency_snr_min": lambda key, value, T_s: number(key, value, 0.0, None, low_inclusive=True),
 }
 """How each estimator setting is checked: (key, value, T_s) → the value, or ValueError naming the key."""
 

@@ -45,6 +45,8 @@ class Commissioning(NamedTuple):
     sensor_offset_a_A: float
     sensor_offset_b_A: float
     sensor_offset_c_A: float
+    sensor_noise_A: float
+    """RMS noise of one phase-current reading at zero current [A] (0: not measured)."""
     L_dh_H: float
     L_qh_H: float
     saliency_shift_i_q_A: np.ndarray
@@ -102,12 +104,12 @@ class Commissioning(NamedTuple):
 
 
 SCALARS = ("R_s_ohm", "dead_time_voltage_V", "sensor_gain_a", "sensor_gain_b", "sensor_gain_c",
-           "sensor_offset_a_A", "sensor_offset_b_A", "sensor_offset_c_A", "L_dh_H", "L_qh_H")
+           "sensor_offset_a_A", "sensor_offset_b_A", "sensor_offset_c_A", "sensor_noise_A", "L_dh_H", "L_qh_H")
 TABLES = ("saliency_shift_i_q_A", "saliency_shift_rad", "convergence_slope")
 
 
 SCALAR_RANGES = {"R_s_ohm": (0.0, None, False), "dead_time_voltage_V": (0.0, None, True),
-                 "L_dh_H": (0.0, None, False), "L_qh_H": (0.0, None, False),
+                 "L_dh_H": (0.0, None, False), "L_qh_H": (0.0, None, False), "sensor_noise_A": (0.0, None, True),
                  **{f"sensor_gain_{x}": (0.5, 2.0, True) for x in "abc"},
                  **{f"sensor_offset_{x}_A": (None, None, False) for x in "abc"}}
 """(low, high, low inclusive) of each scalar (drive_interface.settings.number); None: open."""
@@ -115,10 +117,10 @@ SCALAR_RANGES = {"R_s_ohm": (0.0, None, False), "dead_time_voltage_V": (0.0, Non
 
 def nameplate_commissioning(plate):
     """The record of a drive told only its nameplate (motor_params.nameplate.Nameplate): R_s, L_dh = L_d
-    and L_qh = L_q from it; ideal current sensors, no dead-time voltage, no saliency shift (slope 1)
-    over ± the current limit."""
+    and L_qh = L_q from it; ideal current sensors (noise not measured), no dead-time voltage, no saliency
+    shift (slope 1) over ± the current limit."""
     currents = np.array([-plate.current_limit_A, 0.0, plate.current_limit_A])
-    return Commissioning(plate.R_s_ohm, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, plate.L_d_H, plate.L_q_H,
+    return Commissioning(plate.R_s_ohm, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, plate.L_d_H, plate.L_q_H,
                          currents, np.zeros(3), np.ones(3), NAMEPLATE_ONLY)
 
 

@@ -1,6 +1,8 @@
 """What a perfect commissioning would identify on the simulated plant, with the record's keys: the
 truth `drive commission --json` scores its measurement against. Only the composition's scoring calls
 this; the drive itself never sees it."""
+import math
+
 import numpy as np
 
 from .model import incremental_inductances, saturation_saliency_angle
@@ -25,8 +27,10 @@ def commissioning_truth(plant, rated_current_A):
     gains = np.array([s.gain_a, s.gain_b, s.gain_c])
     gains = gains / gains.mean()
     shift, slope = saliency_shift_and_slope(m, rated_current_A)
+    lsb = 2.0 * s.adc_range_A / (1 << s.adc_bits) if s.adc_bits > 0 else 0.0
     return {"R_s_ohm": m.R_s_ohm, "dead_time_voltage_V": inv.t_dead_s / plant.T_s * inv.U_dc_V,
             "sensor_gain_a": gains[0], "sensor_gain_b": gains[1], "sensor_gain_c": gains[2],
             "sensor_offset_a_A": s.offset_a_A, "sensor_offset_b_A": s.offset_b_A,
-            "sensor_offset_c_A": s.offset_c_A, "L_dh_H": L_dh, "L_qh_H": L_qh,
+            "sensor_offset_c_A": s.offset_c_A, "sensor_noise_A": math.sqrt(s.noise_std_A ** 2 + lsb ** 2 / 12.0),
+            "L_dh_H": L_dh, "L_qh_H": L_qh,
             "saliency_shift_at_rated_rad": shift, "convergence_slope_at_rated": slope}
