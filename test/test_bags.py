@@ -85,7 +85,7 @@ def test_both_bags_hold_the_same_samples(bags):
     a, T_s, configs = bag_log(graph)
     b, _, _ = bag_log(run)
     assert T_s == pytest.approx(1e-4) and {c["n_p"] for c in configs} == {2}
-    for name in ("theta_m", "omega_m", "i_a_meas", "theta_e_hat", "u_alpha", "u_inj_beta", "observable",
+    for name in ("theta_m", "omega_m", "i_a_meas", "theta_e_hat", "u_alpha", "u_inj_beta", "state",
                  "omega_m_ref", "tau_load"):
         np.testing.assert_allclose(a[:, COLUMN[name]], b[:, COLUMN[name]], atol=1e-9, err_msg=name)
 

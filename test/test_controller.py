@@ -71,7 +71,7 @@ def test_back_emf_amplitude_at_no_load():
     """Imposed 2000 rpm, speed reference equal, zero current: |u| = ω_e ψ_f within 0.5 %."""
     s = scenario(motor="szabo_ipmsm", mode="imposed_speed", duration_s=0.3,
                  speed=dict(unit="rpm", points=[[0.0, 2000.0]]), initial=dict(omega_m_rpm=2000.0),
-                 non_idealities=dict(dead_time=False, sensor_noise=False, sensor_offset_gain=False,
+                 non_idealities=dict(saturation=False, dead_time=False, sensor_noise=False, sensor_offset_gain=False,
                                      adc=False))
     result, _ = run(s)
     late = result.log[-1000:]

@@ -38,7 +38,7 @@ PER_SAMPLE_QOS = topic_qos("currents")
 COMMAND_QOS = topic_qos("speed_command")
 COMMISSIONING = os.path.join(os.path.dirname(__file__), os.pardir, "commissioning", "wang_spmsm.yaml")
 COMPARED = ("theta_m", "omega_m", "tau_e", "i_a_meas", "i_b_meas", "i_c_meas", "theta_e_hat", "omega_e_hat",
-            "u_alpha", "u_beta", "u_inj_alpha", "u_inj_beta", "eps", "signal", "observable")
+            "u_alpha", "u_beta", "u_inj_alpha", "u_inj_beta", "eps", "signal", "state")
 SCENARIO = """\
 description: graph equivalence (speed ramp and a load step, both crossing samples)
 motor: wang_spmsm
@@ -46,7 +46,7 @@ estimator: {estimator}
 injection: {{frequency_Hz: 900.0, amplitude_V: 5.0}}
 duration_s: 0.06
 sampling_period_s: 1.0e-4
-initial: {{angle_error_e_rad: 0.3}}
+initial: {{theta_m_rad: 0.3}}
 speed: {{unit: rpm, interpolation: linear, points: [[0.0, 0.0], [0.04, {rpm}]]}}
 load: {{unit: rated, points: [[0.0, 0.0], [0.03, 0.5]]}}
 """

@@ -12,7 +12,7 @@ from drive_cli.cli import main
 BASE = {"motor": "wang_spmsm", "estimator": {"type": "injection_frame", "settings": {"pll_bandwidth_Hz": 18.0}},
         "injection": {"frequency_Hz": 900.0, "amplitude_V": 5.0}, "duration_s": 0.02,
         "sampling_period_s": 1.0e-4, "speed": {"unit": "rpm", "points": [[0.0, 0.0], [0.01, 60.0]]},
-        "load": {"unit": "rated", "points": [[0.0, 0.0]]}, "initial": {"angle_error_e_rad": 0.3},
+        "load": {"unit": "rated", "points": [[0.0, 0.0]]}, "initial": {"theta_m_rad": 0.3},
         "controller": {"current_limit_A": 5.0, "hf_notch_quality": 1.0, "speed_limit_rad_s": 100.0},
         "metrics": {"settle_s": 0.005}, "seed": 1, "substeps": 1}
 HOSTILE = [float("nan"), float("inf"), -float("inf"), -1, 0, 0.0, 1e308, 5e-324, 1e12, 1e-12, "abc", "5", True,

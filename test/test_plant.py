@@ -26,6 +26,9 @@ from pmsm_plant.params import InverterParams, MechanicsParams, SensorParams
 from pmsm_plant.presets import PRESETS, plant_parameters
 
 SZABO = PRESETS["szabo_ipmsm"]
+SZABO = SZABO.__class__(**{**SZABO.__dict__, "machine": SZABO.machine._replace(a_d=0.0)})
+"""The IPMSM with its linear magnetics (the analytic models below are linear; the preset's d-axis
+saturation is tested in test_startup.py through the polarity it reveals)."""
 WANG = PRESETS["wang_spmsm"]
 IDEAL_INVERTER = InverterParams(U_dc_V=1000.0, t_dead_s=0.0, i_dead_A=0.05, delay_periods=0)
 MECH = MechanicsParams(J_kgm2=1e-3, B_Nms=0.0)

@@ -2,6 +2,7 @@
 ``--json``. Domain errors (drive_interface.errors.DriveError) are printed as one line, exit code 2."""
 import argparse
 import dataclasses
+import math
 import os
 import sys
 from pathlib import Path
@@ -12,6 +13,7 @@ from drive_interface import interrupt
 from drive_interface.errors import DriveError
 from drive_interface.exit_codes import (
     EXIT_NODE_FAULTS,
+    EXIT_NOT_TRACKING,
     EXIT_READER_GONE,
     EXIT_RECORDING_FAILED,
     EXIT_REFUSED,
@@ -34,14 +36,26 @@ class CommandLineError(DriveError):
     """An option's value is unusable; the message names the option."""
 
 
-def _exit_code(interrupted=0, node_faults=None, output_error=None):
+def _exit_code(interrupted=0, node_faults=None, output_error=None, not_tracking=False):
     """128 + the signal that stopped the run, else the worst of drive_interface.exit_codes (an output, bag
-    or plot, not written in full; a node fault), else 0."""
+    or plot, not written in full; the drive not tracking at the end; a node fault), else 0."""
     if interrupted:
         return EXIT_SIGNAL_BASE + interrupted
     if output_error:
         return EXIT_RECORDING_FAILED
+    if not_tracking:
+        return EXIT_NOT_TRACKING
     return EXIT_NODE_FAULTS if node_faults else 0
+
+
+def _not_tracking(result):
+    """The estimator refused to start, or the run ended holding zero torque after a lost lock (the log's
+    last state; the estimator's own account). A run shorter than the start-up is not a failure."""
+    from drive_interface.log import COLUMN
+    states = result.log[:, COLUMN["state"]]
+    if not states.size:
+        return False
+    return bool((result.startup or {}).get("refused")) or states[-1] == 4.0
 
 
 def _record_arg(path):
@@ -110,7 +124,7 @@ def cmd_run(args):
     plot_error = _report(result, args, extra)
     if recording_error:
         _output_failed(recording_error)
-    return _exit_code(interrupted, output_error=recording_error or plot_error)
+    return _exit_code(interrupted, output_error=recording_error or plot_error, not_tracking=_not_tracking(result))
 
 
 def _report(result, args, extra=None):
@@ -175,13 +189,31 @@ def _report(result, args, extra=None):
         if key == "settling_time_s" and metrics["settling_note"]:
             text = metrics["settling_note"]
         print(f"  {label:36s} {text}")
+    print(f"  {'start-up':36s} {_startup_line(metrics['startup'])}")
     lost = metrics["lock_lost_s"]
     lock = ("n/a (no ground truth in the scored window)" if lost is None else "held" if not lost else
             f"LOST for {lost:.4f} s (|angle error| > π/2), first at {metrics['lock_lost_at_s']:.4f} s")
+    if metrics["lock_lost"]:
+        lock += f"; the estimator reported {metrics['lock_lost']} lost lock(s)"
     print(f"  {'lock':36s} {lock}")
     for path in metrics.get("plots", []):
         print(f"  plot: {path}")
     return _output_failed(metrics.get("plot_error"))
+
+
+def _startup_line(startup):
+    """The start-up in one line: when torque came, the polarity and error then, or why it never came."""
+    if startup.get("refused"):
+        return f"REFUSED: {startup['refused']}"
+    if not startup["completed"]:
+        return "not completed within the run (no torque applied)"
+    text = f"torque from {1e3 * startup['duration_s']:.1f} ms"
+    if startup["polarity_correct"] is not None:
+        text += (f", polarity {'correct' if startup['polarity_correct'] else 'WRONG'}, angle error "
+                 f"{startup['angle_error_e_rad']:+.3f} rad")
+    if startup["reverse_rotation_m_rad"] is not None:
+        text += f", {math.degrees(startup['reverse_rotation_m_rad']):.2f}° against the command"
+    return text
 
 
 def _knowledge_line(knowledge):
@@ -787,6 +819,54 @@ def cmd_bench_graph(args):
     return _exit_code(report["interrupted"])
 
 
+def _formatted(value, form):
+    return "n/a" if value is None else form.format(value)
+
+
+def cmd_bench_startup(args):
+    from drive_evaluation.startup_bench import MOTOR_SCENARIOS, STANDARD_CASES, LoadCase, startup_sweep
+    from drive_runner.runner import terminal_progress
+
+    _estimator_arg(args)
+    if args.angles < 1:
+        raise CommandLineError(f"--angles: must be at least 1, not {args.angles}")
+    if args.seeds < 1:
+        raise CommandLineError(f"--seeds: must be at least 1, not {args.seeds}")
+    motors = [args.motor] if args.motor else sorted(MOTOR_SCENARIOS)
+    if args.motor and args.motor not in MOTOR_SCENARIOS:
+        raise CommandLineError(f"--motor: unknown motor '{args.motor}' (known: {', '.join(sorted(MOTOR_SCENARIOS))})")
+    cases = STANDARD_CASES
+    if args.load is not None:
+        if not 0.0 <= args.load <= 1.5:
+            raise CommandLineError(f"--load: a fraction of rated torque in [0, 1.5], not {args.load}")
+        cases = (LoadCase(f"{args.load:g} rated{', brake' if args.brake else ', active'}", args.load, args.brake),)
+    reports = []
+    try:
+        for motor in motors:
+            for case in cases:
+                progress = None if args.json else terminal_progress(f"{motor}, {case.name}")
+                reports.append(startup_sweep(motor, case, args.angles, tuple(range(1, args.seeds + 1)),
+                                             args.estimator, progress))
+    except Interrupted as stop:
+        if args.json:
+            _print_json({"benchmark": "startup", "results": reports, "interrupted": True})
+        return _exit_code(stop.signum)
+    if args.json:
+        _print_json({"benchmark": "startup", "angles": args.angles, "seeds": args.seeds, "results": reports})
+        return 0
+    print(f"{'motor':12s} {'load':20s} {'runs':>5s} {'polarity':>9s} {'|err| max':>10s} {'back max':>9s} "
+          f"{'start max':>10s} {'lost':>5s} {'no start':>9s}")
+    for r in reports:
+        fraction, duration = r["polarity_correct_fraction"], r["duration_max_s"]
+        cells = (_formatted(None if fraction is None else 100.0 * fraction, "{:.1f} %"),
+                 _formatted(r["angle_error_max_e_rad"], "{:.3f} rad"),
+                 _formatted(r["reverse_rotation_max_m_deg"], "{:.2f}°"),
+                 _formatted(None if duration is None else 1e3 * duration, "{:.1f} ms"))
+        print(f"{r['motor']:12s} {r['case']:20s} {r['runs']:5d} {cells[0]:>9s} {cells[1]:>10s} {cells[2]:>9s} "
+              f"{cells[3]:>10s} {r['lock_lost']:5d} {r['not_started']:9d}")
+    return 0
+
+
 def cmd_bench(args):
     from drive_evaluation.bench import motulator_python, motulator_throughput, throughput
 
@@ -899,6 +979,18 @@ def build_parser():
     bench_bridge.add_argument("--repeats", type=int, default=3, help="timed runs per link (best kept)")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
+
+    startup = bench_sub.add_parser("startup", help="start-up from rotor angles over the electrical circle, noise "
+                                                   "seeds and loads: polarity, error at first torque, roll-back")
+    startup.add_argument("--motor", help="one preset (default: both)")
+    startup.add_argument("--angles", type=int, default=72, help="start angles over the electrical circle")
+    startup.add_argument("--seeds", type=int, default=3, help="noise seeds 1..S per angle")
+    startup.add_argument("--load", type=float, help="one case: this fraction of rated load, opposing the "
+                                                    "command (default: the three standard cases)")
+    startup.add_argument("--brake", action="store_true", help="with --load: held by a brake until first torque")
+    startup.add_argument("--estimator", help="an injecting estimator (default: injection_frame)")
+    startup.add_argument("--json", action="store_true")
+    startup.set_defaults(func=cmd_bench_startup)
 
     compare = bench_sub.add_parser("compare", help="two recorded runs side by side: metrics and angle error")
     compare.add_argument("bag_a")

@@ -46,6 +46,8 @@ def _stats(values):
     return float(np.sqrt(np.mean(values ** 2))), float(np.mean(values)), float(np.max(np.abs(values)))
 
 
+TRACKING_STATE = 3
+"""The estimator's state code while it tracks with a trusted signal (contract v2 `estimator_state` z)."""
 LOCK_LOST_RAD = np.pi / 2
 """|θ_e − θ̂_e| beyond which the estimate is on the wrong side: the lock is lost (ground truth)."""
 
@@ -114,6 +116,40 @@ def lock_loss(t, error, start_s):
     return float(lost.sum() * T_s), (float(t[np.argmax(lost)]) if lost.any() else None)
 
 
+LOCK_LOST_STATE = 4
+
+
+def startup_metrics(scenario, log, n_p):
+    """The start-up as ``drive run --json`` reports it: ``completed`` (torque was allowed), ``duration_s``
+    (when), ``angle_error_e_rad`` then, ``polarity_correct`` (|error| < π/2 then; None without truth),
+    ``reverse_rotation_m_rad`` (the largest rotation against the commanded direction from then until the
+    reference changes sign, mechanical; the direction is the first non-zero reference's), and
+    ``lock_lost`` (times the estimator reported a lost lock)."""
+    t = log[:, COLUMN["t"]]
+    state = log[:, COLUMN["state"]]
+    entered = (state == LOCK_LOST_STATE) & np.concatenate(([True], state[:-1] != LOCK_LOST_STATE))
+    out = {"completed": False, "duration_s": None, "angle_error_e_rad": None, "polarity_correct": None,
+           "reverse_rotation_m_rad": None, "lock_lost": int(entered.sum())}
+    tracking = np.nonzero(state == TRACKING_STATE)[0]
+    if not tracking.size:
+        return out
+    first = int(tracking[0])
+    error = angle_error(log[first:first + 1], n_p)[0]
+    theta = log[:, COLUMN["theta_m"]]
+    truth = bool(np.isfinite(error))
+    out.update(completed=True, duration_s=float(t[first]), angle_error_e_rad=float(error) if truth else None,
+               polarity_correct=bool(abs(error) < np.pi / 2) if truth else None)
+    reference = log[:, COLUMN["omega_m_ref"]]
+    moving = np.nonzero(reference != 0.0)[0]
+    if truth and moving.size:
+        direction = np.sign(reference[moving[0]])
+        reversed_at = np.nonzero(np.sign(reference[first:]) == -direction)[0]
+        end = first + int(reversed_at[0]) if reversed_at.size else len(t)
+        against = -direction * (theta[first:end] - theta[first])
+        out["reverse_rotation_m_rad"] = float(max(0.0, np.max(against))) if against.size else 0.0
+    return out
+
+
 def compute_metrics(result):
     """The metrics dictionary printed by ``drive run`` (SI units: rad, rad/s, s)."""
     scenario, log, n_p = result.scenario, result.log, result.n_p
@@ -131,6 +167,8 @@ def compute_metrics(result):
     steps = settling_times(scenario, log)
     settling_time, settling_note = settling_summary(steps)
     lock_lost_s, lock_lost_at_s = lock_loss(t, error, scenario.metrics_start_s)
+    startup = startup_metrics(scenario, log, n_p)
+    startup["refused"] = (getattr(result, "startup", None) or {}).get("refused")
     per_window = []
     for t0, t1 in steady:
         w_rms, w_bias, w_peak = _stats(error[_mask(t, [(t0, t1)])])
@@ -155,8 +193,10 @@ def compute_metrics(result):
         "speed_steps": steps,
         "lock_lost_s": lock_lost_s,
         "lock_lost_at_s": lock_lost_at_s,
-        "observable_fraction": (float(np.mean(log[evaluated, COLUMN["observable"]] > 0.5))
+        "observable_fraction": (float(np.mean(log[evaluated, COLUMN["state"]] == TRACKING_STATE))
                                 if evaluated.any() else None),
+        "startup": startup,
+        "lock_lost": startup["lock_lost"],
         "steady_windows": per_window,
         "wall_time_s": result.wall_time_s,
         "samples_per_second": log.shape[0] / result.wall_time_s if result.wall_time_s > 0 else None,

@@ -86,8 +86,7 @@ def measure_tracking_response(scenario, omegas_rad_s, amplitude_e_rad=0.05, lead
         measure = int(round(max(measure_periods, math.ceil(min_measure_s / period)) * period / T_s))
         segments.append((w, k, k + settle, k + settle + measure))
         k += settle + measure
-    scenario = dataclasses.replace(scenario, mode="imposed_speed", duration_s=k * T_s,
-                                   initial_angle_error_e_rad=0.0, initial_omega_m_rad_s=0.0)
+    scenario = dataclasses.replace(scenario, mode="imposed_speed", duration_s=k * T_s, initial_omega_m_rad_s=0.0)
     drive = build_drive(scenario)
     n_p = drive.controller.n_p
     drive.speed_ref[:] = 0.0

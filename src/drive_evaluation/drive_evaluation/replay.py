@@ -27,7 +27,7 @@ MAX_APPLICABLE_MISMATCH = 0.2
 recorded one (its currents then answer an excitation close to its own)."""
 TIMED_RUNS = 3
 """Each estimator replays the bag this many times from its fresh state; the fastest run is reported."""
-OUTPUTS = ("theta_e_hat", "omega_e_hat", "u_inj_alpha", "u_inj_beta", "eps", "signal", "observable")
+OUTPUTS = ("theta_e_hat", "omega_e_hat", "u_inj_alpha", "u_inj_beta", "eps", "signal", "state")
 LOCK_BAND_RAD = math.pi / 8
 """Time to lock: from the start until |angle error| stays within this band to the end. Every saliency
 tracker's error signal goes as sin 2Δθ; within π/8 its slope is still ≥ 0.71 of the small-signal one."""

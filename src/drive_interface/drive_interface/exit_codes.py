@@ -11,6 +11,9 @@ ended because its peer was gone before its run was complete or after faults."""
 EXIT_RECORDING_FAILED = 4
 """The run finished and its metrics are printed, but an output could not be written in full: the
 recording stopped early (closed as far as written), or the plot (an unwritable directory)."""
+EXIT_NOT_TRACKING = 5
+"""The run finished, but the drive refused to start (no saliency, no polarity) or ended holding zero
+torque after a lost lock; the metrics say which."""
 EXIT_SIGNAL_BASE = 128
 """128 + N: stopped by signal N (130 SIGINT, 143 SIGTERM), with what was done printed, marked
 interrupted."""

@@ -102,16 +102,16 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
                         continue
                     theta_e = n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
                     c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, calibration)
-                    theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = e.step(
+                    theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state = e.step(
                         e.x, e.z, e.params, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
                     u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-                        cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b)
+                        cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b, state)
                     bridge.command(k, u_a, u_b)
                     host_s[k] = time.perf_counter() - arrived
                     received[k] = True
                     write_row(log[k], k * scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c,
                               theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref,
-                              i_q_ref, eps, signal, observable)
+                              i_q_ref, eps, signal, state)
                     if inverter_hook:
                         inverter_hook(inverter, endpoint, k)
                     if progress and k - last_report >= n // 100:

@@ -4,14 +4,14 @@ advances to k+1. The cores are the same functions the ROS nodes call."""
 from numba import njit
 
 from control_math.current_sensing import corrected_currents
-from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, controller_step
+from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, TRACKING, controller_step
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
 
 @njit(cache=True)
 def write_row(row, t, theta_m, omega_m, tau_e, tau_load, i_a, i_b, i_c, i_a_meas, i_b_meas, i_c_meas,
               theta_e_hat, omega_e_hat, u_alpha, u_beta, u_inj_alpha, u_inj_beta, omega_m_ref, i_d, i_q,
-              i_d_ref, i_q_ref, eps, signal, observable):
+              i_d_ref, i_q_ref, eps, signal, state):
     """Write one sample's values into a log row; the arguments are drive_interface.log.LOG_COLUMNS in
     order (test/test_architecture.py checks it)."""
     row[0] = t
@@ -38,18 +38,20 @@ def write_row(row, t, theta_m, omega_m, tau_e, tau_load, i_a, i_b, i_c, i_a_meas
     row[21] = i_q_ref
     row[22] = eps
     row[23] = signal
-    row[24] = observable
+    row[24] = state
 
 
 @njit
 def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, substeps,
-                est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, imposed, calibration, log):
+                est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, imposed, brake, calibration, log):
     """Run samples k_start..k_end−1; row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
 
     px: plant state (pmsm_plant.model); ex, ez, ep: the estimator's state, filter state and parameters;
     cx, cz, cp: the controller's. speed_ref [rad/s] and tau_load [N·m] are indexed by k; with ``imposed``
-    the shaft follows speed_ref. Both cores read the measured currents corrected by the commissioned
-    ``calibration`` (control_math.current_sensing); the log keeps them as measured. Not cached on disk:
+    the shaft follows speed_ref. While brake[0] is 1 a holding brake keeps the shaft at rest; it releases
+    (brake[0] = 0) once the estimator first reports tracking. Both cores read the measured currents
+    corrected by the commissioned ``calibration`` (control_math.current_sensing); the log keeps them as
+    measured. Not cached on disk:
     numba cannot re-save a cache index whose entries are specialised on other processes' step functions
     ("underlying object has vanished"); the kernels it calls are cached.
     """
@@ -58,16 +60,19 @@ def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, 
         i_a, i_b, i_c, tau_e = plant_outputs(px, machine)
         m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, sensor, seed, k)
         c_a, c_b, c_c = corrected_currents(m_a, m_b, m_c, calibration)
-        theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, observable = est_step(
+        theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state = est_step(
             ex, ez, ep, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], n_p * px[THETA_M],
             n_p * px[OMEGA_M])
         u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-            cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, speed_ref[k], u_inj_a, u_inj_b)
+            cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, speed_ref[k], u_inj_a, u_inj_b, state)
         write_row(log[k - k_start], k * T_s, px[THETA_M], px[OMEGA_M], tau_e, tau_load[k], i_a, i_b, i_c,
                   m_a, m_b, m_c, theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, speed_ref[k], i_d, i_q,
-                  i_d_ref, i_q_ref, eps, signal, observable)
-        plant_advance(px, u_a, u_b, tau_load[k], imposed, speed_ref[k], machine, mech, inverter,
-                      T_s, substeps)
+                  i_d_ref, i_q_ref, eps, signal, state)
+        if brake[0] > 0.5 and state == TRACKING:
+            brake[0] = 0.0
+        held = brake[0] > 0.5
+        plant_advance(px, u_a, u_b, tau_load[k], imposed or held, 0.0 if held else speed_ref[k], machine, mech,
+                      inverter, T_s, substeps)
 
 
 @njit
@@ -75,7 +80,7 @@ def replay_samples(est_step, ex, ez, ep, n_p, currents, u_prev, theta_m, omega_m
     """Run an estimator over recorded samples: ``currents`` (n × 3, measured a, b, c; corrected by the
     commissioned ``calibration`` as in the drive), ``u_prev`` (n × 2,
     the voltage command of the sample before), the recorded ground truth θ_m, ω_m (read only by
-    `sensored`; NaN becomes 0). ``out`` rows receive θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, observable."""
+    `sensored`; NaN becomes 0). ``out`` rows receive θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, state."""
     for k in range(currents.shape[0]):
         theta = theta_m[k] if theta_m[k] == theta_m[k] else 0.0
         omega = omega_m[k] if omega_m[k] == omega_m[k] else 0.0

@@ -12,6 +12,7 @@ from drive_interface.log import LOG_COLUMNS
 from foc_controller.build import controller_for_scenario
 from foc_controller.control import controller_state
 from hf_estimator.build import estimator_for_scenario
+from hf_estimator.startup import estimator_startup
 from motor_params.commissioning import resolve_commissioning
 from motor_params.nameplate import nameplate
 from pmsm_plant.build import plant_for_scenario
@@ -35,6 +36,9 @@ class RunResult:
     """The commissioning record the drive ran on (motor_params.commissioning), when known."""
     estimator_facts: dict = None
     """What the estimator says of itself and its injection (hf_estimator Estimator.facts()), when known."""
+    startup: dict = None
+    """The start-up's own account at the end (hf_estimator.startup.startup_summary), for an injecting
+    estimator run in process."""
 
     @property
     def n_p(self):
@@ -55,6 +59,8 @@ class Drive:
     controller_z: np.ndarray
     speed_ref: np.ndarray
     tau_load: np.ndarray
+    brake: np.ndarray
+    """[1.0] while the scenario's holding brake holds the shaft, [0.0] once released (or without one)."""
     commissioning: object
     """motor_params.commissioning.Commissioning: what the drive knows beyond its nameplate."""
 
@@ -63,7 +69,7 @@ class Drive:
         p, e = self.plant, self.estimator
         run_samples(k_start, k_end, p.x, p.machine, p.mechanics, p.inverter, p.sensor, p.seed, p.T_s,
                     p.substeps, e.step, e.x, e.z, e.params, self.controller_x, self.controller_z,
-                    self.controller, self.speed_ref, self.tau_load, p.imposed_speed,
+                    self.controller, self.speed_ref, self.tau_load, p.imposed_speed, self.brake,
                     self.commissioning.calibration(), log)
 
 
@@ -83,10 +89,10 @@ def build_drive(scenario):
     controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz,
                                          estimator.tracking_bandwidth_Hz, estimator.tracking_current_limit_A,
                                          commissioning)
-    controller_x, controller_z = controller_state(controller, controller.n_p * scenario.initial_omega_m_rad_s)
+    controller_x, controller_z = controller_state(controller)
     speed_ref, tau_load = scenario.schedule()
     return Drive(scenario, plant, estimator, controller, controller_x, controller_z, speed_ref, tau_load,
-                 commissioning)
+                 np.array([1.0 if scenario.brake else 0.0]), commissioning)
 
 
 def run_scenario(scenario, progress=None, chunk_samples=20000):
@@ -108,7 +114,7 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
         interrupted = stop.signum
     wall = time.perf_counter() - start
     return RunResult(cut(scenario, done), drive.estimator.name, log[:done], wall, drive.controller.i_max_A,
-                     interrupted, drive.commissioning, drive.estimator.facts())
+                     interrupted, drive.commissioning, drive.estimator.facts(), estimator_startup(drive.estimator))
 
 
 def cut(scenario, samples):

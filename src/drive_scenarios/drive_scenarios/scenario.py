@@ -16,7 +16,7 @@ SCENARIO_DIR = Path(__file__).parent / "scenarios"
 NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
 TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
             "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps",
-            "plant_deviation", "commissioning"}
+            "plant_deviation", "commissioning", "brake"}
 NO_DEVIATION = {"R_s": 1.0, "L_d": 1.0, "L_q": 1.0, "psi_f": 1.0, "J": 1.0, "friction": 1.0,
                 "sensor_gain_a": 1.0, "sensor_gain_b": 1.0, "sensor_gain_c": 1.0,
                 "sensor_offset_a": 0.0, "sensor_offset_b": 0.0, "sensor_offset_c": 0.0, "dead_time": 1.0}
@@ -72,8 +72,8 @@ class Scenario:
     """External load torque [N·m]."""
     non_idealities: dict
     initial_theta_m_rad: float
+    """The rotor's true angle at t = 0 [rad, mechanical]; the drive is not told it (θ̂ starts at 0)."""
     initial_omega_m_rad_s: float
-    initial_angle_error_e_rad: float
     controller: dict
     settle_s: float
     metrics_start_s: float
@@ -87,6 +87,9 @@ class Scenario:
     estimator_source: str = ""
     """Where the estimator's name came from (the file's key, or an override's command-line option or
     parameter), for errors that blame it."""
+    brake: bool = False
+    """A holding brake holds the shaft at rest (load or not) until the drive first allows torque
+    (estimator state 3), then releases for good."""
 
     @property
     def n_samples(self):
@@ -117,7 +120,7 @@ def shaft_held(scenario, duration_s):
     ``duration_s``: the plant of a commissioning run."""
     still = Table((0.0,), (0.0,), "step")
     return dataclasses.replace(scenario, mode="imposed_speed", speed=still, load=still, initial_omega_m_rad_s=0.0,
-                               duration_s=duration_s)
+                               duration_s=duration_s, brake=False)
 
 
 def scenario_names():
@@ -228,8 +231,14 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         non_idealities[key] = value
 
     initial = data.get("initial", {}) or {}
-    for key in sorted(set(initial) - {"theta_m_rad", "omega_m_rpm", "angle_error_e_rad"}, key=str):
-        fail(f"initial.{key}", "unknown key (known: theta_m_rad, omega_m_rpm, angle_error_e_rad)")
+    if "angle_error_e_rad" in initial:
+        fail("initial.angle_error_e_rad", "no longer a scenario key: the estimator is told nothing of the angle "
+                                          "and finds it itself; set the rotor's angle with initial.theta_m_rad")
+    for key in sorted(set(initial) - {"theta_m_rad", "omega_m_rpm"}, key=str):
+        fail(f"initial.{key}", "unknown key (known: theta_m_rad, omega_m_rpm)")
+    brake = data.get("brake", False)
+    if not isinstance(brake, bool):
+        fail("brake", f"must be true or false, not {brake!r}")
     metrics = data.get("metrics", {}) or {}
     for key in sorted(set(metrics) - {"settle_s", "start_s"}, key=str):
         fail(f"metrics.{key}", "unknown key (known: settle_s, start_s)")
@@ -268,11 +277,9 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         T_s=T_s, mode=mode, speed=speed, load=load, non_idealities=non_idealities,
         initial_theta_m_rad=_number(initial.get("theta_m_rad", 0.0), "initial.theta_m_rad", fail),
         initial_omega_m_rad_s=RPM * _number(initial.get("omega_m_rpm", 0.0), "initial.omega_m_rpm", fail),
-        initial_angle_error_e_rad=_number(initial.get("angle_error_e_rad", 0.0),
-                                          "initial.angle_error_e_rad", fail),
         controller=controller, settle_s=settle, metrics_start_s=start,
         seed=seed, substeps=substeps, plant_deviation={**NO_DEVIATION, **deviation},
-        commissioning=commissioning, estimator_source=estimator_source)
+        commissioning=commissioning, estimator_source=estimator_source, brake=brake)
 
 
 def _number(value, key, fail):

@@ -4,6 +4,14 @@ and the result limited to the inverter's linear range.
 
 The injected HF current is kept out of the current loop's feedback by a notch at the injection
 frequency on the estimated-frame currents, so the loop neither cancels nor amplifies it.
+
+The estimator's start-up state (hf_estimator.startup, `estimator_state` z) gates torque: until it
+first reports tracking (3), and again while aligning (1) or after a lost lock (4), the current loops
+hold zero current (no speed loop, no back-EMF feed-forward, which would be wrong by 2ωψ_f on the wrong
+pole); during the polarity test (2) the fundamental is frozen at its integrators so the estimator's
+pulses act alone. Hold (0) after tracking keeps torque. A jump of θ̂ (the estimator turning to the other
+pole or onto the measured axis) turns the current loops' integrators and notch states with it, so the
+stationary-frame voltage does not jump.
 """
 import math
 from typing import NamedTuple
@@ -15,10 +23,14 @@ from control_math.filters import sos_step
 from control_math.frames import SQRT3, clarke_contract, rotate
 from control_math.pi import pi_limited
 
-# Controller state layout (integrators, filtered speed, last command); the notch states (d, q) live
-# in a separate array.
-INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, LAST_U_ALPHA, LAST_U_BETA = range(6)
-N_STATE = 6
+# Controller state layout (integrators, filtered speed, last command, torque gate, last θ̂); the notch
+# states (d, q) live in a separate array.
+INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, LAST_U_ALPHA, LAST_U_BETA, TORQUE_ALLOWED, LAST_THETA, STARTED = range(9)
+N_STATE = 9
+ALIGNING, POLARITY, TRACKING, LOCK_LOST = 1, 2, 3, 4
+"""Estimator state codes (contract v2, hf_estimator.startup)."""
+JUMP_RAD = 0.25
+"""A change of θ̂ beyond ω̂·T_s by more than this in one sample is a jump, not tracking."""
 
 
 class ControllerParams(NamedTuple):
@@ -52,16 +64,34 @@ class ControllerParams(NamedTuple):
 
 @njit(cache=True)
 def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omega_m_ref,
-                    u_inj_alpha, u_inj_beta):
+                    u_inj_alpha, u_inj_beta, estimator_state):
     """One control period from sample k: measured phase currents [A], the estimate θ̂_e [rad] and ω̂_e
-    [rad/s] (electrical), the speed reference ω*_m [rad/s] and the estimator's injection [V, αβ] →
-    the stator voltage command (u_α, u_β) [V] for the next period, the (HF-rejected) feedback currents
-    i_d, i_q and the references i_d*, i_q* [A]. State x: INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED,
-    LAST_U_ALPHA, LAST_U_BETA; z_notch: the notch sections of d (z_notch[0]) and q (z_notch[1]).
+    [rad/s] (electrical), the speed reference ω*_m [rad/s], the estimator's injection [V, αβ] and its
+    state code → the stator voltage command (u_α, u_β) [V] for the next period, the (HF-rejected)
+    feedback currents i_d, i_q and the references i_d*, i_q* [A]. State x: INT_D .. STARTED (the speed
+    filter and the jump detector start from the first sample's estimate); z_notch:
+    the notch sections of d (z_notch[0]) and q (z_notch[1]).
 
     The estimated speed is low-pass filtered once and that value feeds the speed loop, the back-EMF
     decoupling and the delay compensation: a raw PLL speed in the feed-forward closes a fast loop
     through the estimator (docs/hf-demodulation.md §3)."""
+    state = int(estimator_state)
+    if x[STARTED] == 0.0:
+        x[STARTED] = 1.0
+        x[OMEGA_FILTERED] = omega_e_hat
+        x[LAST_THETA] = theta_e_hat
+    if state == TRACKING:
+        x[TORQUE_ALLOWED] = 1.0
+    elif state == ALIGNING or state == POLARITY or state == LOCK_LOST:
+        x[TORQUE_ALLOWED] = 0.0
+    jump = theta_e_hat - x[LAST_THETA] - omega_e_hat * c.T_s_s
+    jump = jump - 2.0 * math.pi * math.floor((jump + math.pi) / (2.0 * math.pi))
+    if abs(jump) > JUMP_RAD:
+        x[INT_D], x[INT_Q] = rotate(x[INT_D], x[INT_Q], -jump)
+        for j in range(z_notch.shape[1]):
+            for m in range(z_notch.shape[2]):
+                z_notch[0, j, m], z_notch[1, j, m] = rotate(z_notch[0, j, m], z_notch[1, j, m], -jump)
+    x[LAST_THETA] = theta_e_hat
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     i_d, i_q = rotate(i_alpha, i_beta, -theta_e_hat)
     if c.hf_notch_sos.shape[0] > 0:
@@ -72,15 +102,24 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     omega_e_hat = x[OMEGA_FILTERED]
     omega_m_hat = omega_e_hat / c.n_p
     omega_m_ref = min(max(omega_m_ref, -c.speed_limit_rad_s), c.speed_limit_rad_s)
-    i_q_ref = pi_limited(x, INT_SPEED, c.kp_speed, c.ki_speed, c.T_s_s, omega_m_ref - omega_m_hat,
-                         c.i_max_A)
+    torque = x[TORQUE_ALLOWED] > 0.5
+    if torque:
+        i_q_ref = pi_limited(x, INT_SPEED, c.kp_speed, c.ki_speed, c.T_s_s, omega_m_ref - omega_m_hat,
+                             c.i_max_A)
+    else:
+        x[INT_SPEED] = 0.0
+        i_q_ref = 0.0
     i_d_ref = 0.0
 
     e_d = i_d_ref - i_d
     e_q = i_q_ref - i_q
+    frozen = state == POLARITY
+    if frozen:
+        e_d = 0.0
+        e_q = 0.0
     u_d = c.kp_d * e_d + x[INT_D]
     u_q = c.kp_q * e_q + x[INT_Q]
-    if c.decoupling:
+    if c.decoupling and torque:
         u_d -= omega_e_hat * c.L_q_H * i_q
         u_q += omega_e_hat * (c.L_d_H * i_d + c.psi_f_Wb)
 
@@ -111,8 +150,8 @@ def estimated_torque(c, i_d, i_q):
     return 1.5 * c.n_p * (c.psi_f_Wb * i_q + (c.L_d_H - c.L_q_H) * i_d * i_q)
 
 
-def controller_state(c, omega_e0=0.0):
-    """Fresh (integrator state, notch state) arrays for ControllerParams c."""
+def controller_state(c):
+    """Fresh (integrator state, notch state) arrays for ControllerParams c: no torque until the estimator
+    reports tracking."""
     x = np.zeros(N_STATE)
-    x[OMEGA_FILTERED] = omega_e0
     return x, np.zeros((2, max(c.hf_notch_sos.shape[0], 1), 2))

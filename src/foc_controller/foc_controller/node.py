@@ -1,7 +1,8 @@
 """The ``foc_controller`` node: the cascade controller core over topics.
 
-For sample k it joins `currents`, `rotor_estimate` and `injection` stamped k, runs the core with the
-latest `speed_command`, and answers `voltage_command`(k). The robot-facing `joint_states` (estimated
+For sample k it joins `currents`, `rotor_estimate`, `injection` and `estimator_state` stamped k (the
+state code gates torque: no torque before the estimator's start-up reports tracking), runs the core with
+the latest `speed_command`, and answers `voltage_command`(k). The robot-facing `joint_states` (estimated
 position, speed, torque) is published every ``joint_states_decimation`` samples. Bad currents or
 estimates, or a rejected speed limit, give zero voltage and a reported fault; the node keeps answering.
 
@@ -52,14 +53,16 @@ class ControllerNode(ScenarioNode):
                                            topic_qos("currents")),
                   self.create_subscription(JointState, "rotor_estimate", self.on_estimate,
                                            topic_qos("rotor_estimate")),
-                  self.create_subscription(Vector3Stamped, "injection", self.on_injection, topic_qos("injection"))]
+                  self.create_subscription(Vector3Stamped, "injection", self.on_injection, topic_qos("injection")),
+                  self.create_subscription(Vector3Stamped, "estimator_state", self.on_estimator_state,
+                                           topic_qos("estimator_state"))]
         self.open_when_matched(inputs, self.open_outputs, ready=lambda: self.params or not self.configured)
         self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
         self.create_subscription(String, "drive_config", self.on_drive_config, topic_qos("drive_config"))
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.watch_peer("currents", "the plant")
-        self.watch_foreign_publishers(("currents", "rotor_estimate", "injection"))
-        self.currents, self.estimates, self.injections = {}, {}, {}
+        self.watch_foreign_publishers(("currents", "rotor_estimate", "injection", "estimator_state"))
+        self.currents, self.estimates, self.injections, self.states = {}, {}, {}, {}
         self.k = 0
         self.omega_m_ref = 0.0
         self.current_limited = False
@@ -102,8 +105,8 @@ class ControllerNode(ScenarioNode):
             return
         self.n_p = self.params.n_p
         self.trip_A = self.trip_current_A()
-        self.x, self.z = controller_state(self.params, self.n_p * self.scenario.initial_omega_m_rad_s)
-        controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        self.x, self.z = controller_state(self.params)
+        controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self.publish_config({"controller": self.params, "estimator": config["estimator"],
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
 
@@ -146,6 +149,9 @@ class ControllerNode(ScenarioNode):
     def on_injection(self, msg):
         self.store(self.injections, msg, (msg.vector.x, msg.vector.y))
 
+    def on_estimator_state(self, msg):
+        self.store(self.states, msg, msg.vector.z)
+
     def store(self, table, msg, value):
         k = sample_of(msg.header, self.T_s)
         if k is None or not self.k <= k <= self.k + RESYNC_SAMPLES:
@@ -156,21 +162,21 @@ class ControllerNode(ScenarioNode):
         if table is self.currents and k > self.k:
             self.resynchronise(k)
         k = self.k
-        while k in self.currents and k in self.estimates and k in self.injections:
-            self.step(k, self.currents.pop(k), self.estimates.pop(k), self.injections.pop(k))
+        while k in self.currents and k in self.estimates and k in self.injections and k in self.states:
+            self.step(k, self.currents.pop(k), self.estimates.pop(k), self.injections.pop(k), self.states.pop(k))
             k = self.k = k + 1
 
     def resynchronise(self, k):
         """Currents of a later sample mean the plant gave up on samples self.k..k−1 (they never completed
         here: an input was lost, e.g. sent before a subscription matched); follow it to k."""
-        self.fault("missed_sample", f"samples {self.k}..{k - 1} never completed (currents, rotor_estimate or "
-                                    f"injection missing); following the plant to sample {k}")
-        for table in (self.currents, self.estimates, self.injections):
+        self.fault("missed_sample", f"samples {self.k}..{k - 1} never completed (currents, rotor_estimate, "
+                                    f"injection or estimator_state missing); following the plant to sample {k}")
+        for table in (self.currents, self.estimates, self.injections, self.states):
             for old in [j for j in table if j < k]:
                 del table[old]
         self.k = k
 
-    def step(self, k, currents, estimate, injection):
+    def step(self, k, currents, estimate, injection, state):
         u_alpha = u_beta = 0.0
         if not self.params or self.health.latched:
             pass
@@ -182,7 +188,8 @@ class ControllerNode(ScenarioNode):
         else:
             u_alpha, u_beta, i_d, i_q, _, i_q_ref = controller_step(
                 self.x, self.z, self.params, *corrected_currents(*currents, self.calibration),
-                self.n_p * estimate[0], self.n_p * estimate[1], self.omega_m_ref, *injection)
+                self.n_p * estimate[0], self.n_p * estimate[1], self.omega_m_ref, *injection,
+                state if finite(state) else 0.0)
             self.current_limited = abs(i_q_ref) >= self.params.i_max_A
             if k % self.decimation == 0:
                 j = self.joint_msg

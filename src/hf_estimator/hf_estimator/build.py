@@ -10,20 +10,18 @@ from .registry import make_estimator
 
 
 def estimator_for_scenario(scenario, commissioning):
-    """A fresh Estimator for ``scenario`` (its estimator, settings, injection and initial estimate) on a
+    """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
     angle information holds. ScenarioError names the scenario and the key at fault."""
     plate = nameplate(scenario.motor)
-    theta_e0 = plate.n_p * scenario.initial_theta_m_rad - scenario.initial_angle_error_e_rad
-    omega_e0 = plate.n_p * scenario.initial_omega_m_rad_s
     try:
         settings = dict(scenario.estimator_settings)
         limit = None
         if injects(scenario.estimator):
             settings = {**scenario.injection, **settings}
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)
-        estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings, theta_e0, omega_e0,
-                                   commissioning, scenario.drive_delay_periods())
+        estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings, commissioning,
+                                   scenario.drive_delay_periods())
     except KeyError as error:
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
     except ValueError as error:

@@ -32,13 +32,16 @@ from .pulsating import (
     pulsating_state,
     pulsating_track_and_inject,
     q_axis_demodulation,
+    startup_base,
 )
+from .startup import DEFAULTS as STARTUP_DEFAULTS
+from .startup import StartupParams, make_startup, startup_step
 from .tracking_loop import loop_gains
 
 DEFAULTS = {"frequency_Hz": 900.0, "amplitude_V": 5.0, "demodulation_amplitude": 2.0,
             "lowpass_Hz": 300.0, "lowpass_order": 2, "bandpass_Hz": [600.0, 1200.0],
             "bandpass_order": 2, "pll_bandwidth_Hz": 20.0, "pll_damping": 0.8, "A_p": None, "T_i_s": None,
-            "observable_ratio": 0.02}
+            "observable_ratio": 0.02, **STARTUP_DEFAULTS}
 
 
 class WangParams(NamedTuple):
@@ -51,23 +54,26 @@ class WangParams(NamedTuple):
     lowpass: np.ndarray
     bandpass: np.ndarray
     monitor: MonitorParams
+    startup: StartupParams
 
 
 @njit(cache=True)
 def conventional_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
     """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI integrator, u_inj_α,
-    u_inj_β, ε [A], |Δ̂| [1/H], observable). State x: θ̂, the PI integrator, the admittance monitor
-    (pulsating.py); z: band-pass sections z[0], low-pass sections z[1]; p: WangParams."""
+    u_inj_β, ε [A], |Δ̂| [1/H], start-up state code). State x: θ̂, the PI integrator, the admittance monitor,
+    the start-up (pulsating.py); z: band-pass sections z[0], low-pass sections z[1]; p: WangParams."""
     t = k * p.T_s_s
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     eps = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA],
                               p.demodulation_amplitude, math.sin(p.omega_h_rad_s * t))
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
-    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, observable
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_alpha,
+                                          u_beta, eps, observable)
+    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state
 
 
-def make_wang(name, step, defaults, settings, T_s, theta_e0, omega_e0, commissioning, delay_periods):
+def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, delay_periods):
     """A Wang estimator (``conventional`` or ``improved``) with the kernel ``step`` and its settings."""
     s = check_settings(name, settings, defaults, T_s)
     f_h, U_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
@@ -79,19 +85,22 @@ def make_wang(name, step, defaults, settings, T_s, theta_e0, omega_e0, commissio
     if s["A_p"] is not None:
         kp, ki = float(s["A_p"]), float(s["A_p"]) / float(s["T_i_s"])
     low, high = s["bandpass_Hz"]
+    monitor = make_monitor(T_s, U_h, f_h, delay_periods, commissioning, s["observable_ratio"])
+    startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, delay_periods,
+                           gain if salient else 0.0, s)
     params = WangParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, U_h_V=U_h,
         demodulation_amplitude=float(s["demodulation_amplitude"]), kp=kp, ki=ki,
         lowpass=butterworth_lowpass(s["lowpass_order"], s["lowpass_Hz"], T_s),
         bandpass=butterworth_bandpass(s["bandpass_order"], low, high, T_s),
-        monitor=make_monitor(T_s, U_h, f_h, delay_periods, commissioning, s["observable_ratio"]))
+        monitor=monitor, startup=startup)
     sections = max(params.lowpass.shape[0], params.bandpass.shape[0])
-    return Estimator(name, step, params, pulsating_state(params.monitor, theta_e0, omega_e0),
+    return Estimator(name, step, params, pulsating_state(monitor, startup),
                      np.zeros((2, sections, 2)), f_h, float(s["pll_bandwidth_Hz"]))
 
 
 @register("conventional", "d̂ injection, band-pass, q̂ demodulation, low-pass, PI (faithful)",
           "Wang et al. 2019, §II, Fig. 2, Eq. (7)-(11)")
-def make_conventional(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
-    return make_wang("conventional", conventional_step, DEFAULTS, settings, T_s, theta_e0, omega_e0,
-                 commissioning, delay_periods)
+def make_conventional(nameplate, T_s, settings, commissioning, delay_periods):
+    return make_wang("conventional", conventional_step, DEFAULTS, nameplate, settings, T_s, commissioning,
+                     delay_periods)

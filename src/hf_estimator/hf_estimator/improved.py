@@ -17,13 +17,15 @@ from control_math.frames import clarke_contract
 from .conventional import DEFAULTS, make_wang
 from .interface import register
 from .pulsating import INTEGRAL, THETA, pulsating_track_and_inject
+from .startup import startup_step
 
 
 @njit(cache=True)
 def improved_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
     """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI integrator, u_inj_α,
-    u_inj_β, ε [A] of Eq. 22, |Δ̂| [1/H], observable). State x: θ̂, the PI integrator, the admittance
-    monitor (pulsating.py); z: the α low-pass z[0] and the β low-pass z[1]; p: WangParams."""
+    u_inj_β, ε [A] of Eq. 22, |Δ̂| [1/H], start-up state code). State x: θ̂, the PI integrator, the
+    admittance monitor, the start-up (pulsating.py); z: the α low-pass z[0] and the β low-pass z[1];
+    p: WangParams."""
     t = k * p.T_s_s
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     modulation = p.demodulation_amplitude * math.sin(p.omega_h_rad_s * t)
@@ -32,12 +34,13 @@ def improved_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_
     eps = i_beta_l * math.cos(x[THETA]) - i_alpha_l * math.sin(x[THETA])
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
-    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, observable
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_alpha,
+                                          u_beta, eps, observable)
+    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state
 
 
 @register("improved", "d̂ injection, αβ × 2 sin ω_h t, 300 Hz low-pass, two-phase PLL (faithful)",
           "Wang et al. 2019, §III, Fig. 3, 5(b), 6, Eq. (16)-(24)")
-def make_improved(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+def make_improved(nameplate, T_s, settings, commissioning, delay_periods):
     defaults = {**DEFAULTS, "pll_bandwidth_Hz": 10.0}
-    return make_wang("improved", improved_step, defaults, settings, T_s, theta_e0, omega_e0, commissioning,
-                     delay_periods)
+    return make_wang("improved", improved_step, defaults, nameplate, settings, T_s, commissioning, delay_periods)

@@ -39,6 +39,9 @@ design).
 6. A type-2 loop (PI + integrator) on ε with ω_n, ζ placed directly (ε has unit slope); its integrator
    state is the speed handed to the speed loop (the proportional path stays out of it). While |Δ̂|/Σ̂ is
    below the threshold the loop is held (ε = 0) and the flag says so.
+7. Start-up (startup.py): while aligning, a fit that finds the axis further than ALIGN_JUMP_RAD away
+   moves θ̂ onto it at once (ε is in radians) and the next fit waits for a window of fresh samples; the
+   loop settles the rest. Ours aligns in a few carrier periods instead of the loop's settling time.
 """
 import math
 from typing import NamedTuple
@@ -52,6 +55,8 @@ from control_math.tables import table_value
 from motor_params.nameplate import INVERTER_RATINGS
 
 from .interface import Estimator, check_settings, register
+from .startup import ALIGNING, StartupParams, make_startup, startup_code, startup_reset, startup_size, startup_step
+from .startup import DEFAULTS as STARTUP_DEFAULTS
 from .tracking_loop import pi_tracking_loop
 
 THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH, I_Q_SMOOTH = range(7)
@@ -64,7 +69,11 @@ HISTORY = SUMS + N_SUMS
 
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
-            "signal_smoothing_Hz": 20.0, "dead_time_model": False, "saliency_snr_min": 8.0}
+            "signal_smoothing_Hz": 20.0, "dead_time_model": False, "saliency_snr_min": 8.0,
+            **STARTUP_DEFAULTS}
+ALIGN_JUMP_RAD = 0.2
+"""While aligning, a measured error beyond this (or 4 × the alignment tolerance) is jumped over at once
+(well above one fit's noise)."""
 HF_RIPPLE_MAX_PER_RATED = 0.5
 """The largest HF current ripple U_h·Σ/ω_h ours allows itself when it raises its amplitude, per rated
 current (Wang's own reversal runs at 0.38)."""
@@ -117,6 +126,7 @@ class InjectionFrameParams(NamedTuple):
     saliency_sign: float
     """+1 when the commissioned L_dh < L_qh (or no saliency known), −1 when L_dh > L_qh: the d axis is then
     the axis of the smaller admittance."""
+    startup: StartupParams
 
 
 @njit(cache=True)
@@ -151,10 +161,10 @@ def _fit_error(x, n, p):
 def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder,
                          omega_e_encoder):
     """One sample (interface.py): currents i_a, i_b, i_c [A] and the command issued at k−1 (u_prev) [V] →
-    (θ̂_e, ω̂_e = the loop's integrator, u_inj_α, u_inj_β, ε [rad], |Δ̂| [1/H], observable). State x:
-    θ̂, integrator, previous currents, fit count, smoothed |Δ̂| and î_q (indices THETA..I_Q_SMOOTH), the
-    10 sliding sums (SUMS), the ring of (axis, command α, β) per sample × (d + 2), the regressor ring
-    (a, b, y1, y2) × 2N; z unused; p: InjectionFrameParams."""
+    (θ̂_e, ω̂_e = the loop's integrator, u_inj_α, u_inj_β, ε [rad], |Δ̂| [1/H], start-up state code).
+    State x: θ̂, integrator, previous currents, fit count, smoothed |Δ̂| and î_q (indices
+    THETA..I_Q_SMOOTH), the 10 sliding sums (SUMS), the ring of (axis, command α, β) per sample × (d + 2),
+    the regressor ring (a, b, y1, y2) × 2N, the start-up state; z unused; p: InjectionFrameParams."""
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     depth = p.delay_periods + 2
     issued = HISTORY
@@ -209,6 +219,12 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
             if x[DELTA_SMOOTH] > p.observable_ratio * abs(sigma):
                 observable = 1.0
                 eps = error - table_value(x[I_Q_SMOOTH], p.shift_i_q_A, p.shift_rad)
+                jump = max(ALIGN_JUMP_RAD, 4.0 * p.startup.align_tolerance_rad)
+                if startup_code(x, p.startup) == ALIGNING and abs(eps) > jump:
+                    x[THETA] += eps
+                    x[COUNT] = 0.0
+                    eps = 0.0
+                    observable = 0.0
 
     pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
     omega = x[INTEGRAL]
@@ -218,13 +234,15 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
     axis_now = x[THETA] + omega * (p.delay_periods + 0.5) * p.T_s_s
     x[issued + 3 * (k % depth)] = axis_now
     u_alpha, u_beta = rotate(p.U_h_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
-    return x[THETA], omega, u_alpha, u_beta, eps, x[DELTA_SMOOTH], observable
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_alpha,
+                                          u_beta, eps, observable)
+    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, x[DELTA_SMOOTH], state
 
 
 @register("injection_frame", "ours: incremental admittance fitted from current steps and the applied "
                              "voltage in the injection frame; alternating axis; model-free observability",
           "ours, after docs/hf-demodulation.md §2-4")
-def make_injection_frame(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods):
     s = check_settings("injection_frame", settings, DEFAULTS, T_s)
     N = int(round(1.0 / (float(s["frequency_Hz"]) * T_s)))
     if N < 3:
@@ -232,6 +250,8 @@ def make_injection_frame(nameplate, T_s, settings, theta_e0, omega_e0, commissio
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, 2.0 * math.pi / (N * T_s),
                                           float(s["saliency_snr_min"]))
+    base = HISTORY + 3 * (delay_periods + 2) + 4 * 2 * N
+    startup = make_startup(base, nameplate, commissioning, T_s, delay_periods, 1.0, s)
     params = InjectionFrameParams(
         T_s_s=T_s, N=N, U_h_V=amplitude, R_s_ohm=commissioning.R_s_ohm,
         dither_rad=float(s["dither_rad"]),
@@ -242,10 +262,9 @@ def make_injection_frame(nameplate, T_s, settings, theta_e0, omega_e0, commissio
         shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad,
         dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] else 0.0,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
-        saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0)
-    x = np.zeros(HISTORY + 3 * (delay_periods + 2) + 4 * 2 * N)
-    x[THETA] = theta_e0
-    x[INTEGRAL] = omega_e0
+        saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0, startup=startup)
+    x = np.zeros(base + startup_size(startup))
+    startup_reset(x, startup)
     return Estimator("injection_frame", injection_frame_step, params, x, np.zeros((1, 1, 2)),
                      1.0 / (N * T_s), float(s["pll_bandwidth_Hz"]), injection_amplitude_V=amplitude,
                      injection_note=note)

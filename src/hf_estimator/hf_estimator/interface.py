@@ -3,15 +3,18 @@
 A core is a numba step function called once per sample k with the measured phase currents:
 
     step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder)
-        -> (θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, observable)
+        -> (θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, state)
 
 θ̂_e is the unwrapped electrical angle estimate at sample k, ω̂_e the electrical speed estimate fed to
 the speed loop, u_inj the HF voltage to superimpose for the period that follows sample k (stationary
 frame), ε the demodulated error driving the tracking loop, ``signal`` the measured angle-information
-strength (estimator-specific units, documented per estimator) and ``observable`` 1.0 when that signal
-is strong enough to trust θ̂, else 0.0. u_prev is the voltage command the controller issued at sample
-k−1 (the `voltage_command` topic; the papers' methods ignore it). x (1-D) and z (filter sections) are
-the estimator's state; p its parameters. The encoder inputs are read only by the ``sensored`` pass-through.
+strength (estimator-specific units, documented per estimator) and ``state`` the start-up state code
+(startup.py: 0 hold, 1 aligning, 2 polarity test, 3 tracking, 4 lock lost; the controller applies
+torque only once it has reached 3). u_prev is the voltage command the controller issued at sample k−1
+(the `voltage_command` topic). x (1-D) and z (filter sections) are the estimator's state, θ̂ at x[0] and
+its speed integrator at x[1]; p its parameters, the start-up's as ``p.startup``. Every estimator starts
+at θ̂ = 0, ω̂ = 0: it is told nothing of the angle. The encoder inputs are read only by the ``sensored``
+pass-through.
 
 What an estimator knows of the motor is its nameplate (``motor_params.nameplate``) and the commissioning
 record measured on it (``motor_params.commissioning``); never the plant.
@@ -57,7 +60,7 @@ _REGISTRY = {}
 
 
 def register(name, description, paper, injects=True):
-    """Register ``factory(nameplate, T_s, settings, θ_e0, ω_e0, commissioning, delay_periods) -> Estimator``
+    """Register ``factory(nameplate, T_s, settings, commissioning, delay_periods) -> Estimator``
     from the module named ``name``; ``paper``: the section it implements; ``injects``: it takes the
     settings frequency_Hz and amplitude_V for its HF injection."""
     def wrap(factory):
@@ -86,13 +89,13 @@ def describe(name):
     return {"name": name, "description": description, "paper": paper, "module": factory.__module__}
 
 
-def make_estimator(name, nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+def make_estimator(name, nameplate, T_s, settings, commissioning, delay_periods):
     """Build the estimator ``name`` for a motor known by its ``nameplate`` (motor_params.nameplate) and
     ``commissioning`` record (the HF inductances and saliency-shift tables measured at standstill);
-    θ_e0, ω_e0 are its initial estimates [rad, rad/s electrical], ``delay_periods`` the inverter's
-    computation delay. KeyError or ValueError name the setting at fault."""
+    ``delay_periods`` is the inverter's computation delay. KeyError or ValueError name the setting at
+    fault."""
     factory = _entry(name)[0]
-    return factory(nameplate, T_s, dict(settings or {}), theta_e0, omega_e0, commissioning, delay_periods)
+    return factory(nameplate, T_s, dict(settings or {}), commissioning, delay_periods)
 
 
 def _frequency(key, value, T_s):
@@ -146,6 +149,23 @@ SETTING_CHECKS = {
     "signal_smoothing_Hz": _frequency,
     "dead_time_model": lambda key, value, T_s: flag(key, value),
     "saliency_snr_min": lambda key, value, T_s: number(key, value, 0.0, None, low_inclusive=True),
+    "align_tolerance_rad": lambda key, value, T_s: positive(key, value, 1.0),
+    "settle_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
+    "align_timeout_s": lambda key, value, T_s: positive(key, value, 10.0),
+    "quiet_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
+    "pulse_current_per_rated": lambda key, value, T_s: positive(key, value, 1.0),
+    "pulse_s": lambda key, value, T_s: positive(key, value, 0.01),
+    "pulse_sequences": lambda key, value, T_s: number(key, value, 1, 100, low_inclusive=True, integer=True),
+    "polarity_margin": lambda key, value, T_s: positive(key, value, 0.5),
+    "polarity_tries": lambda key, value, T_s: number(key, value, 1, 100, low_inclusive=True, integer=True),
+    "flush_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
+    "lock_filter_Hz": _frequency,
+    "lock_persist_s": lambda key, value, T_s: positive(key, value, 1.0),
+    "lost_hold_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
+    "max_restarts": lambda key, value, T_s: number(key, value, 0, 100, low_inclusive=True, integer=True),
+    "backemf_polarity_ratio": lambda key, value, T_s: positive(key, value),
+    "slip_at_s": lambda key, value, T_s: number(key, value, -1.0, None, low_inclusive=True),
+    "slip_rad": lambda key, value, T_s: number(key, value, -2.0 * math.pi, 2.0 * math.pi, low_inclusive=True),
 }
 """How each estimator setting is checked: (key, value, T_s) → the value, or ValueError naming the key."""
 

@@ -3,7 +3,8 @@
 For sample k it joins `currents`(k) with `voltage_command`(k−1) (the voltage applied during the period
 that produced them; zero for k = 0, and zero if the controller stays silent past half the lock-step
 timeout, which is what the plant then applied) and, for `sensored` only, `rotor_state`(k). It answers
-`rotor_estimate`(k), `injection`(k) and `estimator_state`(k) (x = ε, y = signal, z = observable).
+`rotor_estimate`(k), `injection`(k) and `estimator_state`(k) (x = ε, y = signal, z = the start-up state
+code, hf_estimator.startup). A lost lock or a refused start is a fault (ERROR on /diagnostics, counted).
 Non-finite or absurd currents are not fed to the core: the node answers with its last estimate and
 no injection, and reports the fault.
 
@@ -26,6 +27,7 @@ from drive_scenarios.node import ScenarioNode
 from motor_params.knowledge import motor_knowledge
 
 from .build import estimator_for_scenario
+from .startup import LOCK_LOST, STATE_NAMES, estimator_startup
 
 
 class EstimatorNode(ScenarioNode):
@@ -39,18 +41,19 @@ class EstimatorNode(ScenarioNode):
         self.injection_msg = Vector3Stamped()
         self.injection_msg.header.frame_id = TOPICS["injection"].frame_id
         self.state_msg = Vector3Stamped()
-        self.observable = 0.0
+        self.state = 0.0
+        self.lock_losses = 0
+        self.refusal_reported = False
         self.signal = 0.0
         if not self.configured:
             self.open_outputs()
             self.publish_config({})
             return
-        e, s = self.estimator, self.scenario
+        e = self.estimator
         self.sensored = e.name == "sensored"
         self.n_p = self.nameplate().n_p
         self.k = 0
-        self.theta_hat = s.initial_theta_m_rad * self.n_p - s.initial_angle_error_e_rad
-        self.omega_hat = self.n_p * s.initial_omega_m_rad_s
+        self.theta_hat = self.omega_hat = 0.0
         self.trip_A = self.trip_current_A()
         inputs = [self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents),
                                            topic_qos("currents"))]
@@ -136,9 +139,17 @@ class EstimatorNode(ScenarioNode):
                                    omega_enc))
         self.try_step()
 
-    def answer(self, k, theta_hat, omega_hat, u_inj_alpha, u_inj_beta, eps, signal, observable):
+    def answer(self, k, theta_hat, omega_hat, u_inj_alpha, u_inj_beta, eps, signal, state):
         self.theta_hat, self.omega_hat = theta_hat, omega_hat
-        self.signal, self.observable = signal, observable
+        if state == LOCK_LOST and self.state != LOCK_LOST:
+            self.lock_losses += 1
+            self.fault("lock_lost", f"sample {k}: lock lost (the back-EMF contradicts the estimate); zero torque, "
+                                    f"starting again")
+        summary = estimator_startup(self.estimator)
+        if summary and summary["refused"] and not self.refusal_reported:
+            self.refusal_reported = True
+            self.fault("start_refused", f"sample {k}: {summary['refused']}")
+        self.signal, self.state = signal, state
         t = stamp(k, self.T_s)
         r = self.estimate_msg
         r.header.stamp = t
@@ -149,7 +160,7 @@ class EstimatorNode(ScenarioNode):
         i.vector.x, i.vector.y = u_inj_alpha, u_inj_beta
         s = self.state_msg
         s.header.stamp = t
-        s.vector.x, s.vector.y, s.vector.z = eps, signal, observable
+        s.vector.x, s.vector.y, s.vector.z = eps, signal, state
         self.injection_pub.publish(i)
         self.estimate_pub.publish(r)
         self.state_pub.publish(s)
@@ -165,8 +176,8 @@ class EstimatorNode(ScenarioNode):
     def status_values(self):
         if not self.configured:
             return {}
-        return {"sample": getattr(self, "k", 0), "observable": bool(self.observable > 0.5),
-                "signal": self.signal, "estimator": self.estimator.name}
+        return {"sample": getattr(self, "k", 0), "state": STATE_NAMES.get(int(self.state), "?"),
+                "lock_lost": self.lock_losses, "signal": self.signal, "estimator": self.estimator.name}
 
 
 def main(argv=None):

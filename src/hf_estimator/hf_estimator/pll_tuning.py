@@ -51,7 +51,7 @@ def pll_design(nameplate, commissioning, delay_periods, estimator_name, settings
     """Both models of ``estimator_name``'s loop with estimator ``settings`` on a motor known by its
     ``nameplate`` and ``commissioning`` record (R_s and the HF inductances), with the inverter's computation
     delay ``delay_periods``."""
-    estimator = make_estimator(estimator_name, nameplate, T_s, settings, 0.0, 0.0, commissioning, delay_periods)
+    estimator = make_estimator(estimator_name, nameplate, T_s, settings, commissioning, delay_periods)
     R = commissioning.R_s_ohm
     path = carrier_path(estimator, R, commissioning.L_dh_H, commissioning.L_qh_H, delay_periods)
     szabo = None

@@ -7,17 +7,24 @@ from control_math.filters import sos_step
 from control_math.frames import rotate
 
 from .admittance_monitor import monitor_size, monitor_step
+from .startup import startup_reset, startup_size
 from .tracking_loop import pi_tracking_loop
 
-# State layout of the papers' pulsating-injection estimators: θ̂, the PI integrator, then the monitor.
+# State layout of the papers' pulsating-injection estimators: θ̂, the PI integrator, the monitor, then
+# the start-up state (startup.py).
 THETA, INTEGRAL, MONITOR = 0, 1, 2
 
 
-def pulsating_state(monitor, theta_e0, omega_e0):
-    """Fresh state for a pulsating-injection estimator with monitor parameters ``monitor``."""
-    x = np.zeros(MONITOR + monitor_size(monitor))
-    x[THETA] = theta_e0
-    x[INTEGRAL] = omega_e0
+def startup_base(monitor):
+    """Where the start-up state begins in a pulsating-injection estimator's x."""
+    return MONITOR + monitor_size(monitor)
+
+
+def pulsating_state(monitor, startup):
+    """Fresh state (θ̂ = 0, ω̂ = 0, aligning) for a pulsating-injection estimator with monitor parameters
+    ``monitor`` and start-up parameters ``startup``."""
+    x = np.zeros(startup_base(monitor) + startup_size(startup))
+    startup_reset(x, startup)
     return x
 
 

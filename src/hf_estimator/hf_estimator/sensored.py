@@ -14,14 +14,14 @@ class SensoredParams(NamedTuple):
 
 @njit(cache=True)
 def sensored_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
-    """One sample (interface.py): the encoder's θ_e, ω_e passed through, no injection, ε 0, signal and
-    observable 1. No state."""
-    return theta_e_encoder, omega_e_encoder, 0.0, 0.0, 0.0, 1.0, 1.0
+    """One sample (interface.py): the encoder's θ_e, ω_e passed through, no injection, ε 0, signal 1,
+    state tracking (an encoder needs no start-up). No state."""
+    return theta_e_encoder, omega_e_encoder, 0.0, 0.0, 0.0, 1.0, 3.0
 
 
 @register("sensored", "encoder pass-through (no injection): validates plant and controller", "none",
           injects=False)
-def make_sensored(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+def make_sensored(nameplate, T_s, settings, commissioning, delay_periods):
     check_settings("sensored", settings, {}, T_s)
     return Estimator("sensored", sensored_step, SensoredParams(nameplate.n_p),
                      np.zeros(1), np.zeros((1, 1, 2)), 0.0)

@@ -30,11 +30,14 @@ from .pulsating import (
     pulsating_state,
     pulsating_track_and_inject,
     q_axis_demodulation,
+    startup_base,
 )
+from .startup import DEFAULTS as STARTUP_DEFAULTS
+from .startup import StartupParams, make_startup, startup_step
 
 DEFAULTS = {"frequency_Hz": 1500.0, "amplitude_V": 40.0, "u_star": 1.0, "A_p": 4853.0,
             "T_i_s": 0.136, "T_f_s": 0.53e-3, "bandpass_ratio": math.sqrt(2.0),
-            "observable_ratio": 0.02, "demodulation": "paper"}
+            "observable_ratio": 0.02, "demodulation": "paper", **STARTUP_DEFAULTS}
 
 
 class SynchronousParams(NamedTuple):
@@ -48,13 +51,14 @@ class SynchronousParams(NamedTuple):
     bandpass: np.ndarray
     demodulation_phase_rad: float
     monitor: MonitorParams
+    startup: StartupParams
 
 
 @njit(cache=True)
 def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
     """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI output, u_inj_α, u_inj_β,
-    ε = −î_qhf [A], |Δ̂| [1/H], observable). State x: θ̂, the PI integrator, the admittance monitor
-    (pulsating.py); z: band-pass sections z[0], T_f low-pass z[1]; p: SynchronousParams."""
+    ε = −î_qhf [A], |Δ̂| [1/H], start-up state code). State x: θ̂, the PI integrator, the admittance
+    monitor, the start-up (pulsating.py); z: band-pass sections z[0], T_f low-pass z[1]; p: SynchronousParams."""
     t = k * p.T_s_s
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     i_qhf = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA], p.u_star,
@@ -62,7 +66,9 @@ def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta
     omega, u_alpha, u_beta, signal_strength, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.sin(p.omega_h_rad_s * t), p.u_h_V, p.kp, p.ki, p.T_s_s,
         -i_qhf)
-    return x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, observable
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_alpha,
+                                          u_beta, -i_qhf, observable)
+    return x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, state
 
 
 def aligned_demodulation_phase(R_ohm, commissioning, T_s, delay_periods, omega_h, bandpass):
@@ -81,7 +87,7 @@ def first_order_lowpass(T_f, T_s):
 
 @register("synchronous", "d̂ sine injection, q̂ phase detector, T_f low-pass, PI (faithful; "
                         "demodulation: aligned is ours)", "Szabó & Veszprémi, §2.2-2.3, Eq. (6), (15)-(22), Table 2")
-def make_synchronous(nameplate, T_s, settings, theta_e0, omega_e0, commissioning, delay_periods):
+def make_synchronous(nameplate, T_s, settings, commissioning, delay_periods):
     s = check_settings("synchronous", settings, DEFAULTS, T_s)
     f_h, u_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
     ratio = float(s["bandpass_ratio"])
@@ -90,14 +96,16 @@ def make_synchronous(nameplate, T_s, settings, theta_e0, omega_e0, commissioning
     if s["demodulation"] == "aligned":
         phase = aligned_demodulation_phase(commissioning.R_s_ohm, commissioning, T_s, delay_periods,
                                            2.0 * math.pi * f_h, bandpass)
+    monitor = make_monitor(T_s, u_h, f_h, delay_periods, commissioning, s["observable_ratio"])
+    gain = float(s["u_star"]) * u_h * commissioning.delta / (2.0 * math.pi * f_h)
+    startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, delay_periods,
+                           gain if commissioning.salient() else 0.0, s)
     params = SynchronousParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, u_h_V=u_h, u_star=float(s["u_star"]),
         kp=float(s["A_p"]), ki=float(s["A_p"]) / float(s["T_i_s"]),
         lowpass=first_order_lowpass(float(s["T_f_s"]), T_s),
         bandpass=bandpass, demodulation_phase_rad=phase,
-        monitor=make_monitor(T_s, u_h, f_h, delay_periods, commissioning, s["observable_ratio"]))
-    gain = params.u_star * u_h * commissioning.delta / params.omega_h_rad_s
-    omega_n = math.sqrt(gain * params.ki)
-    return Estimator("synchronous", synchronous_step, params,
-                     pulsating_state(params.monitor, theta_e0, omega_e0), np.zeros((2, 1, 2)), f_h,
-                     omega_n / (2.0 * math.pi))
+        monitor=monitor, startup=startup)
+    omega_n = math.sqrt(abs(gain) * params.ki)
+    return Estimator("synchronous", synchronous_step, params, pulsating_state(monitor, startup),
+                     np.zeros((2, 1, 2)), f_h, omega_n / (2.0 * math.pi))

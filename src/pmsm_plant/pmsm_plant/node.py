@@ -9,6 +9,10 @@ period and names the silent topic.
 With ``load_torque_per_sample`` (a scenario driver acting as the dyno) the plant takes exactly one
 `load_torque` message per sample and starts sample k only once it has the k-th; the shaft speed of
 imposed-speed scenarios is the latest `speed_command` at that moment. Otherwise the latest load applies.
+
+A scenario's holding brake keeps the shaft at rest until the estimator first reports tracking: while
+it holds, the plant advances sample k only once it has `estimator_state`(k) too, so the release falls
+on the same sample as in one process.
 """
 import sys
 import time
@@ -50,6 +54,12 @@ class PlantNode(ScenarioNode):
                                  topic_qos("rotor_estimate"))
         self.create_subscription(Float64, "load_torque", self.on_load_torque, topic_qos("load_torque"))
         self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
+        self.braked = bool(self.configured and self.scenario.brake)
+        self.brake_states = {}
+        self.pending_command = None
+        if self.braked:
+            self.create_subscription(Vector3Stamped, "estimator_state", self.on_estimator_state,
+                                     topic_qos("estimator_state"))
         self.k = 0
         self.tau_load = 0.0
         self.loads = deque()
@@ -185,14 +195,31 @@ class PlantNode(ScenarioNode):
                                     f"inverter can apply; zero voltage applied")
             self.advance(0.0, 0.0, safe_state=True)
             return
+        if self.braked and k not in self.brake_states:
+            self.pending_command = (u.x, u.y)
+            return
         self.advance(u.x, u.y)
+
+    def on_estimator_state(self, msg):
+        """While the brake holds: the estimator's state of a sample (3 releases it)."""
+        k = sample_of(msg.header, self.T_s)
+        if not self.braked or k is None or k < self.k:
+            return
+        self.brake_states[k] = msg.vector.z
+        if self.pending_command is not None and self.k in self.brake_states:
+            self.advance(*self.pending_command)
 
     def advance(self, u_alpha, u_beta, safe_state=False):
         """Apply the command of sample k (zero voltage as the safe state after a fault) and go to k+1."""
         p = self.plant
         self.zero_voltage_periods += safe_state
-        plant_advance(p.x, u_alpha, u_beta, self.tau_load, p.imposed_speed, self.omega_imposed, p.machine,
-                      p.mechanics, p.inverter, p.T_s, p.substeps)
+        self.pending_command = None
+        if self.braked and self.brake_states.pop(self.k, None) == 3.0:
+            self.braked = False
+            self.brake_states.clear()
+        plant_advance(p.x, u_alpha, u_beta, self.tau_load, p.imposed_speed or self.braked,
+                      0.0 if self.braked else self.omega_imposed, p.machine, p.mechanics, p.inverter, p.T_s,
+                      p.substeps)
         self.sample_handled(self.k)
         self.k += 1
         if self.k >= self.n_samples:

@@ -1,0 +1,81 @@
+"""``drive bench startup``: the start-up from rotor angles over the whole electrical circle, noise seeds,
+with and without load (docs/startup.md). Each run is a short scenario: the rotor at rest at angle θ_e,
+the estimator told nothing, the speed reference ramping to ``SPEED_PER_RATED`` of rated speed; the load
+opposes that direction (the case where rolling back shows)."""
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from drive_evaluation.metrics import startup_metrics
+from drive_runner.runner import run_scenario
+from drive_scenarios.scenario import load_scenario, parse_scenario
+from motor_params.nameplate import nameplate
+
+MOTOR_SCENARIOS = {"wang_spmsm": "wang_100rpm", "szabo_ipmsm": "szabo_profile"}
+"""The shipped scenario whose injection a motor's bench runs use."""
+SPEED_PER_RATED = 0.03
+RAMP_S = 0.1
+DURATION_S = 0.2
+
+
+class LoadCase(NamedTuple):
+    name: str
+    load_per_rated: float
+    brake: bool
+
+
+STANDARD_CASES = (LoadCase("no load", 0.0, False), LoadCase("0.5 rated, brake", 0.5, True),
+                  LoadCase("0.3 rated, active", 0.3, False))
+"""The issue's cases: no load; half rated load held by a brake released at first torque; a
+gravity-like 0.3 rated load from t = 0 that moves the rotor during start-up."""
+
+
+def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None):
+    """The scenario of one bench run."""
+    shipped = load_scenario(MOTOR_SCENARIOS[motor])
+    plate = nameplate(motor)
+    speed = SPEED_PER_RATED * plate.rated_speed_rpm
+    data = {"motor": motor, "estimator": {"type": estimator or "injection_frame", "settings": settings or {}},
+            "injection": dict(shipped.injection), "duration_s": DURATION_S, "sampling_period_s": shipped.T_s,
+            "speed": {"unit": "rpm", "interpolation": "linear", "points": [[0.0, 0.0], [RAMP_S, speed]]},
+            "load": {"unit": "rated", "points": [[0.0, case.load_per_rated]]}, "seed": seed,
+            "initial": {"theta_m_rad": theta_e_rad / plate.n_p}, "brake": case.brake,
+            "metrics": {"settle_s": 0.05}, "controller": dict(shipped.controller)}
+    return parse_scenario(data, f"startup_{motor}", "drive bench startup")
+
+
+def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progress=None):
+    """One row per (angle, seed): the start-up metrics (metrics.startup_metrics) of a bench run, and
+    the summary of them all."""
+    rows = []
+    total = angles * len(seeds)
+    for i in range(angles):
+        theta_e = 2.0 * math.pi * i / angles - math.pi
+        for seed in seeds:
+            scenario = bench_scenario(motor, estimator, theta_e, seed, case)
+            result = run_scenario(scenario)
+            rows.append({"theta_e_rad": theta_e, "seed": seed, **startup_metrics(scenario, result.log, result.n_p),
+                         "refused": (result.startup or {}).get("refused")})
+            if progress:
+                progress(len(rows) / total)
+    return {"motor": motor, "case": case.name, "load_per_rated": case.load_per_rated, "brake": case.brake,
+            "estimator": estimator or "injection_frame", "runs": len(rows), **summary(rows), "rows": rows}
+
+
+def summary(rows):
+    """Polarity correct fraction, worst |angle error| at first torque, worst rotation against the
+    commanded direction [deg mechanical], slowest start-up, lock losses, runs that never started."""
+    started = [r for r in rows if r["completed"]]
+
+    def worst(key, scale=1.0):
+        values = [abs(r[key]) * scale for r in started if r[key] is not None]
+        return float(max(values)) if values else None
+    correct = [r["polarity_correct"] for r in started if r["polarity_correct"] is not None]
+    return {"polarity_correct_fraction": float(np.mean(correct)) if len(started) == len(rows) and correct
+            else (float(np.sum(correct)) / len(rows) if rows else None),
+            "angle_error_max_e_rad": worst("angle_error_e_rad"),
+            "reverse_rotation_max_m_deg": worst("reverse_rotation_m_rad", 180.0 / math.pi),
+            "duration_max_s": worst("duration_s"),
+            "lock_lost": int(sum(r["lock_lost"] for r in rows)),
+            "not_started": len(rows) - len(started)}

@@ -1,0 +1,404 @@
+"""Start-up and lock supervision, shared by every injecting estimator (docs/startup.md).
+
+The estimator starts knowing nothing of the angle (θ̂ = 0). Its state code is `estimator_state` z
+(contract v2): HOLD 0, ALIGNING 1, POLARITY 2, TRACKING 3, LOCK_LOST 4. The controller applies torque
+only once TRACKING has been reached (HOLD after it keeps torque; the estimate coasts).
+
+1. Aligning: the estimator's own tracker converges on its own injection to the saliency axis (mod π).
+   Aligned once its error, scaled to radians by the estimator's gain and smoothed (2 ms), has stayed
+   below ``align_tolerance_rad`` (MOVING_TOLERANCE_FACTOR times more at speed) for ``settle_s``. Then,
+   still aligning (the controller holds zero current), the injection stops for ``quiet_s`` so that the
+   current loop takes the HF current's residue to zero: pulses from a non-zero current would measure the
+   saturation at the wrong operating point. No aligned saliency within ``align_timeout_s``: the start is
+   refused (a round rotor, L_dh = L_qh, has no angle to find), zero voltage, no guess.
+2. Polarity: θ̂ held and ω̂ set to 0 (the back-EMF saw no motion; a tracker's integrator may have wound
+   up while aligning), the injection replaced by voltage pulses along θ̂,
+   + − − + of n samples each, sized for ``pulse_current_per_rated`` × rated current from the
+   commissioned L_dh and R_s. The magnet saturates the d axis further when i_d > 0, so the + excursion
+   A₊ is larger than the − one A₋. With i_j the d̂ current at the j-th pulse boundary (the computation
+   delay accounted), S = −i₀ + 2i₁ − 2i₂ + 2i₃ − i₄ = 2(A₊ − A₋) and T = −i₀ + 2i₁ − 2i₃ + i₄ = 2(A₊ + A₋),
+   both free of sensor offsets and of a linear drift. Every other sequence is mirrored, − + + − (S keeps
+   its weights, T changes sign): the dead-time loss, which depends on the order of the pulses, then
+   cancels from S. S/T below −``polarity_margin``: θ̂ is the magnet's south, turned by π. Within ±margin
+   the pulses found no asymmetry: θ̂ may sit on the q axis (the trackers' unstable equilibrium, where ε
+   is zero too), so the test repeats a quarter turn further, up to ``polarity_tries`` times; then the
+   start is refused. At speed, where the back-EMF stands ``backemf_polarity_ratio`` × its threshold
+   clear, its sign decides instead. A flush of ``flush_s`` with the tracker running on its injection
+   follows, still without torque.
+3. Tracking, and the lock monitor: the back-EMF in the θ̂ frame is measured from the applied voltage
+   (the command d + 1 samples old, the commissioned dead-time loss removed) and the currents,
+   e = u − R̂ī − L̂·Δi/T_s (per axis, the HF cancelling), and compared with what the estimate implies,
+   (ω̂ΔL i_q, ω̂(ψ_f + ΔL i_d)). A π slip makes the residual 2ωψ_f, a run-away estimate |ω − ω̂|ψ_f;
+   beyond the threshold V_th + ½|ω̂ψ_f| (low-passed) for ``lock_persist_s``, the lock is lost.
+4. Lock lost: zero torque for ``lost_hold_s``, then a new start-up (an alignment that times out counts
+   as another loss), at most ``max_restarts`` times; then it stays at zero torque (refused).
+"""
+import math
+from typing import NamedTuple
+
+from numba import njit
+
+from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
+from control_math.frames import inverse_clarke, rotate
+from motor_params.nameplate import INVERTER_RATINGS
+
+HOLD, ALIGNING, POLARITY, TRACKING, LOCK_LOST = 0, 1, 2, 3, 4
+STATE_NAMES = {HOLD: "hold", ALIGNING: "aligning", POLARITY: "polarity test", TRACKING: "tracking",
+               LOCK_LOST: "lock lost"}
+NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES = 0, 1, 2, 3
+REFUSALS = {NO_SALIENCY: "no saliency found: HF injection cannot tell this rotor's angle (a round rotor?)",
+            NO_POLARITY: "no saturation asymmetry on the d axis: the magnet's polarity cannot be told",
+            TOO_MANY_LOSSES: "lock lost too often; holding zero torque"}
+
+(CODE, ENTERED, SETTLED, ERROR, THETA_HELD, INTEGRAL_HELD, SCORE, SPAN, TRIES, REFUSED, RESTARTS,
+ RESIDUAL_D, RESIDUAL_Q, PREV_IA, PREV_IB, BAD, STARTED_AT, POLARITY_RATIO, FLIPPED, HELD_AT,
+ QUIET) = range(21)
+HISTORY = 21
+"""Then the ring of issued commands (α, β) × (d + 2)."""
+THETA, INTEGRAL = 0, 1
+"""Every estimator keeps θ̂ at x[0] and its speed integrator (ω̂) at x[1]."""
+
+DEFAULTS = {"align_tolerance_rad": 0.05, "settle_s": 3e-3, "align_timeout_s": 0.1, "quiet_s": 3e-3,
+            "pulse_current_per_rated": 0.7,
+            "pulse_s": 5e-4, "pulse_sequences": 2, "polarity_margin": 0.01, "polarity_tries": 3,
+            "flush_s": 3e-3, "lock_filter_Hz": 100.0, "lock_persist_s": 5e-3, "lost_hold_s": 0.01,
+            "max_restarts": 3, "backemf_polarity_ratio": 3.0, "slip_at_s": -1.0, "slip_rad": math.pi}
+"""Start-up settings (estimator settings of every injecting estimator; slip_* force a slip of θ̂, a test)."""
+ALIGN_SMOOTHING_S = 2e-3
+"""Time constant of the smoothed error the alignment is judged by."""
+MOVING_TOLERANCE_FACTOR = 4.0
+"""Re-acquiring a rotor fast enough for its back-EMF to tell the polarity, the alignment tolerance is
+this many times wider: the tracker lags an accelerating rotor (a loaded shaft dragged at zero torque),
+and the lock monitor checks the result against the back-EMF."""
+PULSE_VOLTAGE_MAX_PER_LINEAR = 0.8
+"""Polarity pulses use at most this share of the linear voltage range U_dc/√3 (longer pulses beyond)."""
+LOCK_RESISTANCE_ERROR = 0.1
+LOCK_DEAD_TIME_ERROR = 0.5
+"""V_th = this share of R̂·I_rated + this share of the commissioned dead-time voltage (per phase, ×4/3 in
+αβ) + 2 % of the rated back-EMF: what the back-EMF model can be wrong by at rated current."""
+
+
+class StartupParams(NamedTuple):
+    base: int
+    """Index of the start-up state in the estimator's x."""
+    T_s_s: float
+    delay_periods: int
+    error_gain: float
+    """The estimator's ε per radian of angle error (0: it cannot align)."""
+    align_tolerance_rad: float
+    settle_samples: int
+    align_timeout_samples: int
+    quiet_samples: int
+    error_smoothing: float
+    pulse_samples: int
+    pulse_V: float
+    pulse_sequences: int
+    polarity_margin: float
+    polarity_tries: int
+    flush_samples: int
+    R_s_ohm: float
+    L_dh_H: float
+    L_qh_H: float
+    delta_L_H: float
+    """Nameplate L_d − L_q (the apparent saliency in the back-EMF's cross terms)."""
+    psi_f_Wb: float
+    dead_time_voltage_V: float
+    dead_time_smoothing_A: float
+    lock_smoothing: float
+    lock_threshold_V: float
+    lock_persist_samples: int
+    lost_hold_samples: int
+    max_restarts: int
+    backemf_polarity_ratio: float
+    slip_at_sample: int
+    slip_rad: float
+
+
+@njit(cache=True)
+def startup_size(p):
+    """Entries of the start-up state in an estimator's x."""
+    return HISTORY + 2 * (p.delay_periods + 2)
+
+
+def make_startup(base, nameplate, commissioning, T_s, delay_periods, error_gain, settings):
+    """StartupParams for an estimator whose start-up state begins at x[base]; ``settings``: its checked
+    settings (interface.check_settings, DEFAULTS among them), ``error_gain`` its ε per radian."""
+    s = settings
+    I_p = s["pulse_current_per_rated"] * nameplate.rated_current_A
+    n = max(2, int(round(s["pulse_s"] / T_s)))
+    rating = INVERTER_RATINGS.get(nameplate.name)
+    u_max = PULSE_VOLTAGE_MAX_PER_LINEAR * rating.U_dc_V / math.sqrt(3.0) if rating else math.inf
+    while True:
+        pulse_V = I_p * commissioning.L_dh_H / (n * T_s) + 0.5 * commissioning.R_s_ohm * I_p
+        if pulse_V <= u_max:
+            break
+        n += 1
+    omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * 2.0 * math.pi / 60.0
+    threshold = (LOCK_RESISTANCE_ERROR * commissioning.R_s_ohm * nameplate.rated_current_A
+                 + LOCK_DEAD_TIME_ERROR * 4.0 / 3.0 * commissioning.dead_time_voltage_V
+                 + 0.02 * omega_rated * nameplate.psi_f_Wb)
+    samples = lambda seconds: max(1, int(round(seconds / T_s)))  # noqa: E731
+    return StartupParams(
+        base=base, T_s_s=T_s, delay_periods=int(delay_periods), error_gain=float(error_gain),
+        align_tolerance_rad=s["align_tolerance_rad"], settle_samples=samples(s["settle_s"]),
+        align_timeout_samples=samples(s["align_timeout_s"]), quiet_samples=samples(s["quiet_s"]),
+        error_smoothing=1.0 - math.exp(-1.0 / samples(ALIGN_SMOOTHING_S)),
+        pulse_samples=n, pulse_V=pulse_V, pulse_sequences=int(s["pulse_sequences"]),
+        polarity_margin=s["polarity_margin"], polarity_tries=int(s["polarity_tries"]),
+        flush_samples=samples(s["flush_s"]), R_s_ohm=commissioning.R_s_ohm, L_dh_H=commissioning.L_dh_H,
+        L_qh_H=commissioning.L_qh_H, delta_L_H=nameplate.L_d_H - nameplate.L_q_H, psi_f_Wb=nameplate.psi_f_Wb,
+        dead_time_voltage_V=commissioning.dead_time_voltage_V,
+        dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
+        lock_smoothing=(1.0 - math.exp(-2.0 * math.pi * s["lock_filter_Hz"] * T_s)) if s["lock_filter_Hz"] > 0
+        else 1.0,
+        lock_threshold_V=threshold, lock_persist_samples=samples(s["lock_persist_s"]),
+        lost_hold_samples=samples(s["lost_hold_s"]), max_restarts=int(s["max_restarts"]),
+        backemf_polarity_ratio=s["backemf_polarity_ratio"],
+        slip_at_sample=int(round(s["slip_at_s"] / T_s)) if s["slip_at_s"] >= 0.0 else -1,
+        slip_rad=s["slip_rad"])
+
+
+@njit(cache=True)
+def startup_reset(x, p):
+    """Fresh start-up state: aligning from sample 0."""
+    b = p.base
+    for j in range(startup_size(p)):
+        x[b + j] = 0.0
+    x[b + CODE] = ALIGNING
+    x[b + ERROR] = 1.0
+
+
+@njit(cache=True)
+def startup_code(x, p):
+    """The current state code."""
+    return int(x[p.base + CODE])
+
+
+@njit(cache=True)
+def _enter(x, p, k, code):
+    """Enter state ``code`` at sample k."""
+    b = p.base
+    x[b + CODE] = code
+    x[b + ENTERED] = k
+    x[b + SETTLED] = 0.0
+    x[b + ERROR] = 1.0
+    x[b + BAD] = 0.0
+
+
+@njit(cache=True)
+def _turn(x, p, angle):
+    """θ̂ turned by ``angle``; the back-EMF residual, kept in the θ̂ frame, turned with it."""
+    b = p.base
+    x[THETA] += angle
+    x[b + RESIDUAL_D], x[b + RESIDUAL_Q] = rotate(x[b + RESIDUAL_D], x[b + RESIDUAL_Q], -angle)
+
+
+@njit(cache=True)
+def _backemf_residual(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta):
+    """Update the low-passed back-EMF residual (θ̂ frame) with sample k → its magnitude [V]."""
+    b = p.base
+    depth = p.delay_periods + 2
+    ring = b + HISTORY
+    slot_prev = (k - 1) % depth
+    x[ring + 2 * slot_prev] = u_prev_alpha
+    x[ring + 2 * slot_prev + 1] = u_prev_beta
+    slot_then = (k - 1 - p.delay_periods) % depth
+    u_alpha, u_beta = x[ring + 2 * slot_then], x[ring + 2 * slot_then + 1]
+    prev_a, prev_b = x[b + PREV_IA], x[b + PREV_IB]
+    x[b + PREV_IA] = i_alpha
+    x[b + PREV_IB] = i_beta
+    if k < p.delay_periods + 2:
+        return 0.0
+    if p.dead_time_voltage_V != 0.0:
+        start_a, start_b, start_c = inverse_clarke(prev_a, prev_b)
+        loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
+        u_alpha -= p.dead_time_voltage_V * loss_alpha
+        u_beta -= p.dead_time_voltage_V * loss_beta
+    omega = x[INTEGRAL]
+    angle = x[THETA] - 0.5 * omega * p.T_s_s
+    u_d, u_q = rotate(u_alpha, u_beta, -angle)
+    i_d, i_q = rotate(0.5 * (i_alpha + prev_a), 0.5 * (i_beta + prev_b), -angle)
+    step_d, step_q = rotate(i_alpha - prev_a, i_beta - prev_b, -angle)
+    e_d = u_d - p.R_s_ohm * i_d - p.L_dh_H * step_d / p.T_s_s
+    e_q = u_q - p.R_s_ohm * i_q - p.L_qh_H * step_q / p.T_s_s
+    r_d = e_d - omega * p.delta_L_H * i_q
+    r_q = e_q - omega * (p.psi_f_Wb + p.delta_L_H * i_d)
+    x[b + RESIDUAL_D] += p.lock_smoothing * (r_d - x[b + RESIDUAL_D])
+    x[b + RESIDUAL_Q] += p.lock_smoothing * (r_q - x[b + RESIDUAL_Q])
+    return math.hypot(x[b + RESIDUAL_D], x[b + RESIDUAL_Q])
+
+
+@njit(cache=True)
+def _polarity_coefficients(m, n, length, sequences):
+    """(S, T) weights of the d̂ current at pulse-clock sample m (module docstring, item 2)."""
+    c_s = (-1.0, 2.0, -2.0, 2.0, -1.0)
+    c_t = (-1.0, 2.0, 0.0, -2.0, 1.0)
+    if m < 0 or m % n != 0 or m > sequences * length:
+        return 0.0, 0.0
+    w_s, w_t = 0.0, 0.0
+    if m > 0 and m % length == 0:
+        w_s += c_s[4]
+        w_t += c_t[4] * _sequence_sign(m // length - 1)
+    if m < sequences * length:
+        j = (m % length) // n
+        w_s += c_s[j]
+        w_t += c_t[j] * _sequence_sign(m // length)
+    return w_s, w_t
+
+
+@njit(cache=True)
+def _sequence_sign(sequence):
+    """+1 for the sequences + − − +, −1 for the mirrored − + + − (every other one)."""
+    return 1.0 if sequence % 2 == 0 else -1.0
+
+
+@njit(cache=True)
+def _hold(x, p, k):
+    """Keep θ̂ at the held angle turning at the held speed, and the integrator at the held speed."""
+    b = p.base
+    x[INTEGRAL] = x[b + INTEGRAL_HELD]
+    x[THETA] = x[b + THETA_HELD] + x[b + INTEGRAL_HELD] * (k - x[b + HELD_AT]) * p.T_s_s
+    return x[THETA]
+
+
+@njit(cache=True)
+def _lost(x, p, k):
+    """Enter LOCK_LOST, counting the loss."""
+    _enter(x, p, k, LOCK_LOST)
+    x[p.base + RESTARTS] += 1.0
+    return float(LOCK_LOST)
+
+
+@njit(cache=True)
+def startup_step(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_inj_alpha, u_inj_beta, eps,
+                 observable):
+    """Supervise sample k after the estimator's own step: the measured currents (α, β) [A], the command
+    issued at k−1 [V], the estimator's injection for the coming period [V], its ε and observable flag.
+    May turn or hold θ̂ (x[0]) and its integrator (x[1]). Returns (u_inj_α, u_inj_β, state code)."""
+    b = p.base
+    if k == p.slip_at_sample:
+        _turn(x, p, p.slip_rad)
+    residual = _backemf_residual(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta)
+    code = int(x[b + CODE])
+    since = k - int(x[b + ENTERED])
+    if x[b + REFUSED] != NOT_REFUSED:
+        return 0.0, 0.0, float(HOLD if x[b + REFUSED] != TOO_MANY_LOSSES else LOCK_LOST)
+
+    if code == ALIGNING:
+        if x[b + QUIET] > 0.0:
+            _hold(x, p, k)
+            if k - (x[b + QUIET] - 1.0) < p.quiet_samples:
+                return 0.0, 0.0, float(ALIGNING)
+            x[b + QUIET] = 0.0
+            _enter(x, p, k, POLARITY)
+            since = 0
+            code = POLARITY
+        else:
+            if observable > 0.5 and p.error_gain != 0.0:
+                x[b + ERROR] += p.error_smoothing * (eps / p.error_gain - x[b + ERROR])
+                tolerance = p.align_tolerance_rad
+                if abs(x[INTEGRAL]) * p.psi_f_Wb > p.backemf_polarity_ratio * p.lock_threshold_V:
+                    tolerance *= MOVING_TOLERANCE_FACTOR
+                x[b + SETTLED] = x[b + SETTLED] + 1.0 if abs(x[b + ERROR]) < tolerance else 0.0
+            else:
+                x[b + SETTLED] = 0.0
+            if x[b + SETTLED] < p.settle_samples:
+                if since < p.align_timeout_samples:
+                    return u_inj_alpha, u_inj_beta, float(ALIGNING)
+                if x[b + RESTARTS] == 0.0:
+                    x[b + REFUSED] = NO_SALIENCY
+                    return 0.0, 0.0, float(HOLD)
+                return u_inj_alpha, u_inj_beta, _lost(x, p, k)
+            x[b + THETA_HELD] = x[THETA]
+            x[b + INTEGRAL_HELD] = x[INTEGRAL]
+            x[b + HELD_AT] = k
+            x[b + SCORE] = 0.0
+            x[b + SPAN] = 0.0
+            if abs(x[INTEGRAL]) * p.psi_f_Wb > p.backemf_polarity_ratio * p.lock_threshold_V:
+                backemf_q = x[b + RESIDUAL_Q] + x[INTEGRAL] * p.psi_f_Wb
+                flip = backemf_q * x[INTEGRAL] < 0.0
+                x[b + FLIPPED] = 1.0 if flip else 0.0
+                x[b + POLARITY_RATIO] = 0.0
+                if flip:
+                    _turn(x, p, math.pi)
+                _enter(x, p, k - p.pulse_sequences * 4 * p.pulse_samples - p.delay_periods - 1, POLARITY)
+                return u_inj_alpha, u_inj_beta, float(POLARITY)
+            x[b + INTEGRAL_HELD] = 0.0
+            x[b + QUIET] = k + 1.0
+            return 0.0, 0.0, float(ALIGNING)
+
+    if code == POLARITY:
+        length = 4 * p.pulse_samples
+        issue_end = p.pulse_sequences * length
+        decide_at = issue_end + p.delay_periods
+        if since <= decide_at:
+            axis = _hold(x, p, k)
+            i_d, _ = rotate(i_alpha, i_beta, -axis)
+            w_s, w_t = _polarity_coefficients(since - p.delay_periods, p.pulse_samples, length, p.pulse_sequences)
+            x[b + SCORE] += w_s * i_d
+            x[b + SPAN] += w_t * i_d
+            if since < issue_end:
+                quarter = (since % length) // p.pulse_samples
+                sign = (1.0 if quarter == 0 or quarter == 3 else -1.0) * _sequence_sign(since // length)
+                u_alpha, u_beta = rotate(sign * p.pulse_V, 0.0, axis + x[b + INTEGRAL_HELD] * p.T_s_s)
+                return u_alpha, u_beta, float(POLARITY)
+            if since < decide_at:
+                return 0.0, 0.0, float(POLARITY)
+            ratio = x[b + SCORE] / x[b + SPAN] if x[b + SPAN] > 0.0 else 0.0
+            x[b + POLARITY_RATIO] = ratio
+            if abs(ratio) < p.polarity_margin:
+                x[b + TRIES] += 1.0
+                if x[b + TRIES] >= p.polarity_tries:
+                    x[b + REFUSED] = NO_POLARITY
+                    return 0.0, 0.0, float(HOLD)
+                x[b + THETA_HELD] += 0.5 * math.pi
+                _turn(x, p, 0.5 * math.pi)
+                x[b + QUIET] = k + 1.0
+                _enter(x, p, k, ALIGNING)
+                return 0.0, 0.0, float(ALIGNING)
+            x[b + FLIPPED] = 1.0 if ratio < 0.0 else 0.0
+            if ratio < 0.0:
+                _turn(x, p, math.pi)
+            return u_inj_alpha, u_inj_beta, float(POLARITY)
+        if since < decide_at + p.flush_samples:
+            return u_inj_alpha, u_inj_beta, float(POLARITY)
+        _enter(x, p, k, TRACKING)
+        x[b + STARTED_AT] = k
+        code = TRACKING
+
+    if code == LOCK_LOST:
+        if since < p.lost_hold_samples:
+            return u_inj_alpha, u_inj_beta, float(LOCK_LOST)
+        if x[b + RESTARTS] > p.max_restarts:
+            x[b + REFUSED] = TOO_MANY_LOSSES
+            return 0.0, 0.0, float(LOCK_LOST)
+        _enter(x, p, k, ALIGNING)
+        return u_inj_alpha, u_inj_beta, float(ALIGNING)
+
+    # TRACKING or HOLD: the lock monitor.
+    if residual > p.lock_threshold_V + 0.5 * abs(x[INTEGRAL]) * p.psi_f_Wb:
+        x[b + BAD] += 1.0
+    else:
+        x[b + BAD] = 0.0
+    if x[b + BAD] >= p.lock_persist_samples:
+        return u_inj_alpha, u_inj_beta, _lost(x, p, k)
+    code = TRACKING if observable > 0.5 else HOLD
+    x[b + CODE] = code
+    return u_inj_alpha, u_inj_beta, float(code)
+
+
+def startup_summary(x, p):
+    """What the start-up state says after a run: {state, refused (reason or None), polarity_ratio,
+    flipped, lock_losses, tracking_since_sample}."""
+    b = p.base
+    refused = int(x[b + REFUSED])
+    return {"state": STATE_NAMES[int(x[b + CODE])], "refused": REFUSALS.get(refused),
+            "polarity_ratio": float(x[b + POLARITY_RATIO]), "flipped": bool(x[b + FLIPPED]),
+            "restarts": int(x[b + RESTARTS])}
+
+
+
+def estimator_startup(estimator):
+    """startup_summary of a built estimator (hf_estimator.interface.Estimator), None if it has no start-up."""
+    p = getattr(estimator.params, "startup", None)
+    return None if p is None else startup_summary(estimator.x, p)

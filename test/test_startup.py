@@ -1,0 +1,97 @@
+"""Start from any rotor angle (issue 17): the estimator told nothing of the angle finds the saliency axis
+and the magnet's polarity before torque; a lost lock is detected and handled; a round rotor is refused."""
+import dataclasses
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from drive_evaluation.metrics import compute_metrics
+from drive_evaluation.startup_bench import STANDARD_CASES, startup_sweep
+from drive_interface.exit_codes import EXIT_NOT_TRACKING
+from drive_interface.log import COLUMN
+from drive_runner.runner import run_scenario
+from drive_scenarios.scenario import ScenarioError, load_scenario, parse_scenario, scenario_names
+from hf_estimator.startup import NO_SALIENCY, REFUSALS
+from motor_params.nameplate import nameplate
+
+
+@pytest.mark.parametrize("motor", ["wang_spmsm", "szabo_ipmsm"])
+@pytest.mark.parametrize("case", STANDARD_CASES, ids=lambda case: case.name)
+def test_a_reduced_start_grid_finds_the_polarity_every_time(motor, case):
+    """12 angles over the electrical circle, seed 2: polarity correct in every run, torque within 50 ms,
+    no lost lock; at rest (no load, or the brake) |angle error| at first torque ≤ 0.1 rad. The roll-back
+    after the brake's release stays under 5° (the issue asks 1°: docs/startup.md says why not)."""
+    report = startup_sweep(motor, case, angles=12, seeds=(2,))
+    assert report["not_started"] == 0 and report["lock_lost"] == 0
+    assert report["polarity_correct_fraction"] == 1.0
+    assert report["duration_max_s"] <= 0.05
+    if not case.load_per_rated or case.brake:
+        assert report["angle_error_max_e_rad"] <= 0.1
+        assert report["reverse_rotation_max_m_deg"] <= 5.0
+
+
+def forced_slip(name, at_s, duration_s):
+    scenario = load_scenario(name)
+    settings = {**scenario.estimator_settings, "slip_at_s": at_s, "slip_rad": math.pi}
+    return run_scenario(dataclasses.replace(scenario, estimator_settings=settings, duration_s=duration_s))
+
+
+def test_a_forced_slip_is_detected_and_the_drive_tracks_again():
+    """θ̂ turned by π at 0.8 s on wang_100rpm: lost lock reported within 50 ms, torque against the
+    command (beyond 0.1 rated) for at most 50 ms until it tracks again after a new start-up, and
+    tracking to the end."""
+    result = forced_slip("wang_100rpm", 0.8, 1.3)
+    log, T_s = result.log, result.scenario.T_s
+    state = log[:, COLUMN["state"]]
+    slip = int(round(0.8 / T_s))
+    lost = np.nonzero(state[slip:] == 4)[0]
+    assert lost.size and lost[0] * T_s <= 0.05
+    rated = nameplate(result.scenario.motor).rated_torque_Nm
+    again = slip + lost[0] + int(np.argmax(state[slip + lost[0]:] == 3))
+    window = slice(slip, again)
+    against = log[window, COLUMN["tau_e"]] * np.sign(log[window, COLUMN["omega_m_ref"]]) < -0.1 * rated
+    assert against.sum() * T_s <= 0.05
+    metrics = compute_metrics(result)
+    assert metrics["lock_lost"] == 1 and state[-1] == 3
+    error = np.angle(np.exp(1j * (result.n_p * log[-2000:, COLUMN["theta_m"]] - log[-2000:, COLUMN["theta_e_hat"]])))
+    assert np.max(np.abs(error)) < 0.1
+
+
+def test_improved_under_rated_load_reports_its_lost_lock_and_ends_at_zero_torque():
+    """`drive run wang_load_step --estimator improved`: it slips under the rated load; the drive says so
+    (lock_lost, exit code 5) and ends either tracking or holding zero torque (no q-current reference)."""
+    result = run_scenario(load_scenario("wang_load_step", "improved"))
+    state = result.log[:, COLUMN["state"]]
+    assert compute_metrics(result)["lock_lost"] >= 1
+    assert state[-1] == 3 or (state[-1] == 4 and np.all(result.log[-100:, COLUMN["i_q_ref"]] == 0.0))
+    run = subprocess.run([sys.executable, "-m", "drive_cli.cli", "run", "wang_load_step", "--estimator", "improved",
+                          "--no-plot"], capture_output=True, text=True)
+    assert run.returncode == (EXIT_NOT_TRACKING if state[-1] == 4 else 0)
+    assert "the estimator reported" in run.stdout and "lost lock" in run.stdout
+
+
+def test_a_round_rotor_is_refused_with_a_clear_message():
+    """No saturation on wang_spmsm: a round rotor. The start-up finds no saliency within its timeout and
+    refuses: no torque ever (zero q-current reference), zero voltage after, exit code 5 and the reason."""
+    scenario = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.3,
+                                   non_idealities={**load_scenario("wang_100rpm").non_idealities, "saturation": False})
+    result = run_scenario(scenario)
+    assert result.startup["refused"] == REFUSALS[NO_SALIENCY]
+    assert not (result.log[:, COLUMN["state"]] == 3).any()
+    assert np.all(result.log[:, COLUMN["i_q_ref"]] == 0.0)
+    assert np.all(result.log[-100:, COLUMN["u_inj_alpha"]] == 0.0)
+    assert compute_metrics(result)["startup"]["completed"] is False
+
+
+def test_the_scenario_format_tells_nothing_of_the_angle():
+    """`initial.angle_error_e_rad` is refused in one line naming the key and what replaces it; every
+    shipped scenario starts from a rotor angle away from 0."""
+    data = {"motor": "wang_spmsm", "estimator": "injection_frame", "duration_s": 0.1, "sampling_period_s": 1e-4,
+            "speed": {"unit": "rpm", "points": [[0.0, 0.0]]}, "initial": {"angle_error_e_rad": 0.5}}
+    with pytest.raises(ScenarioError, match=r"^here: initial\.angle_error_e_rad: .*initial\.theta_m_rad$"):
+        parse_scenario(data, "x", "here")
+    for name in scenario_names():
+        assert abs(load_scenario(name).initial_theta_m_rad) >= 0.5
