@@ -14,6 +14,9 @@ fi
 packages=()
 for package in src/*/setup.py; do packages+=(-e "$(dirname "$package")"); done
 .venv/bin/python -m pip install --quiet --no-deps "${packages[@]}"
+# numba's on-disk cache checks only each kernel's own file: a kernel cached before an update of a kernel
+# it calls from another file would keep the old code. Start every setup with a clean cache.
+find src -name "*.nbi" -delete -o -name "*.nbc" -delete
 if [ "${1:-}" = "--with-motulator" ]; then
   MOTULATOR_PYTHON=""
   for candidate in python3.13 python3.12 "$HOME"/.pyenv/versions/3.1[23]*/bin/python; do
