@@ -29,6 +29,7 @@ from drive_interface.stamps import sample_of
 from drive_launch.launcher import DriveSpec, launch, launch_many
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario
+from foc_controller.control import TRACKING
 from foc_controller.node import SPEED_LIMIT, ControllerNode
 from hf_estimator.node import EstimatorNode
 from pmsm_plant.node import PlantNode
@@ -52,9 +53,9 @@ load: {{unit: rated, points: [[0.0, 0.0], [0.03, 0.5]]}}
 """
 
 
-def scenario_file(tmp_path, name="equivalence", estimator="injection_frame", rpm=60.0):
+def scenario_file(tmp_path, name="equivalence", estimator="injection_frame", rpm=60.0, brake=False):
     path = tmp_path / f"{name}.yaml"
-    path.write_text(SCENARIO.format(estimator=estimator, rpm=rpm))
+    path.write_text(SCENARIO.format(estimator=estimator, rpm=rpm) + ("brake: true\n" if brake else ""))
     return str(path)
 
 
@@ -70,7 +71,9 @@ def assert_same_samples(graph_result, path):
 
 @pytest.mark.parametrize("processes", ["composed", "separate"])
 def test_graph_gives_the_runners_samples(tmp_path, processes):
-    path = scenario_file(tmp_path)
+    """The graph's samples equal the one-process run's, start-up included; separate processes with a
+    holding brake released at the first tracking sample (the plant then joins `estimator_state`)."""
+    path = scenario_file(tmp_path, brake=processes == "separate")
     result = launch(path, processes=processes, namespace=f"/eq_{processes}")
     assert not result.interrupted
     assert_same_samples(result, path)
@@ -194,8 +197,9 @@ def test_controller_answers_bad_input_with_zero_voltage_and_keeps_running():
         estimates = h.publisher(JointState, "rotor_estimate")
         injection, speed = h.publisher(Vector3Stamped, "injection"), h.publisher(Float64, "speed_command",
                                                                                    COMMAND_QOS)
+        state = h.publisher(Vector3Stamped, "estimator_state")
         h.listen(Vector3Stamped, "voltage_command")
-        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection, speed))
+        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection, speed, state))
                      and h.tester.count_publishers("/bad_controller/voltage_command"), what="matching")
         speed.publish(Float64(data=20.0))
         h.spin_until(lambda: node.omega_m_ref == 20.0, what="speed command")
@@ -205,6 +209,7 @@ def test_controller_answers_bad_input_with_zero_voltage_and_keeps_running():
             currents.publish(vector(k, i_a, i_b, i_c))
             estimates.publish(estimate(k))
             injection.publish(vector(k, 0.0, 0.0))
+            state.publish(vector(k, 0.0, 0.0, float(TRACKING)))
             h.spin_until(lambda: len(answers) > k, what=f"voltage_command {k}")
             assert sample_of(answers[k].header, 1e-4) == k
             return math.hypot(answers[k].vector.x, answers[k].vector.y)
@@ -233,12 +238,14 @@ def test_controller_with_a_negative_speed_limit_at_start_holds_zero_voltage():
         currents = h.publisher(Vector3Stamped, "currents")
         estimates = h.publisher(JointState, "rotor_estimate")
         injection = h.publisher(Vector3Stamped, "injection")
+        state = h.publisher(Vector3Stamped, "estimator_state")
         h.listen(Vector3Stamped, "voltage_command")
-        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection))
+        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection, state))
                      and h.tester.count_publishers("/bad_start/voltage_command"), what="matching")
         currents.publish(vector(0, 0.0, 0.0, 0.0))
         estimates.publish(estimate(0))
         injection.publish(vector(0, 0.0, 0.0))
+        state.publish(vector(0, 0.0, 0.0, float(TRACKING)))
         h.spin_until(lambda: h.received["voltage_command"], what="voltage_command")
         assert h.received["voltage_command"][0].vector.x == 0.0 == h.received["voltage_command"][0].vector.y
         h.spin_until(lambda: h.error_status("foc_controller", "faults.configuration"), what="diagnostics")
@@ -374,13 +381,15 @@ def test_controller_follows_the_plant_past_a_lost_sample():
         currents = h.publisher(Vector3Stamped, "currents")
         estimates = h.publisher(JointState, "rotor_estimate")
         injection = h.publisher(Vector3Stamped, "injection")
+        state = h.publisher(Vector3Stamped, "estimator_state")
         h.listen(Vector3Stamped, "voltage_command")
-        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection))
+        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection, state))
                      and h.tester.count_publishers("/lost_sample/voltage_command"), what="matching")
         estimates.publish(estimate(0))
         injection.publish(vector(0, 0.0, 0.0))
+        state.publish(vector(0, 0.0, 0.0, float(TRACKING)))
         for msg, publisher in ((vector(1, 0.0, 0.0, 0.0), currents), (estimate(1), estimates),
-                               (vector(1, 0.0, 0.0), injection)):
+                               (vector(1, 0.0, 0.0), injection), (vector(1, 0.0, 0.0, float(TRACKING)), state)):
             publisher.publish(msg)
         h.spin_until(lambda: h.received["voltage_command"], what="voltage_command 1")
         assert sample_of(h.received["voltage_command"][0].header, 1e-4) == 1 and node.k == 2

@@ -57,9 +57,10 @@ class PlantNode(ScenarioNode):
         self.braked = bool(self.configured and self.scenario.brake)
         self.brake_states = {}
         self.pending_command = None
+        self.state_sub = None
         if self.braked:
-            self.create_subscription(Vector3Stamped, "estimator_state", self.on_estimator_state,
-                                     topic_qos("estimator_state"))
+            self.state_sub = self.create_subscription(Vector3Stamped, "estimator_state", self.on_estimator_state,
+                                                      topic_qos("estimator_state"))
         self.k = 0
         self.tau_load = 0.0
         self.loads = deque()
@@ -118,13 +119,15 @@ class PlantNode(ScenarioNode):
     def ready(self):
         """Every lock-step partner is matched: `currents` reaches every subscriber the graph shows (at
         least estimator and controller; a graph entry is not yet a match), a `voltage_command` publisher
-        is matched, and the first load is in when taken per sample. With the shaft held (commissioning)
-        one partner answers currents with voltages and no estimator runs."""
+        is matched, `estimator_state` too while a brake holds, and the first load is in when taken per
+        sample. With the shaft held (commissioning) one partner answers currents with voltages and no
+        estimator runs."""
         matched = self.currents_pub.get_subscription_count()
         held = self.parameters["shaft_held"]
         return (matched >= max(1 if held else 2, self.count_subscribers("currents"))
                 and self.voltage_sub.get_publisher_count() >= 1
                 and (held or self.count_publishers("rotor_estimate") >= 1)
+                and (self.state_sub is None or self.state_sub.get_publisher_count() >= 1)
                 and (self.loads or not self.load_per_sample))
 
     def watchdog(self):
