@@ -61,7 +61,7 @@ THETA, INTEGRAL = 0, 1
 DEFAULTS = {"align_tolerance_rad": 0.05, "settle_s": 3e-3, "align_timeout_s": 0.1, "quiet_s": 3e-3,
             "pulse_current_per_rated": 0.7,
             "pulse_s": 5e-4, "pulse_sequences": 2, "polarity_margin": 0.01, "polarity_tries": 3,
-            "flush_s": 3e-3, "lock_filter_Hz": 100.0, "lock_persist_s": 5e-3, "lost_hold_s": 0.01,
+            "flush_s": 6e-3, "lock_filter_Hz": 100.0, "lock_persist_s": 5e-3, "lost_hold_s": 0.01,
             "max_restarts": 3, "backemf_polarity_ratio": 3.0, "slip_at_s": -1.0, "slip_rad": math.pi}
 """Start-up settings (estimator settings of every injecting estimator; slip_* force a slip of θ̂, a test)."""
 ALIGN_SMOOTHING_S = 2e-3
