@@ -1,7 +1,8 @@
 """``drive bench startup``: the start-up from rotor angles over the whole electrical circle, noise seeds,
 with and without load (docs/startup.md). Each run is a short scenario: the rotor at rest at angle θ_e,
-the estimator told nothing, the speed reference ramping to ``SPEED_PER_RATED`` of rated speed; the load
-opposes that direction (the case where rolling back shows)."""
+the estimator told nothing, the speed reference zero for the start-up's budget (``HOLD_S``: a released
+brake's load meets a drive told to hold still) and then ramping to ``SPEED_PER_RATED`` of rated speed;
+the load opposes that direction (the case where rolling back shows)."""
 import math
 from typing import NamedTuple
 
@@ -15,8 +16,9 @@ from motor_params.nameplate import nameplate
 MOTOR_SCENARIOS = {"wang_spmsm": "wang_100rpm", "szabo_ipmsm": "szabo_profile"}
 """The shipped scenario whose injection a motor's bench runs use."""
 SPEED_PER_RATED = 0.03
+HOLD_S = 0.05
 RAMP_S = 0.1
-DURATION_S = 0.2
+DURATION_S = 0.25
 
 
 class LoadCase(NamedTuple):
@@ -38,7 +40,8 @@ def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None):
     speed = SPEED_PER_RATED * plate.rated_speed_rpm
     data = {"motor": motor, "estimator": {"type": estimator or "injection_frame", "settings": settings or {}},
             "injection": dict(shipped.injection), "duration_s": DURATION_S, "sampling_period_s": shipped.T_s,
-            "speed": {"unit": "rpm", "interpolation": "linear", "points": [[0.0, 0.0], [RAMP_S, speed]]},
+            "speed": {"unit": "rpm", "interpolation": "linear",
+                      "points": [[0.0, 0.0], [HOLD_S, 0.0], [HOLD_S + RAMP_S, speed]]},
             "load": {"unit": "rated", "points": [[0.0, case.load_per_rated]]}, "seed": seed,
             "initial": {"theta_m_rad": theta_e_rad / plate.n_p}, "brake": case.brake,
             "metrics": {"settle_s": 0.05}, "controller": dict(shipped.controller)}

@@ -20,7 +20,7 @@ from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
 from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
-from drive_scenarios.scenario import resolve
+from drive_scenarios.scenario import refuse_brake_behind_an_inverter, resolve
 
 PROCESSES = ("composed", "separate")
 LINKS = ("pty", "can")
@@ -332,6 +332,7 @@ def _virtual_inverter(scenario, link, workdir, drive_id):
     """A virtual inverter for ``scenario`` (not yet running; paced by the graph's commands) and the
     host's end of its link."""
     from drive_bridge.virtual_inverter import VirtualInverter, make_links
+    refuse_brake_behind_an_inverter(scenario)
     endpoint, host_link = make_links(link, workdir, drive_id)
     return VirtualInverter(scenario, endpoint, drive_id=drive_id), host_link
 

@@ -15,6 +15,7 @@ from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.virtual_inverter import VirtualInverter, make_links
 from drive_interface.interrupt import Interrupted
 from drive_interface.log import COLUMN, LOG_COLUMNS
+from drive_scenarios.scenario import refuse_brake_behind_an_inverter
 from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, controller_step
 
 from .loop import write_row
@@ -51,6 +52,7 @@ def virtual_inverter_link(scenario, link, **inverter_options):
     """(virtual inverter, its link endpoint, the host's bridge core) for ``scenario`` on ``link`` ('pty',
     'can') in a temporary directory; the inverter is not started. All three are stopped and closed on
     exit."""
+    refuse_brake_behind_an_inverter(scenario)
     with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
         endpoint, host_link = make_links(link, workdir)
         inverter = VirtualInverter(scenario, endpoint, **inverter_options)

@@ -123,6 +123,14 @@ def shaft_held(scenario, duration_s):
                                duration_s=duration_s, brake=False)
 
 
+def refuse_brake_behind_an_inverter(scenario):
+    """A scenario with a holding brake cannot run behind the virtual inverter (an inverter does not see
+    the drive's state, which releases the brake): ScenarioError naming the key."""
+    if scenario.brake:
+        raise ScenarioError(f"{scenario.source}: brake: the virtual inverter has no holding brake; run the "
+                            f"scenario with `drive run`, or `drive launch` without --link")
+
+
 def scenario_names():
     return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
 

@@ -30,8 +30,10 @@ only once TRACKING has been reached (HOLD after it keeps torque; the estimate co
    e = u − R̂ī − L̂·Δi/T_s (per axis, the HF cancelling), and compared with what the estimate implies,
    (ω̂ΔL i_q, ω̂(ψ_f + ΔL i_d)). A π slip makes the residual 2ωψ_f, a run-away estimate |ω − ω̂|ψ_f;
    beyond the threshold V_th + ½|ω̂ψ_f| (low-passed) for ``lock_persist_s``, the lock is lost.
-4. Lock lost: zero torque for ``lost_hold_s``, then a new start-up (an alignment that times out counts
-   as another loss), at most ``max_restarts`` times; then it stays at zero torque (refused).
+4. Lock lost: zero torque for ``lost_hold_s``. Where the back-EMF stands clear meanwhile (a rotor
+   turning), a straight line fitted to its angle in the stationary frame gives the rotor's speed and
+   angle, polarity included, and θ̂, ω̂ restart there. Then a new start-up (an alignment that times out
+   counts as another loss), at most ``max_restarts`` times; then it stays at zero torque (refused).
 """
 import math
 from typing import NamedTuple
@@ -52,8 +54,8 @@ REFUSALS = {NO_SALIENCY: "no saliency found: HF injection cannot tell this rotor
 
 (CODE, ENTERED, SETTLED, ERROR, THETA_HELD, INTEGRAL_HELD, SCORE, SPAN, TRIES, REFUSED, RESTARTS,
  RESIDUAL_D, RESIDUAL_Q, PREV_IA, PREV_IB, BAD, STARTED_AT, POLARITY_RATIO, FLIPPED, HELD_AT,
- QUIET) = range(21)
-HISTORY = 21
+ QUIET, E_ALPHA, E_BETA, FIT_N, FIT_T, FIT_P, FIT_TP, FIT_TT, PHI_RAW, PHI_UNWRAPPED) = range(30)
+HISTORY = 30
 """Then the ring of issued commands (α, β) × (d + 2)."""
 THETA, INTEGRAL = 0, 1
 """Every estimator keeps θ̂ at x[0] and its speed integrator (ω̂) at x[1]."""
@@ -225,7 +227,58 @@ def _backemf_residual(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta):
     r_q = e_q - omega * (p.psi_f_Wb + p.delta_L_H * i_d)
     x[b + RESIDUAL_D] += p.lock_smoothing * (r_d - x[b + RESIDUAL_D])
     x[b + RESIDUAL_Q] += p.lock_smoothing * (r_q - x[b + RESIDUAL_Q])
+    x[b + E_ALPHA], x[b + E_BETA] = rotate(e_d, e_q, angle)
     return math.hypot(x[b + RESIDUAL_D], x[b + RESIDUAL_Q])
+
+
+@njit(cache=True)
+def _fit_backemf_angle(x, p, since):
+    """Add this sample's back-EMF angle (stationary frame, unwrapped) to a straight-line fit over the
+    lost-lock hold, when the back-EMF stands clear of its threshold."""
+    b = p.base
+    e_alpha, e_beta = x[b + E_ALPHA], x[b + E_BETA]
+    if math.hypot(e_alpha, e_beta) <= p.backemf_polarity_ratio * p.lock_threshold_V:
+        return
+    phi = math.atan2(e_beta, e_alpha)
+    if x[b + FIT_N] == 0.0:
+        x[b + PHI_UNWRAPPED] = phi
+    else:
+        step = phi - x[b + PHI_RAW]
+        x[b + PHI_UNWRAPPED] += step - 2.0 * math.pi * math.floor((step + math.pi) / (2.0 * math.pi))
+    x[b + PHI_RAW] = phi
+    t = float(since)
+    x[b + FIT_N] += 1.0
+    x[b + FIT_T] += t
+    x[b + FIT_P] += x[b + PHI_UNWRAPPED]
+    x[b + FIT_TP] += t * x[b + PHI_UNWRAPPED]
+    x[b + FIT_TT] += t * t
+
+
+@njit(cache=True)
+def _seed_from_backemf(x, p, since):
+    """At the end of the lost-lock hold: when the back-EMF stood clear in most of it, its angle's fitted
+    line gives the rotor's speed (the slope: the back-EMF turns with the rotor, either way) and angle
+    (θ = φ − π/2 turning forwards, φ + π/2 backwards, the magnet's polarity included): θ̂ and ω̂ start
+    there. Returns True when seeded."""
+    b = p.base
+    n = x[b + FIT_N]
+    seeded = False
+    if n >= 0.8 * p.lost_hold_samples and n >= 3.0:
+        det = n * x[b + FIT_TT] - x[b + FIT_T] ** 2
+        if det > 0.0:
+            slope = (n * x[b + FIT_TP] - x[b + FIT_T] * x[b + FIT_P]) / det
+            phi = (x[b + FIT_P] - slope * x[b + FIT_T]) / n + slope * since
+            omega = slope / p.T_s_s
+            theta = phi - math.copysign(0.5 * math.pi, omega)
+            turn = theta - x[THETA]
+            x[THETA] += turn - 2.0 * math.pi * math.floor((turn + math.pi) / (2.0 * math.pi))
+            x[INTEGRAL] = omega
+            x[b + RESIDUAL_D] = 0.0
+            x[b + RESIDUAL_Q] = 0.0
+            seeded = True
+    for j in range(FIT_N, PHI_UNWRAPPED + 1):
+        x[b + j] = 0.0
+    return seeded
 
 
 @njit(cache=True)
@@ -368,7 +421,9 @@ def startup_step(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_inj_alph
 
     if code == LOCK_LOST:
         if since < p.lost_hold_samples:
+            _fit_backemf_angle(x, p, since)
             return u_inj_alpha, u_inj_beta, float(LOCK_LOST)
+        _seed_from_backemf(x, p, since)
         if x[b + RESTARTS] > p.max_restarts:
             x[b + REFUSED] = TOO_MANY_LOSSES
             return 0.0, 0.0, float(LOCK_LOST)
