@@ -55,7 +55,8 @@ load: {{unit: rated, points: [[0.0, 0.0], [0.03, 0.5]]}}
 
 def scenario_file(tmp_path, name="equivalence", estimator="injection_frame", rpm=60.0, brake=False):
     path = tmp_path / f"{name}.yaml"
-    path.write_text(SCENARIO.format(estimator=estimator, rpm=rpm) + ("brake: true\n" if brake else ""))
+    braked = "brake: true\ntorque_feedforward: {unit: rated, points: [[0.0, 0.0], [0.03, 0.5]]}\n"
+    path.write_text(SCENARIO.format(estimator=estimator, rpm=rpm) + (braked if brake else ""))
     return str(path)
 
 
@@ -72,7 +73,8 @@ def assert_same_samples(graph_result, path):
 @pytest.mark.parametrize("processes", ["composed", "separate"])
 def test_graph_gives_the_runners_samples(tmp_path, processes):
     """The graph's samples equal the one-process run's, start-up included; separate processes with a
-    holding brake released at the first tracking sample (the plant then joins `estimator_state`)."""
+    holding brake lifting 20 ms after the first tracking sample (the plant joins `estimator_state` until
+    then) and the load's torque fed forward (`torque_feedforward`)."""
     path = scenario_file(tmp_path, brake=processes == "separate")
     result = launch(path, processes=processes, namespace=f"/eq_{processes}")
     assert not result.interrupted

@@ -23,15 +23,16 @@ from motor_params.nameplate import nameplate
 def test_a_reduced_start_grid_finds_the_polarity_every_time(motor, case):
     """12 angles over the electrical circle, seed 2: polarity correct in every run, torque within 50 ms,
     no lost lock; at rest (no load, or the brake) |angle error| at first torque ≤ 0.1 rad. Told to hold
-    still when the brake releases half the rated load, the rotor rolls back under 20° (14-16° measured;
-    the issue asks 1°, which needs the load's torque fed forward: docs/startup.md)."""
+    still when the brake releases half the rated load, the rotor rolls back ≤ 1° when the robot feeds the
+    load's torque forward, under 20° when the drive is told nothing of it (9-12° measured: no signal the
+    drive has can tell a load the brake carried, docs/startup.md)."""
     report = startup_sweep(motor, case, angles=12, seeds=(2,))
     assert report["not_started"] == 0 and report["lock_lost"] == 0
     assert report["polarity_correct_fraction"] == 1.0
     assert report["duration_max_s"] <= 0.05
     if not case.load_per_rated or case.brake:
         assert report["angle_error_max_e_rad"] <= 0.1
-        assert report["reverse_rotation_max_m_deg"] <= (20.0 if case.brake else 1.0)
+        assert report["reverse_rotation_max_m_deg"] <= (20.0 if case.brake and not case.feedforward else 1.0)
 
 
 def forced_slip(name, at_s, duration_s):

@@ -219,6 +219,11 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
                                              wrap.py_func(n_p * (col["theta_m"] - theta_hat_m)),
                                              col["omega_m"] - omega_hat_m, 0.0), None),
         ("voltage_command", logged("voltage_command"), None)]
+    if scenario.torque_feedforward is not None:
+        feedforward = scenario.feedforward()[:n]
+        changes = np.ones(n, dtype=bool)
+        changes[1:] = feedforward[1:] != feedforward[:-1]
+        per_sample.insert(2, ("torque_feedforward", _cdr_scalars(("<f8",), feedforward), changes))
     streams = []
     for topic, records in ((t, r) for t, r, _ in per_sample):
         records["enc"] = CDR_LITTLE_ENDIAN

@@ -839,7 +839,8 @@ def cmd_bench_startup(args):
     if args.load is not None:
         if not 0.0 <= args.load <= 1.5:
             raise CommandLineError(f"--load: a fraction of rated torque in [0, 1.5], not {args.load}")
-        cases = (LoadCase(f"{args.load:g} rated{', brake' if args.brake else ', active'}", args.load, args.brake),)
+        name = f"{args.load:g} rated{', brake' if args.brake else ', active'}{', ff' if args.feedforward else ''}"
+        cases = (LoadCase(name, args.load, args.brake, args.feedforward),)
     reports = []
     try:
         for motor in motors:
@@ -988,6 +989,8 @@ def build_parser():
     startup.add_argument("--load", type=float, help="one case: this fraction of rated load, opposing the "
                                                     "command (default: the three standard cases)")
     startup.add_argument("--brake", action="store_true", help="with --load: held by a brake until first torque")
+    startup.add_argument("--feedforward", action="store_true",
+                         help="with --load: the robot tells the drive the load's torque (torque_feedforward)")
     startup.add_argument("--estimator", help="an injecting estimator (default: injection_frame)")
     startup.add_argument("--json", action="store_true")
     startup.set_defaults(func=cmd_bench_startup)

@@ -25,12 +25,15 @@ class LoadCase(NamedTuple):
     name: str
     load_per_rated: float
     brake: bool
+    feedforward: bool = False
+    """The robot tells the drive the load's torque (`torque_feedforward`, its gravity model)."""
 
 
 STANDARD_CASES = (LoadCase("no load", 0.0, False), LoadCase("0.5 rated, brake", 0.5, True),
-                  LoadCase("0.3 rated, active", 0.3, False))
-"""The issue's cases: no load; half rated load held by a brake released at first torque; a
-gravity-like 0.3 rated load from t = 0 that moves the rotor during start-up."""
+                  LoadCase("0.5 rated, brake, ff", 0.5, True, True), LoadCase("0.3 rated, active", 0.3, False))
+"""The issue's cases: no load; half rated load held by a brake released at first torque, the drive told
+nothing of it or told its torque by the robot; a gravity-like 0.3 rated load from t = 0 that moves the
+rotor during start-up."""
 
 
 def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None):
@@ -45,6 +48,8 @@ def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None):
             "load": {"unit": "rated", "points": [[0.0, case.load_per_rated]]}, "seed": seed,
             "initial": {"theta_m_rad": theta_e_rad / plate.n_p}, "brake": case.brake,
             "metrics": {"settle_s": 0.05}, "controller": dict(shipped.controller)}
+    if case.feedforward:
+        data["torque_feedforward"] = {"unit": "rated", "points": [[0.0, case.load_per_rated]]}
     return parse_scenario(data, f"startup_{motor}", "drive bench startup")
 
 

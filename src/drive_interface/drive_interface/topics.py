@@ -58,6 +58,7 @@ TOPICS = {t.name: t for t in (
     Topic("joint_states", JOINT_STATE, COMMAND_QOS, False, True),
     Topic("speed_command", FLOAT64, COMMAND_QOS, False, False, ("omega_m_ref",)),
     Topic("load_torque", FLOAT64, COMMAND_QOS, False, False, ("tau_load",)),
+    Topic("torque_feedforward", FLOAT64, COMMAND_QOS, False, False),
     Topic("drive_config", "std_msgs/msg/String", LATCHED_QOS, False, False),
     Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS, False, False),
 )}

@@ -41,6 +41,8 @@ class ScenarioDriver:
         self.record = record
         self.settle_s, self.startup_timeout_s, self.progress = settle_s, startup_timeout_s, progress
         self.speed, self.load = scenario.schedule()
+        self.feedforward = scenario.feedforward() if scenario.torque_feedforward is not None else None
+        self.sent_feedforward = None
         self.log = np.full((self.n if record else 1, len(LOG_COLUMNS)), np.nan)
         if record:
             self.log[:, COLUMN["t"]] = np.arange(self.n) * scenario.T_s
@@ -48,6 +50,7 @@ class ScenarioDriver:
             self.log[:, COLUMN["tau_load"]] = self.load
         self.speed_pub = node.create_publisher(Float64, "speed_command", topic_qos("speed_command"))
         self.load_pub = node.create_publisher(Float64, "load_torque", topic_qos("load_torque"))
+        self.feedforward_pub = node.create_publisher(Float64, "torque_feedforward", topic_qos("torque_feedforward"))
         self.recorder = recorder
         self.inverter = inverter
         handlers = {"voltage_command": self.on_voltage, "/diagnostics": self.on_diagnostics}
@@ -75,7 +78,7 @@ class ScenarioDriver:
         deserialised only for a handler. The launcher's own commands are written where published."""
         topics = set(handlers)
         if self.recorder:
-            topics |= set(TOPICS) - {"speed_command", "load_torque"}
+            topics |= set(TOPICS) - {"speed_command", "load_torque", "torque_feedforward"}
         for topic in sorted(topics):
             cls, qos = message_class(topic), topic_qos(topic)
             handler = handlers.get(topic)
@@ -107,6 +110,8 @@ class ScenarioDriver:
                      ("voltage_command", 1, 3), ("estimator_state", 1, r), ("speed_command", 1, 1)]
         if self.inverter is None:
             endpoints += [("rotor_state", 1, r + sensored), ("load_torque", 1, 1)]
+        if self.feedforward is not None:
+            endpoints.append(("torque_feedforward", 1, 1))
         return endpoints
 
     def missing_endpoints(self):
@@ -133,6 +138,9 @@ class ScenarioDriver:
         if self.speed[k] != self.sent_speed:
             self.sent_speed = self.speed[k]
             published.append((self.speed_pub, Float64(data=float(self.sent_speed))))
+        if self.feedforward is not None and self.feedforward[k] != self.sent_feedforward:
+            self.sent_feedforward = self.feedforward[k]
+            published.append((self.feedforward_pub, Float64(data=float(self.sent_feedforward))))
         published.append((self.load_pub, Float64(data=float(self.load[k]))))
         for publisher, msg in published:
             publisher.publish(msg)

@@ -107,7 +107,8 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
                     theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state = e.step(
                         e.x, e.z, e.params, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
                     u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-                        cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b, state)
+                        cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b, state,
+                        host.tau_feedforward[k])
                     bridge.command(k, u_a, u_b)
                     host_s[k] = time.perf_counter() - arrived
                     received[k] = True

@@ -43,13 +43,15 @@ def write_row(row, t, theta_m, omega_m, tau_e, tau_load, i_a, i_b, i_c, i_a_meas
 
 @njit
 def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, substeps,
-                est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, imposed, brake, calibration, log):
+                est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, tau_ff, imposed, brake, calibration, log):
     """Run samples k_start..k_end−1; row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
 
     px: plant state (pmsm_plant.model); ex, ez, ep: the estimator's state, filter state and parameters;
-    cx, cz, cp: the controller's. speed_ref [rad/s] and tau_load [N·m] are indexed by k; with ``imposed``
-    the shaft follows speed_ref. While brake[0] is 1 a holding brake keeps the shaft at rest; it releases
-    (brake[0] = 0) once the estimator first reports tracking. Both cores read the measured currents
+    cx, cz, cp: the controller's. speed_ref [rad/s], tau_load and the controller's torque feed-forward
+    tau_ff [N·m] are indexed by k; with ``imposed``
+    the shaft follows speed_ref. With brake[0] = 1 a holding brake keeps the shaft at rest until sample
+    brake[1], set when the estimator first reports tracking to that sample plus brake[2] (the brake's lift
+    time in samples). Both cores read the measured currents
     corrected by the commissioned ``calibration`` (control_math.current_sensing); the log keeps them as
     measured. Not cached on disk:
     numba cannot re-save a cache index whose entries are specialised on other processes' step functions
@@ -64,13 +66,13 @@ def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, 
             ex, ez, ep, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], n_p * px[THETA_M],
             n_p * px[OMEGA_M])
         u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-            cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, speed_ref[k], u_inj_a, u_inj_b, state)
+            cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, speed_ref[k], u_inj_a, u_inj_b, state, tau_ff[k])
         write_row(log[k - k_start], k * T_s, px[THETA_M], px[OMEGA_M], tau_e, tau_load[k], i_a, i_b, i_c,
                   m_a, m_b, m_c, theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, speed_ref[k], i_d, i_q,
                   i_d_ref, i_q_ref, eps, signal, state)
-        if brake[0] > 0.5 and state == TRACKING:
-            brake[0] = 0.0
-        held = brake[0] > 0.5
+        if brake[0] > 0.5 and brake[1] < 0.0 and state == TRACKING:
+            brake[1] = k + brake[2]
+        held = brake[0] > 0.5 and (brake[1] < 0.0 or k < brake[1])
         plant_advance(px, u_a, u_b, tau_load[k], imposed or held, 0.0 if held else speed_ref[k], machine, mech,
                       inverter, T_s, substeps)
 

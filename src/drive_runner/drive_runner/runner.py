@@ -59,8 +59,11 @@ class Drive:
     controller_z: np.ndarray
     speed_ref: np.ndarray
     tau_load: np.ndarray
+    tau_feedforward: np.ndarray
+    """The robot's torque feed-forward to the controller per sample [N·m]."""
     brake: np.ndarray
-    """[1.0] while the scenario's holding brake holds the shaft, [0.0] once released (or without one)."""
+    """[has a brake (1/0), sample it releases at (−1: not yet known), its lift time in samples]
+    (drive_runner.loop.run_samples)."""
     commissioning: object
     """motor_params.commissioning.Commissioning: what the drive knows beyond its nameplate."""
 
@@ -69,8 +72,13 @@ class Drive:
         p, e = self.plant, self.estimator
         run_samples(k_start, k_end, p.x, p.machine, p.mechanics, p.inverter, p.sensor, p.seed, p.T_s,
                     p.substeps, e.step, e.x, e.z, e.params, self.controller_x, self.controller_z,
-                    self.controller, self.speed_ref, self.tau_load, p.imposed_speed, self.brake,
+                    self.controller, self.speed_ref, self.tau_load, self.tau_feedforward, p.imposed_speed, self.brake,
                     self.commissioning.calibration(), log)
+
+
+def brake_state(scenario):
+    """The brake array of run_samples for ``scenario``."""
+    return np.array([1.0 if scenario.brake else 0.0, -1.0, round(scenario.brake_release_s / scenario.T_s)])
 
 
 def scenario_commissioning(scenario):
@@ -92,7 +100,7 @@ def build_drive(scenario):
     controller_x, controller_z = controller_state(controller)
     speed_ref, tau_load = scenario.schedule()
     return Drive(scenario, plant, estimator, controller, controller_x, controller_z, speed_ref, tau_load,
-                 np.array([1.0 if scenario.brake else 0.0]), commissioning)
+                 scenario.feedforward(), brake_state(scenario), commissioning)
 
 
 def run_scenario(scenario, progress=None, chunk_samples=20000):

@@ -16,7 +16,7 @@ SCENARIO_DIR = Path(__file__).parent / "scenarios"
 NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
 TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
             "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps",
-            "plant_deviation", "commissioning", "brake"}
+            "plant_deviation", "commissioning", "brake", "torque_feedforward"}
 NO_DEVIATION = {"R_s": 1.0, "L_d": 1.0, "L_q": 1.0, "psi_f": 1.0, "J": 1.0, "friction": 1.0,
                 "sensor_gain_a": 1.0, "sensor_gain_b": 1.0, "sensor_gain_c": 1.0,
                 "sensor_offset_a": 0.0, "sensor_offset_b": 0.0, "sensor_offset_c": 0.0, "dead_time": 1.0}
@@ -24,6 +24,9 @@ NO_DEVIATION = {"R_s": 1.0, "L_d": 1.0, "L_q": 1.0, "psi_f": 1.0, "J": 1.0, "fri
 and ψ_f, the inertia J, the friction, each current sensor's gain and the dead time; sensor offsets
 [A] added to the preset's. The plant alone deviates; the drive still knows only the nameplate."""
 RPM = 2.0 * math.pi / 60.0
+BRAKE_RELEASE_S = 0.02
+"""A holding brake's default lift time after the drive allows torque (small spring-applied servo brakes
+take 10-60 ms)."""
 MAX_FILE_BYTES = 1 << 20
 MAX_SAMPLES = 10_000_000
 """A run's log holds 200 bytes per sample: 10 M samples are 2 GB."""
@@ -88,8 +91,14 @@ class Scenario:
     """Where the estimator's name came from (the file's key, or an override's command-line option or
     parameter), for errors that blame it."""
     brake: bool = False
-    """A holding brake holds the shaft at rest (load or not) until the drive first allows torque
-    (estimator state 3), then releases for good."""
+    """A holding brake holds the shaft at rest (load or not) until ``brake_release_s`` after the drive
+    first allows torque (estimator state 3), then releases for good."""
+    brake_release_s: float = 0.0
+    """How long the brake takes to lift once the drive allows torque (a spring-applied brake's armature:
+    tens of ms)."""
+    torque_feedforward: Table = None
+    """The torque the robot expects the motor to deliver [N·m] (its gravity model), sent to the drive's
+    `torque_feedforward`; None: none."""
 
     @property
     def n_samples(self):
@@ -99,6 +108,12 @@ class Scenario:
         """(ω*_m [rad/s], τ_load [N·m]) per sample k, arrays of n_samples."""
         t = np.arange(self.n_samples) * self.T_s
         return self.speed.sample(t).astype(float), self.load.sample(t).astype(float)
+
+    def feedforward(self):
+        """τ_ff [N·m] per sample k, an array of n_samples (zeros without a torque_feedforward table)."""
+        if self.torque_feedforward is None:
+            return np.zeros(self.n_samples)
+        return self.torque_feedforward.sample(np.arange(self.n_samples) * self.T_s).astype(float)
 
     def drive_delay_periods(self):
         """The computation delay the drive's estimator is told: its inverter's, none when the scenario turns
@@ -224,8 +239,11 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         fail("mode", f"must be 'speed_control' or 'imposed_speed', not '{mode}'")
 
     speed = _table(data["speed"], "speed", {"rpm": RPM, "rad_s": 1.0}, fail, duration)
-    load = _table(data.get("load", {"unit": "Nm", "points": [[0.0, 0.0]]}), "load",
-                  {"Nm": 1.0, "rated": NAMEPLATES[motor].rated_torque_Nm}, fail, duration)
+    torque_units = {"Nm": 1.0, "rated": NAMEPLATES[motor].rated_torque_Nm}
+    load = _table(data.get("load", {"unit": "Nm", "points": [[0.0, 0.0]]}), "load", torque_units, fail, duration)
+    feedforward = data.get("torque_feedforward")
+    if feedforward is not None:
+        feedforward = _table(feedforward, "torque_feedforward", torque_units, fail, duration)
 
     non_idealities = {key: True for key in NON_IDEALITIES}
     given = data.get("non_idealities", {}) or {}
@@ -245,8 +263,14 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     for key in sorted(set(initial) - {"theta_m_rad", "omega_m_rpm"}, key=str):
         fail(f"initial.{key}", "unknown key (known: theta_m_rad, omega_m_rpm)")
     brake = data.get("brake", False)
+    brake_release = BRAKE_RELEASE_S if brake is True else 0.0
+    if isinstance(brake, dict):
+        for key in sorted(set(brake) - {"release_s"}, key=str):
+            fail(f"brake.{key}", "unknown key (known: release_s)")
+        brake_release = _nonnegative(brake.get("release_s", BRAKE_RELEASE_S), "brake.release_s", fail)
+        brake = True
     if not isinstance(brake, bool):
-        fail("brake", f"must be true or false, not {brake!r}")
+        fail("brake", f"must be true, false or {{release_s: SECONDS}}, not {brake!r}")
     metrics = data.get("metrics", {}) or {}
     for key in sorted(set(metrics) - {"settle_s", "start_s"}, key=str):
         fail(f"metrics.{key}", "unknown key (known: settle_s, start_s)")
@@ -287,7 +311,8 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         initial_omega_m_rad_s=RPM * _number(initial.get("omega_m_rpm", 0.0), "initial.omega_m_rpm", fail),
         controller=controller, settle_s=settle, metrics_start_s=start,
         seed=seed, substeps=substeps, plant_deviation={**NO_DEVIATION, **deviation},
-        commissioning=commissioning, estimator_source=estimator_source, brake=brake)
+        commissioning=commissioning, estimator_source=estimator_source, brake=brake, brake_release_s=brake_release,
+        torque_feedforward=feedforward)
 
 
 def _number(value, key, fail):

@@ -64,13 +64,14 @@ class ControllerParams(NamedTuple):
 
 @njit(cache=True)
 def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omega_m_ref,
-                    u_inj_alpha, u_inj_beta, estimator_state):
+                    u_inj_alpha, u_inj_beta, estimator_state, tau_feedforward):
     """One control period from sample k: measured phase currents [A], the estimate θ̂_e [rad] and ω̂_e
-    [rad/s] (electrical), the speed reference ω*_m [rad/s], the estimator's injection [V, αβ] and its
-    state code → the stator voltage command (u_α, u_β) [V] for the next period, the (HF-rejected)
-    feedback currents i_d, i_q and the references i_d*, i_q* [A]. State x: INT_D .. STARTED (the speed
-    filter and the jump detector start from the first sample's estimate); z_notch:
-    the notch sections of d (z_notch[0]) and q (z_notch[1]).
+    [rad/s] (electrical), the speed reference ω*_m [rad/s], the estimator's injection [V, αβ], its
+    state code and the robot's torque feed-forward [N·m] (added to the speed loop's output as
+    τ_ff/k̂_t, k̂_t = 1.5 p ψ_f from the nameplate, once torque is allowed) → the stator voltage command
+    (u_α, u_β) [V] for the next period, the (HF-rejected) feedback currents i_d, i_q and the references
+    i_d*, i_q* [A]. State x: INT_D .. STARTED (the speed filter and the jump detector start from the first
+    sample's estimate); z_notch: the notch sections of d (z_notch[0]) and q (z_notch[1]).
 
     The estimated speed is low-pass filtered once and that value feeds the speed loop, the back-EMF
     decoupling and the delay compensation: a raw PLL speed in the feed-forward closes a fast loop
@@ -105,7 +106,7 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     torque = x[TORQUE_ALLOWED] > 0.5
     if torque:
         i_q_ref = pi_limited(x, INT_SPEED, c.kp_speed, c.ki_speed, c.T_s_s, omega_m_ref - omega_m_hat,
-                             c.i_max_A)
+                             c.i_max_A, tau_feedforward / (1.5 * c.n_p * c.psi_f_Wb))
     else:
         x[INT_SPEED] = 0.0
         i_q_ref = 0.0

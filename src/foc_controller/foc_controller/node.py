@@ -2,7 +2,8 @@
 
 For sample k it joins `currents`, `rotor_estimate`, `injection` and `estimator_state` stamped k (the
 state code gates torque: no torque before the estimator's start-up reports tracking), runs the core with
-the latest `speed_command`, and answers `voltage_command`(k). The robot-facing `joint_states` (estimated
+the latest `speed_command` and `torque_feedforward` (the robot's expected torque, N·m, added to the speed
+loop's output), and answers `voltage_command`(k). The robot-facing `joint_states` (estimated
 position, speed, torque) is published every ``joint_states_decimation`` samples. Bad currents or
 estimates, or a rejected speed limit, give zero voltage and a reported fault; the node keeps answering.
 
@@ -58,6 +59,9 @@ class ControllerNode(ScenarioNode):
                                            topic_qos("estimator_state"))]
         self.open_when_matched(inputs, self.open_outputs, ready=lambda: self.params or not self.configured)
         self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
+        self.create_subscription(Float64, "torque_feedforward", self.on_torque_feedforward,
+                                 topic_qos("torque_feedforward"))
+        self.tau_feedforward = 0.0
         self.create_subscription(String, "drive_config", self.on_drive_config, topic_qos("drive_config"))
         self.add_on_set_parameters_callback(self.on_set_parameters)
         self.watch_peer("currents", "the plant")
@@ -106,7 +110,7 @@ class ControllerNode(ScenarioNode):
         self.n_p = self.params.n_p
         self.trip_A = self.trip_current_A()
         self.x, self.z = controller_state(self.params)
-        controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         self.publish_config({"controller": self.params, "estimator": config["estimator"],
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
 
@@ -138,6 +142,12 @@ class ControllerNode(ScenarioNode):
             self.omega_m_ref = msg.data
         else:
             self.fault("bad_input", f"speed_command: {msg.data} is not a finite speed; ignored")
+
+    def on_torque_feedforward(self, msg):
+        if finite(msg.data):
+            self.tau_feedforward = msg.data
+        else:
+            self.fault("bad_input", f"torque_feedforward: {msg.data} is not a finite torque; ignored")
 
     def on_currents(self, msg):
         self.store(self.currents, msg, (msg.vector.x, msg.vector.y, msg.vector.z))
@@ -189,7 +199,7 @@ class ControllerNode(ScenarioNode):
             u_alpha, u_beta, i_d, i_q, _, i_q_ref = controller_step(
                 self.x, self.z, self.params, *corrected_currents(*currents, self.calibration),
                 self.n_p * estimate[0], self.n_p * estimate[1], self.omega_m_ref, *injection,
-                state if finite(state) else 0.0)
+                state if finite(state) else 0.0, self.tau_feedforward)
             self.current_limited = abs(i_q_ref) >= self.params.i_max_A
             if k % self.decimation == 0:
                 j = self.joint_msg

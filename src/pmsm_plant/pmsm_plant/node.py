@@ -10,9 +10,9 @@ With ``load_torque_per_sample`` (a scenario driver acting as the dyno) the plant
 `load_torque` message per sample and starts sample k only once it has the k-th; the shaft speed of
 imposed-speed scenarios is the latest `speed_command` at that moment. Otherwise the latest load applies.
 
-A scenario's holding brake keeps the shaft at rest until the estimator first reports tracking: while
-it holds, the plant advances sample k only once it has `estimator_state`(k) too, so the release falls
-on the same sample as in one process.
+A scenario's holding brake keeps the shaft at rest until its lift time after the estimator first
+reports tracking: until that report the plant advances sample k only once it has `estimator_state`(k)
+too, so the release falls on the same sample as in one process.
 """
 import sys
 import time
@@ -55,6 +55,8 @@ class PlantNode(ScenarioNode):
         self.create_subscription(Float64, "load_torque", self.on_load_torque, topic_qos("load_torque"))
         self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
         self.braked = bool(self.configured and self.scenario.brake)
+        """Waiting for the estimator's first tracking sample (the brake's lift time starts there)."""
+        self.brake_release_k = None
         self.brake_states = {}
         self.pending_command = None
         self.state_sub = None
@@ -220,9 +222,10 @@ class PlantNode(ScenarioNode):
         if self.braked and self.brake_states.pop(self.k, None) == 3.0:
             self.braked = False
             self.brake_states.clear()
-        plant_advance(p.x, u_alpha, u_beta, self.tau_load, p.imposed_speed or self.braked,
-                      0.0 if self.braked else self.omega_imposed, p.machine, p.mechanics, p.inverter, p.T_s,
-                      p.substeps)
+            self.brake_release_k = self.k + round(self.scenario.brake_release_s / self.T_s)
+        held = self.braked or (self.brake_release_k is not None and self.k < self.brake_release_k)
+        plant_advance(p.x, u_alpha, u_beta, self.tau_load, p.imposed_speed or held,
+                      0.0 if held else self.omega_imposed, p.machine, p.mechanics, p.inverter, p.T_s, p.substeps)
         self.sample_handled(self.k)
         self.k += 1
         if self.k >= self.n_samples:
