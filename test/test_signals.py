@@ -14,7 +14,7 @@ import pytest
 DRIVE = [sys.executable, "-m", "drive_cli.cli"]
 
 COMMANDS = {
-    "run": (["run", "wang_100rpm", "--duration", "600", "--no-plot", "--json"], 4.0),
+    "run": (["run", "wang_100rpm", "--duration", "600", "--no-plot", "--json"], 6.0),
     "bridge": (["bridge", "wang_100rpm", "--duration", "60", "--no-plot", "--json"], 5.0),
     "tune_check": (["tune", "pll", "--check", "--no-plot", "--json"], 1.5),
     "bench_graph": (["bench", "graph", "--duration", "2", "--repeats", "1", "--json"], 7.0),

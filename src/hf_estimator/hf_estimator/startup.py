@@ -28,8 +28,10 @@ only once TRACKING has been reached (HOLD after it keeps torque; the estimate co
 3. Tracking, and the lock monitor: the back-EMF in the θ̂ frame is measured from the applied voltage
    (the command d + 1 samples old, the commissioned dead-time loss removed) and the currents,
    e = u − R̂ī − L̂·Δi/T_s (per axis, the HF cancelling), and compared with what the estimate implies,
-   (ω̂ΔL i_q, ω̂(ψ_f + ΔL i_d)). A π slip makes the residual 2ωψ_f, a run-away estimate |ω − ω̂|ψ_f;
-   beyond the threshold V_th + ½|ω̂ψ_f| (low-passed) for ``lock_persist_s``, the lock is lost.
+   (ω̂ΔL i_q, ω̂(ψ_f + ΔL i_d)). A π slip makes the residual 2ωψ_f, an estimate that runs away or stops
+   |ω − ω̂|ψ_f; beyond the threshold V_th + ½ max(|ω̂ψ_f|, |e|) (low-passed) for ``lock_persist_s``, the
+   lock is lost. (An estimate whose speed only lags, its angle still close, stays within: its residual
+   |ω − ω̂|ψ_f is below ½|e| + V_th until ω̂ lags by half the speed and more.)
 4. Lock lost: zero torque for ``lost_hold_s``. Where the back-EMF stands clear meanwhile (a rotor
    turning), a straight line fitted to its angle in the stationary frame gives the rotor's speed and
    angle, polarity included, and θ̂, ω̂ restart there. Then a new start-up (an alignment that times out
@@ -431,7 +433,9 @@ def startup_step(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_inj_alph
         return u_inj_alpha, u_inj_beta, float(ALIGNING)
 
     # TRACKING or HOLD: the lock monitor.
-    if residual > p.lock_threshold_V + 0.5 * abs(x[INTEGRAL]) * p.psi_f_Wb:
+    expected = abs(x[INTEGRAL]) * p.psi_f_Wb
+    measured = math.hypot(x[b + RESIDUAL_D], x[b + RESIDUAL_Q] + x[INTEGRAL] * p.psi_f_Wb)
+    if residual > p.lock_threshold_V + 0.5 * max(expected, measured):
         x[b + BAD] += 1.0
     else:
         x[b + BAD] = 0.0
