@@ -203,9 +203,9 @@ def _report(result, args, extra=None):
 
 def _startup_line(startup):
     """The start-up in one line: when torque came, the polarity and error then, or why it never came."""
-    if startup.get("refused"):
-        return f"REFUSED: {startup['refused']}"
     if not startup["completed"]:
+        if startup.get("refused"):
+            return f"REFUSED: {startup['refused']}"
         return "not completed within the run (no torque applied)"
     text = f"torque from {1e3 * startup['duration_s']:.1f} ms"
     if startup["polarity_correct"] is not None:
@@ -213,6 +213,8 @@ def _startup_line(startup):
                  f"{startup['angle_error_e_rad']:+.3f} rad")
     if startup["reverse_rotation_m_rad"] is not None:
         text += f", {math.degrees(startup['reverse_rotation_m_rad']):.2f}° against the command"
+    if startup.get("refused"):
+        text += f"; then {startup['refused']}"
     return text
 
 
