@@ -23,13 +23,13 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
+from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
 from drive_interface.node import Health, parameter_overrides, stamp, topic_qos
 from drive_interface.stamps import sample_of
 from drive_launch.launcher import DriveSpec, launch, launch_many
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario
-from foc_controller.control import TRACKING
 from foc_controller.node import SPEED_LIMIT, ControllerNode
 from hf_estimator.node import EstimatorNode
 from pmsm_plant.node import PlantNode

@@ -6,6 +6,8 @@ event (and after ``start_s`` at the beginning) is transient; the rest, up to the
 import numpy as np
 
 from control_math import frames
+from drive_interface.estimator_states import LOCK_LOST as LOCK_LOST_STATE
+from drive_interface.estimator_states import TRACKING as TRACKING_STATE
 from drive_interface.log import COLUMN
 
 
@@ -46,8 +48,6 @@ def _stats(values):
     return float(np.sqrt(np.mean(values ** 2))), float(np.mean(values)), float(np.max(np.abs(values)))
 
 
-TRACKING_STATE = 3
-"""The estimator's state code while it tracks with a trusted signal (contract v2 `estimator_state` z)."""
 LOCK_LOST_RAD = np.pi / 2
 """|θ_e − θ̂_e| beyond which the estimate is on the wrong side: the lock is lost (ground truth)."""
 
@@ -114,9 +114,6 @@ def lock_loss(t, error, start_s):
     lost = evaluated & (np.abs(error) > LOCK_LOST_RAD)
     T_s = float(t[1] - t[0]) if t.size > 1 else 0.0
     return float(lost.sum() * T_s), (float(t[np.argmax(lost)]) if lost.any() else None)
-
-
-LOCK_LOST_STATE = 4
 
 
 def startup_metrics(scenario, log, n_p):

@@ -4,7 +4,8 @@ advances to k+1. The cores are the same functions the ROS nodes call."""
 from numba import njit
 
 from control_math.current_sensing import corrected_currents
-from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, TRACKING, controller_step
+from drive_interface.estimator_states import TRACKING
+from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, controller_step
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
 

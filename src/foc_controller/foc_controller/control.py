@@ -22,13 +22,12 @@ from numba import njit
 from control_math.filters import sos_step
 from control_math.frames import SQRT3, clarke_contract, rotate
 from control_math.pi import pi_limited
+from drive_interface.estimator_states import ALIGNING, LOCK_LOST, POLARITY, TRACKING
 
 # Controller state layout (integrators, filtered speed, last command, torque gate, last θ̂); the notch
 # states (d, q) live in a separate array.
 INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, LAST_U_ALPHA, LAST_U_BETA, TORQUE_ALLOWED, LAST_THETA, STARTED = range(9)
 N_STATE = 9
-ALIGNING, POLARITY, TRACKING, LOCK_LOST = 1, 2, 3, 4
-"""Estimator state codes (contract v2, hf_estimator.startup)."""
 JUMP_RAD = 0.25
 """A change of θ̂ beyond ω̂·T_s by more than this in one sample is a jump, not tracking."""
 

@@ -52,11 +52,12 @@ from numba import njit
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from control_math.frames import clarke_contract, inverse_clarke, rotate
 from control_math.tables import table_value
+from drive_interface.estimator_states import ALIGNING
 from motor_params.nameplate import INVERTER_RATINGS
 
 from .interface import Estimator, check_settings, register
-from .startup import ALIGNING, StartupParams, make_startup, startup_code, startup_reset, startup_size, startup_step
 from .startup import DEFAULTS as STARTUP_DEFAULTS
+from .startup import StartupParams, make_startup, startup_code, startup_reset, startup_size, startup_step
 from .tracking_loop import pi_tracking_loop
 
 THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH, I_Q_SMOOTH = range(7)

@@ -20,6 +20,7 @@ from geometry_msgs.msg import Vector3Stamped
 from sensor_msgs.msg import JointState
 
 from control_math.current_sensing import corrected_currents
+from drive_interface.estimator_states import LOCK_LOST, STATE_NAMES
 from drive_interface.node import finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_of
 from drive_interface.topics import TOPICS
@@ -27,7 +28,7 @@ from drive_scenarios.node import ScenarioNode
 from motor_params.knowledge import motor_knowledge
 
 from .build import estimator_for_scenario
-from .startup import LOCK_LOST, STATE_NAMES, estimator_startup
+from .startup import estimator_startup
 
 
 class EstimatorNode(ScenarioNode):

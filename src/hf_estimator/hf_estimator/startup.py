@@ -44,27 +44,25 @@ from numba import njit
 
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from control_math.frames import inverse_clarke, rotate
+from drive_interface.estimator_states import ALIGNING, HOLD, LOCK_LOST, POLARITY, STATE_NAMES, TRACKING
 from motor_params.nameplate import INVERTER_RATINGS
 
-HOLD, ALIGNING, POLARITY, TRACKING, LOCK_LOST = 0, 1, 2, 3, 4
-STATE_NAMES = {HOLD: "hold", ALIGNING: "aligning", POLARITY: "polarity test", TRACKING: "tracking",
-               LOCK_LOST: "lock lost"}
 NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES = 0, 1, 2, 3
 REFUSALS = {NO_SALIENCY: "no saliency found: HF injection cannot tell this rotor's angle (a round rotor?)",
             NO_POLARITY: "no saturation asymmetry on the d axis: the magnet's polarity cannot be told",
             TOO_MANY_LOSSES: "lock lost too often; holding zero torque"}
 
 (CODE, ENTERED, SETTLED, ERROR, THETA_HELD, INTEGRAL_HELD, SCORE, SPAN, TRIES, REFUSED, RESTARTS,
- RESIDUAL_D, RESIDUAL_Q, PREV_IA, PREV_IB, BAD, STARTED_AT, POLARITY_RATIO, FLIPPED, HELD_AT,
- QUIET, E_ALPHA, E_BETA, FIT_N, FIT_T, FIT_P, FIT_TP, FIT_TT, PHI_RAW, PHI_UNWRAPPED) = range(30)
-HISTORY = 30
+ RESIDUAL_D, RESIDUAL_Q, PREV_IA, PREV_IB, BAD, POLARITY_RATIO, FLIPPED, HELD_AT, QUIET, E_ALPHA,
+ E_BETA, FIT_N, FIT_T, FIT_P, FIT_TP, FIT_TT, PHI_RAW, PHI_UNWRAPPED) = range(29)
+HISTORY = 29
 """Then the ring of issued commands (α, β) × (d + 2)."""
 THETA, INTEGRAL = 0, 1
 """Every estimator keeps θ̂ at x[0] and its speed integrator (ω̂) at x[1]."""
 
 DEFAULTS = {"align_tolerance_rad": 0.05, "settle_s": 3e-3, "align_timeout_s": 0.1, "quiet_s": 3e-3,
-            "pulse_current_per_rated": 0.7,
-            "pulse_s": 5e-4, "pulse_sequences": 2, "polarity_margin": 0.01, "polarity_tries": 3,
+            "pulse_current_per_rated": 0.7, "pulse_s": 5e-4, "pulse_sequences": 2, "polarity_margin": 0.01,
+            "polarity_tries": 3,
             "flush_s": 6e-3, "lock_filter_Hz": 100.0, "lock_persist_s": 5e-3, "lost_hold_s": 0.01,
             "max_restarts": 3, "backemf_polarity_ratio": 3.0, "slip_at_s": -1.0, "slip_rad": math.pi}
 """Start-up settings (estimator settings of every injecting estimator; slip_* force a slip of θ̂, a test)."""
@@ -129,19 +127,22 @@ def make_startup(base, nameplate, commissioning, T_s, delay_periods, error_gain,
     settings (interface.check_settings, DEFAULTS among them), ``error_gain`` its ε per radian."""
     s = settings
     I_p = s["pulse_current_per_rated"] * nameplate.rated_current_A
-    n = max(2, int(round(s["pulse_s"] / T_s)))
     rating = INVERTER_RATINGS.get(nameplate.name)
     u_max = PULSE_VOLTAGE_MAX_PER_LINEAR * rating.U_dc_V / math.sqrt(3.0) if rating else math.inf
-    while True:
-        pulse_V = I_p * commissioning.L_dh_H / (n * T_s) + 0.5 * commissioning.R_s_ohm * I_p
-        if pulse_V <= u_max:
-            break
-        n += 1
+    resistive = 0.5 * commissioning.R_s_ohm * I_p
+    if resistive >= u_max:
+        raise ValueError(f"pulse_current_per_rated: {s['pulse_current_per_rated']:g} × rated current needs more "
+                         f"than {u_max:.3g} V across R_s alone")
+    n = max(2, int(round(s["pulse_s"] / T_s)),
+            math.ceil(I_p * commissioning.L_dh_H / (T_s * (u_max - resistive))))
+    pulse_V = I_p * commissioning.L_dh_H / (n * T_s) + resistive
     omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * 2.0 * math.pi / 60.0
     threshold = (LOCK_RESISTANCE_ERROR * commissioning.R_s_ohm * nameplate.rated_current_A
                  + LOCK_DEAD_TIME_ERROR * 4.0 / 3.0 * commissioning.dead_time_voltage_V
                  + 0.02 * omega_rated * nameplate.psi_f_Wb)
-    samples = lambda seconds: max(1, int(round(seconds / T_s)))  # noqa: E731
+
+    def samples(seconds):
+        return max(1, int(round(seconds / T_s)))
     return StartupParams(
         base=base, T_s_s=T_s, delay_periods=int(delay_periods), error_gain=float(error_gain),
         align_tolerance_rad=s["align_tolerance_rad"], settle_samples=samples(s["settle_s"]),
@@ -153,8 +154,7 @@ def make_startup(base, nameplate, commissioning, T_s, delay_periods, error_gain,
         L_qh_H=commissioning.L_qh_H, delta_L_H=nameplate.L_d_H - nameplate.L_q_H, psi_f_Wb=nameplate.psi_f_Wb,
         dead_time_voltage_V=commissioning.dead_time_voltage_V,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
-        lock_smoothing=(1.0 - math.exp(-2.0 * math.pi * s["lock_filter_Hz"] * T_s)) if s["lock_filter_Hz"] > 0
-        else 1.0,
+        lock_smoothing=1.0 - math.exp(-2.0 * math.pi * s["lock_filter_Hz"] * T_s),
         lock_threshold_V=threshold, lock_persist_samples=samples(s["lock_persist_s"]),
         lost_hold_samples=samples(s["lost_hold_s"]), max_restarts=int(s["max_restarts"]),
         backemf_polarity_ratio=s["backemf_polarity_ratio"],
@@ -418,7 +418,6 @@ def startup_step(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_inj_alph
         if since < decide_at + p.flush_samples:
             return u_inj_alpha, u_inj_beta, float(POLARITY)
         _enter(x, p, k, TRACKING)
-        x[b + STARTED_AT] = k
         code = TRACKING
 
     if code == LOCK_LOST:
