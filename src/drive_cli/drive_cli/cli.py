@@ -127,6 +127,15 @@ def cmd_run(args):
     return _exit_code(interrupted, output_error=recording_error or plot_error, not_tracking=_not_tracking(result))
 
 
+def _warn_if_nameplate_only(source, motor, scenario_name):
+    """Say on stderr that a drive found no commissioning file and ran on its nameplate alone."""
+    from motor_params.commissioning import NAMEPLATE_ONLY, default_commissioning_file
+
+    if source == NAMEPLATE_ONLY:
+        print(f"drive: no {default_commissioning_file(motor)} here and none named: the drive ran on "
+              f"its nameplate alone (`drive commission {scenario_name}` measures the motor)", file=sys.stderr)
+
+
 def _report(result, args, extra=None):
     """Print a run's metrics (drive run, launch, bridge), write its plot unless --no-plot; returns why
     the plot could not be written, or None (the metrics are printed either way)."""
@@ -136,12 +145,11 @@ def _report(result, args, extra=None):
     scenario = result.scenario
     metrics = compute_metrics(result)
     if result.commissioning is not None:
-        from motor_params.commissioning import NAMEPLATE_ONLY, default_commissioning_file
+        from motor_params.commissioning import NAMEPLATE_ONLY
         from motor_params.knowledge import motor_knowledge
         metrics["commissioning"] = result.commissioning.source
-        if result.commissioning.source == NAMEPLATE_ONLY and scenario.commissioning != NAMEPLATE_ONLY:
-            print(f"drive: no {default_commissioning_file(scenario.motor)} here and none named: the drive ran on "
-                  f"its nameplate alone (`drive commission {scenario.name}` measures the motor)", file=sys.stderr)
+        if scenario.commissioning != NAMEPLATE_ONLY:
+            _warn_if_nameplate_only(result.commissioning.source, scenario.motor, scenario.name)
         metrics["motor_knowledge"] = motor_knowledge(nameplate(scenario.motor), result.commissioning)
     facts = result.estimator_facts or {}
     if facts.get("injection_amplitude_V") is not None:
@@ -826,8 +834,8 @@ def _formatted(value, form):
 
 
 def cmd_bench_startup(args):
-    from drive_evaluation.startup_bench import MOTOR_SCENARIOS, STANDARD_CASES, LoadCase, startup_sweep
-    from drive_runner.runner import terminal_progress
+    from drive_evaluation.startup_bench import MOTOR_SCENARIOS, STANDARD_CASES, LoadCase, bench_scenario, startup_sweep
+    from drive_runner.runner import scenario_commissioning, terminal_progress
 
     _estimator_arg(args)
     if args.angles < 1:
@@ -846,6 +854,8 @@ def cmd_bench_startup(args):
     reports = []
     try:
         for motor in motors:
+            first = bench_scenario(motor, args.estimator, 0.0, 1, cases[0])
+            _warn_if_nameplate_only(scenario_commissioning(first).source, motor, MOTOR_SCENARIOS[motor])
             for case in cases:
                 progress = None if args.json else terminal_progress(f"{motor}, {case.name}")
                 reports.append(startup_sweep(motor, case, args.angles, tuple(range(1, args.seeds + 1)),

@@ -45,6 +45,7 @@ from numba import njit
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from control_math.frames import inverse_clarke, rotate
 from drive_interface.estimator_states import ALIGNING, HOLD, LOCK_LOST, POLARITY, STATE_NAMES, TRACKING
+from motor_params.commissioning import NAMEPLATE_ONLY
 from motor_params.nameplate import INVERTER_RATINGS
 
 NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES = 0, 1, 2, 3
@@ -78,6 +79,9 @@ LOCK_RESISTANCE_ERROR = 0.1
 LOCK_DEAD_TIME_ERROR = 0.5
 """V_th = this share of R̂·I_rated + this share of the commissioned dead-time voltage (per phase, ×4/3 in
 αβ) + 2 % of the rated back-EMF: what the back-EMF model can be wrong by at rated current."""
+UNMEASURED_DEAD_TIME_PER_U_DC = 0.02
+"""A drive that never measured its dead-time voltage (nameplate only) neither compensates it nor ignores
+it: V_th allows the whole of a typical one, 2 % of U_dc (2 µs of dead time at 10 kHz), ×4/3 in αβ."""
 
 
 class StartupParams(NamedTuple):
@@ -137,8 +141,11 @@ def make_startup(base, nameplate, commissioning, T_s, delay_periods, error_gain,
             math.ceil(I_p * commissioning.L_dh_H / (T_s * (u_max - resistive))))
     pulse_V = I_p * commissioning.L_dh_H / (n * T_s) + resistive
     omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * 2.0 * math.pi / 60.0
-    threshold = (LOCK_RESISTANCE_ERROR * commissioning.R_s_ohm * nameplate.rated_current_A
-                 + LOCK_DEAD_TIME_ERROR * 4.0 / 3.0 * commissioning.dead_time_voltage_V
+    if commissioning.source == NAMEPLATE_ONLY and rating:
+        dead_time_error = 4.0 / 3.0 * UNMEASURED_DEAD_TIME_PER_U_DC * rating.U_dc_V
+    else:
+        dead_time_error = LOCK_DEAD_TIME_ERROR * 4.0 / 3.0 * commissioning.dead_time_voltage_V
+    threshold = (LOCK_RESISTANCE_ERROR * commissioning.R_s_ohm * nameplate.rated_current_A + dead_time_error
                  + 0.02 * omega_rated * nameplate.psi_f_Wb)
 
     def samples(seconds):
