@@ -1,31 +1,35 @@
 """Digital filters shared by the controller and the estimators.
 
 Filters are second-order sections (rows b0 b1 b2 1 a1 a2, as scipy's ``sos``) run in transposed
-direct form II by one numba kernel; they are designed once in Python with scipy.
+direct form II by one numba kernel; they are designed once in Python with scipy, imported where a filter
+is designed (scipy.signal takes over a second to import, which every `drive` command would pay).
 """
 import numpy as np
 from numba import njit
-from scipy import signal
 
 
 def butterworth_lowpass(order, cutoff_Hz, T_s):
     """Digital Butterworth low-pass (bilinear transform, pre-warped), as SOS rows."""
+    from scipy import signal
     return signal.butter(order, cutoff_Hz, btype="lowpass", fs=1.0 / T_s, output="sos")
 
 
 def butterworth_bandpass(order, low_Hz, high_Hz, T_s):
     """Digital Butterworth band-pass; ``order`` is the prototype order, as in Wang §III-A."""
+    from scipy import signal
     return signal.butter(order, [low_Hz, high_Hz], btype="bandpass", fs=1.0 / T_s, output="sos")
 
 
 def notch(frequency_Hz, quality, T_s):
     """Second-order IIR notch (one SOS row)."""
+    from scipy import signal
     b, a = signal.iirnotch(frequency_Hz, quality, fs=1.0 / T_s)
     return signal.tf2sos(b, a)
 
 
 def group_delay_s(sos, frequency_Hz, T_s):
     """Group delay of an SOS filter at one frequency."""
+    from scipy import signal
     w = 2.0 * np.pi * frequency_Hz * T_s
     b, a = signal.sos2tf(sos)
     _, gd = signal.group_delay((b, a), w=[w])

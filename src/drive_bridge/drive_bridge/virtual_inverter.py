@@ -103,6 +103,10 @@ class VirtualInverter:
         self.counters = {"commands": 0, "missing": 0, "discarded": 0, "trips": 0, "watchdog_trips": 0,
                          "host_silent_trips": 0, "link_down": 0}
         self.latencies_s = []
+        """Time from TELEMETRY(k) sent to COMMAND(k) received, per command in time."""
+        self.late_latencies_s = []
+        """The same for commands that came after their period had begun (applied: none; zero volts)."""
+        self.sent_at = np.zeros(scenario.n_samples)
         self.truth = np.full((scenario.n_samples, 7), np.nan)
 
     def stop(self):
@@ -137,7 +141,7 @@ class VirtualInverter:
                                   min(65535, round(p.inverter.U_dc_V / self.voltage_lsb)),
                                   encoder if self.encoder else 0, status)
             self.truth[k] = (theta_m, p.x[OMEGA_M], tau_e, self.tau_load[k], i_a, i_b, i_c)
-            sent_at = time.monotonic()
+            sent_at = self.sent_at[k] = time.monotonic()
             self.transmit(telemetry)
             if time.monotonic() >= hello_at:
                 self.send(self.hello)
@@ -185,6 +189,9 @@ class VirtualInverter:
                         self.latencies_s.append(time.monotonic() - sent_at)
                         return message
                     self.counters["discarded"] += 1
+                    late = k - message.seq % 2 ** 32
+                    if 0 < late <= k:
+                        self.late_latencies_s.append(time.monotonic() - self.sent_at[k - late])
                 elif isinstance(message, Control):
                     if message.action == CONTROL_CLEAR_FAULTS:
                         self.latched = 0
@@ -259,3 +266,29 @@ def make_links(link, workdir, drive_id=0, channel=None):
         endpoint.open()
         return endpoint, CanLink(channel, drive_id)
     raise ValueError(f"unknown virtual link '{link}' (known: {', '.join(LINKS)})")
+
+
+LATENCY_BINS_PER_PERIOD = (0.0, 0.25, 0.5, 0.75, 1.0, 2.0, 5.0, 10.0, math.inf)
+"""Edges of the command latency histogram, in sampling periods: below 1 a command can be in time."""
+
+
+def timing_report(inverter, T_s):
+    """How the host kept pace with a virtual inverter: periods run, commands missing (late or never
+    sent: zero volts), their fraction, latency percentiles [µs] over every command that came (late ones
+    included) and the histogram of those latencies (edges in sampling periods and µs)."""
+    periods = max(inverter.k, 1)
+    on_time = np.asarray(inverter.latencies_s)
+    every = np.concatenate([on_time, np.asarray(inverter.late_latencies_s)]) * 1e6
+    edges = np.asarray(LATENCY_BINS_PER_PERIOD)
+    counts, _ = np.histogram(every, bins=edges * T_s * 1e6)
+    report = {"paced": bool(inverter.rate_Hz), "periods": inverter.k, "missing": inverter.counters["missing"],
+              "late_fraction": inverter.counters["missing"] / periods,
+              "late_arrivals": len(inverter.late_latencies_s),
+              "latency_p50_us": float(np.percentile(every, 50)) if every.size else None,
+              "latency_p99_us": float(np.percentile(every, 99)) if every.size else None,
+              "latency_max_us": float(every.max()) if every.size else None,
+              "latency_histogram": {"edges_periods": [e if math.isfinite(e) else None for e in edges],
+                                    "counts": [int(c) for c in counts]},
+              "watchdog_trips": inverter.counters["watchdog_trips"],
+              "host_silent_trips": inverter.counters["host_silent_trips"]}
+    return report

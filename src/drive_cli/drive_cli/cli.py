@@ -257,10 +257,13 @@ def cmd_launch(args):
     scenario = load_scenario(args.scenario, estimator_override=args.estimator,
                              override_source="command line --estimator")
     _record_arg(args.record)
+    if args.paced and not args.link:
+        raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
     extra = {"commissioning": args.commissioning} if args.commissioning else None
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
-                    timeout_s=args.timeout, bag=args.record, link=args.link, extra_parameters=extra,
+                    timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,
+                    extra_parameters=extra,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
     faults = result.node_faults
     plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
@@ -269,6 +272,8 @@ def cmd_launch(args):
              "real_time_factor": round(result.scenario.duration_s / result.wall_time_s, 4)
              if result.wall_time_s > 0 else None,
              "interrupted": bool(result.interrupted), "node_faults": faults}
+    if result.timing:
+        extra["timing"] = result.timing
     if args.record:
         extra["bag"] = args.record
     if result.recording_error:
@@ -284,12 +289,13 @@ def cmd_bridge(args):
     from drive_runner.runner import terminal_progress
 
     scenario = _scenario_arg(args)
-    result = run_through_bridge(scenario, args.link, progress=terminal_progress(
-        f"{scenario.name}/{scenario.estimator} through the bridge ({args.link})"))
+    result = run_through_bridge(scenario, args.link, rate_Hz=1.0 / scenario.T_s if args.paced else None,
+                                progress=terminal_progress(f"{scenario.name}/{scenario.estimator} through the "
+                                                           f"bridge ({args.link})"))
     extra = {"link": f"virtual inverter over {args.link}, bridge core, estimator and controller cores",
              "samples_per_s": round(result.log.shape[0] / result.wall_time_s) if result.wall_time_s > 0 else None,
              "bridge": result.counters, "frame_errors": result.frame_errors,
-             "inverter": result.inverter_counters, "interrupted": bool(result.interrupted)}
+             "inverter": result.inverter_counters, "timing": result.timing, "interrupted": bool(result.interrupted)}
     plot_error = _report(result, args, extra)
     return _exit_code(result.interrupted, output_error=plot_error)
 
@@ -301,9 +307,23 @@ def cmd_bench_bridge(args):
     for link in links:
         if link not in ("pty", "can"):
             raise CommandLineError(f"--links: 'pty' and/or 'can', not {link!r}")
-    report = bridge_rates(args.scenario, links, args.duration, args.repeats)
+    duration = args.duration if args.duration is not None or args.paced else 1.0
+    report = bridge_rates(args.scenario, links, duration, args.repeats, args.paced)
     if args.json:
         _print_json(report)
+        return 0
+    if args.paced:
+        print(f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter on its own clock "
+              f"at {report['sampling_rate_Hz']:g} Hz; worst of {report['repeats']})")
+        print(f"  {'link':6s} {'late':>8s} {'latency p50':>12s} {'p99':>9s} {'max':>9s} {'angle RMS':>10s} "
+              f"{'peak':>7s} {'lost':>5s}")
+        def number(value, width, digits):
+            return f"{value:{width}.{digits}f}" if value is not None else f"{'-':>{width}s}"
+        for row in report["links"]:
+            print(f"  {row['link']:6s} {100.0 * row['late_fraction']:7.3f}% {number(row['latency_p50_us'], 9, 0)} µs "
+                  f"{number(row['latency_p99_us'], 6, 0)} µs {number(row['latency_max_us'], 6, 0)} µs "
+                  f"{number(row['angle_error_rms'], 10, 4)} {number(row['angle_error_peak'], 7, 4)} "
+                  f"{row['lock_lost']:5d}")
         return 0
     print(f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter paced by the "
           f"host's answers; best of {report['repeats']})")
@@ -987,9 +1007,12 @@ def build_parser():
     bench_bridge = bench_sub.add_parser("bridge", help="sustained closed-loop sample rate and command "
                                                        "latency through the bridge, over a pty and a CAN bus")
     bench_bridge.add_argument("--scenario", default="wang_100rpm")
-    bench_bridge.add_argument("--duration", type=float, default=1.0, help="simulated seconds per run")
+    bench_bridge.add_argument("--duration", type=float,
+                              help="simulated seconds per run (default 1, or the whole scenario with --paced)")
     bench_bridge.add_argument("--links", default="pty,can", help="comma-separated: pty, can")
     bench_bridge.add_argument("--repeats", type=int, default=3, help="timed runs per link (best kept)")
+    bench_bridge.add_argument("--paced", action="store_true",
+                              help="the inverter on its own clock, never waiting: late commands, latency, angle error")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
 
@@ -1094,6 +1117,9 @@ def build_parser():
     launch.add_argument("--link", choices=("pty", "can"),
                         help="put the virtual inverter (behind this link) and the drive_bridge node in the "
                              "plant's place")
+    launch.add_argument("--paced", action="store_true",
+                        help="with --link: the virtual inverter on its own clock at the sampling rate, never "
+                             "waiting for the graph: a late command is zero volts, counted")
     launch.add_argument("--json", action="store_true")
     launch.set_defaults(func=cmd_launch)
 
@@ -1101,6 +1127,9 @@ def build_parser():
                                            "inverter, in one process")
     bridge.add_argument("scenario", help="shipped scenario name or YAML path")
     bridge.add_argument("--link", choices=("pty", "can"), default="pty")
+    bridge.add_argument("--paced", action="store_true",
+                        help="the inverter on its own clock at the sampling rate, never waiting for the host: a "
+                             "late command is zero volts, counted")
     bridge.add_argument("--estimator", help="override the scenario's estimator")
     bridge.add_argument("--duration", type=float, help="override the duration [s]")
     bridge.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)

@@ -217,29 +217,45 @@ def link_echo_us(link, rounds=2000):
     return float(np.median(times) * 1e6)
 
 
-def bridge_rates(scenario_ref, links, duration_s, repeats=3):
-    """`drive bench bridge`: the sensorless loop through the bridge and the virtual inverter (paced by
-    the host's answers) per link; best of ``repeats`` after a warm-up. Latency: the inverter's time from
-    sending TELEMETRY(k) to receiving COMMAND(k); host: the host's part of it (telemetry decoded,
-    estimator and controller run, command encoded and written)."""
+def _percentile(values, q):
+    """The q-th percentile of ``values``, None when there are none."""
+    return float(np.percentile(values, q)) if len(values) else None
+
+
+def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False):
+    """`drive bench bridge`: the sensorless loop through the bridge and the virtual inverter per link.
+    Waiting for the host's answers (default): the sustained rate, best of ``repeats`` after a warm-up.
+    ``paced``: the inverter on its own clock at the scenario's rate, never waiting: missing (late)
+    commands and their latency, and the angle error of the run, worst of ``repeats``. Latency: the
+    inverter's time from sending TELEMETRY(k) to receiving COMMAND(k); host: the host's part of it
+    (telemetry decoded, estimator and controller run, command encoded and written)."""
+    from drive_evaluation.metrics import compute_metrics
     from drive_runner.bridge_loop import run_through_bridge
 
-    scenario = dataclasses.replace(load_scenario(scenario_ref), duration_s=duration_s)
+    scenario = load_scenario(scenario_ref)
+    if duration_s is not None:
+        scenario = dataclasses.replace(scenario, duration_s=duration_s)
+    rate = 1.0 / scenario.T_s if paced else None
     rows = []
     for link in links:
-        run_through_bridge(dataclasses.replace(scenario, duration_s=min(duration_s, 0.05)), link)
+        run_through_bridge(dataclasses.replace(scenario, duration_s=min(scenario.duration_s, 0.05)), link)
         best = None
         for _ in range(repeats):
-            result = run_through_bridge(scenario, link)
-            if best is None or result.wall_time_s < best.wall_time_s:
+            result = run_through_bridge(scenario, link, rate_Hz=rate)
+            if best is None or (result.timing["missing"] > best.timing["missing"] if paced
+                                else result.wall_time_s < best.wall_time_s):
                 best = result
         latencies, host = best.latencies_s * 1e6, best.host_s * 1e6
-        rows.append({"link": link, "samples_per_s": best.log.shape[0] / best.wall_time_s,
-                     "latency_p50_us": float(np.percentile(latencies, 50)),
-                     "latency_p99_us": float(np.percentile(latencies, 99)),
-                     "host_p50_us": float(np.percentile(host, 50)),
-                     "host_p99_us": float(np.percentile(host, 99)),
-                     "link_echo_us": link_echo_us(link),
-                     "missing_commands": int(best.inverter_counters["missing"])})
-    return {"scenario": scenario.name, "samples": scenario.n_samples, "repeats": repeats,
+        row = {"link": link, "samples_per_s": best.log.shape[0] / best.wall_time_s,
+               "latency_p50_us": _percentile(latencies, 50), "latency_p99_us": _percentile(latencies, 99),
+               "host_p50_us": _percentile(host, 50), "host_p99_us": _percentile(host, 99),
+               "link_echo_us": link_echo_us(link),
+               "missing_commands": int(best.inverter_counters["missing"])}
+        if paced:
+            metrics = compute_metrics(best)
+            row.update(best.timing)
+            row.update({key: metrics[key] for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak",
+                                                      "lock_lost")})
+        rows.append(row)
+    return {"scenario": scenario.name, "samples": scenario.n_samples, "repeats": repeats, "paced": paced,
             "sampling_rate_Hz": 1.0 / scenario.T_s, "links": rows}

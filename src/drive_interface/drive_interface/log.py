@@ -19,15 +19,19 @@ COLUMN = {name: i for i, name in enumerate(LOG_COLUMNS)}
 def fill_sample(row, topic, msg, n_p):
     """Write what a per-sample message of ``topic`` says into its log row: rclpy and rosbags messages
     alike, so a recording from the graph and one read back from a bag fill the same columns."""
-    t = TOPICS[topic]
-    if t.type.endswith("Vector3Stamped"):
+    if TOPICS[topic].type.endswith("Vector3Stamped"):
         v = msg.vector
-        for column, value in zip(t.log_columns, (v.x, v.y, v.z)):
-            row[COLUMN[column]] = value
-        return
-    if not len(msg.position):
-        return
+        fill_values(row, topic, (v.x, v.y, v.z), n_p)
+    elif len(msg.position):
+        fill_values(row, topic, (msg.position[0], msg.velocity[0] if len(msg.velocity) else math.nan,
+                                 msg.effort[0] if len(msg.effort) else math.nan), n_p)
+
+
+def fill_values(row, topic, values, n_p):
+    """Write a per-sample message's values into its log row: x, y, z of a Vector3Stamped; the first
+    position, velocity and effort of a JointState (None: not carried), mechanical values of an
+    ``electrical`` topic scaled to electrical ones."""
+    t = TOPICS[topic]
     scale = n_p if t.electrical else 1.0
-    values = (msg.position[0], msg.velocity[0], msg.effort[0] if len(msg.effort) else math.nan)
     for column, value in zip(t.log_columns, values):
-        row[COLUMN[column]] = scale * value
+        row[COLUMN[column]] = math.nan if value is None else scale * value

@@ -21,9 +21,10 @@ from std_msgs.msg import String
 from .exit_codes import EXIT_NODE_FAULTS, EXIT_REFUSED
 from .graph import EXECUTORS
 from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sources, label, unknown_parameters
-from .stamps import stamp_ns
+from .stamps import stamp_parts
 from .strict_json import dumps
 from .topics import TOPICS
+from .wire import WireError, decoder_of
 
 FAULT_REPORT_MIN_S = 0.1
 PEER_CHECK_PERIOD_S = 0.5
@@ -52,7 +53,7 @@ def message_class(topic):
 
 def stamp(k, T_s):
     """builtin_interfaces/Time of sampling instant k."""
-    sec, nanosec = divmod(stamp_ns(k, T_s), 1_000_000_000)
+    sec, nanosec = stamp_parts(k, T_s)
     return Time(sec=sec, nanosec=nanosec)
 
 
@@ -88,6 +89,22 @@ class Health:
         self.level = DiagnosticStatus.OK
         self.message = ""
         self.faults_since = 0
+
+
+class SamplePublisher:
+    """An rclpy publisher whose ``publish(data)`` hands serialized bytes straight to rcl: rclpy's
+    ``Publisher.publish`` checks the argument's type and takes the handle's lock on every call, a third
+    of a publish's cost at one message per sample. Nodes destroy their publishers only after their
+    executor has stopped, so no publish can race the destruction the lock guards against."""
+
+    __slots__ = ("publisher", "publish")
+
+    def __init__(self, publisher):
+        self.publisher = publisher
+        self.publish = publisher.handle.publish_raw
+
+    def get_subscription_count(self):
+        return self.publisher.get_subscription_count()
 
 
 class ContractNode(Node):
@@ -185,11 +202,31 @@ class ContractNode(Node):
                                         f"the node exits")
         self.create_timer(PEER_CHECK_PERIOD_S, check)
 
+    def sample_subscription(self, topic, callback):
+        """Subscribe ``callback(sec, nanosec, a, b, c)`` to a per-sample contract topic, taken serialized
+        and decoded by drive_interface.wire (a, b, c: x, y, z of a Vector3Stamped; the first position,
+        velocity and effort of a JointState, None where empty). Bytes that are not the topic's type are
+        a ``bad_input`` fault and go no further."""
+        decode = decoder_of(TOPICS[topic].type)
+
+        def take(data):
+            try:
+                values = decode(data)
+            except WireError as error:
+                self.fault("bad_input", f"{self.resolve_topic_name(topic)}: {error}; discarded")
+                return
+            callback(*values)
+        return self.create_subscription(message_class(topic), topic, take, topic_qos(topic), raw=True)
+
+    def sample_publisher(self, topic):
+        """A publisher of a per-sample contract topic that takes serialized bytes (drive_interface.wire)."""
+        return SamplePublisher(self.create_publisher(message_class(topic), topic, topic_qos(topic)))
+
     def timed(self, callback):
         """Wrap a per-sample callback to accumulate its wall time for /diagnostics."""
-        def run(msg):
+        def run(*msg):
             start = time.perf_counter()
-            callback(msg)
+            callback(*msg)
             spent = time.perf_counter() - start
             self.callback_time_s += spent
             self.callback_max_s = max(self.callback_max_s, spent)

@@ -10,8 +10,18 @@ def stamp_ns(k, T_s):
     return round(k * T_s * 1e9)
 
 
-def sample_of(header, T_s):
-    """The sample index a header's stamp belongs to, or None when it is not exactly a sampling instant."""
-    ns = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec
+def stamp_parts(k, T_s):
+    """(sec, nanosec) of sampling instant k."""
+    return divmod(stamp_ns(k, T_s), 1_000_000_000)
+
+
+def sample_at(sec, nanosec, T_s):
+    """The sample index of a stamp (sec, nanosec), or None when it is not exactly a sampling instant."""
+    ns = sec * 1_000_000_000 + nanosec
     k = round(ns / (T_s * 1e9))
     return k if k >= 0 and stamp_ns(k, T_s) == ns else None
+
+
+def sample_of(header, T_s):
+    """The sample index a header's stamp belongs to, or None when it is not exactly a sampling instant."""
+    return sample_at(header.stamp.sec, header.stamp.nanosec, T_s)

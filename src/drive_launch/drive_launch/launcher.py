@@ -15,6 +15,7 @@ from pathlib import Path
 
 from drive_bags.common import BagWriteError
 from drive_bags.writer import BagWriter
+from drive_bridge.virtual_inverter import timing_report
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
@@ -24,10 +25,11 @@ from drive_scenarios.scenario import refuse_brake_behind_an_inverter, resolve
 
 PROCESSES = ("composed", "separate")
 LINKS = ("pty", "can")
-DELIVERIES_PER_SAMPLE = 9
+DELIVERIES_PER_SAMPLE = 8
 """Messages delivered per lock-step sample without recording: currents → estimator, controller;
-rotor_estimate → controller, plant; injection → controller; voltage_command → plant, estimator,
-launcher; load_torque → plant. Composed on one executor thread, a sample costs their sum."""
+rotor_estimate → controller, plant; injection, estimator_state → controller; voltage_command → plant,
+estimator. The scenario's schedule costs none (``scenario_schedule``). Composed on one executor thread, a
+sample costs their sum."""
 
 
 class GraphError(DriveError):
@@ -147,6 +149,8 @@ class GraphResult(RunResult):
     cumulative fault counters and fault messages."""
     node_faults: dict = None
     """{node: {"faults": {kind: count}, "messages": [...]}} of every node that reported a fault."""
+    timing: dict = None
+    """Behind a virtual inverter: how the graph kept pace with it (virtual_inverter.timing_report)."""
 
 
 def node_parameters(scenario_ref, estimator=None, duration_s=None, timeout_s=1.0, extra=None):
@@ -174,17 +178,19 @@ class DriveSpec:
     link: str = None
     """None: the simulated plant node. 'pty' or 'can': the virtual inverter behind that link and the
     drive_bridge node in the plant's place."""
+    paced: bool = False
+    """With a link: the virtual inverter on its own clock at the sampling rate, never waiting."""
 
 
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
-           progress=None, extra_parameters=None, bag=None, link=None):
+           progress=None, extra_parameters=None, bag=None, link=None, paced=False):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
     ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
-    virtual inverter and the drive_bridge node in the plant's place."""
-    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link)
+    virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock."""
+    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced)
     return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress)[0]
 
 
@@ -238,11 +244,12 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                                          spec.extra_parameters)
             scenario = scenario_from_parameters(all_parameters(parameters))
             drive = build_drive(scenario)
-            roles = {"pmsm_plant": {**parameters, "load_torque_per_sample": True, "publish_clock": i == 0},
-                     "hf_estimator": parameters, "foc_controller": parameters}
+            scheduled = {**parameters, "scenario_schedule": True}
+            roles = {"pmsm_plant": {**scheduled, "publish_clock": i == 0},
+                     "hf_estimator": parameters, "foc_controller": scheduled}
             inverter = None
             if spec.link:
-                inverter, host_link = _virtual_inverter(scenario, spec.link, workdir.name, i)
+                inverter, host_link = _virtual_inverter(scenario, spec.link, workdir.name, i, spec.paced)
                 inverters.append(inverter)
                 del roles["pmsm_plant"]
                 period = float(all_parameters(parameters)["diagnostics_period_s"])
@@ -325,16 +332,18 @@ def _result(driver, drive, record, processes, executor, interrupted):
                        commissioning=drive.commissioning, estimator_facts=drive.estimator.facts(),
                        processes=processes, executor=executor,
                        interrupted=interrupted,
-                       diagnostics=dict(driver.diagnostics), node_faults=driver.faults())
+                       diagnostics=dict(driver.diagnostics), node_faults=driver.faults(),
+                       timing=timing_report(driver.inverter, scenario.T_s) if driver.inverter else None)
 
 
-def _virtual_inverter(scenario, link, workdir, drive_id):
-    """A virtual inverter for ``scenario`` (not yet running; paced by the graph's commands) and the
-    host's end of its link."""
+def _virtual_inverter(scenario, link, workdir, drive_id, paced):
+    """A virtual inverter for ``scenario`` (not yet running; on its own clock when ``paced``, else
+    waiting for the graph's commands) and the host's end of its link."""
     from drive_bridge.virtual_inverter import VirtualInverter, make_links
     refuse_brake_behind_an_inverter(scenario)
     endpoint, host_link = make_links(link, workdir, drive_id)
-    return VirtualInverter(scenario, endpoint, drive_id=drive_id), host_link
+    rate = 1.0 / scenario.T_s if paced else None
+    return VirtualInverter(scenario, endpoint, rate_Hz=rate, drive_id=drive_id), host_link
 
 
 def _watch(drivers, children, all_done):

@@ -8,10 +8,11 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float64
 
 from drive_bags.common import offered_qos
-from drive_interface.log import COLUMN, LOG_COLUMNS, fill_sample
+from drive_interface.log import COLUMN, LOG_COLUMNS, fill_values
 from drive_interface.node import message_class, topic_qos
-from drive_interface.stamps import sample_of, stamp_ns
+from drive_interface.stamps import sample_at, stamp_ns
 from drive_interface.topics import SAMPLE_LOGGED, TOPICS
+from drive_interface.wire import WireError, decoder_of
 from motor_params.nameplate import nameplate
 
 ERROR = 2
@@ -25,13 +26,15 @@ FINAL_WAIT_S = 1.0
 
 
 class ScenarioDriver:
-    """The launcher's own node, the dyno and operator of the scenario: waits until every lock-step
-    endpoint is matched, then publishes the speed (when it changes) and the load torque of sample 0,
-    which starts the plant (``load_torque_per_sample``); on `voltage_command`(k), after the controller
-    has used the speed of k, it publishes those of k+1. With ``record`` it fills a log
-    (drive_interface.log.LOG_COLUMNS) from the topics; columns no topic carries stay NaN. With a
-    ``recorder`` (drive_bags.writer.BagWriter) it writes every contract topic as received, serialized.
-    With a virtual ``inverter`` (the bridge in the plant's place) it starts the inverter at sample 0."""
+    """The launcher's own node, the operator of the scenario: waits until every lock-step endpoint is
+    matched, then publishes the load torque of sample 0, which starts the plant. The plant and the
+    controller take the scenario's schedule themselves, sample-exact (``scenario_schedule``), so the
+    driver costs the lock-step nothing per sample; it learns the run's progress and end from the nodes'
+    /diagnostics. With ``record`` it fills a log (drive_interface.log.LOG_COLUMNS) from the per-sample
+    topics; columns no topic carries stay NaN. With a ``recorder`` (drive_bags.writer.BagWriter) it
+    writes every contract topic as received, serialized, and the schedule's speed, load and feed-forward
+    of each sample as the plant reaches it. With a virtual ``inverter`` (the bridge in the plant's place)
+    it starts the inverter at sample 0."""
 
     def __init__(self, node, scenario, record, settle_s, startup_timeout_s, progress, recorder=None,
                  inverter=None):
@@ -42,24 +45,25 @@ class ScenarioDriver:
         self.settle_s, self.startup_timeout_s, self.progress = settle_s, startup_timeout_s, progress
         self.speed, self.load = scenario.schedule()
         self.feedforward = scenario.feedforward() if scenario.torque_feedforward is not None else None
-        self.sent_feedforward = None
         self.log = np.full((self.n if record else 1, len(LOG_COLUMNS)), np.nan)
         if record:
             self.log[:, COLUMN["t"]] = np.arange(self.n) * scenario.T_s
             self.log[:, COLUMN["omega_m_ref"]] = self.speed
             self.log[:, COLUMN["tau_load"]] = self.load
-        self.speed_pub = node.create_publisher(Float64, "speed_command", topic_qos("speed_command"))
         self.load_pub = node.create_publisher(Float64, "load_torque", topic_qos("load_torque"))
-        self.feedforward_pub = node.create_publisher(Float64, "torque_feedforward", topic_qos("torque_feedforward"))
         self.recorder = recorder
         self.inverter = inverter
-        handlers = {"voltage_command": self.on_voltage, "/diagnostics": self.on_diagnostics}
+        handlers = {"/diagnostics": self.on_diagnostics}
         recorded = tuple(topic for topic in SAMPLE_LOGGED if topic != "voltage_command")
         if record:
             handlers.update({topic: self.logger_of(topic) for topic in recorded})
+        if record or recorder:
+            handlers["voltage_command"] = self.on_voltage
+        self.recorded_commands = {"speed_command": self.speed, "load_torque": self.load,
+                                  "torque_feedforward": self.feedforward}
+        self.last_recorded = {}
+        self.received = dict.fromkeys((topic for topic in handlers if TOPICS[topic].per_sample), 0)
         self.subscribe(handlers)
-        self.received = dict.fromkeys(("voltage_command",) + (recorded if record else ()), 0)
-        self.sent_speed = None
         self.created = time.monotonic()
         self.ready_since = None
         self.checked_at = 0.0
@@ -74,32 +78,57 @@ class ScenarioDriver:
         node.create_timer(0.05, self.tick)
 
     def subscribe(self, handlers):
-        """Subscribe the handlers; with a recorder, every contract topic raw, written as it comes and
-        deserialised only for a handler. The launcher's own commands are written where published."""
+        """Subscribe the handlers, serialized: a per-sample topic's handler gets its decoded values
+        (drive_interface.wire), another topic's its message. With a recorder, every contract topic, written
+        as it comes (the schedule's commands are written by ``record_commands``)."""
         topics = set(handlers)
         if self.recorder:
-            topics |= set(TOPICS) - {"speed_command", "load_torque", "torque_feedforward"}
+            topics |= set(TOPICS) - set(self.recorded_commands)
         for topic in sorted(topics):
             cls, qos = message_class(topic), topic_qos(topic)
             handler = handlers.get(topic)
-            if not self.recorder:
-                self.node.create_subscription(cls, topic, handler, qos)
-                continue
-            callback = self.recording(topic, cls, handler, TOPICS[topic].stamped)
-            self.node.create_subscription(cls, topic, callback, qos, raw=True)
+            if handler and TOPICS[topic].per_sample:
+                handler = self.decoding(topic, handler)
+            elif handler:
+                handler = self.deserializing(cls, handler)
+            if self.recorder:
+                handler = self.recording(topic, handler, TOPICS[topic].stamped)
+            self.node.create_subscription(cls, topic, handler, qos, raw=True)
         if self.recorder:
             for topic in sorted(TOPICS):
                 name = self.node.resolve_topic_name(topic)
                 self.recorder.add(name, TOPICS[topic].type, offered_qos(topic))
 
-    def recording(self, topic, cls, handler, stamped):
+    def recording(self, topic, handler, stamped):
+        """``handler`` (if any) after the serialized message is written into the bag."""
         name = self.node.resolve_topic_name(topic)
 
         def callback(data):
             self.recorder.write(name, data, stamped)
             if handler:
-                handler(deserialize_message(data, cls))
+                handler(data)
         return callback
+
+    def decoding(self, topic, handler):
+        """``handler(topic's sample index, values)`` of a serialized per-sample message; messages of no
+        sample of this run, or not of the topic's type, are left out."""
+        decode = decoder_of(TOPICS[topic].type)
+        T_s = self.scenario.T_s
+
+        def callback(data):
+            try:
+                sec, nanosec, *values = decode(data)
+            except WireError:
+                return
+            k = sample_at(sec, nanosec, T_s)
+            if k is not None and 0 <= k < self.n:
+                self.received[topic] += 1
+                handler(k, values)
+        return callback
+
+    @staticmethod
+    def deserializing(cls, handler):
+        return lambda data: handler(deserialize_message(data, cls))
 
     def expected_endpoints(self):
         """(topic, publishers, subscribers) that must exist before sample 0, this node included (with
@@ -107,11 +136,9 @@ class ScenarioDriver:
         r = 1 if self.record or self.recorder else 0
         sensored = self.scenario.estimator == "sensored"
         endpoints = [("currents", 1, 2 + r), ("rotor_estimate", 1, 2 + r), ("injection", 1, 1 + r),
-                     ("voltage_command", 1, 3), ("estimator_state", 1, r), ("speed_command", 1, 1)]
+                     ("voltage_command", 1, 2 + r), ("estimator_state", 1, 1 + r)]
         if self.inverter is None:
             endpoints += [("rotor_state", 1, r + sensored), ("load_torque", 1, 1)]
-        if self.feedforward is not None:
-            endpoints.append(("torque_feedforward", 1, 1))
         return endpoints
 
     def missing_endpoints(self):
@@ -133,20 +160,15 @@ class ScenarioDriver:
                 surplus.append(f"{count} publishers of {name}, {pubs} expected")
         return surplus
 
-    def command(self, k):
-        published = []
-        if self.speed[k] != self.sent_speed:
-            self.sent_speed = self.speed[k]
-            published.append((self.speed_pub, Float64(data=float(self.sent_speed))))
-        if self.feedforward is not None and self.feedforward[k] != self.sent_feedforward:
-            self.sent_feedforward = self.feedforward[k]
-            published.append((self.feedforward_pub, Float64(data=float(self.sent_feedforward))))
-        published.append((self.load_pub, Float64(data=float(self.load[k]))))
-        for publisher, msg in published:
-            publisher.publish(msg)
-            if self.recorder:
-                self.recorder.write(publisher.topic_name, serialize_message(msg), False,
-                                    stamp_ns(k, self.scenario.T_s))
+    def record_commands(self, k):
+        """Write the schedule's commands of sample k into the bag: the load every sample, the speed and
+        the feed-forward where they change (as `drive run --record` writes them)."""
+        for topic, values in self.recorded_commands.items():
+            if values is None or (topic != "load_torque" and self.last_recorded.get(topic) == values[k]):
+                continue
+            self.last_recorded[topic] = values[k]
+            self.recorder.write(self.node.resolve_topic_name(topic), serialize_message(Float64(data=float(values[k]))),
+                                False, stamp_ns(k, self.scenario.T_s))
 
     def tick(self):
         now = time.monotonic()
@@ -169,7 +191,9 @@ class ScenarioDriver:
             self.ready_since = self.ready_since or now
             if now - self.ready_since >= self.settle_s:
                 self.started_at = now
-                self.command(0)
+                self.load_pub.publish(Float64(data=float(self.load[0])))
+                if self.recorder:
+                    self.record_commands(0)
                 if self.inverter is not None:
                     threading.Thread(target=self.inverter.run, name="virtual_inverter", daemon=True).start()
             return
@@ -183,35 +207,32 @@ class ScenarioDriver:
         return (all(count >= self.n for count in self.received.values())
                 and len(self.nodes_complete) >= self.lockstep_nodes)
 
+    def nodes_finished(self):
+        """Every lock-step node said its run is complete: the run's end, when nothing per sample is
+        taken here."""
+        if self.finished_at is None:
+            self.last_sample = self.n - 1
+            self.finished_at = time.monotonic()
+        if self.complete():
+            self.finish()
+
     def finish(self, error=None):
         if self.done is not None and not self.done.done():
             self.error = error
             self.done.set_result(error is None)
 
-    def sample(self, msg, topic):
-        k = sample_of(msg.header, self.scenario.T_s)
-        if k is None or not 0 <= k < self.n:
-            return None
-        self.received[topic] += 1
-        return k
-
     def logger_of(self, topic):
         """A handler writing what a per-sample message of ``topic`` says into its log row."""
-        def log_sample(msg):
-            k = self.sample(msg, topic)
-            if k is not None:
-                fill_sample(self.log[k], topic, msg, self.n_p)
+        def log_sample(k, values):
+            fill_values(self.log[k], topic, values, self.n_p)
         return log_sample
 
-    def on_voltage(self, msg):
-        k = self.sample(msg, "voltage_command")
-        if k is None:
-            return
+    def on_voltage(self, k, values):
         self.last_sample = max(self.last_sample, k)
-        if k + 1 < self.n:
-            self.command(k + 1)
+        if self.recorder and k + 1 < self.n:
+            self.record_commands(k + 1)
         if self.record:
-            fill_sample(self.log[k], "voltage_command", msg, self.n_p)
+            fill_values(self.log[k], "voltage_command", values, self.n_p)
         if k == self.n - 1:
             self.finished_at = time.monotonic()
             if self.complete():
@@ -237,6 +258,10 @@ class ScenarioDriver:
                 seen["messages"].append(status.message)
             if values.get("run_complete") == "True":
                 self.nodes_complete.add(status.name)
+                if len(self.nodes_complete) >= self.lockstep_nodes and not self.record:
+                    self.nodes_finished()
+            elif status.name.endswith("/pmsm_plant") and not self.record and "sample" in values:
+                self.last_sample = max(self.last_sample, int(values["sample"]) - 1)
 
     def faults(self):
         """{node: {"faults": {kind: count}, "messages": [...]}} for every node that reported a fault

@@ -12,7 +12,7 @@ import numpy as np
 
 from control_math.current_sensing import corrected_currents
 from drive_bridge.inverter_bridge import InverterBridge
-from drive_bridge.virtual_inverter import VirtualInverter, make_links
+from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_interface.interrupt import Interrupted
 from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_scenarios.scenario import refuse_brake_behind_an_inverter
@@ -35,6 +35,8 @@ class BridgeRunResult(RunResult):
     """Per sample: True when the host received its telemetry."""
     host_s: np.ndarray = None
     """Per answered sample: the host's time from the telemetry's arrival to its command written."""
+    timing: dict = None
+    """How the host kept pace with the inverter (drive_bridge.virtual_inverter.timing_report)."""
 
 
 def run_through_bridge(scenario, link="pty", faults=None, rate_Hz=None, command_wait_s=0.5, progress=None,
@@ -141,4 +143,4 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
                            counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
                            inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
                            latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
-                           host_s=host_s[:done][received[:done]])
+                           host_s=host_s[:done][received[:done]], timing=timing_report(inverter, scenario.T_s))

@@ -34,6 +34,11 @@ def all_parameters(overrides):
     return merged
 
 
+SCHEDULE_PARAMETER = {"scenario_schedule": (
+    False, "take each sample's speed reference and torque feed-forward (controller), load torque and imposed "
+           "speed (plant) from the scenario, sample-exact with no message per sample; the launcher sets it, "
+           "otherwise the topics apply")}
+"""The plant's and the controller's own parameter (drive_scenarios.node.ScenarioNode.node_parameters)."""
 PARAMETER_RANGES = {
     "seed": (-1, 2 ** 63 - 1),
     "injection.frequency_Hz": (0.0, math.inf),

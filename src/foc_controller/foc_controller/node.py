@@ -3,7 +3,9 @@
 For sample k it joins `currents`, `rotor_estimate`, `injection` and `estimator_state` stamped k (the
 state code gates torque: no torque before the estimator's start-up reports tracking), runs the core with
 the latest `speed_command` and `torque_feedforward` (the robot's expected torque, N·m, added to the speed
-loop's output), and answers `voltage_command`(k). The robot-facing `joint_states` (estimated
+loop's output), and answers `voltage_command`(k). With ``scenario_schedule`` (set by the launcher) the
+speed reference and the feed-forward of sample k are its scenario's, sample-exact, and those topics are
+not read. The robot-facing `joint_states` (estimated
 position, speed, torque) is published every ``joint_states_decimation`` samples. Bad currents or
 estimates, or a rejected speed limit, give zero voltage and a reported fault; the node keeps answering.
 
@@ -18,16 +20,17 @@ import json
 import math
 import sys
 
-from geometry_msgs.msg import Vector3Stamped
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
 from control_math.current_sensing import corrected_currents
 from drive_interface.node import describe, finite, run_node, stamp, topic_qos
-from drive_interface.stamps import RESYNC_SAMPLES, sample_of
+from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_interface.topics import TOPICS
+from drive_interface.wire import Vector3Wire
 from drive_scenarios.node import ScenarioNode
+from drive_scenarios.parameters import SCHEDULE_PARAMETER
 from motor_params.knowledge import motor_knowledge
 
 from .build import check_controller_settings, controller_for_scenario
@@ -44,19 +47,19 @@ def default_joint_name(namespace):
 
 
 class ControllerNode(ScenarioNode):
+    node_parameters = SCHEDULE_PARAMETER
+
     def __init__(self, **kwargs):
         self.params = None
+        self.schedule = None
         super().__init__("foc_controller", **kwargs)
         self.declare_parameter("joint_states_decimation", 100)
         self.decimation = max(1, int(self.get_parameter("joint_states_decimation").value))
         self.joint_pub = self.create_publisher(JointState, "joint_states", topic_qos("joint_states"))
-        inputs = [self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents),
-                                           topic_qos("currents")),
-                  self.create_subscription(JointState, "rotor_estimate", self.on_estimate,
-                                           topic_qos("rotor_estimate")),
-                  self.create_subscription(Vector3Stamped, "injection", self.on_injection, topic_qos("injection")),
-                  self.create_subscription(Vector3Stamped, "estimator_state", self.on_estimator_state,
-                                           topic_qos("estimator_state"))]
+        inputs = [self.sample_subscription("currents", self.timed(self.on_currents)),
+                  self.sample_subscription("rotor_estimate", self.on_estimate),
+                  self.sample_subscription("injection", self.on_injection),
+                  self.sample_subscription("estimator_state", self.on_estimator_state)]
         self.open_when_matched(inputs, self.open_outputs, ready=lambda: self.params or not self.configured)
         self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
         self.create_subscription(Float64, "torque_feedforward", self.on_torque_feedforward,
@@ -70,8 +73,7 @@ class ControllerNode(ScenarioNode):
         self.k = 0
         self.omega_m_ref = 0.0
         self.current_limited = False
-        self.voltage_msg = Vector3Stamped()
-        self.voltage_msg.header.frame_id = TOPICS["voltage_command"].frame_id
+        self.voltage_wire = Vector3Wire(TOPICS["voltage_command"].frame_id)
         self.declare_parameter("joint_name", "", descriptor=describe(
             "the joint's name in joint_states (empty: the namespace's last part, e.g. left_wheel)"))
         self.joint_msg = JointState(name=[self.get_parameter("joint_name").value or default_joint_name(
@@ -81,6 +83,8 @@ class ControllerNode(ScenarioNode):
 
     def build(self, scenario):
         check_controller_settings(scenario)
+        if self.get_parameter("scenario_schedule").value:
+            self.schedule = scenario.schedule()[0], scenario.feedforward()
         self.commissioning = self.load_commissioning(scenario)
         self.calibration = self.commissioning.calibration()
 
@@ -115,7 +119,7 @@ class ControllerNode(ScenarioNode):
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
 
     def open_outputs(self):
-        self.voltage_pub = self.create_publisher(Vector3Stamped, "voltage_command", topic_qos("voltage_command"))
+        self.voltage_pub = self.sample_publisher("voltage_command")
 
     def on_set_parameters(self, parameters):
         for p in parameters:
@@ -149,23 +153,23 @@ class ControllerNode(ScenarioNode):
         else:
             self.fault("bad_input", f"torque_feedforward: {msg.data} is not a finite torque; ignored")
 
-    def on_currents(self, msg):
-        self.store(self.currents, msg, (msg.vector.x, msg.vector.y, msg.vector.z))
+    def on_currents(self, sec, nanosec, i_a, i_b, i_c):
+        self.store(self.currents, sec, nanosec, (i_a, i_b, i_c))
 
-    def on_estimate(self, msg):
-        value = (msg.position[0], msg.velocity[0]) if msg.position and msg.velocity else (math.nan, math.nan)
-        self.store(self.estimates, msg, value)
+    def on_estimate(self, sec, nanosec, theta_m, omega_m, _):
+        value = (theta_m, omega_m) if theta_m is not None and omega_m is not None else (math.nan, math.nan)
+        self.store(self.estimates, sec, nanosec, value)
 
-    def on_injection(self, msg):
-        self.store(self.injections, msg, (msg.vector.x, msg.vector.y))
+    def on_injection(self, sec, nanosec, u_alpha, u_beta, _):
+        self.store(self.injections, sec, nanosec, (u_alpha, u_beta))
 
-    def on_estimator_state(self, msg):
-        self.store(self.states, msg, msg.vector.z)
+    def on_estimator_state(self, sec, nanosec, _, __, state):
+        self.store(self.states, sec, nanosec, state)
 
-    def store(self, table, msg, value):
-        k = sample_of(msg.header, self.T_s)
+    def store(self, table, sec, nanosec, value):
+        k = sample_at(sec, nanosec, self.T_s)
         if k is None or not self.k <= k <= self.k + RESYNC_SAMPLES:
-            self.fault("wrong_stamp", f"stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} is not a "
+            self.fault("wrong_stamp", f"stamp {sec}.{nanosec:09d} is not a "
                                       f"sample in {self.k}..{self.k + RESYNC_SAMPLES}; discarded")
             return
         table[k] = value
@@ -196,6 +200,8 @@ class ControllerNode(ScenarioNode):
         elif not finite(*estimate, *injection):
             self.fault("bad_input", f"rotor_estimate/injection at sample {k} not finite; zero voltage")
         else:
+            if self.schedule:
+                self.omega_m_ref, self.tau_feedforward = self.schedule[0][k], self.schedule[1][k]
             u_alpha, u_beta, i_d, i_q, _, i_q_ref = controller_step(
                 self.x, self.z, self.params, *corrected_currents(*currents, self.calibration),
                 self.n_p * estimate[0], self.n_p * estimate[1], self.omega_m_ref, *injection,
@@ -208,10 +214,8 @@ class ControllerNode(ScenarioNode):
                 j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
                 j.effort = [estimated_torque(self.params, i_d, i_q)]
                 self.joint_pub.publish(j)
-        m = self.voltage_msg
-        m.header.stamp = stamp(k, self.T_s)
-        m.vector.x, m.vector.y = u_alpha, u_beta
-        self.voltage_pub.publish(m)
+        sec, nanosec = stamp_parts(k, self.T_s)
+        self.voltage_pub.publish(self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0))
         self.sample_handled(k)
 
     def status_values(self):

@@ -16,14 +16,12 @@ motor value it uses with its source (``motor_knowledge``).
 import sys
 import time
 
-from geometry_msgs.msg import Vector3Stamped
-from sensor_msgs.msg import JointState
-
 from control_math.current_sensing import corrected_currents
 from drive_interface.estimator_states import LOCK_LOST, STATE_NAMES
-from drive_interface.node import finite, run_node, stamp, topic_qos
-from drive_interface.stamps import RESYNC_SAMPLES, sample_of
+from drive_interface.node import finite, run_node
+from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_interface.topics import TOPICS
+from drive_interface.wire import JointWire, Vector3Wire
 from drive_scenarios.node import ScenarioNode
 from motor_params.knowledge import motor_knowledge
 
@@ -38,10 +36,9 @@ class EstimatorNode(ScenarioNode):
         self.voltages = {}
         self.encoder = {}
         self.waiting_since = None
-        self.estimate_msg = JointState(name=["rotor"])
-        self.injection_msg = Vector3Stamped()
-        self.injection_msg.header.frame_id = TOPICS["injection"].frame_id
-        self.state_msg = Vector3Stamped()
+        self.estimate_wire = JointWire("rotor")
+        self.injection_wire = Vector3Wire(TOPICS["injection"].frame_id)
+        self.state_wire = Vector3Wire(TOPICS["estimator_state"].frame_id)
         self.state = 0.0
         self.lock_losses = 0
         self.refusal_reported = False
@@ -56,13 +53,10 @@ class EstimatorNode(ScenarioNode):
         self.k = 0
         self.theta_hat = self.omega_hat = 0.0
         self.trip_A = self.trip_current_A()
-        inputs = [self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents),
-                                           topic_qos("currents"))]
-        self.create_subscription(Vector3Stamped, "voltage_command", self.on_voltage_command,
-                                 topic_qos("voltage_command"))
+        inputs = [self.sample_subscription("currents", self.timed(self.on_currents))]
+        self.sample_subscription("voltage_command", self.on_voltage_command)
         if self.sensored:
-            inputs.append(self.create_subscription(JointState, "rotor_state", self.on_rotor_state,
-                                                   topic_qos("rotor_state")))
+            inputs.append(self.sample_subscription("rotor_state", self.on_rotor_state))
         self.open_when_matched(inputs, self.open_outputs)
         self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
         self.watch_peer("currents", "the plant")
@@ -78,18 +72,18 @@ class EstimatorNode(ScenarioNode):
     def open_outputs(self):
         """The answer publishers; `voltage_command` is not waited for (the controller opens its own
         publisher only after these match, and sample 0 needs no previous command)."""
-        self.estimate_pub = self.create_publisher(JointState, "rotor_estimate", topic_qos("rotor_estimate"))
-        self.injection_pub = self.create_publisher(Vector3Stamped, "injection", topic_qos("injection"))
-        self.state_pub = self.create_publisher(Vector3Stamped, "estimator_state", topic_qos("estimator_state"))
+        self.estimate_pub = self.sample_publisher("rotor_estimate")
+        self.injection_pub = self.sample_publisher("injection")
+        self.state_pub = self.sample_publisher("estimator_state")
 
     def warm_up(self):
         e = self.estimator
         e.step(e.x.copy(), e.z.copy(), e.params, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
-    def on_currents(self, msg):
-        k = sample_of(msg.header, self.T_s)
+    def on_currents(self, sec, nanosec, i_a, i_b, i_c):
+        k = sample_at(sec, nanosec, self.T_s)
         if k is None or not self.k <= k <= self.k + RESYNC_SAMPLES:
-            self.fault("wrong_stamp", f"currents stamp {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d} "
+            self.fault("wrong_stamp", f"currents stamp {sec}.{nanosec:09d} "
                                       f"is not a sample in {self.k}..{self.k + RESYNC_SAMPLES}; discarded")
             return
         if k > self.k:
@@ -97,20 +91,19 @@ class EstimatorNode(ScenarioNode):
                                         f"plant to sample {k}")
             self.currents.clear()
             self.k = k
-        v = msg.vector
-        self.currents[k] = (v.x, v.y, v.z)
+        self.currents[k] = (i_a, i_b, i_c)
         self.try_step()
 
-    def on_voltage_command(self, msg):
-        k = sample_of(msg.header, self.T_s)
+    def on_voltage_command(self, sec, nanosec, u_alpha, u_beta, _):
+        k = sample_at(sec, nanosec, self.T_s)
         if k is not None and k + 1 >= self.k:
-            self.voltages[k] = (msg.vector.x, msg.vector.y)
+            self.voltages[k] = (u_alpha, u_beta)
             self.try_step()
 
-    def on_rotor_state(self, msg):
-        k = sample_of(msg.header, self.T_s)
-        if k is not None and k >= self.k and msg.position:
-            self.encoder[k] = (self.n_p * msg.position[0], self.n_p * msg.velocity[0])
+    def on_rotor_state(self, sec, nanosec, theta_m, omega_m, _):
+        k = sample_at(sec, nanosec, self.T_s)
+        if k is not None and k >= self.k and theta_m is not None and omega_m is not None:
+            self.encoder[k] = (self.n_p * theta_m, self.n_p * omega_m)
             self.try_step()
 
     def try_step(self, force_voltage=False):
@@ -151,20 +144,10 @@ class EstimatorNode(ScenarioNode):
             self.refusal_reported = True
             self.fault("start_refused", f"sample {k}: {summary['refused']}")
         self.signal, self.state = signal, state
-        t = stamp(k, self.T_s)
-        r = self.estimate_msg
-        r.header.stamp = t
-        r.position = [theta_hat / self.n_p]
-        r.velocity = [omega_hat / self.n_p]
-        i = self.injection_msg
-        i.header.stamp = t
-        i.vector.x, i.vector.y = u_inj_alpha, u_inj_beta
-        s = self.state_msg
-        s.header.stamp = t
-        s.vector.x, s.vector.y, s.vector.z = eps, signal, state
-        self.injection_pub.publish(i)
-        self.estimate_pub.publish(r)
-        self.state_pub.publish(s)
+        sec, nanosec = stamp_parts(k, self.T_s)
+        self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, u_inj_alpha, u_inj_beta, 0.0))
+        self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, theta_hat / self.n_p, omega_hat / self.n_p))
+        self.state_pub.publish(self.state_wire.encode(sec, nanosec, eps, signal, state))
         self.sample_handled(k)
 
     def watchdog(self):

@@ -21,7 +21,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 
 @dataclass(frozen=True)
@@ -228,6 +227,7 @@ def margins(loop, A_p, T_i_s):
     def magnitude_minus_one(w):
         return abs(loop.open_loop(A_p, T_i_s, w)) - 1.0
 
+    from scipy.optimize import brentq
     crossover = brentq(magnitude_minus_one, 1e-2, loop.search_max_rad_s)
     phase_margin = 180.0 + math.degrees(loop.phase(A_p, T_i_s, crossover))
     grid = np.logspace(math.log10(crossover), math.log10(loop.search_max_rad_s), 20000)
@@ -254,6 +254,7 @@ def tune_pi(loop, phase_margin_deg, crossover_rad_s):
         raise ValueError(f"a phase margin of {phase_margin_deg:g}° at {w:g} rad/s would need a PI lag of "
                          f"{-math.degrees(lag):.1f}°, more than a PI gives ({-math.degrees(most):.1f}°): "
                          f"any PI leaves more margin there")
+    from scipy.optimize import brentq
     T_i = brentq(lambda T: np.angle(loop.pi(w, T)) - lag, 1e-12, 1e9)
     A_p = 1.0 / abs(loop.open_loop(1.0, T_i, w))
     return A_p, T_i

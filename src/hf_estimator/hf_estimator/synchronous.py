@@ -17,7 +17,6 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit
-from scipy import signal
 
 from control_math.filters import butterworth_bandpass
 from control_math.frames import clarke_contract
@@ -81,6 +80,7 @@ def aligned_demodulation_phase(R_ohm, commissioning, T_s, delay_periods, omega_h
 
 def first_order_lowpass(T_f, T_s):
     """1/(s T_f + 1) by the bilinear transform, as one SOS row."""
+    from scipy import signal
     b, a = signal.bilinear([1.0], [T_f, 1.0], fs=1.0 / T_s)
     return signal.tf2sos(b, a)
 

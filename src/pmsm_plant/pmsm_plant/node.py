@@ -6,9 +6,11 @@ counted; if no valid command comes within ``lockstep_timeout_s`` the plant appli
 period and names the silent topic.
 `angle_error` is published for each `rotor_estimate` that matches a recent sample.
 
-With ``load_torque_per_sample`` (a scenario driver acting as the dyno) the plant takes exactly one
-`load_torque` message per sample and starts sample k only once it has the k-th; the shaft speed of
-imposed-speed scenarios is the latest `speed_command` at that moment. Otherwise the latest load applies.
+With ``scenario_schedule`` (set by the launcher: the scenario is the dyno) the plant applies its
+scenario's load torque of sample k, and the shaft speed of imposed-speed scenarios, sample-exact and with
+no message per sample; it starts at the first `load_torque` message (the launcher's go, sent once every
+endpoint is matched), whose value the schedule already has. Otherwise the latest `load_torque` and
+`speed_command` apply.
 
 A scenario's holding brake keeps the shaft at rest until its lift time after the estimator first
 reports tracking: until that report the plant advances sample k only once it has `estimator_state`(k)
@@ -16,18 +18,17 @@ too, so the release falls on the same sample as in one process.
 """
 import sys
 import time
-from collections import deque
 
 from geometry_msgs.msg import Vector3Stamped
-from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64
 
 from control_math.frames import wrap
-from drive_interface.node import finite, run_node, stamp, topic_qos
-from drive_interface.stamps import sample_of, stamp_ns
+from drive_interface.node import finite, run_node, topic_qos
+from drive_interface.stamps import sample_at, stamp_ns, stamp_parts
 from drive_interface.topics import TOPICS
+from drive_interface.wire import JointWire, Vector3Wire, encode_clock
 from drive_scenarios.node import ScenarioNode
+from drive_scenarios.parameters import SCHEDULE_PARAMETER
 
 from .build import plant_for_scenario
 from .model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
@@ -36,22 +37,21 @@ HISTORY_SAMPLES = 8
 
 
 class PlantNode(ScenarioNode):
+    node_parameters = SCHEDULE_PARAMETER
+
     def __init__(self, **kwargs):
         super().__init__("pmsm_plant", **kwargs)
-        self.declare_parameter("load_torque_per_sample", False)
         self.declare_parameter("angle_error_decimation", 1)
         self.offer_clock()
-        self.load_per_sample = self.get_parameter("load_torque_per_sample").value
+        self.scheduled = bool(self.get_parameter("scenario_schedule").value)
+        self.go = not self.scheduled
         self.angle_error_decimation = max(1, int(self.get_parameter("angle_error_decimation").value))
-        self.currents_pub = self.create_publisher(Vector3Stamped, "currents", topic_qos("currents"))
-        self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", topic_qos("rotor_state"))
+        self.currents_pub = self.sample_publisher("currents")
+        self.rotor_state_pub = self.sample_publisher("rotor_state")
         self.clock_pub = None
         self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", topic_qos("angle_error"))
-        self.voltage_sub = self.create_subscription(Vector3Stamped, "voltage_command",
-                                                    self.timed(self.on_voltage_command),
-                                                    topic_qos("voltage_command"))
-        self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate,
-                                 topic_qos("rotor_estimate"))
+        self.voltage_sub = self.sample_subscription("voltage_command", self.timed(self.on_voltage_command))
+        self.sample_subscription("rotor_estimate", self.on_rotor_estimate)
         self.create_subscription(Float64, "load_torque", self.on_load_torque, topic_qos("load_torque"))
         self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
         self.braked = bool(self.configured and self.scenario.brake)
@@ -61,28 +61,26 @@ class PlantNode(ScenarioNode):
         self.pending_command = None
         self.state_sub = None
         if self.braked:
-            self.state_sub = self.create_subscription(Vector3Stamped, "estimator_state", self.on_estimator_state,
-                                                      topic_qos("estimator_state"))
+            self.state_sub = self.sample_subscription("estimator_state", self.on_estimator_state)
         self.k = 0
         self.tau_load = 0.0
-        self.loads = deque()
         self.omega_imposed = 0.0
         self.latest_speed = 0.0
         self.started = False
         self.finished = False
-        self.waiting_for_load = False
         self.sent_at = 0.0
         self.history = {}
         self.estimate_seen = -1
         self.zero_voltage_periods = 0
-        self.currents_msg = Vector3Stamped()
-        self.currents_msg.header.frame_id = TOPICS["currents"].frame_id
-        self.rotor_state_msg = JointState(name=["rotor"])
-        self.error_msg = Vector3Stamped()
-        self.clock_msg = Clock()
+        self.currents_wire = Vector3Wire(TOPICS["currents"].frame_id)
+        self.rotor_state_wire = JointWire("rotor")
+        self.error_wire = Vector3Wire(TOPICS["angle_error"].frame_id)
+        self.schedule = None
         if self.configured:
             s, p = self.scenario, self.plant
             self.n_samples = s.n_samples
+            if self.scheduled:
+                self.schedule = s.schedule()
             self.publish_config({"scenario": s.name, "T_s_s": s.T_s, "samples": s.n_samples,
                                  "mode": s.mode, "machine": p.machine, "mechanics": p.mechanics,
                                  "inverter": p.inverter, "sensor": p.sensor, "non_idealities": s.non_idealities})
@@ -107,10 +105,8 @@ class PlantNode(ScenarioNode):
         if not finite(msg.data):
             self.fault("bad_input", f"load_torque: {msg.data} is not a finite torque; ignored")
             return
-        if self.load_per_sample:
-            self.loads.append(msg.data)
-            if self.started and self.waiting_for_load:
-                self.publish_sample()
+        if self.scheduled:
+            self.go = True
         else:
             self.tau_load = msg.data
 
@@ -121,16 +117,15 @@ class PlantNode(ScenarioNode):
     def ready(self):
         """Every lock-step partner is matched: `currents` reaches every subscriber the graph shows (at
         least estimator and controller; a graph entry is not yet a match), a `voltage_command` publisher
-        is matched, `estimator_state` too while a brake holds, and the first load is in when taken per
-        sample. With the shaft held (commissioning) one partner answers currents with voltages and no
-        estimator runs."""
+        is matched, `estimator_state` too while a brake holds, and the launcher's go has come when the
+        scenario is the schedule. With the shaft held (commissioning) one partner answers currents with
+        voltages and no estimator runs."""
         matched = self.currents_pub.get_subscription_count()
         held = self.parameters["shaft_held"]
         return (matched >= max(1 if held else 2, self.count_subscribers("currents"))
                 and self.voltage_sub.get_publisher_count() >= 1
                 and (held or self.count_publishers("rotor_estimate") >= 1)
-                and (self.state_sub is None or self.state_sub.get_publisher_count() >= 1)
-                and (self.loads or not self.load_per_sample))
+                and (self.state_sub is None or self.state_sub.get_publisher_count() >= 1) and self.go)
 
     def watchdog(self):
         if self.finished:
@@ -143,74 +138,56 @@ class PlantNode(ScenarioNode):
             return
         if time.monotonic() - self.sent_at <= self.timeout_s:
             return
-        if self.waiting_for_load:
-            self.fault("timeout", f"sample {self.k}: no {self.resolve_topic_name('load_torque')} within "
-                                  f"{self.timeout_s:g} s; the last load is kept")
-            self.loads.append(self.tau_load)
-            self.publish_sample()
-        else:
-            estimating = not self.parameters["shaft_held"] and self.estimate_seen < self.k
-            silent = "rotor_estimate" if estimating else "voltage_command"
-            self.fault("timeout", f"sample {self.k}: no answer within {self.timeout_s:g} s "
-                                  f"(silent topic: {self.resolve_topic_name(silent)}); zero voltage applied")
-            self.advance(0.0, 0.0, safe_state=True)
+        estimating = not self.parameters["shaft_held"] and self.estimate_seen < self.k
+        silent = "rotor_estimate" if estimating else "voltage_command"
+        self.fault("timeout", f"sample {self.k}: no answer within {self.timeout_s:g} s "
+                              f"(silent topic: {self.resolve_topic_name(silent)}); zero voltage applied")
+        self.advance(0.0, 0.0, safe_state=True)
 
     def publish_sample(self):
         p, k = self.plant, self.k
-        if self.load_per_sample:
-            self.waiting_for_load = not self.loads
-            if self.waiting_for_load:
-                return
-            self.tau_load = self.loads.popleft()
-        self.omega_imposed = self.latest_speed
+        if self.schedule:
+            speed, load = self.schedule
+            self.omega_imposed, self.tau_load = speed[k], load[k]
+        else:
+            self.omega_imposed = self.latest_speed
         x = p.x
         i_a, i_b, i_c, tau_e = plant_outputs(x, p.machine)
         m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, p.sensor, p.seed, k)
         self.history[k] = (x[THETA_M], x[OMEGA_M])
         self.history.pop(k - HISTORY_SAMPLES, None)
-        t = stamp(k, self.T_s)
+        sec, nanosec = stamp_parts(k, self.T_s)
         if self.clock_pub:
-            self.clock_msg.clock = t
-            self.clock_pub.publish(self.clock_msg)
-        r = self.rotor_state_msg
-        r.header.stamp = t
-        r.position = [x[THETA_M]]
-        r.velocity = [x[OMEGA_M]]
-        r.effort = [tau_e]
-        m = self.currents_msg
-        m.header.stamp = t
-        m.vector.x, m.vector.y, m.vector.z = m_a, m_b, m_c
+            self.clock_pub.publish(encode_clock(sec, nanosec))
         self.sent_at = time.monotonic()
-        self.rotor_state_pub.publish(r)
-        self.currents_pub.publish(m)
+        self.rotor_state_pub.publish(self.rotor_state_wire.encode(sec, nanosec, x[THETA_M], x[OMEGA_M], tau_e))
+        self.currents_pub.publish(self.currents_wire.encode(sec, nanosec, m_a, m_b, m_c))
 
-    def on_voltage_command(self, msg):
+    def on_voltage_command(self, sec, nanosec, u_alpha, u_beta, _):
         if not self.started or self.finished:
             return
-        k = sample_of(msg.header, self.T_s)
+        k = sample_at(sec, nanosec, self.T_s)
         if k != self.k:
-            t = msg.header.stamp
-            self.fault("wrong_stamp", f"voltage_command stamped {t.sec}.{t.nanosec:09d} while waiting for "
+            self.fault("wrong_stamp", f"voltage_command stamped {sec}.{nanosec:09d} while waiting for "
                                       f"sample {self.k} ({stamp_ns(self.k, self.T_s)} ns); discarded")
             return
-        u = msg.vector
         limit = self.plant.inverter.U_dc_V
-        if not finite(u.x, u.y) or abs(u.x) > limit or abs(u.y) > limit:
-            self.fault("bad_input", f"voltage_command at sample {k}: ({u.x}, {u.y}) V is not a voltage the "
-                                    f"inverter can apply; zero voltage applied")
+        if not finite(u_alpha, u_beta) or abs(u_alpha) > limit or abs(u_beta) > limit:
+            self.fault("bad_input", f"voltage_command at sample {k}: ({u_alpha}, {u_beta}) V is not a voltage "
+                                    f"the inverter can apply; zero voltage applied")
             self.advance(0.0, 0.0, safe_state=True)
             return
         if self.braked and k not in self.brake_states:
-            self.pending_command = (u.x, u.y)
+            self.pending_command = (u_alpha, u_beta)
             return
-        self.advance(u.x, u.y)
+        self.advance(u_alpha, u_beta)
 
-    def on_estimator_state(self, msg):
+    def on_estimator_state(self, sec, nanosec, _, __, state):
         """While the brake holds: the estimator's state of a sample (3 releases it)."""
-        k = sample_of(msg.header, self.T_s)
+        k = sample_at(sec, nanosec, self.T_s)
         if not self.braked or k is None or k < self.k:
             return
-        self.brake_states[k] = msg.vector.z
+        self.brake_states[k] = state
         if self.pending_command is not None and self.k in self.brake_states:
             self.advance(*self.pending_command)
 
@@ -233,20 +210,18 @@ class PlantNode(ScenarioNode):
             return
         self.publish_sample()
 
-    def on_rotor_estimate(self, msg):
-        k = sample_of(msg.header, self.T_s)
+    def on_rotor_estimate(self, sec, nanosec, theta_hat_m, omega_hat_m, _):
+        k = sample_at(sec, nanosec, self.T_s)
         if k is None or k not in self.history:
             return
         self.estimate_seen = max(self.estimate_seen, k)
-        if k % self.angle_error_decimation or not finite(*msg.position, *msg.velocity):
+        if (k % self.angle_error_decimation or theta_hat_m is None or omega_hat_m is None
+                or not finite(theta_hat_m, omega_hat_m)):
             return
         theta_m, omega_m = self.history[k]
         n_p = self.plant.machine.n_p
-        e = self.error_msg
-        e.header.stamp = msg.header.stamp
-        e.vector.x = wrap(n_p * (theta_m - msg.position[0]))
-        e.vector.y = omega_m - msg.velocity[0]
-        self.angle_error_pub.publish(e)
+        self.angle_error_pub.publish(self.error_wire.encode(sec, nanosec, wrap(n_p * (theta_m - theta_hat_m)),
+                                                            omega_m - omega_hat_m, 0.0))
 
     def status_values(self):
         return {"sample": self.k, "started": self.started, "finished": self.finished,
