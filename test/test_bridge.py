@@ -192,3 +192,34 @@ def test_a_can_inverter_off_the_bus_and_back():
     assert result.inverter_counters["link_down"] > 0 and result.inverter_counters["watchdog_trips"] == 1
     assert result.received[-1000:].all()
     assert np.abs(angle_error(result.log, result.n_p)[4000:]).max() < 0.2
+
+
+def test_a_paced_inverter_counts_late_commands_as_zero_volts(tmp_path):
+    """On its own 200 Hz clock (5 ms periods) the inverter never waits: every 4th command is sent 1.5
+    periods after its telemetry and counts as missing (zero volts that period), with its latency in the
+    histogram's bins beyond one period; the others arrive within their period. The watchdog (10 missing in a row) does
+    not trip on isolated late commands."""
+    from drive_bridge.virtual_inverter import timing_report
+
+    forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
+    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, forty, rate_Hz=200.0)
+    try:
+        late = []
+        while thread.is_alive():
+            for s in bridge.poll(0.01):
+                if s.k % 4 == 3:
+                    late.append(s.k)
+                    time.sleep(0.0075)
+                bridge.command(s.k, 1.0, 0.0)
+        timing = timing_report(inverter, 1.0 / 200.0)
+        assert timing["periods"] == 40 and len(late) == 10
+        assert timing["missing"] == 10 and timing["late_fraction"] == 0.25 and timing["late_arrivals"] >= 9
+        edges, counts = timing["latency_histogram"]["edges_periods"], timing["latency_histogram"]["counts"]
+        assert sum(c for e, c in zip(edges, counts) if e < 1.0) == 30
+        assert sum(c for e, c in zip(edges, counts) if e >= 1.0) == timing["late_arrivals"]
+        assert inverter.counters["watchdog_trips"] == 0
+    finally:
+        inverter.stop()
+        thread.join(2.0)
+        bridge.close()
+        endpoint.close()

@@ -5,7 +5,8 @@ during period k + 1, zero volts for a missing command, PWM off after ``watchdog_
 or 100 ms without the host, and an overcurrent trip. PWM off is modelled as zero volts.
 
 Clock: ``rate_Hz`` paces the periods in wall time (a real inverter's clock; a late command is missing,
-100 ms of host silence trips); without it the inverter waits up to ``command_wait_s`` for each command
+100 ms of host silence trips; a period the simulation itself starts late is an overrun, and the clock
+restarts there); without it the inverter waits up to ``command_wait_s`` for each command
 (lock-step over the link, for simulations faster or slower than real time; a missing command is one
 that did not come within that wait, and host silence is left to the watchdog)."""
 import math
@@ -101,7 +102,10 @@ class VirtualInverter:
         self.sent_frames = 0
         self.stopped = threading.Event()
         self.counters = {"commands": 0, "missing": 0, "discarded": 0, "trips": 0, "watchdog_trips": 0,
-                         "host_silent_trips": 0, "link_down": 0}
+                         "host_silent_trips": 0, "link_down": 0, "overruns": 0}
+        """overruns: periods the simulated inverter itself started more than a period behind its clock
+        (its Python simulation, not the host, was slow); its clock then restarts from that moment, as
+        the host cannot be blamed for periods a real inverter's timer would have kept."""
         self.latencies_s = []
         """Time from TELEMETRY(k) sent to COMMAND(k) received, per command in time."""
         self.late_latencies_s = []
@@ -114,11 +118,16 @@ class VirtualInverter:
 
     def run(self):
         p, s = self.plant, self.scenario
+        self.warm_up()
         self.send(self.hello)
         start = self.last_heard = time.monotonic()
         hello_at = start + 1.0
         while not self.stopped.is_set() and self.k < s.n_samples:
             k = self.k
+            behind = time.monotonic() - (start + k / self.rate_Hz) if self.rate_Hz else 0.0
+            if behind > 1.0 / (self.rate_Hz or math.inf):
+                start += behind
+                self.counters["overruns"] += 1
             i_a, i_b, i_c, tau_e = plant_outputs(p.x, p.machine)
             m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, p.sensor, p.seed, k)
             if max(abs(m_a), abs(m_b), abs(m_c)) > self.trip_current_A and not self.latched & OVERCURRENT:
@@ -168,6 +177,16 @@ class VirtualInverter:
                 wait = start + (k + 1) / self.rate_Hz - time.monotonic()
                 if wait > 0.0:
                     time.sleep(wait)
+
+    def warm_up(self):
+        """Load the plant's kernels and the codec on copies before the clock starts, so that the first
+        period is not spent compiling."""
+        p = self.plant
+        x = p.x.copy()
+        i_a, i_b, i_c, _ = plant_outputs(x, p.machine)
+        sense_currents(i_a, i_b, i_c, p.sensor, p.seed, 0)
+        plant_advance(x, 0.0, 0.0, 0.0, p.imposed_speed, 0.0, p.machine, p.mechanics, p.inverter, p.T_s, p.substeps)
+        encode_frame(Telemetry(0, 0, 0, 0, 0, 0, 0))
 
     def switching(self):
         return self.enabled and not self.latched
@@ -287,8 +306,8 @@ def timing_report(inverter, T_s):
               "latency_p50_us": float(np.percentile(every, 50)) if every.size else None,
               "latency_p99_us": float(np.percentile(every, 99)) if every.size else None,
               "latency_max_us": float(every.max()) if every.size else None,
-              "latency_histogram": {"edges_periods": [e if math.isfinite(e) else None for e in edges],
+              "latency_histogram": {"edges_periods": [float(e) if math.isfinite(e) else None for e in edges],
                                     "counts": [int(c) for c in counts]},
-              "watchdog_trips": inverter.counters["watchdog_trips"],
+              "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],
               "host_silent_trips": inverter.counters["host_silent_trips"]}
     return report
