@@ -642,3 +642,16 @@ def test_a_late_echo_gets_every_sample_from_its_first(tmp_path):
                for s in (json.loads(line)["header"]["stamp"] for line in echo.stdout.splitlines())]
     assert len(samples) > 1000 and samples[0] > 0
     assert np.all(np.diff(samples) == 1), f"gaps after sample {samples[0]}"
+
+
+def test_a_round_rotor_is_refused_on_diagnostics_over_the_graph(tmp_path):
+    """The estimator node reports a refused start (no saliency: wang_spmsm without saturation) as a
+    `start_refused` fault with the reason, once, and the controller never gets torque."""
+    path = tmp_path / "round.yaml"
+    text = SCENARIO.format(estimator="injection_frame", rpm=60.0).replace("duration_s: 0.06", "duration_s: 0.15")
+    path.write_text(text + "non_idealities: {saturation: false}\n")
+    result = launch(str(path), namespace="/round")
+    faults = result.node_faults["/round/hf_estimator"]
+    assert faults["faults"]["start_refused"] == 1
+    assert any("no saliency found" in message for message in faults["messages"])
+    assert not (result.log[:, COLUMN["state"]] == TRACKING).any()

@@ -139,8 +139,8 @@ class EstimatorNode(ScenarioNode):
             self.lock_losses += 1
             self.fault("lock_lost", f"sample {k}: lock lost (the back-EMF contradicts the estimate); zero torque, "
                                     f"starting again")
-        summary = estimator_startup(self.estimator)
-        if summary and summary["refused"] and not self.refusal_reported:
+        summary = estimator_startup(self.estimator) if state != self.state and not self.refusal_reported else None
+        if summary and summary["refused"]:
             self.refusal_reported = True
             self.fault("start_refused", f"sample {k}: {summary['refused']}")
         self.signal, self.state = signal, state

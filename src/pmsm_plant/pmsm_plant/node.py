@@ -23,7 +23,7 @@ from geometry_msgs.msg import Vector3Stamped
 from std_msgs.msg import Float64
 
 from control_math.frames import wrap
-from drive_interface.node import finite, run_node, topic_qos
+from drive_interface.node import SamplePublisher, finite, run_node, topic_qos
 from drive_interface.stamps import sample_at, stamp_ns, stamp_parts
 from drive_interface.topics import TOPICS
 from drive_interface.wire import JointWire, Vector3Wire, encode_clock
@@ -49,7 +49,8 @@ class PlantNode(ScenarioNode):
         self.currents_pub = self.sample_publisher("currents")
         self.rotor_state_pub = self.sample_publisher("rotor_state")
         self.clock_pub = None
-        self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", topic_qos("angle_error"))
+        self.angle_error_pub = SamplePublisher(self.create_publisher(Vector3Stamped, "angle_error",
+                                                                     topic_qos("angle_error")))
         self.voltage_sub = self.sample_subscription("voltage_command", self.timed(self.on_voltage_command))
         self.sample_subscription("rotor_estimate", self.on_rotor_estimate)
         self.create_subscription(Float64, "load_torque", self.on_load_torque, topic_qos("load_torque"))
