@@ -249,7 +249,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                      "hf_estimator": parameters, "foc_controller": scheduled}
             inverter = None
             if spec.link:
-                inverter, host_link = _virtual_inverter(scenario, spec.link, workdir.name, i, spec.paced)
+                inverter, host_link = _virtual_inverter(scenario, spec.link, workdir.name, i, spec.paced, timeout_s)
                 inverters.append(inverter)
                 del roles["pmsm_plant"]
                 period = float(all_parameters(parameters)["diagnostics_period_s"])
@@ -336,14 +336,15 @@ def _result(driver, drive, record, processes, executor, interrupted):
                        timing=timing_report(driver.inverter, scenario.T_s) if driver.inverter else None)
 
 
-def _virtual_inverter(scenario, link, workdir, drive_id, paced):
+def _virtual_inverter(scenario, link, workdir, drive_id, paced, timeout_s):
     """A virtual inverter for ``scenario`` (not yet running; on its own clock when ``paced``, else
-    waiting for the graph's commands) and the host's end of its link."""
+    waiting for each of the graph's commands as long as a plant node would, ``timeout_s``) and the
+    host's end of its link."""
     from drive_bridge.virtual_inverter import VirtualInverter, make_links
     refuse_brake_behind_an_inverter(scenario)
     endpoint, host_link = make_links(link, workdir, drive_id)
     rate = 1.0 / scenario.T_s if paced else None
-    return VirtualInverter(scenario, endpoint, rate_Hz=rate, drive_id=drive_id), host_link
+    return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id), host_link
 
 
 def _watch(drivers, children, all_done):
