@@ -7,6 +7,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
+from drive_interface.estimator_states import TRACKING  # noqa: E402
 from drive_interface.log import COLUMN  # noqa: E402
 from drive_scenarios.scenario import RPM  # noqa: E402
 
@@ -16,7 +17,8 @@ from .metrics import LOCK_LOST_RAD, angle_error, wrap  # noqa: E402
 def plot_run(result, out_dir, command="run"):
     """Write ``<out_dir>/<scenario>_<estimator>_<command>.png`` (``command``: run, launch or bridge, so
     one never overwrites another) and return its path. Panels: true and estimated angle; angle error with
-    any lost lock shaded; speed; load torque; phase currents. Dotted lines mark the scenario's events."""
+    the start-up (until the estimator first tracks) and any lost lock after it shaded; speed; load
+    torque; phase currents. Dotted lines mark the scenario's events."""
     import numpy as np
     log, n_p = result.log, result.n_p
     t = log[:, COLUMN["t"]]
@@ -27,7 +29,12 @@ def plot_run(result, out_dir, command="run"):
     axes[0].plot(t, wrap(log[:, COLUMN["theta_e_hat"]]), "--", label="estimated θ̂_e")
     axes[0].set_ylabel("electrical angle [rad]")
     axes[1].plot(t, error, color="tab:red", lw=0.7, label="θ_e − θ̂_e")
-    lost = np.abs(error) > LOCK_LOST_RAD
+    tracking = np.nonzero(log[:, COLUMN["state"]] == TRACKING)[0]
+    starting = np.arange(t.size) < (tracking[0] if tracking.size else t.size)
+    if starting.any():
+        axes[1].fill_between(t, -np.pi, np.pi, where=starting, color="tab:gray", alpha=0.12, step="mid",
+                             label="start-up: axis and polarity, no torque")
+    lost = (np.abs(error) > LOCK_LOST_RAD) & ~starting
     if lost.any():
         axes[1].fill_between(t, -np.pi, np.pi, where=lost, color="tab:red", alpha=0.15, step="mid",
                              label="lock lost (|error| > π/2)")
