@@ -4,7 +4,6 @@ and of motulator's signal-injection example when motulator is installed (a side 
 import dataclasses
 import importlib.util
 import json
-import math
 import os
 import subprocess
 import sys
@@ -79,10 +78,11 @@ GRAPH_CONFIGURATIONS = (("composed", "events"), ("composed", "single"), ("separa
 
 
 def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False, repeats=2, progress=None):
-    """Real-time factor (simulated / wall time) of the lock-step graph per (processes, executor), best
-    of ``repeats`` runs after a short warm-up run; the wall time per sample and per delivered message
-    (graph.DELIVERIES_PER_SAMPLE), and the ping-pong hop time that bounds it. A signal stops it: the
-    configurations done are returned, ``interrupted`` names the signal, and the one cut is left out."""
+    """Real-time factor (simulated / wall time) of the lock-step graph per (processes, executor), one
+    message per sample (``block_samples`` 1), best and median of ``repeats`` runs after a short warm-up
+    run; the wall time per sample and per delivered message (graph.DELIVERIES_PER_SAMPLE), and the
+    ping-pong hop time that bounds it. A signal stops it: the configurations done are returned,
+    ``interrupted`` names the signal, and the one cut is left out."""
     from drive_launch.launcher import DELIVERIES_PER_SAMPLE, launch
 
     report = {"benchmark": "graph", "scenario": scenario_name, "duration_s": duration_s, "record": record,
@@ -92,22 +92,26 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
     if report["interrupted"]:
         return report
     for processes, executor in GRAPH_CONFIGURATIONS:
-        wall, samples = math.inf, 0
+        walls, samples = [], 0
         for _ in range(repeats):
             r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
                        record=record)
             report["interrupted"] = r.interrupted
             if report["interrupted"]:
                 return report
-            wall, samples = min(wall, r.wall_time_s), r.scenario.n_samples
-        entry = {"processes": processes, "executor": executor, "samples": samples, "repeats": repeats,
-                 "wall_time_s": wall, "real_time_factor": samples * r.scenario.T_s / wall,
+            walls.append(r.wall_time_s)
+            samples = r.scenario.n_samples
+        wall, median = min(walls), float(np.median(walls))
+        entry = {"processes": processes, "executor": executor, "block_samples": 1, "record": record,
+                 "samples": samples, "repeats": repeats, "wall_time_s": wall,
+                 "real_time_factor": samples * r.scenario.T_s / wall,
+                 "real_time_factor_median": samples * r.scenario.T_s / median,
                  "us_per_sample": 1e6 * wall / samples,
                  "us_per_delivered_message": 1e6 * wall / samples / DELIVERIES_PER_SAMPLE}
         results.append(entry)
         if progress:
             progress(f"  {processes:9s} {executor:7s} real-time factor {entry['real_time_factor']:.3f} "
-                     f"({entry['us_per_sample']:.0f} µs per sample, "
+                     f"(median {entry['real_time_factor_median']:.3f}; {entry['us_per_sample']:.0f} µs per sample, "
                      f"{entry['us_per_delivered_message']:.0f} µs per delivered message)")
     hop = hop_latency()
     if progress:
