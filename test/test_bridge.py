@@ -195,28 +195,29 @@ def test_a_can_inverter_off_the_bus_and_back():
 
 
 def test_a_paced_inverter_counts_late_commands_as_zero_volts(tmp_path):
-    """On its own 200 Hz clock (5 ms periods) the inverter never waits: every 4th command is sent 1.5
-    periods after its telemetry and counts as missing (zero volts that period), with its latency in the
-    histogram's bins beyond one period; the others arrive within their period. The watchdog (10 missing in a row) does
-    not trip on isolated late commands."""
+    """On its own 50 Hz clock (20 ms periods, far above a loaded machine's scheduling jitter) the
+    inverter never waits: every 4th command is sent 1.25 periods after its telemetry and counts as
+    missing (zero volts that period), with its latency in the histogram's bins beyond one period; the
+    others arrive within their period. The watchdog (10 missing in a row) does not trip on isolated late
+    commands."""
     from drive_bridge.virtual_inverter import timing_report
 
     forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
-    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, forty, rate_Hz=200.0)
+    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, forty, rate_Hz=50.0)
     try:
         late = []
         while thread.is_alive():
             for s in bridge.poll(0.01):
                 if s.k % 4 == 3:
                     late.append(s.k)
-                    time.sleep(0.0075)
+                    time.sleep(0.025)
                 bridge.command(s.k, 1.0, 0.0)
-        timing = timing_report(inverter, 1.0 / 200.0)
+        timing = timing_report(inverter, 1.0 / 50.0)
         assert timing["periods"] == 40 and len(late) == 10
-        assert timing["missing"] == 10 and timing["late_fraction"] == 0.25 and timing["late_arrivals"] >= 9
         edges, counts = timing["latency_histogram"]["edges_periods"], timing["latency_histogram"]["counts"]
+        assert timing["missing"] == 10 and timing["late_fraction"] == 0.25
         assert sum(c for e, c in zip(edges, counts) if e < 1.0) == 30
-        assert sum(c for e, c in zip(edges, counts) if e >= 1.0) == timing["late_arrivals"]
+        assert sum(c for e, c in zip(edges, counts) if e >= 1.0) == timing["late_arrivals"] >= 9
         assert inverter.counters["watchdog_trips"] == 0
     finally:
         inverter.stop()

@@ -192,9 +192,11 @@ class VirtualInverter:
         return self.enabled and not self.latched
 
     def await_command(self, k, deadline, sent_at):
-        """The command for sample k, handling whatever else arrives, until ``deadline`` (monotonic);
-        what has arrived is read even when the deadline has passed, and what arrived after the command
-        waits in the inbox for the next period."""
+        """The command for sample k, handling whatever else arrives, until ``deadline`` (monotonic).
+        Waiting for the host, what has arrived is read even when the deadline has passed; on its own
+        clock a command read after the deadline is late (zero volts), as a real inverter latches its
+        duties at the period's start. What arrived after the command waits in the inbox for the next
+        period."""
         while True:
             remaining = max(0.0, deadline - time.monotonic())
             if not self.inbox:
@@ -203,11 +205,15 @@ class VirtualInverter:
                 message = self.inbox.popleft()
                 self.last_heard = time.monotonic()
                 if isinstance(message, Command):
-                    if message.seq == k % 2 ** 32:
+                    now = time.monotonic()
+                    if message.seq == k % 2 ** 32 and not (self.rate_Hz and now > deadline):
                         self.counters["commands"] += 1
-                        self.latencies_s.append(time.monotonic() - sent_at)
+                        self.latencies_s.append(now - sent_at)
                         return message
                     self.counters["discarded"] += 1
+                    if message.seq == k % 2 ** 32:
+                        self.late_latencies_s.append(now - sent_at)
+                        continue
                     late = k - message.seq % 2 ** 32
                     if 0 < late <= k:
                         self.late_latencies_s.append(time.monotonic() - self.sent_at[k - late])
