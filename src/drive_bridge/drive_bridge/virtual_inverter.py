@@ -211,12 +211,8 @@ class VirtualInverter:
                         self.latencies_s.append(now - sent_at)
                         return message
                     self.counters["discarded"] += 1
-                    if message.seq == k % 2 ** 32:
-                        self.late_latencies_s.append(now - sent_at)
-                        continue
-                    late = k - message.seq % 2 ** 32
-                    if 0 < late <= k:
-                        self.late_latencies_s.append(time.monotonic() - self.sent_at[k - late])
+                    if message.seq <= k:
+                        self.late_latencies_s.append(now - self.sent_at[message.seq])
                 elif isinstance(message, Control):
                     if message.action == CONTROL_CLEAR_FAULTS:
                         self.latched = 0
@@ -301,13 +297,11 @@ def timing_report(inverter, T_s):
     """How the host kept pace with a virtual inverter: periods run, commands missing (late or never
     sent: zero volts), their fraction, latency percentiles [µs] over every command that came (late ones
     included) and the histogram of those latencies (edges in sampling periods and µs)."""
-    periods = max(inverter.k, 1)
-    on_time = np.asarray(inverter.latencies_s)
-    every = np.concatenate([on_time, np.asarray(inverter.late_latencies_s)]) * 1e6
+    every = np.concatenate([inverter.latencies_s, inverter.late_latencies_s]) * 1e6
     edges = np.asarray(LATENCY_BINS_PER_PERIOD)
     counts, _ = np.histogram(every, bins=edges * T_s * 1e6)
-    report = {"paced": bool(inverter.rate_Hz), "periods": inverter.k, "missing": inverter.counters["missing"],
-              "late_fraction": inverter.counters["missing"] / periods,
+    return {"paced": bool(inverter.rate_Hz), "periods": inverter.k, "missing": inverter.counters["missing"],
+              "late_fraction": inverter.counters["missing"] / max(inverter.k, 1),
               "late_arrivals": len(inverter.late_latencies_s),
               "latency_p50_us": float(np.percentile(every, 50)) if every.size else None,
               "latency_p99_us": float(np.percentile(every, 99)) if every.size else None,
@@ -316,4 +310,3 @@ def timing_report(inverter, T_s):
                                     "counts": [int(c) for c in counts]},
               "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],
               "host_silent_trips": inverter.counters["host_silent_trips"]}
-    return report

@@ -317,12 +317,12 @@ def cmd_bench_bridge(args):
               f"at {report['sampling_rate_Hz']:g} Hz; worst of {report['repeats']})")
         print(f"  {'link':6s} {'late':>8s} {'latency p50':>12s} {'p99':>9s} {'max':>9s} {'angle RMS':>10s} "
               f"{'peak':>7s} {'lost':>5s}")
-        def number(value, width, digits):
-            return f"{value:{width}.{digits}f}" if value is not None else f"{'-':>{width}s}"
         for row in report["links"]:
-            print(f"  {row['link']:6s} {100.0 * row['late_fraction']:7.3f}% {number(row['latency_p50_us'], 9, 0)} µs "
-                  f"{number(row['latency_p99_us'], 6, 0)} µs {number(row['latency_max_us'], 6, 0)} µs "
-                  f"{number(row['angle_error_rms'], 10, 4)} {number(row['angle_error_peak'], 7, 4)} "
+            microseconds = [_formatted(row[key], "{:.0f}") for key in ("latency_p50_us", "latency_p99_us",
+                                                                         "latency_max_us")]
+            angles = [_formatted(row[key], "{:.4f}") for key in ("angle_error_rms", "angle_error_peak")]
+            print(f"  {row['link']:6s} {100.0 * row['late_fraction']:7.3f}% {microseconds[0]:>9s} µs "
+                  f"{microseconds[1]:>6s} µs {microseconds[2]:>6s} µs {angles[0]:>10s} {angles[1]:>7s} "
                   f"{row['lock_lost']:5d}")
         return 0
     print(f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter paced by the "
