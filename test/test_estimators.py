@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from control_math.command_delay import applied_voltage, command_line, issue_command
 from drive_interface.log import COLUMN
 from drive_runner.runner import run_scenario
 from helpers import ideal_commissioning as commission
@@ -31,12 +32,13 @@ def held_shaft_response(name, error_e, saturation=True, samples=600):
     c = commission(machine, WANG.nameplate.current_limit_A)
     hold = {"pll_bandwidth_Hz": 1e-9, "settle_s": 1.0, "align_tolerance_rad": 1.0}
     e = make_estimator(name, WANG.nameplate, 1e-4, hold, c, inverter.delay_periods)
-    u_a = u_b = 0.0
+    line = command_line(inverter.delay_periods)
     for k in range(samples):
         i_a, i_b, i_c, _ = plant_outputs(x, machine)
         _, _, u_a, u_b, eps, signal, observable = e.step(e.x, e.z, e.params, k, i_a, i_b, i_c,
-                                                         u_a, u_b, 0.0, 0.0)
-        plant_advance(x, u_a, u_b, 0.0, True, 0.0, machine, WANG.mechanics, inverter, 1e-4, 1)
+                                                         *applied_voltage(line, k - 1), 0.0, 0.0)
+        issue_command(line, k, u_a, u_b)
+        plant_advance(x, *applied_voltage(line, k), 0.0, True, 0.0, machine, WANG.mechanics, inverter, 1e-4, 1)
     return eps, signal, observable, c
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from control_math.command_delay import applied_voltage, issue_command
 from motor_params.nameplate import nameplate
 from pmsm_plant.build import plant_for_scenario
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
@@ -170,8 +171,9 @@ class VirtualInverter:
                 u_alpha, u_beta = command.u_alpha * self.voltage_lsb, command.u_beta * self.voltage_lsb
             if not self.switching():
                 u_alpha = u_beta = 0.0
-            plant_advance(p.x, u_alpha, u_beta, self.tau_load[k], p.imposed_speed, self.speed_ref[k], p.machine,
-                          p.mechanics, p.inverter, p.T_s, p.substeps)
+            issue_command(p.line, k, u_alpha, u_beta)
+            plant_advance(p.x, *applied_voltage(p.line, k), self.tau_load[k], p.imposed_speed, self.speed_ref[k],
+                          p.machine, p.mechanics, p.inverter, p.T_s, p.substeps)
             self.k += 1
             if self.rate_Hz:
                 wait = start + (k + 1) / self.rate_Hz - time.monotonic()
@@ -186,6 +188,9 @@ class VirtualInverter:
         i_a, i_b, i_c, _ = plant_outputs(x, p.machine)
         sense_currents(i_a, i_b, i_c, p.sensor, p.seed, 0)
         plant_advance(x, 0.0, 0.0, 0.0, p.imposed_speed, 0.0, p.machine, p.mechanics, p.inverter, p.T_s, p.substeps)
+        line = p.line.copy()
+        issue_command(line, 0, 0.0, 0.0)
+        applied_voltage(line, 0)
         encode_frame(Telemetry(0, 0, 0, 0, 0, 0, 0))
 
     def switching(self):

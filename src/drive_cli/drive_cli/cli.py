@@ -22,7 +22,7 @@ from drive_interface.exit_codes import (
 from drive_interface.graph import DEFAULT_NAMESPACE, EXECUTORS
 from drive_interface.interrupt import Interrupted
 from drive_interface.strict_json import dumps
-from drive_scenarios.scenario import load_scenario, scenario_names
+from drive_scenarios.scenario import MAX_BLOCK_SAMPLES, load_scenario, scenario_names
 from hf_estimator.registry import describe, estimator_names
 from motor_params.nameplate import INVERTER_RATINGS, nameplate
 from pmsm_plant.presets import PRESETS
@@ -96,6 +96,11 @@ def _scenario_arg(args):
         scenario = dataclasses.replace(scenario, duration_s=args.duration)
     if args.commissioning:
         scenario = dataclasses.replace(scenario, commissioning=args.commissioning)
+    blocks = getattr(args, "block_samples", None)
+    if blocks is not None:
+        if not 1 <= blocks <= MAX_BLOCK_SAMPLES:
+            raise CommandLineError(f"--block-samples: must be from 1 to {MAX_BLOCK_SAMPLES}, not {blocks}")
+        scenario = dataclasses.replace(scenario, block_samples=blocks)
     return scenario
 
 
@@ -956,6 +961,9 @@ def build_parser():
     run.add_argument("--estimator", help="override the scenario's estimator")
     run.add_argument("--duration", type=float, help="override the duration [s]")
     run.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
+    run.add_argument("--block-samples", type=int, metavar="N",
+                     help="override the scenario's block_samples: data in blocks of N samples, the command "
+                          "acting N − 1 periods later (docs/architecture.md)")
     run.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     run.add_argument("--no-plot", action="store_true", help="skip the PNG plot")
     run.add_argument("--record", metavar="BAG",

@@ -34,8 +34,9 @@ tracker's error signal goes as sin 2Δθ; within π/8 its slope is still ≥ 0.7
 
 
 def replay_inputs(recorded, path):
-    """(currents n × 3, previous voltage command n × 2) from a recorded log; a BagError names what
-    is missing."""
+    """(currents n × 3, the voltage applied in the period before each sample n × 2) from a recorded log
+    (the command of d + 1 samples before, d the recorded drive's delay); a BagError names what is
+    missing."""
     log = recorded.log
     currents = log[:, [COLUMN["i_a_meas"], COLUMN["i_b_meas"], COLUMN["i_c_meas"]]]
     voltage = log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]]
@@ -45,15 +46,16 @@ def replay_inputs(recorded, path):
         if missing:
             raise BagError(f"{path}: {name}: {missing} of {len(values)} samples missing; replay needs "
                            f"every one")
-    u_prev = np.zeros((len(voltage), 2))
-    u_prev[1:] = voltage[:-1]
-    return np.ascontiguousarray(currents), u_prev
+    lag = recorded.scenario.drive_delay_periods() + 1
+    u_applied = np.zeros((len(voltage), 2))
+    u_applied[lag:] = voltage[:-lag]
+    return np.ascontiguousarray(currents), u_applied
 
 
 def replay(path, estimators):
     """Replay each estimator on the bag; returns (recorded RunResult, [entry dict], [replayed RunResult])."""
     recorded = bag_result(path)
-    currents, u_prev = replay_inputs(recorded, path)
+    currents, u_applied = replay_inputs(recorded, path)
     truth = has_ground_truth(recorded.log)
     theta_m = np.ascontiguousarray(recorded.log[:, COLUMN["theta_m"]])
     omega_m = np.ascontiguousarray(recorded.log[:, COLUMN["omega_m"]])
@@ -65,13 +67,13 @@ def replay(path, estimators):
         e, calibration = drive.estimator, drive.commissioning.calibration()
         n_p = recorded.n_p
         out = np.zeros((len(currents), len(OUTPUTS)))
-        replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, n_p, currents[:2], u_prev[:2], theta_m[:2],
+        replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, n_p, currents[:2], u_applied[:2], theta_m[:2],
                        omega_m[:2], calibration, out[:2])
         wall = math.inf
         for _ in range(TIMED_RUNS):
             x, z = e.x.copy(), e.z.copy()
             start = time.perf_counter()
-            replay_samples(e.step, x, z, e.params, n_p, currents, u_prev, theta_m, omega_m, calibration, out)
+            replay_samples(e.step, x, z, e.params, n_p, currents, u_applied, theta_m, omega_m, calibration, out)
             wall = min(wall, time.perf_counter() - start)
         log = recorded.log.copy()
         for j, column in enumerate(OUTPUTS):

@@ -21,7 +21,7 @@ from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
 from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
-from drive_scenarios.scenario import refuse_brake_behind_an_inverter, resolve
+from drive_scenarios.scenario import refuse_behind_an_inverter, refuse_blocks_in_the_graph, resolve
 
 PROCESSES = ("composed", "separate")
 LINKS = ("pty", "can")
@@ -243,6 +243,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
                                          spec.extra_parameters)
             scenario = scenario_from_parameters(all_parameters(parameters))
+            refuse_blocks_in_the_graph(scenario)
             drive = build_drive(scenario)
             scheduled = {**parameters, "scenario_schedule": True}
             roles = {"pmsm_plant": {**scheduled, "publish_clock": i == 0},
@@ -341,7 +342,7 @@ def _virtual_inverter(scenario, link, workdir, drive_id, paced, timeout_s):
     waiting for each of the graph's commands as long as a plant node would, ``timeout_s``) and the
     host's end of its link."""
     from drive_bridge.virtual_inverter import VirtualInverter, make_links
-    refuse_brake_behind_an_inverter(scenario)
+    refuse_behind_an_inverter(scenario)
     endpoint, host_link = make_links(link, workdir, drive_id)
     rate = 1.0 / scenario.T_s if paced else None
     return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id), host_link

@@ -10,13 +10,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from control_math.command_delay import applied_voltage, command_line, issue_command
 from control_math.current_sensing import corrected_currents
 from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_interface.interrupt import Interrupted
 from drive_interface.log import COLUMN, LOG_COLUMNS
-from drive_scenarios.scenario import refuse_brake_behind_an_inverter
-from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, controller_step
+from drive_scenarios.scenario import refuse_behind_an_inverter
+from foc_controller.control import controller_step
 
 from .loop import write_row
 from .runner import RunResult, build_drive, cut
@@ -54,7 +55,7 @@ def virtual_inverter_link(scenario, link, **inverter_options):
     """(virtual inverter, its link endpoint, the host's bridge core) for ``scenario`` on ``link`` ('pty',
     'can') in a temporary directory; the inverter is not started. All three are stopped and closed on
     exit."""
-    refuse_brake_behind_an_inverter(scenario)
+    refuse_behind_an_inverter(scenario)
     with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
         endpoint, host_link = make_links(link, workdir)
         inverter = VirtualInverter(scenario, endpoint, **inverter_options)
@@ -84,6 +85,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     e, n_p, n = host.estimator, host.controller.n_p, scenario.n_samples
     cx, cz, cp = host.controller_x, host.controller_z, host.controller
     calibration = host.commissioning.calibration()
+    line = command_line(scenario.drive_delay_periods())
     log = np.zeros((n, len(LOG_COLUMNS)))
     received = np.zeros(n, dtype=bool)
     host_s = np.zeros(n)
@@ -107,10 +109,11 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
                     theta_e = n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
                     c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, calibration)
                     theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state = e.step(
-                        e.x, e.z, e.params, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], theta_e, 0.0)
+                        e.x, e.z, e.params, k, c_a, c_b, c_c, *applied_voltage(line, k - 1), theta_e, 0.0)
                     u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
                         cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b, state,
                         host.tau_feedforward[k])
+                    issue_command(line, k, u_a, u_b)
                     bridge.command(k, u_a, u_b)
                     host_s[k] = time.perf_counter() - arrived
                     received[k] = True

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 from drive_commissioning.procedure import procedure_for_scenario
 
+from control_math.command_delay import applied_voltage, issue_command
 from drive_interface.errors import DriveError
 from drive_scenarios.scenario import shaft_held
 from motor_params.nameplate import nameplate
@@ -43,9 +44,9 @@ def commission_in_process(scenario, settings=None, progress=None):
         i_a, i_b, i_c, _ = plant_outputs(plant.x, plant.machine)
         true_currents[k] = (i_a, i_b, i_c)
         m = sense_currents(i_a, i_b, i_c, plant.sensor, plant.seed, k)
-        u_alpha, u_beta = procedure.step(k, *m)
-        plant_advance(plant.x, u_alpha, u_beta, 0.0, True, 0.0, plant.machine, plant.mechanics, plant.inverter,
-                      plant.T_s, plant.substeps)
+        issue_command(plant.line, k, *procedure.step(k, *m))
+        plant_advance(plant.x, *applied_voltage(plant.line, k), 0.0, True, 0.0, plant.machine, plant.mechanics,
+                      plant.inverter, plant.T_s, plant.substeps)
         if progress and k % 1000 == 0:
             progress(k / n)
     if progress:

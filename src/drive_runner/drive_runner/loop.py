@@ -1,12 +1,20 @@
-"""The one-process closed loop as one compiled kernel, in the contract's lock-step order per sample k:
-plant samples currents → estimator answers θ̂, injection → controller answers the voltage → plant
-advances to k+1. The cores are the same functions the ROS nodes call."""
+"""The one-process closed loop as one compiled kernel over blocks of N samples, in the contract's order
+per block: the plant samples the block (applying the commands of earlier blocks through the delay line)
+→ the estimator answers θ̂, injection → the controller answers the voltages → they enter the delay line.
+The block kernels are the same functions the ROS nodes call; with N = 1 this is the lock-step per sample.
+"""
+import numpy as np
 from numba import njit
 
+from control_math.command_delay import issue_command
 from control_math.current_sensing import corrected_currents
 from drive_interface.estimator_states import TRACKING
-from foc_controller.control import LAST_U_ALPHA, LAST_U_BETA, controller_step
-from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
+from foc_controller.control import controller_block
+from hf_estimator.block import estimator_block
+from pmsm_plant.model import plant_block
+
+NEVER = 2 ** 62
+"""A brake's release sample before the drive has reported tracking."""
 
 
 @njit(cache=True)
@@ -43,51 +51,63 @@ def write_row(row, t, theta_m, omega_m, tau_e, tau_load, i_a, i_b, i_c, i_a_meas
 
 
 @njit
-def run_samples(k_start, k_end, px, machine, mech, inverter, sensor, seed, T_s, substeps,
-                est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, tau_ff, imposed, brake, calibration, log):
-    """Run samples k_start..k_end−1; row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
+def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor, seed, T_s, substeps,
+               est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, tau_ff, imposed, brake, calibration, trip_A,
+               log):
+    """Run samples k_start..k_end−1 (k_start a multiple of ``block``) in blocks of ``block`` samples;
+    row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
 
-    px: plant state (pmsm_plant.model); ex, ez, ep: the estimator's state, filter state and parameters;
-    cx, cz, cp: the controller's. speed_ref [rad/s], tau_load and the controller's torque feed-forward
-    tau_ff [N·m] are indexed by k; with ``imposed``
+    px: plant state (pmsm_plant.model); line: the delay line (control_math.command_delay); ex, ez, ep: the
+    estimator's state, filter state and parameters; cx, cz, cp: the controller's. speed_ref [rad/s],
+    tau_load and the controller's torque feed-forward tau_ff [N·m] are indexed by k; with ``imposed``
     the shaft follows speed_ref. With brake[0] = 1 a holding brake keeps the shaft at rest until sample
-    brake[1], set when the estimator first reports tracking to that sample plus brake[2] (the brake's lift
-    time in samples). Both cores read the measured currents
-    corrected by the commissioned ``calibration`` (control_math.current_sensing); the log keeps them as
-    measured. Not cached on disk:
-    numba cannot re-save a cache index whose entries are specialised on other processes' step functions
-    ("underlying object has vanished"); the kernels it calls are cached.
+    brake[1], set when the estimator first reports tracking at sample k_t: k_t plus brake[2] (the brake's
+    lift time in samples), but no earlier than the first period simulated after the block that reported
+    it (the plant of a graph learns it with that block). Estimator and controller read the measured
+    currents corrected by the commissioned ``calibration`` and treat currents beyond ``trip_A`` [A] as bad
+    input (hf_estimator.block, foc_controller.control.controller_block); the log keeps them as measured.
+    Not cached on disk: numba cannot re-save a cache index whose entries are specialised on other
+    processes' step functions ("underlying object has vanished"); the kernels it calls are cached.
     """
     n_p = machine.n_p
-    for k in range(k_start, k_end):
-        i_a, i_b, i_c, tau_e = plant_outputs(px, machine)
-        m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, sensor, seed, k)
-        c_a, c_b, c_c = corrected_currents(m_a, m_b, m_c, calibration)
-        theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state = est_step(
-            ex, ez, ep, k, c_a, c_b, c_c, cx[LAST_U_ALPHA], cx[LAST_U_BETA], n_p * px[THETA_M],
-            n_p * px[OMEGA_M])
-        u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-            cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, speed_ref[k], u_inj_a, u_inj_b, state, tau_ff[k])
-        write_row(log[k - k_start], k * T_s, px[THETA_M], px[OMEGA_M], tau_e, tau_load[k], i_a, i_b, i_c,
-                  m_a, m_b, m_c, theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, speed_ref[k], i_d, i_q,
-                  i_d_ref, i_q_ref, eps, signal, state)
-        if brake[0] > 0.5 and brake[1] < 0.0 and state == TRACKING:
-            brake[1] = k + brake[2]
-        held = brake[0] > 0.5 and (brake[1] < 0.0 or k < brake[1])
-        plant_advance(px, u_a, u_b, tau_load[k], imposed or held, 0.0 if held else speed_ref[k], machine, mech,
-                      inverter, T_s, substeps)
+    plant_out = np.zeros((block, 10))
+    est_out = np.zeros((block, 7))
+    ctrl_out = np.zeros((block, 6))
+    encoder = np.zeros((block, 2))
+    for k0 in range(k_start, k_end, block):
+        n = min(block, k_end - k0)
+        release = -1
+        if brake[0] > 0.5:
+            release = NEVER if brake[1] < 0.0 else int(brake[1])
+        plant_block(px, line, k0, n, tau_load, speed_ref, imposed, release, machine, mech, inverter, sensor, seed,
+                    T_s, substeps, plant_out)
+        for i in range(n):
+            encoder[i, 0] = n_p * plant_out[i, 6]
+            encoder[i, 1] = n_p * plant_out[i, 7]
+        estimator_block(est_step, ex, ez, ep, k0, n, plant_out[:, 3:6], line, encoder, calibration, trip_A, est_out)
+        controller_block(cx, cz, cp, n, plant_out[:, 3:6], est_out, speed_ref[k0:k0 + n], tau_ff[k0:k0 + n],
+                         calibration, trip_A, ctrl_out)
+        for i in range(n):
+            k = k0 + i
+            p, e, c = plant_out[i], est_out[i], ctrl_out[i]
+            issue_command(line, k, c[0], c[1])
+            if brake[0] > 0.5 and brake[1] < 0.0 and e[6] == TRACKING:
+                brake[1] = max(k + brake[2], k0 + n - 1)
+            write_row(log[k - k_start], k * T_s, p[6], p[7], p[8], p[9], p[0], p[1], p[2], p[3], p[4], p[5],
+                      e[0], e[1], c[0], c[1], e[2], e[3], speed_ref[k], c[2], c[3], c[4], c[5], e[4], e[5], e[6])
 
 
 @njit
-def replay_samples(est_step, ex, ez, ep, n_p, currents, u_prev, theta_m, omega_m, calibration, out):
+def replay_samples(est_step, ex, ez, ep, n_p, currents, u_applied, theta_m, omega_m, calibration, out):
     """Run an estimator over recorded samples: ``currents`` (n × 3, measured a, b, c; corrected by the
-    commissioned ``calibration`` as in the drive), ``u_prev`` (n × 2,
-    the voltage command of the sample before), the recorded ground truth θ_m, ω_m (read only by
-    `sensored`; NaN becomes 0). ``out`` rows receive θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, state."""
+    commissioned ``calibration`` as in the drive), ``u_applied`` (n × 2, the voltage command that acted
+    in the period before each sample: the command of d + 1 samples before, d the recorded drive's delay),
+    the recorded ground truth θ_m, ω_m (read only by `sensored`; NaN becomes 0). ``out`` rows receive
+    θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, state."""
     for k in range(currents.shape[0]):
         theta = theta_m[k] if theta_m[k] == theta_m[k] else 0.0
         omega = omega_m[k] if omega_m[k] == omega_m[k] else 0.0
         c_a, c_b, c_c = corrected_currents(currents[k, 0], currents[k, 1], currents[k, 2], calibration)
-        result = est_step(ex, ez, ep, k, c_a, c_b, c_c, u_prev[k, 0], u_prev[k, 1], n_p * theta, n_p * omega)
+        result = est_step(ex, ez, ep, k, c_a, c_b, c_c, u_applied[k, 0], u_applied[k, 1], n_p * theta, n_p * omega)
         for j in range(7):
             out[k, j] = result[j]

@@ -14,10 +14,10 @@ from foc_controller.control import controller_state
 from hf_estimator.build import estimator_for_scenario
 from hf_estimator.startup import estimator_startup
 from motor_params.commissioning import resolve_commissioning
-from motor_params.nameplate import nameplate
+from motor_params.nameplate import nameplate, trip_current_A
 from pmsm_plant.build import plant_for_scenario
 
-from .loop import run_samples
+from .loop import run_blocks
 
 
 @dataclass
@@ -63,21 +63,23 @@ class Drive:
     """The robot's torque feed-forward to the controller per sample [N·m]."""
     brake: np.ndarray
     """[has a brake (1/0), sample it releases at (−1: not yet known), its lift time in samples]
-    (drive_runner.loop.run_samples)."""
+    (drive_runner.loop.run_blocks)."""
     commissioning: object
     """motor_params.commissioning.Commissioning: what the drive knows beyond its nameplate."""
 
     def run(self, k_start, k_end, log):
-        """Run samples k_start..k_end−1 of the compiled loop; ``log`` receives one row per sample."""
+        """Run samples k_start..k_end−1 of the compiled loop (k_start a multiple of the scenario's
+        block_samples); ``log`` receives one row per sample."""
         p, e = self.plant, self.estimator
-        run_samples(k_start, k_end, p.x, p.machine, p.mechanics, p.inverter, p.sensor, p.seed, p.T_s,
-                    p.substeps, e.step, e.x, e.z, e.params, self.controller_x, self.controller_z,
-                    self.controller, self.speed_ref, self.tau_load, self.tau_feedforward, p.imposed_speed, self.brake,
-                    self.commissioning.calibration(), log)
+        run_blocks(k_start, k_end, self.scenario.block_samples, p.x, p.line, p.machine, p.mechanics, p.inverter,
+                   p.sensor, p.seed, p.T_s, p.substeps, e.step, e.x, e.z, e.params, self.controller_x,
+                   self.controller_z, self.controller, self.speed_ref, self.tau_load, self.tau_feedforward,
+                   p.imposed_speed, self.brake, self.commissioning.calibration(),
+                   trip_current_A(nameplate(self.scenario.motor)), log)
 
 
 def brake_state(scenario):
-    """The brake array of run_samples for ``scenario``."""
+    """The brake array of run_blocks for ``scenario``."""
     return np.array([1.0 if scenario.brake else 0.0, -1.0, round(scenario.brake_release_s / scenario.T_s)])
 
 
@@ -104,10 +106,11 @@ def build_drive(scenario):
 
 
 def run_scenario(scenario, progress=None, chunk_samples=20000):
-    """Run a scenario to the end; ``progress(fraction)`` is called between chunks. A signal
+    """Run a scenario to the end; ``progress(fraction)`` is called between chunks (whole blocks). A signal
     (drive_interface.interrupt) stops it after the chunk in progress: the result holds the samples run."""
     drive = build_drive(scenario)
     n = scenario.n_samples
+    chunk_samples = -(-chunk_samples // scenario.block_samples) * scenario.block_samples
     log = np.zeros((n, len(LOG_COLUMNS)))
     start = time.perf_counter()
     done, interrupted = 0, 0

@@ -3,9 +3,10 @@ override parameters (``parameters.NODE_PARAMETERS``)."""
 from drive_interface.node import ContractNode, describe, stamp
 from drive_interface.parameter_sources import label
 from motor_params.commissioning import resolve_commissioning
-from motor_params.nameplate import nameplate
+from motor_params.nameplate import nameplate, trip_current_A
 
 from .parameters import NODE_PARAMETERS, scenario_from_parameters
+from .scenario import refuse_blocks_in_the_graph
 
 
 class ScenarioNode(ContractNode):
@@ -30,6 +31,7 @@ class ScenarioNode(ContractNode):
         self.configured = False
         try:
             scenario = scenario_from_parameters(self.parameters, self.label)
+            refuse_blocks_in_the_graph(scenario)
             self.build(scenario)
         except ValueError as error:
             self.reject(error)
@@ -103,4 +105,4 @@ class ScenarioNode(ContractNode):
 
     def trip_current_A(self):
         given = float(self.parameters["trip_current_A"])
-        return given if given > 0.0 else 3.0 * self.nameplate().current_limit_A
+        return given if given > 0.0 else trip_current_A(self.nameplate())

@@ -16,7 +16,7 @@ SCENARIO_DIR = Path(__file__).parent / "scenarios"
 NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
 TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
             "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps",
-            "plant_deviation", "commissioning", "brake", "torque_feedforward"}
+            "plant_deviation", "commissioning", "brake", "torque_feedforward", "block_samples"}
 NO_DEVIATION = {"R_s": 1.0, "L_d": 1.0, "L_q": 1.0, "psi_f": 1.0, "J": 1.0, "friction": 1.0,
                 "sensor_gain_a": 1.0, "sensor_gain_b": 1.0, "sensor_gain_c": 1.0,
                 "sensor_offset_a": 0.0, "sensor_offset_b": 0.0, "sensor_offset_c": 0.0, "dead_time": 1.0}
@@ -33,6 +33,7 @@ MAX_SAMPLES = 10_000_000
 SAMPLING_PERIOD_RANGE_S = (1e-6, 1e-2)
 MAX_TABLE_POINTS = 10_000
 MAX_SUBSTEPS = 100
+MAX_BLOCK_SAMPLES = 100
 
 
 class ScenarioError(DriveError):
@@ -96,6 +97,9 @@ class Scenario:
     brake_release_s: float = 0.0
     """How long the brake takes to lift once the drive allows torque (a spring-applied brake's armature:
     tens of ms)."""
+    block_samples: int = 1
+    """N: the per-sample data travel in blocks of N samples, so the command answering sample k acts N − 1
+    periods later than with one message per sample (docs/architecture.md "Block transport")."""
     torque_feedforward: Table = None
     """The torque the robot expects the motor to deliver [N·m] (its gravity model), sent to the drive's
     `torque_feedforward`; None: none."""
@@ -116,9 +120,10 @@ class Scenario:
         return self.torque_feedforward.sample(np.arange(self.n_samples) * self.T_s).astype(float)
 
     def drive_delay_periods(self):
-        """The computation delay the drive's estimator is told: its inverter's, none when the scenario turns
-        the delay off."""
-        return INVERTER_RATINGS[self.motor].delay_periods if self.non_idealities["delay"] else 0
+        """The drive's delay from sample to applied command [periods]: its inverter's (none when the
+        scenario turns the delay off), plus N − 1 with blocks of N samples."""
+        inverter = INVERTER_RATINGS[self.motor].delay_periods if self.non_idealities["delay"] else 0
+        return inverter + self.block_samples - 1
 
     def events_s(self):
         """Instants where a table changes (transient starts), sorted."""
@@ -132,18 +137,31 @@ class Scenario:
 
 def shaft_held(scenario, duration_s):
     """``scenario`` with its shaft held at the initial angle (imposed zero speed, no load: a brake) for
-    ``duration_s``: the plant of a commissioning run."""
+    ``duration_s``, one sample per message: the plant of a commissioning run."""
     still = Table((0.0,), (0.0,), "step")
     return dataclasses.replace(scenario, mode="imposed_speed", speed=still, load=still, initial_omega_m_rad_s=0.0,
-                               duration_s=duration_s, brake=False)
+                               duration_s=duration_s, brake=False, block_samples=1)
 
 
-def refuse_brake_behind_an_inverter(scenario):
-    """A scenario with a holding brake cannot run behind the virtual inverter (an inverter does not see
-    the drive's state, which releases the brake): ScenarioError naming the key."""
+def refuse_behind_an_inverter(scenario):
+    """ScenarioError naming the key of what cannot run behind the inverter bridge: a holding brake (an
+    inverter does not see the drive's state, which releases the brake) and blocks of samples (the
+    inverter protocol, version 1, carries one sample per frame)."""
     if scenario.brake:
         raise ScenarioError(f"{scenario.source}: brake: the virtual inverter has no holding brake; run the "
                             f"scenario with `drive run`, or `drive launch` without --link")
+    if scenario.block_samples > 1:
+        raise ScenarioError(f"{scenario.source}: block_samples: {scenario.block_samples}: the inverter protocol "
+                            f"(version 1) carries one sample per frame; use block_samples 1 behind the bridge")
+
+
+def refuse_blocks_in_the_graph(scenario):
+    """ScenarioError naming the key when a scenario asks the ROS graph for blocks of samples: the nodes
+    carry one sample per message (block transport over topics is not built yet)."""
+    if scenario.block_samples > 1:
+        raise ScenarioError(f"{scenario.source}: block_samples: {scenario.block_samples}: the ROS graph carries "
+                            f"one sample per message (block transport over topics is not built yet); run "
+                            f"blocks with `drive run`")
 
 
 def scenario_names():
@@ -281,6 +299,10 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     substeps = data.get("substeps", 1)
     if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= MAX_SUBSTEPS:
         fail("substeps", f"must be a whole number from 1 to {MAX_SUBSTEPS}, not {substeps!r}")
+    block_samples = data.get("block_samples", 1)
+    if isinstance(block_samples, bool) or not isinstance(block_samples, int) or \
+            not 1 <= block_samples <= MAX_BLOCK_SAMPLES:
+        fail("block_samples", f"must be a whole number from 1 to {MAX_BLOCK_SAMPLES}, not {block_samples!r}")
     seed = data.get("seed", 1)
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 63:
         fail("seed", f"must be a whole number from 0 to 2⁶³ − 1, not {seed!r}")
@@ -312,7 +334,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         controller=controller, settle_s=settle, metrics_start_s=start,
         seed=seed, substeps=substeps, plant_deviation={**NO_DEVIATION, **deviation},
         commissioning=commissioning, estimator_source=estimator_source, brake=brake, brake_release_s=brake_release,
-        torque_feedforward=feedforward)
+        torque_feedforward=feedforward, block_samples=block_samples)
 
 
 def _number(value, key, fail):

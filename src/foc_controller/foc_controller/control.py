@@ -19,15 +19,16 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from control_math.current_sensing import corrected_currents
 from control_math.filters import sos_step
 from control_math.frames import SQRT3, clarke_contract, rotate
 from control_math.pi import pi_limited
 from drive_interface.estimator_states import ALIGNING, LOCK_LOST, POLARITY, TRACKING
 
-# Controller state layout (integrators, filtered speed, last command, torque gate, last θ̂); the notch
-# states (d, q) live in a separate array.
-INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, LAST_U_ALPHA, LAST_U_BETA, TORQUE_ALLOWED, LAST_THETA, STARTED = range(9)
-N_STATE = 9
+# Controller state layout (integrators, filtered speed, torque gate, last θ̂); the notch states (d, q)
+# live in a separate array.
+INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, TORQUE_ALLOWED, LAST_THETA, STARTED = range(7)
+N_STATE = 7
 JUMP_RAD = 0.25
 """A change of θ̂ beyond ω̂·T_s by more than this in one sample is a jump, not tracking."""
 
@@ -140,9 +141,34 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     if total > u_max:
         u_alpha *= u_max / total
         u_beta *= u_max / total
-    x[LAST_U_ALPHA] = u_alpha
-    x[LAST_U_BETA] = u_beta
     return u_alpha, u_beta, i_d, i_q, i_d_ref, i_q_ref
+
+
+@njit(cache=True)
+def controller_block(x, z_notch, c, n, currents, estimates, speed_ref, tau_feedforward, calibration, trip_A, out):
+    """n consecutive samples of ``controller_step``: currents (n × 3, measured [A], corrected here by the
+    commissioned ``calibration``), estimates (n × 7, hf_estimator.block.ESTIMATE_COLUMNS), the speed
+    reference [rad/s] and torque feed-forward [N·m] of each sample (n). Rows of ``out`` (n × 6): u_α, u_β
+    [V], i_d, i_q, i_d*, i_q* [A]. A sample with currents not finite or beyond ``trip_A``, or a non-finite
+    estimate or injection, gets zero voltage and leaves the state untouched. Returns the number of such
+    bad samples."""
+    bad = 0
+    for i in range(n):
+        i_a, i_b, i_c = currents[i, 0], currents[i, 1], currents[i, 2]
+        e = estimates[i]
+        row = out[i]
+        if not (math.isfinite(i_a) and math.isfinite(i_b) and math.isfinite(i_c)
+                and math.isfinite(e[0]) and math.isfinite(e[1]) and math.isfinite(e[2]) and math.isfinite(e[3])) \
+                or max(abs(i_a), abs(i_b), abs(i_c)) > trip_A:
+            bad += 1
+            for j in range(6):
+                row[j] = 0.0
+            continue
+        c_a, c_b, c_c = corrected_currents(i_a, i_b, i_c, calibration)
+        state = e[6] if math.isfinite(e[6]) else 0.0
+        row[0], row[1], row[2], row[3], row[4], row[5] = controller_step(
+            x, z_notch, c, c_a, c_b, c_c, e[0], e[1], speed_ref[i], e[2], e[3], state, tau_feedforward[i])
+    return bad
 
 
 def estimated_torque(c, i_d, i_q):

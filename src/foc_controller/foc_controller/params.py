@@ -8,7 +8,7 @@ from control_math.filters import notch
 from drive_interface.settings import choice, flag, number, positive
 
 from .control import ControllerParams
-from .tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
+from .tuning import SZABO_TABLE2, current_pi_gains_any_bandwidth, speed_pi_gains
 
 DEFAULTS = {
     "gains": "rule",
@@ -26,10 +26,19 @@ DEFAULTS = {
 }
 
 
+DELAY_LAG_AT_BANDWIDTH_RAD = 0.25
+"""With 'rule' gains the current loops' ω_n is kept at or below this over the loop delay (d + ½)·T_s: at
+the open loop's crossover (≈ 2ζω_n) the delay then costs ≤ 0.4 rad (23°) of phase. At d = 1 the default
+250 Hz stays; blocks of N samples (d = N) lower it (docs/architecture.md "Block transport")."""
+CURRENT_TO_SPEED_RATIO = 4.0
+"""With 'rule' gains the speed loop's ω_n stays this many times below the current loops'."""
+
+
 def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
                            estimator_bandwidth_Hz=math.inf, commissioning=None):
     """ControllerParams for a motor with this ``nameplate`` (motor_params.nameplate.Nameplate) on an
-    ``inverter`` (InverterRating) at sampling period T_s; R_s of the current loops comes from the
+    ``inverter`` (InverterRating; its delay_periods the whole delay d from sample to applied command,
+    blocks included) at sampling period T_s; R_s of the current loops comes from the
     ``commissioning`` record when given, else the nameplate. Their inductances stay the nameplate's:
     the commissioned ones are incremental at no load (for the estimators), and the loops' gains tuned on
     them overshoot the current limit further in a speed reversal (docs/commissioning.md §1).
@@ -37,7 +46,9 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s,
     current_damping, speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A,
     decoupling, delay_compensation, hf_notch_quality, speed_filter_Hz (0: none), speed_limit_rad_s
-    (mechanical, clamps the speed reference; ∞: none). The notch sits at the
+    (mechanical, clamps the speed reference; ∞: none). With 'rule' gains the current bandwidth is capped
+    for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and the speed bandwidth a cascade step below it
+    (CURRENT_TO_SPEED_RATIO). The notch sits at the
     estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade step below the
     angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · estimator_bandwidth_Hz
     (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
@@ -50,10 +61,13 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     if s["gains"] == "szabo_table2":
         d, q, w = SZABO_TABLE2["d"], SZABO_TABLE2["q"], SZABO_TABLE2["speed"]
     elif s["gains"] == "rule":
-        d = current_pi_gains(m.L_d_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
-        q = current_pi_gains(m.L_q_H, m.R_s_ohm, s["current_bandwidth_rad_s"], s["current_damping"])
-        w = speed_pi_gains(m.J_kgm2, m.B_Nms, k_t,
-                           _capped_speed_bandwidth(s, estimator_bandwidth_Hz), s["speed_damping"])
+        current_bandwidth = min(s["current_bandwidth_rad_s"],
+                                DELAY_LAG_AT_BANDWIDTH_RAD / ((inverter.delay_periods + 0.5) * T_s))
+        d = current_pi_gains_any_bandwidth(m.L_d_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
+        q = current_pi_gains_any_bandwidth(m.L_q_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
+        speed_bandwidth = min(_capped_speed_bandwidth(s, estimator_bandwidth_Hz),
+                              current_bandwidth / CURRENT_TO_SPEED_RATIO)
+        w = speed_pi_gains(m.J_kgm2, m.B_Nms, k_t, speed_bandwidth, s["speed_damping"])
     i_max = s["current_limit_A"] if s["current_limit_A"] is not None else m.current_limit_A
     if i_max > m.current_limit_A:
         raise ValueError(f"controller: current_limit_A: {i_max:g} A exceeds the motor's limit "

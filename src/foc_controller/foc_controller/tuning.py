@@ -4,7 +4,9 @@ Current loop: the PI k_p + k_i/s around the R-L axis 1/(L s + R) gives the close
 L s² + (R + k_p) s + k_i, so for poles at ω_n, ζ:  k_p = 2 ζ ω_n L − R,  k_i = ω_n² L.
 Speed loop: the PI around the rigid shaft k_t/(J s + B), with the current loop taken as ideal, gives
 J s² + (B + k_p k_t) s + k_i k_t:  k_p = (2 ζ ω_n J − B)/k_t,  k_i = ω_n² J / k_t, with k_t = 1.5 p ψ_f.
-Both need the inner loop several times faster than the outer one.
+Both need the inner loop several times faster than the outer one. Below ω_n = R/(2ζL) the current rule
+has no positive k_p; there the internal-model rule k_p = ω_b L, k_i = ω_b R (the PI zero cancels the
+axis pole, leaving a first-order loop of bandwidth ω_b) takes over.
 """
 from typing import NamedTuple
 
@@ -20,6 +22,14 @@ def current_pi_gains(L_H, R_ohm, omega_n_rad_s, zeta):
     if kp <= 0.0:
         raise ValueError(f"current bandwidth {omega_n_rad_s} rad/s too low for L={L_H} H, R={R_ohm} Ω")
     return PIGains(kp, omega_n_rad_s ** 2 * L_H)
+
+
+def current_pi_gains_any_bandwidth(L_H, R_ohm, omega_n_rad_s, zeta):
+    """``current_pi_gains``, or the internal-model gains at ω_b = ω_n where that rule has no positive k_p
+    (the slow current loops of large blocks: docs/architecture.md "Block transport")."""
+    if 2.0 * zeta * omega_n_rad_s * L_H > R_ohm:
+        return current_pi_gains(L_H, R_ohm, omega_n_rad_s, zeta)
+    return PIGains(omega_n_rad_s * L_H, omega_n_rad_s * R_ohm)
 
 
 def speed_pi_gains(J_kgm2, B_Nms, k_t_Nm_per_A, omega_n_rad_s, zeta):

@@ -58,7 +58,7 @@ class WangParams(NamedTuple):
 
 
 @njit(cache=True)
-def conventional_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
+def conventional_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder):
     """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI integrator, u_inj_α,
     u_inj_β, ε [A], |Δ̂| [1/H], start-up state code). State x: θ̂, the PI integrator, the admittance monitor,
     the start-up (pulsating.py); z: band-pass sections z[0], low-pass sections z[1]; p: WangParams."""
@@ -68,7 +68,7 @@ def conventional_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, thet
                               p.demodulation_amplitude, math.sin(p.omega_h_rad_s * t))
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_alpha,
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, eps, observable)
     return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state
 

@@ -21,7 +21,7 @@ from .startup import startup_step
 
 
 @njit(cache=True)
-def improved_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
+def improved_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder):
     """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI integrator, u_inj_α,
     u_inj_β, ε [A] of Eq. 22, |Δ̂| [1/H], start-up state code). State x: θ̂, the PI integrator, the
     admittance monitor, the start-up (pulsating.py); z: the α low-pass z[0] and the β low-pass z[1];
@@ -34,7 +34,7 @@ def improved_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_
     eps = i_beta_l * math.cos(x[THETA]) - i_alpha_l * math.sin(x[THETA])
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_alpha,
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, eps, observable)
     return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state
 

@@ -65,8 +65,7 @@ SUMS = 7
 """Sliding sums from here: a, b, y1, y2, aa, bb, ab, a·y1, b·y2, b·y1 + a·y2 (10)."""
 N_SUMS = 10
 HISTORY = SUMS + N_SUMS
-"""Then the ring of (axis angle, applied command α, β) per sample × (d + 2), then the regressor ring
-(a, b, y1, y2) × 2N."""
+"""Then the ring of the injection axis per sample × (d + 2), then the regressor ring (a, b, y1, y2) × 2N."""
 
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
@@ -159,31 +158,26 @@ def _fit_error(x, n, p):
 
 
 @njit(cache=True)
-def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder,
+def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder,
                          omega_e_encoder):
-    """One sample (interface.py): currents i_a, i_b, i_c [A] and the command issued at k−1 (u_prev) [V] →
+    """One sample (interface.py): currents i_a, i_b, i_c [A] and the voltage applied in the period before
+    (u_applied) [V] →
     (θ̂_e, ω̂_e = the loop's integrator, u_inj_α, u_inj_β, ε [rad], |Δ̂| [1/H], start-up state code).
     State x: θ̂, integrator, previous currents, fit count, smoothed |Δ̂| and î_q (indices
-    THETA..I_Q_SMOOTH), the 10 sliding sums (SUMS), the ring of (axis, command α, β) per sample × (d + 2),
+    THETA..I_Q_SMOOTH), the 10 sliding sums (SUMS), the ring of the injection axis per sample × (d + 2),
     the regressor ring (a, b, y1, y2) × 2N, the start-up state; z unused; p: InjectionFrameParams."""
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     depth = p.delay_periods + 2
     issued = HISTORY
-    ring = HISTORY + 3 * depth
+    ring = HISTORY + depth
     window = 2 * p.N
 
-    # The command issued at k−1 arrives now: store it beside the axis it was aimed at.
-    slot_prev = (k - 1) % depth
-    x[issued + 3 * slot_prev + 1] = u_prev_alpha
-    x[issued + 3 * slot_prev + 2] = u_prev_beta
-    slot_then = (k - 1 - p.delay_periods) % depth
-    axis_then = x[issued + 3 * slot_then]
-    u_then_alpha = x[issued + 3 * slot_then + 1]
-    u_then_beta = x[issued + 3 * slot_then + 2]
+    # The voltage applied in period k−1 was issued at k−1−d, aimed at the axis of then.
+    axis_then = x[issued + (k - 1 - p.delay_periods) % depth]
     d_alpha = i_alpha - x[PREV_IA]
     d_beta = i_beta - x[PREV_IB]
-    drive_alpha = u_then_alpha - p.R_s_ohm * 0.5 * (i_alpha + x[PREV_IA])
-    drive_beta = u_then_beta - p.R_s_ohm * 0.5 * (i_beta + x[PREV_IB])
+    drive_alpha = u_applied_alpha - p.R_s_ohm * 0.5 * (i_alpha + x[PREV_IA])
+    drive_beta = u_applied_beta - p.R_s_ohm * 0.5 * (i_beta + x[PREV_IB])
     if p.dead_time_voltage_V != 0.0:
         start_a, start_b, start_c = inverse_clarke(x[PREV_IA], x[PREV_IB])
         loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
@@ -233,9 +227,9 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, t
     carrier_now = math.cos(2.0 * math.pi * (k % p.N) / p.N)
     sign_now = 1.0 if (k // p.N) % 2 == 0 else -1.0
     axis_now = x[THETA] + omega * (p.delay_periods + 0.5) * p.T_s_s
-    x[issued + 3 * (k % depth)] = axis_now
+    x[issued + k % depth] = axis_now
     u_alpha, u_beta = rotate(p.U_h_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_alpha,
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, eps, observable)
     return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, x[DELTA_SMOOTH], state
 
@@ -251,7 +245,7 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods)
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, 2.0 * math.pi / (N * T_s),
                                           float(s["saliency_snr_min"]))
-    base = HISTORY + 3 * (delay_periods + 2) + 4 * 2 * N
+    base = HISTORY + (delay_periods + 2) + 4 * 2 * N
     startup = make_startup(base, nameplate, commissioning, T_s, delay_periods, 1.0, s)
     params = InjectionFrameParams(
         T_s_s=T_s, N=N, U_h_V=amplitude, R_s_ohm=commissioning.R_s_ohm,

@@ -2,7 +2,7 @@
 
 A core is a numba step function called once per sample k with the measured phase currents:
 
-    step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder)
+    step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder)
         -> (θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, state)
 
 θ̂_e is the unwrapped electrical angle estimate at sample k, ω̂_e the electrical speed estimate fed to
@@ -10,8 +10,10 @@ the speed loop, u_inj the HF voltage to superimpose for the period that follows 
 frame), ε the demodulated error driving the tracking loop, ``signal`` the measured angle-information
 strength (estimator-specific units, documented per estimator) and ``state`` the start-up state code
 (startup.py: 0 hold, 1 aligning, 2 polarity test, 3 tracking, 4 lock lost; the controller applies
-torque only once it has reached 3). u_prev is the voltage command the controller issued at sample k−1
-(the `voltage_command` topic). x (1-D) and z (filter sections) are the estimator's state, θ̂ at x[0] and
+torque only once it has reached 3). u_applied is the voltage that acted in the period before sample k,
+the one that made the current step i[k] − i[k−1]: `voltage_command`(k−1−d), d the drive's delay
+(control_math.command_delay; the caller keeps the delay line, so a block of samples needs only commands
+of earlier blocks). x (1-D) and z (filter sections) are the estimator's state, θ̂ at x[0] and
 its speed integrator at x[1]; p its parameters, the start-up's as ``p.startup``. Every estimator starts
 at θ̂ = 0, ω̂ = 0: it is told nothing of the angle. The encoder inputs are read only by the ``sensored``
 pass-through.

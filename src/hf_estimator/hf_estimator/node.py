@@ -1,8 +1,9 @@
 """The ``hf_estimator`` node: an estimator core over topics.
 
-For sample k it joins `currents`(k) with `voltage_command`(k−1) (the voltage applied during the period
-that produced them; zero for k = 0, and zero if the controller stays silent past half the lock-step
-timeout, which is what the plant then applied) and, for `sensored` only, `rotor_state`(k). It answers
+For sample k it joins `currents`(k) with the voltage applied during the period that produced them,
+`voltage_command`(k−1−d) from its delay line (control_math.command_delay; d the drive's delay; zero
+before sample 0, and zero if the controller stays silent past half the lock-step timeout, which is what
+the plant then applied) and, for `sensored` only, `rotor_state`(k). It answers
 `rotor_estimate`(k), `injection`(k) and `estimator_state`(k) (x = ε, y = signal, z = the start-up state
 code, hf_estimator.startup). A lost lock or a refused start is a fault (ERROR on /diagnostics, counted).
 Non-finite or absurd currents are not fed to the core: the node answers with its last estimate and
@@ -16,6 +17,7 @@ motor value it uses with its source (``motor_knowledge``).
 import sys
 import time
 
+from control_math.command_delay import applied_voltage, command_line, issue_command
 from control_math.current_sensing import corrected_currents
 from drive_interface.estimator_states import LOCK_LOST, STATE_NAMES
 from drive_interface.node import finite, run_node
@@ -33,7 +35,8 @@ class EstimatorNode(ScenarioNode):
     def __init__(self, **kwargs):
         super().__init__("hf_estimator", **kwargs)
         self.currents = {}
-        self.voltages = {}
+        self.issued = -1
+        """The last sample whose voltage_command is in the delay line."""
         self.encoder = {}
         self.waiting_since = None
         self.estimate_wire = JointWire("rotor")
@@ -50,6 +53,8 @@ class EstimatorNode(ScenarioNode):
         e = self.estimator
         self.sensored = e.name == "sensored"
         self.n_p = self.nameplate().n_p
+        self.delay = self.scenario.drive_delay_periods()
+        self.line = command_line(self.delay)
         self.k = 0
         self.theta_hat = self.omega_hat = 0.0
         self.trip_A = self.trip_current_A()
@@ -96,8 +101,11 @@ class EstimatorNode(ScenarioNode):
 
     def on_voltage_command(self, sec, nanosec, u_alpha, u_beta, _):
         k = sample_at(sec, nanosec, self.T_s)
-        if k is not None and k + 1 >= self.k:
-            self.voltages[k] = (u_alpha, u_beta)
+        if k is not None and k > self.issued:
+            if not finite(u_alpha, u_beta):
+                u_alpha, u_beta = 0.0, 0.0
+            issue_command(self.line, k, u_alpha, u_beta)
+            self.issued = k
             self.try_step()
 
     def on_rotor_state(self, sec, nanosec, theta_m, omega_m, _):
@@ -110,16 +118,18 @@ class EstimatorNode(ScenarioNode):
         k = self.k
         if k not in self.currents:
             return
-        if k > 0 and k - 1 not in self.voltages and not force_voltage:
+        acted = k - 1 - self.delay
+        if acted > self.issued and not force_voltage:
             self.waiting_since = self.waiting_since or time.monotonic()
             return
         if self.sensored and k not in self.encoder:
             return
         self.waiting_since = None
         i_a, i_b, i_c = self.currents.pop(k)
-        u_alpha, u_beta = self.voltages.pop(k - 1, (0.0, 0.0))
-        if not finite(u_alpha, u_beta):
-            u_alpha, u_beta = 0.0, 0.0
+        if acted > self.issued:
+            issue_command(self.line, acted, 0.0, 0.0)
+            self.issued = acted
+        u_alpha, u_beta = applied_voltage(self.line, k - 1)
         theta_enc, omega_enc = self.encoder.pop(k, (0.0, 0.0))
         self.k = k + 1
         if not finite(i_a, i_b, i_c) or max(abs(i_a), abs(i_b), abs(i_c)) > self.trip_A:
@@ -153,8 +163,8 @@ class EstimatorNode(ScenarioNode):
     def watchdog(self):
         if self.waiting_since and time.monotonic() - self.waiting_since > self.timeout_s / 2.0:
             topic = self.resolve_topic_name("voltage_command")
-            self.fault("timeout", f"sample {self.k}: no {topic} for sample {self.k - 1}; estimating with "
-                                  f"zero voltage (what the plant applied)")
+            self.fault("timeout", f"sample {self.k}: no {topic} for sample {self.k - 1 - self.delay}; "
+                                  f"estimating with zero voltage (what the plant applied)")
             self.try_step(force_voltage=True)
 
     def status_values(self):

@@ -13,7 +13,7 @@ class SensoredParams(NamedTuple):
 
 
 @njit(cache=True)
-def sensored_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
+def sensored_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder):
     """One sample (interface.py): the encoder's θ_e, ω_e passed through, no injection, ε 0, signal 1,
     state tracking (an encoder needs no start-up). No state."""
     return theta_e_encoder, omega_e_encoder, 0.0, 0.0, 0.0, 1.0, 3.0

@@ -123,7 +123,7 @@ class StartupParams(NamedTuple):
 @njit(cache=True)
 def startup_size(p):
     """Entries of the start-up state in an estimator's x."""
-    return HISTORY + 2 * (p.delay_periods + 2)
+    return HISTORY
 
 
 def make_startup(base, nameplate, commissioning, T_s, delay_periods, error_gain, settings):
@@ -205,16 +205,10 @@ def _turn(x, p, angle):
 
 
 @njit(cache=True)
-def _backemf_residual(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta):
-    """Update the low-passed back-EMF residual (θ̂ frame) with sample k → its magnitude [V]."""
+def _backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta):
+    """Update the low-passed back-EMF residual (θ̂ frame) with sample k and the voltage (u_α, u_β) [V]
+    applied in the period before it → its magnitude [V]."""
     b = p.base
-    depth = p.delay_periods + 2
-    ring = b + HISTORY
-    slot_prev = (k - 1) % depth
-    x[ring + 2 * slot_prev] = u_prev_alpha
-    x[ring + 2 * slot_prev + 1] = u_prev_beta
-    slot_then = (k - 1 - p.delay_periods) % depth
-    u_alpha, u_beta = x[ring + 2 * slot_then], x[ring + 2 * slot_then + 1]
     prev_a, prev_b = x[b + PREV_IA], x[b + PREV_IB]
     x[b + PREV_IA] = i_alpha
     x[b + PREV_IB] = i_beta
@@ -332,15 +326,15 @@ def _lost(x, p, k):
 
 
 @njit(cache=True)
-def startup_step(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_inj_alpha, u_inj_beta, eps,
+def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_inj_alpha, u_inj_beta, eps,
                  observable):
-    """Supervise sample k after the estimator's own step: the measured currents (α, β) [A], the command
-    issued at k−1 [V], the estimator's injection for the coming period [V], its ε and observable flag.
-    May turn or hold θ̂ (x[0]) and its integrator (x[1]). Returns (u_inj_α, u_inj_β, state code)."""
+    """Supervise sample k after the estimator's own step: the measured currents (α, β) [A], the voltage
+    applied in the period before sample k [V], the estimator's injection for the coming period [V], its ε
+    and observable flag. May turn or hold θ̂ (x[0]) and its integrator (x[1]). Returns (u_inj_α, u_inj_β, state code)."""
     b = p.base
     if k == p.slip_at_sample:
         _turn(x, p, p.slip_rad)
-    residual = _backemf_residual(x, p, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta)
+    residual = _backemf_residual(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta)
     code = int(x[b + CODE])
     since = k - int(x[b + ENTERED])
     if x[b + REFUSED] != NOT_REFUSED:

@@ -54,7 +54,7 @@ class SynchronousParams(NamedTuple):
 
 
 @njit(cache=True)
-def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta_e_encoder, omega_e_encoder):
+def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder):
     """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI output, u_inj_α, u_inj_β,
     ε = −î_qhf [A], |Δ̂| [1/H], start-up state code). State x: θ̂, the PI integrator, the admittance
     monitor, the start-up (pulsating.py); z: band-pass sections z[0], T_f low-pass z[1]; p: SynchronousParams."""
@@ -65,7 +65,7 @@ def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_prev_alpha, u_prev_beta, theta
     omega, u_alpha, u_beta, signal_strength, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.sin(p.omega_h_rad_s * t), p.u_h_V, p.kp, p.ki, p.T_s_s,
         -i_qhf)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_prev_alpha, u_prev_beta, u_alpha,
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, -i_qhf, observable)
     return x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, state
 

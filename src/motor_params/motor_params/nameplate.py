@@ -55,6 +55,13 @@ NAMEPLATES = {"wang_spmsm": _wang_spmsm(), "szabo_ipmsm": _szabo_ipmsm()}
 INVERTER_RATINGS = {"wang_spmsm": InverterRating(U_dc_V=24.0, delay_periods=1),
                     "szabo_ipmsm": InverterRating(U_dc_V=560.0, delay_periods=1)}
 """The inverter each shipped motor is driven by."""
+TRIP_PER_CURRENT_LIMIT = 3.0
+"""A phase current beyond this many times the nameplate's current limit is absurd input, not a current."""
+
+
+def trip_current_A(plate):
+    """The default trip current [A] of a motor with nameplate ``plate``."""
+    return TRIP_PER_CURRENT_LIMIT * plate.current_limit_A
 
 
 def nameplate(name):

@@ -4,6 +4,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from control_math.command_delay import command_line
+
 from .model import N_STATE, plant_reset
 from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
 from .presets import get_preset, plant_parameters
@@ -23,6 +25,8 @@ class Plant:
     substeps: int
     imposed_speed: bool
     """The shaft follows the speed table (dynamometer) instead of its torque balance."""
+    line: np.ndarray
+    """The inverter's delay line of commands (control_math.command_delay), ``inverter.delay_periods`` long."""
 
 
 def plant_for_scenario(scenario):
@@ -30,7 +34,8 @@ def plant_for_scenario(scenario):
     preset = get_preset(scenario.motor)
     machine, mechanics, inverter, sensor = plant_parameters(preset, scenario.non_idealities,
                                                             scenario.plant_deviation)
+    inverter = inverter._replace(delay_periods=inverter.delay_periods + scenario.block_samples - 1)
     x = np.zeros(N_STATE)
     plant_reset(x, scenario.initial_theta_m_rad, scenario.initial_omega_m_rad_s, machine)
     return Plant(machine, mechanics, inverter, sensor, x, scenario.seed, scenario.T_s, scenario.substeps,
-                 scenario.mode == "imposed_speed")
+                 scenario.mode == "imposed_speed", command_line(inverter.delay_periods))

@@ -3,18 +3,20 @@
 The stator flux linkage in the stationary frame is the electrical state, so the piecewise-constant
 inverter voltage is integrated without approximation and only the slow resistive and mechanical terms
 go through the Runge-Kutta step; HF injection at any frequency below Nyquist is integrated accurately
-(see test/test_plant.py). One control period is: apply the (delayed) command → integrate → sample.
+(see test/test_plant.py). One control period is: apply the voltage the delay line holds for it
+(control_math.command_delay) → integrate → sample.
 """
 import math
 
 import numpy as np
 from numba import njit
 
+from control_math.command_delay import applied_voltage
 from control_math.frames import clarke, inverse_clarke, rotate
 
 # Plant state vector layout.
-PSI_ALPHA, PSI_BETA, OMEGA_M, THETA_M, U_PENDING_ALPHA, U_PENDING_BETA = range(6)
-N_STATE = 6
+PSI_ALPHA, PSI_BETA, OMEGA_M, THETA_M = range(4)
+N_STATE = 4
 
 
 @njit(cache=True)
@@ -101,28 +103,16 @@ def _derivatives(psi_a, psi_b, omega_m, theta_m, u_a, u_b, tau_load, imposed, om
 
 
 @njit(cache=True)
-def plant_advance(x, u_cmd_alpha, u_cmd_beta, tau_load_Nm, imposed, omega_imposed, m, mech, inv,
-                  T_s, n_substeps):
-    """Advance the plant state x by one control period T_s [s] under the command (u_cmd_α, u_cmd_β) [V]
-    and the load torque [N·m]. State x (N_STATE): PSI_ALPHA, PSI_BETA [Wb], OMEGA_M [rad/s], THETA_M [rad],
-    U_PENDING_ALPHA, U_PENDING_BETA (the delayed command [V]); m, mech, inv: MachineParams,
+def plant_advance(x, u_a, u_b, tau_load_Nm, imposed, omega_imposed, m, mech, inv, T_s, n_substeps):
+    """Advance the plant state x by one control period T_s [s] under the voltage command acting in it
+    (u_a, u_b) [V, αβ] (the delay line's, control_math.command_delay) and the load torque [N·m]. State x
+    (N_STATE): PSI_ALPHA, PSI_BETA [Wb], OMEGA_M [rad/s], THETA_M [rad]; m, mech, inv: MachineParams,
     MechanicsParams, InverterParams.
 
-    ``u_cmd`` is the controller's command computed from the sample at the start of this period. With
-    ``inv.delay_periods == 1`` the command stored from the previous call is applied now and this one
-    is stored (the explicit sample → delay → PWM loop); with 0 it is applied at once. The inverter
-    realises it as one average voltage over the period, its dead-time error set by the current
-    polarities at the period start (the switching edges). With ``imposed`` the shaft runs at
+    The inverter realises the command as one average voltage over the period, its dead-time error set by
+    the current polarities at the period start (the switching edges). With ``imposed`` the shaft runs at
     ``omega_imposed`` [rad/s] (dynamometer mode).
     """
-    if inv.delay_periods == 1:
-        u_a = x[U_PENDING_ALPHA]
-        u_b = x[U_PENDING_BETA]
-        x[U_PENDING_ALPHA] = u_cmd_alpha
-        x[U_PENDING_BETA] = u_cmd_beta
-    else:
-        u_a = u_cmd_alpha
-        u_b = u_cmd_beta
     d_a, d_b, d_c = duty_cycles(u_a, u_b, inv.U_dc_V)
     i_alpha, i_beta = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
     v_a, v_b = inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s)
@@ -151,6 +141,31 @@ def plant_outputs(x, m):
     tau_e = electromagnetic_torque(x[PSI_ALPHA], x[PSI_BETA], i_a, i_b, m.n_p)
     p_a, p_b, p_c = inverse_clarke(i_a, i_b)
     return p_a, p_b, p_c, tau_e
+
+
+@njit(cache=True)
+def plant_block(x, line, k0, n, load_Nm, speed_rad_s, imposed, release_k, m, mech, inv, sensor, seed, T_s,
+                n_substeps, out):
+    """Samples k0 … k0+n−1 of the plant: for each k, the period k−1 under the voltage the delay line
+    ``line`` holds for it (none before sample 0), then the sample. ``load_Nm``, ``speed_rad_s``: per
+    period, indexed by k (the imposed speed with ``imposed``); the shaft is held at rest (a brake) in
+    every period j < ``release_k``. Rows of ``out`` (n × 10): true i_a, i_b, i_c [A], measured m_a, m_b,
+    m_c [A] (sense_currents), θ_m [rad], ω_m [rad/s], τ_e [N·m], the load of the period that follows
+    [N·m]. A block reads only commands of earlier blocks when the line's delay is at least n − 1."""
+    for i in range(n):
+        k = k0 + i
+        if k > 0:
+            j = k - 1
+            u_a, u_b = applied_voltage(line, j)
+            held = j < release_k
+            plant_advance(x, u_a, u_b, load_Nm[j], imposed or held, 0.0 if held else speed_rad_s[j], m, mech,
+                          inv, T_s, n_substeps)
+        i_a, i_b, i_c, tau_e = plant_outputs(x, m)
+        m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, sensor, seed, k)
+        row = out[i]
+        row[0], row[1], row[2] = i_a, i_b, i_c
+        row[3], row[4], row[5] = m_a, m_b, m_c
+        row[6], row[7], row[8], row[9] = x[THETA_M], x[OMEGA_M], tau_e, load_Nm[k]
 
 
 @njit(cache=True)

@@ -1,7 +1,8 @@
 """The ``pmsm_plant`` node: the plant core over topics, in lock-step on sim time.
 
 Publishes sample k (`currents`, `rotor_state`, `/clock` unless another node does), waits for
-`voltage_command` stamped k, then advances to k+1. A command with another stamp is discarded and
+`voltage_command` stamped k, takes it into its delay line (control_math.command_delay) and advances to
+k+1 under the command the line holds for period k. A command with another stamp is discarded and
 counted; if no valid command comes within ``lockstep_timeout_s`` the plant applies zero voltage for that
 period and names the silent topic.
 `angle_error` is published for each `rotor_estimate` that matches a recent sample.
@@ -22,6 +23,7 @@ import time
 from geometry_msgs.msg import Vector3Stamped
 from std_msgs.msg import Float64
 
+from control_math.command_delay import applied_voltage, issue_command
 from control_math.frames import wrap
 from drive_interface.node import SamplePublisher, finite, run_node, topic_qos
 from drive_interface.stamps import sample_at, stamp_ns, stamp_parts
@@ -100,6 +102,9 @@ class PlantNode(ScenarioNode):
         sense_currents(i_a, i_b, i_c, p.sensor, p.seed, 0)
         plant_advance(x, 0.0, 0.0, 0.0, p.imposed_speed, 0.0, p.machine, p.mechanics, p.inverter, p.T_s,
                       p.substeps)
+        line = p.line.copy()
+        issue_command(line, 0, 0.0, 0.0)
+        applied_voltage(line, 0)
         wrap(0.0)
 
     def on_load_torque(self, msg):
@@ -193,8 +198,10 @@ class PlantNode(ScenarioNode):
             self.advance(*self.pending_command)
 
     def advance(self, u_alpha, u_beta, safe_state=False):
-        """Apply the command of sample k (zero voltage as the safe state after a fault) and go to k+1."""
+        """Take the command of sample k (zero voltage as the safe state after a fault) into the delay line,
+        run period k under the command the line holds for it and go to k+1."""
         p = self.plant
+        issue_command(p.line, self.k, u_alpha, u_beta)
         self.zero_voltage_periods += safe_state
         self.pending_command = None
         if self.braked and self.brake_states.pop(self.k, None) == 3.0:
@@ -202,7 +209,7 @@ class PlantNode(ScenarioNode):
             self.brake_states.clear()
             self.brake_release_k = self.k + round(self.scenario.brake_release_s / self.T_s)
         held = self.braked or (self.brake_release_k is not None and self.k < self.brake_release_k)
-        plant_advance(p.x, u_alpha, u_beta, self.tau_load, p.imposed_speed or held,
+        plant_advance(p.x, *applied_voltage(p.line, self.k), self.tau_load, p.imposed_speed or held,
                       0.0 if held else self.omega_imposed, p.machine, p.mechanics, p.inverter, p.T_s, p.substeps)
         self.sample_handled(self.k)
         self.k += 1

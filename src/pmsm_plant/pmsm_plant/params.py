@@ -61,7 +61,8 @@ class InverterParams(NamedTuple):
     i_dead_A: float
     """Current scale of the smoothed sign tanh(i/i_dead) (switch-capacitance commutation)."""
     delay_periods: int
-    """Computation delay: 1 = a command computed from sample k is applied during period k+1."""
+    """Delay from sample to applied command [periods]: 1 = a command computed from sample k is applied
+    during period k+1; blocks of N samples add N − 1 (pmsm_plant.build)."""
 
 
 class SensorParams(NamedTuple):
