@@ -53,10 +53,12 @@ load: {{unit: rated, points: [[0.0, 0.0], [0.03, 0.5]]}}
 """
 
 
-def scenario_file(tmp_path, name="equivalence", estimator="injection_frame", rpm=60.0, brake=False):
+def scenario_file(tmp_path, name="equivalence", estimator="injection_frame", rpm=60.0, brake=False,
+                  block_samples=1):
     path = tmp_path / f"{name}.yaml"
     braked = "brake: true\ntorque_feedforward: {unit: rated, points: [[0.0, 0.0], [0.03, 0.5]]}\n"
-    path.write_text(SCENARIO.format(estimator=estimator, rpm=rpm) + (braked if brake else ""))
+    path.write_text(SCENARIO.format(estimator=estimator, rpm=rpm) + (braked if brake else "")
+                    + f"block_samples: {block_samples}\n")
     return str(path)
 
 
@@ -70,14 +72,16 @@ def assert_same_samples(graph_result, path):
         np.testing.assert_allclose(a, b, rtol=0.0, atol=1e-9, err_msg=name)
 
 
-@pytest.mark.parametrize("processes", ["composed", "separate"])
-def test_graph_gives_the_runners_samples(tmp_path, processes):
-    """The graph's samples equal the one-process run's, start-up included; separate processes with a
-    holding brake lifting 20 ms after the first tracking sample (the plant joins `estimator_state` until
-    then) and the load's torque fed forward (`torque_feedforward`)."""
-    path = scenario_file(tmp_path, brake=processes == "separate")
-    result = launch(path, processes=processes, namespace=f"/eq_{processes}")
-    assert not result.interrupted
+@pytest.mark.parametrize("processes, block_samples", [("composed", 1), ("separate", 1), ("composed", 10),
+                                                       ("separate", 7)])
+def test_graph_gives_the_runners_samples(tmp_path, processes, block_samples):
+    """The graph's samples equal the one-process run's with the same block size, start-up included;
+    separate processes with a holding brake lifting 20 ms after the first tracking sample (the plant
+    joins `estimator_state` until then) and the load's torque fed forward (`torque_feedforward`). Blocks
+    of 7 do not divide the run: its last block is shorter."""
+    path = scenario_file(tmp_path, brake=processes == "separate", block_samples=block_samples)
+    result = launch(path, processes=processes, namespace=f"/eq_{processes}_{block_samples}")
+    assert not result.interrupted and not result.node_faults
     assert_same_samples(result, path)
 
 

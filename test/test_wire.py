@@ -2,11 +2,21 @@
 the nodes publish, any ROS 2 tool reads as the contract's types; what any publisher sends, they decode."""
 import math
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drive_interface.wire import JointWire, Vector3Wire, WireError, decode_joint, decode_vector3, encode_clock
+from drive_interface.wire import (
+    BlockWire,
+    JointWire,
+    Vector3Wire,
+    WireError,
+    decode_block,
+    decode_joint,
+    decode_vector3,
+    encode_clock,
+)
 
 serialization = pytest.importorskip("rclpy.serialization")
 from geometry_msgs.msg import Vector3Stamped  # noqa: E402
@@ -38,6 +48,21 @@ def test_a_joint_state_round_trips_through_rclpy(stamp, name, position, velocity
     assert decode_joint(data) == (*stamp, position, velocity, effort)
 
 
+@settings(max_examples=100, deadline=None)
+@given(stamps, names, st.integers(1, 40), st.booleans(), st.data())
+def test_a_block_round_trips_through_rclpy(stamp, frame_id, n, with_effort, data):
+    """A block of n samples is a JointState with three float64 channels, read by rclpy and read back."""
+    a, b, c = (np.array(data.draw(st.lists(values, min_size=n, max_size=n))) for _ in range(3))
+    encoded = BlockWire(frame_id).encode(*stamp, a, b, c if with_effort else None)
+    msg = serialization.deserialize_message(encoded, JointState)
+    assert (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id) == (*stamp, frame_id)
+    assert list(msg.name) == [] and list(msg.position) == a.tolist() and list(msg.velocity) == b.tolist()
+    assert list(msg.effort) == (c.tolist() if with_effort else [])
+    sec, nanosec, x, y, z = decode_block(serialization.serialize_message(msg))
+    assert (sec, nanosec) == stamp and x.tolist() == a.tolist() and y.tolist() == b.tolist()
+    assert z.tolist() == (c.tolist() if with_effort else [])
+
+
 def test_any_publishers_joint_state_is_read_by_its_first_entries():
     msg = JointState(name=["left_wheel", "right_wheel"], position=[1.5, 2.5], velocity=[], effort=[0.25, 0.5])
     msg.header.frame_id = "base_link"
@@ -55,6 +80,7 @@ def test_bytes_of_another_type_are_refused_by_name():
     clock = encode_clock(1, 2)
     msg = serialization.deserialize_message(clock, Clock)
     assert (msg.clock.sec, msg.clock.nanosec) == (1, 2)
-    for decode, name in ((decode_vector3, "Vector3Stamped"), (decode_joint, "JointState")):
+    for decode, name in ((decode_vector3, "Vector3Stamped"), (decode_joint, "JointState"),
+                         (decode_block, "JointState")):
         with pytest.raises(WireError, match=name):
             decode(clock)

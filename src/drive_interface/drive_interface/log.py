@@ -3,6 +3,8 @@ kernel, the graph's recorder and the bag reader all fill this layout; messages g
 ``fill_sample`` and the topic table."""
 import math
 
+import numpy as np
+
 from .topics import TOPICS
 
 LOG_COLUMNS = ("t", "theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c",
@@ -35,3 +37,16 @@ def fill_values(row, topic, values, n_p):
     scale = n_p if t.electrical else 1.0
     for column, value in zip(t.log_columns, values):
         row[COLUMN[column]] = math.nan if value is None else scale * value
+
+
+def fill_block(log, k0, topic, channels, n_p):
+    """Write a block message of ``topic`` (a block twin, drive_interface.topics.BLOCK_TOPIC) into the rows
+    k0 … of ``log``: its channels (position, velocity, effort arrays of n samples; empty: not carried)
+    fill the per-sample topic's columns, as its n per-sample messages would. Rows beyond the log are left
+    out."""
+    t = TOPICS[topic]
+    scale = n_p if t.electrical else 1.0
+    for column, values in zip(t.log_columns, channels):
+        count = min(len(values), log.shape[0] - k0)
+        if count > 0:
+            log[k0:k0 + count, COLUMN[column]] = scale * np.asarray(values[:count])

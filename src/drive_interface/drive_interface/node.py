@@ -24,7 +24,7 @@ from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sour
 from .stamps import stamp_parts
 from .strict_json import dumps
 from .topics import TOPICS
-from .wire import WireError, decoder_of
+from .wire import WireError, decode_block, decoder_of
 
 FAULT_REPORT_MIN_S = 0.1
 PEER_CHECK_PERIOD_S = 0.5
@@ -205,9 +205,10 @@ class ContractNode(Node):
     def sample_subscription(self, topic, callback):
         """Subscribe ``callback(sec, nanosec, a, b, c)`` to a per-sample contract topic, taken serialized
         and decoded by drive_interface.wire (a, b, c: x, y, z of a Vector3Stamped; the first position,
-        velocity and effort of a JointState, None where empty). Bytes that are not the topic's type are
-        a ``bad_input`` fault and go no further."""
-        decode = decoder_of(TOPICS[topic].type)
+        velocity and effort of a JointState, None where empty; of a block topic, its three channels as
+        float64 arrays, drive_interface.wire.decode_block). Bytes that are not the topic's type are a
+        ``bad_input`` fault and go no further."""
+        decode = decode_block if TOPICS[topic].block_of else decoder_of(TOPICS[topic].type)
 
         def take(data):
             try:
@@ -219,7 +220,8 @@ class ContractNode(Node):
         return self.create_subscription(message_class(topic), topic, take, topic_qos(topic), raw=True)
 
     def sample_publisher(self, topic):
-        """A publisher of a per-sample contract topic that takes serialized bytes (drive_interface.wire)."""
+        """A publisher of a per-sample or block contract topic that takes serialized bytes
+        (drive_interface.wire)."""
         return SamplePublisher(self.create_publisher(message_class(topic), topic, topic_qos(topic)))
 
     def timed(self, callback):

@@ -39,6 +39,8 @@ class Topic(NamedTuple):
     """The JointState's mechanical values are logged as electrical ones (× pole pairs)."""
     frame_id: str = ""
     """header.frame_id of its messages."""
+    block_of: str = ""
+    """The per-sample topic whose samples it carries in blocks (docs/ros-graph.md, "Block transport")."""
 
 
 VECTOR3 = "geometry_msgs/msg/Vector3Stamped"
@@ -62,9 +64,19 @@ TOPICS = {t.name: t for t in (
     Topic("drive_config", "std_msgs/msg/String", LATCHED_QOS, False, False),
     Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS, False, False),
 )}
+TOPICS.update({f"{t.name}_block": t._replace(name=f"{t.name}_block", type=JOINT_STATE, per_sample=False,
+                                             block_of=t.name)
+               for t in list(TOPICS.values()) if t.per_sample and t.log_columns})
+"""Each logged per-sample topic has a block twin (``currents_block`` …): sensor_msgs/JointState, stamped
+with its first sample's instant, the per-sample message's three values as three channels of N samples
+(x, y, z of a Vector3Stamped; position, velocity, effort of a JointState) in position, velocity, effort."""
+BLOCK_TOPIC = {t.block_of: t.name for t in TOPICS.values() if t.block_of}
+"""Per-sample topic → its block twin."""
 
 SAMPLE_LOGGED = tuple(t.name for t in TOPICS.values() if t.per_sample and t.log_columns)
 """The per-sample topics whose content goes into a run's log, each message into its sample's row."""
+BLOCK_LOGGED = tuple(BLOCK_TOPIC[topic] for topic in SAMPLE_LOGGED)
+"""Their block twins, each message into the rows of its block's samples."""
 HELD_LOGGED = tuple(t.name for t in TOPICS.values() if not t.stamped and t.log_columns)
 """Unstamped commands logged from their arrival on, held until the next."""
 

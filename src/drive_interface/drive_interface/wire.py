@@ -7,6 +7,8 @@ names and array lengths) and raise ``WireError`` on bytes that are not that type
 """
 import struct
 
+import numpy as np
+
 ENCAPSULATION = b"\x00\x01\x00\x00"
 """CDR little endian, no options."""
 _HEAD = struct.Struct("<iII")
@@ -104,6 +106,63 @@ def decode_joint(data):
     except struct.error:
         raise WireError(f"{len(data)} bytes are not a JointState") from None
     return sec, nanosec, first[0], first[1], first[2]
+
+
+class BlockWire:
+    """A block of samples as sensor_msgs/msg/JointState (docs/ros-graph.md, "Block transport"): header
+    (the first sample's stamp, ``frame_id``), no names, and three float64 channels of n samples in
+    position, velocity and effort. ``encode(sec, nanosec, a, b, c)`` → bytes; a, b, c are float64 arrays
+    of one length (c None: effort empty)."""
+
+    def __init__(self, frame_id=""):
+        self._frame = _string(frame_id)
+        self._head = _layout(("i", "I", "I", f"{len(self._frame)}s", "I"))
+
+    def encode(self, sec, nanosec, a, b, c=None):
+        parts = [self._head.pack(ENCAPSULATION, sec, nanosec, len(self._frame), self._frame, 0)]
+        offset = self._head.size - 4
+        for channel in (a, b, c):
+            count = 0 if channel is None else len(channel)
+            pad = -offset % 4
+            parts.append(b"\0" * pad + _U32.pack(count))
+            offset += pad + 4
+            if count:
+                pad = -offset % 8
+                data = channel.astype("<f8", copy=False).tobytes()
+                parts.append(b"\0" * pad + data)
+                offset += pad + len(data)
+        return b"".join(parts)
+
+
+def decode_block(data):
+    """(sec, nanosec, position, velocity, effort) of a serialized JointState, the arrays as float64
+    numpy arrays (empty where not carried)."""
+    try:
+        sec, nanosec, length = _HEAD.unpack_from(data, 4)
+        offset = 12 + length
+        offset += -offset % 4
+        (names,) = _U32.unpack_from(data, 4 + offset)
+        offset += 4
+        for _ in range(names):
+            offset += -offset % 4
+            (length,) = _U32.unpack_from(data, 4 + offset)
+            offset += 4 + length
+        channels = []
+        for _ in range(3):
+            offset += -offset % 4
+            (count,) = _U32.unpack_from(data, 4 + offset)
+            offset += 4
+            if count:
+                offset += -offset % 8
+                if 4 + offset + 8 * count > len(data):
+                    raise struct.error
+                channels.append(np.frombuffer(data, "<f8", count, 4 + offset).copy())
+                offset += 8 * count
+            else:
+                channels.append(np.empty(0))
+    except struct.error:
+        raise WireError(f"{len(data)} bytes are not a JointState") from None
+    return sec, nanosec, channels[0], channels[1], channels[2]
 
 
 _CLOCK = struct.Struct("<4siI")

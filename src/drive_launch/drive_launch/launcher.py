@@ -21,7 +21,7 @@ from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
 from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
-from drive_scenarios.scenario import refuse_behind_an_inverter, refuse_blocks_in_the_graph, resolve
+from drive_scenarios.scenario import refuse_behind_an_inverter, resolve
 
 PROCESSES = ("composed", "separate")
 LINKS = ("pty", "can")
@@ -243,7 +243,6 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
                                          spec.extra_parameters)
             scenario = scenario_from_parameters(all_parameters(parameters))
-            refuse_blocks_in_the_graph(scenario)
             drive = build_drive(scenario)
             scheduled = {**parameters, "scenario_schedule": True}
             roles = {"pmsm_plant": {**scheduled, "publish_clock": i == 0},

@@ -8,11 +8,11 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float64
 
 from drive_bags.common import offered_qos
-from drive_interface.log import COLUMN, LOG_COLUMNS, fill_values
+from drive_interface.log import COLUMN, LOG_COLUMNS, fill_block, fill_values
 from drive_interface.node import message_class, topic_qos
 from drive_interface.stamps import sample_at, stamp_ns
-from drive_interface.topics import SAMPLE_LOGGED, TOPICS
-from drive_interface.wire import WireError, decoder_of
+from drive_interface.topics import BLOCK_TOPIC, SAMPLE_LOGGED, TOPICS
+from drive_interface.wire import WireError, decode_block, decoder_of
 from motor_params.nameplate import nameplate
 
 ERROR = 2
@@ -53,16 +53,20 @@ class ScenarioDriver:
         self.load_pub = node.create_publisher(Float64, "load_torque", topic_qos("load_torque"))
         self.recorder = recorder
         self.inverter = inverter
+        self.blocks = scenario.block_samples > 1
+        self.carried = BLOCK_TOPIC if self.blocks else {topic: topic for topic in SAMPLE_LOGGED}
+        """Per-sample topic → the topic that carries it in this drive (itself, or its block twin)."""
         handlers = {"/diagnostics": self.on_diagnostics}
-        recorded = tuple(topic for topic in SAMPLE_LOGGED if topic != "voltage_command")
+        recorded = tuple(self.carried[topic] for topic in SAMPLE_LOGGED if topic != "voltage_command")
         if record:
             handlers.update({topic: self.logger_of(topic) for topic in recorded})
         if record or recorder:
-            handlers["voltage_command"] = self.on_voltage
+            handlers[self.carried["voltage_command"]] = self.on_voltage
         self.recorded_commands = {"speed_command": self.speed, "load_torque": self.load,
                                   "torque_feedforward": self.feedforward}
         self.last_recorded = {}
-        self.received = dict.fromkeys((topic for topic in handlers if TOPICS[topic].per_sample), 0)
+        self.received = dict.fromkeys((topic for topic in handlers if topic in self.carried.values()), 0)
+        """Samples received per recorded topic."""
         self.subscribe(handlers)
         self.created = time.monotonic()
         self.ready_since = None
@@ -83,11 +87,11 @@ class ScenarioDriver:
         as it comes (the schedule's commands are written by ``record_commands``)."""
         topics = set(handlers)
         if self.recorder:
-            topics |= set(TOPICS) - set(self.recorded_commands)
+            topics |= self.bag_topics()
         for topic in sorted(topics):
             cls, qos = message_class(topic), topic_qos(topic)
             handler = handlers.get(topic)
-            if handler and TOPICS[topic].per_sample:
+            if handler and topic in self.carried.values():
                 handler = self.decoding(topic, handler)
             elif handler:
                 handler = self.deserializing(cls, handler)
@@ -95,9 +99,20 @@ class ScenarioDriver:
                 handler = self.recording(topic, handler, TOPICS[topic].stamped)
             self.node.create_subscription(cls, topic, handler, qos, raw=True)
         if self.recorder:
-            for topic in sorted(TOPICS):
+            for topic in sorted(self.bag_topics() | set(self.recorded_commands)):
                 name = self.node.resolve_topic_name(topic)
                 self.recorder.add(name, TOPICS[topic].type, offered_qos(topic))
+
+    def bag_topics(self):
+        """The contract topics a recording holds, as received: every one but the schedule's commands
+        (``record_commands``) and the per-sample topics this drive does not carry (with blocks, the
+        per-sample ones but `estimator_state`, decimated to each block's first sample; otherwise the
+        block twins)."""
+        if self.blocks:
+            left_out = set(SAMPLE_LOGGED) - {"estimator_state"}
+        else:
+            left_out = set(BLOCK_TOPIC.values())
+        return set(TOPICS) - set(self.recorded_commands) - left_out
 
     def recording(self, topic, handler, stamped):
         """``handler`` (if any) after the serialized message is written into the bag."""
@@ -110,9 +125,11 @@ class ScenarioDriver:
         return callback
 
     def decoding(self, topic, handler):
-        """``handler(topic's sample index, values)`` of a serialized per-sample message; messages of no
-        sample of this run, or not of the topic's type, are left out."""
-        decode = decoder_of(TOPICS[topic].type)
+        """``handler(topic's sample index, values)`` of a serialized per-sample or block message (a
+        block's index is its first sample's, its values its channels); messages of no sample of this
+        run, or not of the topic's type, are left out."""
+        block = bool(TOPICS[topic].block_of)
+        decode = decode_block if block else decoder_of(TOPICS[topic].type)
         T_s = self.scenario.T_s
 
         def callback(data):
@@ -122,7 +139,7 @@ class ScenarioDriver:
                 return
             k = sample_at(sec, nanosec, T_s)
             if k is not None and 0 <= k < self.n:
-                self.received[topic] += 1
+                self.received[topic] += len(values[0]) if block else 1
                 handler(k, values)
         return callback
 
@@ -138,8 +155,9 @@ class ScenarioDriver:
         endpoints = [("currents", 1, 2 + r), ("rotor_estimate", 1, 2 + r), ("injection", 1, 1 + r),
                      ("voltage_command", 1, 2 + r), ("estimator_state", 1, 1 + r)]
         if self.inverter is None:
-            endpoints += [("rotor_state", 1, r + sensored), ("load_torque", 1, 1)]
-        return endpoints
+            endpoints += [("rotor_state", 1, r + sensored)]
+        endpoints = [(self.carried[topic], pubs, subs) for topic, pubs, subs in endpoints]
+        return endpoints + ([("load_torque", 1, 1)] if self.inverter is None else [])
 
     def missing_endpoints(self):
         missing = []
@@ -222,17 +240,28 @@ class ScenarioDriver:
             self.done.set_result(error is None)
 
     def logger_of(self, topic):
-        """A handler writing what a per-sample message of ``topic`` says into its log row."""
+        """A handler writing what a per-sample or block message of ``topic`` says into its log rows."""
+        if TOPICS[topic].block_of:
+            def log_block(k0, channels):
+                fill_block(self.log, k0, topic, channels, self.n_p)
+            return log_block
+
         def log_sample(k, values):
             fill_values(self.log[k], topic, values, self.n_p)
         return log_sample
 
-    def on_voltage(self, k, values):
+    def on_voltage(self, k0, values):
+        """The voltage command of sample k0 (a block's: of samples k0 …) came: the run has reached it."""
+        k = k0 + (len(values[0]) - 1 if self.blocks else 0)
         self.last_sample = max(self.last_sample, k)
-        if self.recorder and k + 1 < self.n:
-            self.record_commands(k + 1)
+        if self.recorder:
+            for j in range(k0 + 1, min(k + 2, self.n)):
+                self.record_commands(j)
         if self.record:
-            fill_values(self.log[k], "voltage_command", values, self.n_p)
+            if self.blocks:
+                fill_block(self.log, k0, "voltage_command_block", values, self.n_p)
+            else:
+                fill_values(self.log[k], "voltage_command", values, self.n_p)
         if k == self.n - 1:
             self.finished_at = time.monotonic()
             if self.complete():

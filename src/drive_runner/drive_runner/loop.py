@@ -11,10 +11,7 @@ from control_math.current_sensing import corrected_currents
 from drive_interface.estimator_states import TRACKING
 from foc_controller.control import controller_block
 from hf_estimator.block import estimator_block
-from pmsm_plant.model import plant_block
-
-NEVER = 2 ** 62
-"""A brake's release sample before the drive has reported tracking."""
+from pmsm_plant.model import NOT_RELEASED, plant_block
 
 
 @njit(cache=True)
@@ -78,7 +75,7 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
         n = min(block, k_end - k0)
         release = -1
         if brake[0] > 0.5:
-            release = NEVER if brake[1] < 0.0 else int(brake[1])
+            release = NOT_RELEASED if brake[1] < 0.0 else int(brake[1])
         plant_block(px, line, k0, n, tau_load, speed_ref, imposed, release, machine, mech, inverter, sensor, seed,
                     T_s, substeps, plant_out)
         for i in range(n):

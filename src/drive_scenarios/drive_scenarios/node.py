@@ -2,11 +2,11 @@
 override parameters (``parameters.NODE_PARAMETERS``)."""
 from drive_interface.node import ContractNode, describe, stamp
 from drive_interface.parameter_sources import label
+from drive_interface.topics import BLOCK_TOPIC
 from motor_params.commissioning import resolve_commissioning
 from motor_params.nameplate import nameplate, trip_current_A
 
 from .parameters import NODE_PARAMETERS, scenario_from_parameters
-from .scenario import refuse_blocks_in_the_graph
 
 
 class ScenarioNode(ContractNode):
@@ -31,7 +31,6 @@ class ScenarioNode(ContractNode):
         self.configured = False
         try:
             scenario = scenario_from_parameters(self.parameters, self.label)
-            refuse_blocks_in_the_graph(scenario)
             self.build(scenario)
         except ValueError as error:
             self.reject(error)
@@ -41,6 +40,15 @@ class ScenarioNode(ContractNode):
             self.warm_up()
         self.T_s = self.scenario.T_s if self.scenario else 1e-4
         self.timeout_s = float(self.parameters["lockstep_timeout_s"])
+
+    @property
+    def block_samples(self):
+        """N: samples per message on the per-sample topics (the scenario's block_samples)."""
+        return self.scenario.block_samples if self.scenario else 1
+
+    def contract_topics(self, *topics):
+        """The per-sample topics as this drive carries them: themselves, or their block twins."""
+        return tuple(BLOCK_TOPIC[t] if self.block_samples > 1 else t for t in topics)
 
     def label(self, name):
         """How errors name parameter ``name`` (its params file, the command line, or the parameter)."""

@@ -5,7 +5,7 @@ import math
 
 from drive_interface.settings import number
 
-from .scenario import ScenarioError, load_scenario, shaft_held
+from .scenario import MAX_BLOCK_SAMPLES, ScenarioError, load_scenario, shaft_held
 
 NODE_PARAMETERS = {
     "scenario": ("wang_100rpm", "shipped scenario name or YAML path: the file `drive run` reads"),
@@ -18,6 +18,8 @@ NODE_PARAMETERS = {
     "controller.current_limit_A": (0.0, "current limit [A] (0: the scenario's or commissioned)"),
     "controller.speed_limit_rad_s": (math.inf, "mechanical speed reference limit [rad/s], positive"),
     "duration_s": (0.0, "run length [s] (0: the scenario's)"),
+    "block_samples": (0, "samples per message on the per-sample topics, N (0: the scenario's; the command "
+                         "then acts N − 1 periods later)"),
     "shaft_held": (False, "hold the shaft at its initial angle, no load (a brake: commissioning; the plant "
                           "then starts without an estimator in the graph)"),
     "lockstep_timeout_s": (1.0, "wall time to wait for an answer before declaring a fault [s]"),
@@ -45,6 +47,7 @@ PARAMETER_RANGES = {
     "injection.amplitude_V": (0.0, math.inf),
     "controller.current_limit_A": (0.0, math.inf),
     "duration_s": (0.0, math.inf),
+    "block_samples": (0, MAX_BLOCK_SAMPLES),
     "lockstep_timeout_s": (1e-3, 3600.0),
     "diagnostics_period_s": (1e-3, 3600.0),
     "trip_current_A": (0.0, math.inf),
@@ -78,6 +81,8 @@ def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}")
         changes["seed"] = int(parameters["seed"])
     if parameters["duration_s"] > 0.0:
         changes["duration_s"] = float(parameters["duration_s"])
+    if parameters["block_samples"] > 0:
+        changes["block_samples"] = int(parameters["block_samples"])
     injection = dict(scenario.injection)
     for key in ("frequency_Hz", "amplitude_V"):
         if parameters[f"injection.{key}"] > 0.0:

@@ -155,15 +155,6 @@ def refuse_behind_an_inverter(scenario):
                             f"(version 1) carries one sample per frame; use block_samples 1 behind the bridge")
 
 
-def refuse_blocks_in_the_graph(scenario):
-    """ScenarioError naming the key when a scenario asks the ROS graph for blocks of samples: the nodes
-    carry one sample per message (block transport over topics is not built yet)."""
-    if scenario.block_samples > 1:
-        raise ScenarioError(f"{scenario.source}: block_samples: {scenario.block_samples}: the ROS graph carries "
-                            f"one sample per message (block transport over topics is not built yet); run "
-                            f"blocks with `drive run`")
-
-
 def scenario_names():
     return sorted(p.stem for p in SCENARIO_DIR.glob("*.yaml"))
 

@@ -20,6 +20,7 @@ import json
 import math
 import sys
 
+import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
@@ -28,13 +29,13 @@ from control_math.current_sensing import corrected_currents
 from drive_interface.node import describe, finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_interface.topics import TOPICS
-from drive_interface.wire import Vector3Wire
+from drive_interface.wire import BlockWire, Vector3Wire
 from drive_scenarios.node import ScenarioNode
 from drive_scenarios.parameters import SCHEDULE_PARAMETER
 from motor_params.knowledge import motor_knowledge
 
 from .build import check_controller_settings, controller_for_scenario
-from .control import OMEGA_FILTERED, controller_state, controller_step, estimated_torque
+from .control import OMEGA_FILTERED, controller_block, controller_state, controller_step, estimated_torque
 from .params import check_speed_limit
 
 SPEED_LIMIT = "controller.speed_limit_rad_s"
@@ -56,10 +57,16 @@ class ControllerNode(ScenarioNode):
         self.declare_parameter("joint_states_decimation", 100)
         self.decimation = max(1, int(self.get_parameter("joint_states_decimation").value))
         self.joint_pub = self.create_publisher(JointState, "joint_states", topic_qos("joint_states"))
-        inputs = [self.sample_subscription("currents", self.timed(self.on_currents)),
-                  self.sample_subscription("rotor_estimate", self.on_estimate),
-                  self.sample_subscription("injection", self.on_injection),
-                  self.sample_subscription("estimator_state", self.on_estimator_state)]
+        if self.block_samples > 1:
+            inputs = [self.sample_subscription("currents_block", self.timed(self.on_currents_block)),
+                      self.sample_subscription("rotor_estimate_block", self.on_estimate_block),
+                      self.sample_subscription("injection_block", self.on_injection_block),
+                      self.sample_subscription("estimator_state_block", self.on_estimator_state_block)]
+        else:
+            inputs = [self.sample_subscription("currents", self.timed(self.on_currents)),
+                      self.sample_subscription("rotor_estimate", self.on_estimate),
+                      self.sample_subscription("injection", self.on_injection),
+                      self.sample_subscription("estimator_state", self.on_estimator_state)]
         self.open_when_matched(inputs, self.open_outputs, ready=lambda: self.params or not self.configured)
         self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
         self.create_subscription(Float64, "torque_feedforward", self.on_torque_feedforward,
@@ -67,13 +74,15 @@ class ControllerNode(ScenarioNode):
         self.tau_feedforward = 0.0
         self.create_subscription(String, "drive_config", self.on_drive_config, topic_qos("drive_config"))
         self.add_on_set_parameters_callback(self.on_set_parameters)
-        self.watch_peer("currents", "the plant")
-        self.watch_foreign_publishers(("currents", "rotor_estimate", "injection", "estimator_state"))
+        self.watch_peer(self.contract_topics("currents")[0], "the plant")
+        self.watch_foreign_publishers(self.contract_topics("currents", "rotor_estimate", "injection",
+                                                           "estimator_state"))
         self.currents, self.estimates, self.injections, self.states = {}, {}, {}, {}
         self.k = 0
         self.omega_m_ref = 0.0
         self.current_limited = False
         self.voltage_wire = Vector3Wire(TOPICS["voltage_command"].frame_id)
+        self.block_wire = BlockWire(TOPICS["voltage_command"].frame_id)
         self.declare_parameter("joint_name", "", descriptor=describe(
             "the joint's name in joint_states (empty: the namespace's last part, e.g. left_wheel)"))
         self.joint_msg = JointState(name=[self.get_parameter("joint_name").value or default_joint_name(
@@ -115,11 +124,13 @@ class ControllerNode(ScenarioNode):
         self.trip_A = self.trip_current_A()
         self.x, self.z = controller_state(self.params)
         controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), np.zeros((1, 7)),
+                         np.zeros(1), np.zeros(1), self.calibration, self.trip_A, np.zeros((1, 6)))
         self.publish_config({"controller": self.params, "estimator": config["estimator"],
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
 
     def open_outputs(self):
-        self.voltage_pub = self.sample_publisher("voltage_command")
+        self.voltage_pub = self.sample_publisher(self.contract_topics("voltage_command")[0])
 
     def on_set_parameters(self, parameters):
         for p in parameters:
@@ -179,6 +190,66 @@ class ControllerNode(ScenarioNode):
         while k in self.currents and k in self.estimates and k in self.injections and k in self.states:
             self.step(k, self.currents.pop(k), self.estimates.pop(k), self.injections.pop(k), self.states.pop(k))
             k = self.k = k + 1
+
+    def on_currents_block(self, sec, nanosec, i_a, i_b, i_c):
+        self.store_block(self.currents, sec, nanosec, (i_a, i_b, i_c))
+
+    def on_estimate_block(self, sec, nanosec, theta_m, omega_m, _):
+        self.store_block(self.estimates, sec, nanosec, (theta_m, omega_m))
+
+    def on_injection_block(self, sec, nanosec, u_alpha, u_beta, _):
+        self.store_block(self.injections, sec, nanosec, (u_alpha, u_beta))
+
+    def on_estimator_state_block(self, sec, nanosec, eps, signal, state):
+        self.store_block(self.states, sec, nanosec, (eps, signal, state))
+
+    def store_block(self, table, sec, nanosec, channels):
+        """Keep a block input; run every block whose four inputs are in, in order."""
+        k0 = sample_at(sec, nanosec, self.T_s)
+        if k0 is None or k0 < self.k or len({len(c) for c in channels}) != 1:
+            self.fault("wrong_stamp", f"block stamped {sec}.{nanosec:09d} is not a block from sample {self.k} "
+                                      f"with equal channels; discarded")
+            return
+        table[k0] = channels
+        if table is self.currents and k0 > self.k and self.k not in self.currents:
+            self.resynchronise(k0)
+        k0 = self.k
+        while k0 in self.currents and k0 in self.estimates and k0 in self.injections and k0 in self.states:
+            self.k = self.step_block(k0, self.currents.pop(k0), self.estimates.pop(k0), self.injections.pop(k0),
+                                     self.states.pop(k0))
+            k0 = self.k
+
+    def step_block(self, k0, currents, estimate, injection, state):
+        """Answer the block of samples k0 …: its voltage commands on voltage_command_block; returns the
+        next block's first sample."""
+        n = len(currents[0])
+        out = np.zeros((n, 6))
+        if self.params and not self.health.latched and all(len(c) == n for c in (*estimate, *injection, *state)):
+            if self.schedule:
+                speed, feedforward = self.schedule[0][k0:k0 + n], self.schedule[1][k0:k0 + n]
+            else:
+                speed, feedforward = np.full(n, self.omega_m_ref), np.full(n, self.tau_feedforward)
+            estimates = np.column_stack((self.n_p * estimate[0], self.n_p * estimate[1], *injection, *state))
+            bad = controller_block(self.x, self.z, self.params, n, np.column_stack(currents), estimates, speed,
+                                   feedforward, self.calibration, self.trip_A, out)
+            if bad:
+                self.fault("bad_input", f"block {k0}: {bad} of {n} samples with currents beyond the "
+                                        f"{self.trip_A:g} A trip or a non-finite estimate; zero voltage there")
+            self.current_limited = abs(out[-1, 5]) >= self.params.i_max_A
+            joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
+            if joint is not None:
+                j = self.joint_msg
+                j.header.stamp = stamp(k0 + joint, self.T_s)
+                j.position = [float(estimate[0][joint])]
+                j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
+                j.effort = [estimated_torque(self.params, out[joint, 2], out[joint, 3])]
+                self.joint_pub.publish(j)
+        elif self.params and not self.health.latched:
+            self.fault("bad_input", f"block {k0}: inputs of unequal length; zero voltage")
+        sec, nanosec = stamp_parts(k0, self.T_s)
+        self.voltage_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 0], out[:, 1]))
+        self.sample_handled(k0 + n - 1)
+        return k0 + n
 
     def resynchronise(self, k):
         """Currents of a later sample mean the plant gave up on samples self.k..k−1 (they never completed

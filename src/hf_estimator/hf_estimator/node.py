@@ -17,16 +17,19 @@ motor value it uses with its source (``motor_knowledge``).
 import sys
 import time
 
+import numpy as np
+
 from control_math.command_delay import applied_voltage, command_line, issue_command
 from control_math.current_sensing import corrected_currents
 from drive_interface.estimator_states import LOCK_LOST, STATE_NAMES
 from drive_interface.node import finite, run_node
 from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_interface.topics import TOPICS
-from drive_interface.wire import JointWire, Vector3Wire
+from drive_interface.wire import BlockWire, JointWire, Vector3Wire
 from drive_scenarios.node import ScenarioNode
 from motor_params.knowledge import motor_knowledge
 
+from .block import estimator_block
 from .build import estimator_for_scenario
 from .startup import estimator_startup
 
@@ -42,6 +45,7 @@ class EstimatorNode(ScenarioNode):
         self.estimate_wire = JointWire("rotor")
         self.injection_wire = Vector3Wire(TOPICS["injection"].frame_id)
         self.state_wire = Vector3Wire(TOPICS["estimator_state"].frame_id)
+        self.block_wire = BlockWire()
         self.state = 0.0
         self.lock_losses = 0
         self.refusal_reported = False
@@ -58,14 +62,21 @@ class EstimatorNode(ScenarioNode):
         self.k = 0
         self.theta_hat = self.omega_hat = 0.0
         self.trip_A = self.trip_current_A()
-        inputs = [self.sample_subscription("currents", self.timed(self.on_currents))]
-        self.sample_subscription("voltage_command", self.on_voltage_command)
-        if self.sensored:
-            inputs.append(self.sample_subscription("rotor_state", self.on_rotor_state))
+        if self.block_samples > 1:
+            inputs = [self.sample_subscription("currents_block", self.timed(self.on_currents_block))]
+            self.sample_subscription("voltage_command_block", self.on_voltage_block)
+            if self.sensored:
+                inputs.append(self.sample_subscription("rotor_state_block", self.on_rotor_state_block))
+        else:
+            inputs = [self.sample_subscription("currents", self.timed(self.on_currents))]
+            self.sample_subscription("voltage_command", self.on_voltage_command)
+            if self.sensored:
+                inputs.append(self.sample_subscription("rotor_state", self.on_rotor_state))
         self.open_when_matched(inputs, self.open_outputs)
         self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
-        self.watch_peer("currents", "the plant")
-        self.watch_foreign_publishers(("currents", "voltage_command"))
+        currents, voltages = self.contract_topics("currents", "voltage_command")
+        self.watch_peer(currents, "the plant")
+        self.watch_foreign_publishers((currents, voltages))
         self.publish_config({**e.facts(), "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning),
                              "estimator_parameters": e.params})
 
@@ -76,14 +87,23 @@ class EstimatorNode(ScenarioNode):
 
     def open_outputs(self):
         """The answer publishers; `voltage_command` is not waited for (the controller opens its own
-        publisher only after these match, and sample 0 needs no previous command)."""
-        self.estimate_pub = self.sample_publisher("rotor_estimate")
-        self.injection_pub = self.sample_publisher("injection")
+        publisher only after these match, and sample 0 needs no previous command). In blocks, the block
+        twins and `estimator_state` of each block's first sample (introspection)."""
         self.state_pub = self.sample_publisher("estimator_state")
+        if self.configured and self.block_samples > 1:
+            self.estimate_pub = self.sample_publisher("rotor_estimate_block")
+            self.injection_pub = self.sample_publisher("injection_block")
+            self.state_block_pub = self.sample_publisher("estimator_state_block")
+        else:
+            self.estimate_pub = self.sample_publisher("rotor_estimate")
+            self.injection_pub = self.sample_publisher("injection")
 
     def warm_up(self):
         e = self.estimator
         e.step(e.x.copy(), e.z.copy(), e.params, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+        if self.block_samples > 1:
+            estimator_block(e.step, e.x.copy(), e.z.copy(), e.params, 0, 1, np.zeros((1, 3)), command_line(1),
+                            np.zeros((1, 2)), self.calibration, 1.0, np.zeros((1, 7)))
 
     def on_currents(self, sec, nanosec, i_a, i_b, i_c):
         k = sample_at(sec, nanosec, self.T_s)
@@ -143,8 +163,8 @@ class EstimatorNode(ScenarioNode):
                                    omega_enc))
         self.try_step()
 
-    def answer(self, k, theta_hat, omega_hat, u_inj_alpha, u_inj_beta, eps, signal, state):
-        self.theta_hat, self.omega_hat = theta_hat, omega_hat
+    def note_state(self, k, state):
+        """The estimator's state changed to ``state`` at sample k: a lost lock or a refused start is a fault."""
         if state == LOCK_LOST and self.state != LOCK_LOST:
             self.lock_losses += 1
             self.fault("lock_lost", f"sample {k}: lock lost (the back-EMF contradicts the estimate); zero torque, "
@@ -153,19 +173,91 @@ class EstimatorNode(ScenarioNode):
         if summary and summary["refused"]:
             self.refusal_reported = True
             self.fault("start_refused", f"sample {k}: {summary['refused']}")
-        self.signal, self.state = signal, state
+        self.state = state
+
+    def answer(self, k, theta_hat, omega_hat, u_inj_alpha, u_inj_beta, eps, signal, state):
+        self.theta_hat, self.omega_hat = theta_hat, omega_hat
+        self.note_state(k, state)
+        self.signal = signal
         sec, nanosec = stamp_parts(k, self.T_s)
         self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, u_inj_alpha, u_inj_beta, 0.0))
         self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, theta_hat / self.n_p, omega_hat / self.n_p))
         self.state_pub.publish(self.state_wire.encode(sec, nanosec, eps, signal, state))
         self.sample_handled(k)
 
+    def on_currents_block(self, sec, nanosec, i_a, i_b, i_c):
+        k0 = sample_at(sec, nanosec, self.T_s)
+        if k0 is None or k0 != self.k or not len(i_a) == len(i_b) == len(i_c) > 0:
+            self.fault("wrong_stamp", f"currents_block stamped {sec}.{nanosec:09d} is not the block of sample "
+                                      f"{self.k} with three equal channels; discarded")
+            return
+        self.currents[k0] = np.ascontiguousarray(np.column_stack((i_a, i_b, i_c)))
+        self.try_block()
+
+    def on_voltage_block(self, sec, nanosec, u_alpha, u_beta, _):
+        k0 = sample_at(sec, nanosec, self.T_s)
+        if k0 is None or k0 <= self.issued or len(u_alpha) != len(u_beta):
+            return
+        for i in range(len(u_alpha)):
+            u_a, u_b = u_alpha[i], u_beta[i]
+            issue_command(self.line, k0 + i, *((u_a, u_b) if finite(u_a, u_b) else (0.0, 0.0)))
+        self.issued = k0 + len(u_alpha) - 1
+        self.try_block()
+
+    def on_rotor_state_block(self, sec, nanosec, theta_m, omega_m, _):
+        k0 = sample_at(sec, nanosec, self.T_s)
+        if k0 is not None and k0 >= self.k and len(theta_m) == len(omega_m):
+            self.encoder[k0] = np.ascontiguousarray(self.n_p * np.column_stack((theta_m, omega_m)))
+            self.try_block()
+
+    def try_block(self, force_voltage=False):
+        """Run the block of sample self.k once its currents are in and the delay line holds every command
+        acting in its periods (those of the block before: d ≥ N − 1)."""
+        k0 = self.k
+        if k0 not in self.currents:
+            return
+        currents = self.currents[k0]
+        n = len(currents)
+        acted = k0 + n - 2 - self.delay
+        if acted > self.issued and not force_voltage:
+            self.waiting_since = self.waiting_since or time.monotonic()
+            return
+        if self.sensored and k0 not in self.encoder:
+            return
+        self.waiting_since = None
+        del self.currents[k0]
+        for k in range(self.issued + 1, acted + 1):
+            issue_command(self.line, k, 0.0, 0.0)
+        self.issued = max(self.issued, acted)
+        encoder = self.encoder.pop(k0, None)
+        if encoder is None or len(encoder) != n:
+            encoder = np.zeros((n, 2))
+        e, out = self.estimator, np.empty((n, 7))
+        bad = estimator_block(e.step, e.x, e.z, e.params, k0, n, currents, self.line, encoder, self.calibration,
+                              self.trip_A, out)
+        if bad:
+            self.fault("bad_input", f"currents of block {k0}: {bad} of {n} samples not finite or beyond the "
+                                    f"{self.trip_A:g} A trip; estimate held, no injection there")
+        self.k = k0 + n
+        for i in np.flatnonzero(out[:, 6] != np.concatenate(([self.state], out[:-1, 6]))):
+            self.note_state(k0 + i, out[i, 6])
+        self.theta_hat, self.omega_hat, self.signal = out[-1, 0], out[-1, 1], out[-1, 5]
+        sec, nanosec = stamp_parts(k0, self.T_s)
+        self.injection_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 2], out[:, 3]))
+        self.estimate_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 0] / self.n_p, out[:, 1] / self.n_p))
+        self.state_block_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 4], out[:, 5], out[:, 6]))
+        self.state_pub.publish(self.state_wire.encode(sec, nanosec, out[0, 4], out[0, 5], out[0, 6]))
+        self.sample_handled(k0 + n - 1)
+
     def watchdog(self):
         if self.waiting_since and time.monotonic() - self.waiting_since > self.timeout_s / 2.0:
-            topic = self.resolve_topic_name("voltage_command")
-            self.fault("timeout", f"sample {self.k}: no {topic} for sample {self.k - 1 - self.delay}; "
+            topic = self.resolve_topic_name(self.contract_topics("voltage_command")[0])
+            self.fault("timeout", f"sample {self.k}: no {topic} for the commands acting in its period(s); "
                                   f"estimating with zero voltage (what the plant applied)")
-            self.try_step(force_voltage=True)
+            if self.block_samples > 1:
+                self.try_block(force_voltage=True)
+            else:
+                self.try_step(force_voltage=True)
 
     def status_values(self):
         if not self.configured:

@@ -17,6 +17,8 @@ from control_math.frames import clarke, inverse_clarke, rotate
 # Plant state vector layout.
 PSI_ALPHA, PSI_BETA, OMEGA_M, THETA_M = range(4)
 N_STATE = 4
+NOT_RELEASED = 2 ** 62
+"""plant_block's ``release_k`` of a brake that holds until further notice."""
 
 
 @njit(cache=True)

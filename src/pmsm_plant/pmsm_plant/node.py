@@ -20,6 +20,7 @@ too, so the release falls on the same sample as in one process.
 import sys
 import time
 
+import numpy as np
 from geometry_msgs.msg import Vector3Stamped
 from std_msgs.msg import Float64
 
@@ -28,12 +29,12 @@ from control_math.frames import wrap
 from drive_interface.node import SamplePublisher, finite, run_node, topic_qos
 from drive_interface.stamps import sample_at, stamp_ns, stamp_parts
 from drive_interface.topics import TOPICS
-from drive_interface.wire import JointWire, Vector3Wire, encode_clock
+from drive_interface.wire import BlockWire, JointWire, Vector3Wire, encode_clock
 from drive_scenarios.node import ScenarioNode
 from drive_scenarios.parameters import SCHEDULE_PARAMETER
 
 from .build import plant_for_scenario
-from .model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
+from .model import NOT_RELEASED, OMEGA_M, THETA_M, plant_advance, plant_block, plant_outputs, sense_currents
 
 HISTORY_SAMPLES = 8
 
@@ -48,13 +49,17 @@ class PlantNode(ScenarioNode):
         self.scheduled = bool(self.get_parameter("scenario_schedule").value)
         self.go = not self.scheduled
         self.angle_error_decimation = max(1, int(self.get_parameter("angle_error_decimation").value))
-        self.currents_pub = self.sample_publisher("currents")
-        self.rotor_state_pub = self.sample_publisher("rotor_state")
+        self.currents_pub = self.sample_publisher(self.contract_topics("currents")[0])
+        self.rotor_state_pub = self.sample_publisher(self.contract_topics("rotor_state")[0])
         self.clock_pub = None
         self.angle_error_pub = SamplePublisher(self.create_publisher(Vector3Stamped, "angle_error",
                                                                      topic_qos("angle_error")))
-        self.voltage_sub = self.sample_subscription("voltage_command", self.timed(self.on_voltage_command))
-        self.sample_subscription("rotor_estimate", self.on_rotor_estimate)
+        if self.block_samples > 1:
+            self.voltage_sub = self.sample_subscription("voltage_command_block", self.timed(self.on_voltage_block))
+            self.sample_subscription("rotor_estimate_block", self.on_rotor_estimate_block)
+        else:
+            self.voltage_sub = self.sample_subscription("voltage_command", self.timed(self.on_voltage_command))
+            self.sample_subscription("rotor_estimate", self.on_rotor_estimate)
         self.create_subscription(Float64, "load_torque", self.on_load_torque, topic_qos("load_torque"))
         self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
         self.braked = bool(self.configured and self.scenario.brake)
@@ -64,7 +69,9 @@ class PlantNode(ScenarioNode):
         self.pending_command = None
         self.state_sub = None
         if self.braked:
-            self.state_sub = self.sample_subscription("estimator_state", self.on_estimator_state)
+            self.state_sub = (self.sample_subscription("estimator_state_block", self.on_estimator_state_block)
+                              if self.block_samples > 1 else
+                              self.sample_subscription("estimator_state", self.on_estimator_state))
         self.k = 0
         self.tau_load = 0.0
         self.omega_imposed = 0.0
@@ -78,17 +85,23 @@ class PlantNode(ScenarioNode):
         self.currents_wire = Vector3Wire(TOPICS["currents"].frame_id)
         self.rotor_state_wire = JointWire("rotor")
         self.error_wire = Vector3Wire(TOPICS["angle_error"].frame_id)
+        self.currents_block_wire = BlockWire(TOPICS["currents"].frame_id)
+        self.rotor_state_block_wire = BlockWire()
         self.schedule = None
         if self.configured:
             s, p = self.scenario, self.plant
             self.n_samples = s.n_samples
             if self.scheduled:
                 self.schedule = s.schedule()
+            elif self.block_samples > 1:
+                self.held = (np.zeros(s.n_samples), np.zeros(s.n_samples))
+                """Speed and load per period, filled from the latest commands as blocks are simulated."""
+            self.plant_out = np.zeros((self.block_samples, 10))
             self.publish_config({"scenario": s.name, "T_s_s": s.T_s, "samples": s.n_samples,
                                  "mode": s.mode, "machine": p.machine, "mechanics": p.mechanics,
                                  "inverter": p.inverter, "sensor": p.sensor, "non_idealities": s.non_idealities})
             self.create_timer(min(self.timeout_s / 4.0, 0.05), self.watchdog)
-            self.watch_foreign_publishers(("voltage_command",))
+            self.watch_foreign_publishers(self.contract_topics("voltage_command"))
         else:
             self.publish_config({})
 
@@ -106,6 +119,9 @@ class PlantNode(ScenarioNode):
         issue_command(line, 0, 0.0, 0.0)
         applied_voltage(line, 0)
         wrap(0.0)
+        if self.block_samples > 1:
+            plant_block(p.x.copy(), line, 1, 1, np.zeros(2), np.zeros(2), p.imposed_speed, -1, p.machine, p.mechanics,
+                        p.inverter, p.sensor, p.seed, p.T_s, p.substeps, np.zeros((1, 10)))
 
     def on_load_torque(self, msg):
         if not finite(msg.data):
@@ -128,9 +144,10 @@ class PlantNode(ScenarioNode):
         voltages and no estimator runs."""
         matched = self.currents_pub.get_subscription_count()
         held = self.parameters["shaft_held"]
-        return (matched >= max(1 if held else 2, self.count_subscribers("currents"))
+        currents, estimate = self.contract_topics("currents", "rotor_estimate")
+        return (matched >= max(1 if held else 2, self.count_subscribers(currents))
                 and self.voltage_sub.get_publisher_count() >= 1
-                and (held or self.count_publishers("rotor_estimate") >= 1)
+                and (held or self.count_publishers(estimate) >= 1)
                 and (self.state_sub is None or self.state_sub.get_publisher_count() >= 1) and self.go)
 
     def watchdog(self):
@@ -140,15 +157,18 @@ class PlantNode(ScenarioNode):
             if self.ready():
                 self.started = True
                 self.clock_pub = self.claim_clock()
-                self.publish_sample()
+                self.publish_block() if self.block_samples > 1 else self.publish_sample()
             return
         if time.monotonic() - self.sent_at <= self.timeout_s:
             return
         estimating = not self.parameters["shaft_held"] and self.estimate_seen < self.k
         silent = "rotor_estimate" if estimating else "voltage_command"
-        self.fault("timeout", f"sample {self.k}: no answer within {self.timeout_s:g} s "
-                              f"(silent topic: {self.resolve_topic_name(silent)}); zero voltage applied")
-        self.advance(0.0, 0.0, safe_state=True)
+        self.fault("timeout", f"sample {self.k}: no answer within {self.timeout_s:g} s (silent topic: "
+                              f"{self.resolve_topic_name(self.contract_topics(silent)[0])}); zero voltage applied")
+        if self.block_samples > 1:
+            self.advance_block(np.zeros(self.block_length()), np.zeros(self.block_length()), safe_state=True)
+        else:
+            self.advance(0.0, 0.0, safe_state=True)
 
     def publish_sample(self):
         p, k = self.plant, self.k
@@ -217,6 +237,100 @@ class PlantNode(ScenarioNode):
             self.finished = True
             return
         self.publish_sample()
+
+    def block_length(self):
+        """Samples in the block that starts at self.k (the last block of a run may be shorter)."""
+        return min(self.block_samples, self.n_samples - self.k)
+
+    def publish_block(self):
+        """Simulate the block of samples self.k … (each period under the delay line's command) and publish
+        it: `currents_block`, `rotor_state_block`, `/clock` at its first sample."""
+        p, k0, n = self.plant, self.k, self.block_length()
+        if self.schedule:
+            speed, load = self.schedule
+        else:
+            speed, load = self.held
+            periods = slice(max(k0 - 1, 0), k0 + n - 1)
+            speed[periods], load[periods] = self.latest_speed, self.tau_load
+        release = -1
+        if self.scenario.brake:
+            release = NOT_RELEASED if self.braked else self.brake_release_k
+        out = self.plant_out[:n]
+        plant_block(p.x, p.line, k0, n, load, speed, p.imposed_speed, release, p.machine, p.mechanics, p.inverter,
+                    p.sensor, p.seed, p.T_s, p.substeps, out)
+        self.history[k0] = out[:, 6:8].copy()
+        self.history.pop(k0 - HISTORY_SAMPLES * self.block_samples, None)
+        sec, nanosec = stamp_parts(k0, self.T_s)
+        if self.clock_pub:
+            self.clock_pub.publish(encode_clock(sec, nanosec))
+        self.sent_at = time.monotonic()
+        self.rotor_state_pub.publish(self.rotor_state_block_wire.encode(sec, nanosec, out[:, 6], out[:, 7], out[:, 8]))
+        self.currents_pub.publish(self.currents_block_wire.encode(sec, nanosec, out[:, 3], out[:, 4], out[:, 5]))
+
+    def on_voltage_block(self, sec, nanosec, u_alpha, u_beta, _):
+        if not self.started or self.finished:
+            return
+        k0, n = sample_at(sec, nanosec, self.T_s), self.block_length()
+        if k0 != self.k or len(u_alpha) != n or len(u_beta) != n:
+            self.fault("wrong_stamp", f"voltage_command_block stamped {sec}.{nanosec:09d} with {len(u_alpha)} "
+                                      f"samples while waiting for the {n} of sample {self.k}; discarded")
+            return
+        limit = self.plant.inverter.U_dc_V
+        if not (np.isfinite(u_alpha).all() and np.isfinite(u_beta).all()) or max(
+                np.abs(u_alpha).max(), np.abs(u_beta).max()) > limit:
+            self.fault("bad_input", f"voltage_command_block of sample {k0}: not voltages the inverter can apply; "
+                                    f"zero voltage applied for the block")
+            self.advance_block(np.zeros(n), np.zeros(n), safe_state=True)
+            return
+        if self.braked and k0 not in self.brake_states:
+            self.pending_command = (u_alpha, u_beta)
+            return
+        self.advance_block(u_alpha, u_beta)
+
+    def on_estimator_state_block(self, sec, nanosec, _, __, states):
+        """While the brake holds: the estimator's states of a block (its first tracking sample releases it)."""
+        k0 = sample_at(sec, nanosec, self.T_s)
+        if not self.braked or k0 is None or k0 < self.k:
+            return
+        self.brake_states[k0] = states
+        if self.pending_command is not None and self.k in self.brake_states:
+            self.advance_block(*self.pending_command)
+
+    def advance_block(self, u_alpha, u_beta, safe_state=False):
+        """Take the block's commands (zero voltage as the safe state after a fault) into the delay line and
+        simulate the next block."""
+        p, k0, n = self.plant, self.k, len(u_alpha)
+        self.zero_voltage_periods += n if safe_state else 0
+        self.pending_command = None
+        for i in range(n):
+            issue_command(p.line, k0 + i, u_alpha[i], u_beta[i])
+        if self.braked:
+            tracking = np.flatnonzero(self.brake_states.pop(k0, np.empty(0)) == 3.0)
+            if tracking.size:
+                self.braked = False
+                self.brake_states.clear()
+                self.brake_release_k = max(k0 + int(tracking[0]) + round(self.scenario.brake_release_s / self.T_s),
+                                           k0 + n - 1)
+        self.sample_handled(k0 + n - 1)
+        self.k = k0 + n
+        if self.k >= self.n_samples:
+            self.finished = True
+            return
+        self.publish_block()
+
+    def on_rotor_estimate_block(self, sec, nanosec, theta_hat_m, omega_hat_m, _):
+        """`angle_error` of each block's first sample (introspection, decimated to one per block at least)."""
+        k0 = sample_at(sec, nanosec, self.T_s)
+        if k0 is None or k0 not in self.history or not len(theta_hat_m) or not len(omega_hat_m):
+            return
+        self.estimate_seen = max(self.estimate_seen, k0 + len(theta_hat_m) - 1)
+        if (k0 // self.block_samples) % max(1, self.angle_error_decimation // self.block_samples) or not finite(
+                theta_hat_m[0], omega_hat_m[0]):
+            return
+        theta_m, omega_m = self.history[k0][0]
+        n_p = self.plant.machine.n_p
+        self.angle_error_pub.publish(self.error_wire.encode(sec, nanosec, wrap(n_p * (theta_m - theta_hat_m[0])),
+                                                            omega_m - omega_hat_m[0], 0.0))
 
     def on_rotor_estimate(self, sec, nanosec, theta_hat_m, omega_hat_m, _):
         k = sample_at(sec, nanosec, self.T_s)
