@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
+from control_math.command_delay import command_line, issue_command
 from control_math.frames import clarke, inverse_clarke, rotate, wrap
 from pmsm_plant.model import (
     N_STATE,
@@ -18,6 +19,7 @@ from pmsm_plant.model import (
     incremental_inductances,
     inverter_voltage,
     plant_advance,
+    plant_block,
     plant_outputs,
     plant_reset,
     sense_currents,
@@ -248,3 +250,26 @@ def test_wrap_range():
         w = wrap(angle)
         assert -math.pi < w <= math.pi
         assert math.isclose(math.cos(w), math.cos(angle), abs_tol=1e-12)
+
+
+@pytest.mark.parametrize("block", [1, 5])
+def test_a_block_applies_each_command_n_periods_later(block):
+    """With blocks of N samples the delay line holds d = N periods (the inverter's one plus N − 1): a lone
+    command answering sample 3 first moves the current at sample 3 + N + 1, and every block is simulated
+    from the commands of earlier blocks alone."""
+    sensor = SensorParams(noise_std_A=0.0, offset_a_A=0.0, offset_b_A=0.0, offset_c_A=0.0, gain_a=1.0,
+                          gain_b=1.0, gain_c=1.0, adc_bits=0, adc_range_A=10.0)
+    inverter = IDEAL_INVERTER._replace(delay_periods=block)
+    x, line = np.zeros(N_STATE), command_line(inverter.delay_periods)
+    plant_reset(x, 0.0, 0.0, WANG.machine)
+    n = 4 * block + 8
+    zeros, out, measured = np.zeros(n), np.zeros((block, 10)), np.zeros(n)
+    for k0 in range(0, n, block):
+        count = min(block, n - k0)
+        plant_block(x, line, k0, count, zeros, zeros, True, -1, WANG.machine, MECH, inverter, sensor, 0, T_S, 1,
+                    out)
+        measured[k0:k0 + count] = out[:count, 3]
+        for k in range(k0, k0 + count):
+            issue_command(line, k, 10.0 if k == 3 else 0.0, 0.0)
+    first = int(np.flatnonzero(np.abs(measured) > 1e-9)[0])
+    assert first == 3 + block + 1

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from drive_interface.log import COLUMN, LOG_COLUMNS, fill_sample
-from drive_interface.topics import HELD_LOGGED, SAMPLE_LOGGED, TOPICS, full_name
+from drive_interface.log import COLUMN, LOG_COLUMNS, fill_block, fill_sample
+from drive_interface.topics import BLOCK_LOGGED, HELD_LOGGED, SAMPLE_LOGGED, TOPICS, full_name
 from drive_runner.runner import RunResult
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import ScenarioError, load_scenario
@@ -132,7 +132,8 @@ def read_topics(path, wanted, namespace=None):
     try:
         connections = {c.topic: c for c in reader.connections}
         if namespace is None:
-            namespaces = sorted(t.rsplit("/", 1)[0] or "/" for t in connections if t.endswith("/currents"))
+            namespaces = sorted({t.rsplit("/", 1)[0] or "/" for t in connections
+                                 if t.endswith(("/currents", "/currents_block"))})
             if len(namespaces) > 1:
                 raise BagError(f"{path}: drives in {', '.join(namespaces)}; which one is ambiguous")
             namespace = namespaces[0] if namespaces else "/drive"
@@ -157,24 +158,28 @@ def read_topics(path, wanted, namespace=None):
 
 
 def bag_log(path, T_s=None, namespace=None):
-    """The runner's log layout (LOG_COLUMNS) filled from a bag's per-sample topics (NaN where the bag
-    says nothing), the sample period and the bag's drive_config entries."""
-    wanted = SAMPLE_LOGGED + HELD_LOGGED + ("drive_config",)
+    """The runner's log layout (LOG_COLUMNS) filled from a bag's per-sample topics or their block twins
+    (NaN where the bag says nothing), the sample period and the bag's drive_config entries."""
+    wanted = SAMPLE_LOGGED + BLOCK_LOGGED + HELD_LOGGED + ("drive_config",)
     namespace, topics = read_topics(path, wanted, namespace)
-    if not topics.get("currents"):
-        raise BagError(f"{path}: no {full_name(namespace, 'currents')} messages; the contract needs them")
-    stamps = np.array([_stamp_ns(m.header.stamp) for _, m in topics["currents"]], dtype=np.int64)
-    if T_s is None:
-        steps = np.diff(stamps)
-        if steps.size == 0 or steps.min() <= 0:
-            raise BagError(f"{path}: {full_name(namespace, 'currents')} stamps are not increasing sample "
-                           f"instants")
-        T_s = float(np.median(steps)) * 1e-9
-    n = int(round(stamps[-1] * 1e-9 / T_s)) + 1
-    log = np.full((n, len(LOG_COLUMNS)), np.nan)
-    log[:, COLUMN["t"]] = np.arange(n) * T_s
     configs = [json.loads(m.data) for _, m in topics.get("drive_config", [])]
     n_p = _pole_pairs(configs)
+    blocks = not topics.get("currents") and bool(topics.get("currents_block"))
+    currents = "currents_block" if blocks else "currents"
+    if not topics.get(currents):
+        raise BagError(f"{path}: no {full_name(namespace, 'currents')} messages; the contract needs them")
+    stamps = np.array([_stamp_ns(m.header.stamp) for _, m in topics[currents]], dtype=np.int64)
+    if T_s is None:
+        T_s = next((float(c["T_s_s"]) for c in configs if "T_s_s" in c), None)
+    if T_s is None:
+        steps = np.diff(stamps) / (len(topics[currents][0][1].position) if blocks else 1)
+        if steps.size == 0 or steps.min() <= 0:
+            raise BagError(f"{path}: {full_name(namespace, currents)} stamps are not increasing sample "
+                           f"instants")
+        T_s = float(np.median(steps)) * 1e-9
+    n = int(round(stamps[-1] * 1e-9 / T_s)) + (len(topics[currents][-1][1].position) if blocks else 1)
+    log = np.full((n, len(LOG_COLUMNS)), np.nan)
+    log[:, COLUMN["t"]] = np.arange(n) * T_s
 
     def index(stamp):
         k = int(round(_stamp_ns(stamp) * 1e-9 / T_s))
@@ -185,6 +190,11 @@ def bag_log(path, T_s=None, namespace=None):
             k = index(m.header.stamp)
             if k is not None:
                 fill_sample(log[k], topic, m, n_p)
+    for topic in BLOCK_LOGGED:
+        for _, m in topics.get(topic, []):
+            k = index(m.header.stamp)
+            if k is not None:
+                fill_block(log, k, topic, (m.position, m.velocity, m.effort), n_p)
     for topic in HELD_LOGGED:
         _hold(log[:, COLUMN[TOPICS[topic].log_columns[0]]], topics.get(topic, []), T_s, n)
     return log, T_s, configs

@@ -264,11 +264,13 @@ def cmd_launch(args):
     _record_arg(args.record)
     if args.paced and not args.link:
         raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
-    extra = {"commissioning": args.commissioning} if args.commissioning else None
+    extra = {"commissioning": args.commissioning} if args.commissioning else {}
+    if args.block_samples is not None:
+        extra["block_samples"] = _block_sizes(str(args.block_samples))[0]
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
                     timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,
-                    extra_parameters=extra,
+                    extra_parameters=extra or None,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
     faults = result.node_faults
     plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
@@ -846,12 +848,25 @@ def cmd_bench_graph(args):
     if args.repeats < 1:
         raise CommandLineError(f"--repeats: must be at least 1, not {args.repeats}")
     report = graph_throughput(args.scenario, args.duration, record=args.record, repeats=args.repeats,
-                              progress=None if args.json else print)
+                              progress=None if args.json else print,
+                              block_sizes=_block_sizes(args.block_samples))
     if args.json:
         _print_json(report)
     elif report["interrupted"]:
         print("  interrupted: the configuration being timed is not reported")
     return _exit_code(report["interrupted"])
+
+
+def _block_sizes(text):
+    """The block sizes of ``--block-samples N[,N...]``; CommandLineError names the option."""
+    try:
+        sizes = [int(part) for part in text.split(",")]
+    except ValueError:
+        sizes = []
+    if not sizes or any(not 1 <= n <= MAX_BLOCK_SAMPLES for n in sizes):
+        raise CommandLineError(f"--block-samples: must be whole numbers from 1 to {MAX_BLOCK_SAMPLES}, "
+                               f"comma-separated, not {text!r}")
+    return sizes
 
 
 def _formatted(value, form):
@@ -1009,6 +1024,8 @@ def build_parser():
     graph.add_argument("--scenario", default="wang_100rpm")
     graph.add_argument("--duration", type=float, default=0.5, help="simulated seconds per run")
     graph.add_argument("--record", action="store_true", help="also record every per-sample topic")
+    graph.add_argument("--block-samples", default="1", metavar="N[,N...]",
+                       help="block sizes to time (samples per message; default 1)")
     graph.add_argument("--repeats", type=int, default=2, help="timed runs per configuration (best kept)")
     graph.add_argument("--json", action="store_true")
     graph.set_defaults(func=cmd_bench_graph)
@@ -1112,6 +1129,9 @@ def build_parser():
     launch.add_argument("--estimator", help="override the scenario's estimator")
     launch.add_argument("--duration", type=float, help="override the duration [s]")
     launch.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
+    launch.add_argument("--block-samples", type=int, metavar="N",
+                        help="override the scenario's block_samples: the per-sample topics travel in blocks of N "
+                             "(docs/ros-graph.md)")
     launch.add_argument("--processes", choices=("composed", "separate"), default="composed",
                         help="nodes in this process (default) or one process per node")
     launch.add_argument("--executor", choices=EXECUTORS, default="events",

@@ -77,12 +77,13 @@ def motulator_throughput(python, timeout_s=900.0):
 GRAPH_CONFIGURATIONS = (("composed", "events"), ("composed", "single"), ("separate", "events"))
 
 
-def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False, repeats=2, progress=None):
-    """Real-time factor (simulated / wall time) of the lock-step graph per (processes, executor), one
-    message per sample (``block_samples`` 1), best and median of ``repeats`` runs after a short warm-up
-    run; the wall time per sample and per delivered message (graph.DELIVERIES_PER_SAMPLE), and the
-    ping-pong hop time that bounds it. A signal stops it: the configurations done are returned,
-    ``interrupted`` names the signal, and the one cut is left out."""
+def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False, repeats=2, progress=None,
+                     block_sizes=(1,)):
+    """Real-time factor (simulated / wall time) of the lock-step graph per block size N (``block_sizes``;
+    1: one message per sample) and (processes, executor), best and median of ``repeats`` runs after a
+    short warm-up run; the wall time per sample and per delivered message (launcher.DELIVERIES_PER_SAMPLE
+    messages per block), and the ping-pong hop time that bounds it. A signal stops it: the
+    configurations done are returned, ``interrupted`` names the signal, and the one cut is left out."""
     from drive_launch.launcher import DELIVERIES_PER_SAMPLE, launch
 
     report = {"benchmark": "graph", "scenario": scenario_name, "duration_s": duration_s, "record": record,
@@ -91,26 +92,26 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
     report["interrupted"] = launch(scenario_name, duration_s=0.05, record=record).interrupted
     if report["interrupted"]:
         return report
-    for processes, executor in GRAPH_CONFIGURATIONS:
+    for (processes, executor), block in ((c, n) for n in block_sizes for c in GRAPH_CONFIGURATIONS):
         walls, samples = [], 0
         for _ in range(repeats):
             r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
-                       record=record)
+                       record=record, extra_parameters={"block_samples": block})
             report["interrupted"] = r.interrupted
             if report["interrupted"]:
                 return report
             walls.append(r.wall_time_s)
             samples = r.scenario.n_samples
         wall, median = min(walls), float(np.median(walls))
-        entry = {"processes": processes, "executor": executor, "block_samples": 1, "record": record,
+        entry = {"processes": processes, "executor": executor, "block_samples": block, "record": record,
                  "samples": samples, "repeats": repeats, "wall_time_s": wall,
                  "real_time_factor": samples * r.scenario.T_s / wall,
                  "real_time_factor_median": samples * r.scenario.T_s / median,
                  "us_per_sample": 1e6 * wall / samples,
-                 "us_per_delivered_message": 1e6 * wall / samples / DELIVERIES_PER_SAMPLE}
+                 "us_per_delivered_message": 1e6 * wall * block / samples / DELIVERIES_PER_SAMPLE}
         results.append(entry)
         if progress:
-            progress(f"  {processes:9s} {executor:7s} real-time factor {entry['real_time_factor']:.3f} "
+            progress(f"  N = {block:<3d} {processes:9s} {executor:7s} real-time factor {entry['real_time_factor']:.3f} "
                      f"(median {entry['real_time_factor_median']:.3f}; {entry['us_per_sample']:.0f} µs per sample, "
                      f"{entry['us_per_delivered_message']:.0f} µs per delivered message)")
     hop = hop_latency()
