@@ -108,7 +108,8 @@ class ScenarioNode(ContractNode):
     def publish_config(self, config):
         if self.scenario:
             config = {"motor": self.scenario.motor, "n_p": self.nameplate().n_p, "T_s_s": self.T_s,
-                      **config}
+                      "block_samples": self.block_samples,
+                      "command_delay_periods": self.scenario.drive_delay_periods(), **config}
         super().publish_config(config)
 
     def trip_current_A(self):
