@@ -857,6 +857,19 @@ def cmd_bench_graph(args):
     return _exit_code(report["interrupted"])
 
 
+def cmd_bench_blocks(args):
+    from drive_evaluation.bench import block_size_table
+    if args.duration <= 0.0:
+        raise CommandLineError(f"--duration: must be positive, not {args.duration}")
+    if args.repeats < 1:
+        raise CommandLineError(f"--repeats: must be at least 1, not {args.repeats}")
+    report = block_size_table(_block_sizes(args.block_samples), duration_s=args.duration, repeats=args.repeats,
+                              progress=None if args.json else print)
+    if args.json:
+        _print_json(report)
+    return _exit_code(report["interrupted"])
+
+
 def _block_sizes(text):
     """The block sizes of ``--block-samples N[,N...]``; CommandLineError names the option."""
     try:
@@ -1029,6 +1042,13 @@ def build_parser():
     graph.add_argument("--repeats", type=int, default=2, help="timed runs per configuration (best kept)")
     graph.add_argument("--json", action="store_true")
     graph.set_defaults(func=cmd_bench_graph)
+    blocks = bench_sub.add_parser("blocks", help="per block size: the graph's real-time factor (composed, "
+                                                 "separate) and ours' angle error on the four Wang scenarios")
+    blocks.add_argument("--block-samples", default="1,5,10,20", metavar="N[,N...]")
+    blocks.add_argument("--duration", type=float, default=0.5, help="simulated seconds per graph run")
+    blocks.add_argument("--repeats", type=int, default=2, help="timed graph runs per configuration")
+    blocks.add_argument("--json", action="store_true")
+    blocks.set_defaults(func=cmd_bench_blocks)
     bench_bridge = bench_sub.add_parser("bridge", help="sustained closed-loop sample rate and command "
                                                        "latency through the bridge, over a pty and a CAN bus")
     bench_bridge.add_argument("--scenario", default="wang_100rpm")

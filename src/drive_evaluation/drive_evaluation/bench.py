@@ -1,6 +1,7 @@
 """``drive bench throughput``: closed-loop samples per second of the one-process runner, per estimator,
 and of motulator's signal-injection example when motulator is installed (a side environment is fine).
-``drive bench graph``: real-time factor of the lock-step ROS graph."""
+``drive bench graph``: real-time factor of the lock-step ROS graph. ``drive bench blocks``: what the block
+size costs and buys, graph speed against ours' angle error."""
 import dataclasses
 import importlib.util
 import json
@@ -78,7 +79,7 @@ GRAPH_CONFIGURATIONS = (("composed", "events"), ("composed", "single"), ("separa
 
 
 def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False, repeats=2, progress=None,
-                     block_sizes=(1,)):
+                     block_sizes=(1,), configurations=GRAPH_CONFIGURATIONS):
     """Real-time factor (simulated / wall time) of the lock-step graph per block size N (``block_sizes``;
     1: one message per sample) and (processes, executor), best and median of ``repeats`` runs after a
     short warm-up run; the wall time per sample and per delivered message (launcher.DELIVERIES_PER_SAMPLE
@@ -92,7 +93,7 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
     report["interrupted"] = launch(scenario_name, duration_s=0.05, record=record).interrupted
     if report["interrupted"]:
         return report
-    for (processes, executor), block in ((c, n) for n in block_sizes for c in GRAPH_CONFIGURATIONS):
+    for (processes, executor), block in ((c, n) for n in block_sizes for c in configurations):
         walls, samples = [], 0
         for _ in range(repeats):
             r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
@@ -119,6 +120,41 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
         progress(f"  ping-pong of one Vector3Stamped between two nodes in one process (events executor): "
                  f"{hop['us_per_hop']:.1f} µs per hop")
     report["ping_pong"] = hop
+    return report
+
+
+BLOCK_SCENARIOS = ("wang_100rpm", "wang_load_step", "wang_reversal", "wang_speed_step")
+BLOCK_CONFIGURATIONS = (("composed", "events"), ("separate", "events"))
+
+
+def block_size_table(block_sizes, scenarios=BLOCK_SCENARIOS, duration_s=0.5, repeats=2, progress=None):
+    """Per block size N: the graph's real-time factor composed and separate (``graph_throughput``) and
+    ours' angle error on each scenario run in one process with that N (the same samples as the graph).
+    A signal stops it; ``interrupted`` names it and what was done is returned."""
+    from drive_runner.runner import run_scenario
+
+    from .metrics import compute_metrics
+
+    report = {"benchmark": "blocks", "block_samples": list(block_sizes), "angle_error": [], "interrupted": 0,
+              "graph": graph_throughput(duration_s=duration_s, repeats=repeats, progress=progress,
+                                        block_sizes=block_sizes, configurations=BLOCK_CONFIGURATIONS)}
+    report["interrupted"] = report["graph"]["interrupted"]
+    for block in block_sizes if not report["interrupted"] else ():
+        for name in scenarios:
+            scenario = dataclasses.replace(load_scenario(name), block_samples=block)
+            result = run_scenario(scenario)
+            if result.interrupted:
+                report["interrupted"] = result.interrupted
+                return report
+            m = compute_metrics(result)
+            row = {"block_samples": block, "scenario": name, "delay_periods": scenario.drive_delay_periods(),
+                   **{key: m[key] for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak",
+                                              "lock_lost_s")}}
+            report["angle_error"].append(row)
+            if progress:
+                progress(f"  N = {block:<3d} {name:16s} RMS {row['angle_error_rms']:.4f}  bias "
+                         f"{row['angle_error_bias']:+.4f}  peak {row['angle_error_peak']:.4f}  lost "
+                         f"{row['lock_lost_s']:.3f} s")
     return report
 
 

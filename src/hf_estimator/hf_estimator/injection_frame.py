@@ -73,7 +73,9 @@ DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 
             **STARTUP_DEFAULTS}
 ALIGN_JUMP_RAD = 0.2
 """While aligning, a measured error beyond this (or 4 × the alignment tolerance) is jumped over at once
-(well above one fit's noise)."""
+(well above one fit's noise). The commands of d + 1 samples are then still aimed at the old axis: the
+next fit waits until at most half its window (N of 2N samples) holds them, or with the long delay of
+blocks it would measure the old error again and jump twice."""
 HF_RIPPLE_MAX_PER_RATED = 0.5
 """The largest HF current ripple U_h·Σ/ω_h ours allows itself when it raises its amplitude, per rated
 current (Wang's own reversal runs at 0.38)."""
@@ -217,7 +219,7 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_b
                 jump = max(ALIGN_JUMP_RAD, 4.0 * p.startup.align_tolerance_rad)
                 if startup_code(x, p.startup) == ALIGNING and abs(eps) > jump:
                     x[THETA] += eps
-                    x[COUNT] = 0.0
+                    x[COUNT] = -max(0.0, p.delay_periods + 1.0 - p.N)
                     eps = 0.0
                     observable = 0.0
 
