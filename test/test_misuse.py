@@ -14,7 +14,7 @@ BASE = {"motor": "wang_spmsm", "estimator": {"type": "injection_frame", "setting
         "sampling_period_s": 1.0e-4, "speed": {"unit": "rpm", "points": [[0.0, 0.0], [0.01, 60.0]]},
         "load": {"unit": "rated", "points": [[0.0, 0.0]]}, "initial": {"theta_m_rad": 0.3},
         "controller": {"current_limit_A": 5.0, "hf_notch_quality": 1.0, "speed_limit_rad_s": 100.0},
-        "metrics": {"settle_s": 0.005}, "seed": 1, "substeps": 1}
+        "metrics": {"settle_s": 0.005}, "seed": 1, "substeps": 1, "block_samples": 1}
 HOSTILE = [float("nan"), float("inf"), -float("inf"), -1, 0, 0.0, 1e308, 5e-324, 1e12, 1e-12, "abc", "5", True,
            None, [], {}, [[1, 2]], 2 ** 70, -2 ** 70, "", [1.0, 2.0, 3.0], {"a": 1}]
 RUN_BOUND_S = 30.0
@@ -68,6 +68,25 @@ def test_an_unsafe_node_parameter_is_refused_naming_it(name, value):
     from drive_scenarios.scenario import ScenarioError
     with pytest.raises(ScenarioError, match=f"^parameter {name}: must be a finite number"):
         scenario_from_parameters(all_parameters({name: value}))
+
+
+@pytest.mark.parametrize("value", [0, 101, 2.5, "10", True])
+def test_a_block_size_out_of_range_is_refused_naming_it(tmp_path, capsys, value):
+    document = {**json.loads(json.dumps(BASE)), "block_samples": value}
+    path = write(tmp_path, "blocks", document)
+    code, out, err = run_cli(capsys, ["run", path, "--no-plot", "--json"])
+    assert code == 2 and out == "" and err.count("\n") == 1 and path in err and "block_samples" in err, err
+
+
+@pytest.mark.parametrize("argv, named", [(["run", "wang_100rpm", "--block-samples", "0"], "--block-samples"),
+                                         (["bench", "graph", "--block-samples", "5,x"], "--block-samples"),
+                                         (["bridge", "{blocks}", "--no-plot"], "block_samples")])
+def test_blocks_where_they_cannot_go_are_refused_in_one_line(tmp_path, capsys, argv, named):
+    """A block size out of range on the command line, and blocks behind the inverter bridge (its protocol
+    carries one sample per frame), are refused before anything runs."""
+    blocks = write(tmp_path, "blocks", {**json.loads(json.dumps(BASE)), "block_samples": 5})
+    code, out, err = run_cli(capsys, [a.format(blocks=blocks) for a in argv])
+    assert code == 2 and out == "" and err.count("\n") == 1 and named in err, err
 
 
 def mutations(rng, count):
