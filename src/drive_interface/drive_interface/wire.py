@@ -79,9 +79,9 @@ class JointWire:
         return self._with_effort.pack(*head, 1, effort)
 
 
-def decode_joint(data):
-    """(sec, nanosec, position[0], velocity[0], effort[0]) of a serialized JointState; a missing entry is
-    None."""
+def _joint_channels(data):
+    """(sec, nanosec, [(offset, count)] × 3) of a serialized JointState: where position, velocity and
+    effort lie (offset in ``data`` of the first float64). WireError when the bytes are not one."""
     try:
         sec, nanosec, length = _HEAD.unpack_from(data, 4)
         offset = 12 + length
@@ -92,20 +92,27 @@ def decode_joint(data):
             offset += -offset % 4
             (length,) = _U32.unpack_from(data, 4 + offset)
             offset += 4 + length
-        first = []
+        channels = []
         for _ in range(3):
             offset += -offset % 4
             (count,) = _U32.unpack_from(data, 4 + offset)
             offset += 4
             if count:
                 offset += -offset % 8
-                first.append(_F64.unpack_from(data, 4 + offset)[0])
-                offset += 8 * count
-            else:
-                first.append(None)
+            channels.append((4 + offset, count))
+            offset += 8 * count
     except struct.error:
         raise WireError(f"{len(data)} bytes are not a JointState") from None
-    return sec, nanosec, first[0], first[1], first[2]
+    if offset + 4 > len(data):
+        raise WireError(f"{len(data)} bytes are not a JointState")
+    return sec, nanosec, channels
+
+
+def decode_joint(data):
+    """(sec, nanosec, position[0], velocity[0], effort[0]) of a serialized JointState; a missing entry is
+    None."""
+    sec, nanosec, channels = _joint_channels(data)
+    return (sec, nanosec, *(_F64.unpack_from(data, offset)[0] if count else None for offset, count in channels))
 
 
 class BlockWire:
@@ -137,32 +144,8 @@ class BlockWire:
 def decode_block(data):
     """(sec, nanosec, position, velocity, effort) of a serialized JointState, the arrays as float64
     numpy arrays (empty where not carried)."""
-    try:
-        sec, nanosec, length = _HEAD.unpack_from(data, 4)
-        offset = 12 + length
-        offset += -offset % 4
-        (names,) = _U32.unpack_from(data, 4 + offset)
-        offset += 4
-        for _ in range(names):
-            offset += -offset % 4
-            (length,) = _U32.unpack_from(data, 4 + offset)
-            offset += 4 + length
-        channels = []
-        for _ in range(3):
-            offset += -offset % 4
-            (count,) = _U32.unpack_from(data, 4 + offset)
-            offset += 4
-            if count:
-                offset += -offset % 8
-                if 4 + offset + 8 * count > len(data):
-                    raise struct.error
-                channels.append(np.frombuffer(data, "<f8", count, 4 + offset).copy())
-                offset += 8 * count
-            else:
-                channels.append(np.empty(0))
-    except struct.error:
-        raise WireError(f"{len(data)} bytes are not a JointState") from None
-    return sec, nanosec, channels[0], channels[1], channels[2]
+    sec, nanosec, channels = _joint_channels(data)
+    return (sec, nanosec, *(np.frombuffer(data, "<f8", count, offset).copy() for offset, count in channels))
 
 
 _CLOCK = struct.Struct("<4siI")
