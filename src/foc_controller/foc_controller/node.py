@@ -8,6 +8,8 @@ speed reference and the feed-forward of sample k are its scenario's, sample-exac
 not read. The robot-facing `joint_states` (estimated
 position, speed, torque) is published every ``joint_states_decimation`` samples. Bad currents or
 estimates, or a rejected speed limit, give zero voltage and a reported fault; the node keeps answering.
+With blocks (``block_samples`` N > 1) it joins the four block twins of a block, runs ``controller_block``
+once and answers `voltage_command_block`.
 
 The core is built once the estimator's drive_config tells what the controller needs of it: its
 injection frequency (the notch), its tracking bandwidth (the speed loop stays below it) and the current

@@ -5,7 +5,10 @@ For sample k it joins `currents`(k) with the voltage applied during the period t
 before sample 0, and zero if the controller stays silent past half the lock-step timeout, which is what
 the plant then applied) and, for `sensored` only, `rotor_state`(k). It answers
 `rotor_estimate`(k), `injection`(k) and `estimator_state`(k) (x = ε, y = signal, z = the start-up state
-code, hf_estimator.startup). A lost lock or a refused start is a fault (ERROR on /diagnostics, counted).
+code, hf_estimator.startup). With blocks (``block_samples`` N > 1) it takes `currents_block` and
+`voltage_command_block`, runs ``estimator_block`` once per block and answers the block twins, plus
+`estimator_state` of each block's first sample. A lost lock or a refused start is a fault (ERROR on
+/diagnostics, counted).
 Non-finite or absurd currents are not fed to the core: the node answers with its last estimate and
 no injection, and reports the fault.
 
@@ -122,11 +125,17 @@ class EstimatorNode(ScenarioNode):
     def on_voltage_command(self, sec, nanosec, u_alpha, u_beta, _):
         k = sample_at(sec, nanosec, self.T_s)
         if k is not None and k > self.issued:
-            if not finite(u_alpha, u_beta):
-                u_alpha, u_beta = 0.0, 0.0
-            issue_command(self.line, k, u_alpha, u_beta)
-            self.issued = k
+            self.take_commands(k, [u_alpha], [u_beta])
             self.try_step()
+
+    def take_commands(self, k0, u_alpha, u_beta):
+        """Commands of samples k0 … into the delay line (zero for samples skipped before k0, which the
+        plant ran at zero volts, and for non-finite values)."""
+        for k in range(self.issued + 1, k0):
+            issue_command(self.line, k, 0.0, 0.0)
+        for i, (u_a, u_b) in enumerate(zip(u_alpha, u_beta)):
+            issue_command(self.line, k0 + i, *((u_a, u_b) if finite(u_a, u_b) else (0.0, 0.0)))
+        self.issued = k0 + len(u_alpha) - 1
 
     def on_rotor_state(self, sec, nanosec, theta_m, omega_m, _):
         k = sample_at(sec, nanosec, self.T_s)
@@ -198,10 +207,7 @@ class EstimatorNode(ScenarioNode):
         k0 = sample_at(sec, nanosec, self.T_s)
         if k0 is None or k0 <= self.issued or len(u_alpha) != len(u_beta):
             return
-        for i in range(len(u_alpha)):
-            u_a, u_b = u_alpha[i], u_beta[i]
-            issue_command(self.line, k0 + i, *((u_a, u_b) if finite(u_a, u_b) else (0.0, 0.0)))
-        self.issued = k0 + len(u_alpha) - 1
+        self.take_commands(k0, u_alpha, u_beta)
         self.try_block()
 
     def on_rotor_state_block(self, sec, nanosec, theta_m, omega_m, _):

@@ -16,6 +16,11 @@ endpoint is matched), whose value the schedule already has. Otherwise the latest
 A scenario's holding brake keeps the shaft at rest until its lift time after the estimator first
 reports tracking: until that report the plant advances sample k only once it has `estimator_state`(k)
 too, so the release falls on the same sample as in one process.
+
+With blocks (``block_samples`` N > 1) the plant publishes `currents_block` and `rotor_state_block` of N
+samples (simulated by ``plant_block`` from the commands of earlier blocks), waits for
+`voltage_command_block` of the block, and simulates the next; a brake's release is learnt from
+`estimator_state_block` one block later (as drive_runner.loop.run_blocks models it).
 """
 import sys
 import time
