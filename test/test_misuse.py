@@ -80,7 +80,9 @@ def test_a_block_size_out_of_range_is_refused_naming_it(tmp_path, capsys, value)
 
 @pytest.mark.parametrize("argv, named", [(["run", "wang_100rpm", "--block-samples", "0"], "--block-samples"),
                                          (["bench", "graph", "--block-samples", "5,x"], "--block-samples"),
-                                         (["bridge", "{blocks}", "--no-plot"], "block_samples")])
+                                         (["bridge", "{blocks}", "--no-plot"], "block_samples"),
+                                         (["launch", "wang_100rpm", "--block-samples", "5", "--link", "pty"],
+                                          "--block-samples")])
 def test_blocks_where_they_cannot_go_are_refused_in_one_line(tmp_path, capsys, argv, named):
     """A block size out of range on the command line, and blocks behind the inverter bridge (its protocol
     carries one sample per frame), are refused before anything runs."""
