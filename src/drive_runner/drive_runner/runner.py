@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drive_interface.interrupt import Interrupted
+from drive_interface.interrupt import Interrupted, deferred
 from drive_interface.log import LOG_COLUMNS
 from foc_controller.build import controller_for_scenario
 from foc_controller.control import controller_state
@@ -107,7 +107,8 @@ def build_drive(scenario):
 
 def run_scenario(scenario, progress=None, chunk_samples=20000):
     """Run a scenario to the end; ``progress(fraction)`` is called between chunks (whole blocks). A signal
-    (drive_interface.interrupt) stops it after the chunk in progress: the result holds the samples run."""
+    (drive_interface.interrupt) stops it after the chunk in progress, the first one's compilation
+    included: the result holds the samples run."""
     drive = build_drive(scenario)
     n = scenario.n_samples
     chunk_samples = -(-chunk_samples // scenario.block_samples) * scenario.block_samples
@@ -117,8 +118,9 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
     try:
         for k0 in range(0, n, chunk_samples):
             k1 = min(k0 + chunk_samples, n)
-            drive.run(k0, k1, log[k0:k1])
-            done = k1
+            with deferred():
+                drive.run(k0, k1, log[k0:k1])
+                done = k1
             if progress:
                 progress(k1 / n)
     except Interrupted as stop:
