@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drive_bridge.inverter_bridge import InverterBridge
-from drive_bridge.inverter_protocol import OVERCURRENT, PWM_OFF, WATCHDOG
+from drive_bridge.inverter_protocol import OVERCURRENT, PWM_OFF, WATCHDOG, Hello, TelemetryBlock
 from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
 from drive_evaluation.metrics import angle_error, compute_metrics
 from drive_runner.bridge_loop import run_through_bridge
@@ -224,3 +224,35 @@ def test_a_paced_inverter_counts_late_commands_as_zero_volts(tmp_path):
         thread.join(2.0)
         bridge.close()
         endpoint.close()
+
+
+class ScriptedLink:
+    """A link that delivers the given messages once and takes what is sent."""
+
+    def __init__(self, messages):
+        self.messages, self.sent, self.errors = list(messages), [], {}
+
+    def open(self):
+        pass
+
+    def receive(self, timeout_s):
+        messages, self.messages = self.messages, []
+        return messages
+
+    def send(self, message):
+        self.sent.append(message)
+
+    def close(self):
+        pass
+
+
+def test_an_inverter_sending_blocks_is_named_not_misread():
+    """Protocol version 2 lets an inverter announce blocks of samples (HELLO block_samples); this host
+    takes one TELEMETRY per sample, so such an inverter is counted and named, and its blocks never
+    become samples."""
+    hello = Hello(0, 0, 2, 10, 100_000, 0.001, 0.001, 10.0, 10)
+    block = TelemetryBlock(0, 24000, 0, ((1, 2, -3, 0),) * 10)
+    bridge = InverterBridge(ScriptedLink([hello, block]))
+    assert bridge.poll(0.01) == []
+    assert bridge.hello is None and bridge.counters["unsupported_blocks"] == 2
+    assert "blocks of 10 samples" in bridge.last_error

@@ -9,14 +9,17 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from drive_bridge.inverter_protocol import (
+    MAX_BLOCK,
     CanDecoder,
     Command,
+    CommandBlock,
     Control,
     FrameError,
     FrameReader,
     Heartbeat,
     Hello,
     Telemetry,
+    TelemetryBlock,
     cobs_decode,
     cobs_encode,
     crc16,
@@ -32,6 +35,8 @@ CLASSES = {cls.__name__.upper(): cls for cls in (Telemetry, Hello, Command, Cont
 
 
 def parse_message(words):
+    if words[0] in ("TELEMETRY_BLOCK", "COMMAND_BLOCK"):
+        return parse_block(words)
     cls = CLASSES[words[0]]
     values = []
     for name, text in zip(cls.__dataclass_fields__, words[1:]):
@@ -40,6 +45,17 @@ def parse_message(words):
         else:
             values.append(int(text))
     return cls(*values)
+
+
+def parse_block(words):
+    """TELEMETRY_BLOCK seq u_dc status n (i_a i_b i_c encoder) × n, or COMMAND_BLOCK seq flags n
+    (u_α u_β) × n."""
+    values = [int(word) for word in words[1:]]
+    if words[0] == "TELEMETRY_BLOCK":
+        seq, u_dc, status, n, *rest = values
+        return TelemetryBlock(seq, u_dc, status, tuple(tuple(rest[4 * i:4 * i + 4]) for i in range(n)))
+    seq, flags, n, *rest = values
+    return CommandBlock(seq, flags, tuple(tuple(rest[2 * i:2 * i + 2]) for i in range(n)))
 
 
 def vectors(kind):
@@ -81,6 +97,19 @@ def test_bad_frames_are_named(line):
     assert error.value.kind == kind
 
 
+def test_a_version_1_peer_is_named_not_misread():
+    """A version 1 frame (here a v1 TELEMETRY, valid CRC) is a version error naming both versions."""
+    with pytest.raises(FrameError, match="protocol version 1, this host speaks 2") as error:
+        decode_frame(bytes.fromhex("040101070101049cff32023206c05dd2048003414d"))
+    assert error.value.kind == "version"
+
+
+def test_blocks_hold_one_to_max_block_samples():
+    for samples in ((), ((0, 0),) * (MAX_BLOCK + 1)):
+        with pytest.raises(ValueError, match=f"1 to {MAX_BLOCK} samples"):
+            encode_frame(CommandBlock(0, 1, samples))
+
+
 def test_crc_check_value_and_unwrap():
     assert crc16(b"123456789") == 0x29B1
     assert unwrap16(0x0002, 0xFFFFFFFE) == 2 and unwrap16(0xFFFE, 3) == 0xFFFFFFFE
@@ -100,8 +129,13 @@ i16 = st.integers(-0x8000, 0x7FFF)
 f32 = st.floats(width=32, allow_nan=False)
 messages = st.one_of(
     st.builds(Telemetry, u32, i16, i16, i16, u16, u16, u16),
-    st.builds(Hello, st.integers(0, 255), st.integers(0, 255), st.integers(0, 255), u32, f32, f32, f32, u16),
+    st.builds(Hello, st.integers(0, 255), st.integers(0, 255), st.integers(0, 255), st.integers(0, 255), u32,
+              f32, f32, f32, u16),
     st.builds(Command, u32, i16, i16, st.integers(0, 255)),
+    st.builds(TelemetryBlock, u32, u16, u16,
+              st.lists(st.tuples(i16, i16, i16, u16), min_size=1, max_size=MAX_BLOCK).map(tuple)),
+    st.builds(CommandBlock, u32, st.integers(0, 255),
+              st.lists(st.tuples(i16, i16), min_size=1, max_size=MAX_BLOCK).map(tuple)),
     st.builds(Control, st.integers(0, 255)),
     st.builds(Heartbeat, u32))
 

@@ -1,4 +1,4 @@
-/* Inverter wire protocol, version 1: see inverter_protocol.h and docs/inverter-protocol.md. */
+/* Inverter wire protocol, version 2: see inverter_protocol.h and docs/inverter-protocol.md. */
 #include "inverter_protocol.h"
 
 #include <string.h>
@@ -60,15 +60,26 @@ int ip_cobs_decode(const uint8_t *in, size_t len, uint8_t *out, size_t cap, size
     return IP_OK;
 }
 
-static size_t body_size(uint8_t type) {
+/* Body bytes of a message of this type carrying count samples (blocks), 0 for an unknown type or a
+ * count outside 1 .. IP_MAX_BLOCK. */
+static size_t body_size(uint8_t type, unsigned count) {
+    int block_ok = count >= 1u && count <= IP_MAX_BLOCK;
     switch (type) {
     case IP_TELEMETRY: return 16;
     case IP_HELLO: return 22;
+    case IP_TELEMETRY_BLOCK: return block_ok ? 9u + 8u * count : 0;
     case IP_COMMAND: return 9;
     case IP_CONTROL: return 1;
     case IP_HEARTBEAT: return 4;
+    case IP_COMMAND_BLOCK: return block_ok ? 6u + 4u * count : 0;
     default: return 0;
     }
+}
+
+static unsigned count_of(const ip_message_t *m) {
+    if (m->type == IP_TELEMETRY_BLOCK) return m->u.telemetry_block.count;
+    if (m->type == IP_COMMAND_BLOCK) return m->u.command_block.count;
+    return 1u;
 }
 
 static void pack_body(const ip_message_t *m, uint8_t *b) {
@@ -81,7 +92,7 @@ static void pack_body(const ip_message_t *m, uint8_t *b) {
     }
     case IP_HELLO: {
         const ip_hello_t *h = &m->u.hello;
-        b[0] = h->drive_id; b[1] = h->flags; b[2] = h->n_p; b[3] = 0; put32(b + 4, h->T_s_ns);
+        b[0] = h->drive_id; b[1] = h->flags; b[2] = h->n_p; b[3] = h->block_samples; put32(b + 4, h->T_s_ns);
         putf(b + 8, h->current_lsb_A); putf(b + 12, h->voltage_lsb_V); putf(b + 16, h->trip_current_A);
         put16(b + 20, h->watchdog_periods);
         break;
@@ -92,6 +103,24 @@ static void pack_body(const ip_message_t *m, uint8_t *b) {
         break;
     case IP_CONTROL: b[0] = m->u.control.action; break;
     case IP_HEARTBEAT: put32(b, m->u.heartbeat.counter); break;
+    case IP_TELEMETRY_BLOCK: {
+        const ip_telemetry_block_t *t = &m->u.telemetry_block;
+        put32(b, t->seq); put16(b + 4, t->u_dc); put16(b + 6, t->status); b[8] = t->count;
+        for (unsigned i = 0; i < t->count; i++) {
+            uint8_t *e = b + 9 + 8 * i;
+            put16(e, (uint16_t)t->s[i].i_a); put16(e + 2, (uint16_t)t->s[i].i_b);
+            put16(e + 4, (uint16_t)t->s[i].i_c); put16(e + 6, t->s[i].encoder);
+        }
+        break;
+    }
+    case IP_COMMAND_BLOCK: {
+        const ip_command_block_t *c = &m->u.command_block;
+        put32(b, c->seq); b[4] = c->flags; b[5] = c->count;
+        for (unsigned i = 0; i < c->count; i++) {
+            put16(b + 6 + 4 * i, (uint16_t)c->s[i].u_alpha); put16(b + 8 + 4 * i, (uint16_t)c->s[i].u_beta);
+        }
+        break;
+    }
     default: break;
     }
 }
@@ -107,7 +136,7 @@ static void unpack_body(uint8_t type, const uint8_t *b, ip_message_t *m) {
     }
     case IP_HELLO: {
         ip_hello_t *h = &m->u.hello;
-        h->drive_id = b[0]; h->flags = b[1]; h->n_p = b[2]; h->T_s_ns = get32(b + 4);
+        h->drive_id = b[0]; h->flags = b[1]; h->n_p = b[2]; h->block_samples = b[3]; h->T_s_ns = get32(b + 4);
         h->current_lsb_A = getf(b + 8); h->voltage_lsb_V = getf(b + 12); h->trip_current_A = getf(b + 16);
         h->watchdog_periods = get16(b + 20);
         break;
@@ -118,13 +147,31 @@ static void unpack_body(uint8_t type, const uint8_t *b, ip_message_t *m) {
         break;
     case IP_CONTROL: m->u.control.action = b[0]; break;
     case IP_HEARTBEAT: m->u.heartbeat.counter = get32(b); break;
+    case IP_TELEMETRY_BLOCK: {
+        ip_telemetry_block_t *t = &m->u.telemetry_block;
+        t->seq = get32(b); t->u_dc = get16(b + 4); t->status = get16(b + 6); t->count = b[8];
+        for (unsigned i = 0; i < t->count; i++) {
+            const uint8_t *e = b + 9 + 8 * i;
+            t->s[i].i_a = (int16_t)get16(e); t->s[i].i_b = (int16_t)get16(e + 2);
+            t->s[i].i_c = (int16_t)get16(e + 4); t->s[i].encoder = get16(e + 6);
+        }
+        break;
+    }
+    case IP_COMMAND_BLOCK: {
+        ip_command_block_t *c = &m->u.command_block;
+        c->seq = get32(b); c->flags = b[4]; c->count = b[5];
+        for (unsigned i = 0; i < c->count; i++) {
+            c->s[i].u_alpha = (int16_t)get16(b + 6 + 4 * i); c->s[i].u_beta = (int16_t)get16(b + 8 + 4 * i);
+        }
+        break;
+    }
     default: break;
     }
 }
 
 size_t ip_encode(const ip_message_t *m, uint8_t *wire, size_t cap) {
     uint8_t raw[IP_MAX_FRAME];
-    size_t body = body_size(m->type);
+    size_t body = body_size(m->type, count_of(m));
     if (body == 0 || cap < 1) return 0;
     raw[0] = IP_VERSION; raw[1] = m->type;
     pack_body(m, raw + 2);
@@ -144,8 +191,11 @@ int ip_decode(const uint8_t *frame, size_t len, ip_message_t *m) {
     if (n < 4) return IP_ERR_FRAMING;
     if (ip_crc16(raw, n - 2) != get16(raw + n - 2)) return IP_ERR_CRC;
     if (raw[0] != IP_VERSION) return IP_ERR_VERSION;
-    size_t body = body_size(raw[1]);
-    if (body == 0) return IP_ERR_TYPE;
+    int block = raw[1] == IP_TELEMETRY_BLOCK || raw[1] == IP_COMMAND_BLOCK;
+    size_t head = raw[1] == IP_TELEMETRY_BLOCK ? 9 : 6;
+    if (block && n - 4 < head) return IP_ERR_FRAMING;
+    size_t body = body_size(raw[1], block ? raw[2 + head - 1] : 1u);
+    if (body == 0) return block ? IP_ERR_FRAMING : IP_ERR_TYPE;
     if (n - 4 != body) return IP_ERR_FRAMING;
     unpack_body(raw[1], raw + 2, m);
     return IP_OK;
@@ -217,6 +267,7 @@ size_t ip_can_encode(const ip_message_t *m, uint8_t drive_id, ip_can_frame_t fra
         putf(frames[1].data, h->current_lsb_A); putf(frames[1].data + 4, h->voltage_lsb_V);
         can_frame(&frames[2], base + IP_CAN_HELLO_C, 8);
         putf(frames[2].data, h->trip_current_A); put16(frames[2].data + 4, h->watchdog_periods);
+        frames[2].data[6] = h->block_samples;
         return 3;
     }
     default: return 0;
@@ -272,7 +323,7 @@ int ip_can_decode(ip_can_decoder_t *d, const ip_can_frame_t *f, ip_message_t *m)
         h->drive_id = d->hello[0][1]; h->flags = d->hello[0][2]; h->n_p = d->hello[0][3];
         h->T_s_ns = get32(d->hello[0] + 4); h->current_lsb_A = getf(d->hello[1]);
         h->voltage_lsb_V = getf(d->hello[1] + 4); h->trip_current_A = getf(d->hello[2]);
-        h->watchdog_periods = get16(d->hello[2] + 4);
+        h->watchdog_periods = get16(d->hello[2] + 4); h->block_samples = d->hello[2][6];
         return 1;
     }
     }

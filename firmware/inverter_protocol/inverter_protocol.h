@@ -1,17 +1,19 @@
-/* Inverter wire protocol, version 1 (docs/inverter-protocol.md): message structs, the serial framing
- * (COBS + CRC-16/CCITT-FALSE, 0x00-delimited) and the classic-CAN mapping. No allocation: every
- * buffer is the caller's, sized by the constants below. */
+/* Inverter wire protocol, version 2 (docs/inverter-protocol.md): message structs (per sample, and blocks
+ * of samples over the serial link), the serial framing (COBS + CRC-16/CCITT-FALSE, 0x00-delimited) and
+ * the classic-CAN mapping. No allocation: every buffer is the caller's, sized by the constants below. */
 #ifndef INVERTER_PROTOCOL_H
 #define INVERTER_PROTOCOL_H
 
 #include <stddef.h>
 #include <stdint.h>
 
-#define IP_VERSION 1u
-#define IP_MAX_FRAME 64u                       /* decoded: version, type, body, CRC */
+#define IP_VERSION 2u
+#define IP_MAX_BLOCK 30u                       /* samples in one TELEMETRY_BLOCK or COMMAND_BLOCK */
+#define IP_MAX_FRAME 253u                      /* decoded: version, type, body, CRC (a full TELEMETRY_BLOCK) */
 #define IP_MAX_WIRE (IP_MAX_FRAME + 2u)        /* COBS adds 1 byte per 254, plus the 0x00 */
 
-enum ip_type { IP_TELEMETRY = 0x01, IP_HELLO = 0x02, IP_COMMAND = 0x10, IP_CONTROL = 0x11, IP_HEARTBEAT = 0x12 };
+enum ip_type { IP_TELEMETRY = 0x01, IP_HELLO = 0x02, IP_TELEMETRY_BLOCK = 0x03, IP_COMMAND = 0x10, IP_CONTROL = 0x11,
+               IP_HEARTBEAT = 0x12, IP_COMMAND_BLOCK = 0x13 };
 enum ip_control_action { IP_CONTROL_DISABLE = 1, IP_CONTROL_CLEAR_FAULTS = 2, IP_CONTROL_SEND_HELLO = 3 };
 enum ip_status {
     IP_OVERCURRENT = 1u << 0, IP_WATCHDOG = 1u << 1, IP_PWM_OFF = 1u << 2, IP_COMMAND_MISSING = 1u << 3,
@@ -25,10 +27,19 @@ enum ip_result { IP_OK = 0, IP_ERR_FRAMING = -1, IP_ERR_CRC = -2, IP_ERR_VERSION
 
 typedef struct { uint32_t seq; int16_t i_a, i_b, i_c; uint16_t u_dc, encoder, status; } ip_telemetry_t;
 typedef struct {
-    uint8_t drive_id, flags, n_p; uint32_t T_s_ns;
+    uint8_t drive_id, flags, n_p, block_samples; uint32_t T_s_ns;
     float current_lsb_A, voltage_lsb_V, trip_current_A; uint16_t watchdog_periods;
 } ip_hello_t;
 typedef struct { uint32_t seq; int16_t u_alpha, u_beta; uint8_t flags; } ip_command_t;
+/* Samples seq .. seq + count - 1 (count 1 .. IP_MAX_BLOCK); u_dc and status as at the last one. */
+typedef struct {
+    uint32_t seq; uint16_t u_dc, status; uint8_t count;
+    struct { int16_t i_a, i_b, i_c; uint16_t encoder; } s[IP_MAX_BLOCK];
+} ip_telemetry_block_t;
+typedef struct {
+    uint32_t seq; uint8_t flags, count;
+    struct { int16_t u_alpha, u_beta; } s[IP_MAX_BLOCK];
+} ip_command_block_t;
 typedef struct { uint8_t action; } ip_control_t;
 typedef struct { uint32_t counter; } ip_heartbeat_t;
 
@@ -36,7 +47,7 @@ typedef struct {
     uint8_t type; /* enum ip_type */
     union {
         ip_telemetry_t telemetry; ip_hello_t hello; ip_command_t command; ip_control_t control;
-        ip_heartbeat_t heartbeat;
+        ip_heartbeat_t heartbeat; ip_telemetry_block_t telemetry_block; ip_command_block_t command_block;
     } u;
 } ip_message_t;
 
@@ -46,8 +57,8 @@ size_t ip_cobs_encode(const uint8_t *in, size_t len, uint8_t *out, size_t cap);
 /* Returns IP_OK with *out_len set, or IP_ERR_FRAMING / IP_ERR_SPACE. */
 int ip_cobs_decode(const uint8_t *in, size_t len, uint8_t *out, size_t cap, size_t *out_len);
 
-/* The wire bytes of a message, delimiter included: returns the length, 0 if cap is too small or the
- * type unknown. */
+/* The wire bytes of a message, delimiter included: returns the length, 0 if cap is too small, the type
+ * unknown or a block's count outside 1 .. IP_MAX_BLOCK. */
 size_t ip_encode(const ip_message_t *m, uint8_t *wire, size_t cap);
 /* One frame (the bytes between two delimiters) to a message: IP_OK or a negative ip_result. */
 int ip_decode(const uint8_t *frame, size_t len, ip_message_t *m);
@@ -62,7 +73,8 @@ int ip_reader_push(ip_reader_t *r, uint8_t byte, ip_message_t *m);
 typedef struct { uint16_t id; uint8_t dlc; uint8_t data[8]; } ip_can_frame_t;
 enum { IP_CAN_COMMAND = 0x00, IP_CAN_CONTROL = 0x01, IP_CAN_HEARTBEAT = 0x02, IP_CAN_TELEMETRY_B = 0x08,
        IP_CAN_TELEMETRY_A = 0x09, IP_CAN_HELLO_A = 0x0A, IP_CAN_HELLO_B = 0x0B, IP_CAN_HELLO_C = 0x0C };
-/* Frames of a message (TELEMETRY: B then A); returns their number (0: bad drive_id or type). */
+/* Frames of a message (TELEMETRY: B then A); returns their number (0: bad drive_id, or a type classic CAN
+ * does not carry: blocks travel over the serial link only). */
 size_t ip_can_encode(const ip_message_t *m, uint8_t drive_id, ip_can_frame_t frames[3]);
 typedef struct {
     uint16_t base; uint32_t last_seq; uint16_t u_dc, encoder, status;

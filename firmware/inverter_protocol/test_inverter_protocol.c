@@ -37,10 +37,35 @@ static int parse_message(const char *s, ip_message_t *m) {
         m->type = IP_TELEMETRY; m->u.telemetry = (ip_telemetry_t){(uint32_t)seq, (int16_t)a, (int16_t)b,
             (int16_t)c, (uint16_t)u, (uint16_t)e, (uint16_t)st};
     } else if (!strcmp(type, "HELLO")) {
-        unsigned id, fl, np, wd; unsigned long ts, ci, vo, tr;
-        if (sscanf(s, "%u %u %u %lu %lx %lx %lx %u%n", &id, &fl, &np, &ts, &ci, &vo, &tr, &wd, &more) != 8) return 0;
-        m->type = IP_HELLO; m->u.hello = (ip_hello_t){(uint8_t)id, (uint8_t)fl, (uint8_t)np, (uint32_t)ts,
-            from_bits(ci), from_bits(vo), from_bits(tr), (uint16_t)wd};
+        unsigned id, fl, np, bs, wd; unsigned long ts, ci, vo, tr;
+        if (sscanf(s, "%u %u %u %u %lu %lx %lx %lx %u%n", &id, &fl, &np, &bs, &ts, &ci, &vo, &tr, &wd, &more) != 9)
+            return 0;
+        m->type = IP_HELLO; m->u.hello = (ip_hello_t){(uint8_t)id, (uint8_t)fl, (uint8_t)np, (uint8_t)bs,
+            (uint32_t)ts, from_bits(ci), from_bits(vo), from_bits(tr), (uint16_t)wd};
+    } else if (!strcmp(type, "TELEMETRY_BLOCK")) {
+        unsigned long seq; unsigned u, st, count;
+        ip_telemetry_block_t *t = &m->u.telemetry_block;
+        if (sscanf(s, "%lu %u %u %u%n", &seq, &u, &st, &count, &more) != 4 || count > IP_MAX_BLOCK) return 0;
+        m->type = IP_TELEMETRY_BLOCK;
+        t->seq = (uint32_t)seq; t->u_dc = (uint16_t)u; t->status = (uint16_t)st; t->count = (uint8_t)count;
+        for (unsigned i = 0; i < count; i++) {
+            int a, b, c, step; unsigned e;
+            if (sscanf(s + more, "%d %d %d %u%n", &a, &b, &c, &e, &step) != 4) return 0;
+            t->s[i].i_a = (int16_t)a; t->s[i].i_b = (int16_t)b; t->s[i].i_c = (int16_t)c; t->s[i].encoder = (uint16_t)e;
+            more += step;
+        }
+    } else if (!strcmp(type, "COMMAND_BLOCK")) {
+        unsigned long seq; unsigned fl, count;
+        ip_command_block_t *c = &m->u.command_block;
+        if (sscanf(s, "%lu %u %u%n", &seq, &fl, &count, &more) != 3 || count > IP_MAX_BLOCK) return 0;
+        m->type = IP_COMMAND_BLOCK;
+        c->seq = (uint32_t)seq; c->flags = (uint8_t)fl; c->count = (uint8_t)count;
+        for (unsigned i = 0; i < count; i++) {
+            int a, b, step;
+            if (sscanf(s + more, "%d %d%n", &a, &b, &step) != 2) return 0;
+            c->s[i].u_alpha = (int16_t)a; c->s[i].u_beta = (int16_t)b;
+            more += step;
+        }
     } else if (!strcmp(type, "COMMAND")) {
         unsigned long seq; int a, b; unsigned fl;
         if (sscanf(s, "%lu %d %d %u%n", &seq, &a, &b, &fl, &more) != 4) return 0;
@@ -70,7 +95,8 @@ static int same(const ip_message_t *a, const ip_message_t *b, int seq_bits16) {
     case IP_TELEMETRY: return !memcmp(&x.u.telemetry, &y.u.telemetry, sizeof x.u.telemetry);
     case IP_HELLO: {
         const ip_hello_t *p = &x.u.hello, *q = &y.u.hello;
-        return p->drive_id == q->drive_id && p->flags == q->flags && p->n_p == q->n_p && p->T_s_ns == q->T_s_ns
+        return p->drive_id == q->drive_id && p->flags == q->flags && p->n_p == q->n_p
+            && p->block_samples == q->block_samples && p->T_s_ns == q->T_s_ns
             && !memcmp(&p->current_lsb_A, &q->current_lsb_A, 4) && !memcmp(&p->voltage_lsb_V, &q->voltage_lsb_V, 4)
             && !memcmp(&p->trip_current_A, &q->trip_current_A, 4) && p->watchdog_periods == q->watchdog_periods;
     }
@@ -78,6 +104,21 @@ static int same(const ip_message_t *a, const ip_message_t *b, int seq_bits16) {
         && x.u.command.u_beta == y.u.command.u_beta && x.u.command.flags == y.u.command.flags;
     case IP_CONTROL: return x.u.control.action == y.u.control.action;
     case IP_HEARTBEAT: return x.u.heartbeat.counter == y.u.heartbeat.counter;
+    case IP_TELEMETRY_BLOCK: {
+        const ip_telemetry_block_t *p = &x.u.telemetry_block, *q = &y.u.telemetry_block;
+        if (p->seq != q->seq || p->u_dc != q->u_dc || p->status != q->status || p->count != q->count) return 0;
+        for (unsigned i = 0; i < p->count; i++)
+            if (p->s[i].i_a != q->s[i].i_a || p->s[i].i_b != q->s[i].i_b || p->s[i].i_c != q->s[i].i_c
+                || p->s[i].encoder != q->s[i].encoder) return 0;
+        return 1;
+    }
+    case IP_COMMAND_BLOCK: {
+        const ip_command_block_t *p = &x.u.command_block, *q = &y.u.command_block;
+        if (p->seq != q->seq || p->flags != q->flags || p->count != q->count) return 0;
+        for (unsigned i = 0; i < p->count; i++)
+            if (p->s[i].u_alpha != q->s[i].u_alpha || p->s[i].u_beta != q->s[i].u_beta) return 0;
+        return 1;
+    }
     default: return 0;
     }
 }
@@ -160,6 +201,8 @@ static void stream_resynchronises(void) {
           && ip_unwrap16(0x1234, 0x00051200u) == 0x00051234u, "unwrap16");
     uint8_t small[4];
     CHECK(ip_encode(&m, small, sizeof small) == 0, "encode into a too small buffer must fail");
+    ip_message_t empty = {.type = IP_COMMAND_BLOCK, .u.command_block = {.seq = 1, .flags = IP_ENABLE, .count = 0}};
+    CHECK(ip_encode(&empty, wire, sizeof wire) == 0, "a block of no samples must not encode");
     CHECK(ip_crc16((const uint8_t *)"123456789", 9) == 0x29B1, "CRC check value");
 }
 
@@ -167,7 +210,7 @@ int main(int argc, char **argv) {
     if (argc != 2) { fprintf(stderr, "usage: %s test_vectors.txt\n", argv[0]); return 2; }
     FILE *f = fopen(argv[1], "r");
     if (!f) { perror(argv[1]); return 2; }
-    char text[512];
+    char text[2048];
     int vectors = 0;
     while (fgets(text, sizeof text, f)) {
         line_no++;

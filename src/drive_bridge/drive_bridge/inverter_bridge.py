@@ -19,6 +19,7 @@ from .inverter_protocol import (
     Control,
     Hello,
     Telemetry,
+    TelemetryBlock,
 )
 
 LINK_TIMEOUT_S = 0.05
@@ -51,7 +52,8 @@ class InverterBridge:
         self.reconnect_s = reconnect_s
         self.counters = dict.fromkeys(("samples", "dropped", "duplicated", "reordered", "link_lost",
                                        "bus_off", "reconnects", "safe_state", "faults_cleared",
-                                       "before_hello", "commands", "command_errors", "inverter_faults"), 0)
+                                       "before_hello", "commands", "command_errors", "inverter_faults",
+                                       "unsupported_blocks"), 0)
         self.hello = None
         self.open = False
         self.lost = True
@@ -88,8 +90,14 @@ class InverterBridge:
             return []
         samples = []
         for message in messages:
-            if isinstance(message, Hello):
+            if isinstance(message, Hello) and message.block_samples != 1:
+                self.counters["unsupported_blocks"] += 1
+                self.last_error = (f"the inverter sends blocks of {message.block_samples} samples; this host "
+                                   f"takes one TELEMETRY per sample (blocks over the link are not built yet)")
+            elif isinstance(message, Hello):
                 self.hello = message
+            elif isinstance(message, TelemetryBlock):
+                self.counters["unsupported_blocks"] += 1
             elif isinstance(message, Telemetry):
                 sample = self._telemetry(message)
                 if sample is not None:

@@ -1,14 +1,19 @@
-"""Inverter wire protocol, version 1 (docs/inverter-protocol.md): messages, the serial framing
-(COBS + CRC-16/CCITT-FALSE, 0x00-delimited) and the classic-CAN mapping. Pure Python, no I/O."""
+"""Inverter wire protocol, version 2 (docs/inverter-protocol.md): messages (per sample, and blocks of
+samples over the serial link), the serial framing (COBS + CRC-16/CCITT-FALSE, 0x00-delimited) and the
+classic-CAN mapping. Pure Python, no I/O."""
 import binascii
 import struct
 from dataclasses import dataclass
 
-VERSION = 1
-MAX_FRAME = 64
-"""Largest decoded frame (version, type, body, CRC) a receiver accepts [bytes]."""
+VERSION = 2
+MAX_BLOCK = 30
+"""Most samples in one TELEMETRY_BLOCK or COMMAND_BLOCK (the largest frame then fits one COBS run)."""
+MAX_FRAME = 253
+"""Largest decoded frame (version, type, body, CRC) a receiver accepts [bytes]: a TELEMETRY_BLOCK of
+MAX_BLOCK samples."""
 
-TELEMETRY, HELLO, COMMAND, CONTROL, HEARTBEAT = 0x01, 0x02, 0x10, 0x11, 0x12
+TELEMETRY, HELLO, TELEMETRY_BLOCK = 0x01, 0x02, 0x03
+COMMAND, CONTROL, HEARTBEAT, COMMAND_BLOCK = 0x10, 0x11, 0x12, 0x13
 CONTROL_DISABLE, CONTROL_CLEAR_FAULTS, CONTROL_SEND_HELLO = 1, 2, 3
 ENABLE = 0x01
 HELLO_ENCODER_PRESENT = 0x01
@@ -35,10 +40,23 @@ class Telemetry:
 
 
 @dataclass(frozen=True)
+class TelemetryBlock:
+    """Samples seq … seq + n − 1: ``samples`` holds (i_a, i_b, i_c, encoder) of each; u_dc and status
+    as at the block's last sample."""
+
+    seq: int
+    u_dc: int
+    status: int
+    samples: tuple
+
+
+@dataclass(frozen=True)
 class Hello:
     drive_id: int
     flags: int
     n_p: int
+    block_samples: int
+    """N: samples per TELEMETRY_BLOCK (1: TELEMETRY per sample)."""
     T_s_ns: int
     current_lsb_A: float
     voltage_lsb_V: float
@@ -55,6 +73,15 @@ class Command:
 
 
 @dataclass(frozen=True)
+class CommandBlock:
+    """Commands answering samples seq … seq + n − 1: ``samples`` holds (u_α, u_β) of each."""
+
+    seq: int
+    flags: int
+    samples: tuple
+
+
+@dataclass(frozen=True)
 class Control:
     action: int
 
@@ -64,10 +91,13 @@ class Heartbeat:
     counter: int
 
 
-LAYOUTS = {TELEMETRY: (Telemetry, struct.Struct("<IhhhHHH")), HELLO: (Hello, struct.Struct("<BBBxIfffH")),
+LAYOUTS = {TELEMETRY: (Telemetry, struct.Struct("<IhhhHHH")), HELLO: (Hello, struct.Struct("<BBBBIfffH")),
            COMMAND: (Command, struct.Struct("<IhhB")), CONTROL: (Control, struct.Struct("<B")),
            HEARTBEAT: (Heartbeat, struct.Struct("<I"))}
-TYPE_OF = {cls: kind for kind, (cls, _) in LAYOUTS.items()}
+BLOCK_LAYOUTS = {TELEMETRY_BLOCK: (TelemetryBlock, struct.Struct("<IHHB"), struct.Struct("<hhhH")),
+                 COMMAND_BLOCK: (CommandBlock, struct.Struct("<IBB"), struct.Struct("<hh"))}
+"""Block messages: the head (the sample count last), then one entry per sample."""
+TYPE_OF = {cls: kind for kind, (cls, *_) in {**LAYOUTS, **BLOCK_LAYOUTS}.items()}
 
 
 class FrameError(ValueError):
@@ -124,8 +154,16 @@ def cobs_decode(data):
 
 
 def pack(message):
-    """version, type and body of a message (no CRC)."""
+    """version, type and body of a message (no CRC); ValueError for a block of 0 or over MAX_BLOCK samples."""
     kind = TYPE_OF[type(message)]
+    if kind in BLOCK_LAYOUTS:
+        _, head, entry = BLOCK_LAYOUTS[kind]
+        samples = message.samples
+        if not 1 <= len(samples) <= MAX_BLOCK:
+            raise ValueError(f"a block carries 1 to {MAX_BLOCK} samples, not {len(samples)}")
+        fields = [value for name, value in vars(message).items() if name != "samples"]
+        return (bytes((VERSION, kind)) + head.pack(*fields, len(samples))
+                + b"".join(entry.pack(*sample) for sample in samples))
     return bytes((VERSION, kind)) + LAYOUTS[kind][1].pack(*vars(message).values())
 
 
@@ -145,6 +183,8 @@ def decode_frame(encoded):
         raise FrameError("crc", f"CRC {crc:#06x}, computed {crc16(payload):#06x}")
     if payload[0] != VERSION:
         raise FrameError("version", f"protocol version {payload[0]}, this host speaks {VERSION}")
+    if payload[1] in BLOCK_LAYOUTS:
+        return _decode_block(payload)
     layout = LAYOUTS.get(payload[1])
     if layout is None:
         raise FrameError("unknown_type", f"message type {payload[1]:#04x}")
@@ -152,6 +192,17 @@ def decode_frame(encoded):
     if len(payload) - 2 != body.size:
         raise FrameError("framing", f"{cls.__name__} body of {len(payload) - 2} bytes, expected {body.size}")
     return cls(*body.unpack(payload[2:]))
+
+
+def _decode_block(payload):
+    """A TELEMETRY_BLOCK or COMMAND_BLOCK from its payload (version, type, body)."""
+    cls, head, entry = BLOCK_LAYOUTS[payload[1]]
+    if len(payload) - 2 < head.size:
+        raise FrameError("framing", f"{cls.__name__} body of {len(payload) - 2} bytes, shorter than its head")
+    *fields, count = head.unpack_from(payload, 2)
+    if not 1 <= count <= MAX_BLOCK or len(payload) - 2 != head.size + count * entry.size:
+        raise FrameError("framing", f"{cls.__name__} of {count} samples in a body of {len(payload) - 2} bytes")
+    return cls(*fields, tuple(entry.iter_unpack(payload[2 + head.size:])))
 
 
 class FrameReader:
@@ -218,8 +269,8 @@ def to_can(message, drive_id, with_status=True):
     if isinstance(m, Hello):
         return [(base + CAN_HELLO_A, struct.pack("<BBBBI", VERSION, m.drive_id, m.flags, m.n_p, m.T_s_ns)),
                 (base + CAN_HELLO_B, struct.pack("<ff", m.current_lsb_A, m.voltage_lsb_V)),
-                (base + CAN_HELLO_C, struct.pack("<fHxx", m.trip_current_A, m.watchdog_periods))]
-    raise TypeError(f"not a protocol message: {message!r}")
+                (base + CAN_HELLO_C, struct.pack("<fHBx", m.trip_current_A, m.watchdog_periods, m.block_samples))]
+    raise TypeError(f"not a classic-CAN message: {message!r} (blocks travel over the serial link only)")
 
 
 def unwrap16(low, last):
@@ -274,8 +325,8 @@ class CanDecoder:
                 return None
             version, drive_id, flags, n_p, T_s_ns = struct.unpack("<BBBBI", self.hello.pop(CAN_HELLO_A))
             current_lsb, voltage_lsb = struct.unpack("<ff", self.hello.pop(CAN_HELLO_B))
-            trip, watchdog = struct.unpack("<fHxx", self.hello.pop(CAN_HELLO_C))
+            trip, watchdog, block_samples = struct.unpack("<fHBx", self.hello.pop(CAN_HELLO_C))
             if version != VERSION:
                 raise FrameError("version", f"protocol version {version}, this host speaks {VERSION}")
-            return Hello(drive_id, flags, n_p, T_s_ns, current_lsb, voltage_lsb, trip, watchdog)
+            return Hello(drive_id, flags, n_p, block_samples, T_s_ns, current_lsb, voltage_lsb, trip, watchdog)
         raise FrameError("unknown_type", f"identifier offset {offset:#04x} is not a protocol frame")

@@ -89,7 +89,7 @@ class VirtualInverter:
         self.random = np.random.default_rng(self.faults.seed)
         self.current_lsb = float(np.float32(2.0 * self.trip_current_A / 32767.0))
         self.voltage_lsb = float(np.float32(2.0 * self.plant.inverter.U_dc_V / 32767.0))
-        self.hello = Hello(drive_id, HELLO_ENCODER_PRESENT if encoder else 0, self.plant.machine.n_p,
+        self.hello = Hello(drive_id, HELLO_ENCODER_PRESENT if encoder else 0, self.plant.machine.n_p, 1,
                            round(scenario.T_s * 1e9), self.current_lsb, self.voltage_lsb,
                            float(np.float32(self.trip_current_A)), watchdog_periods)
         self.k = 0

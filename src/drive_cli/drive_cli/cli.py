@@ -268,8 +268,8 @@ def cmd_launch(args):
     if args.block_samples is not None:
         extra["block_samples"] = _block_sizes(str(args.block_samples))[0]
         if args.link and args.block_samples > 1:
-            raise CommandLineError("--block-samples: the inverter protocol (version 1) carries one sample per "
-                                   "frame; behind --link use 1")
+            raise CommandLineError("--block-samples: the inverter link carries one sample per frame so far; "
+                                   "behind --link use 1")
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
                     timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,

@@ -146,13 +146,13 @@ def shaft_held(scenario, duration_s):
 def refuse_behind_an_inverter(scenario):
     """ScenarioError naming the key of what cannot run behind the inverter bridge: a holding brake (an
     inverter does not see the drive's state, which releases the brake) and blocks of samples (the
-    inverter protocol, version 1, carries one sample per frame)."""
+    bridge and the virtual inverter exchange one sample per frame)."""
     if scenario.brake:
         raise ScenarioError(f"{scenario.source}: brake: the virtual inverter has no holding brake; run the "
                             f"scenario with `drive run`, or `drive launch` without --link")
     if scenario.block_samples > 1:
-        raise ScenarioError(f"{scenario.source}: block_samples: {scenario.block_samples}: the inverter protocol "
-                            f"(version 1) carries one sample per frame; use block_samples 1 behind the bridge")
+        raise ScenarioError(f"{scenario.source}: block_samples: {scenario.block_samples}: the inverter "
+                            f"link carries one sample per frame so far; use block_samples 1 behind the bridge")
 
 
 def scenario_names():
