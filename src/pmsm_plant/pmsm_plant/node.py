@@ -99,7 +99,7 @@ class PlantNode(ScenarioNode):
             if self.scheduled:
                 self.schedule = s.schedule()
             elif self.block_samples > 1:
-                self.held = (np.zeros(s.n_samples), np.zeros(s.n_samples))
+                self.commanded = (np.zeros(s.n_samples), np.zeros(s.n_samples))
                 """Speed and load per period, filled from the latest commands as blocks are simulated."""
             self.plant_out = np.zeros((self.block_samples, 10))
             self.publish_config({"scenario": s.name, "T_s_s": s.T_s, "samples": s.n_samples,
@@ -254,7 +254,7 @@ class PlantNode(ScenarioNode):
         if self.schedule:
             speed, load = self.schedule
         else:
-            speed, load = self.held
+            speed, load = self.commanded
             periods = slice(max(k0 - 1, 0), k0 + n - 1)
             speed[periods], load[periods] = self.latest_speed, self.tau_load
         release = -1
