@@ -14,7 +14,8 @@ BASE = {"motor": "wang_spmsm", "estimator": {"type": "injection_frame", "setting
         "sampling_period_s": 1.0e-4, "speed": {"unit": "rpm", "points": [[0.0, 0.0], [0.01, 60.0]]},
         "load": {"unit": "rated", "points": [[0.0, 0.0]]}, "initial": {"theta_m_rad": 0.3},
         "controller": {"current_limit_A": 5.0, "hf_notch_quality": 1.0, "speed_limit_rad_s": 100.0},
-        "metrics": {"settle_s": 0.005}, "seed": 1, "substeps": 1, "block_samples": 1}
+        "metrics": {"settle_s": 0.005}, "seed": 1, "substeps": 1, "block_samples": 1,
+        "answer_periods": 0}
 HOSTILE = [float("nan"), float("inf"), -float("inf"), -1, 0, 0.0, 1e308, 5e-324, 1e12, 1e-12, "abc", "5", True,
            None, [], {}, [[1, 2]], 2 ** 70, -2 ** 70, "", [1.0, 2.0, 3.0], {"a": 1}]
 RUN_BOUND_S = 30.0
@@ -70,12 +71,14 @@ def test_an_unsafe_node_parameter_is_refused_naming_it(name, value):
         scenario_from_parameters(all_parameters({name: value}))
 
 
-@pytest.mark.parametrize("value", [0, 101, 2.5, "10", True])
-def test_a_block_size_out_of_range_is_refused_naming_it(tmp_path, capsys, value):
-    document = {**json.loads(json.dumps(BASE)), "block_samples": value}
+@pytest.mark.parametrize("key, value", [("block_samples", 0), ("block_samples", 101), ("block_samples", 2.5),
+                                        ("block_samples", "10"), ("block_samples", True), ("answer_periods", -1),
+                                        ("answer_periods", 102), ("answer_periods", 1.5)])
+def test_a_block_size_out_of_range_is_refused_naming_it(tmp_path, capsys, key, value):
+    document = {**json.loads(json.dumps(BASE)), key: value}
     path = write(tmp_path, "blocks", document)
     code, out, err = run_cli(capsys, ["run", path, "--no-plot", "--json"])
-    assert code == 2 and out == "" and err.count("\n") == 1 and path in err and "block_samples" in err, err
+    assert code == 2 and out == "" and err.count("\n") == 1 and path in err and key in err, err
 
 
 @pytest.mark.parametrize("argv, named", [(["run", "wang_100rpm", "--block-samples", "0"], "--block-samples"),

@@ -245,7 +245,8 @@ def _bag_scenario(path, configs):
                 s = load_scenario(config["source"], estimator_override=config.get("estimator"))
                 return dataclasses.replace(s, injection=config.get("injection", s.injection),
                                            controller=config.get("controller", s.controller),
-                                           block_samples=config.get("block_samples", s.block_samples))
+                                           block_samples=config.get("block_samples", s.block_samples),
+                                           answer_periods=config.get("answer_periods", s.answer_periods))
         except ScenarioError as error:
             raise BagError(f"{path}: drive_config names a scenario that cannot be loaded ({error})") from None
     raise BagError(f"{path}: no drive_config, so no scenario to score the run against (its windows and "

@@ -191,7 +191,8 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
               "motor": scenario.motor, "estimator": result.estimator, "T_s_s": scenario.T_s, "samples": n,
               "injection": scenario.injection, "controller": scenario.controller,
               "current_limit_A": result.current_limit_A, "non_idealities": scenario.non_idealities,
-              "block_samples": scenario.block_samples, "command_delay_periods": scenario.drive_delay_periods()}
+              "block_samples": scenario.block_samples, "answer_periods": scenario.answer_periods,
+              "command_delay_periods": scenario.drive_delay_periods()}
     t_ns = np.round(np.arange(n) * scenario.T_s * 1e9).astype(np.int64)
     sec, nanosec = np.divmod(t_ns, 1_000_000_000)
     col = {name: log[:, c[name]] for name in LOG_COLUMNS}

@@ -101,6 +101,11 @@ def _scenario_arg(args):
         if not 1 <= blocks <= MAX_BLOCK_SAMPLES:
             raise CommandLineError(f"--block-samples: must be from 1 to {MAX_BLOCK_SAMPLES}, not {blocks}")
         scenario = dataclasses.replace(scenario, block_samples=blocks)
+    answer = getattr(args, "answer_periods", None)
+    if answer is not None:
+        if not 1 <= answer <= MAX_BLOCK_SAMPLES + 1:
+            raise CommandLineError(f"--answer-periods: must be from 1 to {MAX_BLOCK_SAMPLES + 1}, not {answer}")
+        scenario = dataclasses.replace(scenario, answer_periods=answer)
     return scenario
 
 
@@ -995,6 +1000,9 @@ def build_parser():
     run.add_argument("--block-samples", type=int, metavar="N",
                      help="override the scenario's block_samples: data in blocks of N samples, the command "
                           "acting N − 1 periods later (docs/architecture.md)")
+    run.add_argument("--answer-periods", type=int, metavar="P",
+                     help="periods the host has from a block's last sample to its first command acting "
+                          "(default: the inverter's 1; docs/architecture.md)")
     run.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     run.add_argument("--no-plot", action="store_true", help="skip the PNG plot")
     run.add_argument("--record", metavar="BAG",

@@ -16,7 +16,7 @@ SCENARIO_DIR = Path(__file__).parent / "scenarios"
 NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
 TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
             "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps",
-            "plant_deviation", "commissioning", "brake", "torque_feedforward", "block_samples"}
+            "plant_deviation", "commissioning", "brake", "torque_feedforward", "block_samples", "answer_periods"}
 NO_DEVIATION = {"R_s": 1.0, "L_d": 1.0, "L_q": 1.0, "psi_f": 1.0, "J": 1.0, "friction": 1.0,
                 "sensor_gain_a": 1.0, "sensor_gain_b": 1.0, "sensor_gain_c": 1.0,
                 "sensor_offset_a": 0.0, "sensor_offset_b": 0.0, "sensor_offset_c": 0.0, "dead_time": 1.0}
@@ -100,6 +100,9 @@ class Scenario:
     block_samples: int = 1
     """N: the per-sample data travel in blocks of N samples, so the command answering sample k acts N − 1
     periods later than with one message per sample (docs/architecture.md "Block transport")."""
+    answer_periods: int = 0
+    """Periods the host has from a block's last sample to the first of its commands acting (0: the
+    inverter's own delay, 1; a paced inverter with blocks wants N + 1, docs/architecture.md)."""
     torque_feedforward: Table = None
     """The torque the robot expects the motor to deliver [N·m] (its gravity model), sent to the drive's
     `torque_feedforward`; None: none."""
@@ -119,11 +122,16 @@ class Scenario:
             return np.zeros(self.n_samples)
         return self.torque_feedforward.sample(np.arange(self.n_samples) * self.T_s).astype(float)
 
+    def answer_delay_periods(self):
+        """Periods from a block's last sample to its first command acting: ``answer_periods``, else the
+        inverter's own delay."""
+        return self.answer_periods or INVERTER_RATINGS[self.motor].delay_periods
+
     def drive_delay_periods(self):
-        """The drive's delay from sample to applied command [periods]: its inverter's (none when the
+        """The drive's delay d from sample to applied command [periods]: the answer delay (none when the
         scenario turns the delay off), plus N − 1 with blocks of N samples."""
-        inverter = INVERTER_RATINGS[self.motor].delay_periods if self.non_idealities["delay"] else 0
-        return inverter + self.block_samples - 1
+        answer = self.answer_delay_periods() if self.non_idealities["delay"] else 0
+        return answer + self.block_samples - 1
 
     def events_s(self):
         """Instants where a table changes (transient starts), sorted."""
@@ -140,7 +148,7 @@ def shaft_held(scenario, duration_s):
     ``duration_s``, one sample per message: the plant of a commissioning run."""
     still = Table((0.0,), (0.0,), "step")
     return dataclasses.replace(scenario, mode="imposed_speed", speed=still, load=still, initial_omega_m_rad_s=0.0,
-                               duration_s=duration_s, brake=False, block_samples=1)
+                               duration_s=duration_s, brake=False, block_samples=1, answer_periods=0)
 
 
 def refuse_behind_an_inverter(scenario):
@@ -294,6 +302,11 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     if isinstance(block_samples, bool) or not isinstance(block_samples, int) or \
             not 1 <= block_samples <= MAX_BLOCK_SAMPLES:
         fail("block_samples", f"must be a whole number from 1 to {MAX_BLOCK_SAMPLES}, not {block_samples!r}")
+    answer_periods = data.get("answer_periods", 0)
+    if isinstance(answer_periods, bool) or not isinstance(answer_periods, int) or \
+            not 0 <= answer_periods <= MAX_BLOCK_SAMPLES + 1:
+        fail("answer_periods", f"must be a whole number from 0 (the inverter's own) to {MAX_BLOCK_SAMPLES + 1}, "
+                               f"not {answer_periods!r}")
     seed = data.get("seed", 1)
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 63:
         fail("seed", f"must be a whole number from 0 to 2⁶³ − 1, not {seed!r}")
@@ -325,7 +338,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         controller=controller, settle_s=settle, metrics_start_s=start,
         seed=seed, substeps=substeps, plant_deviation={**NO_DEVIATION, **deviation},
         commissioning=commissioning, estimator_source=estimator_source, brake=brake, brake_release_s=brake_release,
-        torque_feedforward=feedforward, block_samples=block_samples)
+        torque_feedforward=feedforward, block_samples=block_samples, answer_periods=answer_periods)
 
 
 def _number(value, key, fail):

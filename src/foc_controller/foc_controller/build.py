@@ -19,12 +19,12 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
     """ControllerParams for ``scenario`` with an estimator that injects at ``injection_frequency_Hz`` (0:
     none), tracks with ``tracking_bandwidth_Hz`` and holds its angle up to ``tracking_current_limit_A``
     (None: no limit of its own); the scenario's current_limit_A overrides that limit. The current loops
-    use the ``commissioning`` record's R_s; its delay is the inverter's plus the blocks' N − 1."""
+    use the ``commissioning`` record's R_s; its delay is the answer delay plus the blocks' N − 1."""
     settings = dict(scenario.controller)
     if tracking_current_limit_A is not None:
         settings.setdefault("current_limit_A", tracking_current_limit_A)
     rating = INVERTER_RATINGS[scenario.motor]
-    inverter = rating._replace(delay_periods=rating.delay_periods + scenario.block_samples - 1)
+    inverter = rating._replace(delay_periods=scenario.answer_delay_periods() + scenario.block_samples - 1)
     try:
         return make_controller_params(nameplate(scenario.motor), inverter, scenario.T_s,
                                       settings, injection_frequency_Hz, tracking_bandwidth_Hz, commissioning)

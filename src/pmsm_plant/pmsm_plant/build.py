@@ -30,11 +30,12 @@ class Plant:
 
 
 def plant_for_scenario(scenario):
-    """A fresh Plant for ``scenario`` (drive_scenarios.scenario.Scenario)."""
+    """A fresh Plant for ``scenario`` (drive_scenarios.scenario.Scenario); its inverter's delay line is
+    the drive's delay (``Scenario.drive_delay_periods``: answer delay and blocks)."""
     preset = get_preset(scenario.motor)
     machine, mechanics, inverter, sensor = plant_parameters(preset, scenario.non_idealities,
                                                             scenario.plant_deviation)
-    inverter = inverter._replace(delay_periods=inverter.delay_periods + scenario.block_samples - 1)
+    inverter = inverter._replace(delay_periods=scenario.drive_delay_periods())
     x = np.zeros(N_STATE)
     plant_reset(x, scenario.initial_theta_m_rad, scenario.initial_omega_m_rad_s, machine)
     return Plant(machine, mechanics, inverter, sensor, x, scenario.seed, scenario.T_s, scenario.substeps,

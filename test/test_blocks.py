@@ -1,0 +1,21 @@
+"""Blocks of samples in one process: what a run computes depends on the drive's delay d alone, not on
+how the samples are grouped into blocks (docs/architecture.md, "Block transport")."""
+import dataclasses
+
+import numpy as np
+
+from drive_runner.runner import run_scenario
+from drive_scenarios.scenario import load_scenario
+
+
+def test_the_samples_depend_on_the_delay_not_on_the_block_size():
+    """Blocks of 10 answered in one period (d = 10) and blocks of 5 answered in 6 periods (d = 10, the
+    delay a paced inverter with blocks needs) give the same samples to the bit; and d differs from the
+    per-sample run's, whose samples differ."""
+    base = dataclasses.replace(load_scenario("wang_load_step"), duration_s=0.08)
+    tens = dataclasses.replace(base, block_samples=10)
+    fives = dataclasses.replace(base, block_samples=5, answer_periods=6)
+    assert tens.drive_delay_periods() == fives.drive_delay_periods() == 10
+    a, b = run_scenario(tens).log, run_scenario(fives).log
+    assert np.array_equal(a, b)
+    assert not np.array_equal(a, run_scenario(base).log)
