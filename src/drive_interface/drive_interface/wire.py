@@ -1,6 +1,7 @@
-"""The per-sample messages as serialized bytes (CDR, little endian, as rmw_fastrtps puts them on the wire),
-so that nodes publish and take them with ``raw=True`` and skip rclpy's message objects: a hop then costs
-about a third (docs/ros-graph.md, "Transport"). No rclpy import: the layouts are plain ``struct``.
+"""The per-sample messages and their blocks as serialized bytes (CDR, little endian, as rmw_fastrtps puts
+them on the wire), so that nodes publish and take them with ``raw=True`` and skip rclpy's message
+objects: a hop then costs about a third (docs/ros-graph.md, "Transport"). No rclpy import: the layouts
+are plain ``struct``.
 
 Encoders write the project's own layout of each type; decoders read any publisher's (any frame_id, joint
 names and array lengths) and raise ``WireError`` on bytes that are not that type.
