@@ -20,6 +20,7 @@ import numpy as np
 
 from control_math.command_delay import applied_voltage, issue_command
 from motor_params.nameplate import nameplate
+from motor_params.nameplate import trip_current_A as default_trip_current_A
 from pmsm_plant.build import plant_for_scenario
 from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
 
@@ -83,7 +84,7 @@ class VirtualInverter:
         self.endpoint = endpoint
         self.rate_Hz, self.command_wait_s = rate_Hz, command_wait_s
         self.watchdog_periods = watchdog_periods
-        self.trip_current_A = trip_current_A or 3.0 * nameplate(scenario.motor).current_limit_A
+        self.trip_current_A = trip_current_A or default_trip_current_A(nameplate(scenario.motor))
         self.encoder = encoder
         self.faults = faults or FaultPlan()
         self.random = np.random.default_rng(self.faults.seed)
