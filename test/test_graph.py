@@ -1,5 +1,6 @@
 """The drive as a ROS 2 graph: lock-step equivalence with the one-process runner, namespaces, bad input,
 timeouts, the launcher's signals and `drive echo`. Isolated: localhost discovery, a per-run domain."""
+import dataclasses
 import json
 import math
 import os
@@ -404,16 +405,19 @@ def test_controller_follows_the_plant_past_a_lost_sample():
         h.close()
 
 
-@pytest.mark.parametrize("link, processes", [("pty", "separate"), ("can", "composed")])
-def test_the_bridge_in_the_plants_place(tmp_path, link, processes):
+@pytest.mark.parametrize("link, processes, blocks", [("pty", "separate", 1), ("can", "composed", 1),
+                                                     ("pty", "composed", 10)])
+def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks):
     """The virtual inverter behind a pty or a CAN bus and the drive_bridge node in the plant's place:
-    the graph closes the loop sample for sample as the one-process loop through the bridge does. The
-    speed is constant: nothing gates the inverter's clock on the launcher's speed commands (as on a
-    robot), so a changing speed would land on whichever sample the graph's timing gives it."""
+    the graph closes the loop sample for sample (block for block: TELEMETRY_BLOCK and COMMAND_BLOCK
+    through the bridge node's block topics) as the one-process loop through the bridge does. The speed
+    is constant: nothing gates the inverter's clock on the launcher's speed commands (as on a robot), so
+    a changing speed would land on whichever sample the graph's timing gives it."""
     from drive_runner.bridge_loop import run_through_bridge
     path = scenario_file(tmp_path, rpm=0.0)
-    result = launch(path, processes=processes, link=link, extra_parameters={"diagnostics_period_s": 0.05})
-    reference = run_through_bridge(load_scenario(path), link)
+    result = launch(path, processes=processes, link=link,
+                    extra_parameters={"diagnostics_period_s": 0.05, "block_samples": blocks})
+    reference = run_through_bridge(dataclasses.replace(load_scenario(path), block_samples=blocks), link)
     for name in ("i_a_meas", "theta_e_hat", "omega_e_hat", "u_alpha", "u_beta"):
         np.testing.assert_allclose(result.log[:, COLUMN[name]], reference.log[:, COLUMN[name]], atol=1e-9,
                                    err_msg=name)

@@ -2,7 +2,10 @@
 
 It publishes what `pmsm_plant` publishes — `currents` stamped k·T_s from the inverter's sample
 counter, `rotor_state` and `angle_error` when the encoder is valid, `/clock`, `drive_config`,
-`/diagnostics` — and answers `voltage_command`(k) with COMMAND(k). The service `clear_faults`
+`/diagnostics` — and answers `voltage_command`(k) with COMMAND(k). With an inverter sending blocks of
+N samples (parameter ``block_samples``, which must match its HELLO) it publishes `currents_block` and
+`rotor_state_block` of each whole block and answers `voltage_command_block` with COMMAND_BLOCK. The
+service `clear_faults`
 (std_srvs/Trigger) clears the inverter's latched faults, an overcurrent included. Frames are read on a
 thread of their own, so the graph never waits on the link; the inverter's clock paces everything. Link
 faults are counted and reported, never raised (docs/inverter-protocol.md, "The host")."""
@@ -10,6 +13,7 @@ import math
 import sys
 import threading
 
+import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Vector3Stamped
 from rcl_interfaces.msg import ParameterDescriptor
@@ -19,11 +23,13 @@ from std_srvs.srv import Trigger
 
 from control_math.frames import wrap
 from drive_interface.node import ContractNode, finite, run_node, stamp, topic_qos
-from drive_interface.stamps import sample_of
+from drive_interface.stamps import sample_at, sample_of, stamp_parts
 from drive_interface.topics import TOPICS
+from drive_interface.wire import BlockWire
 
 from .inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from .inverter_link import CanLink, SerialLink
+from .inverter_protocol import MAX_BLOCK
 
 PARAMETERS = {
     "link": ("serial", "serial or can"),
@@ -34,6 +40,7 @@ PARAMETERS = {
     "drive_id": (0, "CAN drive number 0-15"),
     "link_timeout_s": (LINK_TIMEOUT_S, "no telemetry for this long: link lost [s]"),
     "command_timeout_s": (COMMAND_TIMEOUT_S, "no voltage_command for this long: safe state [s]"),
+    "block_samples": (1, "samples per TELEMETRY_BLOCK the inverter announces, N (1: a frame per sample)"),
 }
 HISTORY_SAMPLES = 64
 
@@ -52,15 +59,29 @@ class InverterBridgeNode(ContractNode):
                 link = CanLink(p["can_channel"], int(p["drive_id"]), p["can_interface"] or None)
             else:
                 raise ValueError(f"parameter link: 'serial' or 'can', not {p['link']!r}")
-        self.bridge = InverterBridge(link, float(p["link_timeout_s"]), float(p["command_timeout_s"]))
-        self.currents_pub = self.create_publisher(Vector3Stamped, "currents", topic_qos("currents"))
-        self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", topic_qos("rotor_state"))
+        self.block_samples = int(p["block_samples"])
+        if not 1 <= self.block_samples <= MAX_BLOCK:
+            raise ValueError(f"parameter block_samples: from 1 to {MAX_BLOCK}, not {self.block_samples}")
+        self.bridge = InverterBridge(link, float(p["link_timeout_s"]), float(p["command_timeout_s"]),
+                                     block_samples=self.block_samples)
         self.offer_clock()
         self.clock_pub = self.claim_clock()
         self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", topic_qos("angle_error"))
-        self.create_subscription(Vector3Stamped, "voltage_command", self.timed(self.on_voltage_command),
-                                 topic_qos("voltage_command"))
-        self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate, topic_qos("rotor_estimate"))
+        if self.block_samples > 1:
+            self.currents_pub = self.sample_publisher("currents_block")
+            self.rotor_state_pub = self.sample_publisher("rotor_state_block")
+            self.sample_subscription("voltage_command_block", self.timed(self.on_voltage_block))
+            self.sample_subscription("rotor_estimate_block", self.on_rotor_estimate_block)
+            self.currents_wire = BlockWire(TOPICS["currents"].frame_id)
+            self.rotor_state_wire = BlockWire()
+            self.block = []
+        else:
+            self.currents_pub = self.create_publisher(Vector3Stamped, "currents", topic_qos("currents"))
+            self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", topic_qos("rotor_state"))
+            self.create_subscription(Vector3Stamped, "voltage_command", self.timed(self.on_voltage_command),
+                                     topic_qos("voltage_command"))
+            self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate,
+                                     topic_qos("rotor_estimate"))
         self.create_service(Trigger, "clear_faults", self.on_clear_faults)
         self.T_s = None
         self.k = None
@@ -84,6 +105,11 @@ class InverterBridgeNode(ContractNode):
             hello = self.bridge.hello
             if hello is not None and self.T_s is None:
                 self.configure(hello)
+            if self.block_samples > 1:
+                for s in samples:
+                    self.gather(s, clock)
+                self.report_new_faults()
+                continue
             for s in samples:
                 self.k = s.k
                 t = stamp(s.k, self.T_s)
@@ -103,6 +129,64 @@ class InverterBridgeNode(ContractNode):
                 currents.vector.x, currents.vector.y, currents.vector.z = s.i_a, s.i_b, s.i_c
                 self.currents_pub.publish(currents)
             self.report_new_faults()
+
+    def gather(self, s, clock):
+        """With blocks: collect sample ``s``; at a whole block's last sample publish `/clock` (its first
+        sample), `rotor_state_block` (when the encoder is valid throughout) and `currents_block`."""
+        N = self.block_samples
+        if s.k % N == 0:
+            self.block = [s]
+        elif self.block and self.block[-1].k == s.k - 1:
+            self.block.append(s)
+        else:
+            self.block = []
+        if len(self.block) < N:
+            return
+        block, self.block = self.block, []
+        k0 = block[0].k
+        self.k = block[-1].k
+        sec, nanosec = stamp_parts(k0, self.T_s)
+        if self.clock_pub:
+            clock.clock = stamp(k0, self.T_s)
+            self.clock_pub.publish(clock)
+        theta = np.array([b.theta_m for b in block])
+        if not np.isnan(theta).any():
+            before = self.history.get(k0 - N)
+            previous = before[0][-1] if before is not None else theta[0]
+            velocity = np.diff(theta, prepend=previous) / self.T_s
+            self.history[k0] = (theta, velocity)
+            self.history.pop(k0 - HISTORY_SAMPLES * N, None)
+            self.rotor_state_pub.publish(self.rotor_state_wire.encode(sec, nanosec, theta, velocity,
+                                                                      np.full(N, np.nan)))
+        currents = np.array([(b.i_a, b.i_b, b.i_c) for b in block])
+        self.currents_pub.publish(self.currents_wire.encode(sec, nanosec, currents[:, 0], currents[:, 1],
+                                                            currents[:, 2]))
+
+    def on_voltage_block(self, sec, nanosec, u_alpha, u_beta, _):
+        if self.T_s is None:
+            return
+        k0 = sample_at(sec, nanosec, self.T_s)
+        if k0 is None or len(u_alpha) != self.block_samples or len(u_beta) != self.block_samples or not (
+                np.isfinite(u_alpha).all() and np.isfinite(u_beta).all()):
+            self.fault("bad_input", f"voltage_command_block {sec}.{nanosec:09d}: not a block of "
+                                    f"{self.block_samples} voltages; safe state")
+            self.bridge.safe_state("bad voltage_command_block")
+            return
+        self.bridge.command_block(k0, u_alpha, u_beta)
+
+    def on_rotor_estimate_block(self, sec, nanosec, theta_hat_m, omega_hat_m, _):
+        """`angle_error` of each block's first sample."""
+        if self.T_s is None:
+            return
+        k0 = sample_at(sec, nanosec, self.T_s)
+        if k0 not in self.history or not len(theta_hat_m) or not finite(theta_hat_m[0], omega_hat_m[0]):
+            return
+        theta, velocity = self.history[k0]
+        error = Vector3Stamped()
+        error.header.stamp = stamp(k0, self.T_s)
+        error.vector.x = wrap(self.n_p * (theta[0] - theta_hat_m[0]))
+        error.vector.y = velocity[0] - omega_hat_m[0]
+        self.angle_error_pub.publish(error)
 
     def configure(self, hello):
         """The inverter's HELLO sets the sampling period and is published in drive_config."""

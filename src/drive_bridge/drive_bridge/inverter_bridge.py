@@ -6,16 +6,20 @@ import threading
 import time
 from dataclasses import dataclass
 
+import numpy as np
+
 from .inverter_link import LinkDown
 from .inverter_protocol import (
     CLEARED_BY_HOST,
     CONTROL_CLEAR_FAULTS,
+    CONTROL_DISABLE,
     CONTROL_SEND_HELLO,
     ENABLE,
     ENCODER_VALID,
     OVERCURRENT,
     STATUS_NAMES,
     Command,
+    CommandBlock,
     Control,
     Hello,
     Telemetry,
@@ -42,18 +46,21 @@ class BridgeSample:
 
 
 class InverterBridge:
-    """One inverter behind ``link`` (SerialLink or CanLink). ``poll`` from one thread, ``command`` from
-    any; both never raise on link trouble, they count it."""
+    """One inverter behind ``link`` (SerialLink or CanLink) that sends blocks of ``block_samples``
+    samples (1: TELEMETRY per sample). ``poll`` from one thread, ``command`` and ``command_block`` from
+    any; they never raise on link trouble, they count it. An inverter announcing another block size is
+    counted (``block_mismatch``) and named, and its telemetry not taken."""
 
     def __init__(self, link, link_timeout_s=LINK_TIMEOUT_S, command_timeout_s=COMMAND_TIMEOUT_S,
-                 reconnect_s=RECONNECT_S):
+                 reconnect_s=RECONNECT_S, block_samples=1):
         self.link = link
+        self.block_samples = block_samples
         self.link_timeout_s, self.command_timeout_s = link_timeout_s, command_timeout_s
         self.reconnect_s = reconnect_s
         self.counters = dict.fromkeys(("samples", "dropped", "duplicated", "reordered", "link_lost",
                                        "bus_off", "reconnects", "safe_state", "faults_cleared",
                                        "before_hello", "commands", "command_errors", "inverter_faults",
-                                       "unsupported_blocks"), 0)
+                                       "block_mismatch"), 0)
         self.hello = None
         self.open = False
         self.lost = True
@@ -90,18 +97,19 @@ class InverterBridge:
             return []
         samples = []
         for message in messages:
-            if isinstance(message, Hello) and message.block_samples != 1:
-                self.counters["unsupported_blocks"] += 1
-                self.last_error = (f"the inverter sends blocks of {message.block_samples} samples; this host "
-                                   f"takes one TELEMETRY per sample (blocks over the link are not built yet)")
+            if isinstance(message, Hello) and message.block_samples != self.block_samples:
+                self.counters["block_mismatch"] += 1
+                self.hello = None
+                self.last_error = (f"the inverter sends blocks of {message.block_samples} samples; this drive "
+                                   f"is set for {self.block_samples} (block_samples)")
             elif isinstance(message, Hello):
                 self.hello = message
-            elif isinstance(message, TelemetryBlock):
-                self.counters["unsupported_blocks"] += 1
-            elif isinstance(message, Telemetry):
-                sample = self._telemetry(message)
-                if sample is not None:
-                    samples.append(sample)
+            elif isinstance(message, (Telemetry, TelemetryBlock)) and not (self.hello is None
+                                                                          and self.counters["block_mismatch"]):
+                for telemetry in _per_sample(message):
+                    sample = self._telemetry(telemetry)
+                    if sample is not None:
+                        samples.append(sample)
         self._check_timeouts()
         return samples
 
@@ -188,26 +196,42 @@ class InverterBridge:
         lsb = self.hello.voltage_lsb_V
         message = Command(k % 2 ** 32, _int16(u_alpha_V / lsb), _int16(u_beta_V / lsb),
                           ENABLE if enable else 0)
+        self._enabling(enable)
+        if self._send(message):
+            self.counters["commands"] += 1
+
+    def command_block(self, k0, u_alpha_V, u_beta_V, enable=True):
+        """COMMAND_BLOCK answering samples k0 … k0 + n − 1 (``u_alpha_V``, ``u_beta_V``: n voltages [V]),
+        rounded as ``command`` rounds; the same latch clearing."""
+        if self.hello is None:
+            self.counters["command_errors"] += 1
+            return
+        counts = np.column_stack((u_alpha_V, u_beta_V)) / self.hello.voltage_lsb_V
+        counts = np.clip(np.rint(np.nan_to_num(counts, nan=0.0, posinf=0.0, neginf=0.0)), -32768, 32767)
+        message = CommandBlock(k0 % 2 ** 32, ENABLE if enable else 0, tuple(map(tuple, counts.astype(int).tolist())))
+        self._enabling(enable)
+        if self._send(message):
+            self.counters["commands"] += 1
+
+    def _enabling(self, enable):
+        """Before an enabling command: clear the latches a link loss causes, once, never an overcurrent."""
         if enable and self.status & CLEARED_BY_HOST and not self.status & OVERCURRENT and not self.clear_sent:
             self.clear_sent = True
             self.counters["faults_cleared"] += 1
             self._send(Control(CONTROL_CLEAR_FAULTS))
         self.last_command_at = time.monotonic()
         self.safe = not enable
-        if self._send(message):
-            self.counters["commands"] += 1
 
     def clear_faults(self):
         """CONTROL 2 (every latched fault, an overcurrent included: the operator's reset)."""
         return self._send(Control(CONTROL_CLEAR_FAULTS))
 
     def safe_state(self, reason):
-        """PWM off: a COMMAND with ENABLE clear for the last sample."""
+        """PWM off at once: CONTROL 1 (disable); the next enabling command switches it on again."""
         self.safe = True
         self.counters["safe_state"] += 1
         self.last_error = f"safe state: {reason}"
-        if self.hello is not None and self.last_seq is not None:
-            self._send(Command(self.last_seq, 0, 0, 0))
+        self._send(Control(CONTROL_DISABLE))
 
     def _send(self, message):
         if not self.open:
@@ -228,6 +252,14 @@ class InverterBridge:
     def close(self):
         self.link.close()
         self.open = False
+
+
+def _per_sample(message):
+    """TELEMETRY of each sample of a TELEMETRY_BLOCK (u_dc and status as at its last sample)."""
+    if isinstance(message, Telemetry):
+        return (message,)
+    return [Telemetry((message.seq + i) % 2 ** 32, i_a, i_b, i_c, message.u_dc, encoder, message.status)
+            for i, (i_a, i_b, i_c, encoder) in enumerate(message.samples)]
 
 
 def _int16(value):

@@ -1,28 +1,28 @@
 """A virtual inverter: the plant core (motor, inverter, current sensors, the scenario's load or
 dynamometer) behind the inverter protocol, on a pseudo-terminal or a CAN bus. It keeps an inverter's
-duties (docs/inverter-protocol.md): telemetry at each period start, the command of sample k applied
-during period k + 1, zero volts for a missing command, PWM off after ``watchdog_periods`` missing ones
+duties (docs/inverter-protocol.md): telemetry at each period start (with blocks of N samples, at the
+block's last sample), the command of sample k applied during period k + 1 (k + 2N with blocks), zero
+volts for a missing command, PWM off after ``watchdog_periods`` missing ones
 or 100 ms without the host, and an overcurrent trip. PWM off is modelled as zero volts.
 
 Clock: ``rate_Hz`` paces the periods in wall time (a real inverter's clock; a late command is missing,
-100 ms of host silence trips; a period the simulation itself starts late is an overrun, and the clock
-restarts there); without it the inverter waits up to ``command_wait_s`` for each command
+100 ms of host silence trips; a block the simulation itself sends more than a period late is an overrun,
+and the clock restarts there); without it the inverter waits up to ``command_wait_s`` for each command
 (lock-step over the link, for simulations faster or slower than real time; a missing command is one
 that did not come within that wait, and host silence is left to the watchdog)."""
 import math
 import threading
 import time
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from control_math.command_delay import applied_voltage, issue_command
+from control_math.command_delay import issue_command
 from motor_params.nameplate import nameplate
 from motor_params.nameplate import trip_current_A as default_trip_current_A
 from pmsm_plant.build import plant_for_scenario
-from pmsm_plant.model import OMEGA_M, THETA_M, plant_advance, plant_outputs, sense_currents
+from pmsm_plant.model import plant_block
 
 from .inverter_link import CanLink, LinkDown, PtyEndpoint, SerialLink
 from .inverter_protocol import (
@@ -39,9 +39,11 @@ from .inverter_protocol import (
     PWM_OFF,
     WATCHDOG,
     Command,
+    CommandBlock,
     Control,
     Hello,
     Telemetry,
+    TelemetryBlock,
     encode_frame,
 )
 
@@ -73,162 +75,261 @@ def _clip16(value):
 
 class VirtualInverter:
     """The plant of ``scenario`` behind the protocol on ``endpoint`` (PtyEndpoint or an opened
-    CanLink); ``run`` in a thread, ``stop`` to end. ``truth`` holds θ_m, ω_m, τ_e, τ_load and the true
-    currents per sample for scoring."""
+    CanLink); ``start`` (a thread), ``stop`` to end, ``join``. With the scenario's
+    ``block_samples`` N > 1 it announces N in HELLO, sends TELEMETRY_BLOCK and takes COMMAND_BLOCK (the
+    command answering sample k acts in period k + 2N: docs/inverter-protocol.md). ``truth`` holds θ_m,
+    ω_m, τ_e, τ_load and the true currents per sample for scoring."""
 
-    def __init__(self, scenario, endpoint, rate_Hz=None, command_wait_s=0.5, watchdog_periods=10,
+    def __init__(self, scenario, endpoint, rate_Hz=None, command_wait_s=0.5, watchdog_periods=None,
                  trip_current_A=None, drive_id=0, faults=None, encoder=True):
         self.plant = plant_for_scenario(scenario)
         self.speed_ref, self.tau_load = scenario.schedule()
         self.scenario = scenario
+        self.block_samples = scenario.block_samples
+        self.delay = scenario.drive_delay_periods()
         self.endpoint = endpoint
         self.rate_Hz, self.command_wait_s = rate_Hz, command_wait_s
-        self.watchdog_periods = watchdog_periods
+        self.watchdog_periods = watchdog_periods or max(10, 3 * self.block_samples)
+        """Missing commands in a row that switch PWM off (default 10 periods, three blocks with blocks)."""
         self.trip_current_A = trip_current_A or default_trip_current_A(nameplate(scenario.motor))
         self.encoder = encoder
         self.faults = faults or FaultPlan()
         self.random = np.random.default_rng(self.faults.seed)
         self.current_lsb = float(np.float32(2.0 * self.trip_current_A / 32767.0))
         self.voltage_lsb = float(np.float32(2.0 * self.plant.inverter.U_dc_V / 32767.0))
-        self.hello = Hello(drive_id, HELLO_ENCODER_PRESENT if encoder else 0, self.plant.machine.n_p, 1,
-                           round(scenario.T_s * 1e9), self.current_lsb, self.voltage_lsb,
-                           float(np.float32(self.trip_current_A)), watchdog_periods)
+        self.hello = Hello(drive_id, HELLO_ENCODER_PRESENT if encoder else 0, self.plant.machine.n_p,
+                           self.block_samples, round(scenario.T_s * 1e9), self.current_lsb, self.voltage_lsb,
+                           float(np.float32(self.trip_current_A)), self.watchdog_periods)
         self.k = 0
+        self.clock_start = 0.0
         self.enabled = False
         self.latched = 0
         self.missing = 0
+        self.missing_in_block = False
+        """A period of the block being sent (from its first sample's to its last's) had no command in
+        time: COMMAND_MISSING in its status."""
+        self.decided = 0
+        """Periods before this one have their voltage in the plant's delay line."""
         self.last_heard = time.monotonic()
         self.held_back = None
-        self.inbox = deque()
+        self.commands = {}
+        """sample → (u_α [V], u_β [V], flags, in time) of each command received and not yet applied."""
         self.bad_frames = 0
         self.sent_frames = 0
         self.stopped = threading.Event()
+        self.worker = None
         self.counters = {"commands": 0, "missing": 0, "discarded": 0, "trips": 0, "watchdog_trips": 0,
                          "host_silent_trips": 0, "link_down": 0, "overruns": 0}
-        """overruns: periods the simulated inverter itself started more than a period behind its clock
-        (its Python simulation, not the host, was slow); its clock then restarts from that moment, as
-        the host cannot be blamed for periods a real inverter's timer would have kept."""
+        """commands: samples whose command came in time. overruns: blocks the simulated inverter itself
+        sent more than a period behind its clock (its Python simulation, not the host, was slow); its
+        clock then restarts from that moment, as the host cannot be blamed for periods a real inverter's
+        timer would have kept."""
         self.latencies_s = []
-        """Time from TELEMETRY(k) sent to COMMAND(k) received, per command in time."""
+        """Time from TELEMETRY(_BLOCK) sent to its COMMAND(_BLOCK) received, per command message in time."""
         self.late_latencies_s = []
-        """The same for commands that came after their period had begun (applied: none; zero volts)."""
+        """The same for command messages that came after their first period had begun (zero volts)."""
         self.sent_at = np.zeros(scenario.n_samples)
         self.truth = np.full((scenario.n_samples, 7), np.nan)
 
     def stop(self):
         self.stopped.set()
 
+    def start(self):
+        """Run on a thread of its own."""
+        self.worker = threading.Thread(target=self.run, name="virtual_inverter", daemon=True)
+        self.worker.start()
+
+    def is_alive(self):
+        return self.worker is not None and self.worker.is_alive()
+
+    def join(self, timeout_s):
+        if self.worker is not None:
+            self.worker.join(timeout_s)
+
     def run(self):
-        p, s = self.plant, self.scenario
-        self.warm_up()
+        """Blocks of N samples (one sample without blocks): the voltages of the periods before them
+        decided from the commands received (zero volts for a missing one), the plant simulated through
+        them, the block's own last period decided and the block sent at its last sample's period start
+        (``rate_Hz``) or as soon as the commands it needs came (lock-step)."""
+        s, N = self.scenario, self.block_samples
+        period = 1.0 / self.rate_Hz if self.rate_Hz else 0.0
+        out = np.zeros((N, 10))
+        self.warm_up(out)
         self.send(self.hello)
-        start = self.last_heard = time.monotonic()
-        hello_at = start + 1.0
+        self.clock_start = self.last_heard = time.monotonic()
+        hello_at = self.clock_start + 1.0
         while not self.stopped.is_set() and self.k < s.n_samples:
-            k = self.k
-            behind = time.monotonic() - (start + k / self.rate_Hz) if self.rate_Hz else 0.0
-            if behind > 1.0 / (self.rate_Hz or math.inf):
-                start += behind
+            k0 = self.k
+            n = min(N, s.n_samples - k0)
+            k_last = k0 + n - 1
+            self.missing_in_block = False
+            self.take_commands(k_last - 1)
+            self.simulate(k0, n, out)
+            self.take_commands(k_last)
+            if self.stopped.is_set():
+                break
+            late = time.monotonic() - (self.clock_start + k_last * period) if self.rate_Hz else 0.0
+            if late > period:
+                self.clock_start += late
                 self.counters["overruns"] += 1
-            i_a, i_b, i_c, tau_e = plant_outputs(p.x, p.machine)
-            m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, p.sensor, p.seed, k)
-            if max(abs(m_a), abs(m_b), abs(m_c)) > self.trip_current_A and not self.latched & OVERCURRENT:
-                self.latched |= OVERCURRENT
-                self.counters["trips"] += 1
-            if (self.rate_Hz and time.monotonic() - self.last_heard > HOST_SILENCE_S
-                    and not self.latched & HEARTBEAT_LOST):
-                self.latched |= HEARTBEAT_LOST
-                self.counters["host_silent_trips"] += 1
-            status = self.latched | (0 if self.switching() else PWM_OFF)
-            status |= COMMAND_MISSING if self.missing else 0
-            bad_frames = sum(self.endpoint.errors.values())
-            status |= BAD_FRAME if bad_frames > self.bad_frames else 0
-            self.bad_frames = bad_frames
-            theta_m = p.x[THETA_M]
-            encoder = round((theta_m % (2.0 * math.pi)) / (2.0 * math.pi) * 65536.0) % 65536
-            status |= ENCODER_VALID if self.encoder else 0
-            lsb = self.current_lsb
-            telemetry = Telemetry(k % 2 ** 32, _clip16(m_a / lsb), _clip16(m_b / lsb), _clip16(m_c / lsb),
-                                  min(65535, round(p.inverter.U_dc_V / self.voltage_lsb)),
-                                  encoder if self.encoder else 0, status)
-            self.truth[k] = (theta_m, p.x[OMEGA_M], tau_e, self.tau_load[k], i_a, i_b, i_c)
-            sent_at = self.sent_at[k] = time.monotonic()
-            self.transmit(telemetry)
+            self.send_samples(k0, n, out)
             if time.monotonic() >= hello_at:
                 self.send(self.hello)
                 hello_at += 1.0
-            deadline = (start + (k + 1) / self.rate_Hz) if self.rate_Hz else sent_at + self.command_wait_s
-            command = self.await_command(k, deadline, sent_at)
-            if command is None:
-                self.missing += 1
-                self.counters["missing"] += 1
-                if self.missing >= self.watchdog_periods and not self.latched & WATCHDOG:
-                    self.latched |= WATCHDOG
-                    self.counters["watchdog_trips"] += 1
-                u_alpha = u_beta = 0.0
-            else:
-                self.missing = 0
-                self.enabled = bool(command.flags & ENABLE)
-                u_alpha, u_beta = command.u_alpha * self.voltage_lsb, command.u_beta * self.voltage_lsb
-            if not self.switching():
-                u_alpha = u_beta = 0.0
-            issue_command(p.line, k, u_alpha, u_beta)
-            plant_advance(p.x, *applied_voltage(p.line, k), self.tau_load[k], p.imposed_speed, self.speed_ref[k],
-                          p.machine, p.mechanics, p.inverter, p.T_s, p.substeps)
-            self.k += 1
-            if self.rate_Hz:
-                wait = start + (k + 1) / self.rate_Hz - time.monotonic()
-                if wait > 0.0:
-                    time.sleep(wait)
+            self.k = k0 + n
 
-    def warm_up(self):
+    def take_commands(self, j_last):
+        """Decide the voltages of the periods up to j_last: what the host sends is taken until period
+        j_last begins (``rate_Hz``), or until the commands acting in them came (lock-step)."""
+        if self.rate_Hz:
+            self.receive_until(self.clock_start + j_last / self.rate_Hz)
+        else:
+            self.await_commands(self.decided - self.delay, j_last + 1 - self.delay)
+        for j in range(max(self.decided, self.delay), j_last + 1):
+            issue_command(self.plant.line, j - self.delay, *self.decide(j))
+        self.decided = max(self.decided, j_last + 1)
+
+    def warm_up(self, out):
         """Load the plant's kernels and the codec on copies before the clock starts, so that the first
         period is not spent compiling."""
         p = self.plant
-        x = p.x.copy()
-        i_a, i_b, i_c, _ = plant_outputs(x, p.machine)
-        sense_currents(i_a, i_b, i_c, p.sensor, p.seed, 0)
-        plant_advance(x, 0.0, 0.0, 0.0, p.imposed_speed, 0.0, p.machine, p.mechanics, p.inverter, p.T_s, p.substeps)
         line = p.line.copy()
         issue_command(line, 0, 0.0, 0.0)
-        applied_voltage(line, 0)
+        plant_block(p.x.copy(), line, 1, 1, self.tau_load, self.speed_ref, p.imposed_speed, -1, p.machine,
+                    p.mechanics, p.inverter, p.sensor, p.seed, p.T_s, p.substeps, out)
         encode_frame(Telemetry(0, 0, 0, 0, 0, 0, 0))
+        encode_frame(TelemetryBlock(0, 0, 0, ((0, 0, 0, 0),)))
 
     def switching(self):
         return self.enabled and not self.latched
 
-    def await_command(self, k, deadline, sent_at):
-        """The command for sample k, handling whatever else arrives, until ``deadline`` (monotonic).
-        Waiting for the host, what has arrived is read even when the deadline has passed; on its own
-        clock a command read after the deadline is late (zero volts), as a real inverter latches its
-        duties at the period's start. What arrived after the command waits in the inbox for the next
-        period."""
+    def deadline(self, c):
+        """When the command answering sample c must have arrived: the start of the first period its
+        message acts in (a block's commands act from one period on)."""
+        first = c - c % self.block_samples
+        return self.clock_start + (first + self.delay) / self.rate_Hz
+
+    def decide(self, j):
+        """The voltage of period j [V, αβ]: command(j − d) if it came in time and the bridge switches, else
+        zero (a missing command counts; the watchdog trips after ``watchdog_periods`` in a row)."""
+        c = j - self.delay
+        u_alpha, u_beta, flags, in_time = self.commands.pop(c, (0.0, 0.0, 0, False))
+        if in_time:
+            self.missing = 0
+            self.enabled = bool(flags & ENABLE)
+            self.counters["commands"] += 1
+        else:
+            self.missing += 1
+            self.missing_in_block = True
+            self.counters["missing"] += 1
+            if self.missing >= self.watchdog_periods and not self.latched & WATCHDOG:
+                self.latched |= WATCHDOG
+                self.counters["watchdog_trips"] += 1
+            u_alpha = u_beta = 0.0
+        return (u_alpha, u_beta) if self.switching() else (0.0, 0.0)
+
+    def simulate(self, k0, n, out):
+        """Samples k0 … k0 + n − 1 into ``out``, each period before them under its decided voltage; an
+        overcurrent sensed at a sample switches PWM off from that sample's period on (the block is
+        simulated again from its start with zero volts there)."""
+        p = self.plant
+        x0 = p.x.copy()
+        if self.rate_Hz and time.monotonic() - self.last_heard > HOST_SILENCE_S and not self.latched & HEARTBEAT_LOST:
+            self.latched |= HEARTBEAT_LOST
+            self.counters["host_silent_trips"] += 1
         while True:
-            remaining = max(0.0, deadline - time.monotonic())
-            if not self.inbox:
-                self.inbox.extend(self.receive(min(remaining, 0.05)))
-            while self.inbox:
-                message = self.inbox.popleft()
-                self.last_heard = time.monotonic()
-                if isinstance(message, Command):
-                    now = time.monotonic()
-                    if message.seq == k % 2 ** 32 and not (self.rate_Hz and now > deadline):
-                        self.counters["commands"] += 1
-                        self.latencies_s.append(now - sent_at)
-                        return message
-                    self.counters["discarded"] += 1
-                    if message.seq <= k:
-                        self.late_latencies_s.append(now - self.sent_at[message.seq])
-                elif isinstance(message, Control):
-                    if message.action == CONTROL_CLEAR_FAULTS:
-                        self.latched = 0
-                        self.missing = 0
-                    elif message.action == CONTROL_DISABLE:
-                        self.enabled = False
-                    elif message.action == CONTROL_SEND_HELLO:
-                        self.send(self.hello)
-            if remaining <= 0.0 or self.stopped.is_set():
-                return None
+            plant_block(p.x, p.line, k0, n, self.tau_load, self.speed_ref, p.imposed_speed, -1, p.machine,
+                        p.mechanics, p.inverter, p.sensor, p.seed, p.T_s, p.substeps, out)
+            over = np.flatnonzero(np.abs(out[:n, 3:6]).max(axis=1) > self.trip_current_A)
+            if self.latched & OVERCURRENT or not over.size:
+                break
+            self.latched |= OVERCURRENT
+            self.counters["trips"] += 1
+            for j in range(max(self.delay, k0 + int(over[0])), k0 + n - 1):
+                issue_command(p.line, j - self.delay, 0.0, 0.0)
+            p.x[:] = x0
+
+    def status(self):
+        """The status word of the block being sent."""
+        status = self.latched | (0 if self.switching() else PWM_OFF)
+        status |= COMMAND_MISSING if self.missing_in_block else 0
+        bad_frames = sum(self.endpoint.errors.values())
+        status |= BAD_FRAME if bad_frames > self.bad_frames else 0
+        self.bad_frames = bad_frames
+        return status | (ENCODER_VALID if self.encoder else 0)
+
+    def send_samples(self, k0, n, out):
+        """TELEMETRY of sample k0 (TELEMETRY_BLOCK of samples k0 … with blocks), the truth kept."""
+        lsb = self.current_lsb
+        samples = []
+        for i in range(n):
+            row = out[i]
+            encoder = round((row[6] % (2.0 * math.pi)) / (2.0 * math.pi) * 65536.0) % 65536 if self.encoder else 0
+            samples.append((_clip16(row[3] / lsb), _clip16(row[4] / lsb), _clip16(row[5] / lsb), encoder))
+            self.truth[k0 + i] = (row[6], row[7], row[8], row[9], row[0], row[1], row[2])
+        u_dc = min(65535, round(self.plant.inverter.U_dc_V / self.voltage_lsb))
+        status = self.status()
+        if self.block_samples > 1:
+            message = TelemetryBlock(k0 % 2 ** 32, u_dc, status, tuple(samples))
+        else:
+            i_a, i_b, i_c, encoder = samples[0]
+            message = Telemetry(k0 % 2 ** 32, i_a, i_b, i_c, u_dc, encoder, status)
+        self.sent_at[k0:k0 + n] = time.monotonic()
+        self.transmit(message)
+
+    def receive_until(self, until):
+        """Take what the host sends until ``until`` (monotonic)."""
+        while not self.stopped.is_set():
+            remaining = until - time.monotonic()
+            if remaining <= 0.0:
+                return
+            for message in self.receive(min(remaining, 0.05)):
+                self.handle(message)
+
+    def await_commands(self, first, last):
+        """Lock-step: wait until the commands answering samples first … last − 1 came, each at most
+        ``command_wait_s`` after its telemetry was sent."""
+        for c in range(max(0, first), min(last, self.k)):
+            until = self.sent_at[c] + self.command_wait_s
+            while c not in self.commands and time.monotonic() < until and not self.stopped.is_set():
+                for message in self.receive(min(until - time.monotonic(), 0.05)):
+                    self.handle(message)
+
+    def handle(self, message):
+        """A message from the host: a command stored for its period (in time if it came before its
+        first period began; once per sample: a repeat or one for a period already past is discarded), a
+        CONTROL carried out."""
+        now = self.last_heard = time.monotonic()
+        if isinstance(message, (Command, CommandBlock)):
+            if isinstance(message, Command):
+                seq, values = message.seq, ((message.u_alpha, message.u_beta),)
+            else:
+                seq, values = message.seq, message.samples
+            c0 = seq + (self.k // 2 ** 32) * 2 ** 32
+            if c0 > self.k + 2 ** 31:
+                c0 -= 2 ** 32
+            in_time = not self.rate_Hz or now <= self.deadline(c0)
+            fresh = [c for c in range(c0, c0 + len(values))
+                     if 0 <= c < self.k and c + self.delay >= self.decided and c not in self.commands]
+            if fresh:
+                (self.latencies_s if in_time else self.late_latencies_s).append(now - self.sent_at[c0])
+            else:
+                self.counters["discarded"] += 1
+                if 0 <= c0 < self.k:
+                    self.late_latencies_s.append(now - self.sent_at[c0])
+                return
+            lsb = self.voltage_lsb
+            for c, (u_alpha, u_beta) in zip(range(c0, c0 + len(values)), values):
+                if c in fresh:
+                    self.commands[c] = (u_alpha * lsb, u_beta * lsb, message.flags, in_time)
+        elif isinstance(message, Control):
+            if message.action == CONTROL_CLEAR_FAULTS:
+                self.latched = 0
+                self.missing = 0
+            elif message.action == CONTROL_DISABLE:
+                self.enabled = False
+            elif message.action == CONTROL_SEND_HELLO:
+                self.send(self.hello)
 
     def send(self, message):
         """Send, or lose the frame while the link is down (an unplugged cable, a bus being reopened)."""

@@ -22,7 +22,14 @@ from drive_interface.exit_codes import (
 from drive_interface.graph import DEFAULT_NAMESPACE, EXECUTORS
 from drive_interface.interrupt import Interrupted
 from drive_interface.strict_json import dumps
-from drive_scenarios.scenario import MAX_BLOCK_SAMPLES, load_scenario, scenario_names
+from drive_scenarios.scenario import (
+    MAX_BLOCK_SAMPLES,
+    PACED_BLOCK_SAMPLES,
+    behind_an_inverter,
+    link_block_samples,
+    load_scenario,
+    scenario_names,
+)
 from hf_estimator.registry import describe, estimator_names
 from motor_params.nameplate import INVERTER_RATINGS, nameplate
 from pmsm_plant.presets import PRESETS
@@ -270,11 +277,11 @@ def cmd_launch(args):
     if args.paced and not args.link:
         raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
     extra = {"commissioning": args.commissioning} if args.commissioning else {}
-    if args.block_samples is not None:
-        extra["block_samples"] = _block_sizes(str(args.block_samples))[0]
-        if args.link and args.block_samples > 1:
-            raise CommandLineError("--block-samples: the inverter link carries one sample per frame so far; "
-                                   "behind --link use 1")
+    blocks = link_block_samples(args.link, args.paced, args.block_samples)
+    if blocks is not None:
+        extra["block_samples"] = _block_sizes(str(blocks))[0]
+    if args.link:
+        behind_an_inverter(dataclasses.replace(scenario, block_samples=blocks or scenario.block_samples), args.link)
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
                     timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,
@@ -303,6 +310,7 @@ def cmd_bridge(args):
     from drive_runner.bridge_loop import run_through_bridge
     from drive_runner.runner import terminal_progress
 
+    args.block_samples = link_block_samples(args.link, args.paced, args.block_samples)
     scenario = _scenario_arg(args)
     result = run_through_bridge(scenario, args.link, rate_Hz=1.0 / scenario.T_s if args.paced else None,
                                 progress=terminal_progress(f"{scenario.name}/{scenario.estimator} through the "
@@ -323,20 +331,24 @@ def cmd_bench_bridge(args):
         if link not in ("pty", "can"):
             raise CommandLineError(f"--links: 'pty' and/or 'can', not {link!r}")
     duration = args.duration if args.duration is not None or args.paced else 1.0
-    report = bridge_rates(args.scenario, links, duration, args.repeats, args.paced)
+    if args.block_samples is not None:
+        _block_sizes(str(args.block_samples))
+    blocks = {link: link_block_samples(link, args.paced, args.block_samples) for link in links}
+    report = bridge_rates(args.scenario, links, duration, args.repeats, args.paced, blocks)
     if args.json:
         _print_json(report)
         return 0
     if args.paced:
         print(f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter on its own clock "
               f"at {report['sampling_rate_Hz']:g} Hz; worst of {report['repeats']})")
-        print(f"  {'link':6s} {'late':>8s} {'latency p50':>12s} {'p99':>9s} {'max':>9s} {'angle RMS':>10s} "
+        print(f"  {'link':6s} {'N':>3s} {'late':>8s} {'latency p50':>12s} {'p99':>9s} {'max':>9s} {'angle RMS':>10s} "
               f"{'peak':>7s} {'lost':>5s}")
         for row in report["links"]:
             microseconds = [_formatted(row[key], "{:.0f}") for key in ("latency_p50_us", "latency_p99_us",
                                                                          "latency_max_us")]
             angles = [_formatted(row[key], "{:.4f}") for key in ("angle_error_rms", "angle_error_peak")]
-            print(f"  {row['link']:6s} {100.0 * row['late_fraction']:7.3f}% {microseconds[0]:>9s} µs "
+            print(f"  {row['link']:6s} {row['block_samples']:3d} {100.0 * row['late_fraction']:7.3f}% "
+                  f"{microseconds[0]:>9s} µs "
                   f"{microseconds[1]:>6s} µs {microseconds[2]:>6s} µs {angles[0]:>10s} {angles[1]:>7s} "
                   f"{row['lock_lost']:5d}")
         return 0
@@ -1069,6 +1081,8 @@ def build_parser():
     bench_bridge.add_argument("--repeats", type=int, default=3, help="timed runs per link (best kept)")
     bench_bridge.add_argument("--paced", action="store_true",
                               help="the inverter on its own clock, never waiting: late commands, latency, angle error")
+    bench_bridge.add_argument("--block-samples", type=int, metavar="N",
+                              help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} on a paced pty)")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
 
@@ -1162,7 +1176,7 @@ def build_parser():
     launch.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     launch.add_argument("--block-samples", type=int, metavar="N",
                         help="override the scenario's block_samples: the per-sample topics travel in blocks of N "
-                             "(docs/ros-graph.md)")
+                             f"(docs/ros-graph.md; {PACED_BLOCK_SAMPLES} with --link pty --paced)")
     launch.add_argument("--processes", choices=("composed", "separate"), default="composed",
                         help="nodes in this process (default) or one process per node")
     launch.add_argument("--executor", choices=EXECUTORS, default="events",
@@ -1189,6 +1203,9 @@ def build_parser():
     bridge.add_argument("--paced", action="store_true",
                         help="the inverter on its own clock at the sampling rate, never waiting for the host: a "
                              "late command is zero volts, counted")
+    bridge.add_argument("--block-samples", type=int, metavar="N",
+                        help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced on "
+                             f"a pty)")
     bridge.add_argument("--estimator", help="override the scenario's estimator")
     bridge.add_argument("--duration", type=float, help="override the duration [s]")
     bridge.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)

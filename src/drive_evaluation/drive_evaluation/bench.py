@@ -263,13 +263,14 @@ def _percentile(values, q):
     return float(np.percentile(values, q)) if len(values) else None
 
 
-def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False):
+def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_samples=None):
     """`drive bench bridge`: the sensorless loop through the bridge and the virtual inverter per link.
     Waiting for the host's answers (default): the sustained rate, best of ``repeats`` after a warm-up.
     ``paced``: the inverter on its own clock at the scenario's rate, never waiting: missing (late)
     commands and their latency, and the angle error of the run, worst of ``repeats``. Latency: the
     inverter's time from sending TELEMETRY(k) to receiving COMMAND(k); host: the host's part of it
-    (telemetry decoded, estimator and controller run, command encoded and written)."""
+    (telemetry decoded, estimator and controller run, command encoded and written). ``block_samples``:
+    link → N (None or absent: the scenario's)."""
     from drive_evaluation.metrics import compute_metrics
     from drive_runner.bridge_loop import run_through_bridge
 
@@ -279,15 +280,17 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False):
     rate = 1.0 / scenario.T_s if paced else None
     rows = []
     for link in links:
-        run_through_bridge(dataclasses.replace(scenario, duration_s=min(scenario.duration_s, 0.05)), link)
+        blocks = (block_samples or {}).get(link) or scenario.block_samples
+        linked = dataclasses.replace(scenario, block_samples=blocks)
+        run_through_bridge(dataclasses.replace(linked, duration_s=min(scenario.duration_s, 0.05)), link)
         best = None
         for _ in range(repeats):
-            result = run_through_bridge(scenario, link, rate_Hz=rate)
+            result = run_through_bridge(linked, link, rate_Hz=rate)
             if best is None or (result.timing["missing"] > best.timing["missing"] if paced
                                 else result.wall_time_s < best.wall_time_s):
                 best = result
         latencies, host = best.latencies_s * 1e6, best.host_s * 1e6
-        row = {"link": link, "samples_per_s": best.log.shape[0] / best.wall_time_s,
+        row = {"link": link, "block_samples": blocks, "samples_per_s": best.log.shape[0] / best.wall_time_s,
                "latency_p50_us": _percentile(latencies, 50), "latency_p99_us": _percentile(latencies, 99),
                "host_p50_us": _percentile(host, 50), "host_p99_us": _percentile(host, 99),
                "link_echo_us": link_echo_us(link),

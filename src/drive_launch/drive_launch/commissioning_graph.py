@@ -2,7 +2,6 @@
 inverter behind the drive_bridge node) and the drive_commissioning node in the controller's place,
 composed in this process. The procedure is the same core the one-process host runs."""
 import tempfile
-import threading
 import time
 
 from drive_commissioning.procedure import procedure_for_scenario
@@ -65,7 +64,7 @@ def commission_over_ros(scenario_ref, namespace=DEFAULT_NAMESPACE, link=None, ti
         started = inverter is None
         while not commissioning.procedure.done:
             if not started and commissioning.voltage_pub and commissioning.voltage_pub.get_subscription_count():
-                threading.Thread(target=inverter.run, name="virtual_inverter", daemon=True).start()
+                inverter.start()
                 started = True
             if requested():
                 raise Interrupted(requested())

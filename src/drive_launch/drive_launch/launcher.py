@@ -21,7 +21,7 @@ from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
 from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
-from drive_scenarios.scenario import refuse_behind_an_inverter, resolve
+from drive_scenarios.scenario import behind_an_inverter, resolve
 
 PROCESSES = ("composed", "separate")
 LINKS = ("pty", "can")
@@ -243,6 +243,9 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
                                          spec.extra_parameters)
             scenario = scenario_from_parameters(all_parameters(parameters))
+            if spec.link:
+                scenario = behind_an_inverter(scenario, spec.link)
+                parameters["answer_periods"] = scenario.answer_periods
             drive = build_drive(scenario)
             scheduled = {**parameters, "scenario_schedule": True}
             roles = {"pmsm_plant": {**scheduled, "publish_clock": i == 0},
@@ -254,7 +257,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                 del roles["pmsm_plant"]
                 period = float(all_parameters(parameters)["diagnostics_period_s"])
                 timeouts = {"link_timeout_s": timeout_s, "command_timeout_s": timeout_s,
-                            "diagnostics_period_s": period, "publish_clock": i == 0}
+                            "diagnostics_period_s": period, "publish_clock": i == 0,
+                            "block_samples": scenario.block_samples}
                 if processes == "composed":
                     nodes.append(make_node("drive_bridge", context, spec.namespace, timeouts, link=host_link))
                 else:
@@ -322,6 +326,9 @@ def _result(driver, drive, record, processes, executor, interrupted):
     """The GraphResult of one drive (``drive``: the runner's composition of the same scenario, for its
     current limit and commissioning record)."""
     scenario = driver.scenario
+    if driver.inverter is not None:
+        driver.inverter.stop()
+        driver.inverter.join(2.0)
     if driver.error and not interrupted:
         raise GraphError(f"{driver.node.get_namespace()} ({scenario.name}): {driver.error}")
     end = driver.finished_at or time.monotonic()
@@ -341,7 +348,6 @@ def _virtual_inverter(scenario, link, workdir, drive_id, paced, timeout_s):
     waiting for each of the graph's commands as long as a plant node would, ``timeout_s``) and the
     host's end of its link."""
     from drive_bridge.virtual_inverter import VirtualInverter, make_links
-    refuse_behind_an_inverter(scenario)
     endpoint, host_link = make_links(link, workdir, drive_id)
     rate = 1.0 / scenario.T_s if paced else None
     return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id), host_link

@@ -1,6 +1,5 @@
 """The launcher's scenario driver: the node that stands in for the dyno and the operator of a simulated
 drive, and records what the graph says."""
-import threading
 import time
 
 import numpy as np
@@ -213,7 +212,7 @@ class ScenarioDriver:
                 if self.recorder:
                     self.record_commands(0)
                 if self.inverter is not None:
-                    threading.Thread(target=self.inverter.run, name="virtual_inverter", daemon=True).start()
+                    self.inverter.start()
             return
         if self.progress:
             self.progress((self.last_sample + 1) / self.n)

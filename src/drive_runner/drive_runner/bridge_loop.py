@@ -1,10 +1,11 @@
 """The sensorless loop through the inverter bridge in one process: the virtual inverter on its own
 thread behind a pseudo-terminal or a CAN bus, the bridge core, and the estimator and controller cores
-answering each telemetry frame. For tests, `drive bridge` and `drive bench bridge`."""
+answering each telemetry frame (with blocks of N samples, each TELEMETRY_BLOCK by the block kernels and
+one COMMAND_BLOCK). For tests, `drive bridge` and `drive bench bridge`."""
 import contextlib
 import gc
+import sys
 import tempfile
-import threading
 import time
 from dataclasses import dataclass, field
 
@@ -13,11 +14,14 @@ import numpy as np
 from control_math.command_delay import applied_voltage, command_line, issue_command
 from control_math.current_sensing import corrected_currents
 from drive_bridge.inverter_bridge import InverterBridge
+from drive_bridge.inverter_protocol import COMMAND_MISSING, PWM_OFF
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_interface.interrupt import Interrupted
 from drive_interface.log import COLUMN, LOG_COLUMNS
-from drive_scenarios.scenario import refuse_behind_an_inverter
-from foc_controller.control import controller_step
+from drive_scenarios.scenario import behind_an_inverter
+from foc_controller.control import controller_block, controller_step
+from hf_estimator.block import estimator_block
+from motor_params.nameplate import nameplate, trip_current_A
 
 from .loop import write_row
 from .runner import RunResult, build_drive, cut
@@ -42,9 +46,11 @@ class BridgeRunResult(RunResult):
 
 def run_through_bridge(scenario, link="pty", faults=None, rate_Hz=None, command_wait_s=0.5, progress=None,
                        inverter_hook=None):
-    """Run ``scenario`` with its plant behind the virtual inverter and the bridge. ``inverter_hook(
-    inverter, endpoint, k)`` is called by the host loop after each sample (tests unplug links with it).
-    The garbage collector is held off during the loop (``collector_held``)."""
+    """Run ``scenario`` with its plant behind the virtual inverter and the bridge (with blocks, at the
+    protocol's answer delay: ``behind_an_inverter``). ``inverter_hook(inverter, endpoint, k)`` is called
+    by the host loop after each sample (tests unplug links with it). The garbage collector is held off
+    during the loop (``collector_held``)."""
+    scenario = behind_an_inverter(scenario, link)
     with virtual_inverter_link(scenario, link, rate_Hz=rate_Hz, command_wait_s=command_wait_s,
                                faults=faults) as (inverter, endpoint, bridge):
         return _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook)
@@ -55,11 +61,11 @@ def virtual_inverter_link(scenario, link, **inverter_options):
     """(virtual inverter, its link endpoint, the host's bridge core) for ``scenario`` on ``link`` ('pty',
     'can') in a temporary directory; the inverter is not started. All three are stopped and closed on
     exit."""
-    refuse_behind_an_inverter(scenario)
+    scenario = behind_an_inverter(scenario, link)
     with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
         endpoint, host_link = make_links(link, workdir)
         inverter = VirtualInverter(scenario, endpoint, **inverter_options)
-        bridge = InverterBridge(host_link)
+        bridge = InverterBridge(host_link, block_samples=scenario.block_samples)
         try:
             yield inverter, endpoint, bridge
         finally:
@@ -68,58 +74,66 @@ def virtual_inverter_link(scenario, link, **inverter_options):
             endpoint.close()
 
 
+GIL_SWITCH_S = 2e-4
+"""Python's thread switch interval during a loop through the bridge (its default is 5 ms): the host and
+the virtual inverter share one interpreter, and a thread woken by the link waits this long at most for
+the other to hand over."""
+
+
 @contextlib.contextmanager
 def collector_held():
     """Python's cyclic garbage collector off (after one collection) for a loop through the bridge: a
-    full collection in a large process pauses past the link timeout (50 ms) and reads as a lost link."""
+    full collection in a large process pauses past the link timeout (50 ms) and reads as a lost link.
+    The thread switch interval is GIL_SWITCH_S meanwhile."""
     gc.collect()
     gc.disable()
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(GIL_SWITCH_S)
     try:
         yield
     finally:
+        sys.setswitchinterval(interval)
         gc.enable()
 
 
 def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
+    """The host's loop. The estimator pairs each current step with the voltage that acted: a command the
+    inverter reports missing or not applied (COMMAND_MISSING or PWM_OFF at sample k: the command of sample
+    k − d) and the command of a sample never received are zero in its delay line."""
     host = build_drive(scenario)
-    e, n_p, n = host.estimator, host.controller.n_p, scenario.n_samples
-    cx, cz, cp = host.controller_x, host.controller_z, host.controller
-    calibration = host.commissioning.calibration()
-    line = command_line(scenario.drive_delay_periods())
+    n = scenario.n_samples
+    delay = scenario.drive_delay_periods()
+    line = command_line(delay)
     log = np.zeros((n, len(LOG_COLUMNS)))
     received = np.zeros(n, dtype=bool)
     host_s = np.zeros(n)
+    answer = _BlockAnswer(host, scenario, line, log) if scenario.block_samples > 1 else \
+        _SampleAnswer(host, scenario, line, log)
     bridge.poll(0.0)
-    thread = threading.Thread(target=inverter.run, name="virtual_inverter", daemon=True)
     start = time.perf_counter()
-    thread.start()
     last_report = 0
     interrupted = 0
+    next_k = 0
     try:
         with collector_held():
-            while thread.is_alive() or bridge.open:
+            inverter.start()
+            while inverter.is_alive() or bridge.open:
                 samples = bridge.poll(0.05)
                 arrived = time.perf_counter()
-                if not samples and not thread.is_alive():
+                if not samples and not inverter.is_alive():
                     break
                 for s in samples:
                     k = s.k
                     if k >= n:
                         continue
-                    theta_e = n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
-                    c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, calibration)
-                    theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state = e.step(
-                        e.x, e.z, e.params, k, c_a, c_b, c_c, *applied_voltage(line, k - 1), theta_e, 0.0)
-                    u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-                        cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b, state,
-                        host.tau_feedforward[k])
-                    issue_command(line, k, u_a, u_b)
-                    bridge.command(k, u_a, u_b)
-                    host_s[k] = time.perf_counter() - arrived
-                    received[k] = True
-                    write_row(log[k], k * scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c,
-                              theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref,
-                              i_q_ref, eps, signal, state)
+                    for missed in range(next_k, k):
+                        issue_command(line, missed, 0.0, 0.0)
+                    next_k = k + 1
+                    if s.status & (COMMAND_MISSING | PWM_OFF) and k >= delay:
+                        issue_command(line, k - delay, 0.0, 0.0)
+                    for answered in answer.sample(s, bridge):
+                        host_s[answered] = time.perf_counter() - arrived
+                        received[answered] = True
                     if inverter_hook:
                         inverter_hook(inverter, endpoint, k)
                     if progress and k - last_report >= n // 100:
@@ -130,7 +144,8 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     except Interrupted as stop:
         interrupted = stop.signum
         inverter.stop()
-    thread.join(timeout=2.0)
+    inverter.stop()
+    inverter.join(2.0)
     wall = time.perf_counter() - start
     if progress and not interrupted:
         progress(1.0)
@@ -140,10 +155,103 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     for column, name in enumerate(("theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c")):
         log[:, COLUMN[name]] = truth[:done, column]
     log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
+    e, cp = host.estimator, host.controller
     return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
-                           host.estimator.facts(),
+                           e.facts(),
                            link=link,
                            counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
                            inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
                            latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
                            host_s=host_s[:done][received[:done]], timing=timing_report(inverter, scenario.T_s))
+
+
+class _SampleAnswer:
+    """The host's answer to each sample: the estimator's and the controller's step, COMMAND(k)."""
+
+    def __init__(self, host, scenario, line, log):
+        self.host, self.scenario, self.line, self.log = host, scenario, line, log
+        self.calibration = host.commissioning.calibration()
+
+    def sample(self, s, bridge):
+        """Answer sample ``s``; the samples answered (its k)."""
+        host, line, k = self.host, self.line, s.k
+        e, cx, cz, cp = host.estimator, host.controller_x, host.controller_z, host.controller
+        theta_e = cp.n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+        c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, self.calibration)
+        theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state = e.step(
+            e.x, e.z, e.params, k, c_a, c_b, c_c, *applied_voltage(line, k - 1), theta_e, 0.0)
+        u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
+            cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b, state,
+            host.tau_feedforward[k])
+        issue_command(line, k, u_a, u_b)
+        bridge.command(k, u_a, u_b)
+        write_row(self.log[k], k * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c,
+                  theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref,
+                  i_q_ref, eps, signal, state)
+        return (k,)
+
+
+class _BlockAnswer:
+    """The host's answer to each whole block of N samples: ``estimator_block`` and ``controller_block``
+    (as ``drive run`` composes them), one COMMAND_BLOCK. A block with a sample missing is not answered
+    (the inverter applies zero volts for it)."""
+
+    def __init__(self, host, scenario, line, log):
+        self.host, self.scenario, self.line, self.log = host, scenario, line, log
+        self.calibration = host.commissioning.calibration()
+        self.trip_A = trip_current_A(nameplate(scenario.motor))
+        N = scenario.block_samples
+        self.currents, self.encoder = np.zeros((N, 3)), np.zeros((N, 2))
+        self.est_out, self.ctrl_out = np.zeros((N, 7)), np.zeros((N, 6))
+        self.pending = []
+        self.warm_up()
+
+    def warm_up(self):
+        """Load the kernels on copies of the states before the inverter's clock starts (a first call
+        costs up to 0.3 s)."""
+        host, N = self.host, self.scenario.block_samples
+        e = host.estimator
+        estimator_block(e.step, e.x.copy(), e.z.copy(), e.params, 0, N, self.currents, self.line.copy(),
+                        self.encoder, self.calibration, self.trip_A, self.est_out)
+        controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.currents,
+                         self.est_out, host.speed_ref[:N], host.tau_feedforward[:N], self.calibration, self.trip_A,
+                         self.ctrl_out)
+        c, est = self.ctrl_out, self.est_out
+        issue_command(self.line.copy(), 0, c[0, 0], c[0, 1])
+        write_row(np.zeros(len(LOG_COLUMNS)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est[0, 0],
+                  est[0, 1], c[0, 0], c[0, 1], est[0, 2], est[0, 3], host.speed_ref[0], c[0, 2], c[0, 3], c[0, 4],
+                  c[0, 5], est[0, 4], est[0, 5], est[0, 6])
+
+    def sample(self, s, bridge):
+        """Gather sample ``s``; at a block's last sample, answer the block: the samples answered."""
+        N, k = self.scenario.block_samples, s.k
+        if k % N == 0:
+            self.pending = [s]
+        elif self.pending and self.pending[-1].k == k - 1:
+            self.pending.append(s)
+        else:
+            self.pending = []
+        k0 = k - k % N
+        n = min(N, self.scenario.n_samples - k0)
+        if len(self.pending) < n or self.pending[0].k != k0:
+            return ()
+        host, line, pending = self.host, self.line, self.pending
+        self.pending = []
+        e, n_p = host.estimator, host.controller.n_p
+        for i, p in enumerate(pending):
+            self.currents[i] = p.i_a, p.i_b, p.i_c
+            self.encoder[i, 0] = n_p * p.theta_m if p.theta_m == p.theta_m else 0.0
+        estimator_block(e.step, e.x, e.z, e.params, k0, n, self.currents, line, self.encoder, self.calibration,
+                        self.trip_A, self.est_out)
+        controller_block(host.controller_x, host.controller_z, host.controller, n, self.currents, self.est_out,
+                         host.speed_ref[k0:k0 + n], host.tau_feedforward[k0:k0 + n], self.calibration, self.trip_A,
+                         self.ctrl_out)
+        c, est = self.ctrl_out, self.est_out
+        for i, p in enumerate(pending):
+            j = k0 + i
+            issue_command(line, j, c[i, 0], c[i, 1])
+            write_row(self.log[j], j * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, p.i_a, p.i_b, p.i_c,
+                      est[i, 0], est[i, 1], c[i, 0], c[i, 1], est[i, 2], est[i, 3], host.speed_ref[j], c[i, 2],
+                      c[i, 3], c[i, 4], c[i, 5], est[i, 4], est[i, 5], est[i, 6])
+        bridge.command_block(k0, c[:n, 0], c[:n, 1])
+        return range(k0, k0 + n)

@@ -59,25 +59,22 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
     """Run the procedure with the simulated plant behind the virtual inverter and the bridge core on
     ``link`` ('pty' or 'can'), in this process (bridge_loop's link and garbage-collector handling);
     returns a CommissioningRun (truth from the inverter)."""
-    import threading
-
     from .bridge_loop import collector_held, virtual_inverter_link
 
     procedure = procedure_for_scenario(scenario, settings)
     n = procedure.total_samples
     with virtual_inverter_link(shaft_held(scenario, n * scenario.T_s), link) as (inverter, _, bridge):
-        thread = threading.Thread(target=inverter.run, name="virtual_inverter", daemon=True)
         start = time.perf_counter()
         bridge.poll(0.0)
-        thread.start()
+        inverter.start()
         with collector_held():
-            while not procedure.done and (thread.is_alive() or bridge.open):
+            while not procedure.done and (inverter.is_alive() or bridge.open):
                 for s in bridge.poll(0.05):
                     if s.k == procedure.k:
                         bridge.command(s.k, *procedure.step(s.k, s.i_a, s.i_b, s.i_c))
                         if progress and s.k % 1000 == 0:
                             progress(s.k / n)
-        thread.join(timeout=2.0)
+        inverter.join(2.0)
     if not procedure.done:
         raise BridgeCommissioningError(f"the virtual inverter over {link} stopped at sample {procedure.k} of {n}")
     if progress:

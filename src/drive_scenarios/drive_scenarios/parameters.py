@@ -20,6 +20,8 @@ NODE_PARAMETERS = {
     "duration_s": (0.0, "run length [s] (0: the scenario's)"),
     "block_samples": (0, "samples per message on the per-sample topics, N (0: the scenario's; the command "
                          "then acts N − 1 periods later)"),
+    "answer_periods": (0, "periods from a block's last sample to its first command acting (0: the scenario's; "
+                          "behind an inverter with blocks of N, N + 1)"),
     "shaft_held": (False, "hold the shaft at its initial angle, no load (a brake: commissioning; the plant "
                           "then starts without an estimator in the graph)"),
     "lockstep_timeout_s": (1.0, "wall time to wait for an answer before declaring a fault [s]"),
@@ -48,6 +50,7 @@ PARAMETER_RANGES = {
     "controller.current_limit_A": (0.0, math.inf),
     "duration_s": (0.0, math.inf),
     "block_samples": (0, MAX_BLOCK_SAMPLES),
+    "answer_periods": (0, MAX_BLOCK_SAMPLES + 1),
     "lockstep_timeout_s": (1e-3, 3600.0),
     "diagnostics_period_s": (1e-3, 3600.0),
     "trip_current_A": (0.0, math.inf),
@@ -83,6 +86,8 @@ def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}")
         changes["duration_s"] = float(parameters["duration_s"])
     if parameters["block_samples"] > 0:
         changes["block_samples"] = int(parameters["block_samples"])
+    if parameters["answer_periods"] > 0:
+        changes["answer_periods"] = int(parameters["answer_periods"])
     injection = dict(scenario.injection)
     for key in ("frequency_Hz", "amplitude_V"):
         if parameters[f"injection.{key}"] > 0.0:

@@ -151,16 +151,38 @@ def shaft_held(scenario, duration_s):
                                duration_s=duration_s, brake=False, block_samples=1, answer_periods=0)
 
 
-def refuse_behind_an_inverter(scenario):
-    """ScenarioError naming the key of what cannot run behind the inverter bridge: a holding brake (an
-    inverter does not see the drive's state, which releases the brake) and blocks of samples (the
-    bridge and the virtual inverter exchange one sample per frame)."""
+PACED_BLOCK_SAMPLES = 10
+"""Samples per frame of a virtual inverter on its own clock over a serial link when none are asked for:
+one frame per sample cannot keep 10 kHz in Python, blocks of 10 can (docs/results.md "The paced
+inverter"). Classic CAN carries one sample per frame."""
+
+
+def link_block_samples(link, paced, requested):
+    """N for a run behind the virtual inverter on ``link``: ``requested`` (None: not asked), else
+    PACED_BLOCK_SAMPLES on a paced serial link, else None (the scenario's)."""
+    if requested is not None:
+        return requested
+    return PACED_BLOCK_SAMPLES if paced and link == "pty" else None
+
+
+def behind_an_inverter(scenario, link="serial"):
+    """``scenario`` as it runs behind the inverter bridge on ``link`` ('serial'/'pty' or 'can');
+    ScenarioError naming the key of what cannot: a holding brake (an inverter does not see the drive's
+    state, which releases the brake), blocks on classic CAN, and with blocks of N samples an
+    ``answer_periods`` other than N + 1 (the protocol applies a COMMAND_BLOCK during the block after
+    next, docs/inverter-protocol.md), which is set when left to the inverter."""
     if scenario.brake:
         raise ScenarioError(f"{scenario.source}: brake: the virtual inverter has no holding brake; run the "
                             f"scenario with `drive run`, or `drive launch` without --link")
-    if scenario.block_samples > 1:
-        raise ScenarioError(f"{scenario.source}: block_samples: {scenario.block_samples}: the inverter "
-                            f"link carries one sample per frame so far; use block_samples 1 behind the bridge")
+    n = scenario.block_samples
+    if n > 1 and link == "can":
+        raise ScenarioError(f"{scenario.source}: block_samples: {n}: classic CAN carries one sample per frame "
+                            f"(blocks would need CAN FD, not defined yet); use 1 on CAN, or a serial link")
+    if n > 1 and scenario.answer_periods not in (0, n + 1):
+        raise ScenarioError(f"{scenario.source}: answer_periods: {scenario.answer_periods}: an inverter "
+                            f"with blocks of {n} applies a block's commands from the block after next, "
+                            f"{n + 1} periods after its last sample; use {n + 1} (or leave it out)")
+    return dataclasses.replace(scenario, answer_periods=n + 1) if n > 1 else scenario
 
 
 def scenario_names():

@@ -135,7 +135,7 @@ class EstimatorNode(ScenarioNode):
             issue_command(self.line, k, 0.0, 0.0)
         for i, (u_a, u_b) in enumerate(zip(u_alpha, u_beta)):
             issue_command(self.line, k0 + i, *((u_a, u_b) if finite(u_a, u_b) else (0.0, 0.0)))
-        self.issued = k0 + len(u_alpha) - 1
+        self.issued = max(self.issued, k0 + len(u_alpha) - 1)
 
     def on_rotor_state(self, sec, nanosec, theta_m, omega_m, _):
         k = sample_at(sec, nanosec, self.T_s)
@@ -196,10 +196,15 @@ class EstimatorNode(ScenarioNode):
 
     def on_currents_block(self, sec, nanosec, i_a, i_b, i_c):
         k0 = sample_at(sec, nanosec, self.T_s)
-        if k0 is None or k0 != self.k or not len(i_a) == len(i_b) == len(i_c) > 0:
-            self.fault("wrong_stamp", f"currents_block stamped {sec}.{nanosec:09d} is not the block of sample "
-                                      f"{self.k} with three equal channels; discarded")
+        if k0 is None or not self.k <= k0 <= self.k + RESYNC_SAMPLES or not len(i_a) == len(i_b) == len(i_c) > 0:
+            self.fault("wrong_stamp", f"currents_block stamped {sec}.{nanosec:09d} is not a block of samples in "
+                                      f"{self.k}..{self.k + RESYNC_SAMPLES} with three equal channels; discarded")
             return
+        if k0 > self.k and self.k not in self.currents:
+            self.fault("missed_sample", f"currents of samples {self.k}..{k0 - 1} never arrived; following the "
+                                        f"plant to sample {k0} (no command answers them: zero volts)")
+            self.take_commands(k0, [], [])
+            self.k = k0
         self.currents[k0] = np.ascontiguousarray(np.column_stack((i_a, i_b, i_c)))
         self.try_block()
 
