@@ -289,11 +289,12 @@ def direct_in_blocks():
     return compute_metrics(run_scenario(dataclasses.replace(SCENARIO, block_samples=10, answer_periods=11)))
 
 
-def test_blocks_through_the_bridge_match_the_direct_run_at_the_protocols_delay(direct_in_blocks):
-    """Blocks of 10 over the pty: TELEMETRY_BLOCK answered by one COMMAND_BLOCK, acting from the block
-    after next (answer_periods 11, set by the bridge); only the protocol's integers differ from
-    `drive run` with the same delay."""
-    result = run_through_bridge(dataclasses.replace(SCENARIO, block_samples=10), "pty")
+@pytest.mark.parametrize("link", ["pty", "can"])
+def test_blocks_through_the_bridge_match_the_direct_run_at_the_protocols_delay(direct_in_blocks, link):
+    """Blocks of 10 over the pty and as CAN FD frames: TELEMETRY_BLOCK answered by one COMMAND_BLOCK,
+    acting from the block after next (answer_periods 11, set by the bridge); only the protocol's integers
+    differ from `drive run` with the same delay."""
+    result = run_through_bridge(dataclasses.replace(SCENARIO, block_samples=10), link)
     metrics = compute_metrics(result)
     assert result.received.all() and result.counters["samples"] == SCENARIO.n_samples
     assert result.counters["commands"] == SCENARIO.n_samples // 10
@@ -317,9 +318,3 @@ def test_a_lost_block_is_a_block_of_zero_volts_the_host_knows_of():
     assert result.inverter_counters["watchdog_trips"] == 0
     received = result.received[1000:]
     assert np.abs(angle_error(result.log, result.n_p)[1000:][received]).max() < 1.0
-
-
-def test_blocks_on_classic_can_are_refused_by_name():
-    from drive_scenarios.scenario import ScenarioError
-    with pytest.raises(ScenarioError, match="block_samples: 10: classic CAN"):
-        run_through_bridge(dataclasses.replace(SCENARIO, block_samples=10), "can")

@@ -26,6 +26,7 @@ from drive_bridge.inverter_protocol import (
     decode_frame,
     encode_frame,
     to_can,
+    to_canfd,
     unwrap16,
 )
 
@@ -89,6 +90,25 @@ def test_can_vectors(line):
     assert got == message
 
 
+@pytest.mark.parametrize("line", list(vectors("canfd")))
+def test_canfd_vectors(line):
+    """A block on CAN FD: chunks of at most 6 telemetry or 14 command samples, each a block message of
+    its own samples with its first sample's seq; together they are the block."""
+    fields, frames = line.split(" = ")
+    drive, *words = fields.split()
+    message = parse_message(words)
+    expected = [(int(i, 16), bytes.fromhex(d)) for i, d in (f.split(":") for f in frames.split())]
+    assert to_canfd(message, int(drive)) == expected
+    assert all(len(data) in (12, 16, 20, 24, 32, 48, 64) or len(data) <= 8 for _, data in expected)
+    decoder = CanDecoder(int(drive))
+    chunks = [decoder.feed(i, d) for i, d in expected]
+    assert [chunk.seq for chunk in chunks] == [(message.seq + sum(len(c.samples) for c in chunks[:j])) % 2 ** 32
+                                               for j in range(len(chunks))]
+    assert sum((chunk.samples for chunk in chunks), ()) == message.samples
+    assert all(vars(chunk) | {"seq": 0, "samples": ()} == vars(message) | {"seq": 0, "samples": ()}
+               for chunk in chunks)
+
+
 @pytest.mark.parametrize("line", list(vectors("bad")))
 def test_bad_frames_are_named(line):
     wire, kind = line.split()
@@ -120,7 +140,7 @@ def test_c_codec_passes_the_same_vectors(tmp_path):
     done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "test", f"BUILD={tmp_path}"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
-    count = sum(1 for kind in ("serial", "can", "bad") for _ in vectors(kind))
+    count = sum(1 for kind in ("serial", "can", "canfd", "bad") for _ in vectors(kind))
     assert f"{count} vectors, 0 failures" in done.stdout
 
 
@@ -180,3 +200,21 @@ def test_a_flipped_bit_is_caught(message, data):
 def test_can_decoder_takes_any_frame(identifier, data):
     decoder = CanDecoder(0)
     decoder.feed(identifier, data)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.integers(0, 15), st.one_of(
+    st.builds(TelemetryBlock, u32, u16, u16,
+              st.lists(st.tuples(i16, i16, i16, u16), min_size=1, max_size=MAX_BLOCK).map(tuple)),
+    st.builds(CommandBlock, u32, st.integers(0, 255),
+              st.lists(st.tuples(i16, i16), min_size=1, max_size=MAX_BLOCK).map(tuple))))
+def test_any_block_round_trips_through_can_fd(drive, block):
+    decoder = CanDecoder(drive)
+    chunks = [decoder.feed(identifier, data) for identifier, data in to_canfd(block, drive)]
+    assert chunks[0].seq == block.seq and sum((c.samples for c in chunks), ()) == block.samples
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.sampled_from((0x103, 0x10D)), st.binary(max_size=64))
+def test_can_fd_decoder_takes_any_frame(identifier, data):
+    CanDecoder(0).feed(identifier, data)

@@ -328,3 +328,54 @@ int ip_can_decode(ip_can_decoder_t *d, const ip_can_frame_t *f, ip_message_t *m)
     }
     }
 }
+
+static uint8_t canfd_length(size_t n) {
+    static const uint8_t lengths[] = {12, 16, 20, 24, 32, 48, 64};
+    if (n <= 8) return (uint8_t)n;
+    for (size_t i = 0; i < sizeof lengths; i++)
+        if (n <= lengths[i]) return lengths[i];
+    return 0;
+}
+
+size_t ip_canfd_encode(const ip_message_t *m, uint8_t drive_id, ip_canfd_frame_t frames[IP_CANFD_MAX_FRAMES]) {
+    if (drive_id > 15 || (m->type != IP_TELEMETRY_BLOCK && m->type != IP_COMMAND_BLOCK)) return 0;
+    unsigned count = count_of(m);
+    if (count < 1u || count > IP_MAX_BLOCK) return 0;
+    int telemetry = m->type == IP_TELEMETRY_BLOCK;
+    unsigned chunk = telemetry ? IP_CANFD_TELEMETRY_SAMPLES : IP_CANFD_COMMAND_SAMPLES;
+    uint16_t id = (uint16_t)(0x100u + 0x20u * drive_id + (telemetry ? IP_CAN_TELEMETRY_BLOCK : IP_CAN_COMMAND_BLOCK));
+    size_t n = 0;
+    for (unsigned start = 0; start < count; start += chunk, n++) {
+        unsigned k = count - start < chunk ? count - start : chunk;
+        ip_message_t part = *m;
+        if (telemetry) {
+            part.u.telemetry_block.seq += start;
+            part.u.telemetry_block.count = (uint8_t)k;
+            memmove(part.u.telemetry_block.s, m->u.telemetry_block.s + start, k * sizeof part.u.telemetry_block.s[0]);
+        } else {
+            part.u.command_block.seq += start;
+            part.u.command_block.count = (uint8_t)k;
+            memmove(part.u.command_block.s, m->u.command_block.s + start, k * sizeof part.u.command_block.s[0]);
+        }
+        frames[n].id = id;
+        frames[n].len = canfd_length(body_size(m->type, k));
+        memset(frames[n].data, 0, sizeof frames[n].data);
+        pack_body(&part, frames[n].data);
+    }
+    return n;
+}
+
+int ip_canfd_decode(uint8_t drive_id, const ip_canfd_frame_t *f, ip_message_t *m) {
+    if (drive_id > 15) return IP_ERR_TYPE;
+    unsigned offset = (unsigned)f->id - (0x100u + 0x20u * drive_id);
+    uint8_t type;
+    unsigned head, chunk;
+    if (offset == IP_CAN_TELEMETRY_BLOCK) { type = IP_TELEMETRY_BLOCK; head = 9; chunk = IP_CANFD_TELEMETRY_SAMPLES; }
+    else if (offset == IP_CAN_COMMAND_BLOCK) { type = IP_COMMAND_BLOCK; head = 6; chunk = IP_CANFD_COMMAND_SAMPLES; }
+    else return IP_ERR_TYPE;
+    if (f->len > sizeof f->data || f->len < head) return IP_ERR_FRAMING;
+    unsigned count = f->data[head - 1];
+    if (count < 1u || count > chunk || body_size(type, count) > f->len) return IP_ERR_FRAMING;
+    unpack_body(type, f->data, m);
+    return IP_OK;
+}

@@ -1,6 +1,6 @@
 /* Inverter wire protocol, version 2 (docs/inverter-protocol.md): message structs (per sample, and blocks
- * of samples over the serial link), the serial framing (COBS + CRC-16/CCITT-FALSE, 0x00-delimited) and
- * the classic-CAN mapping. No allocation: every buffer is the caller's, sized by the constants below. */
+ * of samples), the serial framing (COBS + CRC-16/CCITT-FALSE, 0x00-delimited), the classic-CAN mapping
+ * and blocks on CAN FD. No allocation: every buffer is the caller's, sized by the constants below. */
 #ifndef INVERTER_PROTOCOL_H
 #define INVERTER_PROTOCOL_H
 
@@ -74,7 +74,7 @@ typedef struct { uint16_t id; uint8_t dlc; uint8_t data[8]; } ip_can_frame_t;
 enum { IP_CAN_COMMAND = 0x00, IP_CAN_CONTROL = 0x01, IP_CAN_HEARTBEAT = 0x02, IP_CAN_TELEMETRY_B = 0x08,
        IP_CAN_TELEMETRY_A = 0x09, IP_CAN_HELLO_A = 0x0A, IP_CAN_HELLO_B = 0x0B, IP_CAN_HELLO_C = 0x0C };
 /* Frames of a message (TELEMETRY: B then A); returns their number (0: bad drive_id, or a type classic CAN
- * does not carry: blocks travel over the serial link only). */
+ * does not carry: blocks travel as CAN FD frames, ip_canfd_encode). */
 size_t ip_can_encode(const ip_message_t *m, uint8_t drive_id, ip_can_frame_t frames[3]);
 typedef struct {
     uint16_t base; uint32_t last_seq; uint16_t u_dc, encoder, status;
@@ -84,5 +84,19 @@ int ip_can_decoder_init(ip_can_decoder_t *d, uint8_t drive_id);
 /* Returns 1 when the frame completed a message (in *m), 0 when not, negative on a bad frame. */
 int ip_can_decode(ip_can_decoder_t *d, const ip_can_frame_t *f, ip_message_t *m);
 uint32_t ip_unwrap16(uint16_t low, uint32_t last);
+
+/* CAN FD (64-byte data; base + 0x03 COMMAND_BLOCK, base + 0x0D TELEMETRY_BLOCK): a block travels in
+ * chunks of at most IP_CANFD_TELEMETRY_SAMPLES or IP_CANFD_COMMAND_SAMPLES samples, each the block message
+ * of its own samples (the serial body: no version, type or CRC), zero-padded to a CAN FD length. */
+#define IP_CANFD_TELEMETRY_SAMPLES 6u
+#define IP_CANFD_COMMAND_SAMPLES 14u
+#define IP_CANFD_MAX_FRAMES 5u /* IP_MAX_BLOCK / IP_CANFD_TELEMETRY_SAMPLES */
+enum { IP_CAN_COMMAND_BLOCK = 0x03, IP_CAN_TELEMETRY_BLOCK = 0x0D };
+typedef struct { uint16_t id; uint8_t len; uint8_t data[64]; } ip_canfd_frame_t;
+/* Frames of a block message; returns their number (0: bad drive_id, not a block, or a count outside
+ * 1 .. IP_MAX_BLOCK). */
+size_t ip_canfd_encode(const ip_message_t *m, uint8_t drive_id, ip_canfd_frame_t frames[IP_CANFD_MAX_FRAMES]);
+/* A CAN FD block frame to the block message of its samples: IP_OK, or a negative ip_result. */
+int ip_canfd_decode(uint8_t drive_id, const ip_canfd_frame_t *f, ip_message_t *m);
 
 #endif

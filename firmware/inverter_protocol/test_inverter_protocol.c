@@ -171,6 +171,53 @@ static void can_vector(const char *s) {
     CHECK(got == 1 && same(&m, &back, 1), "CAN decoding differs");
 }
 
+static void canfd_vector(const char *s) {
+    unsigned drive;
+    int used = 0;
+    ip_message_t m, back, whole;
+    sscanf(s, "%u%n", &drive, &used);
+    int more = parse_message(s + used, &m);
+    CHECK(more > 0, "unparsable message");
+    const char *p = strchr(s + used + more, '=') + 1;
+    ip_canfd_frame_t frames[IP_CANFD_MAX_FRAMES], expected[IP_CANFD_MAX_FRAMES];
+    size_t n_expected = 0;
+    unsigned id;
+    char hex[140];
+    int step;
+    while (n_expected < IP_CANFD_MAX_FRAMES && sscanf(p, " %x:%139s%n", &id, hex, &step) == 2) {
+        expected[n_expected].id = (uint16_t)id;
+        expected[n_expected].len = (uint8_t)from_hex(hex, expected[n_expected].data, 64);
+        n_expected++;
+        p += step;
+    }
+    size_t n = ip_canfd_encode(&m, (uint8_t)drive, frames);
+    CHECK(n == n_expected, "%zu CAN FD frames, vector has %zu", n, n_expected);
+    for (size_t i = 0; i < n && i < n_expected; i++)
+        CHECK(frames[i].id == expected[i].id && frames[i].len == expected[i].len
+              && !memcmp(frames[i].data, expected[i].data, frames[i].len), "CAN FD frame %zu differs", i);
+    whole = m;
+    unsigned total = 0;
+    for (size_t i = 0; i < n_expected; i++) {
+        CHECK(ip_canfd_decode((uint8_t)drive, &expected[i], &back) == IP_OK, "CAN FD frame %zu not decoded", i);
+        if (back.type == IP_TELEMETRY_BLOCK) {
+            CHECK(back.u.telemetry_block.seq == m.u.telemetry_block.seq + total, "CAN FD chunk seq");
+            memcpy(whole.u.telemetry_block.s + total, back.u.telemetry_block.s,
+                   back.u.telemetry_block.count * sizeof back.u.telemetry_block.s[0]);
+            total += back.u.telemetry_block.count;
+            whole.u.telemetry_block.u_dc = back.u.telemetry_block.u_dc;
+            whole.u.telemetry_block.status = back.u.telemetry_block.status;
+        } else {
+            CHECK(back.u.command_block.seq == m.u.command_block.seq + total, "CAN FD chunk seq");
+            memcpy(whole.u.command_block.s + total, back.u.command_block.s,
+                   back.u.command_block.count * sizeof back.u.command_block.s[0]);
+            total += back.u.command_block.count;
+            whole.u.command_block.flags = back.u.command_block.flags;
+        }
+    }
+    CHECK(total == (m.type == IP_TELEMETRY_BLOCK ? m.u.telemetry_block.count : m.u.command_block.count)
+          && same(&m, &whole, 0), "CAN FD decoding differs");
+}
+
 static void bad_vector(const char *s) {
     char hex[200], kind[32];
     uint8_t frame[100];
@@ -216,6 +263,7 @@ int main(int argc, char **argv) {
         line_no++;
         if (!strncmp(text, "serial ", 7)) serial_vector(text + 7), vectors++;
         else if (!strncmp(text, "can ", 4)) can_vector(text + 4), vectors++;
+        else if (!strncmp(text, "canfd ", 6)) canfd_vector(text + 6), vectors++;
         else if (!strncmp(text, "bad ", 4)) bad_vector(text + 4), vectors++;
     }
     fclose(f);

@@ -5,7 +5,16 @@ import os
 import select
 import time
 
-from .inverter_protocol import CanDecoder, FrameReader, Telemetry, encode_frame, to_can
+from .inverter_protocol import (
+    CanDecoder,
+    CommandBlock,
+    FrameReader,
+    Telemetry,
+    TelemetryBlock,
+    encode_frame,
+    to_can,
+    to_canfd,
+)
 
 
 class LinkDown(OSError):
@@ -155,7 +164,7 @@ def can_bus(channel, interface=None):
     if interface is None:
         interface = "socketcan" if socketcan_available(channel) else "virtual"
     try:
-        return can.Bus(interface=interface, channel=channel, receive_own_messages=False)
+        return can.Bus(interface=interface, channel=channel, receive_own_messages=False, fd=True)
     except (can.CanError, OSError, ValueError) as error:
         raise LinkDown(f"CAN {interface}:{channel}: {error}") from None
 
@@ -171,7 +180,8 @@ def socketcan_available(channel):
 
 
 class CanLink:
-    """Protocol frames of one drive (``drive_id``) on a CAN bus; frames of other drives are ignored."""
+    """Protocol frames of one drive (``drive_id``) on a CAN bus (blocks as CAN FD frames, the bus opened
+    for CAN FD); frames of other drives are ignored."""
 
     def __init__(self, channel, drive_id=0, interface=None, status_every=1):
         self.channel, self.drive_id, self.interface = channel, drive_id, interface
@@ -218,9 +228,12 @@ class CanLink:
         if isinstance(message, Telemetry):
             with_status = self.sent_telemetry % self.status_every == 0
             self.sent_telemetry += 1
+        fd = isinstance(message, (TelemetryBlock, CommandBlock))
+        frames = to_canfd(message, self.drive_id) if fd else to_can(message, self.drive_id, with_status)
         try:
-            for identifier, data in to_can(message, self.drive_id, with_status):
-                self.bus.send(can.Message(arbitration_id=identifier, data=data, is_extended_id=False))
+            for identifier, data in frames:
+                self.bus.send(can.Message(arbitration_id=identifier, data=data, is_extended_id=False, is_fd=fd,
+                                          bitrate_switch=fd))
         except (can.CanError, OSError) as error:
             self.close()
             raise LinkDown(f"CAN {self.channel}: {error} (bus-off?)") from None

@@ -1,7 +1,8 @@
 """Inverter wire protocol, version 2 (docs/inverter-protocol.md): messages (per sample, and blocks of
-samples over the serial link), the serial framing (COBS + CRC-16/CCITT-FALSE, 0x00-delimited) and the
-classic-CAN mapping. Pure Python, no I/O."""
+samples), the serial framing (COBS + CRC-16/CCITT-FALSE, 0x00-delimited), the classic-CAN mapping and
+blocks on CAN FD. Pure Python, no I/O."""
 import binascii
+import dataclasses
 import struct
 from dataclasses import dataclass
 
@@ -239,8 +240,12 @@ class FrameReader:
         self.last_error = str(error)
 
 
-CAN_COMMAND, CAN_CONTROL, CAN_HEARTBEAT = 0x00, 0x01, 0x02
+CAN_COMMAND, CAN_CONTROL, CAN_HEARTBEAT, CAN_COMMAND_BLOCK = 0x00, 0x01, 0x02, 0x03
 CAN_TELEMETRY_B, CAN_TELEMETRY_A, CAN_HELLO_A, CAN_HELLO_B, CAN_HELLO_C = 0x08, 0x09, 0x0A, 0x0B, 0x0C
+CAN_TELEMETRY_BLOCK = 0x0D
+CANFD_CHUNK = {TELEMETRY_BLOCK: (CAN_TELEMETRY_BLOCK, 6), COMMAND_BLOCK: (CAN_COMMAND_BLOCK, 14)}
+"""Block type → (identifier offset, most samples in one 64-byte CAN FD frame)."""
+CANFD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 
 def can_base(drive_id):
@@ -270,7 +275,23 @@ def to_can(message, drive_id, with_status=True):
         return [(base + CAN_HELLO_A, struct.pack("<BBBBI", VERSION, m.drive_id, m.flags, m.n_p, m.T_s_ns)),
                 (base + CAN_HELLO_B, struct.pack("<ff", m.current_lsb_A, m.voltage_lsb_V)),
                 (base + CAN_HELLO_C, struct.pack("<fHBx", m.trip_current_A, m.watchdog_periods, m.block_samples))]
-    raise TypeError(f"not a classic-CAN message: {message!r} (blocks travel over the serial link only)")
+    raise TypeError(f"not a classic-CAN message: {message!r} (blocks travel as CAN FD frames: to_canfd)")
+
+
+def to_canfd(message, drive_id):
+    """The (identifier, data) CAN FD frames of a block message: chunks of at most 6 telemetry or 14
+    command samples, each the block message of its own samples (the serial body: no version, type or
+    CRC), zero-padded to a CAN FD length."""
+    base = can_base(drive_id)
+    offset, chunk = CANFD_CHUNK[TYPE_OF[type(message)]]
+    frames = []
+    for start in range(0, len(message.samples), chunk):
+        part = dataclasses.replace(message, seq=(message.seq + start) % 2 ** 32,
+                                   samples=message.samples[start:start + chunk])
+        body = pack(part)[2:]
+        length = next(n for n in CANFD_LENGTHS if n >= len(body))
+        frames.append((base + offset, body + bytes(length - len(body))))
+    return frames
 
 
 def unwrap16(low, last):
@@ -281,7 +302,8 @@ def unwrap16(low, last):
 
 class CanDecoder:
     """Messages from one drive's CAN frames: TELEMETRY_A with the latest B, HELLO_A/B/C assembled,
-    COMMAND/CONTROL/HEARTBEAT; 16-bit sequence numbers unwrapped against the last one."""
+    COMMAND/CONTROL/HEARTBEAT; 16-bit sequence numbers unwrapped against the last one; a CAN FD block
+    frame as the block message of its samples."""
 
     def __init__(self, drive_id):
         self.base = can_base(drive_id)
@@ -315,6 +337,13 @@ class CanDecoder:
             low, u_alpha, u_beta, flags = struct.unpack("<HhhBx", data)
             self.last_seq = unwrap16(low, self.last_seq)
             return Command(self.last_seq, u_alpha, u_beta, flags)
+        if offset in (CAN_TELEMETRY_BLOCK, CAN_COMMAND_BLOCK):
+            kind = TELEMETRY_BLOCK if offset == CAN_TELEMETRY_BLOCK else COMMAND_BLOCK
+            _, head, entry = BLOCK_LAYOUTS[kind]
+            count = data[head.size - 1] if len(data) >= head.size else 0
+            if count > CANFD_CHUNK[kind][1]:
+                raise FrameError("framing", f"a CAN FD block frame of {count} samples (at most {CANFD_CHUNK[kind][1]})")
+            return _decode_block(bytes((VERSION, kind)) + data[:head.size + count * entry.size])
         if offset == CAN_CONTROL:
             return Control(*struct.unpack("<B", data))
         if offset == CAN_HEARTBEAT:

@@ -277,11 +277,12 @@ def cmd_launch(args):
     if args.paced and not args.link:
         raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
     extra = {"commissioning": args.commissioning} if args.commissioning else {}
-    blocks = link_block_samples(args.link, args.paced, args.block_samples)
+    blocks = link_block_samples(args.paced, args.block_samples)
     if blocks is not None:
         extra["block_samples"] = _block_sizes(str(blocks))[0]
     if args.link:
-        behind_an_inverter(dataclasses.replace(scenario, block_samples=blocks or scenario.block_samples), args.link)
+        from drive_bridge.inverter_protocol import MAX_BLOCK
+        behind_an_inverter(dataclasses.replace(scenario, block_samples=blocks or scenario.block_samples), MAX_BLOCK)
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
                     timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,
@@ -310,7 +311,7 @@ def cmd_bridge(args):
     from drive_runner.bridge_loop import run_through_bridge
     from drive_runner.runner import terminal_progress
 
-    args.block_samples = link_block_samples(args.link, args.paced, args.block_samples)
+    args.block_samples = link_block_samples(args.paced, args.block_samples)
     scenario = _scenario_arg(args)
     result = run_through_bridge(scenario, args.link, rate_Hz=1.0 / scenario.T_s if args.paced else None,
                                 progress=terminal_progress(f"{scenario.name}/{scenario.estimator} through the "
@@ -332,9 +333,12 @@ def cmd_bench_bridge(args):
             raise CommandLineError(f"--links: 'pty' and/or 'can', not {link!r}")
     duration = args.duration if args.duration is not None or args.paced else 1.0
     if args.block_samples is not None:
-        _block_sizes(str(args.block_samples))
-    blocks = {link: link_block_samples(link, args.paced, args.block_samples) for link in links}
-    report = bridge_rates(args.scenario, links, duration, args.repeats, args.paced, blocks)
+        from drive_bridge.inverter_protocol import MAX_BLOCK
+        if not 1 <= args.block_samples <= MAX_BLOCK:
+            raise CommandLineError(f"--block-samples: the inverter protocol carries 1 to {MAX_BLOCK} samples per "
+                                   f"block, not {args.block_samples}")
+    report = bridge_rates(args.scenario, links, duration, args.repeats, args.paced,
+                          link_block_samples(args.paced, args.block_samples))
     if args.json:
         _print_json(report)
         return 0
@@ -1082,7 +1086,7 @@ def build_parser():
     bench_bridge.add_argument("--paced", action="store_true",
                               help="the inverter on its own clock, never waiting: late commands, latency, angle error")
     bench_bridge.add_argument("--block-samples", type=int, metavar="N",
-                              help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} on a paced pty)")
+                              help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced)")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
 
@@ -1176,7 +1180,7 @@ def build_parser():
     launch.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     launch.add_argument("--block-samples", type=int, metavar="N",
                         help="override the scenario's block_samples: the per-sample topics travel in blocks of N "
-                             f"(docs/ros-graph.md; {PACED_BLOCK_SAMPLES} with --link pty --paced)")
+                             f"(docs/ros-graph.md; {PACED_BLOCK_SAMPLES} with --link and --paced)")
     launch.add_argument("--processes", choices=("composed", "separate"), default="composed",
                         help="nodes in this process (default) or one process per node")
     launch.add_argument("--executor", choices=EXECUTORS, default="events",
@@ -1204,8 +1208,7 @@ def build_parser():
                         help="the inverter on its own clock at the sampling rate, never waiting for the host: a "
                              "late command is zero volts, counted")
     bridge.add_argument("--block-samples", type=int, metavar="N",
-                        help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced on "
-                             f"a pty)")
+                        help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced)")
     bridge.add_argument("--estimator", help="override the scenario's estimator")
     bridge.add_argument("--duration", type=float, help="override the duration [s]")
     bridge.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)

@@ -270,7 +270,7 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
     commands and their latency, and the angle error of the run, worst of ``repeats``. Latency: the
     inverter's time from sending TELEMETRY(k) to receiving COMMAND(k); host: the host's part of it
     (telemetry decoded, estimator and controller run, command encoded and written). ``block_samples``:
-    link → N (None or absent: the scenario's)."""
+    N (None: the scenario's)."""
     from drive_evaluation.metrics import compute_metrics
     from drive_runner.bridge_loop import run_through_bridge
 
@@ -280,7 +280,7 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
     rate = 1.0 / scenario.T_s if paced else None
     rows = []
     for link in links:
-        blocks = (block_samples or {}).get(link) or scenario.block_samples
+        blocks = block_samples or scenario.block_samples
         linked = dataclasses.replace(scenario, block_samples=blocks)
         run_through_bridge(dataclasses.replace(linked, duration_s=min(scenario.duration_s, 0.05)), link)
         best = None

@@ -15,6 +15,7 @@ from pathlib import Path
 
 from drive_bags.common import BagWriteError
 from drive_bags.writer import BagWriter
+from drive_bridge.inverter_protocol import MAX_BLOCK
 from drive_bridge.virtual_inverter import timing_report
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, NODES
@@ -244,7 +245,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                                          spec.extra_parameters)
             scenario = scenario_from_parameters(all_parameters(parameters))
             if spec.link:
-                scenario = behind_an_inverter(scenario, spec.link)
+                scenario = behind_an_inverter(scenario, MAX_BLOCK)
                 parameters["answer_periods"] = scenario.answer_periods
             drive = build_drive(scenario)
             scheduled = {**parameters, "scenario_schedule": True}

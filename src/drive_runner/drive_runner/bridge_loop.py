@@ -14,7 +14,7 @@ import numpy as np
 from control_math.command_delay import applied_voltage, command_line, issue_command
 from control_math.current_sensing import corrected_currents
 from drive_bridge.inverter_bridge import InverterBridge
-from drive_bridge.inverter_protocol import COMMAND_MISSING, PWM_OFF
+from drive_bridge.inverter_protocol import COMMAND_MISSING, MAX_BLOCK, PWM_OFF
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_interface.interrupt import Interrupted
 from drive_interface.log import COLUMN, LOG_COLUMNS
@@ -50,7 +50,7 @@ def run_through_bridge(scenario, link="pty", faults=None, rate_Hz=None, command_
     protocol's answer delay: ``behind_an_inverter``). ``inverter_hook(inverter, endpoint, k)`` is called
     by the host loop after each sample (tests unplug links with it). The garbage collector is held off
     during the loop (``collector_held``)."""
-    scenario = behind_an_inverter(scenario, link)
+    scenario = behind_an_inverter(scenario, MAX_BLOCK)
     with virtual_inverter_link(scenario, link, rate_Hz=rate_Hz, command_wait_s=command_wait_s,
                                faults=faults) as (inverter, endpoint, bridge):
         return _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook)
@@ -61,7 +61,7 @@ def virtual_inverter_link(scenario, link, **inverter_options):
     """(virtual inverter, its link endpoint, the host's bridge core) for ``scenario`` on ``link`` ('pty',
     'can') in a temporary directory; the inverter is not started. All three are stopped and closed on
     exit."""
-    scenario = behind_an_inverter(scenario, link)
+    scenario = behind_an_inverter(scenario, MAX_BLOCK)
     with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
         endpoint, host_link = make_links(link, workdir)
         inverter = VirtualInverter(scenario, endpoint, **inverter_options)

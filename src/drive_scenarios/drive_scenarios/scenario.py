@@ -152,32 +152,31 @@ def shaft_held(scenario, duration_s):
 
 
 PACED_BLOCK_SAMPLES = 10
-"""Samples per frame of a virtual inverter on its own clock over a serial link when none are asked for:
-one frame per sample cannot keep 10 kHz in Python, blocks of 10 can (docs/results.md "The paced
-inverter"). Classic CAN carries one sample per frame."""
+"""Samples per frame of a virtual inverter on its own clock when none are asked for: one frame per
+sample cannot keep 10 kHz in Python, blocks of 10 can (docs/results.md "The paced inverter")."""
 
 
-def link_block_samples(link, paced, requested):
-    """N for a run behind the virtual inverter on ``link``: ``requested`` (None: not asked), else
-    PACED_BLOCK_SAMPLES on a paced serial link, else None (the scenario's)."""
+def link_block_samples(paced, requested):
+    """N for a run behind the virtual inverter: ``requested`` (None: not asked), else PACED_BLOCK_SAMPLES
+    when paced, else None (the scenario's)."""
     if requested is not None:
         return requested
-    return PACED_BLOCK_SAMPLES if paced and link == "pty" else None
+    return PACED_BLOCK_SAMPLES if paced else None
 
 
-def behind_an_inverter(scenario, link="serial"):
-    """``scenario`` as it runs behind the inverter bridge on ``link`` ('serial'/'pty' or 'can');
-    ScenarioError naming the key of what cannot: a holding brake (an inverter does not see the drive's
-    state, which releases the brake), blocks on classic CAN, and with blocks of N samples an
+def behind_an_inverter(scenario, max_block_samples):
+    """``scenario`` as it runs behind the inverter bridge; ScenarioError naming the key of what cannot:
+    a holding brake (an inverter does not see the drive's state, which releases the brake), blocks of
+    more than the protocol's ``max_block_samples``, and with blocks of N samples an
     ``answer_periods`` other than N + 1 (the protocol applies a COMMAND_BLOCK during the block after
     next, docs/inverter-protocol.md), which is set when left to the inverter."""
     if scenario.brake:
         raise ScenarioError(f"{scenario.source}: brake: the virtual inverter has no holding brake; run the "
                             f"scenario with `drive run`, or `drive launch` without --link")
     n = scenario.block_samples
-    if n > 1 and link == "can":
-        raise ScenarioError(f"{scenario.source}: block_samples: {n}: classic CAN carries one sample per frame "
-                            f"(blocks would need CAN FD, not defined yet); use 1 on CAN, or a serial link")
+    if n > max_block_samples:
+        raise ScenarioError(f"{scenario.source}: block_samples: {n}: the inverter protocol carries at most "
+                            f"{max_block_samples} samples per block")
     if n > 1 and scenario.answer_periods not in (0, n + 1):
         raise ScenarioError(f"{scenario.source}: answer_periods: {scenario.answer_periods}: an inverter "
                             f"with blocks of {n} applies a block's commands from the block after next, "
