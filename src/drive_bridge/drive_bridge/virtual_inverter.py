@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from control_math.command_delay import issue_command
+from drive_scenarios.scenario import behind_an_inverter
 from motor_params.nameplate import nameplate
 from motor_params.nameplate import trip_current_A as default_trip_current_A
 from pmsm_plant.build import plant_for_scenario
@@ -35,6 +36,7 @@ from .inverter_protocol import (
     ENCODER_VALID,
     HEARTBEAT_LOST,
     HELLO_ENCODER_PRESENT,
+    MAX_BLOCK,
     OVERCURRENT,
     PWM_OFF,
     WATCHDOG,
@@ -77,11 +79,13 @@ class VirtualInverter:
     """The plant of ``scenario`` behind the protocol on ``endpoint`` (PtyEndpoint or an opened
     CanLink); ``start`` (a thread), ``stop`` to end, ``join``. With the scenario's
     ``block_samples`` N > 1 it announces N in HELLO, sends TELEMETRY_BLOCK and takes COMMAND_BLOCK (the
-    command answering sample k acts in period k + 2N: docs/inverter-protocol.md). ``truth`` holds θ_m,
+    command answering sample k acts in period k + 2N: docs/inverter-protocol.md; ScenarioError for what
+    cannot run behind an inverter, drive_scenarios.scenario.behind_an_inverter). ``truth`` holds θ_m,
     ω_m, τ_e, τ_load and the true currents per sample for scoring."""
 
     def __init__(self, scenario, endpoint, rate_Hz=None, command_wait_s=0.5, watchdog_periods=None,
                  trip_current_A=None, drive_id=0, faults=None, encoder=True):
+        scenario = behind_an_inverter(scenario, MAX_BLOCK)
         self.plant = plant_for_scenario(scenario)
         self.speed_ref, self.tau_load = scenario.schedule()
         self.scenario = scenario
@@ -312,7 +316,7 @@ class VirtualInverter:
             fresh = [c for c in range(c0, c0 + len(values))
                      if 0 <= c < self.k and c + self.delay >= self.decided and c not in self.commands]
             if fresh:
-                (self.latencies_s if in_time else self.late_latencies_s).append(now - self.sent_at[c0])
+                (self.latencies_s if in_time else self.late_latencies_s).append(now - self.sent_at[fresh[0]])
             else:
                 self.counters["discarded"] += 1
                 if 0 <= c0 < self.k:
