@@ -140,65 +140,74 @@ static void serial_vector(const char *s) {
     CHECK(got == 1 && same(&m, &back, 0), "reader did not return the message");
 }
 
-static void can_vector(const char *s) {
-    unsigned drive;
-    int used = 0;
-    ip_message_t m, back;
-    sscanf(s, "%u%n", &drive, &used);
-    int more = parse_message(s + used, &m);
-    CHECK(more > 0, "unparsable message");
+/* A CAN frame of a vector: identifier, length, data (classic: at most 8 bytes; CAN FD: 64). */
+typedef struct { uint16_t id; uint8_t len; uint8_t data[64]; } vector_frame_t;
+
+/* The drive and message of a CAN vector ("DRIVE TYPE fields... = id:hex ..."), and up to max of its
+ * frames (each at most cap data bytes); returns the number of frames, -1 if the message is unparsable. */
+static int parse_can_vector(const char *s, unsigned *drive, ip_message_t *m, vector_frame_t *frames, int max,
+                            size_t cap) {
+    int used = 0, step, n = 0;
+    sscanf(s, "%u%n", drive, &used);
+    int more = parse_message(s + used, m);
+    if (more <= 0) return -1;
     const char *p = strchr(s + used + more, '=') + 1;
-    ip_can_frame_t frames[3], expected[3];
-    size_t n_expected = 0;
     unsigned id;
-    char hex[40];
-    int step;
-    while (n_expected < 3 && sscanf(p, " %x:%39s%n", &id, hex, &step) == 2) {
-        expected[n_expected].id = (uint16_t)id;
-        expected[n_expected].dlc = (uint8_t)from_hex(hex, expected[n_expected].data, 8);
-        n_expected++;
+    char hex[140];
+    while (n < max && sscanf(p, " %x:%139s%n", &id, hex, &step) == 2) {
+        frames[n].id = (uint16_t)id;
+        frames[n].len = (uint8_t)from_hex(hex, frames[n].data, cap);
+        n++;
         p += step;
     }
+    return n;
+}
+
+static void can_vector(const char *s) {
+    unsigned drive;
+    ip_message_t m, back;
+    vector_frame_t given[3];
+    int n_expected = parse_can_vector(s, &drive, &m, given, 3, 8);
+    CHECK(n_expected > 0, "unparsable CAN vector");
+    ip_can_frame_t frames[3], expected[3];
+    for (int i = 0; i < n_expected; i++) {
+        expected[i].id = given[i].id;
+        expected[i].dlc = given[i].len;
+        memcpy(expected[i].data, given[i].data, 8);
+    }
     size_t n = ip_can_encode(&m, (uint8_t)drive, frames);
-    CHECK(n == n_expected, "%zu CAN frames, vector has %zu", n, n_expected);
-    for (size_t i = 0; i < n && i < n_expected; i++)
+    CHECK(n == (size_t)n_expected, "%zu CAN frames, vector has %d", n, n_expected);
+    for (size_t i = 0; i < n && i < (size_t)n_expected; i++)
         CHECK(frames[i].id == expected[i].id && frames[i].dlc == expected[i].dlc
               && !memcmp(frames[i].data, expected[i].data, frames[i].dlc), "CAN frame %zu differs", i);
     ip_can_decoder_t d;
     ip_can_decoder_init(&d, (uint8_t)drive);
     int got = 0;
-    for (size_t i = 0; i < n_expected; i++) got = ip_can_decode(&d, &expected[i], &back);
+    for (int i = 0; i < n_expected; i++) got = ip_can_decode(&d, &expected[i], &back);
     CHECK(got == 1 && same(&m, &back, 1), "CAN decoding differs");
 }
 
 static void canfd_vector(const char *s) {
     unsigned drive;
-    int used = 0;
     ip_message_t m, back, whole;
-    sscanf(s, "%u%n", &drive, &used);
-    int more = parse_message(s + used, &m);
-    CHECK(more > 0, "unparsable message");
-    const char *p = strchr(s + used + more, '=') + 1;
+    vector_frame_t given[IP_CANFD_MAX_FRAMES];
+    int n_expected = parse_can_vector(s, &drive, &m, given, IP_CANFD_MAX_FRAMES, 64);
+    CHECK(n_expected > 0, "unparsable CAN FD vector");
     ip_canfd_frame_t frames[IP_CANFD_MAX_FRAMES], expected[IP_CANFD_MAX_FRAMES];
-    size_t n_expected = 0;
-    unsigned id;
-    char hex[140];
-    int step;
-    while (n_expected < IP_CANFD_MAX_FRAMES && sscanf(p, " %x:%139s%n", &id, hex, &step) == 2) {
-        expected[n_expected].id = (uint16_t)id;
-        expected[n_expected].len = (uint8_t)from_hex(hex, expected[n_expected].data, 64);
-        n_expected++;
-        p += step;
+    for (int i = 0; i < n_expected; i++) {
+        expected[i].id = given[i].id;
+        expected[i].len = given[i].len;
+        memcpy(expected[i].data, given[i].data, 64);
     }
     size_t n = ip_canfd_encode(&m, (uint8_t)drive, frames);
-    CHECK(n == n_expected, "%zu CAN FD frames, vector has %zu", n, n_expected);
-    for (size_t i = 0; i < n && i < n_expected; i++)
+    CHECK(n == (size_t)n_expected, "%zu CAN FD frames, vector has %d", n, n_expected);
+    for (size_t i = 0; i < n && i < (size_t)n_expected; i++)
         CHECK(frames[i].id == expected[i].id && frames[i].len == expected[i].len
               && !memcmp(frames[i].data, expected[i].data, frames[i].len), "CAN FD frame %zu differs", i);
     whole = m;
     unsigned total = 0;
-    for (size_t i = 0; i < n_expected; i++) {
-        CHECK(ip_canfd_decode((uint8_t)drive, &expected[i], &back) == IP_OK, "CAN FD frame %zu not decoded", i);
+    for (int i = 0; i < n_expected; i++) {
+        CHECK(ip_canfd_decode((uint8_t)drive, &expected[i], &back) == IP_OK, "CAN FD frame %d not decoded", i);
         if (back.type == IP_TELEMETRY_BLOCK) {
             CHECK(back.u.telemetry_block.seq == m.u.telemetry_block.seq + total, "CAN FD chunk seq");
             memcpy(whole.u.telemetry_block.s + total, back.u.telemetry_block.s,
