@@ -140,12 +140,10 @@ static void serial_vector(const char *s) {
     CHECK(got == 1 && same(&m, &back, 0), "reader did not return the message");
 }
 
-/* A CAN frame of a vector: identifier, length, data (classic: at most 8 bytes; CAN FD: 64). */
-typedef struct { uint16_t id; uint8_t len; uint8_t data[64]; } vector_frame_t;
-
 /* The drive and message of a CAN vector ("DRIVE TYPE fields... = id:hex ..."), and up to max of its
- * frames (each at most cap data bytes); returns the number of frames, -1 if the message is unparsable. */
-static int parse_can_vector(const char *s, unsigned *drive, ip_message_t *m, vector_frame_t *frames, int max,
+ * frames (each at most cap data bytes: 8 classic, 64 CAN FD); returns the number of frames, -1 if the
+ * message is unparsable. */
+static int parse_can_vector(const char *s, unsigned *drive, ip_message_t *m, ip_canfd_frame_t *frames, int max,
                             size_t cap) {
     int used = 0, step, n = 0;
     sscanf(s, "%u%n", drive, &used);
@@ -166,7 +164,7 @@ static int parse_can_vector(const char *s, unsigned *drive, ip_message_t *m, vec
 static void can_vector(const char *s) {
     unsigned drive;
     ip_message_t m, back;
-    vector_frame_t given[3];
+    ip_canfd_frame_t given[3];
     int n_expected = parse_can_vector(s, &drive, &m, given, 3, 8);
     CHECK(n_expected > 0, "unparsable CAN vector");
     ip_can_frame_t frames[3], expected[3];
@@ -190,15 +188,9 @@ static void can_vector(const char *s) {
 static void canfd_vector(const char *s) {
     unsigned drive;
     ip_message_t m, back, whole;
-    vector_frame_t given[IP_CANFD_MAX_FRAMES];
-    int n_expected = parse_can_vector(s, &drive, &m, given, IP_CANFD_MAX_FRAMES, 64);
-    CHECK(n_expected > 0, "unparsable CAN FD vector");
     ip_canfd_frame_t frames[IP_CANFD_MAX_FRAMES], expected[IP_CANFD_MAX_FRAMES];
-    for (int i = 0; i < n_expected; i++) {
-        expected[i].id = given[i].id;
-        expected[i].len = given[i].len;
-        memcpy(expected[i].data, given[i].data, 64);
-    }
+    int n_expected = parse_can_vector(s, &drive, &m, expected, IP_CANFD_MAX_FRAMES, 64);
+    CHECK(n_expected > 0, "unparsable CAN FD vector");
     size_t n = ip_canfd_encode(&m, (uint8_t)drive, frames);
     CHECK(n == (size_t)n_expected, "%zu CAN FD frames, vector has %d", n, n_expected);
     for (size_t i = 0; i < n && i < (size_t)n_expected; i++)
