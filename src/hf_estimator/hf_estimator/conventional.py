@@ -26,6 +26,7 @@ from control_math.frames import clarke_contract
 
 from .admittance_monitor import MonitorParams, make_monitor
 from .interface import Estimator, check_settings, register
+from .pll_model import aligned_demodulation_phase
 from .pulsating import (
     INTEGRAL,
     THETA,
@@ -41,7 +42,11 @@ from .tracking_loop import loop_gains
 DEFAULTS = {"frequency_Hz": 900.0, "amplitude_V": 5.0, "demodulation_amplitude": 2.0,
             "lowpass_Hz": 300.0, "lowpass_order": 2, "bandpass_Hz": [600.0, 1200.0],
             "bandpass_order": 2, "pll_bandwidth_Hz": 20.0, "pll_damping": 0.8, "A_p": None, "T_i_s": None,
-            "observable_ratio": 0.02, **STARTUP_DEFAULTS}
+            "observable_ratio": 0.02, "demodulation": "paper", **STARTUP_DEFAULTS}
+DEMODULATIONS = ("paper", "aligned")
+"""``demodulation``: the paper's carrier, evaluated at the sampling instant; or ``aligned`` (ours): turned
+by the lag of the sampled HF current (command delay, zero-order hold, R-L, band-pass) so that the
+demodulation keeps its whole gain (pll_model.aligned_demodulation_phase)."""
 
 
 class WangParams(NamedTuple):
@@ -49,6 +54,7 @@ class WangParams(NamedTuple):
     omega_h_rad_s: float
     U_h_V: float
     demodulation_amplitude: float
+    demodulation_phase_rad: float
     kp: float
     ki: float
     lowpass: np.ndarray
@@ -65,7 +71,7 @@ def conventional_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta
     t = k * p.T_s_s
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     eps = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA],
-                              p.demodulation_amplitude, math.sin(p.omega_h_rad_s * t))
+                              p.demodulation_amplitude, math.sin(p.omega_h_rad_s * t + p.demodulation_phase_rad))
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
@@ -73,8 +79,21 @@ def conventional_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta
     return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state
 
 
-def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, delay_periods):
-    """A Wang estimator (``conventional`` or ``improved``) with the kernel ``step`` and its settings."""
+def demodulation_phase(name, demodulation, commissioning, T_s, delay_periods, f_h, bandpass):
+    """The demodulation carrier's phase [rad] for the setting ``demodulation`` (DEMODULATIONS) of
+    estimator ``name``; ValueError naming the setting for another value."""
+    if demodulation not in DEMODULATIONS:
+        raise ValueError(f"estimator {name}: setting demodulation: {demodulation!r} is not one of "
+                         f"{', '.join(DEMODULATIONS)}")
+    if demodulation == "paper":
+        return 0.0
+    return aligned_demodulation_phase(commissioning.R_s_ohm, commissioning.L_dh_H, commissioning.L_qh_H, T_s,
+                                      delay_periods, 2.0 * math.pi * f_h, bandpass)
+
+
+def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, delay_periods, bandpass_used=True):
+    """A Wang estimator (``conventional``, ``improved`` or their aligned variants) with the kernel ``step``
+    and its settings; ``bandpass_used``: the band-pass precedes the demodulation (not in ``improved``)."""
     s = check_settings(name, settings, defaults, T_s)
     f_h, U_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
     gain = s["demodulation_amplitude"] * U_h * commissioning.delta / (2.0 * math.pi * f_h)
@@ -85,14 +104,16 @@ def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, del
     if s["A_p"] is not None:
         kp, ki = float(s["A_p"]), float(s["A_p"]) / float(s["T_i_s"])
     low, high = s["bandpass_Hz"]
+    bandpass = butterworth_bandpass(s["bandpass_order"], low, high, T_s)
+    phase = demodulation_phase(name, s["demodulation"], commissioning, T_s, delay_periods, f_h,
+                               bandpass if bandpass_used else np.zeros((0, 6)))
     monitor = make_monitor(T_s, U_h, f_h, delay_periods, commissioning, s["observable_ratio"])
     startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, delay_periods,
                            gain if salient else 0.0, s)
     params = WangParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, U_h_V=U_h,
-        demodulation_amplitude=float(s["demodulation_amplitude"]), kp=kp, ki=ki,
-        lowpass=butterworth_lowpass(s["lowpass_order"], s["lowpass_Hz"], T_s),
-        bandpass=butterworth_bandpass(s["bandpass_order"], low, high, T_s),
+        demodulation_amplitude=float(s["demodulation_amplitude"]), demodulation_phase_rad=phase, kp=kp, ki=ki,
+        lowpass=butterworth_lowpass(s["lowpass_order"], s["lowpass_Hz"], T_s), bandpass=bandpass,
         monitor=monitor, startup=startup)
     sections = max(params.lowpass.shape[0], params.bandpass.shape[0])
     return Estimator(name, step, params, pulsating_state(monitor, startup),
@@ -104,3 +125,11 @@ def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, del
 def make_conventional(nameplate, T_s, settings, commissioning, delay_periods):
     return make_wang("conventional", conventional_step, DEFAULTS, nameplate, settings, T_s, commissioning,
                      delay_periods)
+
+
+@register("conventional_aligned", "conventional with its demodulation carrier in phase with the sampled q̂ "
+                                 "current (ours: the paper's method as it performs when tuned)",
+          "Wang et al. 2019, §II; the carrier alignment is ours (docs/pll-tuning.md)")
+def make_conventional_aligned(nameplate, T_s, settings, commissioning, delay_periods):
+    return make_wang("conventional_aligned", conventional_step, {**DEFAULTS, "demodulation": "aligned"}, nameplate,
+                     settings, T_s, commissioning, delay_periods)

@@ -28,7 +28,7 @@ def improved_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, th
     p: WangParams."""
     t = k * p.T_s_s
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
-    modulation = p.demodulation_amplitude * math.sin(p.omega_h_rad_s * t)
+    modulation = p.demodulation_amplitude * math.sin(p.omega_h_rad_s * t + p.demodulation_phase_rad)
     i_alpha_l = sos_step(p.lowpass, z[0], i_alpha * modulation)
     i_beta_l = sos_step(p.lowpass, z[1], i_beta * modulation)
     eps = i_beta_l * math.cos(x[THETA]) - i_alpha_l * math.sin(x[THETA])
@@ -43,4 +43,14 @@ def improved_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, th
           "Wang et al. 2019, §III, Fig. 3, 5(b), 6, Eq. (16)-(24)")
 def make_improved(nameplate, T_s, settings, commissioning, delay_periods):
     defaults = {**DEFAULTS, "pll_bandwidth_Hz": 10.0}
-    return make_wang("improved", improved_step, defaults, nameplate, settings, T_s, commissioning, delay_periods)
+    return make_wang("improved", improved_step, defaults, nameplate, settings, T_s, commissioning, delay_periods,
+                     bandpass_used=False)
+
+
+@register("improved_aligned", "improved with its demodulation carrier in phase with the sampled HF current "
+                             "(ours: the paper's method as it performs when tuned)",
+          "Wang et al. 2019, §III; the carrier alignment is ours (docs/pll-tuning.md)")
+def make_improved_aligned(nameplate, T_s, settings, commissioning, delay_periods):
+    defaults = {**DEFAULTS, "pll_bandwidth_Hz": 10.0, "demodulation": "aligned"}
+    return make_wang("improved_aligned", improved_step, defaults, nameplate, settings, T_s, commissioning,
+                     delay_periods, bandpass_used=False)

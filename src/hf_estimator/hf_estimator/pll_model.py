@@ -161,6 +161,17 @@ def sampled_admittance(R_ohm, L_H, T_s_s, delay_periods, omega):
     return zi ** delay_periods * (1.0 - a) / R_ohm * zi / (1.0 - a * zi)
 
 
+def aligned_demodulation_phase(R_ohm, L_dh_H, L_qh_H, T_s_s, delay_periods, omega_h, bandpass):
+    """Phase φ [rad] added to a pulsating-injection estimator's demodulation carrier (Szabó: cos(ω_h t + φ)
+    against u_h sin ω_h t; Wang: sin(ω_h t + φ) against U_h cos ω_h t) that puts it in phase with the
+    sampled q̂ current an angle error produces: φ = −π/2 + arg((Y_q − Y_d)·B) at ω_h, B the band-pass
+    sections before demodulation (none: empty); 0 for the papers' continuous loops of lossless
+    inductances."""
+    y = (sampled_admittance(R_ohm, L_qh_H, T_s_s, delay_periods, omega_h)
+         - sampled_admittance(R_ohm, L_dh_H, T_s_s, delay_periods, omega_h))
+    return -math.pi / 2.0 + float(np.angle(y * sos_response(bandpass, omega_h, T_s_s)))
+
+
 def carrier_loop(path):
     """The sampled estimator loop of ``path`` (module docstring), PI discrete as in pi_tracking_loop.
     A baseband model: it holds for ω well below ω_h, so searches stop at ω_h/10."""
@@ -287,10 +298,11 @@ the PI gets 0 − î_qhf; Wang injects U_h cos ω_h t and demodulates with 2 sin
 def carrier_path(estimator, R_ohm, L_dh_H, L_qh_H, delay_periods):
     """The CarrierPath of a built estimator (``interface.Estimator``) on a motor with HF inductances
     L_dh, L_qh; KeyError for an estimator this model does not cover."""
-    if estimator.name not in CARRIERS:
+    base = estimator.name.removesuffix("_aligned")
+    if base not in CARRIERS:
         raise KeyError(f"estimator '{estimator.name}' has no PLL of this form "
-                       f"(covered: {', '.join(CARRIERS)})")
-    phase, sign, alphabeta = CARRIERS[estimator.name]
+                       f"(covered: {', '.join(CARRIERS)} and their _aligned variants)")
+    phase, sign, alphabeta = CARRIERS[base]
     p = estimator.params
     u_h = getattr(p, "u_h_V", None) or p.U_h_V
     u_star = getattr(p, "u_star", None) or p.demodulation_amplitude

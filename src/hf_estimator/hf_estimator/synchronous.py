@@ -22,8 +22,8 @@ from control_math.filters import butterworth_bandpass
 from control_math.frames import clarke_contract
 
 from .admittance_monitor import MonitorParams, make_monitor
+from .conventional import demodulation_phase
 from .interface import Estimator, check_settings, register
-from .pll_model import sampled_admittance, sos_response
 from .pulsating import (
     THETA,
     pulsating_state,
@@ -70,14 +70,6 @@ def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta,
     return x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, state
 
 
-def aligned_demodulation_phase(R_ohm, commissioning, T_s, delay_periods, omega_h, bandpass):
-    """Demodulation carrier phase [rad] that puts cos(ω_h t + φ) in phase with the sampled q̂ current an
-    angle error produces: φ = −π/2 + arg((Y_q − Y_d)·B) at ω_h (0 for the paper's continuous loop)."""
-    y = (sampled_admittance(R_ohm, commissioning.L_qh_H, T_s, delay_periods, omega_h)
-         - sampled_admittance(R_ohm, commissioning.L_dh_H, T_s, delay_periods, omega_h))
-    return -math.pi / 2.0 + float(np.angle(y * sos_response(bandpass, omega_h, T_s)))
-
-
 def first_order_lowpass(T_f, T_s):
     """1/(s T_f + 1) by the bilinear transform, as one SOS row."""
     from scipy import signal
@@ -87,15 +79,12 @@ def first_order_lowpass(T_f, T_s):
 
 @register("synchronous", "d̂ sine injection, q̂ phase detector, T_f low-pass, PI (faithful; "
                         "demodulation: aligned is ours)", "Szabó & Veszprémi, §2.2-2.3, Eq. (6), (15)-(22), Table 2")
-def make_synchronous(nameplate, T_s, settings, commissioning, delay_periods):
-    s = check_settings("synchronous", settings, DEFAULTS, T_s)
+def make_synchronous(nameplate, T_s, settings, commissioning, delay_periods, name="synchronous", defaults=DEFAULTS):
+    s = check_settings(name, settings, defaults, T_s)
     f_h, u_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
     ratio = float(s["bandpass_ratio"])
     bandpass = butterworth_bandpass(1, f_h / ratio, min(f_h * ratio, 0.49 / T_s), T_s)
-    phase = 0.0
-    if s["demodulation"] == "aligned":
-        phase = aligned_demodulation_phase(commissioning.R_s_ohm, commissioning, T_s, delay_periods,
-                                           2.0 * math.pi * f_h, bandpass)
+    phase = demodulation_phase("synchronous", s["demodulation"], commissioning, T_s, delay_periods, f_h, bandpass)
     monitor = make_monitor(T_s, u_h, f_h, delay_periods, commissioning, s["observable_ratio"])
     gain = float(s["u_star"]) * u_h * commissioning.delta / (2.0 * math.pi * f_h)
     startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, delay_periods,
@@ -107,5 +96,13 @@ def make_synchronous(nameplate, T_s, settings, commissioning, delay_periods):
         bandpass=bandpass, demodulation_phase_rad=phase,
         monitor=monitor, startup=startup)
     omega_n = math.sqrt(abs(gain) * params.ki)
-    return Estimator("synchronous", synchronous_step, params, pulsating_state(monitor, startup),
+    return Estimator(name, synchronous_step, params, pulsating_state(monitor, startup),
                      np.zeros((2, 1, 2)), f_h, omega_n / (2.0 * math.pi))
+
+
+@register("synchronous_aligned", "synchronous with its demodulation carrier in phase with the sampled q̂ "
+                                "current (ours: the paper's method as it performs when tuned)",
+          "Szabó & Veszprémi, §2.2-2.3; the carrier alignment is ours (docs/pll-tuning.md)")
+def make_synchronous_aligned(nameplate, T_s, settings, commissioning, delay_periods):
+    return make_synchronous(nameplate, T_s, settings, commissioning, delay_periods, "synchronous_aligned",
+                            {**DEFAULTS, "demodulation": "aligned"})
