@@ -87,3 +87,23 @@ def test_a_signal_inside_a_deferred_block_is_raised_when_it_ends():
             time.sleep(0.05)
             finished.append(True)
     assert finished == [True] and stopped.value.signum == signal.SIGTERM
+
+
+def test_a_signal_swallowed_by_a_c_callback_still_stops_the_command(monkeypatch, capsys):
+    """numba's compiler calls back into Python; a signal raised there is swallowed by the callback
+    (the run goes on), but it stays recorded: the command ends as interrupted, with one line and no
+    traceback."""
+    import ctypes
+
+    from drive_cli import cli
+    from drive_interface import interrupt
+
+    def job(args):
+        callback = ctypes.CFUNCTYPE(None)(lambda: interrupt._handler(signal.SIGTERM, None))
+        callback()
+        return 0
+
+    monkeypatch.setattr(cli, "cmd_scenarios", job)
+    assert cli.main(["scenarios"]) == 128 + signal.SIGTERM
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.strip() == "drive: scenarios: interrupted by SIGTERM"

@@ -1258,7 +1258,10 @@ def main(argv=None):
     args = build_parser().parse_args(argv)
     try:
         with interrupt.handled():
-            return args.func(args)
+            code = args.func(args)
+            if interrupt.requested() and code < EXIT_SIGNAL_BASE:
+                raise Interrupted(interrupt.requested())
+            return code
     except DriveError as error:
         text = " ".join(f"{error}{_remedy(error, args)}".split())
         print(f"drive: {text}", file=sys.stderr)

@@ -1,8 +1,11 @@
 """SIGINT and SIGTERM for long jobs: the first signal raises ``Interrupted`` in the main thread (at the
 next Python instruction, so a compiled kernel finishes its chunk first); inside ``deferred()`` it is
 held until the block ends, so a swap of files or a bag's close is never cut half-way. Jobs that can
-stop cleanly by themselves (the ROS graph) poll ``requested()`` inside ``polled()`` instead."""
+stop cleanly by themselves (the ROS graph) poll ``requested()`` inside ``polled()`` instead. A raise
+that lands in a C callback (numba's compiler calls back into Python) is swallowed there; the signal
+stays recorded in ``requested()``, which the command line checks when the job returns."""
 import signal
+import sys
 from contextlib import contextmanager
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
@@ -45,11 +48,23 @@ def handled():
     _state.raising = True
     _state.pending = False
     previous = {signum: signal.signal(signum, _handler) for signum in SIGNALS}
+    hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_about_interrupts(hook)
     try:
         yield
     finally:
+        sys.unraisablehook = hook
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+
+
+def _quiet_about_interrupts(hook):
+    """An unraisable-exception hook that passes over ``Interrupted`` (a raise swallowed by a C callback:
+    the signal stays recorded) and hands anything else to ``hook``."""
+    def quiet(unraisable):
+        if not isinstance(unraisable.exc_value, Interrupted):
+            hook(unraisable)
+    return quiet
 
 
 def requested():
