@@ -132,7 +132,7 @@ def test_bus_off_is_counted_and_the_bridge_reopens_the_bus():
 def _bridge_against(tmp_path, scenario, **inverter_options):
     endpoint, host_link = make_links("pty", tmp_path)
     inverter = VirtualInverter(scenario, endpoint, **inverter_options)
-    bridge = InverterBridge(host_link)
+    bridge = InverterBridge(host_link, block_samples=scenario.block_samples)
     bridge.poll(0.0)
     thread = threading.Thread(target=inverter.run, daemon=True)
     thread.start()
@@ -141,8 +141,8 @@ def _bridge_against(tmp_path, scenario, **inverter_options):
 
 def test_a_silent_graph_gets_the_safe_state(tmp_path):
     """Telemetry flows (the inverter's own 1 kHz clock) but nobody commands after sample 50: within
-    command_timeout_s the bridge sends ENABLE clear and reports it; the inverter's watchdog has already
-    switched PWM off."""
+    command_timeout_s the bridge disables the inverter (CONTROL 1) and reports it; the inverter's watchdog
+    has already switched PWM off."""
     endpoint, inverter, bridge, thread = _bridge_against(tmp_path, SCENARIO, rate_Hz=1000.0)
     try:
         last = None
@@ -318,3 +318,35 @@ def test_a_lost_block_is_a_block_of_zero_volts_the_host_knows_of():
     assert result.inverter_counters["watchdog_trips"] == 0
     received = result.received[1000:]
     assert np.abs(angle_error(result.log, result.n_p)[1000:][received]).max() < 1.0
+
+
+def test_a_paced_inverter_applies_a_block_during_the_block_after_next(tmp_path):
+    """Blocks of 4 on a 50 Hz clock (a block every 80 ms; the host has 5 periods, 100 ms, from a block's
+    telemetry to the first period of its commands). The answer to block 2 comes 130 ms late: its 4
+    periods (16-19) run at zero volts, counted missing, and the telemetry of block 4, whose periods they
+    are, says COMMAND_MISSING; every other block's commands act on time. The answers to the last two
+    blocks would act after the run."""
+    from drive_bridge.inverter_protocol import COMMAND_MISSING
+    from drive_bridge.virtual_inverter import timing_report
+
+    forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s, block_samples=4)
+    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, forty, rate_Hz=50.0)
+    try:
+        status = {}
+        while thread.is_alive():
+            for s in bridge.poll(0.01):
+                status[s.k] = s.status
+                if s.k % 4 == 3:
+                    if s.k == 11:
+                        time.sleep(0.13)
+                    bridge.command_block(s.k - 3, np.full(4, 0.5), np.zeros(4))
+        timing = timing_report(inverter, 1.0 / 50.0)
+        assert inverter.delay == 8 and timing["periods"] == 40
+        assert timing["missing"] == 4 and timing["late_arrivals"] == 1
+        assert [k for k in range(40) if status[k] & COMMAND_MISSING] == [16, 17, 18, 19]
+        assert inverter.counters["commands"] == 28 and inverter.counters["watchdog_trips"] == 0
+    finally:
+        inverter.stop()
+        thread.join(2.0)
+        bridge.close()
+        endpoint.close()
