@@ -135,6 +135,37 @@ def test_compare_scores_the_graph_and_runner_bags_alike(bags, tmp_path):
     assert (tmp_path / "graph_vs_run.png").is_file()
 
 
+def test_replay_and_compare_score_the_windows_they_are_given(bags, tmp_path):
+    """`--windows T0:T1,...` replaces the scenario's steady windows: the replay of the recorded
+    estimator scores exactly the recording's angle error over those intervals, and compare too; the
+    report says where its windows came from. A window past the recording or not a T0 < T1 pair is
+    refused in one line naming the option."""
+    from drive_bags.reader import bag_result
+    from drive_evaluation.metrics import angle_error
+    graph, run, _ = bags
+    recorded = bag_result(graph)
+    t, error = recorded.log[:, COLUMN["t"]], angle_error(recorded.log, recorded.n_p)
+    inside = ((t >= 0.01) & (t < 0.02)) | ((t >= 0.03) & (t < 0.045))
+    expected = float(np.sqrt(np.mean(error[inside] ** 2)))
+    out = subprocess.run(DRIVE + ["bench", "replay", str(graph), "--estimators", "injection_frame", "--windows",
+                                  "0.01:0.02,0.03:0.045", "--json", "--no-plot", "--out", str(tmp_path)],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    assert report["windows"] == {"source": "--windows", "steady_s": [[0.01, 0.02], [0.03, 0.045]]}
+    assert report["results"][0]["angle_error_rms"] == pytest.approx(expected, rel=1e-12)
+    out = subprocess.run(DRIVE + ["bench", "compare", str(graph), str(run), "--windows", "0.01:0.02,0.03:0.045",
+                                  "--json", "--no-plot"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert json.loads(out.stdout)["runs"][0]["angle_error_rms"] == pytest.approx(expected, rel=1e-12)
+    for windows, says in (("0.01:9", "ends after the recording"), ("0.02:0.01", "0 ≤ T0 < T1"),
+                          ("a:b", "0 ≤ T0 < T1")):
+        out = subprocess.run(DRIVE + ["bench", "replay", str(graph), "--windows", windows, "--no-plot"],
+                             capture_output=True, text=True)
+        assert out.returncode == 2 and out.stderr.count("\n") == 1, out.stderr
+        assert out.stderr.startswith("drive: --windows: ") and says in out.stderr, out.stderr
+
+
 def foreign_bag(path, topics):
     """A bag written by someone else: {topic: (msgtype, [serialized messages])}."""
     from drive_bags.common import rosbags_qos

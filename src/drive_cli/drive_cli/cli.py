@@ -564,9 +564,11 @@ def cmd_bench_compare(args):
     results, entries = [], []
     for bag in (args.bag_a, args.bag_b):
         result = bag_result(bag)
+        windows = _windows_arg(args.windows, result)
         entry = {"bag": bag, "scenario": result.scenario.name, "estimator": result.estimator,
-                 "samples": int(result.log.shape[0]), "ground_truth": has_ground_truth(result.log)}
-        metrics = compute_metrics(result)
+                 "samples": int(result.log.shape[0]), "ground_truth": has_ground_truth(result.log),
+                 "windows": _windows_report(windows, result)}
+        metrics = compute_metrics(result, windows)
         entry.update({key: metrics[key] if entry["ground_truth"] or key == "observable_fraction" else None
                       for _, key, _ in COMPARED_METRICS})
         results.append(result)
@@ -606,6 +608,7 @@ REPLAY_COLUMNS = (
 
 
 def cmd_bench_replay(args):
+    from drive_bags.reader import bag_result
     from drive_evaluation.plots import plot_angle_errors
     from drive_evaluation.replay import replay
 
@@ -614,12 +617,14 @@ def cmd_bench_replay(args):
         if name not in estimator_names():
             raise CommandLineError(f"--estimators: unknown estimator '{name}' "
                                 f"(known: {', '.join(estimator_names())})")
-    recorded, entries, results = replay(args.bag, names)
+    recorded = bag_result(args.bag)
+    windows = _windows_arg(args.windows, recorded)
+    recorded, entries, results = replay(args.bag, names, windows, recorded)
     truth = "rotor_state" if "angle_error_rms" in entries[0] else None
     out = Path(args.out) if args.out else Path("runs") / "replay" / Path(args.bag).name
     report = {"benchmark": "replay", "bag": args.bag, "scenario": recorded.scenario.name,
               "recorded_estimator": recorded.estimator, "samples": int(recorded.log.shape[0]),
-              "ground_truth": truth is not None, "results": entries}
+              "ground_truth": truth is not None, "windows": _windows_report(windows, recorded), "results": entries}
     drawn = [(result, entry["estimator"]) for result, entry in zip(results, entries) if not entry["not_applicable"]]
     if not args.no_plot and truth:
         skipped = [f"{e['estimator']}: {e['not_applicable']}" for e in entries if e["not_applicable"]]
@@ -894,6 +899,37 @@ def cmd_bench_blocks(args):
     return _exit_code(report["interrupted"])
 
 
+def _windows_arg(text, result=None):
+    """The (t0, t1) scoring windows [s] of ``--windows T0:T1[,T0:T1...]`` (None without the option);
+    CommandLineError names the option, and the recording (``result``) a window does not fit in."""
+    if not text:
+        return None
+    windows = []
+    for part in text.split(","):
+        try:
+            t0, t1 = (float(value) for value in part.split(":"))
+        except ValueError:
+            t0 = t1 = math.nan
+        if not (math.isfinite(t0) and math.isfinite(t1) and 0.0 <= t0 < t1):
+            raise CommandLineError(f"--windows: T0:T1[,T0:T1...] in seconds with 0 ≤ T0 < T1, not {part!r}")
+        windows.append((t0, t1))
+    if result is not None:
+        for t0, t1 in windows:
+            if t1 > result.scenario.duration_s + 1e-12:
+                raise CommandLineError(f"--windows: {t0:g}:{t1:g} s ends after the recording "
+                                       f"({result.scenario.duration_s:g} s)")
+    return windows
+
+
+def _windows_report(windows, result):
+    """Where the scoring windows came from, and which they are, for a report."""
+    if windows:
+        return {"source": "--windows", "steady_s": [list(w) for w in windows]}
+    from drive_evaluation.metrics import windows as scenario_windows
+    return {"source": f"scenario {result.scenario.name}",
+            "steady_s": [list(w) for w in scenario_windows(result.scenario)[0]]}
+
+
 def _block_sizes(text):
     """The block sizes of ``--block-samples N[,N...]``; CommandLineError names the option."""
     try:
@@ -1107,6 +1143,8 @@ def build_parser():
     compare = bench_sub.add_parser("compare", help="two recorded runs side by side: metrics and angle error")
     compare.add_argument("bag_a")
     compare.add_argument("bag_b")
+    compare.add_argument("--windows", metavar="T0:T1[,T0:T1...]",
+                         help="score these intervals [s] instead of the scenario's steady windows")
     compare.add_argument("--out", help="plot directory (default runs/compare)")
     compare.add_argument("--no-plot", action="store_true")
     compare.add_argument("--json", action="store_true")
@@ -1116,6 +1154,8 @@ def build_parser():
                               help="estimators on a recording's currents, scored against its ground truth")
     rp.add_argument("bag")
     rp.add_argument("--estimators", help="comma-separated (default: all)")
+    rp.add_argument("--windows", metavar="T0:T1[,T0:T1...]",
+                    help="score these intervals [s] instead of the scenario's steady windows")
     rp.add_argument("--out", help="directory for angle_error.png and replay.json (default runs/replay/BAG)")
     rp.add_argument("--no-plot", action="store_true")
     rp.add_argument("--json", action="store_true")

@@ -147,12 +147,13 @@ def startup_metrics(scenario, log, n_p):
     return out
 
 
-def compute_metrics(result):
-    """The metrics dictionary printed by ``drive run`` (SI units: rad, rad/s, s)."""
+def compute_metrics(result, steady_windows=None):
+    """The metrics dictionary printed by ``drive run`` (SI units: rad, rad/s, s). ``steady_windows``:
+    the (t0, t1) intervals [s] to score instead of the scenario's (no transient windows then)."""
     scenario, log, n_p = result.scenario, result.log, result.n_p
     t = log[:, COLUMN["t"]]
     error = angle_error(log, n_p)
-    steady, transient = windows(scenario)
+    steady, transient = windows(scenario) if steady_windows is None else (list(steady_windows), [])
     steady_mask = _mask(t, steady)
     transient_mask = _mask(t, transient)
     evaluated = t >= scenario.metrics_start_s

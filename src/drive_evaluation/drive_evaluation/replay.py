@@ -52,9 +52,11 @@ def replay_inputs(recorded, path):
     return np.ascontiguousarray(currents), u_applied
 
 
-def replay(path, estimators):
-    """Replay each estimator on the bag; returns (recorded RunResult, [entry dict], [replayed RunResult])."""
-    recorded = bag_result(path)
+def replay(path, estimators, steady_windows=None, recorded=None):
+    """Replay each estimator on the bag (``recorded``: its RunResult when already read), scored over
+    ``steady_windows`` ((t0, t1) [s]; None: the scenario's); returns (recorded RunResult, [entry dict],
+    [replayed RunResult])."""
+    recorded = recorded or bag_result(path)
     currents, u_applied = replay_inputs(recorded, path)
     truth = has_ground_truth(recorded.log)
     theta_m = np.ascontiguousarray(recorded.log[:, COLUMN["theta_m"]])
@@ -79,7 +81,7 @@ def replay(path, estimators):
         for j, column in enumerate(OUTPUTS):
             log[:, COLUMN[column]] = out[:, j]
         result = RunResult(scenario, name, log, wall, recorded.current_limit_A)
-        metrics = compute_metrics(result)
+        metrics = compute_metrics(result, steady_windows)
         mismatch = _relative_rms(out[:, 2:4] - applied, applied)
         entry = {"estimator": name, "samples": len(currents), "samples_per_second": len(currents) / wall,
                  "excitation_mismatch": mismatch, "observable_fraction": metrics["observable_fraction"],
