@@ -278,10 +278,10 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
     if duration_s is not None:
         scenario = dataclasses.replace(scenario, duration_s=duration_s)
     rate = 1.0 / scenario.T_s if paced else None
+    blocks = block_samples or scenario.block_samples
+    linked = dataclasses.replace(scenario, block_samples=blocks)
     rows = []
     for link in links:
-        blocks = block_samples or scenario.block_samples
-        linked = dataclasses.replace(scenario, block_samples=blocks)
         run_through_bridge(dataclasses.replace(linked, duration_s=min(scenario.duration_s, 0.05)), link)
         best = None
         for _ in range(repeats):

@@ -216,11 +216,7 @@ class _BlockAnswer:
         controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.currents,
                          self.est_out, host.speed_ref[:N], host.tau_feedforward[:N], self.calibration, self.trip_A,
                          self.ctrl_out)
-        c, est = self.ctrl_out, self.est_out
-        issue_command(self.line.copy(), 0, c[0, 0], c[0, 1])
-        write_row(np.zeros(len(LOG_COLUMNS)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, est[0, 0],
-                  est[0, 1], c[0, 0], c[0, 1], est[0, 2], est[0, 3], host.speed_ref[0], c[0, 2], c[0, 3], c[0, 4],
-                  c[0, 5], est[0, 4], est[0, 5], est[0, 6])
+        self.issue_and_log(self.line.copy(), np.zeros((1, len(LOG_COLUMNS))), 0, 1)
 
     def sample(self, s, bridge):
         """Gather sample ``s``; at a block's last sample, answer the block: the samples answered."""
@@ -246,12 +242,17 @@ class _BlockAnswer:
         controller_block(host.controller_x, host.controller_z, host.controller, n, self.currents, self.est_out,
                          host.speed_ref[k0:k0 + n], host.tau_feedforward[k0:k0 + n], self.calibration, self.trip_A,
                          self.ctrl_out)
-        c, est = self.ctrl_out, self.est_out
-        for i, p in enumerate(pending):
+        self.issue_and_log(line, self.log[k0:k0 + n], k0, n)
+        bridge.command_block(k0, self.ctrl_out[:n, 0], self.ctrl_out[:n, 1])
+        return range(k0, k0 + n)
+
+    def issue_and_log(self, line, rows, k0, n):
+        """The block's commands into ``line`` and its samples k0 … k0 + n − 1 into ``rows`` (LOG_COLUMNS),
+        from the measured currents and the kernels' outputs."""
+        c, est, m = self.ctrl_out, self.est_out, self.currents
+        for i in range(n):
             j = k0 + i
             issue_command(line, j, c[i, 0], c[i, 1])
-            write_row(self.log[j], j * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, p.i_a, p.i_b, p.i_c,
-                      est[i, 0], est[i, 1], c[i, 0], c[i, 1], est[i, 2], est[i, 3], host.speed_ref[j], c[i, 2],
+            write_row(rows[i], j * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, m[i, 0], m[i, 1], m[i, 2],
+                      est[i, 0], est[i, 1], c[i, 0], c[i, 1], est[i, 2], est[i, 3], self.host.speed_ref[j], c[i, 2],
                       c[i, 3], c[i, 4], c[i, 5], est[i, 4], est[i, 5], est[i, 6])
-        bridge.command_block(k0, c[:n, 0], c[:n, 1])
-        return range(k0, k0 + n)
