@@ -193,7 +193,9 @@ def test_foreign_bags_with_missing_or_mistyped_topics_are_named(tmp_path):
         bag_log(empty)
 
 
-def test_replay_reproduces_the_recorded_estimator_and_flags_foreign_excitation(bags, tmp_path):
+def test_replay_reproduces_the_recorded_estimator_and_says_who_it_measures(bags, tmp_path):
+    """The recording's own estimator replays to its recorded errors exactly; a demodulating method is not
+    applicable on another estimator's excitation, and the report says why."""
     graph, _, n = bags
     out = subprocess.run(DRIVE + ["bench", "replay", str(graph), "--estimators",
                                   "injection_frame,conventional", "--json", "--out", str(tmp_path)],
@@ -202,14 +204,13 @@ def test_replay_reproduces_the_recorded_estimator_and_flags_foreign_excitation(b
     report = json.loads(out.stdout)
     own, other = report["results"]
     from drive_bags.reader import bag_result
-    from drive_evaluation.metrics import compute_metrics
     recorded = compute_metrics(bag_result(graph))
     assert report["ground_truth"] and report["recorded_estimator"] == "injection_frame"
-    assert own["excitation_mismatch"] == 0.0
+    assert own["applicable"] and "any injection whose voltage is known" in own["reason"]
     for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak"):
         assert own[key] == pytest.approx(recorded[key], abs=1e-12), key
-    assert other["excitation_mismatch"] > 0.5
-    assert own["not_applicable"] is None and "injection differs" in other["not_applicable"]
+    assert not other["applicable"] and "own carrier on its own axis" in other["reason"]
+    assert "angle_error_rms" not in other and "lost" not in other
     assert own["samples"] == n and own["samples_per_second"] > 0
     assert (tmp_path / "replay.json").is_file() and (tmp_path / "angle_error.png").is_file()
 
@@ -239,7 +240,7 @@ def test_a_block_recording_reads_back_sample_by_sample_and_replays_exactly(tmp_p
     assert out.returncode == 0, out.stderr
     (own,) = json.loads(out.stdout)["results"]
     recorded = compute_metrics(bag_result(bag))
-    assert own["excitation_mismatch"] == 0.0
+    assert own["applicable"]
     assert own["angle_error_rms"] == pytest.approx(recorded["angle_error_rms"], abs=1e-12)
 
 
@@ -266,9 +267,9 @@ def test_replay_without_ground_truth_scores_consistency_only(bags, tmp_path):
                          capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert "no ground truth (rotor_state) in this bag: scored for consistency only" in out.stdout
-    no_injection = copy_without(bags[1], tmp_path / "no_injection", {"/drive/injection"})
-    out = subprocess.run(DRIVE + ["bench", "replay", str(no_injection)], capture_output=True, text=True)
-    assert out.returncode == 2 and "no_injection: injection: 500 of 500 samples missing" in out.stderr
+    no_voltage = copy_without(bags[1], tmp_path / "no_voltage", {"/drive/voltage_command"})
+    out = subprocess.run(DRIVE + ["bench", "replay", str(no_voltage)], capture_output=True, text=True)
+    assert out.returncode == 2 and "no_voltage: voltage_command: 500 of 500 samples missing" in out.stderr
 
 
 def test_a_killed_recorder_leaves_chunks_that_reindex_makes_a_bag(tmp_path):

@@ -159,11 +159,32 @@ def read_topics(path, wanted, namespace=None):
 
 def bag_log(path, T_s=None, namespace=None):
     """The runner's log layout (LOG_COLUMNS) filled from a bag's per-sample topics or their block twins
-    (NaN where the bag says nothing), the sample period and the bag's drive_config entries."""
+    (NaN where the bag says nothing), the sample period (``T_s``, else the drive_config's, else the
+    stamps') and the bag's drive_config entries."""
+    namespace, topics, configs = bag_topics(path, namespace)
+    log, T_s = log_from_topics(path, namespace, topics, configs, T_s)
+    return log, T_s, configs
+
+
+def bag_topics(path, namespace=None):
+    """(namespace, the logged topics' messages, the drive_config entries as dicts) of a bag, read once."""
     wanted = SAMPLE_LOGGED + BLOCK_LOGGED + HELD_LOGGED + ("drive_config",)
     namespace, topics = read_topics(path, wanted, namespace)
-    configs = [json.loads(m.data) for _, m in topics.get("drive_config", [])]
-    n_p = _pole_pairs(configs)
+    configs = []
+    for _, message in topics.get("drive_config", []):
+        try:
+            config = json.loads(message.data)
+        except ValueError:
+            raise BagError(f"{path}: {full_name(namespace, 'drive_config')}: a message is not JSON") from None
+        if isinstance(config, dict):
+            configs.append(config)
+    return namespace, topics, configs
+
+
+def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
+    """(log, T_s) from bag_topics' messages (bag_log); ``n_p`` turns mechanical angles electrical (default:
+    the drive_config's)."""
+    n_p = n_p or _pole_pairs(configs)
     blocks = not topics.get("currents") and bool(topics.get("currents_block"))
     currents = "currents_block" if blocks else "currents"
     if not topics.get(currents):
@@ -197,7 +218,7 @@ def bag_log(path, T_s=None, namespace=None):
                 fill_block(log, k, topic, (m.position, m.velocity, m.effort), n_p)
     for topic in HELD_LOGGED:
         _hold(log[:, COLUMN[TOPICS[topic].log_columns[0]]], topics.get(topic, []), T_s, n)
-    return log, T_s, configs
+    return log, T_s
 
 
 def _hold(column, messages, T_s, n):
@@ -209,10 +230,13 @@ def _hold(column, messages, T_s, n):
 
 
 def _pole_pairs(configs):
-    """p from the bag's drive_config (every node's carries ``n_p``); 1 when the bag has none."""
+    """p from the bag's drive_config (every node's carries ``n_p``, a contract-v2 one in ``motor``); 1 when
+    the bag has none."""
     for config in configs:
         if "n_p" in config:
             return int(config["n_p"])
+        if isinstance(config.get("motor"), dict) and "n_p" in config["motor"]:
+            return int(config["motor"]["n_p"])
     return 1
 
 
@@ -224,7 +248,7 @@ def bag_result(path, namespace=None):
     """A recorded run as drive_runner.runner.RunResult, its scenario rebuilt from the bag's drive_config
     (the scenario file and overrides the nodes or the runner used), so it is scored as `drive run` is."""
     log, T_s, configs = bag_log(path, namespace=namespace)
-    scenario = _bag_scenario(path, configs)
+    scenario = bag_scenario(path, configs)
     scenario = dataclasses.replace(scenario, duration_s=log.shape[0] * T_s, T_s=T_s)
     recorded = next((c["estimator"] for c in configs if "estimator" in c), scenario.estimator)
     from_nodes = (c["parameters"]["estimator"] or scenario.estimator for c in configs if "parameters" in c)
@@ -235,7 +259,10 @@ def bag_result(path, namespace=None):
     return RunResult(scenario, estimator, log, 0.0, limit)
 
 
-def _bag_scenario(path, configs):
+def bag_scenario(path, configs):
+    """The scenario a bag was recorded from, rebuilt from its drive_config entries (the project's own:
+    a node's parameters, or the runner's scenario source); BagError when none names one, or the one named
+    cannot be loaded."""
     for config in configs:
         try:
             if "parameters" in config:

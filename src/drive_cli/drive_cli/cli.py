@@ -556,22 +556,27 @@ COMPARED_METRICS = (("angle error RMS (steady)", "angle_error_rms", "rad"),
                     ("observable fraction", "observable_fraction", ""))
 
 
+def _recording(bag, args):
+    """A bag read for scoring with the command line's --motor, --sample-period, --commissioning, --windows."""
+    from drive_evaluation.recording import read_recording
+    return read_recording(bag, motor=args.motor, sample_period_s=args.sample_period,
+                          commissioning=args.commissioning, windows=_windows_arg(args.windows))
+
+
 def cmd_bench_compare(args):
-    from drive_bags.reader import bag_result, has_ground_truth
-    from drive_evaluation.metrics import compute_metrics
+    from drive_evaluation.metrics import angle_scores
     from drive_evaluation.plots import plot_angle_errors
+    from drive_runner.runner import RunResult
 
     results, entries = [], []
     for bag in (args.bag_a, args.bag_b):
-        result = bag_result(bag)
-        windows = _windows_arg(args.windows, result)
-        entry = {"bag": bag, "scenario": result.scenario.name, "estimator": result.estimator,
-                 "samples": int(result.log.shape[0]), "ground_truth": has_ground_truth(result.log),
-                 "windows": _windows_report(windows, result)}
-        metrics = compute_metrics(result, windows)
-        entry.update({key: metrics[key] if entry["ground_truth"] or key == "observable_fraction" else None
+        recording = _recording(bag, args)
+        entry = {**recording.report(), "estimator": recording.estimator or None}
+        scores = angle_scores(recording.log, recording.n_p, recording.windows, recording.start_s)
+        entry.update({key: scores[key] if entry["ground_truth"] or key == "observable_fraction" else None
                       for _, key, _ in COMPARED_METRICS})
-        results.append(result)
+        results.append(RunResult(recording.scenario, recording.estimator, recording.log, 0.0, math.nan,
+                                 pole_pairs=recording.n_p))
         entries.append(entry)
     names = [Path(bag).name for bag in (args.bag_a, args.bag_b)]
     report = {"benchmark": "compare", "runs": entries}
@@ -589,6 +594,7 @@ def cmd_bench_compare(args):
                 for v in cells]
         print(f"  {label:30s} {text[0]:>24s} {text[1]:>24s}")
     for entry in entries:
+        print(f"  {entry['bag']}: windows {entry['windows']['source']}")
         if not entry["ground_truth"]:
             print(f"  {entry['bag']}: no ground truth (rotor_state); only consistency is scored")
     if "plot" in report:
@@ -598,69 +604,140 @@ def cmd_bench_compare(args):
 
 REPLAY_COLUMNS = (
     ("samples/s", "replay speed, best of the timed runs"),
-    ("exc. mismatch", "RMS of (the injection the estimator asks − the recorded one) / RMS recorded; 0: a "
-                      "faithful replay, above 0.2: not applicable (not drawn)"),
-    ("observable", "fraction of samples the estimator reports observable"),
-    ("RMS [rad]", "electrical angle error θ_e − θ̂_e against the recorded rotor_state, steady windows"),
-    ("bias [rad]", "its mean, steady windows"), ("peak [rad]", "its largest magnitude after the start"),
-    ("speed RMS", "speed estimation error [rad/s], steady windows"),
-    ("lock [s]", "time until |θ_e − θ̂_e| stays within π/8 to the end"))
+    ("observable", "fraction of samples after the scoring start the estimator reports tracking"),
+    ("RMS [rad]", "electrical angle error θ_e − θ̂_e against the recorded rotor_state, scored windows"),
+    ("bias [rad]", "its mean, scored windows"), ("peak [rad]", "its largest magnitude from the first window on"),
+    ("speed RMS", "speed estimation error [rad/s], scored windows"),
+    ("lock [s]", "time until |θ_e − θ̂_e| stays within π/8 to the end"),
+    ("lost", "a real loss of lock: |θ_e − θ̂_e| > π/2 from the first window on (without ground truth: a loss "
+             "the estimator reported)"))
 
 
-def cmd_bench_replay(args):
-    from drive_bags.reader import bag_result
-    from drive_evaluation.plots import plot_angle_errors
-    from drive_evaluation.replay import replay
-
-    names = args.estimators.split(",") if args.estimators else estimator_names()
+def _estimator_list(text):
+    names = text.split(",") if text else estimator_names()
     for name in names:
         if name not in estimator_names():
             raise CommandLineError(f"--estimators: unknown estimator '{name}' "
-                                f"(known: {', '.join(estimator_names())})")
-    recorded = bag_result(args.bag)
-    windows = _windows_arg(args.windows, recorded)
-    recorded, entries, results = replay(args.bag, names, windows, recorded)
-    truth = "rotor_state" if "angle_error_rms" in entries[0] else None
+                                   f"(known: {', '.join(estimator_names())})")
+    return names
+
+
+def _bags(pattern):
+    """The bags named by a bag path, a directory of bags or a glob; CommandLineError when none."""
+    import glob
+    path = Path(pattern)
+    if path.is_dir() and not (path / "metadata.yaml").exists() and not any(path.glob("*.mcap")):
+        found = sorted(p for p in path.rglob("metadata.yaml"))
+        bags = [str(p.parent) for p in found]
+        if not bags:
+            raise CommandLineError(f"bag: {pattern}: a directory without a bag (metadata.yaml) in it")
+        return bags, True
+    if any(c in pattern for c in "*?["):
+        bags = sorted(glob.glob(pattern))
+        if not bags:
+            raise CommandLineError(f"bag: {pattern}: no bag matches")
+        return bags, True
+    return [pattern], False
+
+
+def cmd_bench_replay(args):
+    from drive_evaluation.plots import plot_angle_errors
+    from drive_evaluation.replay import replay
+
+    names = _estimator_list(args.estimators)
+    bags, corpus = _bags(args.bag)
+    if corpus:
+        return _replay_corpus(bags, names, args)
+    recording = _recording(args.bag, args)
+    entries, results = replay(recording, names)
+    truth = recording.ground_truth
     out = Path(args.out) if args.out else Path("runs") / "replay" / Path(args.bag).name
-    report = {"benchmark": "replay", "bag": args.bag, "scenario": recorded.scenario.name,
-              "recorded_estimator": recorded.estimator, "samples": int(recorded.log.shape[0]),
-              "ground_truth": truth is not None, "windows": _windows_report(windows, recorded), "results": entries}
-    drawn = [(result, entry["estimator"]) for result, entry in zip(results, entries) if not entry["not_applicable"]]
+    report = {"benchmark": "replay", **recording.report(), "results": entries}
+    drawn = [(result, entry["estimator"]) for result, entry in zip(results, entries) if entry["applicable"]]
     if not args.no_plot and truth:
-        skipped = [f"{e['estimator']}: {e['not_applicable']}" for e in entries if e["not_applicable"]]
+        skipped = [f"{e['estimator']}: not applicable" for e in entries if not e["applicable"]]
         report["plot"] = str(plot_angle_errors([r for r, _ in drawn], [n for _, n in drawn],
                                                out / "angle_error.png", not_drawn=skipped,
                                                title=f"replay of {Path(args.bag).name} (recorded with "
-                                                     f"{recorded.estimator}): θ_e − θ̂_e per estimator"))
+                                                     f"{recording.estimator or 'an unnamed estimator'}): "
+                                                     f"θ_e − θ̂_e per estimator"))
     out.mkdir(parents=True, exist_ok=True)
     (out / "replay.json").write_text(dumps(report, indent=2))
     report["json"] = str(out / "replay.json")
     if args.json:
         _print_json(report)
         return 0
-    print(f"replay of {args.bag}: {report['samples']} samples of {report['scenario']}, recorded with "
-          f"{recorded.estimator}")
+    e = recording.excitation
+    print(f"replay of {args.bag}: {report['samples']} samples at {recording.T_s:g} s, motor "
+          f"{recording.nameplate.name}, recorded with {recording.estimator or 'an estimator the bag does not name'}")
+    print(f"  recorded excitation (measured): {e['kind']}"
+          + (f", {e['frequency_Hz']:.0f} Hz, {e['amplitude_V']:.3g} V" if e["kind"] != "none" else ""))
+    print("  from: " + "; ".join(f"{key} {value}" for key, value in recording.sources.items()))
     if not truth:
         print("  no ground truth (rotor_state) in this bag: scored for consistency only")
-    columns = [("samples/s", "samples_per_second", "{:,.0f}"),
-               ("exc. mismatch", "excitation_mismatch", "{:.3f}"),
-               ("observable", "observable_fraction", "{:.3f}")]
+    columns = [("samples/s", "samples_per_second", "{:,.0f}"), ("observable", "observable_fraction", "{:.3f}")]
     if truth:
         columns += [("RMS [rad]", "angle_error_rms", "{:.4f}"), ("bias [rad]", "angle_error_bias", "{:+.4f}"),
                     ("peak [rad]", "angle_error_peak", "{:.4f}"), ("speed RMS", "speed_error_rms", "{:.3f}"),
                     ("lock [s]", "time_to_lock_s", "{:.4f}")]
-    print(f"  {'estimator':16s}" + "".join(f"{label:>14s}" for label, _, _ in columns))
+    columns.append(("lost", "lost", "{}"))
+    print(f"  {'estimator':22s}" + "".join(f"{label:>12s}" for label, _, _ in columns))
     for e in entries:
         cells = ["n/a" if e.get(key) is None else fmt.format(e[key]) for _, key, fmt in columns]
-        print(f"  {e['estimator']:16s}" + "".join(f"{c:>14s}" for c in cells)
-              + (f"   not applicable: {e['not_applicable']}" if e["not_applicable"] else ""))
+        print(f"  {e['estimator']:22s}" + "".join(f"{c:>12s}" for c in cells)
+              + ("" if e["applicable"] else "   not applicable"))
+    for e in entries:
+        print(f"  {e['estimator']}: {'' if e['applicable'] else 'NOT APPLICABLE: '}{e['reason']}")
     shown = {label for label, _, _ in columns}
     for label, explanation in REPLAY_COLUMNS:
         if label in shown:
-            print(f"  {label:>14s}: {explanation}")
+            print(f"  {label:>12s}: {explanation}")
     for key in ("plot", "json"):
         if key in report:
             print(f"  {key}: {report[key]}")
+    return 0
+
+
+def _replay_corpus(bags, names, args):
+    """Every bag of a corpus replayed; one summary row per estimator."""
+    from drive_evaluation.replay import replay, summarise
+    from drive_runner.runner import terminal_progress
+
+    per_bag = []
+    progress = terminal_progress(f"replay of {len(bags)} bags")
+    for i, bag in enumerate(bags):
+        recording = _recording(bag, args)
+        entries, _ = replay(recording, names)
+        per_bag.append({**recording.report(), "results": entries})
+        if progress:
+            progress((i + 1) / len(bags))
+    summary = summarise(per_bag, names)
+    report = {"benchmark": "replay corpus", "pattern": args.bag, "bags": len(bags), "summary": summary,
+              "per_bag": per_bag}
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "replay_corpus.json").write_text(dumps(report, indent=2))
+        report["json"] = str(out / "replay_corpus.json")
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"replay of {len(bags)} bags ({args.bag})")
+    print(f"  {'estimator':22s}{'scored':>8s}{'n/a':>5s}{'lost':>6s}{'RMS med':>10s}{'RMS worst':>11s}"
+          f"{'bias med':>10s}{'bias worst':>11s}{'peak med':>10s}{'peak worst':>11s}{'samples/s':>12s}")
+
+    def cell(value, fmt):
+        return "n/a" if value is None else fmt.format(value)
+    for row in summary:
+        print(f"  {row['estimator']:22s}{row['scored']:8d}{row['not_applicable']:5d}{row['lost']:6d}"
+              f"{cell(row['rms_median'], '{:.4f}'):>10s}{cell(row['rms_worst'], '{:.4f}'):>11s}"
+              f"{cell(row['bias_median'], '{:+.4f}'):>10s}{cell(row['bias_worst'], '{:+.4f}'):>11s}"
+              f"{cell(row['peak_median'], '{:.4f}'):>10s}{cell(row['peak_worst'], '{:.4f}'):>11s}"
+              f"{cell(row['samples_per_second_min'], '{:,.0f}'):>12s}")
+    print("  scored: bags where it is applicable and the bag has ground truth; n/a: bags where it is not "
+          "applicable; lost: real losses of lock; worst bias: the largest magnitude; samples/s: the slowest bag")
+    if "json" in report:
+        print(f"  json: {report['json']}")
     return 0
 
 
@@ -899,9 +976,9 @@ def cmd_bench_blocks(args):
     return _exit_code(report["interrupted"])
 
 
-def _windows_arg(text, result=None):
+def _windows_arg(text):
     """The (t0, t1) scoring windows [s] of ``--windows T0:T1[,T0:T1...]`` (None without the option);
-    CommandLineError names the option, and the recording (``result``) a window does not fit in."""
+    CommandLineError names the option."""
     if not text:
         return None
     windows = []
@@ -913,21 +990,22 @@ def _windows_arg(text, result=None):
         if not (math.isfinite(t0) and math.isfinite(t1) and 0.0 <= t0 < t1):
             raise CommandLineError(f"--windows: T0:T1[,T0:T1...] in seconds with 0 ≤ T0 < T1, not {part!r}")
         windows.append((t0, t1))
-    if result is not None:
-        for t0, t1 in windows:
-            if t1 > result.scenario.duration_s + 1e-12:
-                raise CommandLineError(f"--windows: {t0:g}:{t1:g} s ends after the recording "
-                                       f"({result.scenario.duration_s:g} s)")
     return windows
 
 
-def _windows_report(windows, result):
-    """Where the scoring windows came from, and which they are, for a report."""
-    if windows:
-        return {"source": "--windows", "steady_s": [list(w) for w in windows]}
-    from drive_evaluation.metrics import windows as scenario_windows
-    return {"source": f"scenario {result.scenario.name}",
-            "steady_s": [list(w) for w in scenario_windows(result.scenario)[0]]}
+def _recording_options(parser):
+    """The options that supply what a bag does not say (docs/recordings.md)."""
+    parser.add_argument("--motor", metavar="PRESET|FILE",
+                        help="the motor, for a bag whose drive_config does not name one: a shipped motor or a "
+                             "YAML/JSON file of the contract's drive_config motor keys")
+    parser.add_argument("--sample-period", type=float, metavar="S",
+                        help="the sample period [s], for a bag without drive_config")
+    parser.add_argument("--commissioning", metavar="FILE", help="the drive's commissioning file (written by "
+                        "`drive commission`), or 'nameplate' (default: the scenario's, else "
+                        "commissioning/MOTOR.yaml when present, else the nameplate alone)")
+    parser.add_argument("--windows", metavar="T0:T1[,T0:T1...]",
+                        help="score these intervals [s] (default: the scenario's steady windows, else found "
+                             "automatically where the recorded speed is steady)")
 
 
 def _block_sizes(text):
@@ -1143,8 +1221,7 @@ def build_parser():
     compare = bench_sub.add_parser("compare", help="two recorded runs side by side: metrics and angle error")
     compare.add_argument("bag_a")
     compare.add_argument("bag_b")
-    compare.add_argument("--windows", metavar="T0:T1[,T0:T1...]",
-                         help="score these intervals [s] instead of the scenario's steady windows")
+    _recording_options(compare)
     compare.add_argument("--out", help="plot directory (default runs/compare)")
     compare.add_argument("--no-plot", action="store_true")
     compare.add_argument("--json", action="store_true")
@@ -1152,11 +1229,11 @@ def build_parser():
 
     rp = bench_sub.add_parser("replay",
                               help="estimators on a recording's currents, scored against its ground truth")
-    rp.add_argument("bag")
+    rp.add_argument("bag", help="a bag, a directory of bags or a glob (a corpus: one summary per estimator)")
     rp.add_argument("--estimators", help="comma-separated (default: all)")
-    rp.add_argument("--windows", metavar="T0:T1[,T0:T1...]",
-                    help="score these intervals [s] instead of the scenario's steady windows")
-    rp.add_argument("--out", help="directory for angle_error.png and replay.json (default runs/replay/BAG)")
+    _recording_options(rp)
+    rp.add_argument("--out", help="directory for angle_error.png and replay.json (default runs/replay/BAG; a "
+                                  "corpus writes replay_corpus.json only with --out)")
     rp.add_argument("--no-plot", action="store_true")
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=cmd_bench_replay)

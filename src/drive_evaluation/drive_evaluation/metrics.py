@@ -116,6 +116,12 @@ def lock_loss(t, error, start_s):
     return float(lost.sum() * T_s), (float(t[np.argmax(lost)]) if lost.any() else None)
 
 
+def reported_losses(state):
+    """How many times a state-code column enters LOCK_LOST."""
+    entered = (state == LOCK_LOST_STATE) & np.concatenate(([True], state[:-1] != LOCK_LOST_STATE))
+    return int(entered.sum())
+
+
 def startup_metrics(scenario, log, n_p):
     """The start-up as ``drive run --json`` reports it: ``completed`` (torque was allowed), ``duration_s``
     (when), ``angle_error_e_rad`` then, ``polarity_correct`` (|error| < π/2 then; None without truth),
@@ -124,9 +130,8 @@ def startup_metrics(scenario, log, n_p):
     ``lock_lost`` (times the estimator reported a lost lock)."""
     t = log[:, COLUMN["t"]]
     state = log[:, COLUMN["state"]]
-    entered = (state == LOCK_LOST_STATE) & np.concatenate(([True], state[:-1] != LOCK_LOST_STATE))
     out = {"completed": False, "duration_s": None, "angle_error_e_rad": None, "polarity_correct": None,
-           "reverse_rotation_m_rad": None, "lock_lost": int(entered.sum())}
+           "reverse_rotation_m_rad": None, "lock_lost": reported_losses(state)}
     tracking = np.nonzero(state == TRACKING_STATE)[0]
     if not tracking.size:
         return out
@@ -147,6 +152,28 @@ def startup_metrics(scenario, log, n_p):
     return out
 
 
+def angle_scores(log, n_p, steady, start_s):
+    """What any recording is scored by, scenario or not: angle error RMS and bias over the ``steady``
+    windows ((t0, t1) [s]), its peak after ``start_s``, speed estimation error RMS over the windows, time
+    with the lock lost (|error| > π/2) after ``start_s`` and when first, the fraction of samples after
+    ``start_s`` the estimator reports tracking, and the lock losses it reported. None where the log has
+    no ground truth."""
+    t = log[:, COLUMN["t"]]
+    error = angle_error(log, n_p)
+    steady_mask = _mask(t, steady)
+    evaluated = t >= start_s
+    rms, bias, _ = _stats(error[steady_mask])
+    _, _, peak = _stats(error[evaluated])
+    speed_estimation_error = log[:, COLUMN["omega_m"]] - log[:, COLUMN["omega_e_hat"]] / n_p
+    lock_lost_s, lock_lost_at_s = lock_loss(t, error, start_s)
+    state = log[:, COLUMN["state"]]
+    return {"angle_error_rms": rms, "angle_error_bias": bias, "angle_error_peak": peak,
+            "speed_error_rms": _stats(speed_estimation_error[steady_mask])[0],
+            "lock_lost_s": lock_lost_s, "lock_lost_at_s": lock_lost_at_s,
+            "observable_fraction": float(np.mean(state[evaluated] == TRACKING_STATE)) if evaluated.any() else None,
+            "lock_lost": reported_losses(state)}
+
+
 def compute_metrics(result, steady_windows=None):
     """The metrics dictionary printed by ``drive run`` (SI units: rad, rad/s, s). ``steady_windows``:
     the (t0, t1) intervals [s] to score instead of the scenario's (no transient windows then)."""
@@ -155,16 +182,12 @@ def compute_metrics(result, steady_windows=None):
     error = angle_error(log, n_p)
     steady, transient = windows(scenario) if steady_windows is None else (list(steady_windows), [])
     steady_mask = _mask(t, steady)
-    transient_mask = _mask(t, transient)
-    evaluated = t >= scenario.metrics_start_s
-    rms, bias, peak_steady = _stats(error[steady_mask])
-    _, _, peak_transient = _stats(error[transient_mask])
-    _, _, peak = _stats(error[evaluated])
-    speed_estimation_error = log[:, COLUMN["omega_m"]] - log[:, COLUMN["omega_e_hat"]] / n_p
+    scores = angle_scores(log, n_p, steady, scenario.metrics_start_s)
+    _, _, peak_steady = _stats(error[steady_mask])
+    _, _, peak_transient = _stats(error[_mask(t, transient)])
     speed_tracking_error = log[:, COLUMN["omega_m_ref"]] - log[:, COLUMN["omega_m"]]
     steps = settling_times(scenario, log)
     settling_time, settling_note = settling_summary(steps)
-    lock_lost_s, lock_lost_at_s = lock_loss(t, error, scenario.metrics_start_s)
     startup = startup_metrics(scenario, log, n_p)
     startup["refused"] = (getattr(result, "startup", None) or {}).get("refused")
     per_window = []
@@ -179,20 +202,19 @@ def compute_metrics(result, steady_windows=None):
         "duration_s": scenario.duration_s,
         "samples": int(log.shape[0]),
         "current_limit_A": result.current_limit_A,
-        "angle_error_rms": rms,
-        "angle_error_bias": bias,
-        "angle_error_peak": peak,
+        "angle_error_rms": scores["angle_error_rms"],
+        "angle_error_bias": scores["angle_error_bias"],
+        "angle_error_peak": scores["angle_error_peak"],
         "angle_error_peak_steady": peak_steady,
         "angle_error_peak_transient": peak_transient,
-        "speed_error_rms": _stats(speed_estimation_error[steady_mask])[0],
+        "speed_error_rms": scores["speed_error_rms"],
         "speed_tracking_error_rms": _stats(speed_tracking_error[steady_mask])[0],
         "settling_time_s": settling_time,
         "settling_note": settling_note,
         "speed_steps": steps,
-        "lock_lost_s": lock_lost_s,
-        "lock_lost_at_s": lock_lost_at_s,
-        "observable_fraction": (float(np.mean(log[evaluated, COLUMN["state"]] == TRACKING_STATE))
-                                if evaluated.any() else None),
+        "lock_lost_s": scores["lock_lost_s"],
+        "lock_lost_at_s": scores["lock_lost_at_s"],
+        "observable_fraction": scores["observable_fraction"],
         "startup": startup,
         "lock_lost": startup["lock_lost"],
         "steady_windows": per_window,

@@ -1,124 +1,175 @@
 """``drive bench replay``: estimators run on a recording's measured currents and applied voltages,
-scored against the recording's ground truth.
+scored against its ground truth (docs/recordings.md).
 
-What replay measures: how each estimator demodulates and tracks the currents the motor really drew.
-What it cannot: the estimator under test does not steer the recorded excitation. Every method
-superimposes its own injection, and the paper methods inject along their own estimated axis. The
-recorded currents therefore answer the recorded estimator's injection, not theirs. The
-``excitation_mismatch`` column says how far each estimator's requested injection is from the one that
-was applied (0: the same excitation, so a faithful replay). Closed-loop comparison is `drive run`.
+Replay cannot steer the recorded voltage: each estimator meets the excitation the recording drive
+applied. Whether that measures it depends on what it needs (hf_estimator EXCITATION_NEEDS): a
+demodulating method needs its own carrier on its own estimated axis, which only the recording's own
+estimator had (another one's q̂ current follows the recorded injection axis through the Σ term, so its
+replay would measure the recording's estimator); ours fits the admittance to any known voltage, the Σ
+term included; ``sensored`` needs the ground truth. Only applicable estimators are scored, and ``lost``
+means a real loss of lock (|θ_e − θ̂_e| > π/2 from the first scored window on, with ground truth; else a
+loss the estimator reported there). An estimator other than the recording's cannot run its own polarity
+test on a recording: it takes the magnet's polarity as the recording drive resolved it once that drive
+tracks (hf_estimator.startup item 5).
 """
-import dataclasses
 import math
 import time
 
 import numpy as np
 
-from drive_bags.common import BagError
-from drive_bags.reader import bag_result, has_ground_truth
+from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
 from drive_runner.loop import replay_samples
-from drive_runner.runner import RunResult, build_drive
+from drive_runner.runner import RunResult
+from hf_estimator.interface import excitation_need, injects, make_estimator
 
-from .metrics import angle_error, compute_metrics
+from .excitation import MAX_CARRIER_PHASE_RAD, MIN_CARRIER_FRACTION, carrier_match
+from .metrics import _mask, angle_error, angle_scores, reported_losses
 
-MAX_APPLICABLE_MISMATCH = 0.2
-"""Replay measures an estimator when the injection it asks for is within this relative RMS of the
-recorded one (its currents then answer an excitation close to its own)."""
 TIMED_RUNS = 3
 """Each estimator replays the bag this many times from its fresh state; the fastest run is reported."""
 OUTPUTS = ("theta_e_hat", "omega_e_hat", "u_inj_alpha", "u_inj_beta", "eps", "signal", "state")
 LOCK_BAND_RAD = math.pi / 8
 """Time to lock: from the start until |angle error| stays within this band to the end. Every saliency
 tracker's error signal goes as sin 2Δθ; within π/8 its slope is still ≥ 0.71 of the small-signal one."""
+SCORED = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms")
 
 
-def replay_inputs(recorded, path):
-    """(currents n × 3, the voltage applied in the period before each sample n × 2) from a recorded log
-    (the command of d + 1 samples before, d the recorded drive's delay); a BagError names what is
-    missing."""
-    log = recorded.log
+def replay_inputs(recording):
+    """(currents n × 3, the voltage applied in the period before each sample n × 2) of a Recording (the
+    command of d + 1 samples before, d the recording drive's delay); a BagError names what is missing."""
+    from drive_bags.common import BagError
+    log = recording.log
     currents = log[:, [COLUMN["i_a_meas"], COLUMN["i_b_meas"], COLUMN["i_c_meas"]]]
     voltage = log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]]
-    injection = log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]]
-    for name, values in (("currents", currents), ("voltage_command", voltage), ("injection", injection)):
+    for name, values in (("currents", currents), ("voltage_command", voltage)):
         missing = int(np.isnan(values[:, 0]).sum())
         if missing:
-            raise BagError(f"{path}: {name}: {missing} of {len(values)} samples missing; replay needs "
-                           f"every one")
-    lag = recorded.scenario.drive_delay_periods() + 1
+            raise BagError(f"{recording.path}: {name}: {missing} of {len(values)} samples missing; replay "
+                           f"needs every one")
+    lag = recording.delay_periods + 1
     u_applied = np.zeros((len(voltage), 2))
     u_applied[lag:] = voltage[:-lag]
     return np.ascontiguousarray(currents), u_applied
 
 
-def replay(path, estimators, steady_windows=None, recorded=None):
-    """Replay each estimator on the bag (``recorded``: its RunResult when already read), scored over
-    ``steady_windows`` ((t0, t1) [s]; None: the scenario's); returns (recorded RunResult, [entry dict],
-    [replayed RunResult])."""
-    recorded = recorded or bag_result(path)
-    currents, u_applied = replay_inputs(recorded, path)
-    truth = has_ground_truth(recorded.log)
-    theta_m = np.ascontiguousarray(recorded.log[:, COLUMN["theta_m"]])
-    omega_m = np.ascontiguousarray(recorded.log[:, COLUMN["omega_m"]])
-    applied = recorded.log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]]
+def replayed_estimator(recording, name):
+    """The estimator ``name`` built as the recording drive would have built it (its motor, sample period,
+    delay, commissioning and injection); the recording's own estimator keeps its recorded settings and
+    start-up, any other takes the polarity from the recording."""
+    settings = dict(recording.estimator_settings) if name == recording.estimator else {}
+    if injects(name):
+        settings = {**recording.injection, **settings}
+        if name != recording.estimator:
+            settings["polarity_from_recording"] = True
+    return make_estimator(name, recording.nameplate, recording.T_s, settings, recording.commissioning,
+                          recording.delay_periods)
+
+
+def applicability(recording, name, frequency, requested, scored):
+    """(applicable, reason) of replaying the estimator ``name`` (its carrier ``frequency`` [Hz]) on the
+    recording; ``requested``: the injection it asked for in the replay (n × 2), ``scored``: the scored
+    samples."""
+    need = excitation_need(name)
+    excitation = recording.excitation
+    if need == "encoder":
+        if recording.ground_truth:
+            return True, "reads the recorded ground truth as its encoder"
+        return False, "needs the ground truth (rotor_state) as its encoder; the bag has none"
+    if excitation["kind"] == "none":
+        return False, "the recording holds no injection, and this estimator needs one"
+    described = f"{excitation['kind']} injection at {excitation['frequency_Hz']:.0f} Hz"
+    if need == "any":
+        return True, f"fits any injection whose voltage is known; the recording's: {described}"
+    if name == recording.estimator:
+        return True, "the recording's own estimator on its own excitation (a faithful replay)"
+    share, phase = carrier_match(recording.log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]], requested,
+                                 frequency, recording.T_s, scored)
+    if share >= MIN_CARRIER_FRACTION and phase is not None and phase <= MAX_CARRIER_PHASE_RAD:
+        return False, (f"its carrier is in the recording ({share:.0%} of the recorded carrier at {frequency:.0f} Hz, "
+                       f"{math.degrees(phase):.0f}° from its carrier phase), but on the recording estimator's "
+                       f"axis: its demodulated q̂ current follows that axis (the Σ·sin(θ̂_rec − θ̂) term), so "
+                       f"replay would measure the recording's estimator, not it")
+    found = f"{share:.0%} at {frequency:.0f} Hz" + (f", {math.degrees(phase):.0f}° from its carrier phase"
+                                                     if phase is not None else "")
+    return False, (f"demodulates its own carrier on its own axis; the recording holds a {described} ({found})")
+
+
+def replay(recording, estimators):
+    """Replay each estimator on a Recording (drive_evaluation.recording) → ([entry dict], [RunResult])."""
+    currents, u_applied = replay_inputs(recording)
+    log0 = recording.log
+    truth = recording.ground_truth
+    n_p = recording.n_p
+    encoder = (np.ascontiguousarray(n_p * log0[:, COLUMN["theta_m"]]),
+               np.ascontiguousarray(n_p * log0[:, COLUMN["omega_m"]]))
+    unresolved = log0[:, COLUMN["state"]] != TRACKING
+    unresolved &= np.isfinite(log0[:, COLUMN["state"]])
+    estimate = (np.ascontiguousarray(np.where(unresolved, np.nan, log0[:, COLUMN["theta_e_hat"]])),
+                np.ascontiguousarray(log0[:, COLUMN["omega_e_hat"]]))
+    t = log0[:, COLUMN["t"]]
+    scored = _mask(t, recording.windows)
     entries, results = [], []
     for name in estimators:
-        scenario = dataclasses.replace(recorded.scenario, estimator=name, estimator_settings={})
-        drive = build_drive(scenario)
-        e, calibration = drive.estimator, drive.commissioning.calibration()
-        n_p = recorded.n_p
+        e = replayed_estimator(recording, name)
+        theta_ref, omega_ref = encoder if excitation_need(name) == "encoder" else estimate
+        calibration = recording.commissioning.calibration()
         out = np.zeros((len(currents), len(OUTPUTS)))
-        replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, n_p, currents[:2], u_applied[:2], theta_m[:2],
-                       omega_m[:2], calibration, out[:2])
+        replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, currents[:2], u_applied[:2], theta_ref[:2],
+                       omega_ref[:2], calibration, out[:2])
         wall = math.inf
         for _ in range(TIMED_RUNS):
             x, z = e.x.copy(), e.z.copy()
             start = time.perf_counter()
-            replay_samples(e.step, x, z, e.params, n_p, currents, u_applied, theta_m, omega_m, calibration, out)
+            replay_samples(e.step, x, z, e.params, currents, u_applied, theta_ref, omega_ref, calibration, out)
             wall = min(wall, time.perf_counter() - start)
-        log = recorded.log.copy()
+        log = log0.copy()
         for j, column in enumerate(OUTPUTS):
             log[:, COLUMN[column]] = out[:, j]
-        result = RunResult(scenario, name, log, wall, recorded.current_limit_A)
-        metrics = compute_metrics(result, steady_windows)
-        mismatch = _relative_rms(out[:, 2:4] - applied, applied)
-        entry = {"estimator": name, "samples": len(currents), "samples_per_second": len(currents) / wall,
-                 "excitation_mismatch": mismatch, "observable_fraction": metrics["observable_fraction"],
-                 "not_applicable": _not_applicable(mismatch, out[:, 2:4])}
-        if truth:
-            scored = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms")
-            entry.update({key: metrics[key] for key in scored})
-            entry["time_to_lock_s"] = time_to_lock(result)
+        applicable, reason = applicability(recording, name, e.injection_frequency_Hz, out[:, 2:4], scored)
+        scores = angle_scores(log, n_p, recording.windows, recording.start_s)
+        entry = {"estimator": name, "applicable": applicable, "reason": reason, "samples": len(currents),
+                 "samples_per_second": len(currents) / wall,
+                 "observable_fraction": scores["observable_fraction"] if applicable else None}
+        if applicable:
+            if truth:
+                entry.update({key: scores[key] for key in SCORED})
+                entry["time_to_lock_s"] = time_to_lock(log, n_p)
+                entry["lost"] = bool(scores["lock_lost_s"])
+            else:
+                entry["lost"] = bool(reported_losses(log[t >= recording.start_s, COLUMN["state"]]))
         entries.append(entry)
-        results.append(result)
-    return recorded, entries, results
+        results.append(RunResult(recording.scenario, name, log, wall, math.nan, pole_pairs=n_p))
+    return entries, results
 
 
-def time_to_lock(result):
+def time_to_lock(log, n_p):
     """Seconds until |θ_e − θ̂_e| stays within LOCK_BAND_RAD to the end; None if it never does."""
-    outside = np.abs(angle_error(result.log, result.n_p)) > LOCK_BAND_RAD
+    outside = np.abs(angle_error(log, n_p)) > LOCK_BAND_RAD
     if outside[-1]:
         return None
-    t = result.log[:, COLUMN["t"]]
+    t = log[:, COLUMN["t"]]
     return float(t[np.nonzero(outside)[0][-1] + 1]) if outside.any() else 0.0
 
 
-def _relative_rms(difference, reference):
-    """RMS of ``difference`` over RMS of ``reference``; 0 when both are zero, None when only the
-    reference is."""
-    scale = float(np.sqrt(np.mean(reference ** 2)))
-    spread = float(np.sqrt(np.mean(difference ** 2)))
-    if scale > 0.0:
-        return spread / scale
-    return 0.0 if spread == 0.0 else None
-
-
-def _not_applicable(mismatch, requested):
-    """Why replay on this bag does not measure an estimator (None when it does): the bag has no
-    injection and the estimator needs one, or its injection differs from the recorded one."""
-    if mismatch is None:
-        return "the recording has no injection and this estimator needs one"
-    if mismatch > MAX_APPLICABLE_MISMATCH:
-        return f"its injection differs from the recorded one (excitation mismatch {mismatch:.2f})"
-    return None
+def summarise(per_bag, estimators):
+    """One row per estimator over a corpus (``per_bag``: [{..., "results": replay entries}]): bags scored
+    (applicable, with ground truth), not applicable, real lock losses, median and worst RMS, bias (worst:
+    the largest magnitude) and peak, and the slowest replay speed."""
+    rows = []
+    for name in estimators:
+        entries = [e for bag in per_bag for e in bag["results"] if e["estimator"] == name]
+        scored = [e for e in entries if e["applicable"] and e.get("angle_error_rms") is not None]
+        found = {key: [e[key] for e in scored if e.get(key) is not None]
+                 for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak")}
+        median = {key: float(np.median(v)) if v else None for key, v in found.items()}
+        worst = {key: float(max(v, key=abs)) if v else None for key, v in found.items()}
+        speeds = [e["samples_per_second"] for e in entries]
+        rows.append({"estimator": name, "bags": len(entries), "scored": len(scored),
+                     "not_applicable": sum(not e["applicable"] for e in entries),
+                     "lost": sum(bool(e.get("lost")) for e in entries),
+                     "rms_median": median["angle_error_rms"], "rms_worst": worst["angle_error_rms"],
+                     "bias_median": median["angle_error_bias"], "bias_worst": worst["angle_error_bias"],
+                     "peak_median": median["angle_error_peak"], "peak_worst": worst["angle_error_peak"],
+                     "samples_per_second_min": min(speeds) if speeds else None})
+    return rows

@@ -95,16 +95,18 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
 
 
 @njit
-def replay_samples(est_step, ex, ez, ep, n_p, currents, u_applied, theta_m, omega_m, calibration, out):
+def replay_samples(est_step, ex, ez, ep, currents, u_applied, theta_e_reference, omega_e_reference, calibration,
+                   out):
     """Run an estimator over recorded samples: ``currents`` (n × 3, measured a, b, c; corrected by the
     commissioned ``calibration`` as in the drive), ``u_applied`` (n × 2, the voltage command that acted
     in the period before each sample: the command of d + 1 samples before, d the recorded drive's delay),
-    the recorded ground truth θ_m, ω_m (read only by `sensored`; NaN becomes 0). ``out`` rows receive
-    θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, state."""
+    and the electrical angle and speed handed to the kernel's encoder inputs (``sensored`` reads the
+    recorded ground truth there; an injecting estimator replayed with ``polarity_from_recording`` reads the
+    recorded drive's estimate, hf_estimator.startup item 5). ``out`` rows receive θ̂_e, ω̂_e, u_inj_α,
+    u_inj_β, ε, signal, state."""
     for k in range(currents.shape[0]):
-        theta = theta_m[k] if theta_m[k] == theta_m[k] else 0.0
-        omega = omega_m[k] if omega_m[k] == omega_m[k] else 0.0
         c_a, c_b, c_c = corrected_currents(currents[k, 0], currents[k, 1], currents[k, 2], calibration)
-        result = est_step(ex, ez, ep, k, c_a, c_b, c_c, u_applied[k, 0], u_applied[k, 1], n_p * theta, n_p * omega)
+        result = est_step(ex, ez, ep, k, c_a, c_b, c_c, u_applied[k, 0], u_applied[k, 1], theta_e_reference[k],
+                          omega_e_reference[k])
         for j in range(7):
             out[k, j] = result[j]

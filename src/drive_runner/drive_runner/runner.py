@@ -40,10 +40,13 @@ class RunResult:
     """The start-up's own account at the end (hf_estimator.startup.startup_summary), for an injecting
     estimator run in process."""
 
+    pole_pairs: int = None
+    """Pole pairs of a recording's motor when it has no scenario (None: the scenario's motor's)."""
+
     @property
     def n_p(self):
         """Pole pairs of the run's motor (its nameplate)."""
-        return nameplate(self.scenario.motor).n_p
+        return self.pole_pairs or nameplate(self.scenario.motor).n_p
 
 
 @dataclass

@@ -75,7 +75,7 @@ def conventional_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
-                                          u_beta, eps, observable)
+                                          u_beta, eps, observable, theta_e_encoder)
     return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state
 
 

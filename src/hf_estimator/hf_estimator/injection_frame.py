@@ -24,6 +24,11 @@ design).
    in radians whatever the saliency (s = −1 where the commissioning found L_dh > L_qh), and
    |Δ̂| = ½ hypot(g_dd − g_qq, 2g_dq) against Σ̂ = ½(g_dd + g_qq) is a model-free observability measure.
    The ±δ axes make g_qq and g_dq identifiable.
+3b. Any other excitation whose voltage is known (a recording's): where the window's voltage excites one
+   axis only (a pulsating injection on another estimator's d̂), g_qq cannot be told; Σ is taken from the
+   commissioning and Δ̂ cos 2e, Δ̂ sin 2e are fitted from the same sums
+   ((Δ cos 2e)·(aa + bb) = a·y₁ − b·y₂ − Σ(aa − bb), (Δ sin 2e)·(aa + bb) = b·y₁ + a·y₂ − 2Σ·ab, y in units
+   of T_s·U_h). An error in Σ scales e there, it adds no bias. Replay uses this (docs/recordings.md).
 4. Load turns the saliency axis (cross-saturation: 0.09 rad at rated current on `wang_spmsm`, 0.3 rad
    at 1.5× rated). The commissioned shift δ(i_q) is subtracted at the q current of the fit window
    (ε = e − δ(î_q), î_q low-passed in the θ̂ frame). Load also makes the axis turn back as the rotor
@@ -76,6 +81,9 @@ ALIGN_JUMP_RAD = 0.2
 (well above one fit's noise). The commands of d + 1 samples are then still aimed at the old axis: the
 next fit waits until at most half its window (N of 2N samples) holds them, or with the long delay of
 blocks it would measure the old error again and jump twice."""
+MIN_EXCITATION_SPREAD = 0.1
+"""4 det/trace² of the fit window's voltage covariance (0: one axis excited, 1: both alike; ours' ±δ axes
+give 0.5): below this the window cannot tell g_qq apart and Σ is taken from the commissioning (item 3b)."""
 HF_RIPPLE_MAX_PER_RATED = 0.5
 """The largest HF current ripple U_h·Σ/ω_h ours allows itself when it raises its amplitude, per rated
 current (Wang's own reversal runs at 0.38)."""
@@ -125,6 +133,8 @@ class InjectionFrameParams(NamedTuple):
     dead_time_voltage_V: float
     """Commissioned per-phase dead-time voltage subtracted from the applied voltage (0: not modelled)."""
     dead_time_smoothing_A: float
+    sigma_per_H: float
+    """Commissioned Σ = ½(1/L_dh + 1/L_qh) [1/H], the admittance's mean where one axis alone is excited."""
     saliency_sign: float
     """+1 when the commissioned L_dh < L_qh (or no saliency known), −1 when L_dh > L_qh: the d axis is then
     the axis of the smaller admittance."""
@@ -142,19 +152,22 @@ def _fit_error(x, n, p):
     by2 = x[SUMS + 8] - s_b * s_y2 / n
     mixed = x[SUMS + 9] - (s_b * s_y1 + s_a * s_y2) / n
     # Normal equations for (g_dd, g_qq, g_dq): [[aa, 0, ab], [0, bb, ab], [ab, ab, aa + bb]].
+    if aa + bb <= 0.0:
+        return 0.0, 0.0, 0.0
+    scale = 1.0 / (p.T_s_s * p.U_h_V)
+    s = p.saliency_sign
+    if 4.0 * (aa * bb - ab * ab) < MIN_EXCITATION_SPREAD * (aa + bb) ** 2:
+        # One axis excited (a pulsating injection): Σ from the commissioning, (Δ cos 2e, Δ sin 2e) fitted.
+        sigma = p.sigma_per_H
+        half_difference = (scale * (ay1 - by2) - sigma * (aa - bb)) / (aa + bb)
+        g_dq = (scale * mixed - 2.0 * sigma * ab) / (aa + bb)
+        return (0.5 * math.atan2(s * g_dq, s * half_difference), math.hypot(half_difference, g_dq), sigma)
     m00, m02, m11, m12, m22 = aa, ab, bb, ab, aa + bb
     det = m00 * (m11 * m22 - m12 * m12) - m02 * m02 * m11
-    if abs(det) <= 1e-12 * (aa + bb) ** 3 or aa + bb <= 0.0:
-        return 0.0, 0.0, 0.0
-    g_dd = (ay1 * (m11 * m22 - m12 * m12) + m02 * (by2 * m12 - m11 * mixed)) / det
-    g_qq = (m00 * (by2 * m22 - m12 * mixed) + m02 * (m12 * ay1 - m02 * by2)) / det
-    g_dq = (m00 * (m11 * mixed - by2 * m12) - m02 * m11 * ay1) / det
-    scale = 1.0 / (p.T_s_s * p.U_h_V)
-    g_dd *= scale
-    g_qq *= scale
-    g_dq *= scale
+    g_dd = scale * (ay1 * (m11 * m22 - m12 * m12) + m02 * (by2 * m12 - m11 * mixed)) / det
+    g_qq = scale * (m00 * (by2 * m22 - m12 * mixed) + m02 * (m12 * ay1 - m02 * by2)) / det
+    g_dq = scale * (m00 * (m11 * mixed - by2 * m12) - m02 * m11 * ay1) / det
     half_difference = 0.5 * (g_dd - g_qq)
-    s = p.saliency_sign
     return (0.5 * math.atan2(s * g_dq, s * half_difference), math.hypot(half_difference, g_dq),
             0.5 * (g_dd + g_qq))
 
@@ -232,13 +245,13 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_b
     x[issued + k % depth] = axis_now
     u_alpha, u_beta = rotate(p.U_h_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
-                                          u_beta, eps, observable)
+                                          u_beta, eps, observable, theta_e_encoder)
     return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, x[DELTA_SMOOTH], state
 
 
 @register("injection_frame", "ours: incremental admittance fitted from current steps and the applied "
                              "voltage in the injection frame; alternating axis; model-free observability",
-          "ours, after docs/hf-demodulation.md §2-4")
+          "ours, after docs/hf-demodulation.md §2-4", excitation="any")
 def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods):
     s = check_settings("injection_frame", settings, DEFAULTS, T_s)
     N = int(round(1.0 / (float(s["frequency_Hz"]) * T_s)))
@@ -259,7 +272,7 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods)
         shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad,
         dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] else 0.0,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
-        saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0, startup=startup)
+        sigma_per_H=commissioning.sigma, saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0, startup=startup)
     x = np.zeros(base + startup_size(startup))
     startup_reset(x, startup)
     return Estimator("injection_frame", injection_frame_step, params, x, np.zeros((1, 1, 2)),

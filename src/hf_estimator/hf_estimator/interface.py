@@ -61,12 +61,20 @@ class Estimator:
 _REGISTRY = {}
 
 
-def register(name, description, paper, injects=True):
+EXCITATION_NEEDS = {"carrier": "its own carrier: a pulsating injection at its frequency and carrier phase, which it "
+                              "demodulates",
+                   "any": "any injection whose voltage is known (it fits the admittance to the applied voltage)",
+                   "encoder": "no injection; the ground truth (rotor_state) as its encoder"}
+"""What an estimator needs of a recording's excitation to be measured by replaying it (docs/recordings.md)."""
+
+
+def register(name, description, paper, injects=True, excitation="carrier"):
     """Register ``factory(nameplate, T_s, settings, commissioning, delay_periods) -> Estimator``
     from the module named ``name``; ``paper``: the section it implements; ``injects``: it takes the
-    settings frequency_Hz and amplitude_V for its HF injection."""
+    settings frequency_Hz and amplitude_V for its HF injection; ``excitation``: what it needs of a
+    recording (EXCITATION_NEEDS)."""
     def wrap(factory):
-        _REGISTRY[name] = (factory, description, injects, paper)
+        _REGISTRY[name] = (factory, description, injects, paper, excitation)
         return factory
     return wrap
 
@@ -81,13 +89,18 @@ def injects(name):
     return _entry(name)[2]
 
 
+def excitation_need(name):
+    """What the estimator ``name`` needs of a recording's excitation (a key of EXCITATION_NEEDS)."""
+    return _entry(name)[4]
+
+
 def estimator_names():
     return sorted(_REGISTRY)
 
 
 def describe(name):
     """{name, description, paper, module} of a registered estimator."""
-    factory, description, _, paper = _entry(name)
+    factory, description, _, paper, _ = _entry(name)
     return {"name": name, "description": description, "paper": paper, "module": factory.__module__}
 
 
@@ -168,6 +181,7 @@ SETTING_CHECKS = {
     "backemf_polarity_ratio": lambda key, value, T_s: positive(key, value),
     "slip_at_s": lambda key, value, T_s: number(key, value, -1.0, None, low_inclusive=True),
     "slip_rad": lambda key, value, T_s: number(key, value, -2.0 * math.pi, 2.0 * math.pi, low_inclusive=True),
+    "polarity_from_recording": lambda key, value, T_s: flag(key, value),
 }
 """How each estimator setting is checked: (key, value, T_s) → the value, or ValueError naming the key."""
 

@@ -36,6 +36,12 @@ only once TRACKING has been reached (HOLD after it keeps torque; the estimate co
    turning), a straight line fitted to its angle in the stationary frame gives the rotor's speed and
    angle, polarity included, and θ̂, ω̂ restart there. Then a new start-up (an alignment that times out
    counts as another loss), at most ``max_restarts`` times; then it stays at zero torque (refused).
+5. Replay (``polarity_from_recording``): an estimator replayed on a recording cannot steer its voltage, so
+   neither the quiet time nor the pulses happen. Once aligned it takes the magnet's polarity as the
+   recording drive resolved it: θ̂ or θ̂ + π, whichever is nearer the recorded estimate (never its angle
+   beyond that choice). Where the recording has not resolved it (no estimate, or its estimator not yet
+   tracking: NaN) the back-EMF at speed decides; at standstill the estimator stays aligning, tracking on its
+   own loop, until one of the two can tell. Then the flush and tracking as above.
 """
 import math
 from typing import NamedTuple
@@ -43,7 +49,7 @@ from typing import NamedTuple
 from numba import njit
 
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
-from control_math.frames import inverse_clarke, rotate
+from control_math.frames import inverse_clarke, rotate, wrap
 from drive_interface.estimator_states import ALIGNING, HOLD, LOCK_LOST, POLARITY, STATE_NAMES, TRACKING
 from motor_params.commissioning import NAMEPLATE_ONLY
 from motor_params.nameplate import INVERTER_RATINGS
@@ -65,8 +71,10 @@ DEFAULTS = {"align_tolerance_rad": 0.05, "settle_s": 3e-3, "align_timeout_s": 0.
             "pulse_current_per_rated": 0.7, "pulse_s": 5e-4, "pulse_sequences": 2, "polarity_margin": 0.01,
             "polarity_tries": 3,
             "flush_s": 6e-3, "lock_filter_Hz": 100.0, "lock_persist_s": 5e-3, "lost_hold_s": 0.01,
-            "max_restarts": 3, "backemf_polarity_ratio": 3.0, "slip_at_s": -1.0, "slip_rad": math.pi}
-"""Start-up settings (estimator settings of every injecting estimator; slip_* force a slip of θ̂, a test)."""
+            "max_restarts": 3, "backemf_polarity_ratio": 3.0, "slip_at_s": -1.0, "slip_rad": math.pi,
+            "polarity_from_recording": False}
+"""Start-up settings (estimator settings of every injecting estimator; slip_* force a slip of θ̂, a test;
+``polarity_from_recording``: replay, item 5)."""
 ALIGN_SMOOTHING_S = 2e-3
 """Time constant of the smoothed error the alignment is judged by."""
 MOVING_TOLERANCE_FACTOR = 4.0
@@ -118,6 +126,7 @@ class StartupParams(NamedTuple):
     backemf_polarity_ratio: float
     slip_at_sample: int
     slip_rad: float
+    polarity_from_recording: bool
 
 
 @njit(cache=True)
@@ -166,7 +175,7 @@ def make_startup(base, nameplate, commissioning, T_s, delay_periods, error_gain,
         lost_hold_samples=samples(s["lost_hold_s"]), max_restarts=int(s["max_restarts"]),
         backemf_polarity_ratio=s["backemf_polarity_ratio"],
         slip_at_sample=int(round(s["slip_at_s"] / T_s)) if s["slip_at_s"] >= 0.0 else -1,
-        slip_rad=s["slip_rad"])
+        slip_rad=s["slip_rad"], polarity_from_recording=bool(s["polarity_from_recording"]))
 
 
 @njit(cache=True)
@@ -327,10 +336,12 @@ def _lost(x, p, k):
 
 @njit(cache=True)
 def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_inj_alpha, u_inj_beta, eps,
-                 observable):
+                 observable, theta_e_recorded):
     """Supervise sample k after the estimator's own step: the measured currents (α, β) [A], the voltage
     applied in the period before sample k [V], the estimator's injection for the coming period [V], its ε
-    and observable flag. May turn or hold θ̂ (x[0]) and its integrator (x[1]). Returns (u_inj_α, u_inj_β, state code)."""
+    and observable flag; ``theta_e_recorded``: in replay, the recording drive's own estimate θ̂_e [rad] (NaN
+    where the bag has none), read only with ``polarity_from_recording``. May turn or hold θ̂ (x[0]) and its
+    integrator (x[1]). Returns (u_inj_α, u_inj_β, state code)."""
     b = p.base
     if k == p.slip_at_sample:
         _turn(x, p, p.slip_rad)
@@ -370,9 +381,16 @@ def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_in
             x[b + HELD_AT] = k
             x[b + SCORE] = 0.0
             x[b + SPAN] = 0.0
-            if abs(x[INTEGRAL]) * p.psi_f_Wb > p.backemf_polarity_ratio * p.lock_threshold_V:
-                backemf_q = x[b + RESIDUAL_Q] + x[INTEGRAL] * p.psi_f_Wb
-                flip = backemf_q * x[INTEGRAL] < 0.0
+            at_speed = abs(x[INTEGRAL]) * p.psi_f_Wb > p.backemf_polarity_ratio * p.lock_threshold_V
+            recorded = p.polarity_from_recording and theta_e_recorded == theta_e_recorded
+            if p.polarity_from_recording and not recorded and not at_speed:
+                return u_inj_alpha, u_inj_beta, float(ALIGNING)
+            if at_speed or recorded:
+                if recorded:
+                    flip = abs(wrap(theta_e_recorded - x[THETA])) > 0.5 * math.pi
+                else:
+                    backemf_q = x[b + RESIDUAL_Q] + x[INTEGRAL] * p.psi_f_Wb
+                    flip = backemf_q * x[INTEGRAL] < 0.0
                 x[b + FLIPPED] = 1.0 if flip else 0.0
                 x[b + POLARITY_RATIO] = 0.0
                 if flip:

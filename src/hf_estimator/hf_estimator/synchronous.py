@@ -66,7 +66,7 @@ def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta,
         x, p.monitor, k, i_alpha, i_beta, math.sin(p.omega_h_rad_s * t), p.u_h_V, p.kp, p.ki, p.T_s_s,
         -i_qhf)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
-                                          u_beta, -i_qhf, observable)
+                                          u_beta, -i_qhf, observable, theta_e_encoder)
     return x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, state
 
 

@@ -70,3 +70,75 @@ def nameplate(name):
         return NAMEPLATES[name]
     except KeyError:
         raise KeyError(f"unknown motor '{name}' (known: {', '.join(sorted(NAMEPLATES))})") from None
+
+
+NAMEPLATE_REQUIRED = ("n_p", "R_s_ohm", "L_d_H", "L_q_H", "psi_f_Wb", "rated_current_A")
+"""What a motor description must give (the contract's drive_config ``motor``); the rest of a Nameplate
+defaults as ASSUMED says."""
+ASSUMED_RATED_SPEED_RPM = 3000.0
+"""A motor description without ``rated_speed_rpm`` is taken to be rated at this speed (it only sets the
+lock monitor's 2 % back-EMF margin)."""
+
+
+class NameplateError(ValueError):
+    """A motor description is unusable; the message names its source and the key."""
+
+
+def nameplate_from_mapping(data, source):
+    """A Nameplate from a motor description (the contract's drive_config ``motor``: the keys of
+    NAMEPLATE_REQUIRED, optionally name and any other Nameplate field; unknown keys are ignored).
+    Missing optional values: a shipped motor of the same name gives them, else current_limit_A 1.5 ×
+    rated current, rated_torque_Nm 1.5·n_p·ψ_f·I_rated, rated_speed_rpm ASSUMED_RATED_SPEED_RPM,
+    rated_power_W their product, J_kgm2 and B_Nms NaN (not known). NameplateError names ``source`` and
+    the key."""
+    if not isinstance(data, dict):
+        raise NameplateError(f"{source}: a motor description is a mapping of keys, not {type(data).__name__}")
+    missing = [key for key in NAMEPLATE_REQUIRED if key not in data]
+    if missing:
+        raise NameplateError(f"{source}: missing {', '.join(missing)} (a motor needs {', '.join(NAMEPLATE_REQUIRED)})")
+    values = {}
+    for key in Nameplate._fields[1:]:
+        if key not in data:
+            continue
+        value = data[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise NameplateError(f"{source}: {key}: {value!r} is not a finite number")
+        low_ok = value >= 0.0 if key in ("R_s_ohm", "B_Nms") else value > 0.0
+        if not low_ok or (key == "n_p" and value != int(value)):
+            raise NameplateError(f"{source}: {key}: {value!r} is not a {'whole ' if key == 'n_p' else ''}"
+                                 f"{'non-negative' if key in ('R_s_ohm', 'B_Nms') else 'positive'} number")
+        values[key] = int(value) if key == "n_p" else float(value)
+    name = str(data.get("name", "motor"))
+    shipped = NAMEPLATES.get(name)
+    if shipped is not None:
+        return shipped._replace(**values)
+    current = values["rated_current_A"]
+    values.setdefault("current_limit_A", 1.5 * current)
+    values.setdefault("rated_torque_Nm", 1.5 * values["n_p"] * values["psi_f_Wb"] * current)
+    values.setdefault("rated_speed_rpm", ASSUMED_RATED_SPEED_RPM)
+    values.setdefault("rated_power_W", values["rated_torque_Nm"] * values["rated_speed_rpm"] * math.pi / 30.0)
+    values.setdefault("J_kgm2", math.nan)
+    values.setdefault("B_Nms", math.nan)
+    return Nameplate(name=name, **values)
+
+
+def load_nameplate(preset_or_file, source):
+    """The shipped nameplate called ``preset_or_file``, or one read from that YAML/JSON file
+    (nameplate_from_mapping); NameplateError names ``source`` (e.g. "--motor") and the file or key."""
+    if preset_or_file in NAMEPLATES:
+        return NAMEPLATES[preset_or_file]
+    from pathlib import Path
+
+    import yaml
+    path = Path(preset_or_file)
+    if not path.is_file():
+        raise NameplateError(f"{source}: {preset_or_file!r} is neither a shipped motor "
+                             f"({', '.join(sorted(NAMEPLATES))}) nor a file")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+        raise NameplateError(f"{source}: {path}: not a readable YAML/JSON motor description "
+                             f"({str(error).splitlines()[0]})") from None
+    if isinstance(data, dict) and isinstance(data.get("motor"), dict):
+        data = data["motor"]
+    return nameplate_from_mapping(data, f"{source}: {path}")

@@ -1,0 +1,188 @@
+"""Replay of recordings the project did not write: bags written here with `rosbags` alone, as another
+recorder on a robot would (contract v2 drive_config without a scenario, no drive_config, no ground
+truth, an unknown drive_config key, another sample period), and a corpus of them."""
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from drive_interface.log import COLUMN
+from drive_runner.runner import run_scenario
+from drive_scenarios.scenario import load_scenario
+
+DRIVE = [sys.executable, "-m", "drive_cli.cli"]
+SCENARIO = """\
+motor: wang_spmsm
+estimator: {estimator}
+injection: {{frequency_Hz: {frequency}, amplitude_V: 5.0}}
+duration_s: 0.8
+sampling_period_s: {T_s}
+initial: {{theta_m_rad: 1.3}}
+speed: {{unit: rpm, interpolation: linear, points: [[0.0, 0.0], [0.1, 100.0], [0.8, 100.0]]}}
+"""
+WANG_MOTOR = {"name": "wang_spmsm", "n_p": 2, "R_s_ohm": 0.27, "L_d_H": 0.0009, "L_q_H": 0.0009,
+              "psi_f_Wb": 0.0162, "rated_current_A": 4.6}
+
+
+def recorded_run(tmp_path, estimator, T_s=1e-4, frequency=900.0):
+    path = tmp_path / f"{estimator}_{T_s:g}.yaml"
+    path.write_text(SCENARIO.format(estimator=estimator, T_s=T_s, frequency=frequency))
+    return run_scenario(load_scenario(str(path)))
+
+
+def write_foreign_bag(path, result, config=None, truth=True):
+    """A contract bag written with rosbags' own Writer and serialiser: the per-sample topics of a run (no
+    /clock, no angle_error), with ``config`` as its drive_config (None: none)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    Vector3Stamped = store.types["geometry_msgs/msg/Vector3Stamped"]
+    JointState = store.types["sensor_msgs/msg/JointState"]
+    Header, Time = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    Vector3, String = store.types["geometry_msgs/msg/Vector3"], store.types["std_msgs/msg/String"]
+    log, c, n_p = result.log, COLUMN, result.n_p
+    T_s = result.scenario.T_s
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        def connection(topic, msgtype):
+            return writer.add_connection(f"/robot/{topic}", msgtype, typestore=store)
+        if config is not None:
+            writer.write(connection("drive_config", "std_msgs/msg/String"), 0,
+                         store.serialize_cdr(String(data=json.dumps(config)), "std_msgs/msg/String"))
+        vectors = {"currents": ("abc", ("i_a_meas", "i_b_meas", "i_c_meas")),
+                   "voltage_command": ("alpha_beta", ("u_alpha", "u_beta")),
+                   "injection": ("alpha_beta", ("u_inj_alpha", "u_inj_beta")),
+                   "estimator_state": ("", ("eps", "signal", "state"))}
+        joints = {"rotor_estimate": (("theta_e_hat", 1.0 / n_p), ("omega_e_hat", 1.0 / n_p))}
+        if truth:
+            joints["rotor_state"] = (("theta_m", 1.0), ("omega_m", 1.0), ("tau_e", 1.0))
+        vector_connections = {t: connection(t, "geometry_msgs/msg/Vector3Stamped") for t in vectors}
+        joint_connections = {t: connection(t, "sensor_msgs/msg/JointState") for t in joints}
+        for k in range(log.shape[0]):
+            t_ns = int(round(k * T_s * 1e9))
+            header = Header(stamp=Time(sec=t_ns // 10**9, nanosec=t_ns % 10**9), frame_id="")
+            for topic, (frame, columns) in vectors.items():
+                values = [float(log[k, c[name]]) for name in columns] + [0.0] * (3 - len(columns))
+                message = Vector3Stamped(header=Header(stamp=header.stamp, frame_id=frame), vector=Vector3(*values))
+                writer.write(vector_connections[topic], t_ns, store.serialize_cdr(message, Vector3Stamped.__msgtype__))
+            for topic, fields in joints.items():
+                values = [np.array([log[k, c[name]] * scale]) for name, scale in fields]
+                message = JointState(header=header, name=["wheel"], position=values[0], velocity=values[1],
+                                     effort=values[2] if len(values) > 2 else np.array([np.nan]))
+                writer.write(joint_connections[topic], t_ns, store.serialize_cdr(message, JointState.__msgtype__))
+    return path
+
+
+def v2_config(result, estimator, **extra):
+    return {"contract_version": 2, "node": "someone_elses_drive", "T_s_s": result.scenario.T_s,
+            "command_delay_periods": 1, "motor": WANG_MOTOR,
+            "injection": {"kind": "pulsating_sine", "frequency_Hz": result.scenario.injection["frequency_Hz"],
+                          "amplitude_V": 5.0}, "estimator": estimator, **extra}
+
+
+def replay(bag, *options):
+    out = subprocess.run(DRIVE + ["bench", "replay", str(bag), "--json", "--no-plot", *options],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    return report, {e["estimator"]: e for e in report["results"]}
+
+
+@pytest.fixture(scope="module")
+def conventional(tmp_path_factory):
+    return recorded_run(tmp_path_factory.mktemp("conventional"), "conventional")
+
+
+def test_a_v2_bag_without_scenario_replays_ours_better_than_its_recorder(conventional, tmp_path):
+    """drive_config in the v2 schema, no scenario, an unknown extra key: the motor, sample period, delay
+    and injection come from it, the windows are found automatically, the recording's own estimator
+    replays to its recorded angle error exactly, and ours, fitting the recorded pulsating sine, beats it."""
+    bag = write_foreign_bag(tmp_path / "v2", conventional,
+                            v2_config(conventional, "conventional", wheel_radius_m=0.05))
+    report, results = replay(bag, "--estimators", "injection_frame,conventional,conventional_aligned,sensored",
+                             "--out", str(tmp_path / "out"))
+    assert report["scenario"] is None and report["motor"] == "wang_spmsm"
+    assert report["sources"]["motor"] == "drive_config motor"
+    assert report["sources"]["command_delay"] == "drive_config command_delay_periods"
+    assert report["windows"]["source"].startswith("automatic: ")
+    assert report["windows"]["steady_s"][0][0] >= 0.2 and report["windows"]["steady_s"][-1][1] == pytest.approx(0.8)
+    assert report["excitation"]["kind"] == "pulsating_sine"
+    assert report["excitation"]["frequency_Hz"] == pytest.approx(900.0, abs=2.0)
+    own, ours = results["conventional"], results["injection_frame"]
+    from drive_evaluation.metrics import _mask, angle_error
+    t = conventional.log[:, COLUMN["t"]]
+    recorded = angle_error(conventional.log, 2)[_mask(t, report["windows"]["steady_s"])]
+    assert own["applicable"] and own["angle_error_rms"] == pytest.approx(np.sqrt(np.mean(recorded ** 2)), rel=1e-9)
+    assert ours["applicable"] and not ours["lost"]
+    assert ours["angle_error_rms"] < 0.6 * own["angle_error_rms"]
+    assert abs(ours["angle_error_bias"]) < 0.01
+    assert not results["conventional_aligned"]["applicable"]
+    assert "recording estimator's axis" in results["conventional_aligned"]["reason"]
+    assert results["sensored"]["applicable"] and results["sensored"]["angle_error_rms"] < 1e-9
+
+
+def test_a_bag_without_drive_config_needs_and_takes_the_motor_and_sample_period(conventional, tmp_path):
+    """No drive_config: each missing piece is a one-line error naming its option; given --sample-period
+    and --motor (a file of the contract's motor keys), it replays with the contract's usual delay."""
+    bag = write_foreign_bag(tmp_path / "bare", conventional)
+    for options, says in (((), "give --sample-period S"), (("--sample-period", "1e-4"), "give --motor PRESET|FILE"),
+                          (("--sample-period", "1e-4", "--motor", "no_such_motor"), "--motor: 'no_such_motor' is "
+                                                                                   "neither a shipped motor")):
+        out = subprocess.run(DRIVE + ["bench", "replay", str(bag), "--no-plot", *options],
+                             capture_output=True, text=True)
+        assert out.returncode == 2 and out.stderr.count("\n") == 1 and says in out.stderr, out.stderr
+    motor = tmp_path / "motor.yaml"
+    motor.write_text(json.dumps({k: v for k, v in WANG_MOTOR.items()}))
+    report, results = replay(bag, "--sample-period", "1e-4", "--motor", str(motor), "--estimators",
+                             "injection_frame", "--windows", "0.3:0.8")
+    assert report["sources"]["motor"] == "--motor" and report["sources"]["sample_period"] == "--sample-period"
+    assert report["sources"]["command_delay"].startswith("the contract's usual 1 period")
+    assert report["windows"] == {"source": "--windows", "steady_s": [[0.3, 0.8]]}
+    assert results["injection_frame"]["applicable"] and results["injection_frame"]["angle_error_rms"] < 0.03
+
+
+def test_a_bag_without_ground_truth_scores_none_and_says_who_needs_it(conventional, tmp_path):
+    bag = write_foreign_bag(tmp_path / "no_truth", conventional, v2_config(conventional, "conventional"),
+                            truth=False)
+    report, results = replay(bag, "--estimators", "injection_frame,sensored")
+    assert not report["ground_truth"]
+    assert results["injection_frame"]["applicable"] and "angle_error_rms" not in results["injection_frame"]
+    assert results["injection_frame"]["lost"] is False
+    assert not results["sensored"]["applicable"] and "ground truth" in results["sensored"]["reason"]
+
+
+def test_a_bag_of_another_sample_period_replays_at_its_own(tmp_path):
+    """8 kHz sampling, 800 Hz injection, recorded with `improved`: ours replays at the bag's sample period
+    and beats the recording's estimator there too."""
+    run = recorded_run(tmp_path, "improved", T_s=1.25e-4, frequency=800.0)
+    bag = write_foreign_bag(tmp_path / "slow", run, v2_config(run, "improved"))
+    report, results = replay(bag, "--estimators", "injection_frame,improved")
+    assert report["sample_period_s"] == pytest.approx(1.25e-4) and report["samples"] == 6400
+    assert report["excitation"]["frequency_Hz"] == pytest.approx(800.0, abs=2.0)
+    assert results["injection_frame"]["applicable"] and results["improved"]["applicable"]
+    assert results["injection_frame"]["angle_error_rms"] < results["improved"]["angle_error_rms"]
+
+
+def test_a_corpus_gives_one_summary_row_per_estimator(conventional, tmp_path):
+    """A directory of bags, one without drive_config: the command line's motor and sample period supply
+    what a bag does not say and are not used where it does; one summary row per estimator."""
+    corpus = tmp_path / "corpus"
+    write_foreign_bag(corpus / "a", conventional, v2_config(conventional, "conventional"))
+    write_foreign_bag(corpus / "b", conventional, v2_config(conventional, "conventional"), truth=False)
+    write_foreign_bag(corpus / "c", conventional)
+    out = subprocess.run(DRIVE + ["bench", "replay", str(corpus), "--estimators",
+                                  "injection_frame,conventional_aligned", "--motor", "wang_spmsm",
+                                  "--sample-period", "1e-4", "--json"], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    a, b, c = report["per_bag"]
+    assert report["bags"] == 3 and [a["bag"], b["bag"], c["bag"]] == [str(corpus / n) for n in "abc"]
+    assert a["sources"]["motor"] == "drive_config motor (--motor not used)" and c["sources"]["motor"] == "--motor"
+    ours, aligned = report["summary"]
+    assert ours["estimator"] == "injection_frame" and ours["scored"] == 2 and ours["lost"] == 0
+    scored = sorted(bag["results"][0]["angle_error_rms"] for bag in (a, c))
+    assert ours["rms_median"] == pytest.approx(np.median(scored)) and ours["rms_worst"] == scored[-1]
+    assert aligned["scored"] == 0 and aligned["not_applicable"] == 3 and aligned["rms_median"] is None
+    out = subprocess.run(DRIVE + ["bench", "replay", str(corpus / "[ab]")], capture_output=True, text=True)
+    assert out.returncode == 0 and "replay of 2 bags" in out.stdout, out.stderr
