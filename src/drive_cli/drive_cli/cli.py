@@ -661,9 +661,7 @@ def cmd_bench_replay(args):
                                                title=f"replay of {Path(args.bag).name} (recorded with "
                                                      f"{recording.estimator or 'an unnamed estimator'}): "
                                                      f"θ_e − θ̂_e per estimator"))
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "replay.json").write_text(dumps(report, indent=2))
-    report["json"] = str(out / "replay.json")
+    _save_report(report, out / "replay.json")
     if args.json:
         _print_json(report)
         return 0
@@ -698,6 +696,13 @@ def cmd_bench_replay(args):
     return 0
 
 
+def _save_report(report, path):
+    """Write a report as JSON to ``path`` (its directory made) and name the file in it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(dumps(report, indent=2))
+    report["json"] = str(path)
+
+
 def _replay_corpus(bags, names, args):
     """Every bag of a corpus replayed; one summary row per estimator."""
     from drive_evaluation.replay import replay, summarise
@@ -715,10 +720,7 @@ def _replay_corpus(bags, names, args):
     report = {"benchmark": "replay corpus", "pattern": args.bag, "bags": len(bags), "summary": summary,
               "per_bag": per_bag}
     if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "replay_corpus.json").write_text(dumps(report, indent=2))
-        report["json"] = str(out / "replay_corpus.json")
+        _save_report(report, Path(args.out) / "replay_corpus.json")
     if args.json:
         _print_json(report)
         return 0

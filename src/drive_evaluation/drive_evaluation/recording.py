@@ -123,6 +123,8 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
 
 
 def _sample_period(path, given, configs, sources):
+    if given is not None and not (math.isfinite(given) and 0.0 < given < 1.0):
+        raise BagError(f"--sample-period: {given:g} is not a sample period in seconds (0 < S < 1)")
     recorded = next((c["T_s_s"] for c in configs if "T_s_s" in c), None)
     if recorded is not None:
         if isinstance(recorded, bool) or not isinstance(recorded, (int, float)) or not 0.0 < recorded < 1.0:

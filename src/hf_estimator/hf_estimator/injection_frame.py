@@ -25,10 +25,13 @@ design).
    |Δ̂| = ½ hypot(g_dd − g_qq, 2g_dq) against Σ̂ = ½(g_dd + g_qq) is a model-free observability measure.
    The ±δ axes make g_qq and g_dq identifiable.
 3b. Any other excitation whose voltage is known (a recording's): where the window's voltage excites one
-   axis only (a pulsating injection on another estimator's d̂), g_qq cannot be told; Σ is taken from the
-   commissioning and Δ̂ cos 2e, Δ̂ sin 2e are fitted from the same sums
-   ((Δ cos 2e)·(aa + bb) = a·y₁ − b·y₂ − Σ(aa − bb), (Δ sin 2e)·(aa + bb) = b·y₁ + a·y₂ − 2Σ·ab, y in units
-   of T_s·U_h). An error in Σ scales e there, it adds no bias. Replay uses this (docs/recordings.md).
+   axis φ only (a pulsating injection on another estimator's d̂), the admittance along φ, Σ + Δ cos 2(e − φ),
+   cannot tell Σ from Δ; across φ it is Δ sin 2(e − φ), free of Σ. The same sums give both (with the
+   commissioned Σ: (Δ cos 2e)·(aa + bb) = a·y₁ − b·y₂ − Σ(aa − bb), (Δ sin 2e)·(aa + bb) = b·y₁ + a·y₂ −
+   2Σ·ab, y in units of T_s·U_h, turned by −2φ); e − φ is taken from the cross term and the commissioned
+   |Δ| (the along term gives only the sign). An error in Σ taken along φ would pull e towards φ by its
+   share of Δ (0.12 of the 0.1 rad offset of `improved`'s axis, measured); an error in |Δ| scales e − φ
+   by its own share only. Replay uses this (docs/recordings.md).
 4. Load turns the saliency axis (cross-saturation: 0.09 rad at rated current on `wang_spmsm`, 0.3 rad
    at 1.5× rated). The commissioned shift δ(i_q) is subtracted at the q current of the fit window
    (ε = e − δ(î_q), î_q low-passed in the θ̂ frame). Load also makes the axis turn back as the rotor
@@ -134,7 +137,9 @@ class InjectionFrameParams(NamedTuple):
     """Commissioned per-phase dead-time voltage subtracted from the applied voltage (0: not modelled)."""
     dead_time_smoothing_A: float
     sigma_per_H: float
-    """Commissioned Σ = ½(1/L_dh + 1/L_qh) [1/H], the admittance's mean where one axis alone is excited."""
+    """Commissioned Σ = ½(1/L_dh + 1/L_qh) [1/H] and |Δ| = ½|1/L_dh − 1/L_qh|, for windows that excite one
+    axis only (item 3b)."""
+    delta_abs_per_H: float
     saliency_sign: float
     """+1 when the commissioned L_dh < L_qh (or no saliency known), −1 when L_dh > L_qh: the d axis is then
     the axis of the smaller admittance."""
@@ -157,11 +162,17 @@ def _fit_error(x, n, p):
     scale = 1.0 / (p.T_s_s * p.U_h_V)
     s = p.saliency_sign
     if 4.0 * (aa * bb - ab * ab) < MIN_EXCITATION_SPREAD * (aa + bb) ** 2:
-        # One axis excited (a pulsating injection): Σ from the commissioning, (Δ cos 2e, Δ sin 2e) fitted.
+        # One axis φ excited (item 3b): Δ sin 2(e − φ) across it is Σ-free; along it the commissioned |Δ|.
         sigma = p.sigma_per_H
         half_difference = (scale * (ay1 - by2) - sigma * (aa - bb)) / (aa + bb)
         g_dq = (scale * mixed - 2.0 * sigma * ab) / (aa + bb)
-        return (0.5 * math.atan2(s * g_dq, s * half_difference), math.hypot(half_difference, g_dq), sigma)
+        phi = 0.5 * math.atan2(2.0 * ab, aa - bb)
+        c2, s2 = math.cos(2.0 * phi), math.sin(2.0 * phi)
+        across = g_dq * c2 - half_difference * s2
+        along = half_difference * c2 + g_dq * s2
+        if abs(across) < p.delta_abs_per_H:
+            along = math.copysign(math.sqrt(p.delta_abs_per_H ** 2 - across ** 2), along)
+        return phi + 0.5 * math.atan2(s * across, s * along), math.hypot(half_difference, g_dq), sigma
     m00, m02, m11, m12, m22 = aa, ab, bb, ab, aa + bb
     det = m00 * (m11 * m22 - m12 * m12) - m02 * m02 * m11
     g_dd = scale * (ay1 * (m11 * m22 - m12 * m12) + m02 * (by2 * m12 - m11 * mixed)) / det
@@ -272,7 +283,8 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods)
         shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad,
         dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] else 0.0,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
-        sigma_per_H=commissioning.sigma, saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0, startup=startup)
+        sigma_per_H=commissioning.sigma, delta_abs_per_H=abs(commissioning.delta),
+        saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0, startup=startup)
     x = np.zeros(base + startup_size(startup))
     startup_reset(x, startup)
     return Estimator("injection_frame", injection_frame_step, params, x, np.zeros((1, 1, 2)),
