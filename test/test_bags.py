@@ -72,6 +72,21 @@ def test_graph_and_runner_bags_have_the_contract_layout(bags):
     assert graph_topics - run_topics == {"/diagnostics", "/drive/joint_states"}
 
 
+def test_every_drive_config_follows_the_v2_schema(bags):
+    """Both bags' drive_config entries carry the contract-v2 keys: version, sample period, delay, the
+    nameplate as `motor`, the scenario; the estimator's and the runner's its injection by kind."""
+    from motor_params.nameplate import NAMEPLATE_REQUIRED
+    for bag in bags[:2]:
+        _, _, configs = bag_log(bag)
+        for config in configs:
+            assert config["contract_version"] == 2 and config["T_s_s"] == pytest.approx(1e-4), config["node"]
+            assert config["command_delay_periods"] == 1 and config["motor"]["name"] == "wang_spmsm"
+            assert set(NAMEPLATE_REQUIRED) <= set(config["motor"]) and config["scenario"] == "scenario"
+        injections = [c["injection"] for c in configs if "injection" in c]
+        assert injections and all(i["kind"] == "alternating" and i["frequency_Hz"] == pytest.approx(1e4 / 11)
+                                  for i in injections), injections
+
+
 def test_per_sample_messages_are_stamped_with_their_sample_instant(bags):
     for bag in bags[:2]:
         for topic in ("/drive/currents", "/drive/voltage_command", "/drive/rotor_estimate", "/clock"):

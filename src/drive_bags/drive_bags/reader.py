@@ -270,7 +270,7 @@ def bag_scenario(path, configs):
                 return scenario_from_parameters(all_parameters(given))
             if "source" in config:
                 s = load_scenario(config["source"], estimator_override=config.get("estimator"))
-                return dataclasses.replace(s, injection=config.get("injection", s.injection),
+                return dataclasses.replace(s, injection=_scenario_injection(config, s.injection),
                                            controller=config.get("controller", s.controller),
                                            block_samples=config.get("block_samples", s.block_samples),
                                            answer_periods=config.get("answer_periods", s.answer_periods))
@@ -278,6 +278,15 @@ def bag_scenario(path, configs):
             raise BagError(f"{path}: drive_config names a scenario that cannot be loaded ({error})") from None
     raise BagError(f"{path}: no drive_config, so no scenario to score the run against (its windows and "
                    f"motor)")
+
+
+def _scenario_injection(config, default):
+    """The scenario injection a runner bag was recorded with: ``scenario_injection``, or in bags written
+    before contract v2, ``injection`` (now the contract's {kind, frequency_Hz, amplitude_V})."""
+    if isinstance(config.get("scenario_injection"), dict):
+        return config["scenario_injection"]
+    given = config.get("injection")
+    return given if isinstance(given, dict) and "kind" not in given else default
 
 
 def has_ground_truth(log):

@@ -15,7 +15,9 @@ from control_math.frames import wrap
 from drive_interface.interrupt import deferred
 from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.strict_json import dumps
-from drive_interface.topics import TOPICS, VECTOR3, full_name
+from drive_interface.topics import CONTRACT_VERSION, TOPICS, VECTOR3, full_name
+from hf_estimator.interface import contract_injection
+from motor_params.nameplate import contract_motor, nameplate
 
 from .common import BagError, BagWriteError, offered_qos, sample_stamp_ns, typestore
 
@@ -187,9 +189,11 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
         if topic in ("/diagnostics", "joint_states"):
             continue
         writer.add(full_name(namespace, topic), t.type, offered_qos(topic))
-    config = {"node": "drive run", "n_p": n_p, "scenario": scenario.name, "source": scenario.source,
-              "motor": scenario.motor, "estimator": result.estimator, "T_s_s": scenario.T_s, "samples": n,
-              "injection": scenario.injection, "controller": scenario.controller,
+    config = {"contract_version": CONTRACT_VERSION, "node": "drive run", "n_p": n_p, "scenario": scenario.name,
+              "source": scenario.source, "motor": contract_motor(nameplate(scenario.motor)),
+              "estimator": result.estimator, "T_s_s": scenario.T_s, "samples": n,
+              "injection": contract_injection(result.estimator_facts, scenario.injection),
+              "scenario_injection": scenario.injection, "controller": scenario.controller,
               "current_limit_A": result.current_limit_A, "non_idealities": scenario.non_idealities,
               "block_samples": scenario.block_samples, "answer_periods": scenario.answer_periods,
               "command_delay_periods": scenario.drive_delay_periods()}

@@ -3,6 +3,9 @@ first field is the sample instant, and the log columns its fields fill. Nodes, t
 recorder, the bag reader and the runner's logs all read this table."""
 from typing import NamedTuple
 
+CONTRACT_VERSION = 2
+"""The drive interface contract this code follows (docs/drive-interface.md); drive_config carries it."""
+
 
 class QosSpec(NamedTuple):
     """A topic's QoS, independent of rclpy: reliable, keep-last ``depth``, volatile or transient local."""

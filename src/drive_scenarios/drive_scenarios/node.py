@@ -2,9 +2,9 @@
 override parameters (``parameters.NODE_PARAMETERS``)."""
 from drive_interface.node import ContractNode, describe, stamp
 from drive_interface.parameter_sources import label
-from drive_interface.topics import BLOCK_TOPIC
+from drive_interface.topics import BLOCK_TOPIC, CONTRACT_VERSION
 from motor_params.commissioning import resolve_commissioning
-from motor_params.nameplate import nameplate, trip_current_A
+from motor_params.nameplate import contract_motor, nameplate, trip_current_A
 
 from .parameters import NODE_PARAMETERS, scenario_from_parameters
 
@@ -107,7 +107,8 @@ class ScenarioNode(ContractNode):
 
     def publish_config(self, config):
         if self.scenario:
-            config = {"motor": self.scenario.motor, "n_p": self.nameplate().n_p, "T_s_s": self.T_s,
+            config = {"contract_version": CONTRACT_VERSION, "motor": contract_motor(self.nameplate()),
+                      "scenario": self.scenario.name, "n_p": self.nameplate().n_p, "T_s_s": self.T_s,
                       "block_samples": self.block_samples,
                       "command_delay_periods": self.scenario.drive_delay_periods(), **config}
         super().publish_config(config)

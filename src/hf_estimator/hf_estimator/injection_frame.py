@@ -262,7 +262,7 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_b
 
 @register("injection_frame", "ours: incremental admittance fitted from current steps and the applied "
                              "voltage in the injection frame; alternating axis; model-free observability",
-          "ours, after docs/hf-demodulation.md §2-4", excitation="any")
+          "ours, after docs/hf-demodulation.md §2-4", excitation="any", injection_kind="alternating")
 def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods):
     s = check_settings("injection_frame", settings, DEFAULTS, T_s)
     N = int(round(1.0 / (float(s["frequency_Hz"]) * T_s)))

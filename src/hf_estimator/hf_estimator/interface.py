@@ -68,15 +68,27 @@ EXCITATION_NEEDS = {"carrier": "its own carrier: a pulsating injection at its fr
 """What an estimator needs of a recording's excitation to be measured by replaying it (docs/recordings.md)."""
 
 
-def register(name, description, paper, injects=True, excitation="carrier"):
+def register(name, description, paper, injects=True, excitation="carrier", injection_kind="pulsating_sine"):
     """Register ``factory(nameplate, T_s, settings, commissioning, delay_periods) -> Estimator``
     from the module named ``name``; ``paper``: the section it implements; ``injects``: it takes the
     settings frequency_Hz and amplitude_V for its HF injection; ``excitation``: what it needs of a
-    recording (EXCITATION_NEEDS)."""
+    recording (EXCITATION_NEEDS); ``injection_kind``: its injection as drive_config names it (contract v2:
+    pulsating_sine, alternating, square, rotating, none)."""
     def wrap(factory):
-        _REGISTRY[name] = (factory, description, injects, paper, excitation)
+        _REGISTRY[name] = (factory, description, injects, paper, excitation, injection_kind)
         return factory
     return wrap
+
+
+def contract_injection(facts, scenario_injection):
+    """The drive_config ``injection`` object of contract v2 {kind, frequency_Hz, amplitude_V} of an
+    estimator (its Estimator.facts()) injecting the scenario's ``scenario_injection`` unless it chose its
+    own frequency or amplitude."""
+    kind = _entry(facts["estimator"])[5]
+    if kind == "none":
+        return {"kind": "none", "frequency_Hz": 0.0, "amplitude_V": 0.0}
+    amplitude = facts["injection_amplitude_V"] or scenario_injection.get("amplitude_V")
+    return {"kind": kind, "frequency_Hz": facts["injection_frequency_Hz"], "amplitude_V": amplitude}
 
 
 def _entry(name):
@@ -100,7 +112,7 @@ def estimator_names():
 
 def describe(name):
     """{name, description, paper, module} of a registered estimator."""
-    factory, description, _, paper, _ = _entry(name)
+    factory, description, _, paper, _, _ = _entry(name)
     return {"name": name, "description": description, "paper": paper, "module": factory.__module__}
 
 

@@ -34,6 +34,7 @@ from motor_params.knowledge import motor_knowledge
 
 from .block import estimator_block
 from .build import estimator_for_scenario
+from .interface import contract_injection
 from .startup import estimator_startup
 
 
@@ -80,7 +81,8 @@ class EstimatorNode(ScenarioNode):
         currents, voltages = self.contract_topics("currents", "voltage_command")
         self.watch_peer(currents, "the plant")
         self.watch_foreign_publishers((currents, voltages))
-        self.publish_config({**e.facts(), "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning),
+        self.publish_config({**e.facts(), "injection": contract_injection(e.facts(), self.scenario.injection),
+                             "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning),
                              "estimator_parameters": e.params})
 
     def build(self, scenario):

@@ -122,6 +122,11 @@ def nameplate_from_mapping(data, source):
     return Nameplate(name=name, **values)
 
 
+def contract_motor(plate):
+    """The drive_config ``motor`` object of contract v2 for a nameplate: its every field, SI keys."""
+    return plate._asdict()
+
+
 def load_nameplate(preset_or_file, source):
     """The shipped nameplate called ``preset_or_file``, or one read from that YAML/JSON file
     (nameplate_from_mapping); NameplateError names ``source`` (e.g. "--motor") and the file or key."""
