@@ -82,6 +82,9 @@ def applicability(recording, name, frequency, requested, scored):
     if need == "any":
         return True, f"fits any injection whose voltage is known; the recording's: {described}"
     if name == recording.estimator:
+        if recording.scenario is None:
+            return True, ("the recording's own estimator on its own excitation (with its default settings: the "
+                          "bag names no scenario that holds the recorded ones)")
         return True, "the recording's own estimator on its own excitation (a faithful replay)"
     share, phase = carrier_match(recording.log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]], requested,
                                  frequency, recording.T_s, scored)
