@@ -158,3 +158,20 @@ def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survive
             assert not expected, name
             assert mcap.read_bytes() == content, name
     assert rebuilt > CASES // 2
+
+
+def test_a_corrupt_index_length_that_lands_on_the_summary_hides_no_chunk(original, tmp_path):
+    """The message index after the third chunk given a length that ends exactly where the summary begins:
+    stepping over it lands on records that parse up to the footer. Reindex still keeps every chunk after it
+    (found by the closing sweep over plausible chunks)."""
+    root, bag, data, lay = original
+    _, end, _ = lay.chunks[2]
+    assert data[end] == 0x07
+    corrupt = bytearray(data)
+    corrupt[end + 1:end + 9] = (lay.summary_start - end - 9).to_bytes(8, "little")
+    case = tmp_path / "index_length"
+    shutil.copytree(bag, case)
+    (mcap,) = case.glob("*.mcap")
+    mcap.write_bytes(bytes(corrupt))
+    assert main(["bag", "reindex", str(case), "--force"]) == 0
+    assert surviving(lay, [(end, end + 9)]) <= messages_of(case)

@@ -2,7 +2,8 @@
 
 Every .mcap of the bag is scanned: its summary (when it has one) for the channel definitions, then its
 records in order. A corrupt record or chunk (bad CRC, bad compression, a length that runs off the file)
-is skipped and counted, and the scan resynchronises on the next chunk that decodes and passes its CRC.
+is skipped and counted, and the scan resynchronises on the next chunk that decodes and passes its CRC;
+a closing sweep reads every plausible chunk the scan stepped over.
 Exact duplicates (the same message twice) are kept once. The new bag is written beside the old one and
 swapped in only when it is complete; the original files are kept in ``reindex-original/`` inside the bag,
 so nothing is ever deleted or shrunk, and a failure (a full disk) leaves the bag as it was.
@@ -134,12 +135,13 @@ def scan(data, file_index, found):
     """Collect what ``data`` (one .mcap file's bytes) holds into ``found``: its summary (when its CRC holds),
     then its data section up to DataEnd. Records that are not parsed (indexes) are stepped over by their
     length; after any failure the scan resumes from the end of the last record that parsed, at the first
-    plausible chunk, so a corrupt length never hides an intact chunk."""
+    plausible chunk; at the end every plausible chunk it did not reach is read (_sweep_chunks), so a
+    corrupt length never hides an intact chunk."""
     from mcap.data_stream import ReadDataStream
     from mcap.records import Channel, Message, Schema
     _read_summary(data, file_index, found)
     pos = len(MAGIC) if data.startswith(MAGIC) else 0
-    trusted, failed = pos, set()
+    trusted, failed, parsed = pos, set(), set()
     while pos + 9 <= len(data):
         opcode, length = data[pos], int.from_bytes(data[pos + 1:pos + 9], "little")
         end = pos + 9 + length
@@ -150,6 +152,7 @@ def scan(data, file_index, found):
             if opcode == CHUNK:
                 for record in _read_chunk_records(content):
                     _register(found, file_index, record, checked=True)
+                parsed.add(pos)
                 trusted = end
             elif opcode in (SCHEMA, CHANNEL, MESSAGE):
                 stream = ReadDataStream(io.BytesIO(content))
@@ -164,6 +167,24 @@ def scan(data, file_index, found):
         if opcode in (DATA_END, FOOTER):
             break
         pos = end
+    _sweep_chunks(data, file_index, found, parsed | failed)
+
+
+def _sweep_chunks(data, file_index, found, seen):
+    """Every plausible chunk the scan did not reach (an index record's corrupt length can step over chunks
+    onto a record that parses, up to DataEnd): read if its CRC holds, else counted as corrupt."""
+    pos = _next_chunk(data, 0, seen)
+    while pos < len(data):
+        end = pos + 9 + int.from_bytes(data[pos + 1:pos + 9], "little")
+        try:
+            for record in _read_chunk_records(data[pos + 9:end]):
+                _register(found, file_index, record, checked=True)
+            start = end
+        except Exception:
+            found.skipped["corrupt chunks or records"] += 1
+            start = pos + 1
+        seen.add(pos)
+        pos = _next_chunk(data, start, seen)
 
 
 def recover(files):
