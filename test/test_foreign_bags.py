@@ -120,6 +120,12 @@ def test_a_v2_bag_without_scenario_replays_ours_better_than_its_recorder(convent
     assert not results["conventional_aligned"]["applicable"]
     assert "recording estimator's axis" in results["conventional_aligned"]["reason"]
     assert results["sensored"]["applicable"] and results["sensored"]["angle_error_rms"] < 1e-9
+    out = subprocess.run(DRIVE + ["bench", "compare", str(bag), str(bag), "--json", "--no-plot"],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    compared = json.loads(out.stdout)["runs"][0]
+    assert compared["estimator"] == "conventional" and compared["windows"] == report["windows"]
+    assert compared["angle_error_rms"] == pytest.approx(own["angle_error_rms"], rel=1e-9)
 
 
 def test_a_bag_without_drive_config_needs_and_takes_the_motor_and_sample_period(conventional, tmp_path):

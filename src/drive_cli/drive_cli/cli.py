@@ -614,6 +614,7 @@ REPLAY_COLUMNS = (
 
 
 def _estimator_list(text):
+    """The estimators of ``--estimators a,b`` (all when empty); CommandLineError names an unknown one."""
     names = text.split(",") if text else estimator_names()
     for name in names:
         if name not in estimator_names():
