@@ -76,6 +76,8 @@ def applicability(recording, name, frequency, requested, scored):
         if recording.ground_truth:
             return True, "reads the recorded ground truth as its encoder"
         return False, "needs the ground truth (rotor_state) as its encoder; the bag has none"
+    if need == "backemf":
+        return True, "needs no injection: a back-EMF model of the applied voltage and the currents (at speed only)"
     if excitation["kind"] == "none":
         return False, "the recording holds no injection, and this estimator needs one"
     described = f"{excitation['kind']} injection at {excitation['frequency_Hz']:.0f} Hz"

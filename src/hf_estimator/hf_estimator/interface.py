@@ -64,7 +64,8 @@ _REGISTRY = {}
 EXCITATION_NEEDS = {"carrier": "its own carrier: a pulsating injection at its frequency and carrier phase, which it "
                               "demodulates",
                    "any": "any injection whose voltage is known (it fits the admittance to the applied voltage)",
-                   "encoder": "no injection; the ground truth (rotor_state) as its encoder"}
+                   "encoder": "no injection; the ground truth (rotor_state) as its encoder",
+                   "backemf": "no injection; the applied voltage and the currents (a back-EMF model: at speed only)"}
 """What an estimator needs of a recording's excitation to be measured by replaying it (docs/recordings.md)."""
 
 
@@ -164,6 +165,8 @@ SETTING_CHECKS = {
     "bandpass_order": _order,
     "bandpass_ratio": lambda key, value, T_s: number(key, value, 1.0, None),
     "pll_bandwidth_Hz": _frequency,
+    "speed_bandwidth_Hz": _frequency,
+    "observable_backemf_per_rated": lambda key, value, T_s: number(key, value, 0.0, 1.0),
     "pll_damping": lambda key, value, T_s: positive(key, value),
     "A_p": _optional_positive,
     "T_i_s": _optional_positive,

@@ -1,0 +1,111 @@
+"""``flux_observer`` — a back-EMF method for speed: the reduced-order stator-flux observer in estimated
+rotor coordinates of Hinkkanen et al., "Observers for sensorless synchronous motor drives: framework
+for design and analysis", IEEE Trans. Ind. Appl. 2018 (the design motulator's SpeedFluxObserver
+implements), from the commissioned R_s and dead-time voltage (subtracted from the applied voltage at the
+phase currents of the period's start, control_math.dead_time) and the nameplate's L_d, L_q, ψ_f. It
+injects nothing.
+
+Per period, in the frame θ̂ turning at ω_s (forward Euler, as the reference):
+  e = L_d i_d + ψ_f + j L_q i_q − ψ̂_s                (flux error)
+  ψ_a = ψ_f + (L_d − L_q) i_d                         (auxiliary flux)
+  ε = −Im(e/ψ_a),  ω_s = ω̂ + α_d ε                   (angle correction, α_d = 2α_o)
+  dψ̂_s/dt = u − R_s i − jω_s ψ̂_s + k_1 e + k_2 e*,   k_1 = σ_0 + 0.2|ω̂|, k_2 = k_1 ψ_a/ψ_a*,
+  σ_0 = ¼ R_s (1/L_d + 1/L_q)
+  dθ̂/dt = ω_s,  dω̂/dt = ¼α_d (ω_s − ω̂)              (speed estimate)
+The voltage u of a period is the command that acted in it (d + 1 samples old), so sample k completes the
+period k − 1 → k before it is read; that voltage, constant in the stationary frame, is turned into the
+frame at the period's middle (θ̂ + ω_s T_s/2; at the period's start the angle lags by ω T_s/2, 0.03 rad at
+`wang_spmsm`'s rated speed). Below speed the back-EMF carries no angle: the estimate drifts and
+the state says HOLD (not observable) while the back-EMF ω̂ψ_f stays below ``observable_backemf_V``
+(a share of the rated back-EMF); above it TRACKING. An observer alone cannot start a rotor at rest
+(the drive holds zero torque until it tracks): it is the high-speed half of a full-speed drive.
+"""
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
+from control_math.frames import clarke_contract, inverse_clarke, rotate
+from drive_interface.estimator_states import HOLD, TRACKING
+
+from .interface import Estimator, check_settings, register
+
+THETA, OMEGA, PSI_D, PSI_Q, PREV_ID, PREV_IQ, E_D, E_Q, OMEGA_S, STARTED = range(10)
+DEFAULTS = {"speed_bandwidth_Hz": 100.0, "observable_backemf_per_rated": 0.05}
+
+
+class FluxObserverParams(NamedTuple):
+    T_s_s: float
+    R_s_ohm: float
+    L_d_H: float
+    L_q_H: float
+    psi_f_Wb: float
+    alpha_d: float
+    """Angle-correction gain 2α_o [rad/s]."""
+    sigma_0: float
+    """¼ R_s (1/L_d + 1/L_q) [1/s]."""
+    observable_backemf_V: float
+    dead_time_voltage_V: float
+    """Commissioned per-phase dead-time voltage, subtracted from the applied voltage (0: not measured)."""
+    dead_time_smoothing_A: float
+
+
+@njit(cache=True)
+def flux_observer_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder,
+                       omega_e_encoder):
+    """One sample (interface.py): currents [A] and the voltage applied in the period before [V] →
+    (θ̂_e, ω̂_e, 0, 0 (no injection), ε [rad], back-EMF |ω̂|ψ_f [V], state code). State x: θ̂, ω̂, ψ̂_s (d, q),
+    the previous period's current, flux error and ω_s (estimated rotor frame), a started flag."""
+    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
+    if x[STARTED] > 0.5:
+        if p.dead_time_voltage_V != 0.0:
+            prev_alpha, prev_beta = rotate(x[PREV_ID], x[PREV_IQ], x[THETA])
+            start_a, start_b, start_c = inverse_clarke(prev_alpha, prev_beta)
+            loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
+            u_applied_alpha -= p.dead_time_voltage_V * loss_alpha
+            u_applied_beta -= p.dead_time_voltage_V * loss_beta
+        e_d, w_s = x[E_D], x[OMEGA_S]
+        u_d, u_q = rotate(u_applied_alpha, u_applied_beta, -(x[THETA] + 0.5 * p.T_s_s * w_s))
+        k_1 = p.sigma_0 + 0.2 * abs(x[OMEGA])
+        # ψ_a is real here, so k_2 = k_1 and k_1 e + k_2 e* = 2 k_1 Re(e).
+        d_psi_d = u_d - p.R_s_ohm * x[PREV_ID] + w_s * x[PSI_Q] + 2.0 * k_1 * e_d
+        d_psi_q = u_q - p.R_s_ohm * x[PREV_IQ] - w_s * x[PSI_D]
+        x[PSI_D] += p.T_s_s * d_psi_d
+        x[PSI_Q] += p.T_s_s * d_psi_q
+        x[THETA] += p.T_s_s * w_s
+        x[OMEGA] += p.T_s_s * 0.25 * p.alpha_d * (w_s - x[OMEGA])
+    i_d, i_q = rotate(i_alpha, i_beta, -x[THETA])
+    e_d = p.L_d_H * i_d + p.psi_f_Wb - x[PSI_D]
+    e_q = p.L_q_H * i_q - x[PSI_Q]
+    psi_a = p.psi_f_Wb + (p.L_d_H - p.L_q_H) * i_d
+    eps = -e_q / psi_a if psi_a != 0.0 else 0.0
+    x[E_D], x[E_Q] = e_d, e_q
+    x[OMEGA_S] = x[OMEGA] + p.alpha_d * eps
+    x[PREV_ID], x[PREV_IQ] = i_d, i_q
+    x[STARTED] = 1.0
+    backemf = abs(x[OMEGA]) * p.psi_f_Wb
+    state = TRACKING if backemf > p.observable_backemf_V else HOLD
+    return x[THETA], x[OMEGA], 0.0, 0.0, eps, backemf, float(state)
+
+
+@register("flux_observer", "back-EMF: reduced-order stator-flux observer in estimated rotor coordinates, "
+                           "speed-adaptive gain; no injection (tracks at speed only)",
+          "Hinkkanen et al. 2018, IEEE TIA, 'Observers for sensorless synchronous motor drives'",
+          injects=False, excitation="backemf", injection_kind="none")
+def make_flux_observer(nameplate, T_s, settings, commissioning, delay_periods):
+    s = check_settings("flux_observer", settings, DEFAULTS, T_s)
+    alpha_o = 2.0 * math.pi * float(s["speed_bandwidth_Hz"])
+    omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * math.pi / 30.0
+    params = FluxObserverParams(
+        T_s_s=T_s, R_s_ohm=commissioning.R_s_ohm, L_d_H=nameplate.L_d_H, L_q_H=nameplate.L_q_H,
+        psi_f_Wb=nameplate.psi_f_Wb, alpha_d=2.0 * alpha_o,
+        sigma_0=0.25 * commissioning.R_s_ohm * (1.0 / nameplate.L_d_H + 1.0 / nameplate.L_q_H),
+        observable_backemf_V=float(s["observable_backemf_per_rated"]) * omega_rated * nameplate.psi_f_Wb,
+        dead_time_voltage_V=commissioning.dead_time_voltage_V,
+        dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A)
+    x = np.zeros(10)
+    x[PSI_D] = nameplate.psi_f_Wb
+    return Estimator("flux_observer", flux_observer_step, params, x, np.zeros((1, 1, 2)), 0.0,
+                     float(s["speed_bandwidth_Hz"]))
