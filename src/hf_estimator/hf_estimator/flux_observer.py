@@ -32,7 +32,7 @@ from drive_interface.estimator_states import HOLD, TRACKING
 
 from .interface import Estimator, check_settings, register
 
-THETA, OMEGA, PSI_D, PSI_Q, PREV_ID, PREV_IQ, E_D, E_Q, OMEGA_S, STARTED = range(10)
+THETA, OMEGA, PSI_D, PSI_Q, PREV_ID, PREV_IQ, E_D, OMEGA_S, STARTED = range(9)
 DEFAULTS = {"speed_bandwidth_Hz": 100.0, "observable_backemf_per_rated": 0.05}
 
 
@@ -57,7 +57,8 @@ def flux_observer_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_bet
                        omega_e_encoder):
     """One sample (interface.py): currents [A] and the voltage applied in the period before [V] →
     (θ̂_e, ω̂_e, 0, 0 (no injection), ε [rad], back-EMF |ω̂|ψ_f [V], state code). State x: θ̂, ω̂, ψ̂_s (d, q),
-    the previous period's current, flux error and ω_s (estimated rotor frame), a started flag."""
+    the previous period's current, the d part of its flux error (the q part is not fed back: k_2 = k_1)
+    and ω_s (estimated rotor frame), a started flag."""
     i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
     if x[STARTED] > 0.5:
         if p.dead_time_voltage_V != 0.0:
@@ -81,7 +82,7 @@ def flux_observer_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_bet
     e_q = p.L_q_H * i_q - x[PSI_Q]
     psi_a = p.psi_f_Wb + (p.L_d_H - p.L_q_H) * i_d
     eps = -e_q / psi_a if psi_a != 0.0 else 0.0
-    x[E_D], x[E_Q] = e_d, e_q
+    x[E_D] = e_d
     x[OMEGA_S] = x[OMEGA] + p.alpha_d * eps
     x[PREV_ID], x[PREV_IQ] = i_d, i_q
     x[STARTED] = 1.0
@@ -105,7 +106,7 @@ def make_flux_observer(nameplate, T_s, settings, commissioning, delay_periods):
         observable_backemf_V=float(s["observable_backemf_per_rated"]) * omega_rated * nameplate.psi_f_Wb,
         dead_time_voltage_V=commissioning.dead_time_voltage_V,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A)
-    x = np.zeros(10)
+    x = np.zeros(STARTED + 1)
     x[PSI_D] = nameplate.psi_f_Wb
     return Estimator("flux_observer", flux_observer_step, params, x, np.zeros((1, 1, 2)), 0.0,
                      float(s["speed_bandwidth_Hz"]))
