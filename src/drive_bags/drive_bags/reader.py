@@ -249,20 +249,30 @@ def bag_result(path, namespace=None):
     (the scenario file and overrides the nodes or the runner used), so it is scored as `drive run` is."""
     log, T_s, configs = bag_log(path, namespace=namespace)
     scenario = bag_scenario(path, configs)
+    if scenario is None:
+        raise BagError(f"{path}: no drive_config names a scenario to score the run against (its windows and "
+                       f"motor)")
     scenario = dataclasses.replace(scenario, duration_s=log.shape[0] * T_s, T_s=T_s)
-    recorded = next((c["estimator"] for c in configs if "estimator" in c), scenario.estimator)
-    from_nodes = (c["parameters"]["estimator"] or scenario.estimator for c in configs if "parameters" in c)
-    estimator = next(from_nodes, recorded)
+    estimator = recorded_estimator(configs) or scenario.estimator
     limit = next((c["current_limit_A"] for c in configs if "current_limit_A" in c),
                  next((c["controller"]["i_max_A"] for c in configs if isinstance(c.get("controller"), dict)
                        and "i_max_A" in c["controller"]), math.nan))
     return RunResult(scenario, estimator, log, 0.0, limit)
 
 
+def recorded_estimator(configs):
+    """The estimator a bag was recorded with: a node's ``estimator`` parameter, else a drive_config's
+    ``estimator``; "" when none says."""
+    for config in configs:
+        if isinstance(config.get("parameters"), dict) and config["parameters"].get("estimator"):
+            return str(config["parameters"]["estimator"])
+    return next((c["estimator"] for c in configs if isinstance(c.get("estimator"), str)), "")
+
+
 def bag_scenario(path, configs):
     """The scenario a bag was recorded from, rebuilt from its drive_config entries (the project's own:
-    a node's parameters, or the runner's scenario source); BagError when none names one, or the one named
-    cannot be loaded."""
+    a node's parameters, or the runner's scenario source); None when none names one, BagError when the one
+    named cannot be loaded."""
     for config in configs:
         try:
             if "parameters" in config:
@@ -276,8 +286,7 @@ def bag_scenario(path, configs):
                                            answer_periods=config.get("answer_periods", s.answer_periods))
         except ScenarioError as error:
             raise BagError(f"{path}: drive_config names a scenario that cannot be loaded ({error})") from None
-    raise BagError(f"{path}: no drive_config, so no scenario to score the run against (its windows and "
-                   f"motor)")
+    return None
 
 
 def _scenario_injection(config, default):

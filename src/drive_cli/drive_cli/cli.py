@@ -1003,9 +1003,7 @@ def _recording_options(parser):
                              "YAML/JSON file of the contract's drive_config motor keys")
     parser.add_argument("--sample-period", type=float, metavar="S",
                         help="the sample period [s], for a bag without drive_config")
-    parser.add_argument("--commissioning", metavar="FILE", help="the drive's commissioning file (written by "
-                        "`drive commission`), or 'nameplate' (default: the scenario's, else "
-                        "commissioning/MOTOR.yaml when present, else the nameplate alone)")
+    parser.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     parser.add_argument("--windows", metavar="T0:T1[,T0:T1...]",
                         help="score these intervals [s] (default: the scenario's steady windows, else found "
                              "automatically where the recorded speed is steady)")

@@ -45,11 +45,11 @@ def signed_carrier(u, T_s):
     return c, across
 
 
-def describe_excitation(u, T_s):
-    """{kind, frequency_Hz, amplitude_V, across_axis} of a recorded injection u (n × 2) [V], measured:
-    kind ``none``, ``rotating`` (a third or more of its energy across its axis), ``square`` or
-    ``pulsating_sine`` (by the carrier's crest factor); the frequency is the carrier's spectral peak."""
-    c, across = signed_carrier(u, T_s)
+def describe_excitation(c, across, T_s):
+    """{kind, frequency_Hz, amplitude_V, across_axis} of a recorded injection, measured from its signed
+    carrier ``c`` [V] and energy share ``across`` its axis (signed_carrier): kind ``none``, ``rotating`` (a
+    third or more of its energy across its axis), ``square`` or ``pulsating_sine`` (by the carrier's crest
+    factor); the frequency is the carrier's spectral peak."""
     rms = float(np.sqrt(np.mean(c ** 2))) if c.size else 0.0
     if rms == 0.0:
         return {"kind": "none", "frequency_Hz": 0.0, "amplitude_V": 0.0, "across_axis": 0.0}
@@ -60,16 +60,16 @@ def describe_excitation(u, T_s):
     return {"kind": kind, "frequency_Hz": frequency, "amplitude_V": peak, "across_axis": across}
 
 
-def carrier_match(recorded, requested, frequency_Hz, T_s, scored):
-    """How much of the recorded injection is an estimator's own carrier: (median share of the recorded
-    carrier's energy that is a sine at ``frequency_Hz``, median phase difference [rad, mod π] between that
-    sine and the carrier the estimator asked for wherever it injected), over MATCH_WINDOW_S windows of the
-    ``scored`` samples (bool, n); the phase is None when the estimator never injected, the share 0 when no
-    window has a recorded injection."""
+def carrier_match(recorded_carrier, requested, frequency_Hz, T_s, scored):
+    """How much of the recorded injection (its signed carrier [V], signed_carrier) is an estimator's own
+    carrier: (median share of the recorded carrier's energy that is a sine at ``frequency_Hz``, median
+    phase difference [rad, mod π] between that sine and the carrier the estimator asked for wherever it
+    injected), over MATCH_WINDOW_S windows of the ``scored`` samples (bool, n); the phase is None when the
+    estimator never injected, the share 0 when no window has a recorded injection."""
     length = max(2, int(round(MATCH_WINDOW_S / T_s)))
     own = _phasors(signed_carrier(requested, T_s)[0], frequency_Hz, T_s, np.ones(len(scored), bool), length)
     doubled = sum((z / abs(z)) ** 2 for z, _ in own if z != 0.0)
-    found = _phasors(signed_carrier(recorded, T_s)[0], frequency_Hz, T_s, scored, length)
+    found = _phasors(recorded_carrier, frequency_Hz, T_s, scored, length)
     if not found:
         return 0.0, None
     shares = [2.0 * abs(z) ** 2 / (length * energy) for z, energy in found]

@@ -9,13 +9,13 @@ import math
 import numpy as np
 
 from drive_bags.common import BagError
-from drive_bags.reader import bag_scenario, bag_topics, has_ground_truth, log_from_topics
+from drive_bags.reader import bag_scenario, bag_topics, has_ground_truth, log_from_topics, recorded_estimator
 from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
 from motor_params.commissioning import CommissioningError, resolve_commissioning
 from motor_params.nameplate import NameplateError, load_nameplate, nameplate, nameplate_from_mapping
 
-from .excitation import AXIS_BLOCK_S, describe_excitation
+from .excitation import AXIS_BLOCK_S, describe_excitation, signed_carrier
 from .metrics import windows as scenario_windows
 
 CONTRACT_DELAY_PERIODS = 1
@@ -49,6 +49,8 @@ class Recording:
     """{frequency_Hz, amplitude_V} the recording injected, handed to the replayed estimators."""
     excitation: dict
     """The recorded injection as measured (excitation.describe_excitation)."""
+    carrier: np.ndarray
+    """The recorded injection as a signed carrier along its own axis per sample [V] (excitation.signed_carrier)."""
     windows: list
     start_s: float
     scenario: object
@@ -91,13 +93,10 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
     log, T_s = log_from_topics(path, namespace, topics, configs, T_s, plate.n_p)
     delay = _delay(scenario, configs, sources)
     known = _commissioning(path, plate, commissioning, scenario, sources)
-    recorded = next((c["estimator"] for c in configs if isinstance(c.get("estimator"), str)), "")
-    node_estimator = next((c["parameters"].get("estimator") for c in configs
-                           if isinstance(c.get("parameters"), dict) and c["parameters"].get("estimator")), None)
-    recorded = node_estimator or recorded
+    recorded = recorded_estimator(configs)
     sources["recorded_estimator"] = "drive_config" if recorded else "not in the bag"
     settings = dict(scenario.estimator_settings) if scenario and recorded == scenario.estimator else {}
-    excitation = _excitation(log, T_s, sources)
+    carrier, excitation = _excitation(log, T_s, sources)
     injection = _injection(scenario, configs, excitation, sources)
     if scenario is not None:
         scenario = dataclasses.replace(scenario, duration_s=log.shape[0] * T_s, T_s=T_s)
@@ -118,8 +117,8 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
         if not chosen:
             raise BagError(f"{path}: no steady interval found to score ({note}); give --windows T0:T1[,...]")
         start, sources["windows"] = chosen[0][0], f"automatic: {note}"
-    return Recording(path, log, T_s, plate, known, delay, recorded, settings, injection, excitation, chosen, start,
-                     scenario, sources)
+    return Recording(path, log, T_s, plate, known, delay, recorded, settings, injection, excitation, carrier,
+                     chosen, start, scenario, sources)
 
 
 def _sample_period(path, given, configs, sources):
@@ -142,9 +141,7 @@ def _scenario(path, configs):
     try:
         return bag_scenario(path, configs), None
     except BagError as error:
-        if "cannot be loaded" in str(error):
-            return None, str(error).split(": ", 1)[1]
-        return None, None
+        return None, str(error).removeprefix(f"{path}: ")
 
 
 def _nameplate(path, motor, scenario, v2, sources):
@@ -191,18 +188,20 @@ def _commissioning(path, plate, given, scenario, sources):
 
 
 def _excitation(log, T_s, sources):
-    """The recorded excitation (excitation.describe_excitation) from the `injection` topic, or where the bag
-    has none from voltage_command less its average over AXIS_BLOCK_S (the fundamental)."""
+    """(signed carrier, excitation.describe_excitation) of the recorded excitation: the `injection` topic, or
+    where the bag has none voltage_command less its average over AXIS_BLOCK_S (the fundamental)."""
     injected = log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]]
     if np.isfinite(injected).all():
         sources["excitation"] = "injection"
-        return describe_excitation(injected, T_s)
-    voltage = np.nan_to_num(log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]])
-    width = max(1, int(round(AXIS_BLOCK_S / T_s)))
-    kernel = np.ones(width) / width
-    average = np.column_stack([np.convolve(voltage[:, j], kernel, mode="same") for j in range(2)])
-    sources["excitation"] = f"voltage_command less its {AXIS_BLOCK_S * 1e3:g} ms average (no injection topic)"
-    return describe_excitation(voltage - average, T_s)
+    else:
+        voltage = np.nan_to_num(log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]])
+        width = max(1, int(round(AXIS_BLOCK_S / T_s)))
+        kernel = np.ones(width) / width
+        average = np.column_stack([np.convolve(voltage[:, j], kernel, mode="same") for j in range(2)])
+        injected = voltage - average
+        sources["excitation"] = f"voltage_command less its {AXIS_BLOCK_S * 1e3:g} ms average (no injection topic)"
+    carrier, across = signed_carrier(injected, T_s)
+    return carrier, describe_excitation(carrier, across, T_s)
 
 
 def _injection(scenario, configs, excitation, sources):

@@ -88,8 +88,7 @@ def applicability(recording, name, frequency, requested, scored):
             return True, ("the recording's own estimator on its own excitation (with its default settings: the "
                           "bag names no scenario that holds the recorded ones)")
         return True, "the recording's own estimator on its own excitation (a faithful replay)"
-    share, phase = carrier_match(recording.log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]], requested,
-                                 frequency, recording.T_s, scored)
+    share, phase = carrier_match(recording.carrier, requested, frequency, recording.T_s, scored)
     if share >= MIN_CARRIER_FRACTION and phase is not None and phase <= MAX_CARRIER_PHASE_RAD:
         return False, (f"its carrier is in the recording ({share:.0%} of the recorded carrier at {frequency:.0f} Hz, "
                        f"{math.degrees(phase):.0f}° from its carrier phase), but on the recording estimator's "
@@ -114,11 +113,11 @@ def replay(recording, estimators):
                 np.ascontiguousarray(log0[:, COLUMN["omega_e_hat"]]))
     t = log0[:, COLUMN["t"]]
     scored = _mask(t, recording.windows)
+    calibration = recording.commissioning.calibration()
     entries, results = [], []
     for name in estimators:
         e = replayed_estimator(recording, name)
         theta_ref, omega_ref = encoder if excitation_need(name) == "encoder" else estimate
-        calibration = recording.commissioning.calibration()
         out = np.zeros((len(currents), len(OUTPUTS)))
         replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, currents[:2], u_applied[:2], theta_ref[:2],
                        omega_ref[:2], calibration, out[:2])

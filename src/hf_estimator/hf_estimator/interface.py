@@ -24,7 +24,7 @@ record measured on it (``motor_params.commissioning``); never the plant.
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -58,6 +58,15 @@ class Estimator:
                 "tracking_current_limit_A": self.tracking_current_limit_A}
 
 
+class _Registered(NamedTuple):
+    factory: Callable
+    description: str
+    injects: bool
+    paper: str
+    excitation: str
+    injection_kind: str
+
+
 _REGISTRY = {}
 
 
@@ -76,7 +85,7 @@ def register(name, description, paper, injects=True, excitation="carrier", injec
     recording (EXCITATION_NEEDS); ``injection_kind``: its injection as drive_config names it (contract v2:
     pulsating_sine, alternating, square, rotating, none)."""
     def wrap(factory):
-        _REGISTRY[name] = (factory, description, injects, paper, excitation, injection_kind)
+        _REGISTRY[name] = _Registered(factory, description, injects, paper, excitation, injection_kind)
         return factory
     return wrap
 
@@ -85,7 +94,7 @@ def contract_injection(facts, scenario_injection):
     """The drive_config ``injection`` object of contract v2 {kind, frequency_Hz, amplitude_V} of an
     estimator (its Estimator.facts()) injecting the scenario's ``scenario_injection`` unless it chose its
     own frequency or amplitude."""
-    kind = _entry(facts["estimator"])[5]
+    kind = _entry(facts["estimator"]).injection_kind
     if kind == "none":
         return {"kind": "none", "frequency_Hz": 0.0, "amplitude_V": 0.0}
     amplitude = facts["injection_amplitude_V"] or scenario_injection.get("amplitude_V")
@@ -99,12 +108,12 @@ def _entry(name):
 
 
 def injects(name):
-    return _entry(name)[2]
+    return _entry(name).injects
 
 
 def excitation_need(name):
     """What the estimator ``name`` needs of a recording's excitation (a key of EXCITATION_NEEDS)."""
-    return _entry(name)[4]
+    return _entry(name).excitation
 
 
 def estimator_names():
@@ -113,8 +122,9 @@ def estimator_names():
 
 def describe(name):
     """{name, description, paper, module} of a registered estimator."""
-    factory, description, _, paper, _, _ = _entry(name)
-    return {"name": name, "description": description, "paper": paper, "module": factory.__module__}
+    entry = _entry(name)
+    return {"name": name, "description": entry.description, "paper": entry.paper,
+            "module": entry.factory.__module__}
 
 
 def make_estimator(name, nameplate, T_s, settings, commissioning, delay_periods):
@@ -122,8 +132,7 @@ def make_estimator(name, nameplate, T_s, settings, commissioning, delay_periods)
     ``commissioning`` record (the HF inductances and saliency-shift tables measured at standstill);
     ``delay_periods`` is the inverter's computation delay. KeyError or ValueError name the setting at
     fault."""
-    factory = _entry(name)[0]
-    return factory(nameplate, T_s, dict(settings or {}), commissioning, delay_periods)
+    return _entry(name).factory(nameplate, T_s, dict(settings or {}), commissioning, delay_periods)
 
 
 def _frequency(key, value, T_s):
