@@ -139,7 +139,7 @@ def test_a_bag_without_drive_config_needs_and_takes_the_motor_and_sample_period(
                              capture_output=True, text=True)
         assert out.returncode == 2 and out.stderr.count("\n") == 1 and says in out.stderr, out.stderr
     motor = tmp_path / "motor.yaml"
-    motor.write_text(json.dumps({k: v for k, v in WANG_MOTOR.items()}))
+    motor.write_text(json.dumps(WANG_MOTOR))
     report, results = replay(bag, "--sample-period", "1e-4", "--motor", str(motor), "--estimators",
                              "injection_frame", "--windows", "0.3:0.8")
     assert report["sources"]["motor"] == "--motor" and report["sources"]["sample_period"] == "--sample-period"
