@@ -161,9 +161,9 @@ def test_the_topic_table_serves_qos_types_and_log_columns():
     from drive_interface.topics import SAMPLE_LOGGED, TOPICS
     assert {t.name for t in TOPICS.values() if t.per_sample} == {"currents", "rotor_state", "rotor_estimate",
                                                                   "injection", "voltage_command",
-                                                                  "estimator_state", "/clock"}
+                                                                  "estimator_state", "estimator_blend", "/clock"}
     assert set(SAMPLE_LOGGED) == {"currents", "rotor_state", "rotor_estimate", "injection", "voltage_command",
-                                  "estimator_state"}
+                                  "estimator_state", "estimator_blend"}
     for topic in TOPICS.values():
         assert all(column in COLUMN for column in topic.log_columns), topic.name
 

@@ -221,6 +221,7 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
         ("injection", logged("injection"), None),
         ("rotor_estimate", logged("rotor_estimate"), None),
         ("estimator_state", logged("estimator_state"), None),
+        ("estimator_blend", logged("estimator_blend"), None),
         ("angle_error", _cdr_vector3_stamped(sec, nanosec, TOPICS["angle_error"].frame_id,
                                              wrap.py_func(n_p * (col["theta_m"] - theta_hat_m)),
                                              col["omega_m"] - omega_hat_m, 0.0), None),

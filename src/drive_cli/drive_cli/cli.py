@@ -30,6 +30,7 @@ from drive_scenarios.scenario import (
     load_scenario,
     scenario_names,
 )
+from hf_estimator.interface import injects
 from hf_estimator.registry import describe, estimator_names
 from motor_params.nameplate import INVERTER_RATINGS, nameplate
 from pmsm_plant.presets import PRESETS
@@ -1025,6 +1026,77 @@ def _formatted(value, form):
     return "n/a" if value is None else form.format(value)
 
 
+FULL_SPEED_SCENARIOS = ("wang_full_speed", "szabo_full_speed")
+
+
+def _band_label(band):
+    return f"{100 * band[0]:g}-{100 * band[1]:g} %"
+
+
+def cmd_bench_full_speed(args):
+    from drive_evaluation.speed_range import full_speed_comparison
+    from drive_runner.runner import terminal_progress
+
+    reports = []
+    try:
+        for name in args.scenarios or FULL_SPEED_SCENARIOS:
+            scenario = load_scenario(name)
+            progress = None if args.json else terminal_progress(scenario.name)
+            reports.append(full_speed_comparison(scenario, progress))
+    except Interrupted as stop:
+        if args.json:
+            _print_json({"benchmark": "full-speed", "results": reports, "interrupted": True})
+        return _exit_code(stop.signum)
+    if args.json:
+        _print_json({"benchmark": "full-speed", "results": reports})
+        return 0
+    for report in reports:
+        print(f"{report['scenario']} ({report['motor']}, {report['duration_s']:g} s); angle error RMS / peak "
+              f"[rad el.] and HF current RMS [A] per |speed| band (share of rated)")
+        bands = [_band_label(b["band"]) for b in report["runs"][0]["bands"]]
+        print(f"  {'estimator':16s} {'loop':8s} {'whole run':>15s} {'targets':>8s} "
+              + " ".join(f"{b:>22s}" for b in bands))
+        for run in report["runs"]:
+            whole = (f"{_formatted(run['angle_error_rms'], '{:.4f}')} / "
+                     f"{_formatted(run['angle_error_peak'], '{:.3f}')}")
+            kept = {True: "kept", False: "missed", None: "-"}[run.get("meets_targets")]
+            cells = [f"{_formatted(b.get('angle_error_rms'), '{:.4f}')} / "
+                     f"{_formatted(b.get('angle_error_peak'), '{:.3f}')} "
+                     f"{_formatted(b.get('hf_current_rms_A'), '{:.2f}')}"
+                     for b in run["bands"]]
+            print(f"  {run['estimator']:16s} {run['loop'].split(',')[0]:8s} {whole:>15s} {kept:>8s} "
+                  + " ".join(f"{c:>22s}" for c in cells))
+    return 0
+
+
+def cmd_bench_injection_cost(args):
+    from drive_evaluation.speed_range import injection_cost
+    from drive_runner.runner import terminal_progress
+
+    names = _estimator_list(args.estimators) if args.estimators else [n for n in estimator_names() if injects(n)]
+    scenario = load_scenario(args.scenario)
+    progress = None if args.json else terminal_progress(scenario.name)
+    try:
+        report = injection_cost(scenario, names, progress)
+    except Interrupted as stop:
+        return _exit_code(stop.signum)
+    if args.json:
+        _print_json({"benchmark": "injection-cost", **report})
+        return 0
+    print(f"{report['scenario']} ({report['motor']}): what the injection costs over the steady windows")
+    print(f"  {'estimator':28s} {'U_h [V]':>8s} {'HF RMS [A]':>11s} {'P_cu,HF [W]':>12s} {'RMS [rad]':>10s} "
+          f"{'peak [rad]':>11s} {'targets':>8s}")
+    for row in report["estimators"] + report["sweep"]:
+        print(f"  {row['estimator']:28s} {_formatted(row['amplitude_V'], '{:.2f}'):>8s} "
+              f"{row['hf_current_rms_A']:11.3f} {row['hf_copper_loss_W']:12.4f} "
+              f"{_formatted(row['angle_error_rms'], '{:.4f}'):>10s} "
+              f"{_formatted(row['angle_error_peak'], '{:.3f}'):>11s} "
+              f"{'kept' if row['meets_targets'] else 'missed':>8s}")
+    least = report["least_amplitude_V"]
+    print(f"  least amplitude keeping the targets (ours): {_formatted(least, '{:g} V')}")
+    return 0
+
+
 def cmd_bench_startup(args):
     from drive_evaluation.startup_bench import MOTOR_SCENARIOS, STANDARD_CASES, LoadCase, bench_scenario, startup_sweep
     from drive_runner.runner import scenario_commissioning, terminal_progress
@@ -1218,6 +1290,18 @@ def build_parser():
     startup.add_argument("--estimator", help="an injecting estimator (default: injection_frame)")
     startup.add_argument("--json", action="store_true")
     startup.set_defaults(func=cmd_bench_startup)
+
+    full = bench_sub.add_parser("full-speed", help="the whole speed range: the blended estimator, injection only "
+                                                   "and the observer only, angle error and HF current per speed band")
+    full.add_argument("scenarios", nargs="*", help=f"scenarios (default: {', '.join(FULL_SPEED_SCENARIOS)})")
+    full.add_argument("--json", action="store_true")
+    full.set_defaults(func=cmd_bench_full_speed)
+    cost = bench_sub.add_parser("injection-cost", help="HF current RMS and its copper loss per estimator at low "
+                                                       "speed; the least amplitude that keeps ours' targets")
+    cost.add_argument("--scenario", default="wang_100rpm")
+    cost.add_argument("--estimators", help="comma-separated (default: every injecting estimator)")
+    cost.add_argument("--json", action="store_true")
+    cost.set_defaults(func=cmd_bench_injection_cost)
 
     compare = bench_sub.add_parser("compare", help="two recorded runs side by side: metrics and angle error")
     compare.add_argument("bag_a")

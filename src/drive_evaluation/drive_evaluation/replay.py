@@ -21,6 +21,7 @@ from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
 from drive_runner.loop import replay_samples
 from drive_runner.runner import RunResult
+from hf_estimator.block import ESTIMATE_COLUMNS
 from hf_estimator.interface import excitation_need, injects, make_estimator
 
 from .excitation import MAX_CARRIER_PHASE_RAD, MIN_CARRIER_FRACTION, carrier_match
@@ -28,7 +29,6 @@ from .metrics import _mask, angle_error, angle_scores, reported_losses
 
 TIMED_RUNS = 3
 """Each estimator replays the bag this many times from its fresh state; the fastest run is reported."""
-OUTPUTS = ("theta_e_hat", "omega_e_hat", "u_inj_alpha", "u_inj_beta", "eps", "signal", "state")
 LOCK_BAND_RAD = math.pi / 8
 """Time to lock: from the start until |angle error| stays within this band to the end. Every saliency
 tracker's error signal goes as sin 2Δθ; within π/8 its slope is still ≥ 0.71 of the small-signal one."""
@@ -38,16 +38,20 @@ SCORED = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_erro
 def replay_inputs(recording):
     """(currents n × 3, the voltage applied in the period before each sample n × 2) of a Recording (the
     command of d + 1 samples before, d the recording drive's delay); a BagError names what is missing."""
+    return logged_inputs(recording.log, recording.delay_periods, recording.path)
+
+
+def logged_inputs(log, delay_periods, source):
+    """replay_inputs of a run's ``log`` (LOG_COLUMNS) with the drive's delay; BagError names ``source``."""
     from drive_bags.common import BagError
-    log = recording.log
     currents = log[:, [COLUMN["i_a_meas"], COLUMN["i_b_meas"], COLUMN["i_c_meas"]]]
     voltage = log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]]
     for name, values in (("currents", currents), ("voltage_command", voltage)):
         missing = int(np.isnan(values[:, 0]).sum())
         if missing:
-            raise BagError(f"{recording.path}: {name}: {missing} of {len(values)} samples missing; replay "
+            raise BagError(f"{source}: {name}: {missing} of {len(values)} samples missing; replay "
                            f"needs every one")
-    lag = recording.delay_periods + 1
+    lag = delay_periods + 1
     u_applied = np.zeros((len(voltage), 2))
     u_applied[lag:] = voltage[:-lag]
     return np.ascontiguousarray(currents), u_applied
@@ -118,7 +122,7 @@ def replay(recording, estimators):
     for name in estimators:
         e = replayed_estimator(recording, name)
         theta_ref, omega_ref = encoder if excitation_need(name) == "encoder" else estimate
-        out = np.zeros((len(currents), len(OUTPUTS)))
+        out = np.zeros((len(currents), len(ESTIMATE_COLUMNS)))
         replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, currents[:2], u_applied[:2], theta_ref[:2],
                        omega_ref[:2], calibration, out[:2])
         wall = math.inf
@@ -128,7 +132,7 @@ def replay(recording, estimators):
             replay_samples(e.step, x, z, e.params, currents, u_applied, theta_ref, omega_ref, calibration, out)
             wall = min(wall, time.perf_counter() - start)
         log = log0.copy()
-        for j, column in enumerate(OUTPUTS):
+        for j, column in enumerate(ESTIMATE_COLUMNS):
             log[:, COLUMN[column]] = out[:, j]
         applicable, reason = applicability(recording, name, e.injection_frequency_Hz, out[:, 2:4], scored)
         scores = angle_scores(log, n_p, recording.windows, recording.start_s)

@@ -10,11 +10,13 @@ from .topics import TOPICS
 LOG_COLUMNS = ("t", "theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c",
                "i_a_meas", "i_b_meas", "i_c_meas", "theta_e_hat", "omega_e_hat", "u_alpha", "u_beta",
                "u_inj_alpha", "u_inj_beta", "omega_m_ref", "i_d", "i_q", "i_d_ref", "i_q_ref",
-               "eps", "signal", "state")
+               "eps", "signal", "state", "injection_amplitude", "observer_weight", "leader")
 """t [s]; θ_m, ω_m: true mechanical angle [rad] and speed [rad/s]; τ_e, τ_load [N·m]; true and measured
 phase currents [A]; θ̂_e, ω̂_e: electrical estimates; the voltage command and the injection in it [V,
 αβ]; ω*_m [rad/s]; the controller's i_d, i_q and references [A]; the estimator's ε, signal and
-start-up state code (0 hold, 1 aligning, 2 polarity test, 3 tracking, 4 lock lost)."""
+start-up state code (0 hold, 1 aligning, 2 polarity test, 3 tracking, 4 lock lost); the injection's carrier
+amplitude [V], the back-EMF observer's weight in θ̂ (0 … 1) and the source θ̂ follows (0 injection, 1
+back-EMF, 2 encoder)."""
 COLUMN = {name: i for i, name in enumerate(LOG_COLUMNS)}
 
 

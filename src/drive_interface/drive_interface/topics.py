@@ -58,6 +58,8 @@ TOPICS = {t.name: t for t in (
     Topic("injection", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_inj_alpha", "u_inj_beta"), frame_id="alpha_beta"),
     Topic("voltage_command", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_alpha", "u_beta"), frame_id="alpha_beta"),
     Topic("estimator_state", VECTOR3, PER_SAMPLE_QOS, True, True, ("eps", "signal", "state")),
+    Topic("estimator_blend", VECTOR3, PER_SAMPLE_QOS, True, True,
+          ("injection_amplitude", "observer_weight", "leader")),
     Topic("/clock", "rosgraph_msgs/msg/Clock", PER_SAMPLE_QOS, True, True),
     Topic("angle_error", VECTOR3, COMMAND_QOS, False, True),
     Topic("joint_states", JOINT_STATE, COMMAND_QOS, False, True),

@@ -20,7 +20,7 @@ from drive_interface.interrupt import Interrupted
 from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_scenarios.scenario import behind_an_inverter
 from foc_controller.control import controller_block, controller_step
-from hf_estimator.block import estimator_block
+from hf_estimator.block import ESTIMATE_WIDTH, estimator_block
 from motor_params.nameplate import nameplate, trip_current_A
 
 from .loop import write_row
@@ -202,7 +202,7 @@ class _BlockAnswer:
         self.trip_A = trip_current_A(nameplate(scenario.motor))
         N = scenario.block_samples
         self.currents, self.encoder = np.zeros((N, 3)), np.zeros((N, 2))
-        self.est_out, self.ctrl_out = np.zeros((N, 7)), np.zeros((N, 6))
+        self.est_out, self.ctrl_out = np.zeros((N, ESTIMATE_WIDTH)), np.zeros((N, 6))
         self.pending = []
         self.warm_up()
 
@@ -255,4 +255,4 @@ class _BlockAnswer:
             issue_command(line, j, c[i, 0], c[i, 1])
             write_row(rows[i], j * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, m[i, 0], m[i, 1], m[i, 2],
                       est[i, 0], est[i, 1], c[i, 0], c[i, 1], est[i, 2], est[i, 3], self.host.speed_ref[j], c[i, 2],
-                      c[i, 3], c[i, 4], c[i, 5], est[i, 4], est[i, 5], est[i, 6])
+                      c[i, 3], c[i, 4], c[i, 5], est[i, 4], est[i, 5], est[i, 6], est[i, 7], est[i, 8], est[i, 9])

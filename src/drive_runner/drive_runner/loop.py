@@ -10,14 +10,14 @@ from control_math.command_delay import issue_command
 from control_math.current_sensing import corrected_currents
 from drive_interface.estimator_states import TRACKING
 from foc_controller.control import controller_block
-from hf_estimator.block import estimator_block
+from hf_estimator.block import ESTIMATE_WIDTH, estimator_block
 from pmsm_plant.model import NOT_RELEASED, plant_block
 
 
 @njit(cache=True)
 def write_row(row, t, theta_m, omega_m, tau_e, tau_load, i_a, i_b, i_c, i_a_meas, i_b_meas, i_c_meas,
               theta_e_hat, omega_e_hat, u_alpha, u_beta, u_inj_alpha, u_inj_beta, omega_m_ref, i_d, i_q,
-              i_d_ref, i_q_ref, eps, signal, state):
+              i_d_ref, i_q_ref, eps, signal, state, injection_amplitude, observer_weight, leader):
     """Write one sample's values into a log row; the arguments are drive_interface.log.LOG_COLUMNS in
     order (test/test_architecture.py checks it)."""
     row[0] = t
@@ -45,6 +45,9 @@ def write_row(row, t, theta_m, omega_m, tau_e, tau_load, i_a, i_b, i_c, i_a_meas
     row[22] = eps
     row[23] = signal
     row[24] = state
+    row[25] = injection_amplitude
+    row[26] = observer_weight
+    row[27] = leader
 
 
 @njit
@@ -68,7 +71,7 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
     """
     n_p = machine.n_p
     plant_out = np.zeros((block, 10))
-    est_out = np.zeros((block, 7))
+    est_out = np.zeros((block, ESTIMATE_WIDTH))
     ctrl_out = np.zeros((block, 6))
     encoder = np.zeros((block, 2))
     for k0 in range(k_start, k_end, block):
@@ -91,7 +94,8 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
             if brake[0] > 0.5 and brake[1] < 0.0 and e[6] == TRACKING:
                 brake[1] = max(k + brake[2], k0 + n - 1)
             write_row(log[k - k_start], k * T_s, p[6], p[7], p[8], p[9], p[0], p[1], p[2], p[3], p[4], p[5],
-                      e[0], e[1], c[0], c[1], e[2], e[3], speed_ref[k], c[2], c[3], c[4], c[5], e[4], e[5], e[6])
+                      e[0], e[1], c[0], c[1], e[2], e[3], speed_ref[k], c[2], c[3], c[4], c[5], e[4], e[5], e[6],
+                      e[7], e[8], e[9])
 
 
 @njit
@@ -103,10 +107,10 @@ def replay_samples(est_step, ex, ez, ep, currents, u_applied, theta_e_reference,
     and the electrical angle and speed handed to the kernel's encoder inputs (``sensored`` reads the
     recorded ground truth there; an injecting estimator replayed with ``polarity_from_recording`` reads the
     recorded drive's estimate, hf_estimator.startup item 5). ``out`` rows receive θ̂_e, ω̂_e, u_inj_α,
-    u_inj_β, ε, signal, state."""
+    u_inj_β, ε, signal, state, U_h, w, leader (hf_estimator.block.ESTIMATE_COLUMNS)."""
     for k in range(currents.shape[0]):
         c_a, c_b, c_c = corrected_currents(currents[k, 0], currents[k, 1], currents[k, 2], calibration)
         result = est_step(ex, ez, ep, k, c_a, c_b, c_c, u_applied[k, 0], u_applied[k, 1], theta_e_reference[k],
                           omega_e_reference[k])
-        for j in range(7):
+        for j in range(ESTIMATE_WIDTH):
             out[k, j] = result[j]

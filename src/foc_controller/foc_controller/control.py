@@ -147,7 +147,7 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
 @njit(cache=True)
 def controller_block(x, z_notch, c, n, currents, estimates, speed_ref, tau_feedforward, calibration, trip_A, out):
     """n consecutive samples of ``controller_step``: currents (n × 3, measured [A], corrected here by the
-    commissioned ``calibration``), estimates (n × 7, hf_estimator.block.ESTIMATE_COLUMNS), the speed
+    commissioned ``calibration``), estimates (n × 10, hf_estimator.block.ESTIMATE_COLUMNS), the speed
     reference [rad/s] and torque feed-forward [N·m] of each sample (n). Rows of ``out`` (n × 6): u_α, u_β
     [V], i_d, i_q, i_d*, i_q* [A]. A sample with currents not finite or beyond ``trip_A``, or a non-finite
     estimate or injection, gets zero voltage and leaves the state untouched. Returns the number of such

@@ -126,7 +126,7 @@ class ControllerNode(ScenarioNode):
         self.trip_A = self.trip_current_A()
         self.x, self.z = controller_state(self.params)
         controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), np.zeros((1, 7)),
+        controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), np.zeros((1, 10)),
                          np.zeros(1), np.zeros(1), self.calibration, self.trip_A, np.zeros((1, 6)))
         self.publish_config({"controller": self.params, "estimator": config["estimator"],
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})

@@ -23,6 +23,7 @@ from numba import njit
 
 from control_math.filters import butterworth_bandpass, butterworth_lowpass
 from control_math.frames import clarke_contract
+from drive_interface.estimator_states import LEADER_INJECTION
 
 from .admittance_monitor import MonitorParams, make_monitor
 from .interface import Estimator, check_settings, register
@@ -76,7 +77,7 @@ def conventional_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta
         x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, eps, observable, theta_e_encoder)
-    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state
+    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state, p.U_h_V, 0.0, float(LEADER_INJECTION)
 
 
 def demodulation_phase(name, demodulation, commissioning, T_s, delay_periods, f_h, bandpass):

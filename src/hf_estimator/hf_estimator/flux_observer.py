@@ -28,7 +28,7 @@ from numba import njit
 
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from control_math.frames import clarke_contract, inverse_clarke, rotate
-from drive_interface.estimator_states import HOLD, TRACKING
+from drive_interface.estimator_states import HOLD, LEADER_BACKEMF, TRACKING
 
 from .interface import Estimator, check_settings, register
 
@@ -88,7 +88,21 @@ def flux_observer_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_bet
     x[STARTED] = 1.0
     backemf = abs(x[OMEGA]) * p.psi_f_Wb
     state = TRACKING if backemf > p.observable_backemf_V else HOLD
-    return x[THETA], x[OMEGA], 0.0, 0.0, eps, backemf, float(state)
+    return x[THETA], x[OMEGA], 0.0, 0.0, eps, backemf, float(state), 0.0, 1.0, float(LEADER_BACKEMF)
+
+
+@njit(cache=True)
+def flux_observer_follow(x, theta, omega):
+    """Set the observer's θ̂ and ω̂ to another source's ``theta`` [rad] and ``omega`` [rad/s] (the follower of
+    a blend, hf_estimator.full_speed): its flux, current and flux error, held in the θ̂ frame, turned with it,
+    so the stator flux it holds in the stationary frame is unchanged."""
+    angle = theta - x[THETA]
+    x[PSI_D], x[PSI_Q] = rotate(x[PSI_D], x[PSI_Q], -angle)
+    x[PREV_ID], x[PREV_IQ] = rotate(x[PREV_ID], x[PREV_IQ], -angle)
+    x[E_D] *= math.cos(angle)
+    x[THETA] = theta
+    x[OMEGA] = omega
+    x[OMEGA_S] = omega
 
 
 @register("flux_observer", "back-EMF: reduced-order stator-flux observer in estimated rotor coordinates, "

@@ -46,7 +46,11 @@ design).
    (docs/results.md, "A plant off its nameplate").
 6. A type-2 loop (PI + integrator) on ε with ω_n, ζ placed directly (ε has unit slope); its integrator
    state is the speed handed to the speed loop (the proportional path stays out of it). While |Δ̂|/Σ̂ is
-   below the threshold the loop is held (ε = 0) and the flag says so.
+   below the threshold the loop is held (ε = 0) and the flag says so. A type-2 loop lags a constant
+   acceleration a by a/ω_n² (0.1 rad at 4000 rpm/s on `szabo_ipmsm`); with ``pll_type`` 3 an acceleration
+   integrator ahead of the speed integrator removes that lag: s³ + k_p s² + k_i s + k_a = (s + p)(s² +
+   2ζω_n s + ω_n²), p = ACCELERATION_POLE_RATIO·ω_n. Its acceleration is zero whenever ours is not
+   tracking (start-up, hold): the estimate then coasts at constant speed.
 7. Start-up (startup.py): while aligning, a fit that finds the axis further than ALIGN_JUMP_RAD away
    moves θ̂ onto it at once (ε is in radians) and the next fit waits for a window of fresh samples; the
    loop settles the rest. Ours aligns in a few carrier periods instead of the loop's settling time.
@@ -60,7 +64,7 @@ from numba import njit
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from control_math.frames import clarke_contract, inverse_clarke, rotate
 from control_math.tables import table_value
-from drive_interface.estimator_states import ALIGNING
+from drive_interface.estimator_states import ALIGNING, LEADER_INJECTION, TRACKING
 from motor_params.nameplate import INVERTER_RATINGS
 
 from .interface import Estimator, check_settings, register
@@ -68,8 +72,8 @@ from .startup import DEFAULTS as STARTUP_DEFAULTS
 from .startup import StartupParams, make_startup, startup_code, startup_reset, startup_size, startup_step
 from .tracking_loop import pi_tracking_loop
 
-THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH, I_Q_SMOOTH = range(7)
-SUMS = 7
+THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH, I_Q_SMOOTH, ACCELERATION = range(8)
+SUMS = 8
 """Sliding sums from here: a, b, y1, y2, aa, bb, ab, a·y1, b·y2, b·y1 + a·y2 (10)."""
 N_SUMS = 10
 HISTORY = SUMS + N_SUMS
@@ -77,8 +81,10 @@ HISTORY = SUMS + N_SUMS
 
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
-            "signal_smoothing_Hz": 20.0, "dead_time_model": False, "saliency_snr_min": 8.0,
+            "signal_smoothing_Hz": 20.0, "dead_time_model": False, "saliency_snr_min": 8.0, "pll_type": 2,
             **STARTUP_DEFAULTS}
+ACCELERATION_POLE_RATIO = 0.5
+"""The type-3 loop's third pole, real, at this share of ω_n (item 6)."""
 ALIGN_JUMP_RAD = 0.2
 """While aligning, a measured error beyond this (or 4 × the alignment tolerance) is jumped over at once
 (well above one fit's noise). The commands of d + 1 samples are then still aimed at the old axis: the
@@ -127,6 +133,8 @@ class InjectionFrameParams(NamedTuple):
     delay_periods: int
     kp: float
     ki: float
+    ka: float
+    """The type-3 loop's acceleration gain (0: type 2)."""
     observable_ratio: float
     smoothing: float
     current_smoothing: float
@@ -247,6 +255,9 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_b
                     eps = 0.0
                     observable = 0.0
 
+    if p.ka != 0.0:
+        x[ACCELERATION] += p.T_s_s * p.ka * eps
+        x[INTEGRAL] += p.T_s_s * x[ACCELERATION]
     pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
     omega = x[INTEGRAL]
 
@@ -257,7 +268,10 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_b
     u_alpha, u_beta = rotate(p.U_h_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, eps, observable, theta_e_encoder)
-    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, x[DELTA_SMOOTH], state
+    if state != TRACKING:
+        x[ACCELERATION] = 0.0
+    return (x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, x[DELTA_SMOOTH], state, p.U_h_V, 0.0,
+            float(LEADER_INJECTION))
 
 
 @register("injection_frame", "ours: incremental admittance fitted from current steps and the applied "
@@ -269,6 +283,8 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods)
     if N < 3:
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
+    zeta = float(s["pll_damping"])
+    pole = ACCELERATION_POLE_RATIO * omega_n if s["pll_type"] == 3 else 0.0
     amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, 2.0 * math.pi / (N * T_s),
                                           float(s["saliency_snr_min"]))
     base = HISTORY + (delay_periods + 2) + 4 * 2 * N
@@ -276,7 +292,8 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods)
     params = InjectionFrameParams(
         T_s_s=T_s, N=N, U_h_V=amplitude, R_s_ohm=commissioning.R_s_ohm,
         dither_rad=float(s["dither_rad"]),
-        delay_periods=int(delay_periods), kp=2.0 * float(s["pll_damping"]) * omega_n, ki=omega_n ** 2,
+        delay_periods=int(delay_periods), kp=2.0 * zeta * omega_n + pole, ki=omega_n ** 2 + 2.0 * zeta * omega_n * pole,
+        ka=pole * omega_n ** 2,
         observable_ratio=float(s["observable_ratio"]),
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
         current_smoothing=1.0 - math.exp(-2.0 / N),

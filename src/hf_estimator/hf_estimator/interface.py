@@ -3,20 +3,22 @@
 A core is a numba step function called once per sample k with the measured phase currents:
 
     step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder)
-        -> (θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, state)
+        -> (θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, state, U_h, w, leader)
 
 θ̂_e is the unwrapped electrical angle estimate at sample k, ω̂_e the electrical speed estimate fed to
 the speed loop, u_inj the HF voltage to superimpose for the period that follows sample k (stationary
 frame), ε the demodulated error driving the tracking loop, ``signal`` the measured angle-information
 strength (estimator-specific units, documented per estimator) and ``state`` the start-up state code
-(startup.py: 0 hold, 1 aligning, 2 polarity test, 3 tracking, 4 lock lost; the controller applies
-torque only once it has reached 3). u_applied is the voltage that acted in the period before sample k,
-the one that made the current step i[k] − i[k−1]: `voltage_command`(k−1−d), d the drive's delay
-(control_math.command_delay; the caller keeps the delay line, so a block of samples needs only commands
-of earlier blocks). x (1-D) and z (filter sections) are the estimator's state, θ̂ at x[0] and
-its speed integrator at x[1]; p its parameters, the start-up's as ``p.startup``. Every estimator starts
-at θ̂ = 0, ω̂ = 0: it is told nothing of the angle. The encoder inputs are read only by the ``sensored``
-pass-through.
+(startup.py: 0 hold, 1 aligning, 2 polarity test, 3 tracking, 4 lock lost; the controller applies torque
+only once it has reached 3). U_h is the carrier amplitude it injects with [V] (0: none), w the weight of
+the back-EMF observer in θ̂ (0 … 1) and ``leader`` the source θ̂ follows
+(drive_interface.estimator_states: 0 injection, 1 back-EMF, 2 encoder): `estimator_blend`. u_applied is
+the voltage that acted in the period before sample k, the one that made the current step i[k] − i[k−1]:
+`voltage_command`(k−1−d), d the drive's delay (control_math.command_delay; the caller keeps the delay
+line, so a block of samples needs only commands of earlier blocks). x (1-D) and z (filter sections) are
+the estimator's state, θ̂ at x[0] and its speed integrator at x[1]; p its parameters, the start-up's as
+``p.startup``. Every estimator starts at θ̂ = 0, ω̂ = 0: it is told nothing of the angle. The encoder
+inputs are read only by the ``sensored`` pass-through.
 
 What an estimator knows of the motor is its nameplate (``motor_params.nameplate``) and the commissioning
 record measured on it (``motor_params.commissioning``); never the plant.
@@ -177,6 +179,7 @@ SETTING_CHECKS = {
     "speed_bandwidth_Hz": _frequency,
     "observable_backemf_per_rated": lambda key, value, T_s: number(key, value, 0.0, 1.0),
     "pll_damping": lambda key, value, T_s: positive(key, value),
+    "pll_type": lambda key, value, T_s: choice(key, value, (2, 3)),
     "A_p": _optional_positive,
     "T_i_s": _optional_positive,
     "T_f_s": lambda key, value, T_s: positive(key, value),
@@ -206,6 +209,10 @@ SETTING_CHECKS = {
     "slip_at_s": lambda key, value, T_s: number(key, value, -1.0, None, low_inclusive=True),
     "slip_rad": lambda key, value, T_s: number(key, value, -2.0 * math.pi, 2.0 * math.pi, low_inclusive=True),
     "polarity_from_recording": lambda key, value, T_s: flag(key, value),
+    **{key: lambda key, value, T_s: positive(key, value) for key in (
+        "handover_backemf_ratio", "handback_backemf_ratio", "quiet_backemf_ratio", "inject_backemf_ratio")},
+    **{key: lambda key, value, T_s: positive(key, value, 1.0) for key in (
+        "agreement_rad", "disagreement_rad", "agreement_s", "blend_s", "fade_s", "ready_s", "lookahead_s")},
 }
 """How each estimator setting is checked: (key, value, T_s) → the value, or ValueError naming the key."""
 

@@ -4,8 +4,9 @@ For sample k it joins `currents`(k) with the voltage applied during the period t
 `voltage_command`(k−1−d) from its delay line (control_math.command_delay; d the drive's delay; zero
 before sample 0, and zero if the controller stays silent past half the lock-step timeout, which is what
 the plant then applied) and, for `sensored` only, `rotor_state`(k). It answers
-`rotor_estimate`(k), `injection`(k) and `estimator_state`(k) (x = ε, y = signal, z = the start-up state
-code, hf_estimator.startup). With blocks (``block_samples`` N > 1) it takes `currents_block` and
+`rotor_estimate`(k), `injection`(k), `estimator_state`(k) (x = ε, y = signal, z = the start-up state
+code, hf_estimator.startup) and `estimator_blend`(k) (x = injection amplitude, y = observer weight, z =
+leader; on /diagnostics too). With blocks (``block_samples`` N > 1) it takes `currents_block` and
 `voltage_command_block`, runs ``estimator_block`` once per block and answers the block twins, plus
 `estimator_state` of each block's first sample. A lost lock or a refused start is a fault (ERROR on
 /diagnostics, counted).
@@ -24,7 +25,7 @@ import numpy as np
 
 from control_math.command_delay import applied_voltage, command_line, issue_command
 from control_math.current_sensing import corrected_currents
-from drive_interface.estimator_states import LOCK_LOST, STATE_NAMES
+from drive_interface.estimator_states import LEADER_NAMES, LOCK_LOST, STATE_NAMES
 from drive_interface.node import finite, run_node
 from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_interface.topics import TOPICS
@@ -32,7 +33,7 @@ from drive_interface.wire import BlockWire, JointWire, Vector3Wire
 from drive_scenarios.node import ScenarioNode
 from motor_params.knowledge import motor_knowledge
 
-from .block import estimator_block
+from .block import ESTIMATE_WIDTH, estimator_block
 from .build import estimator_for_scenario
 from .interface import contract_injection
 from .startup import estimator_startup
@@ -49,6 +50,9 @@ class EstimatorNode(ScenarioNode):
         self.estimate_wire = JointWire("rotor")
         self.injection_wire = Vector3Wire(TOPICS["injection"].frame_id)
         self.state_wire = Vector3Wire(TOPICS["estimator_state"].frame_id)
+        self.blend_wire = Vector3Wire(TOPICS["estimator_blend"].frame_id)
+        self.blend = (0.0, 0.0, 0.0)
+        """The last sample's injection amplitude [V], observer weight and leader code (`estimator_blend`)."""
         self.block_wire = BlockWire()
         self.state = 0.0
         self.lock_losses = 0
@@ -99,16 +103,18 @@ class EstimatorNode(ScenarioNode):
             self.estimate_pub = self.sample_publisher("rotor_estimate_block")
             self.injection_pub = self.sample_publisher("injection_block")
             self.state_block_pub = self.sample_publisher("estimator_state_block")
+            self.blend_pub = self.sample_publisher("estimator_blend_block")
         else:
             self.estimate_pub = self.sample_publisher("rotor_estimate")
             self.injection_pub = self.sample_publisher("injection")
+            self.blend_pub = self.sample_publisher("estimator_blend")
 
     def warm_up(self):
         e = self.estimator
         e.step(e.x.copy(), e.z.copy(), e.params, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         if self.block_samples > 1:
             estimator_block(e.step, e.x.copy(), e.z.copy(), e.params, 0, 1, np.zeros((1, 3)), command_line(1),
-                            np.zeros((1, 2)), self.calibration, 1.0, np.zeros((1, 7)))
+                            np.zeros((1, 2)), self.calibration, 1.0, np.zeros((1, ESTIMATE_WIDTH)))
 
     def on_currents(self, sec, nanosec, i_a, i_b, i_c):
         k = sample_at(sec, nanosec, self.T_s)
@@ -166,7 +172,7 @@ class EstimatorNode(ScenarioNode):
         if not finite(i_a, i_b, i_c) or max(abs(i_a), abs(i_b), abs(i_c)) > self.trip_A:
             self.fault("bad_input", f"currents at sample {k}: ({i_a}, {i_b}, {i_c}) A are not finite or "
                                     f"beyond the {self.trip_A:g} A trip; estimate held, no injection")
-            self.answer(k, self.theta_hat, self.omega_hat, 0.0, 0.0, 0.0, self.signal, 0.0)
+            self.answer(k, self.theta_hat, self.omega_hat, 0.0, 0.0, 0.0, self.signal, 0.0, 0.0, *self.blend[1:])
         else:
             e = self.estimator
             i_a, i_b, i_c = corrected_currents(i_a, i_b, i_c, self.calibration)
@@ -186,14 +192,16 @@ class EstimatorNode(ScenarioNode):
             self.fault("start_refused", f"sample {k}: {summary['refused']}")
         self.state = state
 
-    def answer(self, k, theta_hat, omega_hat, u_inj_alpha, u_inj_beta, eps, signal, state):
+    def answer(self, k, theta_hat, omega_hat, u_inj_alpha, u_inj_beta, eps, signal, state, amplitude, weight, leader):
         self.theta_hat, self.omega_hat = theta_hat, omega_hat
         self.note_state(k, state)
         self.signal = signal
+        self.blend = (amplitude, weight, leader)
         sec, nanosec = stamp_parts(k, self.T_s)
         self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, u_inj_alpha, u_inj_beta, 0.0))
         self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, theta_hat / self.n_p, omega_hat / self.n_p))
         self.state_pub.publish(self.state_wire.encode(sec, nanosec, eps, signal, state))
+        self.blend_pub.publish(self.blend_wire.encode(sec, nanosec, amplitude, weight, leader))
         self.sample_handled(k)
 
     def on_currents_block(self, sec, nanosec, i_a, i_b, i_c):
@@ -245,7 +253,7 @@ class EstimatorNode(ScenarioNode):
         encoder = self.encoder.pop(k0, None)
         if encoder is None or len(encoder) != n:
             encoder = np.zeros((n, 2))
-        e, out = self.estimator, np.empty((n, 7))
+        e, out = self.estimator, np.empty((n, ESTIMATE_WIDTH))
         bad = estimator_block(e.step, e.x, e.z, e.params, k0, n, currents, self.line, encoder, self.calibration,
                               self.trip_A, out)
         if bad:
@@ -255,11 +263,13 @@ class EstimatorNode(ScenarioNode):
         for i in np.flatnonzero(out[:, 6] != np.concatenate(([self.state], out[:-1, 6]))):
             self.note_state(k0 + i, out[i, 6])
         self.theta_hat, self.omega_hat, self.signal = out[-1, 0], out[-1, 1], out[-1, 5]
+        self.blend = tuple(out[-1, 7:10])
         sec, nanosec = stamp_parts(k0, self.T_s)
         self.injection_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 2], out[:, 3]))
         self.estimate_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 0] / self.n_p, out[:, 1] / self.n_p))
         self.state_block_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 4], out[:, 5], out[:, 6]))
         self.state_pub.publish(self.state_wire.encode(sec, nanosec, out[0, 4], out[0, 5], out[0, 6]))
+        self.blend_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 7], out[:, 8], out[:, 9]))
         self.sample_handled(k0 + n - 1)
 
     def watchdog(self):
@@ -275,8 +285,11 @@ class EstimatorNode(ScenarioNode):
     def status_values(self):
         if not self.configured:
             return {}
+        amplitude, weight, leader = self.blend
         return {"sample": getattr(self, "k", 0), "state": STATE_NAMES.get(int(self.state), "?"),
-                "lock_lost": self.lock_losses, "signal": self.signal, "estimator": self.estimator.name}
+                "lock_lost": self.lock_losses, "signal": self.signal, "estimator": self.estimator.name,
+                "injection_amplitude_V": amplitude, "observer_weight": weight,
+                "leader": LEADER_NAMES.get(int(leader), "?")}
 
 
 def main(argv=None):

@@ -214,6 +214,14 @@ def _turn(x, p, angle):
 
 
 @njit(cache=True)
+def startup_follow(x, p, theta, omega):
+    """Set θ̂ (x[0]) and its integrator (x[1]) to another source's ``theta`` [rad] and ``omega`` [rad/s]
+    (the follower of a blend, hf_estimator.full_speed), the back-EMF residual turned with θ̂."""
+    _turn(x, p, theta - x[THETA])
+    x[INTEGRAL] = omega
+
+
+@njit(cache=True)
 def _backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta):
     """Update the low-passed back-EMF residual (θ̂ frame) with sample k and the voltage (u_α, u_β) [V]
     applied in the period before it → its magnitude [V]."""

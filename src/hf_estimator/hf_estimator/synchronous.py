@@ -20,6 +20,7 @@ from numba import njit
 
 from control_math.filters import butterworth_bandpass
 from control_math.frames import clarke_contract
+from drive_interface.estimator_states import LEADER_INJECTION
 
 from .admittance_monitor import MonitorParams, make_monitor
 from .conventional import demodulation_phase
@@ -67,7 +68,7 @@ def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta,
         -i_qhf)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, -i_qhf, observable, theta_e_encoder)
-    return x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, state
+    return x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, state, p.u_h_V, 0.0, float(LEADER_INJECTION)
 
 
 def first_order_lowpass(T_f, T_s):
