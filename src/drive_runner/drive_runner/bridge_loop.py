@@ -178,7 +178,7 @@ class _SampleAnswer:
         e, cx, cz, cp = host.estimator, host.controller_x, host.controller_z, host.controller
         theta_e = cp.n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
         c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, self.calibration)
-        theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state = e.step(
+        theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state, amplitude, weight, leader = e.step(
             e.x, e.z, e.params, k, c_a, c_b, c_c, *applied_voltage(line, k - 1), theta_e, 0.0)
         u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
             cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b, state,
@@ -187,7 +187,7 @@ class _SampleAnswer:
         bridge.command(k, u_a, u_b)
         write_row(self.log[k], k * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c,
                   theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref,
-                  i_q_ref, eps, signal, state)
+                  i_q_ref, eps, signal, state, amplitude, weight, leader)
         return (k,)
 
 

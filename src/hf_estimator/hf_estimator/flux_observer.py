@@ -92,14 +92,16 @@ def flux_observer_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_bet
 
 
 @njit(cache=True)
-def flux_observer_follow(x, theta, omega):
+def flux_observer_follow(x, p, theta, omega):
     """Set the observer's θ̂ and ω̂ to another source's ``theta`` [rad] and ``omega`` [rad/s] (the follower of
-    a blend, hf_estimator.full_speed): its flux, current and flux error, held in the θ̂ frame, turned with it,
-    so the stator flux it holds in the stationary frame is unchanged."""
-    angle = theta - x[THETA]
-    x[PSI_D], x[PSI_Q] = rotate(x[PSI_D], x[PSI_Q], -angle)
-    x[PREV_ID], x[PREV_IQ] = rotate(x[PREV_ID], x[PREV_IQ], -angle)
-    x[E_D] *= math.cos(angle)
+    a blend, hf_estimator.full_speed), and its flux to the current model's in that frame (L_d i_d + ψ_f,
+    L_q i_q; flux error zero): released, it starts where the leader is instead of from the flux it
+    integrated without its own angle correction (which would turn θ̂ at once by its q error)."""
+    i_d, i_q = rotate(x[PREV_ID], x[PREV_IQ], x[THETA] - theta)
+    x[PREV_ID], x[PREV_IQ] = i_d, i_q
+    x[PSI_D] = p.L_d_H * i_d + p.psi_f_Wb
+    x[PSI_Q] = p.L_q_H * i_q
+    x[E_D] = 0.0
     x[THETA] = theta
     x[OMEGA] = omega
     x[OMEGA_S] = omega

@@ -128,7 +128,7 @@ def full_speed_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, 
     health_ahead = speed_ahead * p.psi_f_Wb / u_err
 
     ours_free = x[FADE] >= 1.0 and x[READY] >= p.ready_samples
-    observer_free = x[WEIGHT] > 0.0 or health >= p.handback
+    observer_free = x[WEIGHT] > 0.0 or health >= p.handover
     x[AGREEMENT] += p.smoothing * (abs(wrap(observer[0] - ours[0])) - x[AGREEMENT])
     if ours_free and observer_free and x[AGREEMENT] < p.agreement_rad:
         x[AGREED] += 1.0
@@ -159,8 +159,8 @@ def full_speed_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, 
     if not starting and x[READY] < p.ready_samples:
         startup_follow(ours, p.hf.startup, x[THETA], x[OMEGA])
         ours[OURS_ACCELERATION] = x[ACCELERATION]
-    if w == 0.0 and health < p.handback:
-        flux_observer_follow(observer, x[THETA], x[OMEGA])
+    if w == 0.0 and health < p.handover:
+        flux_observer_follow(observer, p.obs, x[THETA], x[OMEGA])
     state = hf_state if starting or w == 0.0 else TRACKING
     leader = LEADER_BACKEMF if w >= 0.5 else LEADER_INJECTION
     return (x[THETA], x[OMEGA], x[FADE] * hf[2], x[FADE] * hf[3], (1.0 - w) * hf[4] + w * ob[4], hf[5],
