@@ -36,8 +36,8 @@ def held_shaft_response(name, error_e, saturation=True, samples=600, excitation=
     line = command_line(inverter.delay_periods)
     for k in range(samples):
         i_a, i_b, i_c, _ = plant_outputs(x, machine)
-        _, _, u_a, u_b, eps, signal, observable = e.step(e.x, e.z, e.params, k, i_a, i_b, i_c,
-                                                         *applied_voltage(line, k - 1), 0.0, 0.0)
+        _, _, u_a, u_b, eps, signal, observable, *_ = e.step(e.x, e.z, e.params, k, i_a, i_b, i_c,
+                                                             *applied_voltage(line, k - 1), 0.0, 0.0)
         issue_command(line, k, *(excitation(k) if excitation else (u_a, u_b)))
         plant_advance(x, *applied_voltage(line, k), 0.0, True, 0.0, machine, WANG.mechanics, inverter, 1e-4, 1)
     return eps, signal, observable, c

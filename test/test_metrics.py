@@ -82,3 +82,12 @@ def test_run_plots_of_run_launch_and_bridge_do_not_overwrite_one_another(tmp_pat
     result = run_scenario(dataclasses.replace(load_scenario("wang_load_step"), duration_s=0.05))
     paths = {plot_run(result, tmp_path, command) for command in ("run", "launch", "bridge")}
     assert len(paths) == 3 and all(p.is_file() and p.stat().st_size > 10_000 for p in paths)
+
+
+def test_a_corner_between_two_ramps_is_not_a_step_to_settle_after():
+    """Ramps 0 → 10 → 30 rad/s then a hold: only the last ramp's end (where the reference holds) is a change
+    to settle after; the corner at 0.5 s is not (the reference goes on ramping)."""
+    s = scenario([[0.0, 0.0], [0.5, 10.0], [1.0, 30.0], [2.0, 30.0]], "linear")
+    t = np.arange(s.n_samples) * T_S
+    steps = settling_times(s, log_of(s.speed.sample(t)))
+    assert [step["t_s"] for step in steps] == [1.0] and steps[0]["settling_time_s"] == 0.0

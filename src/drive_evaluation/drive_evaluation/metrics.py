@@ -53,8 +53,9 @@ LOCK_LOST_RAD = np.pi / 2
 
 
 def settling_times(scenario, log, band_fraction=0.05, band_min_rad_s=0.1):
-    """For each change of the speed reference (a step, or a ramp's end): the time from the change's end
-    until ω_m enters its settled envelope and stays in it up to the next event.
+    """For each change of the speed reference (a step, or a ramp's end where the reference then holds; a
+    corner into another ramp is no end): the time from the change's end until ω_m enters its settled
+    envelope and stays in it up to the next event.
 
     Settled means what the speed does over the window's last half: its mean is within the tolerance
     (``band_fraction`` of the change, at least ``band_min_rad_s``) of the reference, else the step
@@ -68,7 +69,8 @@ def settling_times(scenario, log, band_fraction=0.05, band_min_rad_s=0.1):
     for i in range(1, len(table.times_s)):
         t_step, target = table.times_s[i], table.values[i]
         step = target - table.values[i - 1]
-        if step == 0.0 or not 0.0 < t_step < scenario.duration_s:
+        ramping_on = table.interpolation == "linear" and i + 1 < len(table.values) and table.values[i + 1] != target
+        if step == 0.0 or ramping_on or not 0.0 < t_step < scenario.duration_s:
             continue
         t_next = min(e for e in events if e > t_step)
         inside = (t >= t_step) & (t < t_next)

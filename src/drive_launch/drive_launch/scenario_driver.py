@@ -152,7 +152,7 @@ class ScenarioDriver:
         r = 1 if self.record or self.recorder else 0
         sensored = self.scenario.estimator == "sensored"
         endpoints = [("currents", 1, 2 + r), ("rotor_estimate", 1, 2 + r), ("injection", 1, 1 + r),
-                     ("voltage_command", 1, 2 + r), ("estimator_state", 1, 1 + r)]
+                     ("voltage_command", 1, 2 + r), ("estimator_state", 1, 1 + r), ("estimator_blend", 1, r)]
         if self.inverter is None:
             endpoints += [("rotor_state", 1, r + sensored)]
         endpoints = [(self.carried[topic], pubs, subs) for topic, pubs, subs in endpoints]
