@@ -12,9 +12,9 @@ Both cores run every sample on the same currents and applied voltage. Two measur
 1. Hand over (the observer's weight w → 1 over ``blend_s``): ours tracking, h above
    ``handover_backemf_ratio`` and the agreement within ``agreement_rad`` for ``agreement_s``; or h
    CLEAR_RATIO times above ``quiet_backemf_ratio``, where the back-EMF stands clear whatever ours says.
-   (The observer runs free from the handback ratio on and drifts at low speed, where its angle correction
-   is slow: 0.15-0.3 rad on `wang_spmsm` accelerating through 500 rpm. Handing over on the back-EMF's
-   magnitude alone there would hand over that drift.)
+   (At low speed the observer's angle correction is slow and it drifts: released early it was 0.15-0.3
+   rad off on `wang_spmsm` accelerating through 500 rpm. Handing over on the back-EMF's magnitude alone
+   there would hand over that drift.)
 2. The injection fades out (its amplitude factor → 0 over ``fade_s``) once w = 1 and h stands above
    ``quiet_backemf_ratio``. Ours then follows the blended angle and speed: without its carrier it has no
    angle of its own (its lock monitor, checking the back-EMF against θ̂, keeps checking the blend).
@@ -23,9 +23,10 @@ Both cores run every sample on the same currents and applied voltage. Two measur
    free again ``ready_s`` after its carrier is back at full amplitude.
 4. Hand back (w → 0): ours free, and the predicted h below ``handback_backemf_ratio``, or h below
    ``quiet_backemf_ratio`` and the agreement beyond ``disagreement_rad``. With w = 0 the observer follows
-   ours while h is below the handback ratio (it has no angle there) and runs free above it, so that its
-   agreement is measured before it leads. Ours runs the type-3 loop (injection_frame item 6): it does not
-   lag the acceleration the back-EMF allows at speed; following, it takes the blend's acceleration.
+   ours (angle, speed, and its flux set to the current model's) while h is below the handover ratio, and
+   runs free above it, so that its agreement is measured before it leads. Ours runs the type-3 loop
+   (injection_frame item 6): it does not lag the acceleration the back-EMF allows at speed; following, it
+   takes the blend's acceleration.
 5. A start-up state of ours (aligning, polarity test, lock lost) hands back at once, carrier on.
 
 Outputs: θ̂ = θ̂_hf + w·wrap(θ̂_obs − θ̂_hf), ω̂ the same blend of the two speeds, ε the weighted errors
