@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from drive_evaluation.metrics import compute_metrics
-from drive_evaluation.speed_range import band_scores, hf_current, observer_led
+from drive_evaluation.speed_range import band_scores, carrier_samples, hf_current, observer_led
 from drive_interface.estimator_states import LEADER_BACKEMF, LEADER_INJECTION
 from drive_interface.log import COLUMN
 from drive_runner.runner import run_scenario, scenario_commissioning
@@ -48,10 +48,10 @@ def test_the_observer_leads_at_speed_and_injection_at_standstill_with_no_carrier
     """Below 2 % of rated speed ours leads with its full carrier; above 30 % the observer leads and the
     HF current is the ripple of the current loop alone (< 10 % of the injected HF current)."""
     s, result = full_run
-    carrier = int(round(1.0 / (s.injection["frequency_Hz"] * s.T_s)))
-    standstill, _, _, high = band_scores(result.log, s, result.n_p, carrier)
+    hf = hf_current(result.log, result.n_p, carrier_samples(s))
+    standstill, _, _, high = band_scores(result.log, s, result.n_p, hf)
     assert standstill["observer_led_fraction"] == 0.0 and high["observer_led_fraction"] > 0.98
-    quiet = observer_led(result.log, result.n_p, carrier)["hf_current_rms_observer_quiet_A"]
+    quiet = observer_led(result.log, hf)["hf_current_rms_observer_quiet_A"]
     assert quiet < 0.1 * standstill["hf_current_rms_A"]
     log = result.log
     leads = log[:, COLUMN["leader"]]
@@ -96,8 +96,7 @@ def test_up_and_down_through_the_handover_on_both_presets(motor):
     assert m["angle_error_rms"] < 0.02 and m["angle_error_peak"] < 0.1 and m["lock_lost_s"] == 0.0
     log = result.log
     assert log[-1, COLUMN["leader"]] == LEADER_INJECTION and (log[:, COLUMN["injection_amplitude"]] == 0.0).any()
-    carrier = int(round(1.0 / (result.scenario.injection["frequency_Hz"] * result.scenario.T_s)))
-    assert hf_current(log, result.n_p, carrier)[-100:].mean() > 0.1
+    assert hf_current(log, result.n_p, carrier_samples(result.scenario))[-100:].mean() > 0.1
 
 
 def test_unordered_thresholds_are_refused_naming_them():

@@ -729,15 +729,12 @@ def _replay_corpus(bags, names, args):
     print(f"replay of {len(bags)} bags ({args.bag})")
     print(f"  {'estimator':22s}{'scored':>8s}{'n/a':>5s}{'lost':>6s}{'RMS med':>10s}{'RMS worst':>11s}"
           f"{'bias med':>10s}{'bias worst':>11s}{'peak med':>10s}{'peak worst':>11s}{'samples/s':>12s}")
-
-    def cell(value, fmt):
-        return "n/a" if value is None else fmt.format(value)
     for row in summary:
         print(f"  {row['estimator']:22s}{row['scored']:8d}{row['not_applicable']:5d}{row['lost']:6d}"
-              f"{cell(row['rms_median'], '{:.4f}'):>10s}{cell(row['rms_worst'], '{:.4f}'):>11s}"
-              f"{cell(row['bias_median'], '{:+.4f}'):>10s}{cell(row['bias_worst'], '{:+.4f}'):>11s}"
-              f"{cell(row['peak_median'], '{:.4f}'):>10s}{cell(row['peak_worst'], '{:.4f}'):>11s}"
-              f"{cell(row['samples_per_second_min'], '{:,.0f}'):>12s}")
+              f"{_formatted(row['rms_median'], '{:.4f}'):>10s}{_formatted(row['rms_worst'], '{:.4f}'):>11s}"
+              f"{_formatted(row['bias_median'], '{:+.4f}'):>10s}{_formatted(row['bias_worst'], '{:+.4f}'):>11s}"
+              f"{_formatted(row['peak_median'], '{:.4f}'):>10s}{_formatted(row['peak_worst'], '{:.4f}'):>11s}"
+              f"{_formatted(row['samples_per_second_min'], '{:,.0f}'):>12s}")
     print("  scored: bags where it is applicable and the bag has ground truth; n/a: bags where it is not "
           "applicable; lost: real losses of lock; worst bias: the largest magnitude; samples/s: the slowest bag")
     if "json" in report:

@@ -16,7 +16,7 @@ from hf_estimator.block import ESTIMATE_COLUMNS
 from hf_estimator.registry import make_estimator
 from motor_params.nameplate import nameplate
 
-from .metrics import angle_error, compute_metrics
+from .metrics import _mask, angle_error, compute_metrics, windows
 from .replay import logged_inputs
 
 SPEED_BANDS = ((0.0, 0.02), (0.02, 0.1), (0.1, 0.3), (0.3, 1.1))
@@ -28,28 +28,32 @@ AMPLITUDES_V = (10.0, 7.0, 5.0, 4.0, 3.0, 2.5, 2.0, 1.5, 1.0, 0.7, 0.5)
 """Ours' amplitude sweep for the least one that keeps the targets, largest first."""
 
 
-def hf_current(log, n_p, carrier_samples):
+def carrier_samples(scenario):
+    """Samples per period of the scenario's injection carrier."""
+    return int(round(1.0 / (scenario.injection["frequency_Hz"] * scenario.T_s)))
+
+
+def hf_current(log, n_p, samples_per_period):
     """|i_hf| per sample [A]: the true currents in the true rotor frame less their moving average over
     one carrier period (which removes a carrier whole and keeps the fundamental)."""
     i_alpha = log[:, COLUMN["i_a"]]
     i_beta = (log[:, COLUMN["i_b"]] - log[:, COLUMN["i_c"]]) / math.sqrt(3.0)
     dq = (i_alpha + 1j * i_beta) * np.exp(-1j * n_p * log[:, COLUMN["theta_m"]])
-    n = max(1, int(carrier_samples))
+    n = max(1, int(samples_per_period))
     kernel = np.ones(n) / n
     average = np.convolve(dq.real, kernel, "same") + 1j * np.convolve(dq.imag, kernel, "same")
     return np.abs(dq - average)
 
 
-def band_scores(log, scenario, n_p, carrier_samples):
+def band_scores(log, scenario, n_p, hf):
     """Per SPEED_BANDS band over the samples after the scenario's start: share of the run, angle error
-    RMS and peak [rad el.], HF current RMS [A], the copper loss it causes [W] (1.5 R_s |i_hf|², the
-    nameplate's R_s) and the share of samples the back-EMF observer led."""
+    RMS and peak [rad el.], HF current RMS [A] (``hf``: the run's hf_current), the copper loss it causes
+    [W] (1.5 R_s |i_hf|², the nameplate's R_s) and the share of samples the back-EMF observer led."""
     plate = nameplate(scenario.motor)
     t = log[:, COLUMN["t"]]
     after = t >= scenario.metrics_start_s
     speed = np.abs(log[:, COLUMN["omega_m"]]) / (plate.rated_speed_rpm * math.pi / 30.0)
     error = angle_error(log, n_p)
-    hf = hf_current(log, n_p, carrier_samples)
     rows = []
     for low, high in SPEED_BANDS:
         m = after & (speed >= low) & (speed < high)
@@ -65,11 +69,10 @@ def band_scores(log, scenario, n_p, carrier_samples):
     return rows
 
 
-def observer_led(log, n_p, carrier_samples):
-    """HF current RMS [A] where the observer leads with the injection faded out, where it leads with the
-    injection on (the overlap: rising until the back-EMF stands clear, falling before ours must lead), and
-    how long the overlap lasted [s] (None where there is none)."""
-    hf = hf_current(log, n_p, carrier_samples)
+def observer_led(log, hf):
+    """HF current RMS [A] (``hf``: the run's hf_current) where the observer leads with the injection faded
+    out, where it leads with the injection on (the overlap: rising until the back-EMF stands clear, falling
+    before ours must lead), and how long the overlap lasted [s] (None where there is none)."""
     leads = log[:, COLUMN["leader"]] == LEADER_BACKEMF
     quiet = leads & (log[:, COLUMN["injection_amplitude"]] == 0.0)
     injecting = leads & ~quiet
@@ -112,17 +115,17 @@ def observer_on_run(result, scenario):
 def full_speed_comparison(scenario, progress=None):
     """The scenario run closed loop with each of COMPARED, and the observer alone on the blended run's
     samples: whole-run scores, whether they keep TARGETS, and per-band scores."""
-    carrier = int(round(1.0 / (scenario.injection["frequency_Hz"] * scenario.T_s)))
+    carrier = carrier_samples(scenario)
     runs = []
     blended = None
     for i, name in enumerate(COMPARED):
         result = run_scenario(dataclasses.replace(scenario, estimator=name, estimator_settings={}))
         scores = _whole_run(result)
         started = bool(np.any(result.log[:, COLUMN["state"]] == 3.0))
+        hf = hf_current(result.log, result.n_p, carrier)
         runs.append({"estimator": name, "loop": "closed", "started": started, **scores,
                      "meets_targets": started and meets_targets(scores),
-                     "bands": band_scores(result.log, scenario, result.n_p, carrier),
-                     **observer_led(result.log, result.n_p, carrier)})
+                     "bands": band_scores(result.log, scenario, result.n_p, hf), **observer_led(result.log, hf)})
         if name == "full_speed":
             blended = result
         if progress:
@@ -132,7 +135,7 @@ def full_speed_comparison(scenario, progress=None):
     runs.append({"estimator": "flux_observer", "loop": "open, on the full_speed run's samples",
                  "angle_error_rms": float(np.sqrt(np.mean(errors ** 2))),
                  "angle_error_peak": float(np.max(np.abs(errors))),
-                 "bands": band_scores(log, scenario, blended.n_p, carrier)})
+                 "bands": band_scores(log, scenario, blended.n_p, hf_current(log, blended.n_p, carrier))})
     if progress:
         progress(1.0)
     return {"scenario": scenario.name, "motor": scenario.motor, "duration_s": scenario.duration_s,
@@ -143,8 +146,7 @@ def injection_cost(scenario, estimators, progress=None):
     """At the scenario's speed (``wang_100rpm``: 100 rpm): per estimator its injection amplitude, HF
     current RMS [A] and copper loss [W] over the steady windows, its scores and whether they keep TARGETS;
     then ours (saliency_snr_min 0: the amplitude as asked) over AMPLITUDES_V, and the least that keeps them."""
-    from .metrics import _mask, windows
-    carrier = int(round(1.0 / (scenario.injection["frequency_Hz"] * scenario.T_s)))
+    carrier = carrier_samples(scenario)
     steady, _ = windows(scenario)
     plate = nameplate(scenario.motor)
 

@@ -41,8 +41,6 @@ from numba import njit
 
 from control_math.frames import clarke_contract, wrap
 from drive_interface.estimator_states import ALIGNING, LEADER_BACKEMF, LEADER_INJECTION, LOCK_LOST, POLARITY, TRACKING
-from motor_params.commissioning import NAMEPLATE_ONLY
-from motor_params.nameplate import INVERTER_RATINGS
 
 from .flux_observer import DEFAULTS as OBSERVER_DEFAULTS
 from .flux_observer import FluxObserverParams, flux_observer_follow, flux_observer_step, make_flux_observer
@@ -50,7 +48,7 @@ from .injection_frame import ACCELERATION as OURS_ACCELERATION
 from .injection_frame import DEFAULTS as INJECTION_DEFAULTS
 from .injection_frame import InjectionFrameParams, injection_frame_step, make_injection_frame
 from .interface import Estimator, check_settings, register
-from .startup import UNMEASURED_DEAD_TIME_PER_U_DC, StartupParams, startup_follow
+from .startup import StartupParams, dead_time_uncertainty_V, startup_follow
 
 THETA, OMEGA, WEIGHT, FADE, READY, AGREEMENT, AGREED, CURRENT, ACCELERATION, PREV_OMEGA, WEIGHT_TARGET, \
     FADE_TARGET = range(12)
@@ -195,11 +193,7 @@ def make_full_speed(nameplate, T_s, settings, commissioning, delay_periods):
                                 delay_periods)
     observer = make_flux_observer(nameplate, T_s, {"speed_bandwidth_Hz": s["speed_bandwidth_Hz"]}, commissioning,
                                   delay_periods)
-    rating = INVERTER_RATINGS.get(nameplate.name)
-    if commissioning.source == NAMEPLATE_ONLY and rating:
-        dead_time_error = 4.0 / 3.0 * UNMEASURED_DEAD_TIME_PER_U_DC * rating.U_dc_V
-    else:
-        dead_time_error = 4.0 / 3.0 * commissioning.dead_time_voltage_V
+    dead_time_error = dead_time_uncertainty_V(nameplate, commissioning, 1.0)
 
     def samples(seconds):
         return max(1, int(round(seconds / T_s)))

@@ -129,6 +129,16 @@ class StartupParams(NamedTuple):
     polarity_from_recording: bool
 
 
+def dead_time_uncertainty_V(nameplate, commissioning, share):
+    """What the back-EMF model's dead-time voltage can be wrong by in αβ [V]: ``share`` of the commissioned
+    dead-time voltage ×4/3; a drive that never measured it (nameplate only) neither compensates it nor
+    ignores it: a typical whole one, UNMEASURED_DEAD_TIME_PER_U_DC of U_dc, ×4/3."""
+    rating = INVERTER_RATINGS.get(nameplate.name)
+    if commissioning.source == NAMEPLATE_ONLY and rating:
+        return 4.0 / 3.0 * UNMEASURED_DEAD_TIME_PER_U_DC * rating.U_dc_V
+    return share * 4.0 / 3.0 * commissioning.dead_time_voltage_V
+
+
 @njit(cache=True)
 def startup_size(p):
     """Entries of the start-up state in an estimator's x."""
@@ -150,11 +160,8 @@ def make_startup(base, nameplate, commissioning, T_s, delay_periods, error_gain,
             math.ceil(I_p * commissioning.L_dh_H / (T_s * (u_max - resistive))))
     pulse_V = I_p * commissioning.L_dh_H / (n * T_s) + resistive
     omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * 2.0 * math.pi / 60.0
-    if commissioning.source == NAMEPLATE_ONLY and rating:
-        dead_time_error = 4.0 / 3.0 * UNMEASURED_DEAD_TIME_PER_U_DC * rating.U_dc_V
-    else:
-        dead_time_error = LOCK_DEAD_TIME_ERROR * 4.0 / 3.0 * commissioning.dead_time_voltage_V
-    threshold = (LOCK_RESISTANCE_ERROR * commissioning.R_s_ohm * nameplate.rated_current_A + dead_time_error
+    threshold = (LOCK_RESISTANCE_ERROR * commissioning.R_s_ohm * nameplate.rated_current_A
+                 + dead_time_uncertainty_V(nameplate, commissioning, LOCK_DEAD_TIME_ERROR)
                  + 0.02 * omega_rated * nameplate.psi_f_Wb)
 
     def samples(seconds):
