@@ -8,7 +8,6 @@ import pytest
 from drive_interface.log import COLUMN
 from foc_controller.tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
 from helpers import run, scenario
-from motor_params.nameplate import INVERTER_RATINGS
 
 
 def test_current_rule_places_closed_loop_poles():
@@ -62,7 +61,7 @@ def test_voltage_command_respects_inverter_limit():
                  initial=dict(omega_m_rpm=3000.0), load=dict(unit="rated", points=[[0.0, 0.5]]))
     result, _ = run(s)
     u = np.hypot(result.log[:, COLUMN["u_alpha"]], result.log[:, COLUMN["u_beta"]])
-    limit = INVERTER_RATINGS[result.scenario.motor].U_dc_V / math.sqrt(3.0)
+    limit = result.scenario.motor.inverter.U_dc_V / math.sqrt(3.0)
     assert u.max() <= limit * (1.0 + 1e-12)
     assert np.mean(u > 0.999 * limit) > 0.01
 

@@ -13,10 +13,12 @@ from helpers import run, scenario, shipped
 from hf_estimator.injection_frame import injection_amplitude
 from hf_estimator.registry import make_estimator
 from motor_params.commissioning import MIN_CONVERGENCE_SLOPE, nameplate_commissioning
+from motor_params.motor_file import load_motor
 from pmsm_plant.model import N_STATE, plant_advance, plant_outputs, plant_reset, saturation_saliency_angle
 from pmsm_plant.presets import PRESETS, plant_parameters
 
 WANG = PRESETS["wang_spmsm"]
+WANG_INVERTER = load_motor("wang_spmsm", "test").inverter
 
 
 def held_shaft_response(name, error_e, saturation=True, samples=600, excitation=None):
@@ -32,7 +34,8 @@ def held_shaft_response(name, error_e, saturation=True, samples=600, excitation=
     plant_reset(x, error_e / machine.n_p, 0.0, machine)
     c = commission(machine, WANG.nameplate.current_limit_A)
     hold = {"pll_bandwidth_Hz": 1e-9, "settle_s": 1.0, "align_tolerance_rad": 1.0}
-    e = make_estimator(name, WANG.nameplate, 1e-4, hold, c, inverter.delay_periods)
+    rating = WANG_INVERTER._replace(delay_periods=inverter.delay_periods)
+    e = make_estimator(name, WANG.nameplate, 1e-4, hold, c, rating)
     line = command_line(inverter.delay_periods)
     for k in range(samples):
         i_a, i_b, i_c, _ = plant_outputs(x, machine)
@@ -132,14 +135,14 @@ def test_ours_raises_its_amplitude_until_the_saliency_current_stands_above_the_n
     plate, omega_h = WANG.nameplate, 2.0 * math.pi * 1000.0
     c = commission(WANG.machine, plate.current_limit_A)._replace(sensor_noise_A=0.01)
     wanted = 8.0 * 0.01 * omega_h / abs(c.delta)
-    amplitude, note = injection_amplitude(5.0, c, plate, omega_h, 8.0)
+    amplitude, note = injection_amplitude(5.0, c, plate, WANG_INVERTER, omega_h, 8.0)
     assert amplitude == pytest.approx(wanted) and 6.0 < wanted < 7.0 and "8.0 σ" in note
     weak = c._replace(L_dh_H=0.93e-3, L_qh_H=0.87e-3)
-    amplitude, note = injection_amplitude(5.0, weak, plate, omega_h, 8.0)
+    amplitude, note = injection_amplitude(5.0, weak, plate, WANG_INVERTER, omega_h, 8.0)
     assert amplitude == pytest.approx(0.8 * 24.0 / math.sqrt(3.0)) and note.endswith("held by the voltage cap")
     for record, snr, requested in ((c._replace(sensor_noise_A=0.0), 8.0, 5.0), (nameplate_commissioning(plate), 8.0,
                                    5.0), (c, 0.0, 5.0), (c, 8.0, 10.0)):
-        assert injection_amplitude(requested, record, plate, omega_h, snr) == (requested, "")
+        assert injection_amplitude(requested, record, plate, WANG_INVERTER, omega_h, snr) == (requested, "")
 
 
 def test_injection_frame_locks_at_100_rpm_closed_loop():

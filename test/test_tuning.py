@@ -68,10 +68,10 @@ def test_current_loops_stay_damped_with_the_delay_of_blocks(delay_periods):
     of N samples: d = N), answers a current step without growing: overshoot ≤ 25 %, within 2 % of the step
     after 40 loop delays. Without the delay cap the default 250 Hz overshoots 70 % at d = 3 and diverges
     at d = 5."""
-    from motor_params.nameplate import INVERTER_RATINGS, nameplate
+    from motor_params.motor_file import load_motor
 
-    plate, T_s = nameplate("wang_spmsm"), 1e-4
-    rating = INVERTER_RATINGS["wang_spmsm"]._replace(delay_periods=delay_periods)
+    motor, T_s = load_motor("wang_spmsm", "test"), 1e-4
+    plate, rating = motor.nameplate, motor.inverter._replace(delay_periods=delay_periods)
     c = make_controller_params(plate, rating, T_s)
     a = math.exp(-plate.R_s_ohm * T_s / plate.L_d_H)
     b = (1.0 - a) / plate.R_s_ohm

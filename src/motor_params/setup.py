@@ -10,6 +10,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
     ],
+    package_data={"motor_params": ["motors/*.yaml"]},
     install_requires=["setuptools"],
     zip_safe=False,
     description='What the drive knows of its motor and inverter',

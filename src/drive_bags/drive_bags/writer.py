@@ -17,7 +17,7 @@ from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.strict_json import dumps
 from drive_interface.topics import CONTRACT_VERSION, TOPICS, VECTOR3, full_name
 from hf_estimator.interface import contract_injection
-from motor_params.nameplate import contract_motor, nameplate
+from motor_params.nameplate import contract_motor
 
 from .common import BagError, BagWriteError, offered_qos, sample_stamp_ns, typestore
 
@@ -190,7 +190,7 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
             continue
         writer.add(full_name(namespace, topic), t.type, offered_qos(topic))
     config = {"contract_version": CONTRACT_VERSION, "node": "drive run", "n_p": n_p, "scenario": scenario.name,
-              "source": scenario.source, "motor": contract_motor(nameplate(scenario.motor)),
+              "source": scenario.source, "motor": contract_motor(scenario.motor.nameplate),
               "estimator": result.estimator, "T_s_s": scenario.T_s, "samples": n,
               "injection": contract_injection(result.estimator_facts, scenario.injection),
               "scenario_injection": scenario.injection, "controller": scenario.controller,

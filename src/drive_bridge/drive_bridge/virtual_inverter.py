@@ -20,7 +20,6 @@ import numpy as np
 
 from control_math.command_delay import issue_command
 from drive_scenarios.scenario import behind_an_inverter
-from motor_params.nameplate import nameplate
 from motor_params.nameplate import trip_current_A as default_trip_current_A
 from pmsm_plant.build import plant_for_scenario
 from pmsm_plant.model import plant_block
@@ -95,7 +94,7 @@ class VirtualInverter:
         self.rate_Hz, self.command_wait_s = rate_Hz, command_wait_s
         self.watchdog_periods = watchdog_periods or max(10, 3 * self.block_samples)
         """Missing commands in a row that switch PWM off (default 10 periods, three blocks with blocks)."""
-        self.trip_current_A = trip_current_A or default_trip_current_A(nameplate(scenario.motor))
+        self.trip_current_A = trip_current_A or default_trip_current_A(scenario.motor.nameplate)
         self.encoder = encoder
         self.faults = faults or FaultPlan()
         self.random = np.random.default_rng(self.faults.seed)

@@ -13,6 +13,7 @@ from drive_interface import interrupt
 from drive_interface.errors import DriveError
 from drive_interface.exit_codes import (
     EXIT_NODE_FAULTS,
+    EXIT_NOT_FOLLOWING,
     EXIT_NOT_TRACKING,
     EXIT_READER_GONE,
     EXIT_RECORDING_FAILED,
@@ -30,12 +31,14 @@ from drive_scenarios.scenario import (
     load_scenario,
     scenario_names,
 )
+from foc_controller.supervision import fault_line
 from hf_estimator.interface import injects
 from hf_estimator.registry import describe, estimator_names
-from motor_params.nameplate import INVERTER_RATINGS, nameplate
-from pmsm_plant.presets import PRESETS
+from motor_params.motor_file import load_motor
 
 PLL_ESTIMATORS = ("synchronous", "conventional", "improved")
+MOTOR_HELP = ("the motor in place of the scenario's: a shipped motor's name or a motor file "
+              "(`drive motor template` writes one)")
 COMMISSIONING_HELP = ("the drive's commissioning file (written by `drive commission`), or 'nameplate' for the "
                       "nameplate alone (default: the scenario's key, else commissioning/MOTOR.yaml when present)")
 
@@ -44,16 +47,39 @@ class CommandLineError(DriveError):
     """An option's value is unusable; the message names the option."""
 
 
-def _exit_code(interrupted=0, node_faults=None, output_error=None, not_tracking=False):
+def _exit_code(interrupted=0, node_faults=None, output_error=None, not_tracking=False, not_following=False):
     """128 + the signal that stopped the run, else the worst of drive_interface.exit_codes (an output, bag
-    or plot, not written in full; the drive not tracking at the end; a node fault), else 0."""
+    or plot, not written in full; the drive not tracking at the end; the shaft not following its command;
+    a node fault), else 0."""
     if interrupted:
         return EXIT_SIGNAL_BASE + interrupted
     if output_error:
         return EXIT_RECORDING_FAILED
     if not_tracking:
         return EXIT_NOT_TRACKING
+    if not_following:
+        return EXIT_NOT_FOLLOWING
     return EXIT_NODE_FAULTS if node_faults else 0
+
+
+def _supervision(result):
+    """The speed supervision's faults of a run (foc_controller.supervision), from what the drive knows."""
+    from drive_interface.log import COLUMN
+    from foc_controller.supervision import speed_supervision
+    log, plate = result.log, result.scenario.motor.nameplate
+    return speed_supervision(log[:, COLUMN["t"]], log[:, COLUMN["omega_m_ref"]], log[:, COLUMN["omega_e_hat"]],
+                             log[:, COLUMN["i_q_ref"]], log[:, COLUMN["state"]], result.n_p,
+                             plate.rated_speed_rpm * math.pi / 30.0, result.current_limit_A)
+
+
+def _warnings(result):
+    """What the drive says of its configuration before anything went wrong: the sensorless current limit
+    below rated current, and its loops' notes."""
+    plate, lines = result.scenario.motor.nameplate, []
+    if result.current_limit_A < plate.rated_current_A:
+        lines.append(f"current limit {result.current_limit_A:.3g} A is below the rated {plate.rated_current_A:g} A "
+                     f"(the saliency tracker's limit, measured at commissioning): rated load cannot be held")
+    return lines
 
 
 def _not_tracking(result):
@@ -82,6 +108,14 @@ def _record_arg(path):
         raise CommandLineError(f"--record: cannot write in {target.parent} ({error.strerror})") from None
 
 
+def _motor_reference(name_or_path):
+    """A --motor as nodes in other processes find it: a motor file's absolute path (a name stays a name
+    when it is not a file; the nodes' loader then names it in its error)."""
+    from motor_params.motor_file import motor_path
+    path = motor_path(name_or_path)
+    return str(path.resolve()) if path is not None else name_or_path
+
+
 def _print_json(data):
     print(dumps(data, indent=2, ensure_ascii=False))
 
@@ -97,7 +131,8 @@ def _scenario_arg(args):
     """The scenario named on the command line, with --estimator and --duration applied."""
     _estimator_arg(args)
     scenario = load_scenario(args.scenario, estimator_override=args.estimator,
-                             override_source="command line --estimator")
+                             override_source="command line --estimator", motor_override=args.motor,
+                             motor_source="--motor")
     if args.duration is not None:
         if args.duration <= 0.0:
             raise CommandLineError(f"--duration: must be positive, not {args.duration}")
@@ -142,7 +177,8 @@ def cmd_run(args):
     plot_error = _report(result, args, extra)
     if recording_error:
         _output_failed(recording_error)
-    return _exit_code(interrupted, output_error=recording_error or plot_error, not_tracking=_not_tracking(result))
+    return _exit_code(interrupted, output_error=recording_error or plot_error, not_tracking=_not_tracking(result),
+                      not_following=bool(_supervision(result)))
 
 
 def _warn_if_nameplate_only(source, motor, scenario_name):
@@ -167,12 +203,14 @@ def _report(result, args, extra=None):
         from motor_params.knowledge import motor_knowledge
         metrics["commissioning"] = result.commissioning.source
         if scenario.commissioning != NAMEPLATE_ONLY:
-            _warn_if_nameplate_only(result.commissioning.source, scenario.motor, scenario.name)
-        metrics["motor_knowledge"] = motor_knowledge(nameplate(scenario.motor), result.commissioning)
+            _warn_if_nameplate_only(result.commissioning.source, scenario.motor.name, scenario.name)
+        metrics["motor_knowledge"] = motor_knowledge(scenario.motor.nameplate, result.commissioning)
     facts = result.estimator_facts or {}
     if facts.get("injection_amplitude_V") is not None:
         metrics["injection"] = {"frequency_Hz": facts["injection_frequency_Hz"],
                                 "amplitude_V": facts["injection_amplitude_V"], "note": facts["injection_note"]}
+    metrics["warnings"] = _warnings(result)
+    metrics["supervision"] = _supervision(result)
     metrics.update(extra or {})
     if not args.no_plot and result.log.shape[0]:
         out_dir = Path(args.out) if args.out else Path("runs") / scenario.name
@@ -187,6 +225,8 @@ def _report(result, args, extra=None):
           f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
     if "motor_knowledge" in metrics:
         print(f"  {'motor known from':36s} {_knowledge_line(metrics['motor_knowledge'])}")
+    for line in metrics["warnings"]:
+        print(f"  {'WARNING':36s} {line}")
     if metrics.get("injection", {}).get("note"):
         injection = metrics["injection"]
         print(f"  {'injection':36s} {injection['amplitude_V']:.3g} V at {injection['frequency_Hz']:.1f} Hz "
@@ -222,6 +262,8 @@ def _report(result, args, extra=None):
     if metrics["lock_lost"]:
         lock += f"; the estimator reported {metrics['lock_lost']} lost lock(s)"
     print(f"  {'lock':36s} {lock}")
+    print(f"  {'speed supervision':36s} "
+          f"{'; '.join(fault_line(f) for f in metrics['supervision']) or 'the shaft followed its command'}")
     for path in metrics.get("plots", []):
         print(f"  plot: {path}")
     return _output_failed(metrics.get("plot_error"))
@@ -273,11 +315,14 @@ def cmd_launch(args):
         raise CommandLineError(f"--duration: must be positive, not {args.duration}")
     _estimator_arg(args)
     scenario = load_scenario(args.scenario, estimator_override=args.estimator,
-                             override_source="command line --estimator")
+                             override_source="command line --estimator", motor_override=args.motor,
+                             motor_source="--motor")
     _record_arg(args.record)
     if args.paced and not args.link:
         raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
     extra = {"commissioning": args.commissioning} if args.commissioning else {}
+    if args.motor:
+        extra["motor_file"] = _motor_reference(args.motor)
     blocks = link_block_samples(args.paced, args.block_samples)
     if blocks is not None:
         extra["block_samples"] = _block_sizes(str(blocks))[0]
@@ -305,7 +350,8 @@ def cmd_launch(args):
     plot_error = _report(result, args, extra)
     if result.recording_error:
         _output_failed(result.recording_error)
-    return _exit_code(result.interrupted, faults, result.recording_error or plot_error)
+    return _exit_code(result.interrupted, faults, result.recording_error or plot_error,
+                      not_following=bool(_supervision(result)))
 
 
 def cmd_bridge(args):
@@ -322,7 +368,7 @@ def cmd_bridge(args):
              "bridge": result.counters, "frame_errors": result.frame_errors,
              "inverter": result.inverter_counters, "timing": result.timing, "interrupted": bool(result.interrupted)}
     plot_error = _report(result, args, extra)
-    return _exit_code(result.interrupted, output_error=plot_error)
+    return _exit_code(result.interrupted, output_error=plot_error, not_following=bool(_supervision(result)))
 
 
 def cmd_bench_bridge(args):
@@ -372,7 +418,7 @@ def cmd_scenarios(args):
     entries = []
     for name in scenario_names():
         s = load_scenario(name)
-        entries.append({"name": name, "motor": s.motor, "estimator": s.estimator,
+        entries.append({"name": name, "motor": s.motor.name, "estimator": s.estimator,
                         "duration_s": s.duration_s, "description": s.description})
     if args.json:
         _print_json(entries)
@@ -400,22 +446,23 @@ def cmd_commission(args):
     from drive_runner.runner import terminal_progress
     from motor_params.commissioning import SCALARS, default_commissioning_file, save_commissioning
 
-    scenario = load_scenario(args.scenario)
-    out = Path(args.out) if args.out else default_commissioning_file(scenario.motor)
+    scenario = load_scenario(args.scenario, motor_override=args.motor, motor_source="--motor")
+    out = Path(args.out) if args.out else default_commissioning_file(scenario.motor.name)
     if out.exists() and not args.force:
         raise CommandLineError(f"--out: {out} already exists (--force replaces it)")
     if not args.out:
         out.parent.mkdir(exist_ok=True)
     elif not out.parent.is_dir():
         raise CommandLineError(f"--out: the directory {out.parent} does not exist")
-    progress = terminal_progress(f"commissioning {scenario.motor}")
-    rated = nameplate(scenario.motor).rated_current_A
+    progress = terminal_progress(f"commissioning {scenario.motor.name}")
+    rated = scenario.motor.nameplate.rated_current_A
     truth, true_currents = None, None
     if args.graph:
         from drive_launch.commissioning_graph import commission_over_ros
         from pmsm_plant.build import plant_for_scenario
         from pmsm_plant.commissioning import commissioning_truth
-        procedure, wall = commission_over_ros(args.scenario, args.namespace, args.link, progress=progress)
+        procedure, wall = commission_over_ros(args.scenario, args.namespace, args.link, progress=progress,
+                                              motor=args.motor and _motor_reference(args.motor))
         host = "ROS graph: " + (f"virtual inverter over {args.link} + drive_bridge node" if args.link
                                 else "pmsm_plant node") + " + drive_commissioning node"
         truth = commissioning_truth(plant_for_scenario(scenario), rated)
@@ -427,14 +474,14 @@ def cmd_commission(args):
             run.true_currents
     record = procedure.result()
     conditions = {"scenario": scenario.name, "host": host, **procedure.conditions()}
-    save_commissioning(out, record, scenario.motor, METHOD, conditions)
+    save_commissioning(out, record, scenario.motor.name, METHOD, conditions)
     identified = {key: float(getattr(record, key)) for key in SCALARS}
     identified["saliency_shift_at_rated_rad"] = table_value(rated, record.saliency_shift_i_q_A,
                                                             record.saliency_shift_rad)
     identified["convergence_slope_at_rated"] = table_value(rated, record.saliency_shift_i_q_A,
                                                            record.convergence_slope)
     identified["tracking_current_limit_A"] = record.tracking_current_limit_A()
-    report = {"file": str(out), "motor": scenario.motor, "method": METHOD, "host": host,
+    report = {"file": str(out), "motor": scenario.motor.name, "method": METHOD, "host": host,
               "duration_s": conditions["duration_s"], "wall_time_s": wall, "polarity": conditions["polarity"],
               "saliency": conditions["saliency"], "current_limit_A": procedure.limit_A,
               "peak_measured_current_A": float(np.max(np.abs(procedure.raw))), "identified": identified}
@@ -445,7 +492,7 @@ def cmd_commission(args):
     if args.json:
         _print_json(report)
         return 0
-    print(f"{out}: {scenario.motor} commissioned at standstill, shaft held ({host}), "
+    print(f"{out}: {scenario.motor.name} commissioned at standstill, shaft held ({host}), "
           f"{conditions['duration_s']:.2f} s of motor time in {wall:.2f} s")
     print(f"  polarity: {conditions['polarity']}")
     if conditions["saliency"] != "measured":
@@ -471,7 +518,7 @@ def _side_by_side(preset):
     L_dh, L_qh, _ = incremental_inductances(m)
     told = {"n_p": plate.n_p, "R_s_ohm": plate.R_s_ohm, "L_d_H": plate.L_d_H, "L_q_H": plate.L_q_H,
             "L_dh_H": plate.L_d_H, "L_qh_H": plate.L_q_H, "psi_f_Wb": plate.psi_f_Wb, "J_kgm2": plate.J_kgm2,
-            "B_Nms": plate.B_Nms, "U_dc_V": INVERTER_RATINGS[preset.name].U_dc_V}
+            "B_Nms": plate.B_Nms, "U_dc_V": inv.U_dc_V}
     truth = {"n_p": m.n_p, "R_s_ohm": m.R_s_ohm, "L_d_H": m.L_d_H, "L_q_H": m.L_q_H, "L_dh_H": L_dh, "L_qh_H": L_qh,
              "psi_f_Wb": m.psi_f_Wb, "J_kgm2": mech.J_kgm2, "B_Nms": mech.B_Nms, "U_dc_V": inv.U_dc_V,
              "t_dead_s": inv.t_dead_s, "sensor_gains": [sens.gain_a, sens.gain_b, sens.gain_c],
@@ -482,6 +529,8 @@ def _side_by_side(preset):
 
 def cmd_presets(args):
     entries = []
+    from pmsm_plant.presets import PRESETS
+
     for p in PRESETS.values():
         told, truth = _side_by_side(p)
         entries.append({"name": p.name, "source": p.source, "assumptions": list(p.assumptions),
@@ -499,6 +548,46 @@ def cmd_presets(args):
             print(f"  {key:14s} {_cell(shown):>22s} {_cell(value):>16s}")
         for a in e["assumptions"]:
             print(f"  - {a}")
+    return 0
+
+
+def cmd_motor_template(args):
+    from motor_params.motor_file import TEMPLATE
+    sys.stdout.write(TEMPLATE)
+    return 0
+
+
+def cmd_motor_show(args):
+    from motor_params.scaled_loops import scaled_loops
+
+    motor = load_motor(args.motor, "motor")
+    T_s = args.sample_period
+    if not 1e-6 <= T_s <= 1e-2:
+        raise CommandLineError(f"--sample-period: must lie in [1e-06, 0.01] s, not {T_s!r}")
+    loops = scaled_loops(motor.nameplate, motor.inverter, T_s)
+    report = {"name": motor.name, "file": motor.source, "description": motor.description,
+              "nameplate": motor.nameplate._asdict(), "inverter": motor.inverter._asdict(),
+              "simulated_plant": bool(motor.plant), "sample_period_s": T_s, "loops": loops._asdict()}
+    report["loops"]["notes"] = list(loops.notes)
+    if args.json:
+        _print_json(report)
+        return 0
+    print(f"{motor.name}: {motor.description or motor.source} ({motor.source})")
+    for key, value in {**motor.nameplate._asdict(), **motor.inverter._asdict()}.items():
+        if key != "name":
+            print(f"  {key:34s} {_cell(value)}")
+    print(f"  loops scaled to it at {1.0 / T_s:g} Hz sampling (docs/motors-and-control.md):")
+    rows = (("rated-torque acceleration", loops.acceleration_e_rad_s2, "rad/s² el."),
+            ("tracking bandwidth (ours)", loops.tracking_bandwidth_Hz, "Hz"),
+            ("injection frequency (ours)", loops.injection_frequency_Hz, "Hz"),
+            ("injection amplitude (ours)", loops.injection_amplitude_V, "V"),
+            ("amplitude cap (bus)", loops.amplitude_cap_V, "V"),
+            ("speed loop bandwidth", loops.speed_bandwidth_rad_s, "rad/s"))
+    for label, value, unit in rows:
+        print(f"  {label:34s} {value:.4g} {unit}")
+    for note in loops.notes:
+        print(f"  note: {note}")
+    print(f"  simulated plant: {'given (plant:)' if motor.plant else 'none: the nameplate is the plant'}")
     return 0
 
 
@@ -744,7 +833,7 @@ def _replay_corpus(bags, names, args):
 
 def _nameplate_arg(name):
     try:
-        return nameplate(name)
+        return load_motor(name, "--motor").nameplate
     except KeyError as error:
         raise CommandLineError(f"--motor: {error.args[0]}") from None
 
@@ -913,7 +1002,7 @@ def cmd_tune_pll(args):
     if not args.no_plot:
         out = Path(args.out) if args.out else Path("runs") / "tune"
         report["plots"] = plot_pll(design, choice["A_p"], choice["T_i_s"], report.get("check"),
-                                   out / f"{args.motor}_{args.estimator}")
+                                   out / f"{load_motor(args.motor, '--motor').name}_{args.estimator}")
     if args.json:
         _print_json(report)
         return _exit_code(interrupted)
@@ -1103,9 +1192,7 @@ def cmd_bench_startup(args):
         raise CommandLineError(f"--angles: must be at least 1, not {args.angles}")
     if args.seeds < 1:
         raise CommandLineError(f"--seeds: must be at least 1, not {args.seeds}")
-    motors = [args.motor] if args.motor else sorted(MOTOR_SCENARIOS)
-    if args.motor and args.motor not in MOTOR_SCENARIOS:
-        raise CommandLineError(f"--motor: unknown motor '{args.motor}' (known: {', '.join(sorted(MOTOR_SCENARIOS))})")
+    motors = [load_motor(args.motor, "--motor")] if args.motor else [load_motor(m) for m in sorted(MOTOR_SCENARIOS)]
     cases = STANDARD_CASES
     if args.load is not None:
         if not 0.0 <= args.load <= 1.5:
@@ -1116,7 +1203,8 @@ def cmd_bench_startup(args):
     try:
         for motor in motors:
             first = bench_scenario(motor, args.estimator, 0.0, 1, cases[0])
-            _warn_if_nameplate_only(scenario_commissioning(first).source, motor, MOTOR_SCENARIOS[motor])
+            _warn_if_nameplate_only(scenario_commissioning(first).source, motor.name,
+                                    MOTOR_SCENARIOS.get(motor.name, f"wang_100rpm --motor {motor.source}"))
             for case in cases:
                 progress = None if args.json else terminal_progress(f"{motor}, {case.name}")
                 reports.append(startup_sweep(motor, case, args.angles, tuple(range(1, args.seeds + 1)),
@@ -1195,6 +1283,7 @@ def build_parser():
     run = sub.add_parser("run", help="run a scenario in one process, print metrics, write plots")
     run.add_argument("scenario", help="shipped scenario name (see 'drive scenarios') or YAML path")
     run.add_argument("--estimator", help="override the scenario's estimator")
+    run.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
     run.add_argument("--duration", type=float, help="override the duration [s]")
     run.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     run.add_argument("--block-samples", type=int, metavar="N",
@@ -1218,10 +1307,21 @@ def build_parser():
         p.add_argument("--json", action="store_true")
         p.set_defaults(func=func)
 
+    motor = sub.add_parser("motor", help="motor files: a commented template; what the drive makes of a motor")
+    motor_sub = motor.add_subparsers(dest="motor_command", required=True)
+    template = motor_sub.add_parser("template", help="print a commented motor file (drive motor template > m.yaml)")
+    template.set_defaults(func=cmd_motor_template)
+    show = motor_sub.add_parser("show", help="a motor's nameplate, inverter and the loops scaled to it")
+    show.add_argument("motor", metavar="NAME|FILE")
+    show.add_argument("--sample-period", type=float, default=1e-4, metavar="S", help="sampling period [s]")
+    show.add_argument("--json", action="store_true")
+    show.set_defaults(func=cmd_motor_show)
+
     commission = sub.add_parser("commission", help="measure the scenario's motor at standstill, shaft held "
                                                    "(R_s, dead time, current sensors, L_dh, L_qh, saliency shift) "
                                                    "and write its commissioning file")
     commission.add_argument("scenario", help="shipped scenario name or YAML path (its motor and plant)")
+    commission.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
     commission.add_argument("--out", help="file to write (default commissioning/MOTOR.yaml)")
     commission.add_argument("--force", action="store_true", help="replace an existing file")
     commission.add_argument("--link", choices=("pty", "can"),
@@ -1276,7 +1376,8 @@ def build_parser():
 
     startup = bench_sub.add_parser("startup", help="start-up from rotor angles over the electrical circle, noise "
                                                    "seeds and loads: polarity, error at first torque, roll-back")
-    startup.add_argument("--motor", help="one preset (default: both)")
+    startup.add_argument("--motor", metavar="NAME|FILE", help="one motor: shipped or a motor file (default: both "
+                                                               "shipped)")
     startup.add_argument("--angles", type=int, default=72, help="start angles over the electrical circle")
     startup.add_argument("--seeds", type=int, default=3, help="noise seeds 1..S per angle")
     startup.add_argument("--load", type=float, help="one case: this fraction of rated load, opposing the "
@@ -1324,7 +1425,7 @@ def build_parser():
     tune_sub = tune.add_subparsers(dest="tune", required=True)
     pll = tune_sub.add_parser("pll", help="PI of a pulsating-injection estimator's PLL from Szabó's model "
                                           "(§2.4) and our carrier model, with a closed-loop check")
-    pll.add_argument("--motor", default="szabo_ipmsm",
+    pll.add_argument("--motor", default="szabo_ipmsm", metavar="NAME|FILE",
                      help="motor preset (its commissioned R_s, L_dh, L_qh)")
     pll.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     pll.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS)
@@ -1353,7 +1454,8 @@ def build_parser():
     pll.add_argument("--json", action="store_true")
     pll.set_defaults(func=cmd_tune_pll)
     current = tune_sub.add_parser("current", help="d/q current PI gains from a bandwidth and damping")
-    current.add_argument("--motor", default="szabo_ipmsm", help="motor preset (nameplate R, L_d, L_q)")
+    current.add_argument("--motor", default="szabo_ipmsm", metavar="NAME|FILE",
+                         help="a shipped motor or a motor file (nameplate R, L_d, L_q)")
     current.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default 2π·250)")
     current.add_argument("--damping", type=float, help="ζ (default 0.8)")
     current.add_argument("--axis", choices=("d", "q", "both"), default="both")
@@ -1361,7 +1463,8 @@ def build_parser():
     current.set_defaults(func=cmd_tune_current)
     speed = tune_sub.add_parser("speed",
                                 help="speed PI gains from a bandwidth and damping, kept below the PLL")
-    speed.add_argument("--motor", default="szabo_ipmsm", help="motor preset (J, B, k_t)")
+    speed.add_argument("--motor", default="szabo_ipmsm", metavar="NAME|FILE",
+                       help="a shipped motor or a motor file (J, B, k_t)")
     speed.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default 40)")
     speed.add_argument("--damping", type=float, help="ζ (default 1)")
     speed.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS,
@@ -1375,6 +1478,7 @@ def build_parser():
     launch = sub.add_parser("launch", help="run a scenario through the ROS 2 graph (nodes over topics)")
     launch.add_argument("scenario", help="shipped scenario name or YAML path")
     launch.add_argument("--estimator", help="override the scenario's estimator")
+    launch.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
     launch.add_argument("--duration", type=float, help="override the duration [s]")
     launch.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     launch.add_argument("--block-samples", type=int, metavar="N",
@@ -1409,6 +1513,7 @@ def build_parser():
     bridge.add_argument("--block-samples", type=int, metavar="N",
                         help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced)")
     bridge.add_argument("--estimator", help="override the scenario's estimator")
+    bridge.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
     bridge.add_argument("--duration", type=float, help="override the duration [s]")
     bridge.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     bridge.add_argument("--out", help="plot directory (default runs/SCENARIO)")

@@ -85,7 +85,7 @@ class CommissioningNode(ScenarioNode):
     def finish(self):
         out = self.get_parameter("out").value
         if out:
-            self.written = str(save_commissioning(out, self.procedure.result(), self.scenario.motor, METHOD,
+            self.written = str(save_commissioning(out, self.procedure.result(), self.scenario.motor.name, METHOD,
                                                   self.procedure.conditions()))
         self.complete_run()
 

@@ -24,7 +24,6 @@ from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direct
 from control_math.frames import SQRT3, clarke
 from drive_interface.settings import number
 from motor_params.commissioning import MIN_SALIENCY_RATIO, Commissioning
-from motor_params.nameplate import INVERTER_RATINGS, nameplate
 
 from .identification import (
     admittance,
@@ -281,7 +280,7 @@ class CommissioningProcedure:
 
 def procedure_for_scenario(scenario, settings=None):
     """The procedure for the scenario's motor, told its nameplate and its inverter's rating only."""
-    return CommissioningProcedure(nameplate(scenario.motor), INVERTER_RATINGS[scenario.motor], scenario.T_s,
+    return CommissioningProcedure(scenario.motor.nameplate, scenario.motor.inverter, scenario.T_s,
                                   settings)
 
 

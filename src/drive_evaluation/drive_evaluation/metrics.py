@@ -199,7 +199,7 @@ def compute_metrics(result, steady_windows=None):
                            "angle_error_bias": w_bias, "angle_error_peak": w_peak})
     return {
         "scenario": scenario.name,
-        "motor": scenario.motor,
+        "motor": scenario.motor.name,
         "estimator": result.estimator,
         "duration_s": scenario.duration_s,
         "samples": int(log.shape[0]),

@@ -18,7 +18,7 @@ from drive_scenarios.scenario import NON_IDEALITIES, parse_scenario
 from hf_estimator.pll_model import margins
 from hf_estimator.pll_tuning import largest_loop_filter, pll_design
 from motor_params.commissioning import resolve_commissioning
-from motor_params.nameplate import INVERTER_RATINGS, nameplate
+from motor_params.motor_file import load_motor
 
 IDEAL_PLANT_OFF = ("dead_time", "sensor_noise", "sensor_offset_gain", "adc")
 """What the ideal plant of the check leaves out (the models' assumptions); it keeps saturation (the
@@ -26,24 +26,26 @@ saliency of `wang_spmsm`) and the inverter's one-period delay."""
 
 
 def motor_commissioning(motor, given=""):
-    """The commissioning record the drive would load for a shipped motor (motor_params.commissioning.
-    resolve_commissioning: the file ``given``, 'nameplate', or the default file, else the nameplate)."""
-    return resolve_commissioning(nameplate(motor), given, "--commissioning")
+    """The commissioning record the drive would load for a motor (a shipped name or a motor file;
+    motor_params.commissioning.resolve_commissioning: the file ``given``, 'nameplate', or the default file,
+    else the nameplate)."""
+    return resolve_commissioning(load_motor(motor, "--motor").nameplate, given, "--commissioning")
 
 
 def design_for_motor(motor, estimator_name, settings, T_s=1e-4, commissioning=""):
-    """hf_estimator.pll_tuning.pll_design for a shipped motor: its nameplate, inverter delay, and its
-    commissioning record (``motor_commissioning``)."""
-    return pll_design(nameplate(motor), motor_commissioning(motor, commissioning),
-                      INVERTER_RATINGS[motor].delay_periods, estimator_name, settings, T_s)
+    """hf_estimator.pll_tuning.pll_design for a motor (a shipped name or a motor file): its nameplate,
+    inverter, and its commissioning record (``motor_commissioning``); the design names the motor as given."""
+    m = load_motor(motor, "--motor")
+    design = pll_design(m.nameplate, motor_commissioning(m, commissioning), m.inverter, estimator_name, settings, T_s)
+    return dataclasses.replace(design, motor=str(motor))
 
 
 def largest_loop_filter_for_motor(motor, settings, phase_margin_deg, crossover_rad_s, model="carrier",
                                   commissioning=""):
-    """hf_estimator.pll_tuning.largest_loop_filter for a shipped motor (as ``design_for_motor``)."""
-    return largest_loop_filter(nameplate(motor), motor_commissioning(motor, commissioning),
-                               INVERTER_RATINGS[motor].delay_periods, settings, phase_margin_deg, crossover_rad_s,
-                               model)
+    """hf_estimator.pll_tuning.largest_loop_filter for a motor (as ``design_for_motor``)."""
+    m = load_motor(motor, "--motor")
+    return largest_loop_filter(m.nameplate, motor_commissioning(m, commissioning), m.inverter, settings,
+                               phase_margin_deg, crossover_rad_s, model)
 
 
 SPEED_LOOPS = {"off": {"gains": "rule", "speed_bandwidth_rad_s": 1.0}, "rule": {"gains": "rule"},

@@ -13,7 +13,7 @@ from drive_bags.reader import bag_scenario, bag_topics, has_ground_truth, log_fr
 from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
 from motor_params.commissioning import CommissioningError, resolve_commissioning
-from motor_params.nameplate import NameplateError, load_nameplate, nameplate, nameplate_from_mapping
+from motor_params.nameplate import NameplateError, load_nameplate, nameplate_from_mapping
 
 from .excitation import AXIS_BLOCK_S, describe_excitation, signed_carrier
 from .metrics import windows as scenario_windows
@@ -149,7 +149,7 @@ def _nameplate(path, motor, scenario, v2, sources):
     try:
         if scenario is not None:
             sources["motor"] = f"scenario {scenario.name}{unused}"
-            return nameplate(scenario.motor)
+            return scenario.motor.nameplate
         if v2 is not None:
             sources["motor"] = f"drive_config motor{unused}"
             return nameplate_from_mapping(v2["motor"], f"{path}: drive_config motor")
@@ -177,7 +177,7 @@ def _commissioning(path, plate, given, scenario, sources):
     try:
         if given:
             known = resolve_commissioning(plate, given, "--commissioning")
-        elif scenario is not None and scenario.motor == plate.name:
+        elif scenario is not None and scenario.motor.name == plate.name:
             known = resolve_commissioning(plate, scenario.commissioning, f"{scenario.source}: commissioning")
         else:
             known = resolve_commissioning(plate, "", "commissioning")

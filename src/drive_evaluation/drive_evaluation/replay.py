@@ -23,6 +23,7 @@ from drive_runner.loop import replay_samples
 from drive_runner.runner import RunResult
 from hf_estimator.block import ESTIMATE_COLUMNS
 from hf_estimator.interface import excitation_need, injects, make_estimator
+from motor_params.nameplate import InverterRating
 
 from .excitation import MAX_CARRIER_PHASE_RAD, MIN_CARRIER_FRACTION, carrier_match
 from .metrics import _mask, angle_error, angle_scores, reported_losses
@@ -66,8 +67,8 @@ def replayed_estimator(recording, name):
         settings = {**recording.injection, **settings}
         if name != recording.estimator:
             settings["polarity_from_recording"] = True
-    return make_estimator(name, recording.nameplate, recording.T_s, settings, recording.commissioning,
-                          recording.delay_periods)
+    inverter = InverterRating(U_dc_V=math.inf, delay_periods=recording.delay_periods)
+    return make_estimator(name, recording.nameplate, recording.T_s, settings, recording.commissioning, inverter)
 
 
 def applicability(recording, name, frequency, requested, scored):

@@ -14,7 +14,6 @@ from drive_runner.loop import replay_samples
 from drive_runner.runner import run_scenario, scenario_commissioning
 from hf_estimator.block import ESTIMATE_COLUMNS
 from hf_estimator.registry import make_estimator
-from motor_params.nameplate import nameplate
 
 from .metrics import _mask, angle_error, compute_metrics, windows
 from .replay import logged_inputs
@@ -49,7 +48,7 @@ def band_scores(log, scenario, n_p, hf):
     """Per SPEED_BANDS band over the samples after the scenario's start: share of the run, angle error
     RMS and peak [rad el.], HF current RMS [A] (``hf``: the run's hf_current), the copper loss it causes
     [W] (1.5 R_s |i_hf|², the nameplate's R_s) and the share of samples the back-EMF observer led."""
-    plate = nameplate(scenario.motor)
+    plate = scenario.motor.nameplate
     t = log[:, COLUMN["t"]]
     after = t >= scenario.metrics_start_s
     speed = np.abs(log[:, COLUMN["omega_m"]]) / (plate.rated_speed_rpm * math.pi / 30.0)
@@ -99,8 +98,8 @@ def observer_on_run(result, scenario):
     """The back-EMF observer alone on a closed-loop run's measured currents and applied voltages, open loop
     (as replay): its log (LOG_COLUMNS), scored against the run's ground truth."""
     commissioning = result.commissioning
-    e = make_estimator("flux_observer", nameplate(scenario.motor), scenario.T_s, {}, commissioning,
-                       scenario.drive_delay_periods())
+    inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
+    e = make_estimator("flux_observer", scenario.motor.nameplate, scenario.T_s, {}, commissioning, inverter)
     currents, u_applied = logged_inputs(result.log, scenario.drive_delay_periods(), scenario.name)
     out = np.zeros((len(currents), len(ESTIMATE_COLUMNS)))
     zeros = np.zeros(len(currents))
@@ -138,7 +137,7 @@ def full_speed_comparison(scenario, progress=None):
                  "bands": band_scores(log, scenario, blended.n_p, hf_current(log, blended.n_p, carrier))})
     if progress:
         progress(1.0)
-    return {"scenario": scenario.name, "motor": scenario.motor, "duration_s": scenario.duration_s,
+    return {"scenario": scenario.name, "motor": scenario.motor.name, "duration_s": scenario.duration_s,
             "commissioning": scenario_commissioning(scenario).source, "runs": runs}
 
 
@@ -148,7 +147,7 @@ def injection_cost(scenario, estimators, progress=None):
     then ours (saliency_snr_min 0: the amplitude as asked) over AMPLITUDES_V, and the least that keeps them."""
     carrier = carrier_samples(scenario)
     steady, _ = windows(scenario)
-    plate = nameplate(scenario.motor)
+    plate = scenario.motor.nameplate
 
     def measure(s, label):
         result = run_scenario(s)
@@ -174,6 +173,6 @@ def injection_cost(scenario, estimators, progress=None):
             progress((len(rows) + len(sweep)) / steps)
     kept = [r for r in sweep if r["meets_targets"]]
     least = min(kept, key=lambda r: r["amplitude_V"]) if kept else None
-    return {"scenario": scenario.name, "motor": scenario.motor, "estimators": rows, "sweep": sweep,
+    return {"scenario": scenario.name, "motor": scenario.motor.name, "estimators": rows, "sweep": sweep,
             "least_amplitude_V": least["amplitude_V"] if least else None,
             "least": least}

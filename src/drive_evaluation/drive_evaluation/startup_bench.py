@@ -11,10 +11,11 @@ import numpy as np
 from drive_evaluation.metrics import startup_metrics
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario, parse_scenario
-from motor_params.nameplate import nameplate
+from motor_params.motor_file import load_motor
 
 MOTOR_SCENARIOS = {"wang_spmsm": "wang_100rpm", "szabo_ipmsm": "szabo_profile"}
-"""The shipped scenario whose injection a motor's bench runs use."""
+"""The shipped scenario whose injection and controller a shipped motor's bench runs use (any other motor
+runs with the drive's own, scaled to it: docs/motors-and-control.md "Loops scaled to the motor")."""
 SPEED_PER_RATED = 0.03
 HOLD_S = 0.05
 RAMP_S = 0.1
@@ -37,20 +38,22 @@ rotor during start-up."""
 
 
 def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None):
-    """The scenario of one bench run."""
-    shipped = load_scenario(MOTOR_SCENARIOS[motor])
-    plate = nameplate(motor)
+    """The scenario of one bench run on ``motor`` (a shipped name, a motor file or a Motor)."""
+    m = load_motor(motor, "--motor")
+    shipped = load_scenario(MOTOR_SCENARIOS[m.name]) if m.shipped else None
+    plate = m.nameplate
     speed = SPEED_PER_RATED * plate.rated_speed_rpm
-    data = {"motor": motor, "estimator": {"type": estimator or "injection_frame", "settings": settings or {}},
-            "injection": dict(shipped.injection), "duration_s": DURATION_S, "sampling_period_s": shipped.T_s,
+    data = {"motor": m.source, "estimator": {"type": estimator or "injection_frame", "settings": settings or {}},
+            "injection": dict(shipped.injection) if shipped else {}, "duration_s": DURATION_S,
+            "sampling_period_s": shipped.T_s if shipped else 1e-4,
             "speed": {"unit": "rpm", "interpolation": "linear",
                       "points": [[0.0, 0.0], [HOLD_S, 0.0], [HOLD_S + RAMP_S, speed]]},
             "load": {"unit": "rated", "points": [[0.0, case.load_per_rated]]}, "seed": seed,
             "initial": {"theta_m_rad": theta_e_rad / plate.n_p}, "brake": case.brake,
-            "metrics": {"settle_s": 0.05}, "controller": dict(shipped.controller)}
+            "metrics": {"settle_s": 0.05}, "controller": dict(shipped.controller) if shipped else {}}
     if case.feedforward:
         data["torque_feedforward"] = {"unit": "rated", "points": [[0.0, case.load_per_rated]]}
-    return parse_scenario(data, f"startup_{motor}", "drive bench startup")
+    return parse_scenario(data, f"startup_{m.name}", "drive bench startup")
 
 
 def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progress=None):
@@ -67,7 +70,8 @@ def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progr
                          "refused": (result.startup or {}).get("refused")})
             if progress:
                 progress(len(rows) / total)
-    return {"motor": motor, "case": case.name, "load_per_rated": case.load_per_rated, "brake": case.brake,
+    return {"motor": load_motor(motor, "--motor").name, "case": case.name, "load_per_rated": case.load_per_rated,
+            "brake": case.brake,
             "estimator": estimator or "injection_frame", "runs": len(rows), **summary(rows), "rows": rows}
 
 

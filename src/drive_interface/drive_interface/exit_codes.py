@@ -12,8 +12,11 @@ EXIT_RECORDING_FAILED = 4
 """The run finished and its metrics are printed, but an output could not be written in full: the
 recording stopped early (closed as far as written), or the plot (an unwritable directory)."""
 EXIT_NOT_TRACKING = 5
-"""The run finished, but the drive refused to start (no saliency, no polarity) or ended holding zero
+"""The run finished, but the drive refused to start (no saliency, no polarity, the rotor moved) or ended holding zero
 torque after a lost lock; the metrics say which."""
+EXIT_NOT_FOLLOWING = 6
+"""The run finished, but the shaft did not follow its command: dragged backwards, stalled, not following,
+or at the current limit for longer than the supervision allows (foc_controller.supervision)."""
 EXIT_SIGNAL_BASE = 128
 """128 + N: stopped by signal N (130 SIGINT, 143 SIGTERM), with what was done printed, marked
 interrupted."""

@@ -22,19 +22,20 @@ from .launcher import (
 
 
 def commission_over_ros(scenario_ref, namespace=DEFAULT_NAMESPACE, link=None, timeout_s=1.0,
-                        startup_timeout_s=60.0, progress=None):
+                        startup_timeout_s=60.0, progress=None, motor=None):
     """Run the commissioning procedure over topics; returns (the finished procedure, wall time [s]).
     GraphError when the graph does not finish; Interrupted on SIGINT/SIGTERM (the plant is left at zero
-    volts)."""
+    volts). ``motor``: a shipped motor or motor file in place of the scenario's."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
     from drive_interface.node import make_executor
 
-    base = scenario_from_parameters(all_parameters(node_parameters(scenario_ref)))
+    motor_file = {"motor_file": motor} if motor else {}
+    base = scenario_from_parameters(all_parameters(node_parameters(scenario_ref, extra=motor_file)))
     seconds = procedure_for_scenario(base).total_samples * base.T_s
     parameters = node_parameters(scenario_ref, duration_s=seconds, timeout_s=timeout_s,
-                                 extra={"shaft_held": True})
+                                 extra={"shaft_held": True, **motor_file})
     scenario = scenario_from_parameters(all_parameters(parameters))
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)

@@ -12,7 +12,6 @@ from drive_interface.node import message_class, topic_qos
 from drive_interface.stamps import sample_at, stamp_ns
 from drive_interface.topics import BLOCK_TOPIC, SAMPLE_LOGGED, TOPICS
 from drive_interface.wire import WireError, decode_block, decoder_of
-from motor_params.nameplate import nameplate
 
 ERROR = 2
 """diagnostic_msgs/DiagnosticStatus.ERROR: a fault (WARN, e.g. a bridge waiting for its inverter, is not)."""
@@ -39,7 +38,7 @@ class ScenarioDriver:
                  inverter=None):
         self.node, self.scenario = node, scenario
         self.n = scenario.n_samples
-        self.n_p = nameplate(scenario.motor).n_p
+        self.n_p = scenario.motor.nameplate.n_p
         self.record = record
         self.settle_s, self.startup_timeout_s, self.progress = settle_s, startup_timeout_s, progress
         self.speed, self.load = scenario.schedule()

@@ -21,7 +21,7 @@ from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_scenarios.scenario import behind_an_inverter
 from foc_controller.control import controller_block, controller_step
 from hf_estimator.block import ESTIMATE_WIDTH, estimator_block
-from motor_params.nameplate import nameplate, trip_current_A
+from motor_params.nameplate import trip_current_A
 
 from .loop import write_row
 from .runner import RunResult, build_drive, cut
@@ -199,7 +199,7 @@ class _BlockAnswer:
     def __init__(self, host, scenario, line, log):
         self.host, self.scenario, self.line, self.log = host, scenario, line, log
         self.calibration = host.commissioning.calibration()
-        self.trip_A = trip_current_A(nameplate(scenario.motor))
+        self.trip_A = trip_current_A(scenario.motor.nameplate)
         N = scenario.block_samples
         self.currents, self.encoder = np.zeros((N, 3)), np.zeros((N, 2))
         self.est_out, self.ctrl_out = np.zeros((N, ESTIMATE_WIDTH)), np.zeros((N, 6))

@@ -10,7 +10,6 @@ from drive_commissioning.procedure import procedure_for_scenario
 from control_math.command_delay import applied_voltage, issue_command
 from drive_interface.errors import DriveError
 from drive_scenarios.scenario import shaft_held
-from motor_params.nameplate import nameplate
 from pmsm_plant.build import plant_for_scenario
 from pmsm_plant.commissioning import commissioning_truth
 from pmsm_plant.model import plant_advance, plant_outputs, sense_currents
@@ -51,7 +50,7 @@ def commission_in_process(scenario, settings=None, progress=None):
             progress(k / n)
     if progress:
         progress(1.0)
-    truth = commissioning_truth(plant, nameplate(scenario.motor).rated_current_A)
+    truth = commissioning_truth(plant, scenario.motor.nameplate.rated_current_A)
     return CommissioningRun(procedure, truth, true_currents, time.perf_counter() - start, "one process, plant core")
 
 
@@ -79,7 +78,7 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
         raise BridgeCommissioningError(f"the virtual inverter over {link} stopped at sample {procedure.k} of {n}")
     if progress:
         progress(1.0)
-    truth = commissioning_truth(inverter.plant, nameplate(scenario.motor).rated_current_A)
+    truth = commissioning_truth(inverter.plant, scenario.motor.nameplate.rated_current_A)
     return CommissioningRun(procedure, truth, inverter.truth[:, 4:7], time.perf_counter() - start,
                             f"virtual inverter over {link}, bridge core")
 

@@ -14,7 +14,7 @@ from foc_controller.control import controller_state
 from hf_estimator.build import estimator_for_scenario
 from hf_estimator.startup import estimator_startup
 from motor_params.commissioning import resolve_commissioning
-from motor_params.nameplate import nameplate, trip_current_A
+from motor_params.nameplate import trip_current_A
 from pmsm_plant.build import plant_for_scenario
 
 from .loop import run_blocks
@@ -46,7 +46,7 @@ class RunResult:
     @property
     def n_p(self):
         """Pole pairs of the run's motor (its nameplate)."""
-        return self.pole_pairs or nameplate(self.scenario.motor).n_p
+        return self.pole_pairs or self.scenario.motor.nameplate.n_p
 
 
 @dataclass
@@ -78,7 +78,7 @@ class Drive:
                    p.sensor, p.seed, p.T_s, p.substeps, e.step, e.x, e.z, e.params, self.controller_x,
                    self.controller_z, self.controller, self.speed_ref, self.tau_load, self.tau_feedforward,
                    p.imposed_speed, self.brake, self.commissioning.calibration(),
-                   trip_current_A(nameplate(self.scenario.motor)), log)
+                   trip_current_A(self.scenario.motor.nameplate), log)
 
 
 def brake_state(scenario):
@@ -89,7 +89,7 @@ def brake_state(scenario):
 def scenario_commissioning(scenario):
     """The commissioning record the scenario's drive loads (its ``commissioning`` key or override, the
     default file, or the nameplate alone)."""
-    return resolve_commissioning(nameplate(scenario.motor), scenario.commissioning,
+    return resolve_commissioning(scenario.motor.nameplate, scenario.commissioning,
                                  f"{scenario.source}: commissioning")
 
 

@@ -4,7 +4,7 @@ from drive_interface.node import ContractNode, describe, stamp
 from drive_interface.parameter_sources import label
 from drive_interface.topics import BLOCK_TOPIC, CONTRACT_VERSION
 from motor_params.commissioning import resolve_commissioning
-from motor_params.nameplate import contract_motor, nameplate, trip_current_A
+from motor_params.nameplate import contract_motor, trip_current_A
 
 from .parameters import NODE_PARAMETERS, scenario_from_parameters
 
@@ -95,7 +95,7 @@ class ScenarioNode(ContractNode):
 
     def nameplate(self):
         """The nameplate of the scenario's motor."""
-        return nameplate(self.scenario.motor)
+        return self.scenario.motor.nameplate
 
     def load_commissioning(self, scenario):
         """What the drive knows beyond the nameplate (motor_params.commissioning.resolve_commissioning):
@@ -103,7 +103,7 @@ class ScenarioNode(ContractNode):
         nameplate alone; CommissioningError names the parameter or scenario key at fault."""
         label = (self.label("commissioning") if self.parameters["commissioning"]
                  else f"{scenario.source}: commissioning")
-        return resolve_commissioning(nameplate(scenario.motor), scenario.commissioning, label)
+        return resolve_commissioning(scenario.motor.nameplate, scenario.commissioning, label)
 
     def publish_config(self, config):
         if self.scenario:

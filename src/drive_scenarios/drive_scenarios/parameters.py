@@ -9,6 +9,7 @@ from .scenario import MAX_BLOCK_SAMPLES, ScenarioError, load_scenario, shaft_hel
 
 NODE_PARAMETERS = {
     "scenario": ("wang_100rpm", "shipped scenario name or YAML path: the file `drive run` reads"),
+    "motor_file": ("", "the motor: a shipped motor's name or a motor file (empty: the scenario's)"),
     "estimator": ("", "estimator type (empty: the scenario's)"),
     "commissioning": ("", "commissioning file, or 'nameplate' (empty: the scenario's, else "
                           "commissioning/MOTOR.yaml in the working directory when present, else the nameplate)"),
@@ -76,7 +77,8 @@ def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}")
     ScenarioError naming the parameter (``label(name)``) or the scenario file's key at fault."""
     check_parameters(parameters, label)
     scenario = load_scenario(parameters["scenario"], estimator_override=parameters["estimator"] or None,
-                             override_source=label("estimator"))
+                             override_source=label("estimator"), motor_override=parameters["motor_file"] or None,
+                             motor_source=label("motor_file"))
     changes = {}
     if parameters["commissioning"]:
         changes["commissioning"] = str(parameters["commissioning"])

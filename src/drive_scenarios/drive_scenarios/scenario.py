@@ -1,4 +1,5 @@
-"""Scenario files (YAML): motor, estimator, speed and load time tables, duration, sampling period
+"""Scenario files (YAML): motor (a shipped name, a motor file or the file's mapping), estimator, speed and
+load time tables, duration, sampling period
 and non-idealities. Every error names the file and the key at fault in one line."""
 import dataclasses
 import math
@@ -10,7 +11,7 @@ import yaml
 
 from drive_interface.errors import DriveError
 from motor_params.commissioning import NAMEPLATE_ONLY
-from motor_params.nameplate import INVERTER_RATINGS, NAMEPLATES
+from motor_params.motor_file import Motor, MotorFileError, load_motor, motor_from_mapping
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
@@ -62,7 +63,8 @@ class Scenario:
     name: str
     source: str
     description: str
-    motor: str
+    motor: Motor
+    """The motor file (motor_params.motor_file): nameplate and inverter for the drive, plant for the simulator."""
     estimator: str
     estimator_settings: dict
     injection: dict
@@ -125,7 +127,7 @@ class Scenario:
     def answer_delay_periods(self):
         """Periods from a block's last sample to its first command acting: ``answer_periods``, else the
         inverter's own delay."""
-        return self.answer_periods or INVERTER_RATINGS[self.motor].delay_periods
+        return self.answer_periods or self.motor.inverter.delay_periods
 
     def drive_delay_periods(self):
         """The drive's delay d from sample to applied command [periods]: the answer delay (none when the
@@ -201,9 +203,11 @@ def resolve(name_or_path):
     return shipped
 
 
-def load_scenario(name_or_path, estimator_override=None, override_source="estimator override"):
+def load_scenario(name_or_path, estimator_override=None, override_source="estimator override", motor_override=None,
+                  motor_source="motor override"):
     """The scenario of a shipped name or a YAML path; ``estimator_override`` replaces its estimator
-    (``override_source`` names where it came from: "command line --estimator", "parameter estimator")."""
+    (``override_source`` names where it came from: "command line --estimator", "parameter estimator"), and
+    ``motor_override`` (a shipped motor or a motor file, from ``motor_source``) its motor."""
     path = resolve(name_or_path)
     try:
         if path.stat().st_size > MAX_FILE_BYTES:
@@ -217,10 +221,12 @@ def load_scenario(name_or_path, estimator_override=None, override_source="estima
         raise ScenarioError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
     except RecursionError:
         raise ScenarioError(f"{path}: nested too deeply to be a scenario") from None
-    return parse_scenario(data, path.stem, str(path), estimator_override, override_source)
+    return parse_scenario(data, path.stem, str(path), estimator_override, override_source, motor_override,
+                          motor_source)
 
 
-def parse_scenario(data, name, source, estimator_override=None, override_source="estimator override"):
+def parse_scenario(data, name, source, estimator_override=None, override_source="estimator override",
+                   motor_override=None, motor_source="motor override"):
     def fail(key, problem):
         raise ScenarioError(f"{source}: {key}: {problem}")
 
@@ -235,9 +241,8 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     for key in ("initial", "metrics", "controller", "injection", "non_idealities"):
         if data.get(key) is not None and not isinstance(data[key], dict):
             fail(key, "must be a mapping of keys")
-    motor = data["motor"]
-    if not isinstance(motor, str) or motor not in NAMEPLATES:
-        fail("motor", f"unknown motor '{motor}' (known: {', '.join(sorted(NAMEPLATES))})")
+    motor = _motor(motor_override or data["motor"], motor_source if motor_override else f"{source}: motor", source,
+                   from_file=not motor_override)
 
     estimator_spec = data["estimator"]
     if isinstance(estimator_spec, str):
@@ -277,7 +282,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         fail("mode", f"must be 'speed_control' or 'imposed_speed', not '{mode}'")
 
     speed = _table(data["speed"], "speed", {"rpm": RPM, "rad_s": 1.0}, fail, duration)
-    torque_units = {"Nm": 1.0, "rated": NAMEPLATES[motor].rated_torque_Nm}
+    torque_units = {"Nm": 1.0, "rated": motor.nameplate.rated_torque_Nm}
     load = _table(data.get("load", {"unit": "Nm", "points": [[0.0, 0.0]]}), "load", torque_units, fail, duration)
     feedforward = data.get("torque_feedforward")
     if feedforward is not None:
@@ -360,6 +365,23 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         seed=seed, substeps=substeps, plant_deviation={**NO_DEVIATION, **deviation},
         commissioning=commissioning, estimator_source=estimator_source, brake=brake, brake_release_s=brake_release,
         torque_feedforward=feedforward, block_samples=block_samples, answer_periods=answer_periods)
+
+
+def _motor(spec, label, scenario_source, from_file):
+    """The Motor a scenario's ``motor`` key (or an override) names: a shipped motor, a motor file (a path
+    relative to the scenario file's folder) or, in the file, the motor file's mapping itself."""
+    try:
+        if isinstance(spec, dict) and from_file:
+            return motor_from_mapping(spec, label, default_name="motor")
+        if not isinstance(spec, str):
+            raise ScenarioError(f"{label}: must be a shipped motor's name, a motor file or its mapping, not {spec!r}")
+        if from_file and scenario_source.endswith((".yaml", ".yml")) and not Path(spec).is_absolute():
+            beside = Path(scenario_source).parent / spec
+            if beside.is_file():
+                spec = str(beside)
+        return load_motor(spec, label)
+    except MotorFileError as error:
+        raise ScenarioError(str(error)) from None
 
 
 def _number(value, key, fail):

@@ -39,6 +39,7 @@ from motor_params.knowledge import motor_knowledge
 from .build import check_controller_settings, controller_for_scenario
 from .control import OMEGA_FILTERED, controller_block, controller_state, controller_step, estimated_torque
 from .params import check_speed_limit
+from .supervision import SpeedSupervisor, fault_line
 
 SPEED_LIMIT = "controller.speed_limit_rad_s"
 ESTIMATOR_NODE = "hf_estimator"
@@ -124,6 +125,8 @@ class ControllerNode(ScenarioNode):
             return
         self.n_p = self.params.n_p
         self.trip_A = self.trip_current_A()
+        self.supervisor = SpeedSupervisor(self.n_p, self.nameplate().rated_speed_rpm * math.pi / 30.0,
+                                          self.params.i_max_A, self.T_s)
         self.x, self.z = controller_state(self.params)
         controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), np.zeros((1, 10)),
@@ -238,6 +241,7 @@ class ControllerNode(ScenarioNode):
                 self.fault("bad_input", f"block {k0}: {bad} of {n} samples with currents beyond the "
                                         f"{self.trip_A:g} A trip or a non-finite estimate; zero voltage there")
             self.current_limited = abs(out[-1, 5]) >= self.params.i_max_A
+            self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], out[:, 5], state[2]))
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
             if joint is not None:
                 j = self.joint_msg
@@ -280,6 +284,7 @@ class ControllerNode(ScenarioNode):
                 self.n_p * estimate[0], self.n_p * estimate[1], self.omega_m_ref, *injection,
                 state if finite(state) else 0.0, self.tau_feedforward)
             self.current_limited = abs(i_q_ref) >= self.params.i_max_A
+            self.supervise(self.supervisor.step(k, self.omega_m_ref, self.n_p * estimate[1], i_q_ref, state))
             if k % self.decimation == 0:
                 j = self.joint_msg
                 j.header.stamp = stamp(k, self.T_s)
@@ -291,9 +296,17 @@ class ControllerNode(ScenarioNode):
         self.voltage_pub.publish(self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0))
         self.sample_handled(k)
 
+    def supervise(self, raised):
+        """Report the speed supervision's new faults (foc_controller.supervision) on /diagnostics."""
+        for fault in raised:
+            self.fault("not_following", f"speed supervision: {fault_line(fault)}")
+
     def status_values(self):
-        return {"sample": self.k, "speed_command_rad_s": self.omega_m_ref,
-                "current_limited": self.current_limited}
+        values = {"sample": self.k, "speed_command_rad_s": self.omega_m_ref,
+                  "current_limited": self.current_limited}
+        if self.params:
+            values["speed_supervision"] = "; ".join(fault_line(f) for f in self.supervisor.open.values()) or "ok"
+        return values
 
 
 def main(argv=None):

@@ -1,29 +1,60 @@
-"""The estimator a scenario names, built for its motor's nameplate and a commissioning record."""
+"""The estimator a scenario names, built for its motor's nameplate and a commissioning record, with the
+loops scaled to the motor (motor_params.scaled_loops) where the scenario does not set them."""
 import dataclasses
 
 from drive_scenarios.scenario import ScenarioError
 from motor_params.commissioning import MIN_CONVERGENCE_SLOPE
-from motor_params.nameplate import nameplate
+from motor_params.scaled_loops import scaled_loops
 
 from .interface import injects
 from .registry import make_estimator
+
+SCALED_TRACKING = ("injection_frame", "full_speed")
+"""Ours: the tracking bandwidth, carrier and amplitude follow the motor (scaled_loops) unless set; the
+papers' estimators keep their papers' carrier and loop unless set (only the bus caps their amplitude)."""
+
+
+def scaled_injection(scenario):
+    """(estimator settings with the motor-scaled defaults and the bus cap applied, what the drive says of
+    them: a list of lines)."""
+    loops = scaled_loops(scenario.motor.nameplate, scenario.motor.inverter, scenario.T_s)
+    settings = dict(scenario.estimator_settings)
+    if not injects(scenario.estimator):
+        return settings, []
+    notes = list(loops.notes) if scenario.estimator in SCALED_TRACKING else []
+    injection = dict(scenario.injection)
+    if scenario.estimator in SCALED_TRACKING:
+        injection = {"frequency_Hz": loops.injection_frequency_Hz, "amplitude_V": loops.injection_amplitude_V,
+                     **injection}
+        settings.setdefault("pll_bandwidth_Hz", loops.tracking_bandwidth_Hz)
+    settings = {**injection, **settings}
+    amplitude = settings.get("amplitude_V")
+    if isinstance(amplitude, (int, float)) and amplitude > loops.amplitude_cap_V:
+        settings["amplitude_V"] = loops.amplitude_cap_V
+        notes.append(f"injection amplitude {amplitude:g} V held to {loops.amplitude_cap_V:.3g} V: "
+                     f"{scenario.motor.inverter.U_dc_V:g} V bus")
+    return settings, notes
 
 
 def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
     angle information holds. ScenarioError names the scenario and the key at fault."""
-    plate = nameplate(scenario.motor)
+    plate = scenario.motor.nameplate
     try:
-        settings = dict(scenario.estimator_settings)
+        settings, notes = scaled_injection(scenario)
         limit = None
         if injects(scenario.estimator):
-            settings = {**scenario.injection, **settings}
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)
-        estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings, commissioning,
-                                   scenario.drive_delay_periods())
+        inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
+        estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings, commissioning, inverter)
     except KeyError as error:
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
     except ValueError as error:
         raise ScenarioError(f"{scenario.source}: estimator: {error.args[0]}") from None
-    return dataclasses.replace(estimator, tracking_current_limit_A=limit)
+    note = "; ".join(n for n in (estimator.injection_note, *notes) if n)
+    amplitude = estimator.injection_amplitude_V
+    if amplitude is None and notes:
+        amplitude = settings.get("amplitude_V")
+    return dataclasses.replace(estimator, tracking_current_limit_A=limit, injection_note=note,
+                               injection_amplitude_V=amplitude)

@@ -92,7 +92,7 @@ def demodulation_phase(name, demodulation, commissioning, T_s, delay_periods, f_
                                       delay_periods, 2.0 * math.pi * f_h, bandpass)
 
 
-def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, delay_periods, bandpass_used=True):
+def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, inverter, bandpass_used=True):
     """A Wang estimator (``conventional``, ``improved`` or their aligned variants) with the kernel ``step``
     and its settings; ``bandpass_used``: the band-pass precedes the demodulation (not in ``improved``)."""
     s = check_settings(name, settings, defaults, T_s)
@@ -106,10 +106,11 @@ def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, del
         kp, ki = float(s["A_p"]), float(s["A_p"]) / float(s["T_i_s"])
     low, high = s["bandpass_Hz"]
     bandpass = butterworth_bandpass(s["bandpass_order"], low, high, T_s)
+    delay_periods = inverter.delay_periods
     phase = demodulation_phase(name, s["demodulation"], commissioning, T_s, delay_periods, f_h,
                                bandpass if bandpass_used else np.zeros((0, 6)))
     monitor = make_monitor(T_s, U_h, f_h, delay_periods, commissioning, s["observable_ratio"])
-    startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, delay_periods,
+    startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, inverter,
                            gain if salient else 0.0, s)
     params = WangParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, U_h_V=U_h,
@@ -123,14 +124,14 @@ def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, del
 
 @register("conventional", "d̂ injection, band-pass, q̂ demodulation, low-pass, PI (faithful)",
           "Wang et al. 2019, §II, Fig. 2, Eq. (7)-(11)")
-def make_conventional(nameplate, T_s, settings, commissioning, delay_periods):
+def make_conventional(nameplate, T_s, settings, commissioning, inverter):
     return make_wang("conventional", conventional_step, DEFAULTS, nameplate, settings, T_s, commissioning,
-                     delay_periods)
+                     inverter)
 
 
 @register("conventional_aligned", "conventional with its demodulation carrier in phase with the sampled q̂ "
                                  "current (ours: the paper's method as it performs when tuned)",
           "Wang et al. 2019, §II; the carrier alignment is ours (docs/pll-tuning.md)")
-def make_conventional_aligned(nameplate, T_s, settings, commissioning, delay_periods):
+def make_conventional_aligned(nameplate, T_s, settings, commissioning, inverter):
     return make_wang("conventional_aligned", conventional_step, {**DEFAULTS, "demodulation": "aligned"}, nameplate,
-                     settings, T_s, commissioning, delay_periods)
+                     settings, T_s, commissioning, inverter)

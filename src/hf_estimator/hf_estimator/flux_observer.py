@@ -111,7 +111,7 @@ def flux_observer_follow(x, p, theta, omega):
                            "speed-adaptive gain; no injection (tracks at speed only)",
           "Hinkkanen et al. 2018, IEEE TIA, 'Observers for sensorless synchronous motor drives'",
           injects=False, excitation="backemf", injection_kind="none")
-def make_flux_observer(nameplate, T_s, settings, commissioning, delay_periods):
+def make_flux_observer(nameplate, T_s, settings, commissioning, inverter):
     s = check_settings("flux_observer", settings, DEFAULTS, T_s)
     alpha_o = 2.0 * math.pi * float(s["speed_bandwidth_Hz"])
     omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * math.pi / 30.0

@@ -186,14 +186,14 @@ def _ordered(settings):
                         "leads",
           "ours (docs/full-speed.md), with Hinkkanen et al. 2018 for the observer", excitation="any",
           injection_kind="alternating")
-def make_full_speed(nameplate, T_s, settings, commissioning, delay_periods):
+def make_full_speed(nameplate, T_s, settings, commissioning, inverter):
     s = check_settings("full_speed", settings, DEFAULTS, T_s)
     _ordered(s)
     ours = make_injection_frame(nameplate, T_s, {key: s[key] for key in INJECTION_DEFAULTS}, commissioning,
-                                delay_periods)
+                                inverter)
     observer = make_flux_observer(nameplate, T_s, {"speed_bandwidth_Hz": s["speed_bandwidth_Hz"]}, commissioning,
-                                  delay_periods)
-    dead_time_error = dead_time_uncertainty_V(nameplate, commissioning, 1.0)
+                                  inverter)
+    dead_time_error = dead_time_uncertainty_V(inverter, commissioning, 1.0)
 
     def samples(seconds):
         return max(1, int(round(seconds / T_s)))

@@ -42,16 +42,16 @@ def improved_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, th
 
 @register("improved", "d̂ injection, αβ × 2 sin ω_h t, 300 Hz low-pass, two-phase PLL (faithful)",
           "Wang et al. 2019, §III, Fig. 3, 5(b), 6, Eq. (16)-(24)")
-def make_improved(nameplate, T_s, settings, commissioning, delay_periods):
+def make_improved(nameplate, T_s, settings, commissioning, inverter):
     defaults = {**DEFAULTS, "pll_bandwidth_Hz": 10.0}
-    return make_wang("improved", improved_step, defaults, nameplate, settings, T_s, commissioning, delay_periods,
+    return make_wang("improved", improved_step, defaults, nameplate, settings, T_s, commissioning, inverter,
                      bandpass_used=False)
 
 
 @register("improved_aligned", "improved with its demodulation carrier in phase with the sampled HF current "
                              "(ours: the paper's method as it performs when tuned)",
           "Wang et al. 2019, §III; the carrier alignment is ours (docs/pll-tuning.md)")
-def make_improved_aligned(nameplate, T_s, settings, commissioning, delay_periods):
+def make_improved_aligned(nameplate, T_s, settings, commissioning, inverter):
     defaults = {**DEFAULTS, "pll_bandwidth_Hz": 10.0, "demodulation": "aligned"}
     return make_wang("improved_aligned", improved_step, defaults, nameplate, settings, T_s, commissioning,
-                     delay_periods, bandpass_used=False)
+                     inverter, bandpass_used=False)

@@ -65,7 +65,6 @@ from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direct
 from control_math.frames import clarke_contract, inverse_clarke, rotate
 from control_math.tables import table_value
 from drive_interface.estimator_states import ALIGNING, LEADER_INJECTION, TRACKING
-from motor_params.nameplate import INVERTER_RATINGS
 
 from .interface import Estimator, check_settings, register
 from .startup import DEFAULTS as STARTUP_DEFAULTS
@@ -101,7 +100,7 @@ HF_VOLTAGE_MAX_PER_LINEAR = 0.8
 loop's at low speed)."""
 
 
-def injection_amplitude(requested_V, commissioning, nameplate, omega_h, snr_min):
+def injection_amplitude(requested_V, commissioning, nameplate, inverter, omega_h, snr_min):
     """Ours' HF amplitude [V] and what it says of it: ``requested_V`` raised so that the saliency current
     U_h·|Δ|/ω_h reaches ``snr_min`` times the commissioned sensor noise, within the ripple and voltage
     caps; unchanged when the saliency or the noise is not measured, or ``snr_min`` is 0."""
@@ -112,9 +111,8 @@ def injection_amplitude(requested_V, commissioning, nameplate, omega_h, snr_min)
     if wanted <= requested_V:
         return requested_V, ""
     caps = {"HF ripple": HF_RIPPLE_MAX_PER_RATED * nameplate.rated_current_A * omega_h / abs(commissioning.sigma)}
-    rating = INVERTER_RATINGS.get(nameplate.name)
-    if rating is not None:
-        caps["voltage"] = HF_VOLTAGE_MAX_PER_LINEAR * rating.U_dc_V / math.sqrt(3.0)
+    if math.isfinite(inverter.U_dc_V):
+        caps["voltage"] = HF_VOLTAGE_MAX_PER_LINEAR * inverter.U_dc_V / math.sqrt(3.0)
     cap_name = min(caps, key=caps.get)
     amplitude = max(requested_V, min(wanted, caps[cap_name]))
     reached = amplitude * delta / omega_h / noise
@@ -277,7 +275,7 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_b
 @register("injection_frame", "ours: incremental admittance fitted from current steps and the applied "
                              "voltage in the injection frame; alternating axis; model-free observability",
           "ours, after docs/hf-demodulation.md §2-4", excitation="any", injection_kind="alternating")
-def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods):
+def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
     s = check_settings("injection_frame", settings, DEFAULTS, T_s)
     N = int(round(1.0 / (float(s["frequency_Hz"]) * T_s)))
     if N < 3:
@@ -285,10 +283,11 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, delay_periods)
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     zeta = float(s["pll_damping"])
     pole = ACCELERATION_POLE_RATIO * omega_n if s["pll_type"] == 3 else 0.0
-    amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, 2.0 * math.pi / (N * T_s),
-                                          float(s["saliency_snr_min"]))
+    amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, inverter,
+                                          2.0 * math.pi / (N * T_s), float(s["saliency_snr_min"]))
+    delay_periods = inverter.delay_periods
     base = HISTORY + (delay_periods + 2) + 4 * 2 * N
-    startup = make_startup(base, nameplate, commissioning, T_s, delay_periods, 1.0, s)
+    startup = make_startup(base, nameplate, commissioning, T_s, inverter, 1.0, s)
     params = InjectionFrameParams(
         T_s_s=T_s, N=N, U_h_V=amplitude, R_s_ohm=commissioning.R_s_ohm,
         dither_rad=float(s["dither_rad"]),

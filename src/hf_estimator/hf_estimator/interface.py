@@ -81,7 +81,7 @@ EXCITATION_NEEDS = {"carrier": "its own carrier: a pulsating injection at its fr
 
 
 def register(name, description, paper, injects=True, excitation="carrier", injection_kind="pulsating_sine"):
-    """Register ``factory(nameplate, T_s, settings, commissioning, delay_periods) -> Estimator``
+    """Register ``factory(nameplate, T_s, settings, commissioning, inverter) -> Estimator``
     from the module named ``name``; ``paper``: the section it implements; ``injects``: it takes the
     settings frequency_Hz and amplitude_V for its HF injection; ``excitation``: what it needs of a
     recording (EXCITATION_NEEDS); ``injection_kind``: its injection as drive_config names it (contract v2:
@@ -129,12 +129,12 @@ def describe(name):
             "module": entry.factory.__module__}
 
 
-def make_estimator(name, nameplate, T_s, settings, commissioning, delay_periods):
+def make_estimator(name, nameplate, T_s, settings, commissioning, inverter):
     """Build the estimator ``name`` for a motor known by its ``nameplate`` (motor_params.nameplate) and
-    ``commissioning`` record (the HF inductances and saliency-shift tables measured at standstill);
-    ``delay_periods`` is the inverter's computation delay. KeyError or ValueError name the setting at
-    fault."""
-    return _entry(name).factory(nameplate, T_s, dict(settings or {}), commissioning, delay_periods)
+    ``commissioning`` record (the HF inductances and saliency-shift tables measured at standstill) on
+    ``inverter`` (motor_params.nameplate.InverterRating: its U_dc, ∞ where unknown, and delay_periods the
+    drive's whole delay from sample to applied command). KeyError or ValueError name the setting at fault."""
+    return _entry(name).factory(nameplate, T_s, dict(settings or {}), commissioning, inverter)
 
 
 def _frequency(key, value, T_s):

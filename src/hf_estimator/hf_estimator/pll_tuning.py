@@ -47,13 +47,13 @@ class PllDesign:
         return p.kp, (p.kp / p.ki if p.ki > 0.0 else math.inf)
 
 
-def pll_design(nameplate, commissioning, delay_periods, estimator_name, settings, T_s=1e-4):
+def pll_design(nameplate, commissioning, inverter, estimator_name, settings, T_s=1e-4):
     """Both models of ``estimator_name``'s loop with estimator ``settings`` on a motor known by its
-    ``nameplate`` and ``commissioning`` record (R_s and the HF inductances), with the inverter's computation
-    delay ``delay_periods``."""
-    estimator = make_estimator(estimator_name, nameplate, T_s, settings, commissioning, delay_periods)
+    ``nameplate`` and ``commissioning`` record (R_s and the HF inductances) on ``inverter``
+    (InverterRating: U_dc and the computation delay)."""
+    estimator = make_estimator(estimator_name, nameplate, T_s, settings, commissioning, inverter)
     R = commissioning.R_s_ohm
-    path = carrier_path(estimator, R, commissioning.L_dh_H, commissioning.L_qh_H, delay_periods)
+    path = carrier_path(estimator, R, commissioning.L_dh_H, commissioning.L_qh_H, inverter.delay_periods)
     szabo = None
     if not path.alphabeta:
         process = pll_process(R, commissioning.L_dh_H, commissioning.L_qh_H,
@@ -63,12 +63,12 @@ def pll_design(nameplate, commissioning, delay_periods, estimator_name, settings
     return PllDesign(nameplate.name, estimator, path, carrier_loop(path), szabo)
 
 
-def largest_loop_filter(nameplate, commissioning, delay_periods, settings, phase_margin_deg, crossover_rad_s,
+def largest_loop_filter(nameplate, commissioning, inverter, settings, phase_margin_deg, crossover_rad_s,
                         model="carrier"):
     """`synchronous`'s largest T_f [s] (most ripple filtering) with which ``model``'s loop still reaches
     ``phase_margin_deg`` at ``crossover_rad_s`` (PI zero a decade below); ValueError if none does."""
     def reaches(T_f):
-        design = pll_design(nameplate, commissioning, delay_periods, "synchronous", {**settings, "T_f_s": T_f})
+        design = pll_design(nameplate, commissioning, inverter, "synchronous", {**settings, "T_f_s": T_f})
         try:
             return highest_crossover(getattr(design, model), phase_margin_deg) >= crossover_rad_s
         except ValueError:

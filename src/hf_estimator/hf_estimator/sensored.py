@@ -24,7 +24,7 @@ def sensored_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, th
 @register("sensored", "encoder pass-through (no injection): validates plant and controller", "none",
           injects=False, excitation="encoder",
           injection_kind="none")
-def make_sensored(nameplate, T_s, settings, commissioning, delay_periods):
+def make_sensored(nameplate, T_s, settings, commissioning, inverter):
     check_settings("sensored", settings, {}, T_s)
     return Estimator("sensored", sensored_step, SensoredParams(nameplate.n_p),
                      np.zeros(1), np.zeros((1, 1, 2)), 0.0)

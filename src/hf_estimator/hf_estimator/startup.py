@@ -10,7 +10,10 @@ only once TRACKING has been reached (HOLD after it keeps torque; the estimate co
    still aligning (the controller holds zero current), the injection stops for ``quiet_s`` so that the
    current loop takes the HF current's residue to zero: pulses from a non-zero current would measure the
    saturation at the wrong operating point. No aligned saliency within ``align_timeout_s``: the start is
-   refused (a round rotor, L_dh = L_qh, has no angle to find), zero voltage, no guess.
+   refused, zero voltage, no guess; the reason is the rotor moving where the estimator still observes its
+   saliency, or a back-EMF (the tracker's, or the one measured) stands clear of the lock threshold (a load
+   turning the shaft), else no saliency (a round
+   rotor, L_dh = L_qh, has no angle to find).
 2. Polarity: θ̂ held and ω̂ set to 0 (the back-EMF saw no motion; a tracker's integrator may have wound
    up while aligning), the injection replaced by voltage pulses along θ̂,
    + − − + of n samples each, sized for ``pulse_current_per_rated`` × rated current from the
@@ -19,7 +22,9 @@ only once TRACKING has been reached (HOLD after it keeps torque; the estimate co
    delay accounted), S = −i₀ + 2i₁ − 2i₂ + 2i₃ − i₄ = 2(A₊ − A₋) and T = −i₀ + 2i₁ − 2i₃ + i₄ = 2(A₊ + A₋),
    both free of sensor offsets and of a linear drift. Every other sequence is mirrored, − + + − (S keeps
    its weights, T changes sign): the dead-time loss, which depends on the order of the pulses, then
-   cancels from S. S/T below −``polarity_margin``: θ̂ is the magnet's south, turned by π. Within ±margin
+   cancels from S. What a linear winding's resistance adds to S/T where a pulse is not short against
+   L/R (linear_polarity_ratio) is taken off. S/T below −``polarity_margin``: θ̂ is the magnet's south,
+   turned by π. Within ±margin
    the pulses found no asymmetry: θ̂ may sit on the q axis (the trackers' unstable equilibrium, where ε
    is zero too), so the test repeats a quarter turn further, up to ``polarity_tries`` times; then the
    start is refused. At speed, where the back-EMF stands ``backemf_polarity_ratio`` × its threshold
@@ -52,10 +57,11 @@ from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direct
 from control_math.frames import inverse_clarke, rotate, wrap
 from drive_interface.estimator_states import ALIGNING, HOLD, LOCK_LOST, POLARITY, STATE_NAMES, TRACKING
 from motor_params.commissioning import NAMEPLATE_ONLY
-from motor_params.nameplate import INVERTER_RATINGS
 
-NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES = 0, 1, 2, 3
+NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES, ROTOR_MOVED = 0, 1, 2, 3, 4
 REFUSALS = {NO_SALIENCY: "no saliency found: HF injection cannot tell this rotor's angle (a round rotor?)",
+            ROTOR_MOVED: "the rotor turned while aligning (a load driving the shaft?): no still saliency axis "
+                         "to align on; start with the shaft held or braked",
             NO_POLARITY: "no saturation asymmetry on the d axis: the magnet's polarity cannot be told",
             TOO_MANY_LOSSES: "lock lost too often; holding zero torque"}
 
@@ -108,6 +114,8 @@ class StartupParams(NamedTuple):
     pulse_V: float
     pulse_sequences: int
     polarity_margin: float
+    polarity_linear_ratio: float
+    """S/T that a linear R–L gives the pulses (linear_polarity_ratio), taken off the measured one."""
     polarity_tries: int
     flush_samples: int
     R_s_ohm: float
@@ -129,13 +137,12 @@ class StartupParams(NamedTuple):
     polarity_from_recording: bool
 
 
-def dead_time_uncertainty_V(nameplate, commissioning, share):
+def dead_time_uncertainty_V(inverter, commissioning, share):
     """What the back-EMF model's dead-time voltage can be wrong by in αβ [V]: ``share`` of the commissioned
     dead-time voltage ×4/3; a drive that never measured it (nameplate only) neither compensates it nor
-    ignores it: a typical whole one, UNMEASURED_DEAD_TIME_PER_U_DC of U_dc, ×4/3."""
-    rating = INVERTER_RATINGS.get(nameplate.name)
-    if commissioning.source == NAMEPLATE_ONLY and rating:
-        return 4.0 / 3.0 * UNMEASURED_DEAD_TIME_PER_U_DC * rating.U_dc_V
+    ignores it: a typical whole one, UNMEASURED_DEAD_TIME_PER_U_DC of U_dc (``inverter``'s, when known), ×4/3."""
+    if commissioning.source == NAMEPLATE_ONLY and math.isfinite(inverter.U_dc_V):
+        return 4.0 / 3.0 * UNMEASURED_DEAD_TIME_PER_U_DC * inverter.U_dc_V
     return share * 4.0 / 3.0 * commissioning.dead_time_voltage_V
 
 
@@ -145,13 +152,13 @@ def startup_size(p):
     return HISTORY
 
 
-def make_startup(base, nameplate, commissioning, T_s, delay_periods, error_gain, settings):
-    """StartupParams for an estimator whose start-up state begins at x[base]; ``settings``: its checked
+def make_startup(base, nameplate, commissioning, T_s, inverter, error_gain, settings):
+    """StartupParams for an estimator whose start-up state begins at x[base], on ``inverter``
+    (InverterRating: U_dc, ∞ when unknown, and the drive's whole delay); ``settings``: its checked
     settings (interface.check_settings, DEFAULTS among them), ``error_gain`` its ε per radian."""
     s = settings
     I_p = s["pulse_current_per_rated"] * nameplate.rated_current_A
-    rating = INVERTER_RATINGS.get(nameplate.name)
-    u_max = PULSE_VOLTAGE_MAX_PER_LINEAR * rating.U_dc_V / math.sqrt(3.0) if rating else math.inf
+    u_max = PULSE_VOLTAGE_MAX_PER_LINEAR * inverter.U_dc_V / math.sqrt(3.0)
     resistive = 0.5 * commissioning.R_s_ohm * I_p
     if resistive >= u_max:
         raise ValueError(f"pulse_current_per_rated: {s['pulse_current_per_rated']:g} × rated current needs more "
@@ -161,18 +168,20 @@ def make_startup(base, nameplate, commissioning, T_s, delay_periods, error_gain,
     pulse_V = I_p * commissioning.L_dh_H / (n * T_s) + resistive
     omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * 2.0 * math.pi / 60.0
     threshold = (LOCK_RESISTANCE_ERROR * commissioning.R_s_ohm * nameplate.rated_current_A
-                 + dead_time_uncertainty_V(nameplate, commissioning, LOCK_DEAD_TIME_ERROR)
+                 + dead_time_uncertainty_V(inverter, commissioning, LOCK_DEAD_TIME_ERROR)
                  + 0.02 * omega_rated * nameplate.psi_f_Wb)
 
     def samples(seconds):
         return max(1, int(round(seconds / T_s)))
     return StartupParams(
-        base=base, T_s_s=T_s, delay_periods=int(delay_periods), error_gain=float(error_gain),
+        base=base, T_s_s=T_s, delay_periods=int(inverter.delay_periods), error_gain=float(error_gain),
         align_tolerance_rad=s["align_tolerance_rad"], settle_samples=samples(s["settle_s"]),
         align_timeout_samples=samples(s["align_timeout_s"]), quiet_samples=samples(s["quiet_s"]),
         error_smoothing=1.0 - math.exp(-1.0 / samples(ALIGN_SMOOTHING_S)),
         pulse_samples=n, pulse_V=pulse_V, pulse_sequences=int(s["pulse_sequences"]),
         polarity_margin=s["polarity_margin"], polarity_tries=int(s["polarity_tries"]),
+        polarity_linear_ratio=linear_polarity_ratio(commissioning.R_s_ohm, commissioning.L_dh_H, T_s, n,
+                                                    int(s["pulse_sequences"]), int(inverter.delay_periods)),
         flush_samples=samples(s["flush_s"]), R_s_ohm=commissioning.R_s_ohm, L_dh_H=commissioning.L_dh_H,
         L_qh_H=commissioning.L_qh_H, delta_L_H=nameplate.L_d_H - nameplate.L_q_H, psi_f_Wb=nameplate.psi_f_Wb,
         dead_time_voltage_V=commissioning.dead_time_voltage_V,
@@ -333,6 +342,30 @@ def _sequence_sign(sequence):
 
 
 @njit(cache=True)
+def _pulse_sign(since, n):
+    """+1 or −1: the sign of the polarity pulse issued at pulse-clock sample ``since``."""
+    quarter = (since % (4 * n)) // n
+    return (1.0 if quarter == 0 or quarter == 3 else -1.0) * _sequence_sign(since // (4 * n))
+
+
+def linear_polarity_ratio(R_s_ohm, L_H, T_s, n, sequences, delay_periods):
+    """S/T of the polarity pulses (n samples each, ``sequences`` of them, the drive's whole delay) on a
+    linear R–L winding: the share the resistance gives where a pulse is not short against L/R (−0.03 at
+    R·n·T_s/L ≈ 1.2, a 20 W gimbal motor, as large as its saturation's), not the magnet's. The start-up
+    takes it off the measured S/T (module docstring, item 2)."""
+    a = math.exp(-R_s_ohm * T_s / L_H)
+    gain = (1.0 - a) / R_s_ohm if R_s_ohm > 0.0 else T_s / L_H
+    length, i, score, span = 4 * n, 0.0, 0.0, 0.0
+    for k in range(sequences * length + delay_periods + 1):
+        w_s, w_t = _polarity_coefficients(k - delay_periods, n, length, sequences)
+        score += w_s * i
+        span += w_t * i
+        issued = k - delay_periods
+        i = a * i + gain * (_pulse_sign(issued, n) if 0 <= issued < sequences * length else 0.0)
+    return score / span
+
+
+@njit(cache=True)
 def _hold(x, p, k):
     """Keep θ̂ at the held angle turning at the held speed, and the integrator at the held speed."""
     b = p.base
@@ -388,7 +421,10 @@ def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_in
                 if since < p.align_timeout_samples:
                     return u_inj_alpha, u_inj_beta, float(ALIGNING)
                 if x[b + RESTARTS] == 0.0:
-                    x[b + REFUSED] = NO_SALIENCY
+                    clear = p.backemf_polarity_ratio * p.lock_threshold_V
+                    backemf = math.hypot(x[b + E_ALPHA], x[b + E_BETA])
+                    moving = max(abs(x[INTEGRAL]) * p.psi_f_Wb, backemf) > clear
+                    x[b + REFUSED] = ROTOR_MOVED if observable > 0.5 or moving else NO_SALIENCY
                     return 0.0, 0.0, float(HOLD)
                 return u_inj_alpha, u_inj_beta, _lost(x, p, k)
             x[b + THETA_HELD] = x[THETA]
@@ -427,13 +463,12 @@ def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_in
             x[b + SCORE] += w_s * i_d
             x[b + SPAN] += w_t * i_d
             if since < issue_end:
-                quarter = (since % length) // p.pulse_samples
-                sign = (1.0 if quarter == 0 or quarter == 3 else -1.0) * _sequence_sign(since // length)
+                sign = _pulse_sign(since, p.pulse_samples)
                 u_alpha, u_beta = rotate(sign * p.pulse_V, 0.0, axis + x[b + INTEGRAL_HELD] * p.T_s_s)
                 return u_alpha, u_beta, float(POLARITY)
             if since < decide_at:
                 return 0.0, 0.0, float(POLARITY)
-            ratio = x[b + SCORE] / x[b + SPAN] if x[b + SPAN] > 0.0 else 0.0
+            ratio = x[b + SCORE] / x[b + SPAN] - p.polarity_linear_ratio if x[b + SPAN] > 0.0 else 0.0
             x[b + POLARITY_RATIO] = ratio
             if abs(ratio) < p.polarity_margin:
                 x[b + TRIES] += 1.0

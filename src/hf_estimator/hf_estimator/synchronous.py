@@ -80,15 +80,16 @@ def first_order_lowpass(T_f, T_s):
 
 @register("synchronous", "d̂ sine injection, q̂ phase detector, T_f low-pass, PI (faithful; "
                         "demodulation: aligned is ours)", "Szabó & Veszprémi, §2.2-2.3, Eq. (6), (15)-(22), Table 2")
-def make_synchronous(nameplate, T_s, settings, commissioning, delay_periods, name="synchronous", defaults=DEFAULTS):
+def make_synchronous(nameplate, T_s, settings, commissioning, inverter, name="synchronous", defaults=DEFAULTS):
     s = check_settings(name, settings, defaults, T_s)
     f_h, u_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
     ratio = float(s["bandpass_ratio"])
     bandpass = butterworth_bandpass(1, f_h / ratio, min(f_h * ratio, 0.49 / T_s), T_s)
+    delay_periods = inverter.delay_periods
     phase = demodulation_phase("synchronous", s["demodulation"], commissioning, T_s, delay_periods, f_h, bandpass)
     monitor = make_monitor(T_s, u_h, f_h, delay_periods, commissioning, s["observable_ratio"])
     gain = float(s["u_star"]) * u_h * commissioning.delta / (2.0 * math.pi * f_h)
-    startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, delay_periods,
+    startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, inverter,
                            gain if commissioning.salient() else 0.0, s)
     params = SynchronousParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, u_h_V=u_h, u_star=float(s["u_star"]),
@@ -104,6 +105,6 @@ def make_synchronous(nameplate, T_s, settings, commissioning, delay_periods, nam
 @register("synchronous_aligned", "synchronous with its demodulation carrier in phase with the sampled q̂ "
                                 "current (ours: the paper's method as it performs when tuned)",
           "Szabó & Veszprémi, §2.2-2.3; the carrier alignment is ours (docs/pll-tuning.md)")
-def make_synchronous_aligned(nameplate, T_s, settings, commissioning, delay_periods):
-    return make_synchronous(nameplate, T_s, settings, commissioning, delay_periods, "synchronous_aligned",
+def make_synchronous_aligned(nameplate, T_s, settings, commissioning, inverter):
+    return make_synchronous(nameplate, T_s, settings, commissioning, inverter, "synchronous_aligned",
                             {**DEFAULTS, "demodulation": "aligned"})

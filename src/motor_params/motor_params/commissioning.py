@@ -21,6 +21,11 @@ MIN_CONVERGENCE_SLOPE = 0.75
 (on `wang_spmsm`: 5.6 A, 1.22× rated; at 1.5× rated the slope is −0.2)."""
 MIN_SALIENCY_RATIO = 0.01
 """Below this |Δ|/Σ the saliency is not measurable: HF injection cannot tell the rotor's angle."""
+INDUCTANCE_TOLERANCE = 1.3
+"""A commissioned HF inductance more than this factor off its nameplate value contradicts the motor (a file
+measured on another motor, or a nameplate in the wrong unit): the drive refuses it."""
+RESISTANCE_TOLERANCE = 2.0
+"""Likewise R_s, with room for temperature (copper: +40 % from 20 °C to 120 °C)."""
 NAMEPLATE_ONLY = "nameplate"
 """The commissioning source of a drive told its nameplate only."""
 DEFAULT = "default"
@@ -144,6 +149,14 @@ def resolve_commissioning(plate, given="", label="commissioning"):
         raise CommissioningError(f"{label}: {error}") from None
     if metadata.get("motor") not in (None, plate.name):
         raise CommissioningError(f"{label}: {path} is for motor {metadata['motor']}, this drive's is {plate.name}")
+    for key, told, tolerance in (("L_dh_H", plate.L_d_H, INDUCTANCE_TOLERANCE),
+                                 ("L_qh_H", plate.L_q_H, INDUCTANCE_TOLERANCE),
+                                 ("R_s_ohm", plate.R_s_ohm, RESISTANCE_TOLERANCE)):
+        measured = float(getattr(commissioning, key))
+        if told > 0.0 and not 1.0 / tolerance <= measured / told <= tolerance:
+            raise CommissioningError(f"{label}: {path}: values.{key}: {measured:.4g} is {measured / told:.2f} × the "
+                                     f"nameplate's {told:.4g} (more than {tolerance:g}× off): measured on another "
+                                     f"motor? Commission this one (`drive commission`)")
     return commissioning
 
 

@@ -35,26 +35,6 @@ class InverterRating(NamedTuple):
     """1: a command computed from sample k is applied during period k+1."""
 
 
-def _wang_spmsm():
-    n_p, rated_power, rated_current, rated_speed = 2, 70.0, 4.6, 3000.0
-    rated_torque = rated_power / (rated_speed * 2.0 * math.pi / 60.0)
-    return Nameplate(name="wang_spmsm", n_p=n_p, R_s_ohm=0.27, L_d_H=0.9e-3, L_q_H=0.9e-3,
-                     psi_f_Wb=rated_torque / (1.5 * n_p * rated_current), rated_power_W=rated_power,
-                     rated_current_A=rated_current, rated_speed_rpm=rated_speed, rated_torque_Nm=rated_torque,
-                     current_limit_A=1.5 * rated_current, J_kgm2=4.0e-4, B_Nms=1.0e-5)
-
-
-def _szabo_ipmsm():
-    return Nameplate(name="szabo_ipmsm", n_p=3, R_s_ohm=6.2, L_d_H=20.025e-3, L_q_H=40.17e-3, psi_f_Wb=0.305,
-                     rated_power_W=1100.0, rated_current_A=2.53, rated_speed_rpm=3000.0, rated_torque_Nm=3.5,
-                     current_limit_A=1.5 * 2.53, J_kgm2=3.5e-3, B_Nms=0.0011)
-
-
-NAMEPLATES = {"wang_spmsm": _wang_spmsm(), "szabo_ipmsm": _szabo_ipmsm()}
-"""The nameplates of the shipped motors (Wang et al. 2019 §III-C; Szabó & Veszprémi Table 1)."""
-INVERTER_RATINGS = {"wang_spmsm": InverterRating(U_dc_V=24.0, delay_periods=1),
-                    "szabo_ipmsm": InverterRating(U_dc_V=560.0, delay_periods=1)}
-"""The inverter each shipped motor is driven by."""
 TRIP_PER_CURRENT_LIMIT = 3.0
 """A phase current beyond this many times the nameplate's current limit is absurd input, not a current."""
 
@@ -64,12 +44,11 @@ def trip_current_A(plate):
     return TRIP_PER_CURRENT_LIMIT * plate.current_limit_A
 
 
-def nameplate(name):
-    """The shipped nameplate called ``name``; KeyError names the known ones."""
-    try:
-        return NAMEPLATES[name]
-    except KeyError:
-        raise KeyError(f"unknown motor '{name}' (known: {', '.join(sorted(NAMEPLATES))})") from None
+def nameplate(name_or_path):
+    """The nameplate of a shipped motor or a motor file (motor_params.motor_file); MotorFileError names
+    the known ones."""
+    from .motor_file import load_motor
+    return load_motor(name_or_path).nameplate
 
 
 NAMEPLATE_REQUIRED = ("n_p", "R_s_ohm", "L_d_H", "L_q_H", "psi_f_Wb", "rated_current_A")
@@ -84,10 +63,11 @@ class NameplateError(ValueError):
     """A motor description is unusable; the message names its source and the key."""
 
 
-def nameplate_from_mapping(data, source):
+def nameplate_from_mapping(data, source, borrow=True):
     """A Nameplate from a motor description (the contract's drive_config ``motor``: the keys of
     NAMEPLATE_REQUIRED, optionally name and any other Nameplate field; unknown keys are ignored).
-    Missing optional values: a shipped motor of the same name gives them, else current_limit_A 1.5 ×
+    Missing optional values: with ``borrow`` (a recording's drive_config) a shipped motor of the same name
+    gives them; else current_limit_A 1.5 ×
     rated current, rated_torque_Nm 1.5·n_p·ψ_f·I_rated, rated_speed_rpm ASSUMED_RATED_SPEED_RPM,
     rated_power_W their product, J_kgm2 and B_Nms NaN (not known). NameplateError names ``source`` and
     the key."""
@@ -109,9 +89,10 @@ def nameplate_from_mapping(data, source):
                                  f"{'non-negative' if key in ('R_s_ohm', 'B_Nms') else 'positive'} number")
         values[key] = int(value) if key == "n_p" else float(value)
     name = str(data.get("name", "motor"))
-    shipped = NAMEPLATES.get(name)
-    if shipped is not None:
-        return shipped._replace(**values)
+    if borrow:
+        from .motor_file import shipped_motor_names
+        if name in shipped_motor_names():
+            return nameplate(name)._replace(**values)
     current = values["rated_current_A"]
     values.setdefault("current_limit_A", 1.5 * current)
     values.setdefault("rated_torque_Nm", 1.5 * values["n_p"] * values["psi_f_Wb"] * current)
@@ -128,22 +109,23 @@ def contract_motor(plate):
 
 
 def load_nameplate(preset_or_file, source):
-    """The shipped nameplate called ``preset_or_file``, or one read from that YAML/JSON file
-    (nameplate_from_mapping); NameplateError names ``source`` (e.g. "--motor") and the file or key."""
-    if preset_or_file in NAMEPLATES:
-        return NAMEPLATES[preset_or_file]
-    from pathlib import Path
-
+    """The nameplate of a shipped motor or a motor file (motor_params.motor_file), or one read from a
+    YAML/JSON file of the contract's motor keys (nameplate_from_mapping); NameplateError names ``source``
+    (e.g. "--motor") and the file or key."""
     import yaml
-    path = Path(preset_or_file)
-    if not path.is_file():
+
+    from .motor_file import load_motor, motor_path, shipped_motor_names
+    path = motor_path(preset_or_file)
+    if path is None:
         raise NameplateError(f"{source}: {preset_or_file!r} is neither a shipped motor "
-                             f"({', '.join(sorted(NAMEPLATES))}) nor a file")
+                             f"({', '.join(shipped_motor_names())}) nor a file")
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
         raise NameplateError(f"{source}: {path}: not a readable YAML/JSON motor description "
                              f"({str(error).splitlines()[0]})") from None
+    if isinstance(data, dict) and isinstance(data.get("nameplate"), dict):
+        return load_motor(path, source).nameplate
     if isinstance(data, dict) and isinstance(data.get("motor"), dict):
         data = data["motor"]
     return nameplate_from_mapping(data, f"{source}: {path}")

@@ -1,14 +1,17 @@
-"""Motor presets: the papers' machines as the simulator integrates them, with every assumption written
-down where the paper is silent.
+"""The simulated motor of a motor file: its ``plant:`` section (motor_params.motor_file) turned into the
+true machine, mechanics, inverter and sensors the simulator integrates, with every default written down.
 
 A preset holds the true plant (``machine``: saturation included; mechanics, inverter, sensors) beside the
 ``nameplate`` a user would know from the datasheet (``motor_params.nameplate``, what the drive is told).
-The two are kept apart on purpose: only the plant reads the truth.
+The two are kept apart on purpose: only the plant reads the truth. The shipped motors' files carry the
+papers' machines with their assumptions.
 """
+import math
 from dataclasses import dataclass, field
 
 from drive_scenarios.scenario import NO_DEVIATION
-from motor_params.nameplate import NAMEPLATES, Nameplate
+from motor_params.motor_file import MotorFileError, load_motor, shipped_motor_names
+from motor_params.nameplate import Nameplate
 
 from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
 
@@ -25,16 +28,28 @@ class MotorPreset:
     assumptions: tuple = field(default_factory=tuple)
 
 
-def _spmsm_saturation(L_0_H, L_dh0_H, L_qh0_H, psi_f_Wb, psi_q_rated_Wb, L_qh_drop_rated):
-    """Saturation coefficients (a_d, a_q, a_dq) of MachineParams for a round-rotor SPMSM.
+PLANT_KEYS = ("source", "assumptions", "R_s_ohm", "psi_f_Wb", "J_kgm2", "B_Nms", "L_d_H", "L_q_H", "L_dh_H",
+              "L_dh_drop_at_rated", "L_qh_H", "L_qh_drop_at_rated", "t_dead_s", "i_dead_A", "sensor")
+SENSOR_KEYS = SensorParams._fields
+DEFAULT_DEAD_TIME_S = 0.5e-6
+DEFAULT_DEAD_CURRENT_A = 0.05
+DEFAULT_ADC_BITS = 12
+ADC_RANGE_PER_CURRENT_LIMIT = 2.0
+"""Without a ``sensor`` section: a 12-bit ADC over ± this many times the current limit."""
+NOISE_PER_ADC_RANGE = 1e-3
+"""Without a noise figure: this share of the ADC range, RMS (the shipped motors: 1e-3 and 6e-4)."""
 
-    The geometric (unsaturated) inductance L_0 is the same on both axes; at no load the magnet flux
-    saturates the iron so the incremental inductances are L_dh0 < L_qh0 < L_0 (saturation saliency):
-    5 a_d ψ_f⁴ = 1/L_dh0 − 1/L_0 and (a_dq/3) ψ_f³ = 1/L_qh0 − 1/L_0. The q-axis self-saturation
-    makes L_qh fall by the fraction L_qh_drop_rated at the rated q flux: 3 a_q ψ_q² = (1/(1−drop) − 1)/L_qh0.
+
+def _spmsm_saturation(L_d_H, L_q_H, L_dh0_H, L_qh0_H, psi_f_Wb, psi_q_rated_Wb, L_qh_drop_rated):
+    """Saturation coefficients (a_d, a_q, a_dq) of MachineParams from incremental inductances at no load.
+
+    The magnet flux saturates the iron so the incremental inductances are L_dh0 ≤ L_d, L_qh0 ≤ L_q
+    (saturation saliency, e.g. a round-rotor SPMSM): 5 a_d ψ_f⁴ = 1/L_dh0 − 1/L_d and (a_dq/3) ψ_f³ =
+    1/L_qh0 − 1/L_q. The q-axis self-saturation makes L_qh fall by the fraction L_qh_drop_rated at the
+    rated q flux: 3 a_q ψ_q² = (1/(1−drop) − 1)/L_qh0.
     """
-    a_d = (1.0 / L_dh0_H - 1.0 / L_0_H) / (5.0 * psi_f_Wb ** 4)
-    a_dq = 3.0 * (1.0 / L_qh0_H - 1.0 / L_0_H) / psi_f_Wb ** 3
+    a_d = (1.0 / L_dh0_H - 1.0 / L_d_H) / (5.0 * psi_f_Wb ** 4)
+    a_dq = 3.0 * (1.0 / L_qh0_H - 1.0 / L_q_H) / psi_f_Wb ** 3
     a_q = (1.0 / (1.0 - L_qh_drop_rated) - 1.0) / L_qh0_H / (3.0 * psi_q_rated_Wb ** 2)
     return a_d, a_q, a_dq
 
@@ -48,74 +63,92 @@ def _d_axis_saturation(L_dh0_H, psi_f_Wb, i_rated_A, L_dh_drop_rated):
     return 1.0 / (1.0 / L_dh0_H - 5.0 * a_d * psi_f_Wb ** 4), a_d
 
 
-def _wang_spmsm():
-    nameplate = NAMEPLATES["wang_spmsm"]
-    psi_f = nameplate.psi_f_Wb
-    a_d, a_q, a_dq = _spmsm_saturation(L_0_H=0.97e-3, L_dh0_H=0.84e-3, L_qh0_H=0.96e-3,
-                                       psi_f_Wb=psi_f, psi_q_rated_Wb=0.96e-3 * nameplate.rated_current_A,
-                                       L_qh_drop_rated=0.05)
-    return MotorPreset(
-        name="wang_spmsm",
-        machine=MachineParams(n_p=nameplate.n_p, R_s_ohm=0.27, L_d_H=0.97e-3, L_q_H=0.97e-3, psi_f_Wb=psi_f,
-                              a_d=a_d, a_q=a_q, a_dq=a_dq),
-        nameplate=nameplate,
-        mechanics=MechanicsParams(J_kgm2=4.0e-4, B_Nms=1.0e-5),
-        inverter=InverterParams(U_dc_V=24.0, t_dead_s=0.5e-6, i_dead_A=0.05, delay_periods=1),
-        sensor=SensorParams(noise_std_A=0.01, offset_a_A=0.005, offset_b_A=-0.004, offset_c_A=0.003,
-                            gain_a=1.002, gain_b=0.998, gain_c=1.0, adc_bits=12, adc_range_A=10.0),
-        source="Wang et al. 2019, §III-C and §IV: 70 W, 24 V, 4.6 A, 2 pole pairs, 0.27 Ω, 0.9 mH SPMSM",
-        assumptions=(
-            "rated speed 3000 rpm (not given) → rated torque 0.223 N·m and ψ_f = 16.2 mWb from "
-            "τ = 1.5·p·ψ_f·i with 4.6 A taken as the peak phase current",
-            "0.9 mH is the nameplate inductance; the true rotor is round (L_0 = 0.97 mH both axes) and the "
-            "magnet saturates the iron: incremental L_dh = 0.84 mH, L_qh = 0.96 mH at no load "
-            "(Σ/Δ ≈ 15, as in docs/hf-demodulation.md)",
-            "cross-saturation from the same magnetic energy turns the HF saliency axis by 0.088 rad at "
-            "rated q-current (0.032 rad at half); L_qh falls 4.8 % at rated current",
-            "J = 4e-4 kg·m²: motor ≈ 0.5e-4 plus coupling and magnetic-powder brake (Wang Fig. 10); "
-            "B = 1e-5 N·m·s",
-            "U_dc = 24 V (the rated voltage); MOSFET dead time 0.5 µs",
-            "current sensing: 12-bit ADC over ±10 A, 10 mA rms noise, offsets of a few mA, gain errors ±0.2 %",
-        ),
-    )
+def plant_truth(motor, source="motor"):
+    """The MotorPreset of a Motor (or a shipped name or motor file path; ``source`` says where it came from)
+    from its file's ``plant:`` section, each value the nameplate's where the section is silent;
+    MotorFileError names the file and the key."""
+    motor = load_motor(motor, source)
+    plate, plant = motor.nameplate, motor.plant
+    where = f"{source}: {motor.source}: plant"
+
+    def fail(key, problem):
+        raise MotorFileError(f"{where}.{key}: {problem}")
+
+    for key in sorted(set(plant) - set(PLANT_KEYS), key=str):
+        fail(key, f"unknown key (known: {', '.join(PLANT_KEYS)})")
+
+    def value(key, default, low=0.0, low_inclusive=False, high=math.inf):
+        v = plant.get(key, default)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            fail(key, f"must be a finite number, not {v!r}")
+        if (v < low if low_inclusive else v <= low) or v >= high:
+            fail(key, f"must lie in {'[' if low_inclusive else '('}{low:g}, {high:g}), not {v!r}")
+        return float(v)
+
+    R_s, psi_f = value("R_s_ohm", plate.R_s_ohm), value("psi_f_Wb", plate.psi_f_Wb)
+    if "J_kgm2" not in plant and not math.isfinite(plate.J_kgm2):
+        fail("J_kgm2", "missing: the nameplate gives no inertia, and a simulated shaft needs one")
+    J = value("J_kgm2", plate.J_kgm2)
+    B = value("B_Nms", plate.B_Nms if math.isfinite(plate.B_Nms) else 0.0, low_inclusive=True)
+    L_q = value("L_q_H", plate.L_q_H)
+    L_qh = value("L_qh_H", L_q)
+    if L_qh > L_q:
+        fail("L_qh_H", f"{L_qh:g} H exceeds the unsaturated L_q_H {L_q:g} H: saturation lowers the incremental "
+                       f"inductance")
+    q_drop = value("L_qh_drop_at_rated", 0.0, low_inclusive=True, high=0.9)
+    if "L_dh_drop_at_rated" in plant:
+        if "L_d_H" in plant:
+            fail("L_dh_drop_at_rated", "give L_d_H (unsaturated) or L_dh_drop_at_rated, not both")
+        L_dh = value("L_dh_H", plate.L_d_H)
+        L_d, a_d = _d_axis_saturation(L_dh, psi_f, plate.rated_current_A,
+                                      value("L_dh_drop_at_rated", 0.0, high=0.9))
+        _, a_q, a_dq = _spmsm_saturation(L_d, L_q, L_dh, L_qh, psi_f, L_qh * plate.rated_current_A, q_drop)
+    else:
+        L_d = value("L_d_H", plate.L_d_H)
+        L_dh = value("L_dh_H", L_d)
+        if L_dh > L_d:
+            fail("L_dh_H", f"{L_dh:g} H exceeds the unsaturated L_d_H {L_d:g} H: saturation lowers the incremental "
+                           f"inductance (or give L_dh_drop_at_rated)")
+        a_d, a_q, a_dq = _spmsm_saturation(L_d, L_q, L_dh, L_qh, psi_f, L_qh * plate.rated_current_A, q_drop)
+    machine = MachineParams(n_p=plate.n_p, R_s_ohm=R_s, L_d_H=L_d, L_q_H=L_q, psi_f_Wb=psi_f,
+                            a_d=a_d, a_q=a_q, a_dq=a_dq)
+    inverter = InverterParams(U_dc_V=motor.inverter.U_dc_V, t_dead_s=value("t_dead_s", DEFAULT_DEAD_TIME_S, 0.0, True),
+                              i_dead_A=value("i_dead_A", DEFAULT_DEAD_CURRENT_A),
+                              delay_periods=motor.inverter.delay_periods)
+    return MotorPreset(name=motor.name, machine=machine, nameplate=plate,
+                       mechanics=MechanicsParams(J_kgm2=J, B_Nms=B), inverter=inverter,
+                       sensor=_sensor(plant.get("sensor") or {}, plate, fail),
+                       source=str(plant.get("source", motor.description or motor.source)),
+                       assumptions=tuple(str(a) for a in plant.get("assumptions") or ()))
 
 
-def _szabo_ipmsm():
-    L_0, a_d = _d_axis_saturation(L_dh0_H=20.025e-3, psi_f_Wb=0.305, i_rated_A=2.53, L_dh_drop_rated=0.1)
-    return MotorPreset(
-        name="szabo_ipmsm",
-        machine=MachineParams(n_p=3, R_s_ohm=6.2, L_d_H=L_0, L_q_H=40.17e-3, psi_f_Wb=0.305, a_d=a_d),
-        nameplate=NAMEPLATES["szabo_ipmsm"],
-        mechanics=MechanicsParams(J_kgm2=3.5e-3, B_Nms=0.0011),
-        inverter=InverterParams(U_dc_V=560.0, t_dead_s=1.5e-6, i_dead_A=0.05, delay_periods=1),
-        sensor=SensorParams(noise_std_A=0.005, offset_a_A=0.004, offset_b_A=-0.003, offset_c_A=0.002,
-                            gain_a=1.002, gain_b=0.998, gain_c=1.0, adc_bits=12, adc_range_A=8.0),
-        source="Szabó & Veszprémi, Table 1: 1.1 kW, 400 V, 2.53 A, 6.2 Ω, L_d 20.025 mH, L_q 40.17 mH, "
-               "ψ_p 0.305 V·s, p = 3, F = 0.0011 N·m·s, m_n = 3.5 N·m",
-        assumptions=(
-            "the saliency is geometric, as in the paper (L_q 40.17 mH linear, no cross-saturation); the "
-            "paper's model is linear, but a real IPMSM's d axis is saturated by its magnet, and without that "
-            "no standstill test can tell the magnet's polarity: L_dh = 20.025 mH at no load (the paper's "
-            "L_d), 10 % lower at rated magnetising d current, 23.0 mH unsaturated",
-            "2.53 A is the peak phase current: 1.5·3·0.305·2.53 = 3.47 N·m ≈ m_n",
-            "rated speed 3000 rpm: §3 gives a nominal mechanical frequency of 50 Hz (1.1 kW / 314 rad/s = 3.5 N·m)",
-            "J = 3.5e-3 kg·m²: with the speed-loop rule of foc_controller.tuning, Table 2's speed PI "
-            "(A_p 0.287, T_i 36 ms) then has damping 1 and ω_n ≈ 55 rad/s",
-            "U_dc = 560 V (400 V three-phase rectified); IGBT dead time 1.5 µs",
-            "current sensing: 12-bit ADC over ±8 A, 5 mA rms noise, offsets of a few mA, gain errors ±0.2 %",
-        ),
-    )
+def _sensor(given, plate, fail):
+    """SensorParams of a plant section's ``sensor`` mapping, with the defaults stated above."""
+    if not isinstance(given, dict):
+        fail("sensor", f"must be a mapping ({', '.join(SENSOR_KEYS)})")
+    for key in sorted(set(given) - set(SENSOR_KEYS), key=str):
+        fail(f"sensor.{key}", f"unknown key (known: {', '.join(SENSOR_KEYS)})")
+    adc_range = given.get("adc_range_A", ADC_RANGE_PER_CURRENT_LIMIT * plate.current_limit_A)
+    values = {"noise_std_A": NOISE_PER_ADC_RANGE * adc_range, "adc_bits": DEFAULT_ADC_BITS, "adc_range_A": adc_range,
+              **{f"offset_{x}_A": 0.0 for x in "abc"}, **{f"gain_{x}": 1.0 for x in "abc"}, **given}
+    for key, v in values.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+            fail(f"sensor.{key}", f"must be a finite number, not {v!r}")
+        if (key == "adc_bits" and (v != int(v) or not 0 <= v <= 24)) or \
+                (key.startswith(("gain", "adc_range")) and v <= 0.0) or (key == "noise_std_A" and v < 0.0):
+            fail(f"sensor.{key}", f"out of range: {v!r}")
+    return SensorParams(**{key: (int(values[key]) if key == "adc_bits" else float(values[key])) for key in SENSOR_KEYS})
 
 
-PRESETS = {"wang_spmsm": _wang_spmsm(), "szabo_ipmsm": _szabo_ipmsm()}
+PRESETS = {name: plant_truth(name, "shipped motor") for name in shipped_motor_names()}
 
 
-def get_preset(name):
-    """The preset called ``name``; KeyError names the known ones."""
-    try:
-        return PRESETS[name]
-    except KeyError:
-        raise KeyError(f"unknown motor preset '{name}' (known: {', '.join(sorted(PRESETS))})") from None
+def get_preset(motor):
+    """The MotorPreset of a shipped motor's name, a motor file's path or a Motor; MotorFileError names the
+    known ones."""
+    if isinstance(motor, str) and motor in PRESETS:
+        return PRESETS[motor]
+    return plant_truth(motor)
 
 
 def plant_parameters(preset, non_idealities, deviation=None):
