@@ -38,6 +38,9 @@ class Motor:
     source: str = ""
     """The file it was read from."""
     description: str = ""
+    given_by: str = "motor"
+    """Where the drive was told of it ("--motor", "parameter motor_file", "SCENARIO: motor"): errors found
+    later (the plant section, pmsm_plant.presets.plant_truth) name it."""
 
     def __str__(self):
         return self.name
@@ -79,11 +82,12 @@ def load_motor(name_or_path, source="motor"):
         raise MotorFileError(f"{source}: {path}: cannot be read ({error.strerror})") from None
     except (UnicodeDecodeError, yaml.YAMLError, RecursionError) as error:
         raise MotorFileError(f"{source}: {path}: not a YAML motor file ({str(error).splitlines()[0]})") from None
-    return motor_from_mapping(data, f"{source}: {path}", default_name=path.stem, path=str(path))
+    return motor_from_mapping(data, f"{source}: {path}", default_name=path.stem, path=str(path), given_by=source)
 
 
-def motor_from_mapping(data, source, default_name="motor", path=""):
-    """A Motor from a motor file's document (TOP_KEYS); MotorFileError names ``source`` and the key."""
+def motor_from_mapping(data, source, default_name="motor", path="", given_by=None):
+    """A Motor from a motor file's document (TOP_KEYS); MotorFileError names ``source`` and the key.
+    ``given_by``: where the drive was told of it (default: ``source``)."""
     def fail(key, problem):
         raise MotorFileError(f"{source}: {key}: {problem}")
 
@@ -101,7 +105,7 @@ def motor_from_mapping(data, source, default_name="motor", path=""):
     for key in sorted(set(plate_data) - set(Nameplate._fields[1:]), key=str):
         fail(f"nameplate.{key}", f"unknown key (known: {', '.join(Nameplate._fields[1:])})")
     try:
-        plate = nameplate_from_mapping({**plate_data, "name": name}, f"{source}: nameplate", borrow=False)
+        plate = nameplate_from_mapping({**plate_data, "name": name}, source, borrow=False, key_prefix="nameplate.")
     except NameplateError as error:
         raise MotorFileError(str(error)) from None
     inverter = data["inverter"]
@@ -119,7 +123,8 @@ def motor_from_mapping(data, source, default_name="motor", path=""):
     description = data.get("description", "")
     if not isinstance(description, str):
         fail("description", f"must be text, not {description!r}")
-    return Motor(name, plate, InverterRating(float(U_dc), delay), plant, path or source, description)
+    return Motor(name, plate, InverterRating(float(U_dc), delay), plant, path or source, description,
+                 source if given_by is None else given_by)
 
 
 TEMPLATE = """\
@@ -160,6 +165,6 @@ inverter:
 #   L_qh_H: 0.00046         # [L_q_H]       incremental q inductance at no load (cross-saturation below L_q_H)
 #   L_qh_drop_at_rated: 0.05 # [0]          L_qh falls by this at rated q current (q self-saturation)
 #   t_dead_s: 5.0e-7        # [0.5 µs]      inverter dead time; i_dead_A its commutation current [0.05]
-#   sensor: {noise_std_A: 0.01, adc_bits: 12, adc_range_A: 20.0}  # [1e-3 x range noise, 12 bits, 3 x limit]
+#   sensor: {noise_std_A: 0.01, adc_bits: 12, adc_range_A: 20.0}  # [1e-3 x range noise, 12 bits, 2 x limit]
 """
 """What `drive motor template` prints: a commented motor file."""

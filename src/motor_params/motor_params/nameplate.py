@@ -63,29 +63,30 @@ class NameplateError(ValueError):
     """A motor description is unusable; the message names its source and the key."""
 
 
-def nameplate_from_mapping(data, source, borrow=True):
+def nameplate_from_mapping(data, source, borrow=True, key_prefix=""):
     """A Nameplate from a motor description (the contract's drive_config ``motor``: the keys of
     NAMEPLATE_REQUIRED, optionally name and any other Nameplate field; unknown keys are ignored).
     Missing optional values: with ``borrow`` (a recording's drive_config) a shipped motor of the same name
     gives them; else current_limit_A 1.5 ×
     rated current, rated_torque_Nm 1.5·n_p·ψ_f·I_rated, rated_speed_rpm ASSUMED_RATED_SPEED_RPM,
     rated_power_W their product, J_kgm2 and B_Nms NaN (not known). NameplateError names ``source`` and
-    the key."""
+    the key (after ``key_prefix``, e.g. ``nameplate.`` in a motor file)."""
     if not isinstance(data, dict):
         raise NameplateError(f"{source}: a motor description is a mapping of keys, not {type(data).__name__}")
     missing = [key for key in NAMEPLATE_REQUIRED if key not in data]
     if missing:
-        raise NameplateError(f"{source}: missing {', '.join(missing)} (a motor needs {', '.join(NAMEPLATE_REQUIRED)})")
+        raise NameplateError(f"{source}: {', '.join(key_prefix + key for key in missing)}: missing (a motor needs "
+                             f"{', '.join(NAMEPLATE_REQUIRED)})")
     values = {}
     for key in Nameplate._fields[1:]:
         if key not in data:
             continue
         value = data[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise NameplateError(f"{source}: {key}: {value!r} is not a finite number")
+            raise NameplateError(f"{source}: {key_prefix}{key}: {value!r} is not a finite number")
         low_ok = value >= 0.0 if key in ("R_s_ohm", "B_Nms") else value > 0.0
         if not low_ok or (key == "n_p" and value != int(value)):
-            raise NameplateError(f"{source}: {key}: {value!r} is not a {'whole ' if key == 'n_p' else ''}"
+            raise NameplateError(f"{source}: {key_prefix}{key}: {value!r} is not a {'whole ' if key == 'n_p' else ''}"
                                  f"{'non-negative' if key in ('R_s_ohm', 'B_Nms') else 'positive'} number")
         values[key] = int(value) if key == "n_p" else float(value)
     name = str(data.get("name", "motor"))

@@ -66,10 +66,12 @@ def _d_axis_saturation(L_dh0_H, psi_f_Wb, i_rated_A, L_dh_drop_rated):
 def plant_truth(motor, source="motor"):
     """The MotorPreset of a Motor (or a shipped name or motor file path; ``source`` says where it came from)
     from its file's ``plant:`` section, each value the nameplate's where the section is silent;
-    MotorFileError names the file and the key."""
+    MotorFileError names where the motor was given, the file and the key."""
     motor = load_motor(motor, source)
     plate, plant = motor.nameplate, motor.plant
-    where = f"{source}: {motor.source}: plant"
+    where = f"{motor.given_by}: {motor.source}: plant"
+    if motor.given_by.endswith(motor.source):
+        where = f"{motor.given_by}: plant"
 
     def fail(key, problem):
         raise MotorFileError(f"{where}.{key}: {problem}")
