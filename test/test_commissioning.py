@@ -23,7 +23,7 @@ from motor_params.commissioning import (
     resolve_commissioning,
     save_commissioning,
 )
-from motor_params.nameplate import nameplate
+from motor_params.motor_file import nameplate
 from pmsm_plant.model import incremental_inductances
 from pmsm_plant.presets import PRESETS, plant_parameters
 

@@ -15,7 +15,7 @@ from drive_interface.log import COLUMN
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import ScenarioError, load_scenario, parse_scenario, scenario_names
 from hf_estimator.startup import NO_SALIENCY, REFUSALS
-from motor_params.nameplate import nameplate
+from motor_params.motor_file import nameplate
 
 
 @pytest.mark.parametrize("motor", ["wang_spmsm", "szabo_ipmsm"])

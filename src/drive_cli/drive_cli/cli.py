@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drive_evaluation.metrics import configuration_warnings, supervision_faults
 from drive_interface import interrupt
 from drive_interface.errors import DriveError
 from drive_interface.exit_codes import (
@@ -60,26 +61,6 @@ def _exit_code(interrupted=0, node_faults=None, output_error=None, not_tracking=
     if not_following:
         return EXIT_NOT_FOLLOWING
     return EXIT_NODE_FAULTS if node_faults else 0
-
-
-def _supervision(result):
-    """The speed supervision's faults of a run (foc_controller.supervision), from what the drive knows."""
-    from drive_interface.log import COLUMN
-    from foc_controller.supervision import speed_supervision
-    log, plate = result.log, result.scenario.motor.nameplate
-    return speed_supervision(log[:, COLUMN["t"]], log[:, COLUMN["omega_m_ref"]], log[:, COLUMN["omega_e_hat"]],
-                             log[:, COLUMN["i_q_ref"]], log[:, COLUMN["state"]], result.n_p,
-                             plate.rated_speed_rpm * math.pi / 30.0, result.current_limit_A)
-
-
-def _warnings(result):
-    """What the drive says of its configuration before anything went wrong: the sensorless current limit
-    below rated current, and its loops' notes."""
-    plate, lines = result.scenario.motor.nameplate, []
-    if result.current_limit_A < plate.rated_current_A:
-        lines.append(f"current limit {result.current_limit_A:.3g} A is below the rated {plate.rated_current_A:g} A "
-                     f"(the saliency tracker's limit, measured at commissioning): rated load cannot be held")
-    return lines
 
 
 def _not_tracking(result):
@@ -178,7 +159,7 @@ def cmd_run(args):
     if recording_error:
         _output_failed(recording_error)
     return _exit_code(interrupted, output_error=recording_error or plot_error, not_tracking=_not_tracking(result),
-                      not_following=bool(_supervision(result)))
+                      not_following=bool(supervision_faults(result)))
 
 
 def _warn_if_nameplate_only(source, motor, scenario_name):
@@ -209,8 +190,8 @@ def _report(result, args, extra=None):
     if facts.get("injection_amplitude_V") is not None:
         metrics["injection"] = {"frequency_Hz": facts["injection_frequency_Hz"],
                                 "amplitude_V": facts["injection_amplitude_V"], "note": facts["injection_note"]}
-    metrics["warnings"] = _warnings(result)
-    metrics["supervision"] = _supervision(result)
+    metrics["warnings"] = configuration_warnings(result)
+    metrics["supervision"] = supervision_faults(result)
     metrics.update(extra or {})
     if not args.no_plot and result.log.shape[0]:
         out_dir = Path(args.out) if args.out else Path("runs") / scenario.name
@@ -351,7 +332,7 @@ def cmd_launch(args):
     if result.recording_error:
         _output_failed(result.recording_error)
     return _exit_code(result.interrupted, faults, result.recording_error or plot_error,
-                      not_following=bool(_supervision(result)))
+                      not_following=bool(supervision_faults(result)))
 
 
 def cmd_bridge(args):
@@ -368,7 +349,7 @@ def cmd_bridge(args):
              "bridge": result.counters, "frame_errors": result.frame_errors,
              "inverter": result.inverter_counters, "timing": result.timing, "interrupted": bool(result.interrupted)}
     plot_error = _report(result, args, extra)
-    return _exit_code(result.interrupted, output_error=plot_error, not_following=bool(_supervision(result)))
+    return _exit_code(result.interrupted, output_error=plot_error, not_following=bool(supervision_faults(result)))
 
 
 def cmd_bench_bridge(args):
@@ -1183,6 +1164,44 @@ def cmd_bench_injection_cost(args):
     return 0
 
 
+def cmd_bench_motor(args):
+    from drive_evaluation.motor_bench import motor_bench
+    from drive_runner.runner import terminal_progress
+
+    if args.angles < 1:
+        raise CommandLineError(f"--angles: must be at least 1, not {args.angles}")
+    motors = [load_motor(m, "drive bench motor") for m in args.motors]
+    reports = []
+    try:
+        for motor in motors:
+            progress = None if args.json else terminal_progress(motor.name)
+            reports.append(motor_bench(motor, args.angles, progress))
+    except Interrupted as stop:
+        if args.json:
+            _print_json({"benchmark": "motor", "results": reports, "interrupted": True})
+        return _exit_code(stop.signum)
+    if args.json:
+        _print_json({"benchmark": "motor", "angles": args.angles, "results": reports})
+        return 0
+    for r in reports:
+        s = r["startup"]
+        errors = ", ".join(f"{k} {100.0 * v:+.2f} %" for k, v in r["commissioning_error"].items())
+        print(f"{r['motor']}: {r['description'] or r['file']}")
+        print(f"  commissioned (against the plant's truth): {errors}; current limit {r['current_limit_A']:.3g} A")
+        print(f"  loops: tracking {r['tracking_bandwidth_Hz']:.3g} Hz, carrier {r['injection_frequency_Hz']:.4g} Hz, "
+              f"{r['injection_amplitude_V']:.3g} V")
+        for line in r["warnings"]:
+            print(f"  WARNING {line}")
+        fraction = s["polarity_correct_fraction"]
+        print(f"  start-up over {s['runs']} angles: polarity "
+              f"{_formatted(None if fraction is None else 100.0 * fraction, '{:.1f} %')}, "
+              f"lock lost {s['lock_lost']}, not started {s['not_started']}")
+        for c in r["cases"]:
+            print(f"  {c['case']:24s} RMS {c['angle_error_rms']:.4f} rad  peak {c['angle_error_peak']:.3f} rad  "
+                  f"speed tracking {c['speed_tracking_error_rms']:.3g} rad/s  {c['verdict']}")
+    return 0
+
+
 def cmd_bench_startup(args):
     from drive_evaluation.startup_bench import MOTOR_SCENARIOS, STANDARD_CASES, LoadCase, bench_scenario, startup_sweep
     from drive_runner.runner import scenario_commissioning, terminal_progress
@@ -1388,6 +1407,14 @@ def build_parser():
     startup.add_argument("--estimator", help="an injecting estimator (default: injection_frame)")
     startup.add_argument("--json", action="store_true")
     startup.set_defaults(func=cmd_bench_startup)
+
+    motor_bench = bench_sub.add_parser("motor", help="motors nobody tuned for: commissioned from the nameplate, "
+                                                     "start-up polarity, rated load, a speed step, a reversal and "
+                                                     "a load step at 5 %% rated speed on the loops scaled to each")
+    motor_bench.add_argument("motors", nargs="+", metavar="NAME|FILE", help="shipped motors or motor files")
+    motor_bench.add_argument("--angles", type=int, default=24, help="start angles over the electrical circle")
+    motor_bench.add_argument("--json", action="store_true")
+    motor_bench.set_defaults(func=cmd_bench_motor)
 
     full = bench_sub.add_parser("full-speed", help="the whole speed range: the blended estimator, injection only "
                                                    "and the observer only, angle error and HF current per speed band")

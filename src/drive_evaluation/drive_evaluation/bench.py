@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drive_interface import interrupt
 from drive_interface.errors import DriveError
 from drive_interface.log import LOG_COLUMNS
 from drive_runner.runner import build_drive
@@ -84,23 +85,31 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
     1: one message per sample) and (processes, executor), best and median of ``repeats`` runs after a
     short warm-up run; the wall time per sample and per delivered message (launcher.DELIVERIES_PER_SAMPLE
     messages per block), and the ping-pong hop time that bounds it. A signal stops it: the
-    configurations done are returned, ``interrupted`` names the signal, and the one cut is left out."""
-    from drive_launch.launcher import DELIVERIES_PER_SAMPLE, launch
-
+    configurations done are returned, ``interrupted`` names the signal, and the one cut (a configuration
+    or the ping-pong) is left out."""
     report = {"benchmark": "graph", "scenario": scenario_name, "duration_s": duration_s, "record": record,
               "sampling_rate_Hz": 1.0 / load_scenario(scenario_name).T_s, "results": [], "interrupted": 0}
+    with interrupt.polled():
+        _graph_runs(report, scenario_name, duration_s, record, repeats, progress, block_sizes, configurations)
+    return report
+
+
+def _graph_runs(report, scenario_name, duration_s, record, repeats, progress, block_sizes, configurations):
+    """graph_throughput's runs into ``report``, stopping at the first signal (polled between steps)."""
+    from drive_launch.launcher import DELIVERIES_PER_SAMPLE, launch
+
     results = report["results"]
     report["interrupted"] = launch(scenario_name, duration_s=0.05, record=record).interrupted
     if report["interrupted"]:
-        return report
+        return
     for (processes, executor), block in ((c, n) for n in block_sizes for c in configurations):
         walls, samples = [], 0
         for _ in range(repeats):
             r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
                        record=record, extra_parameters={"block_samples": block})
-            report["interrupted"] = r.interrupted
+            report["interrupted"] = r.interrupted or interrupt.requested()
             if report["interrupted"]:
-                return report
+                return
             walls.append(r.wall_time_s)
             samples = r.scenario.n_samples
         wall, median = min(walls), float(np.median(walls))
@@ -116,11 +125,13 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
                      f"(median {entry['real_time_factor_median']:.3f}; {entry['us_per_sample']:.0f} µs per sample, "
                      f"{entry['us_per_delivered_message']:.0f} µs per delivered message)")
     hop = hop_latency()
+    report["interrupted"] = interrupt.requested()
+    if report["interrupted"]:
+        return
     if progress:
         progress(f"  ping-pong of one Vector3Stamped between two nodes in one process (events executor): "
                  f"{hop['us_per_hop']:.1f} µs per hop")
     report["ping_pong"] = hop
-    return report
 
 
 BLOCK_SCENARIOS = ("wang_100rpm", "wang_load_step", "wang_reversal", "wang_speed_step")

@@ -3,6 +3,8 @@
 Windows: the run is cut at every table event (speed or load change). The ``settle_s`` after each
 event (and after ``start_s`` at the beginning) is transient; the rest, up to the next event, is steady.
 """
+import math
+
 import numpy as np
 
 from control_math import frames
@@ -223,3 +225,22 @@ def compute_metrics(result, steady_windows=None):
         "wall_time_s": result.wall_time_s,
         "samples_per_second": log.shape[0] / result.wall_time_s if result.wall_time_s > 0 else None,
     }
+
+
+def supervision_faults(result):
+    """The speed supervision's faults of a run (foc_controller.supervision), from what the drive knows."""
+    from foc_controller.supervision import speed_supervision
+    log, plate = result.log, result.scenario.motor.nameplate
+    return speed_supervision(log[:, COLUMN["t"]], log[:, COLUMN["omega_m_ref"]], log[:, COLUMN["omega_e_hat"]],
+                             log[:, COLUMN["i_q_ref"]], log[:, COLUMN["state"]], result.n_p,
+                             plate.rated_speed_rpm * math.pi / 30.0, result.current_limit_A)
+
+
+def configuration_warnings(result):
+    """What the drive says of its configuration before anything went wrong: the sensorless current limit
+    below rated current."""
+    plate, lines = result.scenario.motor.nameplate, []
+    if result.current_limit_A < plate.rated_current_A:
+        lines.append(f"current limit {result.current_limit_A:.3g} A is below the rated {plate.rated_current_A:g} A "
+                     f"(the saliency tracker's limit, measured at commissioning): rated load cannot be held")
+    return lines

@@ -13,7 +13,8 @@ from drive_bags.reader import bag_scenario, bag_topics, has_ground_truth, log_fr
 from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
 from motor_params.commissioning import CommissioningError, resolve_commissioning
-from motor_params.nameplate import NameplateError, load_nameplate, nameplate_from_mapping
+from motor_params.motor_file import load_nameplate, recorded_nameplate
+from motor_params.nameplate import NameplateError
 
 from .excitation import AXIS_BLOCK_S, describe_excitation, signed_carrier
 from .metrics import windows as scenario_windows
@@ -152,7 +153,7 @@ def _nameplate(path, motor, scenario, v2, sources):
             return scenario.motor.nameplate
         if v2 is not None:
             sources["motor"] = f"drive_config motor{unused}"
-            return nameplate_from_mapping(v2["motor"], f"{path}: drive_config motor")
+            return recorded_nameplate(v2["motor"], f"{path}: drive_config motor")
         if motor:
             sources["motor"] = "--motor"
             return load_nameplate(motor, "--motor")

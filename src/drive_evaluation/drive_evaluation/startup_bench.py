@@ -37,8 +37,9 @@ nothing of it or told its torque by the robot; a gravity-like 0.3 rated load fro
 rotor during start-up."""
 
 
-def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None):
-    """The scenario of one bench run on ``motor`` (a shipped name, a motor file or a Motor)."""
+def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None, commissioning=""):
+    """The scenario of one bench run on ``motor`` (a shipped name, a motor file or a Motor), with the
+    ``commissioning`` file given (default: the scenario's lookup)."""
     m = load_motor(motor, "--motor")
     shipped = load_scenario(MOTOR_SCENARIOS[m.name]) if m.shipped else None
     plate = m.nameplate
@@ -50,13 +51,14 @@ def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None):
                       "points": [[0.0, 0.0], [HOLD_S, 0.0], [HOLD_S + RAMP_S, speed]]},
             "load": {"unit": "rated", "points": [[0.0, case.load_per_rated]]}, "seed": seed,
             "initial": {"theta_m_rad": theta_e_rad / plate.n_p}, "brake": case.brake,
-            "metrics": {"settle_s": 0.05}, "controller": dict(shipped.controller) if shipped else {}}
+            "metrics": {"settle_s": 0.05}, "controller": dict(shipped.controller) if shipped else {},
+            **({"commissioning": str(commissioning)} if commissioning else {})}
     if case.feedforward:
         data["torque_feedforward"] = {"unit": "rated", "points": [[0.0, case.load_per_rated]]}
     return parse_scenario(data, f"startup_{m.name}", "drive bench startup")
 
 
-def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progress=None):
+def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progress=None, commissioning=""):
     """One row per (angle, seed): the start-up metrics (metrics.startup_metrics) of a bench run, and
     the summary of them all."""
     rows = []
@@ -64,7 +66,7 @@ def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progr
     for i in range(angles):
         theta_e = 2.0 * math.pi * i / angles - math.pi
         for seed in seeds:
-            scenario = bench_scenario(motor, estimator, theta_e, seed, case)
+            scenario = bench_scenario(motor, estimator, theta_e, seed, case, commissioning=commissioning)
             result = run_scenario(scenario)
             rows.append({"theta_e_rad": theta_e, "seed": seed, **startup_metrics(scenario, result.log, result.n_p),
                          "refused": (result.startup or {}).get("refused")})

@@ -105,7 +105,7 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
     for key in sorted(set(plate_data) - set(Nameplate._fields[1:]), key=str):
         fail(f"nameplate.{key}", f"unknown key (known: {', '.join(Nameplate._fields[1:])})")
     try:
-        plate = nameplate_from_mapping({**plate_data, "name": name}, source, borrow=False, key_prefix="nameplate.")
+        plate = nameplate_from_mapping({**plate_data, "name": name}, source, key_prefix="nameplate.")
     except NameplateError as error:
         raise MotorFileError(str(error)) from None
     inverter = data["inverter"]
@@ -125,6 +125,38 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
         fail("description", f"must be text, not {description!r}")
     return Motor(name, plate, InverterRating(float(U_dc), delay), plant, path or source, description,
                  source if given_by is None else given_by)
+
+def nameplate(name_or_path):
+    """The nameplate of a shipped motor or a motor file; MotorFileError names the known ones."""
+    return load_motor(name_or_path).nameplate
+
+
+def recorded_nameplate(data, source):
+    """The Nameplate of a recording's motor description (nameplate_from_mapping): a shipped motor of the
+    same name gives the optional values the description leaves out."""
+    name = data.get("name") if isinstance(data, dict) else None
+    shipped = nameplate(name) if isinstance(name, str) and name in shipped_motor_names() else None
+    return nameplate_from_mapping(data, source, defaults=shipped)
+
+
+def load_nameplate(preset_or_file, source):
+    """The nameplate of a shipped motor or a motor file (motor_params.motor_file), or one read from a
+    YAML/JSON file of the contract's motor keys (nameplate_from_mapping); NameplateError names ``source``
+    (e.g. "--motor") and the file or key."""
+    path = motor_path(preset_or_file)
+    if path is None:
+        raise NameplateError(f"{source}: {preset_or_file!r} is neither a shipped motor "
+                             f"({', '.join(shipped_motor_names())}) nor a file")
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+        raise NameplateError(f"{source}: {path}: not a readable YAML/JSON motor description "
+                             f"({str(error).splitlines()[0]})") from None
+    if isinstance(data, dict) and isinstance(data.get("nameplate"), dict):
+        return load_motor(path, source).nameplate
+    if isinstance(data, dict) and isinstance(data.get("motor"), dict):
+        data = data["motor"]
+    return recorded_nameplate(data, f"{source}: {path}")
 
 
 TEMPLATE = """\

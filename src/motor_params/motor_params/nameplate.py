@@ -44,13 +44,6 @@ def trip_current_A(plate):
     return TRIP_PER_CURRENT_LIMIT * plate.current_limit_A
 
 
-def nameplate(name_or_path):
-    """The nameplate of a shipped motor or a motor file (motor_params.motor_file); MotorFileError names
-    the known ones."""
-    from .motor_file import load_motor
-    return load_motor(name_or_path).nameplate
-
-
 NAMEPLATE_REQUIRED = ("n_p", "R_s_ohm", "L_d_H", "L_q_H", "psi_f_Wb", "rated_current_A")
 """What a motor description must give (the contract's drive_config ``motor``); the rest of a Nameplate
 defaults as ASSUMED says."""
@@ -63,11 +56,10 @@ class NameplateError(ValueError):
     """A motor description is unusable; the message names its source and the key."""
 
 
-def nameplate_from_mapping(data, source, borrow=True, key_prefix=""):
+def nameplate_from_mapping(data, source, defaults=None, key_prefix=""):
     """A Nameplate from a motor description (the contract's drive_config ``motor``: the keys of
     NAMEPLATE_REQUIRED, optionally name and any other Nameplate field; unknown keys are ignored).
-    Missing optional values: with ``borrow`` (a recording's drive_config) a shipped motor of the same name
-    gives them; else current_limit_A 1.5 ×
+    Missing optional values: the Nameplate ``defaults``' where given; else current_limit_A 1.5 ×
     rated current, rated_torque_Nm 1.5·n_p·ψ_f·I_rated, rated_speed_rpm ASSUMED_RATED_SPEED_RPM,
     rated_power_W their product, J_kgm2 and B_Nms NaN (not known). NameplateError names ``source`` and
     the key (after ``key_prefix``, e.g. ``nameplate.`` in a motor file)."""
@@ -90,10 +82,8 @@ def nameplate_from_mapping(data, source, borrow=True, key_prefix=""):
                                  f"{'non-negative' if key in ('R_s_ohm', 'B_Nms') else 'positive'} number")
         values[key] = int(value) if key == "n_p" else float(value)
     name = str(data.get("name", "motor"))
-    if borrow:
-        from .motor_file import shipped_motor_names
-        if name in shipped_motor_names():
-            return nameplate(name)._replace(**values)
+    if defaults is not None:
+        return defaults._replace(**values)
     current = values["rated_current_A"]
     values.setdefault("current_limit_A", 1.5 * current)
     values.setdefault("rated_torque_Nm", 1.5 * values["n_p"] * values["psi_f_Wb"] * current)
@@ -107,26 +97,3 @@ def nameplate_from_mapping(data, source, borrow=True, key_prefix=""):
 def contract_motor(plate):
     """The drive_config ``motor`` object of contract v2 for a nameplate: its every field, SI keys."""
     return plate._asdict()
-
-
-def load_nameplate(preset_or_file, source):
-    """The nameplate of a shipped motor or a motor file (motor_params.motor_file), or one read from a
-    YAML/JSON file of the contract's motor keys (nameplate_from_mapping); NameplateError names ``source``
-    (e.g. "--motor") and the file or key."""
-    import yaml
-
-    from .motor_file import load_motor, motor_path, shipped_motor_names
-    path = motor_path(preset_or_file)
-    if path is None:
-        raise NameplateError(f"{source}: {preset_or_file!r} is neither a shipped motor "
-                             f"({', '.join(shipped_motor_names())}) nor a file")
-    try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
-        raise NameplateError(f"{source}: {path}: not a readable YAML/JSON motor description "
-                             f"({str(error).splitlines()[0]})") from None
-    if isinstance(data, dict) and isinstance(data.get("nameplate"), dict):
-        return load_motor(path, source).nameplate
-    if isinstance(data, dict) and isinstance(data.get("motor"), dict):
-        data = data["motor"]
-    return nameplate_from_mapping(data, f"{source}: {path}")
