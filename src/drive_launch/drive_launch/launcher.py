@@ -197,7 +197,9 @@ def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", 
 
 def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
                 startup_timeout_s=60.0, progress=None):
-    """Run several drives side by side in one graph (one namespace each); one GraphResult per spec."""
+    """Run several drives side by side in one graph (one namespace each); one GraphResult per spec. A
+    scenario whose drive is a drive configuration file (``drive: FILE``) gives the estimator that file and
+    no scenario (as on a robot); the plant and the controller's speed schedule take the experiment."""
     import rclpy
     from rclpy.node import Node
     from rclpy.signals import SignalHandlerOptions
@@ -249,8 +251,12 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                 parameters["answer_periods"] = scenario.answer_periods
             drive = build_drive(scenario)
             scheduled = {**parameters, "scenario_schedule": True}
+            estimator = parameters
+            if scenario.drive_file:
+                estimator = {**parameters, "drive_configuration": scenario.drive_file, "scenario": "",
+                             "duration_s": scenario.duration_s}
             roles = {"pmsm_plant": {**scheduled, "publish_clock": i == 0},
-                     "hf_estimator": parameters, "foc_controller": scheduled}
+                     "hf_estimator": estimator, "foc_controller": scheduled}
             inverter = None
             if spec.link:
                 inverter, host_link = _virtual_inverter(scenario, spec.link, workdir.name, i, spec.paced, timeout_s)

@@ -21,6 +21,11 @@ class ScenarioNode(ContractNode):
     node_parameters = {}
     """The node's own parameters beyond NODE_PARAMETERS: name → (default, description)."""
 
+    def needs_experiment(self):
+        """With a ``drive_configuration``: whether the node also reads its scenario's experiment (the
+        plant does; the estimator does not)."""
+        return True
+
     def __init__(self, node_name, **kwargs):
         super().__init__(node_name, **kwargs)
         for name, (default, text) in {**NODE_PARAMETERS, **self.node_parameters}.items():
@@ -30,7 +35,7 @@ class ScenarioNode(ContractNode):
         self.scenario = None
         self.configured = False
         try:
-            scenario = scenario_from_parameters(self.parameters, self.label)
+            scenario = scenario_from_parameters(self.parameters, self.label, self.needs_experiment())
             self.build(scenario)
         except ValueError as error:
             self.reject(error)
@@ -58,8 +63,10 @@ class ScenarioNode(ContractNode):
         if not self.scenario:
             return f"{super().start_line()}: configuration rejected, output held safe"
         s = self.scenario
-        return (f"{super().start_line()}: scenario {s.name}, motor {s.motor}, estimator {s.estimator}, "
-                f"{1.0 / s.T_s:g} Hz, {s.n_samples} samples")
+        run = "no experiment: until stopped" if s.open_ended else f"{s.n_samples} samples"
+        what = f"drive configuration {s.drive_file}" if s.open_ended else f"scenario {s.name}"
+        return (f"{super().start_line()}: {what}, motor {s.motor}, estimator {s.estimator}, "
+                f"{1.0 / s.T_s:g} Hz, {run}")
 
     def data_time(self):
         """The stamp of the node's current sample (sim time)."""

@@ -5,10 +5,20 @@ import math
 
 from drive_interface.settings import number
 
-from .scenario import MAX_BLOCK_SAMPLES, ScenarioError, load_scenario, shaft_held
+from .scenario import (
+    MAX_BLOCK_SAMPLES,
+    ScenarioError,
+    load_drive_configuration,
+    load_scenario,
+    shaft_held,
+    with_drive,
+)
 
 NODE_PARAMETERS = {
     "scenario": ("wang_100rpm", "shipped scenario name or YAML path: the file `drive run` reads"),
+    "drive_configuration": ("", "a drive configuration file (motor, commissioning, estimator, injection, controller, "
+                                "sampling period): the estimator and the controller then run without a scenario; "
+                                "the plant takes the scenario's experiment with this drive"),
     "motor_file": ("", "the motor: a shipped motor's name or a motor file (empty: the scenario's)"),
     "estimator": ("", "estimator type (empty: the scenario's)"),
     "commissioning": ("", "commissioning file, or 'nameplate' (empty: the scenario's, else "
@@ -72,13 +82,19 @@ def check_parameters(parameters, label=lambda name: f"parameter {name}"):
                                 f"not {value!r}") from None
 
 
-def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}"):
+def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}", experiment=True):
     """The scenario the nodes run: the file named by ``scenario`` with the override parameters applied;
-    ScenarioError naming the parameter (``label(name)``) or the scenario file's key at fault."""
+    with ``drive_configuration``, its drive run on that scenario's experiment, or with no experiment at all
+    (open-ended) where the node needs none (not ``experiment``: the estimator; the controller taking its
+    speed from `speed_command`). ScenarioError naming the parameter (``label(name)``) or the file's key."""
     check_parameters(parameters, label)
-    scenario = load_scenario(parameters["scenario"], estimator_override=parameters["estimator"] or None,
-                             override_source=label("estimator"), motor_override=parameters["motor_file"] or None,
-                             motor_source=label("motor_file"))
+    overrides = {"estimator_override": parameters["estimator"] or None, "override_source": label("estimator"),
+                 "motor_override": parameters["motor_file"] or None, "motor_source": label("motor_file")}
+    if parameters["drive_configuration"]:
+        drive = load_drive_configuration(parameters["drive_configuration"], label("drive_configuration"), **overrides)
+        scenario = with_drive(load_scenario(parameters["scenario"]), drive) if experiment else drive
+    else:
+        scenario = load_scenario(parameters["scenario"], **overrides)
     changes = {}
     if parameters["commissioning"]:
         changes["commissioning"] = str(parameters["commissioning"])

@@ -1,8 +1,14 @@
 """Scenario files (YAML): motor (a shipped name, a motor file or the file's mapping), estimator, speed and
 load time tables, duration, sampling period
-and non-idealities. Every error names the file and the key at fault in one line."""
+and non-idealities. Every error names the file and the key at fault in one line.
+
+A scenario holds two parts: the drive's (DRIVE_KEYS: what the estimator, controller and bridge nodes
+read) and the experiment's (the rest: the simulated plant's and the runner's). The drive's part may live
+in a drive configuration file of its own (``drive: FILE`` in a scenario; the nodes' ``drive_configuration``
+parameter), which a drive on a robot runs with and no scenario (docs/ros-graph.md)."""
 import dataclasses
 import math
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +23,11 @@ SCENARIO_DIR = Path(__file__).parent / "scenarios"
 NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
 TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
             "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps",
-            "plant_deviation", "commissioning", "brake", "torque_feedforward", "block_samples", "answer_periods"}
+            "plant_deviation", "commissioning", "brake", "torque_feedforward", "block_samples", "answer_periods",
+            "drive"}
+DRIVE_KEYS = ("motor", "estimator", "injection", "commissioning", "controller", "sampling_period_s", "block_samples",
+              "answer_periods")
+"""The drive's part of a scenario, and all a drive configuration file holds (with ``description``)."""
 NO_DEVIATION = {"R_s": 1.0, "L_d": 1.0, "L_q": 1.0, "psi_f": 1.0, "J": 1.0, "friction": 1.0,
                 "sensor_gain_a": 1.0, "sensor_gain_b": 1.0, "sensor_gain_c": 1.0,
                 "sensor_offset_a": 0.0, "sensor_offset_b": 0.0, "sensor_offset_c": 0.0, "dead_time": 1.0}
@@ -108,10 +118,17 @@ class Scenario:
     torque_feedforward: Table = None
     """The torque the robot expects the motor to deliver [N·m] (its gravity model), sent to the drive's
     `torque_feedforward`; None: none."""
+    drive_file: str = ""
+    """The drive configuration file the drive's part came from ("": the scenario file itself)."""
+
+    @property
+    def open_ended(self):
+        """A drive configuration without an experiment: it runs until stopped (no duration, no tables)."""
+        return not math.isfinite(self.duration_s)
 
     @property
     def n_samples(self):
-        return int(round(self.duration_s / self.T_s))
+        return sys.maxsize if self.open_ended else int(round(self.duration_s / self.T_s))
 
     def schedule(self):
         """(ω*_m [rad/s], τ_load [N·m]) per sample k, arrays of n_samples."""
@@ -203,16 +220,12 @@ def resolve(name_or_path):
     return shipped
 
 
-def load_scenario(name_or_path, estimator_override=None, override_source="estimator override", motor_override=None,
-                  motor_source="motor override"):
-    """The scenario of a shipped name or a YAML path; ``estimator_override`` replaces its estimator
-    (``override_source`` names where it came from: "command line --estimator", "parameter estimator"), and
-    ``motor_override`` (a shipped motor or a motor file, from ``motor_source``) its motor."""
-    path = resolve(name_or_path)
+def _read_yaml(path, what):
+    """The YAML document of ``path``; ScenarioError names the file."""
     try:
         if path.stat().st_size > MAX_FILE_BYTES:
-            raise ScenarioError(f"{path}: larger than {MAX_FILE_BYTES} bytes; not a scenario file")
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+            raise ScenarioError(f"{path}: larger than {MAX_FILE_BYTES} bytes; not a {what}")
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
     except OSError as error:
         raise ScenarioError(f"{path}: cannot be read ({error.strerror})") from None
     except UnicodeDecodeError:
@@ -220,21 +233,93 @@ def load_scenario(name_or_path, estimator_override=None, override_source="estima
     except yaml.YAMLError as error:
         raise ScenarioError(f"{path}: not valid YAML ({str(error).splitlines()[0]})") from None
     except RecursionError:
-        raise ScenarioError(f"{path}: nested too deeply to be a scenario") from None
-    return parse_scenario(data, path.stem, str(path), estimator_override, override_source, motor_override,
-                          motor_source)
+        raise ScenarioError(f"{path}: nested too deeply to be a {what}") from None
+
+
+def load_scenario(name_or_path, estimator_override=None, override_source="estimator override", motor_override=None,
+                  motor_source="motor override"):
+    """The scenario of a shipped name or a YAML path; ``estimator_override`` replaces its estimator
+    (``override_source`` names where it came from: "command line --estimator", "parameter estimator"), and
+    ``motor_override`` (a shipped motor or a motor file, from ``motor_source``) its motor."""
+    path = resolve(name_or_path)
+    return parse_scenario(_read_yaml(path, "scenario file"), path.stem, str(path), estimator_override,
+                          override_source, motor_override, motor_source)
+
+
+def load_drive_configuration(path, label="drive configuration", estimator_override=None,
+                             override_source="estimator override", motor_override=None, motor_source="motor override"):
+    """The drive alone, from a drive configuration file (DRIVE_KEYS): a Scenario with no experiment
+    (open-ended, no speed or load table). ScenarioError names ``label`` (where the file was named), the
+    file and the key; overrides as for load_scenario."""
+    file = Path(path)
+    if not file.is_file():
+        raise ScenarioError(f"{label}: {path}: no such drive configuration file")
+    try:
+        return parse_scenario(_read_yaml(file, "drive configuration"), file.stem, str(file), estimator_override,
+                              override_source, motor_override, motor_source, drive_only=True)
+    except ScenarioError as error:
+        raise ScenarioError(f"{label}: {error}") from None
+
+
+def with_drive(scenario, drive):
+    """``scenario``'s experiment run by the drive of ``drive`` (a Scenario, e.g. load_drive_configuration's)."""
+    return dataclasses.replace(
+        scenario, motor=drive.motor, estimator=drive.estimator, estimator_settings=drive.estimator_settings,
+        estimator_source=drive.estimator_source, injection=drive.injection, commissioning=drive.commissioning,
+        controller=drive.controller, T_s=drive.T_s, block_samples=drive.block_samples,
+        answer_periods=drive.answer_periods, drive_file=drive.drive_file)
+
+
+def _drive_part(data, source, fail):
+    """A scenario's ``drive: FILE``: the file's drive keys in the scenario's place (relative paths in it
+    taken from its own folder), and the file's path."""
+    spec = data["drive"]
+    if not isinstance(spec, str) or not spec:
+        fail("drive", f"must be the path of a drive configuration file, not {spec!r}")
+    file = Path(spec)
+    if not file.is_absolute() and source.endswith((".yaml", ".yml")):
+        file = Path(source).parent / file
+    if not file.is_file():
+        fail("drive", f"{spec}: no such drive configuration file")
+    drive = _read_yaml(file, "drive configuration")
+    if not isinstance(drive, dict):
+        raise ScenarioError(f"{file}: top level must be a mapping of keys")
+    for key in sorted(set(drive) - set(DRIVE_KEYS) - {"description"}, key=str):
+        raise ScenarioError(f"{file}: {key}: not a drive key (a drive configuration holds "
+                            f"{', '.join(DRIVE_KEYS)}; the experiment belongs to the scenario)")
+    for key in sorted(set(drive) & set(data) - {"description"}, key=str):
+        fail(key, f"given here and in the drive configuration {file}: one place only")
+    for key in ("motor", "commissioning"):
+        value = drive.get(key)
+        if isinstance(value, str) and not Path(value).is_absolute() and (file.parent / value).is_file():
+            drive[key] = str(file.parent / value)
+    merged = {**{k: v for k, v in drive.items() if k != "description"}, **data}
+    del merged["drive"]
+    return merged, str(file.resolve())
 
 
 def parse_scenario(data, name, source, estimator_override=None, override_source="estimator override",
-                   motor_override=None, motor_source="motor override"):
+                   motor_override=None, motor_source="motor override", drive_only=False):
+    """A Scenario from a scenario file's document (or, ``drive_only``, a drive configuration's: DRIVE_KEYS
+    and no experiment); ScenarioError names ``source`` and the key."""
     def fail(key, problem):
         raise ScenarioError(f"{source}: {key}: {problem}")
 
     if not isinstance(data, dict):
         raise ScenarioError(f"{source}: top level must be a mapping of keys")
-    for key in sorted(set(data) - TOP_KEYS, key=str):
-        fail(key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
-    for key in ("motor", "estimator", "duration_s", "sampling_period_s", "speed"):
+    drive_file = source if drive_only else ""
+    if drive_only:
+        for key in sorted(set(data) - set(DRIVE_KEYS) - {"description"}, key=str):
+            fail(key, f"not a drive key (a drive configuration holds {', '.join(DRIVE_KEYS)}; the experiment "
+                      f"belongs to a scenario)")
+    else:
+        for key in sorted(set(data) - TOP_KEYS, key=str):
+            fail(key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
+        if "drive" in data:
+            data, drive_file = _drive_part(data, source, fail)
+    required = ("motor", "estimator", "sampling_period_s") if drive_only else \
+        ("motor", "estimator", "duration_s", "sampling_period_s", "speed")
+    for key in required:
         if key not in data:
             fail(key, "missing")
 
@@ -268,20 +353,21 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         fail(f"injection.{key}", "unknown key (known: frequency_Hz, amplitude_V)")
     injection = {key: _positive(value, f"injection.{key}", fail) for key, value in injection.items()}
 
-    duration = _positive(data["duration_s"], "duration_s", fail)
+    duration = math.inf if drive_only else _positive(data["duration_s"], "duration_s", fail)
     T_s = _positive(data["sampling_period_s"], "sampling_period_s", fail)
     low, high = SAMPLING_PERIOD_RANGE_S
     if not low <= T_s <= high:
         fail("sampling_period_s", f"must lie in [{low:g}, {high:g}] s, not {T_s!r}")
-    if T_s > duration:
+    if not drive_only and T_s > duration:
         fail("sampling_period_s", f"{T_s} s is longer than duration_s {duration} s")
-    if duration / T_s > MAX_SAMPLES:
+    if not drive_only and duration / T_s > MAX_SAMPLES:
         fail("duration_s", f"{duration!r} s at {T_s:g} s per sample is more than {MAX_SAMPLES} samples")
     mode = data.get("mode", "speed_control")
     if not isinstance(mode, str) or mode not in ("speed_control", "imposed_speed"):
         fail("mode", f"must be 'speed_control' or 'imposed_speed', not '{mode}'")
 
-    speed = _table(data["speed"], "speed", {"rpm": RPM, "rad_s": 1.0}, fail, duration)
+    speed = _table(data.get("speed", {"unit": "rad_s", "points": [[0.0, 0.0]]}), "speed", {"rpm": RPM, "rad_s": 1.0},
+                   fail, duration)
     torque_units = {"Nm": 1.0, "rated": motor.nameplate.rated_torque_Nm}
     load = _table(data.get("load", {"unit": "Nm", "points": [[0.0, 0.0]]}), "load", torque_units, fail, duration)
     feedforward = data.get("torque_feedforward")
@@ -364,7 +450,8 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         controller=controller, settle_s=settle, metrics_start_s=start,
         seed=seed, substeps=substeps, plant_deviation={**NO_DEVIATION, **deviation},
         commissioning=commissioning, estimator_source=estimator_source, brake=brake, brake_release_s=brake_release,
-        torque_feedforward=feedforward, block_samples=block_samples, answer_periods=answer_periods)
+        torque_feedforward=feedforward, block_samples=block_samples, answer_periods=answer_periods,
+        drive_file=drive_file)
 
 
 def _motor(spec, label, scenario_source, from_file):

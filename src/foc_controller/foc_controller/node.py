@@ -93,6 +93,10 @@ class ControllerNode(ScenarioNode):
         if not self.configured:
             self.publish_config({})
 
+    def needs_experiment(self):
+        """The scenario's speed schedule, when told to take it (scenario_schedule); else `speed_command`."""
+        return bool(self.get_parameter("scenario_schedule").value)
+
     def build(self, scenario):
         check_controller_settings(scenario)
         if self.get_parameter("scenario_schedule").value:

@@ -40,6 +40,9 @@ from .startup import estimator_startup
 
 
 class EstimatorNode(ScenarioNode):
+    def needs_experiment(self):
+        return False
+
     def __init__(self, **kwargs):
         super().__init__("hf_estimator", **kwargs)
         self.currents = {}
