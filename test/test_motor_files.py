@@ -290,3 +290,45 @@ def test_polarity_on_a_resistive_winding(tmp_path):
     path.write_text(GIMBAL)
     sweep = startup_sweep(str(path), STANDARD_CASES[0], angles=12, seeds=(1,))
     assert sweep["polarity_correct_fraction"] == 1.0 and sweep["lock_lost"] == 0
+
+
+NO_INERTIA = """\
+name: test_unknown_inertia
+description: "a robot-joint motor whose datasheet gives neither J nor B, and a flux 20 % high"
+nameplate: {n_p: 7, R_s_ohm: 0.5, L_d_H: 4.0e-4, L_q_H: 4.6e-4, psi_f_Wb: 0.0066, rated_current_A: 6.0}
+inverter: {U_dc_V: 24.0}
+plant: {psi_f_Wb: 0.0055, J_kgm2: 6.0e-5, B_Nms: 1.0e-5, L_dh_H: 3.8e-4, L_qh_H: 4.6e-4}
+"""
+
+
+def test_the_rotating_test_measures_what_the_nameplate_leaves_out_or_gets_wrong(tmp_path, capsys):
+    """A nameplate without J (and ψ_f 20 % high): the drive refuses to tune its speed loop, naming the key;
+    `drive commission --rotating` spins the free shaft and measures ψ_f within 2 % and J within 10 % of the
+    plant's, writes them to the commissioning file, and the drive then runs on them."""
+    path = tmp_path / "test_unknown_inertia.yaml"
+    path.write_text(NO_INERTIA)
+    assert main(["run", "wang_100rpm", "--motor", str(path), "--commissioning", "nameplate", "--no-plot"]) == 2
+    assert "nameplate.J_kgm2: unknown" in capsys.readouterr().err
+    out = tmp_path / "commissioned.yaml"
+    assert main(["commission", "wang_100rpm", "--motor", str(path), "--rotating", "--out", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    for key, tolerance in (("psi_f_Wb", 0.02), ("J_kgm2", 0.10)):
+        assert report["identified"][key] == pytest.approx(report["truth"][key], rel=tolerance), key
+    record = resolve_commissioning(load_motor(path).nameplate, str(out))
+    assert record.J_kgm2 == report["identified"]["J_kgm2"]
+    assert record.refined(load_motor(path).nameplate).psi_f_Wb == report["identified"]["psi_f_Wb"]
+    s = dataclasses.replace(experiment(path, out, duration_s=0.6), estimator="injection_frame")
+    m = compute_metrics(run_scenario(s))
+    assert m["startup"]["polarity_correct"] and m["angle_error_rms"] < 0.03
+
+
+def test_the_rotating_test_refuses_where_the_drive_did_not_follow(joint, tmp_path):
+    """A shaft coupled to 50× the inertia its nameplate says: the speed loop tuned for the nameplate cannot
+    hold the test's speeds, and the test says so instead of measuring."""
+    from drive_commissioning.rotating import RotatingTestError
+    from drive_runner.commissioning_run import rotating_test_in_process
+    motor, commissioning = joint
+    heavy = dataclasses.replace(experiment(motor, commissioning), plant_deviation={
+        **experiment(motor, commissioning).plant_deviation, "J": 50.0})
+    with pytest.raises(RotatingTestError, match="ψ_f and J not measured"):
+        rotating_test_in_process(heavy, commissioning)

@@ -428,6 +428,9 @@ def cmd_commission(args):
     from motor_params.commissioning import SCALARS, default_commissioning_file, save_commissioning
 
     scenario = load_scenario(args.scenario, motor_override=args.motor, motor_source="--motor")
+    if args.rotating and (args.graph or args.link):
+        raise CommandLineError("--rotating: the rotating test runs in one process only (not yet over --graph or "
+                               "--link)")
     out = Path(args.out) if args.out else default_commissioning_file(scenario.motor.name)
     if out.exists() and not args.force:
         raise CommandLineError(f"--out: {out} already exists (--force replaces it)")
@@ -456,7 +459,18 @@ def cmd_commission(args):
     record = procedure.result()
     conditions = {"scenario": scenario.name, "host": host, **procedure.conditions()}
     save_commissioning(out, record, scenario.motor.name, METHOD, conditions)
+    rotating = None
+    if args.rotating:
+        from drive_runner.commissioning_run import rotating_test_in_process
+        estimates, rotating_truth, _ = rotating_test_in_process(scenario, out, progress=progress)
+        record = record._replace(psi_f_Wb=estimates["psi_f_Wb"], J_kgm2=estimates["J_kgm2"])
+        rotating = {key: estimates[key] for key in ("B_Nms", "friction_Nm", "speeds_rad_s")}
+        conditions["rotating_test"] = {"speeds_rad_s": estimates["speeds_rad_s"], "load": "none, shaft free"}
+        save_commissioning(out, record, scenario.motor.name, METHOD, conditions)
+        truth = {**(truth or {}), **{key: rotating_truth[key] for key in ("psi_f_Wb", "J_kgm2")}}
     identified = {key: float(getattr(record, key)) for key in SCALARS}
+    if rotating:
+        identified.update({key: float(getattr(record, key)) for key in ("psi_f_Wb", "J_kgm2")})
     identified["saliency_shift_at_rated_rad"] = table_value(rated, record.saliency_shift_i_q_A,
                                                             record.saliency_shift_rad)
     identified["convergence_slope_at_rated"] = table_value(rated, record.saliency_shift_i_q_A,
@@ -470,11 +484,14 @@ def cmd_commission(args):
         report["truth"] = truth
     if true_currents is not None:
         report["peak_true_current_A"] = float(np.max(np.abs(true_currents)))
+    if rotating:
+        report["rotating_test"] = rotating
     if args.json:
         _print_json(report)
         return 0
     print(f"{out}: {scenario.motor.name} commissioned at standstill, shaft held ({host}), "
-          f"{conditions['duration_s']:.2f} s of motor time in {wall:.2f} s")
+          f"{conditions['duration_s']:.2f} s of motor time in {wall:.2f} s"
+          + (", then turning (the rotating test: ψ_f, J)" if rotating else ""))
     print(f"  polarity: {conditions['polarity']}")
     if conditions["saliency"] != "measured":
         print(f"  saliency: {conditions['saliency']}")
@@ -1349,6 +1366,9 @@ def build_parser():
                             help="through the ROS graph (plant node, or with --link the drive_bridge node, and "
                                  "the drive_commissioning node)")
     commission.add_argument("--namespace", default=DEFAULT_NAMESPACE, help="the graph's namespace (--graph)")
+    commission.add_argument("--rotating", action="store_true",
+                            help="then the rotating test (shaft free, unloaded): the drive spins it and measures "
+                                 "ψ_f and J (docs/commissioning.md)")
     commission.add_argument("--json", action="store_true")
     commission.set_defaults(func=cmd_commission)
 

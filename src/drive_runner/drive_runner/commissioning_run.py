@@ -1,6 +1,8 @@
 """Commissioning the simulated motor in one process: the plant with its shaft held (imposed zero
 speed, as a brake would) sampled and driven by the commissioning procedure core, one sample at a time,
 in the contract's order (sample → command → delay → PWM)."""
+import dataclasses
+import math
 import time
 from dataclasses import dataclass
 
@@ -82,3 +84,40 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
     return CommissioningRun(procedure, truth, inverter.truth[:, 4:7], time.perf_counter() - start,
                             f"virtual inverter over {link}, bridge core")
 
+
+
+def rotating_test_in_process(scenario, commissioning_file, progress=None):
+    """The rotating test (drive_commissioning.rotating) on the scenario's simulated plant, shaft free and
+    unloaded: the drive, commissioned at standstill (``commissioning_file``), spins it through the test's
+    speed profile. Returns (estimates, the plant's true ψ_f, J and B, the RunResult)."""
+    from drive_commissioning.rotating import (
+        ASSUMED_SPEED_BANDWIDTH_RAD_S,
+        DURATION_S,
+        assumed_inertia_kgm2,
+        rotating_estimates,
+        speed_profile,
+    )
+
+    from drive_runner.runner import run_scenario
+    from drive_scenarios.scenario import RPM, Table
+    from motor_params.commissioning import resolve_commissioning
+
+    plate = scenario.motor.nameplate
+    tuned, controller = plate, dict(scenario.controller)
+    if not math.isfinite(plate.J_kgm2):
+        tuned = plate._replace(J_kgm2=assumed_inertia_kgm2(plate))
+        controller.setdefault("speed_bandwidth_rad_s", ASSUMED_SPEED_BANDWIDTH_RAD_S)
+    profile = speed_profile(plate.rated_speed_rpm)
+    still = Table((0.0,), (0.0,), "step")
+    test = dataclasses.replace(
+        scenario, motor=dataclasses.replace(scenario.motor, nameplate=tuned), estimator="injection_frame",
+        estimator_settings={}, duration_s=DURATION_S, mode="speed_control",
+        speed=Table(tuple(t for t, _ in profile), tuple(RPM * v for _, v in profile), "linear"), load=still,
+        torque_feedforward=None, brake=False, initial_omega_m_rad_s=0.0, commissioning=str(commissioning_file),
+        controller=controller, block_samples=1, answer_periods=0)
+    result = run_scenario(test, progress)
+    record = resolve_commissioning(plate, str(commissioning_file), "the standstill commissioning")
+    estimates = rotating_estimates(result.log, plate, record, test.T_s, test.answer_delay_periods())
+    plant = plant_for_scenario(test)
+    truth = {"psi_f_Wb": plant.machine.psi_f_Wb, "J_kgm2": plant.mechanics.J_kgm2, "B_Nms": plant.mechanics.B_Nms}
+    return estimates, truth, result

@@ -1,4 +1,6 @@
 """The controller a scenario configures, for its motor's nameplate and the estimator it runs with."""
+import math
+
 from drive_scenarios.scenario import ScenarioError
 from motor_params.scaled_loops import scaled_loops
 
@@ -19,17 +21,23 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
     """ControllerParams for ``scenario`` with an estimator that injects at ``injection_frequency_Hz`` (0:
     none), tracks with ``tracking_bandwidth_Hz`` and holds its angle up to ``tracking_current_limit_A``
     (None: no limit of its own); the scenario's current_limit_A overrides that limit. The current loops
-    use the ``commissioning`` record's R_s; its delay is the answer delay plus the blocks' N − 1; the speed
-    loop's bandwidth is scaled to the motor (motor_params.scaled_loops) unless the scenario sets it."""
+    use the ``commissioning`` record's R_s; ψ_f and J are the rotating test's where it ran; its delay is the
+    answer delay plus the blocks' N − 1; the speed loop's bandwidth is scaled to the motor
+    (motor_params.scaled_loops) unless the scenario sets it."""
+    plate = commissioning.refined(scenario.motor.nameplate)
+    if not math.isfinite(plate.J_kgm2):
+        raise ScenarioError(f"{scenario.motor.given_by}: {scenario.motor.source}: nameplate.J_kgm2: unknown, and the "
+                            f"commissioning has not measured it: the speed loop cannot be tuned (give J_kgm2, or "
+                            f"`drive commission --rotating` measures it)")
     settings = dict(scenario.controller)
-    settings.setdefault("speed_bandwidth_rad_s", scaled_loops(scenario.motor.nameplate, scenario.motor.inverter,
-                                                              scenario.T_s).speed_bandwidth_rad_s)
+    settings.setdefault("speed_bandwidth_rad_s",
+                        scaled_loops(plate, scenario.motor.inverter, scenario.T_s).speed_bandwidth_rad_s)
     if tracking_current_limit_A is not None:
         settings.setdefault("current_limit_A", tracking_current_limit_A)
     inverter = scenario.motor.inverter._replace(
         delay_periods=scenario.answer_delay_periods() + scenario.block_samples - 1)
     try:
-        return make_controller_params(scenario.motor.nameplate, inverter, scenario.T_s,
+        return make_controller_params(plate, inverter, scenario.T_s,
                                       settings, injection_frequency_Hz, tracking_bandwidth_Hz, commissioning)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source}: controller: {error.args[0]}") from None

@@ -67,7 +67,8 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         q = current_pi_gains_any_bandwidth(m.L_q_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
         speed_bandwidth = min(_capped_speed_bandwidth(s, estimator_bandwidth_Hz),
                               current_bandwidth / CURRENT_TO_SPEED_RATIO)
-        w = speed_pi_gains(m.J_kgm2, m.B_Nms, k_t, speed_bandwidth, s["speed_damping"])
+        w = speed_pi_gains(m.J_kgm2, m.B_Nms if math.isfinite(m.B_Nms) else 0.0, k_t, speed_bandwidth,
+                           s["speed_damping"])
     i_max = s["current_limit_A"] if s["current_limit_A"] is not None else m.current_limit_A
     if i_max > m.current_limit_A:
         raise ValueError(f"controller: current_limit_A: {i_max:g} A exceeds the motor's limit "

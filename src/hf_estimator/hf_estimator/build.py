@@ -14,10 +14,10 @@ SCALED_TRACKING = ("injection_frame", "full_speed")
 papers' estimators keep their papers' carrier and loop unless set (only the bus caps their amplitude)."""
 
 
-def scaled_injection(scenario):
-    """(estimator settings with the motor-scaled defaults and the bus cap applied, what the drive says of
-    them: a list of lines)."""
-    loops = scaled_loops(scenario.motor.nameplate, scenario.motor.inverter, scenario.T_s)
+def scaled_injection(scenario, plate):
+    """(estimator settings with the loops scaled to the motor known by ``plate`` (its nameplate, refined by
+    the commissioning) and the bus cap applied, what the drive says of them: a list of lines)."""
+    loops = scaled_loops(plate, scenario.motor.inverter, scenario.T_s)
     settings = dict(scenario.estimator_settings)
     if not injects(scenario.estimator):
         return settings, []
@@ -40,9 +40,9 @@ def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
     angle information holds. ScenarioError names the scenario and the key at fault."""
-    plate = scenario.motor.nameplate
+    plate = commissioning.refined(scenario.motor.nameplate)
     try:
-        settings, notes = scaled_injection(scenario)
+        settings, notes = scaled_injection(scenario, plate)
         limit = None
         if injects(scenario.estimator):
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)

@@ -63,6 +63,15 @@ class Commissioning(NamedTuple):
     1 + i_q·∂δ/∂i_d [1]. It is the slope of every saliency tracker's error signal; at 0 the HF
     admittance no longer tells the rotor angle (the axis turns back as fast as the rotor turns)."""
     source: str = NAMEPLATE_ONLY
+    psi_f_Wb: float = math.nan
+    """Magnet flux linkage from the rotating test (drive_commissioning.rotating) [V·s]; NaN: not run."""
+    J_kgm2: float = math.nan
+    """Inertia of the rotor and what turns with it, from the rotating test [kg·m²]; NaN: not run."""
+
+    def refined(self, plate):
+        """The nameplate ``plate`` with what the rotating test measured (ψ_f, J) in place of its own."""
+        measured = {key: float(getattr(self, key)) for key in ROTATING if math.isfinite(getattr(self, key))}
+        return plate._replace(**measured)
 
     def calibration(self):
         """The current sensors' correction (control_math.current_sensing)."""
@@ -111,6 +120,8 @@ class Commissioning(NamedTuple):
 SCALARS = ("R_s_ohm", "dead_time_voltage_V", "sensor_gain_a", "sensor_gain_b", "sensor_gain_c",
            "sensor_offset_a_A", "sensor_offset_b_A", "sensor_offset_c_A", "sensor_noise_A", "L_dh_H", "L_qh_H")
 TABLES = ("saliency_shift_i_q_A", "saliency_shift_rad", "convergence_slope")
+ROTATING = ("psi_f_Wb", "J_kgm2")
+"""Values only the rotating test measures: optional in a file (a shaft that cannot turn)."""
 
 
 SCALAR_RANGES = {"R_s_ohm": (0.0, None, False), "dead_time_voltage_V": (0.0, None, True),
@@ -163,6 +174,8 @@ def resolve_commissioning(plate, given="", label="commissioning"):
 def save_commissioning(path, commissioning, motor, method, conditions=None):
     """Write ``commissioning`` to a new YAML file at ``path`` (floats written exactly); returns the path."""
     values = {key: float(getattr(commissioning, key)) for key in SCALARS}
+    values.update({key: float(getattr(commissioning, key)) for key in ROTATING
+                   if math.isfinite(getattr(commissioning, key))})
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in TABLES})
     document = {"motor": motor, "method": method, "date": datetime.date.today().isoformat(),
                 "conditions": dict(conditions or {}), "values": values}
@@ -208,5 +221,11 @@ def load_commissioning(path):
                                  f"non-zero length")
     if np.any(np.diff(parsed["saliency_shift_i_q_A"]) <= 0.0):
         raise CommissioningError(f"{path}: values.saliency_shift_i_q_A: must be ascending")
+    for key in ROTATING:
+        if values.get(key) is not None:
+            try:
+                parsed[key] = float(number(key, values[key], 0.0))
+            except ValueError as error:
+                raise CommissioningError(f"{path}: values.{error}") from None
     metadata = {key: value for key, value in document.items() if key != "values"}
     return Commissioning(**parsed, source=str(path)), metadata
