@@ -326,6 +326,7 @@ def test_the_rotating_test_refuses_where_the_drive_did_not_follow(joint, tmp_pat
     """A shaft coupled to 50× the inertia its nameplate says: the speed loop tuned for the nameplate cannot
     hold the test's speeds, and the test says so instead of measuring."""
     from drive_commissioning.rotating import RotatingTestError
+
     from drive_runner.commissioning_run import rotating_test_in_process
     motor, commissioning = joint
     heavy = dataclasses.replace(experiment(motor, commissioning), plant_deviation={
