@@ -243,3 +243,19 @@ def test_a_scenario_names_its_commissioning_file_beside_it(tmp_path):
     assert named.commissioning.source == str(folder / "left_wheel.yaml")
     plate = run_scenario(dataclasses.replace(load_scenario(str(folder / "plate.yaml")), duration_s=0.01))
     assert plate.commissioning.source == "nameplate" and plate.commissioning.sensor_gain_b == 1.0
+
+
+def test_the_current_limit_keeps_half_the_saliency_and_a_weak_one_is_named():
+    """Where the measured |Δ|/Σ falls to half its no-load value under load, the sensorless current limit
+    stops there (a linear fall from 0.06 at 0 A to 0.02 at 6 A: 4.5 A); a file without the table keeps the
+    slope's limit. A saliency below 5 % is named; 6.6 % (wang_spmsm) is not."""
+    from motor_params.commissioning import Commissioning, nameplate_commissioning
+    currents = np.linspace(-6.0, 6.0, 13)
+    base = Commissioning(0.27, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.01, 0.84e-3, 0.96e-3, currents, np.zeros(13),
+                         np.ones(13), source="test")
+    fading = base._replace(saliency_ratio=0.06 - 0.04 * np.abs(currents) / 6.0)
+    assert base.tracking_current_limit_A() == 6.0 and fading.tracking_current_limit_A() == pytest.approx(4.5)
+    assert base.weak_saliency_note() == ""
+    weak = base._replace(L_dh_H=0.85e-3, L_qh_H=0.9e-3)
+    assert "weak saliency (|Δ|/Σ = 2.9 %" in weak.weak_saliency_note()
+    assert nameplate_commissioning(nameplate("wang_spmsm"))._replace(L_qh_H=0.88e-3).weak_saliency_note() == ""

@@ -67,6 +67,11 @@ def saliency_axis(gamma):
     return 0.5 * math.atan2(2.0 * g_ab, g_aa - g_bb), 1.0 / (mean + half_difference), 1.0 / (mean - half_difference)
 
 
+def saliency_ratio_of(gamma):
+    """|Δ|/Σ of an admittance Γ: half the difference of its eigenvalues over their mean (any frame)."""
+    return math.hypot(0.5 * (gamma[0, 0] - gamma[1, 1]), gamma[0, 1]) / (0.5 * (gamma[0, 0] + gamma[1, 1]))
+
+
 def axis_shift(gamma, d_axis, saliency_sign=1.0):
     """The saliency axis's angle from ``d_axis`` [rad]: ½·atan2(2s·g_dq, s·(g_dd − g_qq)) in that frame,
     s = ``saliency_sign`` (+1 where the d axis has the larger admittance, −1 where L_dh > L_qh)."""

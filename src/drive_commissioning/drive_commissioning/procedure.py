@@ -32,6 +32,7 @@ from .identification import (
     relative_gains,
     resistance_and_dead_time,
     saliency_axis,
+    saliency_ratio_of,
     saliency_surface,
 )
 
@@ -181,11 +182,15 @@ class CommissioningProcedure:
         i_q_top = math.sqrt(max(top * top - sweep * sweep, 0.0))
         grid = np.linspace(-i_q_top, i_q_top, s["q_points"])
         shifts = np.zeros((len(grid), 3))
+        ratios = np.zeros(len(grid))
         c, sn = math.cos(d_axis), math.sin(d_axis)
         for j, i_q in enumerate(grid):
             for m, i_d in enumerate((-sweep, 0.0, sweep)):
                 window = yield self._segment("table", (c * i_d - sn * i_q, sn * i_d + c * i_q), hf=True)
-                shifts[j, m] = axis_shift(self._admittance(window), d_axis, saliency_sign)
+                gamma = self._admittance(window)
+                shifts[j, m] = axis_shift(gamma, d_axis, saliency_sign)
+                if i_d == 0.0:
+                    ratios[j] = saliency_ratio_of(gamma)
         points_d = np.tile([-sweep, 0.0, sweep], len(grid))
         points_q = np.repeat(grid, 3)
         shift_of, slope_of, self.surface_residual = saliency_surface(points_d, points_q, shifts.ravel())
@@ -199,7 +204,7 @@ class CommissioningProcedure:
         self.peak_planned_A = top + ripple
         self.ripple_A = ripple
         self.record = Commissioning(self.R, self.V_dt, *self.gains, *self.offsets, self.noise, self.L_dh, self.L_qh,
-                                    table, shift, slope, source="")
+                                    table, shift, slope, source="", saliency_ratio=np.interp(table, grid, ratios))
         yield self._segment("end")
         yield None
 

@@ -238,9 +238,12 @@ def supervision_faults(result):
 
 def configuration_warnings(result):
     """What the drive says of its configuration before anything went wrong: the sensorless current limit
-    below rated current."""
+    below rated current, a weak saliency (motor_params.commissioning.WEAK_SALIENCY_RATIO) under injection."""
     plate, lines = result.scenario.motor.nameplate, []
     if result.current_limit_A < plate.rated_current_A:
         lines.append(f"current limit {result.current_limit_A:.3g} A is below the rated {plate.rated_current_A:g} A "
                      f"(the saliency tracker's limit, measured at commissioning): rated load cannot be held")
+    facts = result.estimator_facts or {}
+    if result.commissioning is not None and facts.get("injection_frequency_Hz"):
+        lines += [note for note in (result.commissioning.weak_saliency_note(),) if note]
     return lines

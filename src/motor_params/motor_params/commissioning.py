@@ -21,6 +21,12 @@ MIN_CONVERGENCE_SLOPE = 0.75
 (on `wang_spmsm`: 5.6 A, 1.22× rated; at 1.5× rated the slope is −0.2)."""
 MIN_SALIENCY_RATIO = 0.01
 """Below this |Δ|/Σ the saliency is not measurable: HF injection cannot tell the rotor's angle."""
+WEAK_SALIENCY_RATIO = 0.05
+"""Below this |Δ|/Σ (measured) ours cannot keep its targets at rated tracking bandwidths: the drive says so
+(4 motor files: 2.7 % gave 0.05 rad RMS, 6-11 % within 0.03, docs/motors-and-control.md)."""
+SALIENCY_RETAINED = 0.5
+"""Sensorless operation also keeps the current where the saliency |Δ|/Σ keeps half its no-load strength:
+the q axis saturating under load can take a weak saliency away (the angle noise grows as 1/|Δ|)."""
 INDUCTANCE_TOLERANCE = 1.3
 """A commissioned HF inductance more than this factor off its nameplate value contradicts the motor (a file
 measured on another motor, or a nameplate in the wrong unit): the drive refuses it."""
@@ -67,6 +73,8 @@ class Commissioning(NamedTuple):
     """Magnet flux linkage from the rotating test (drive_commissioning.rotating) [V·s]; NaN: not run."""
     J_kgm2: float = math.nan
     """Inertia of the rotor and what turns with it, from the rotating test [kg·m²]; NaN: not run."""
+    saliency_ratio: np.ndarray = None
+    """|Δ|/Σ at the table's currents (i_d = 0) [1]; None: not measured (a file written before)."""
 
     def refined(self, plate):
         """The nameplate ``plate`` with what the rotating test measured (ψ_f, J) in place of its own."""
@@ -100,21 +108,39 @@ class Commissioning(NamedTuple):
         """|Δ|/Σ reaches MIN_SALIENCY_RATIO: there is an angle for HF injection to find."""
         return abs(self.delta) >= MIN_SALIENCY_RATIO * abs(self.sigma)
 
+    def weak_saliency_note(self):
+        """What the drive says of a measured saliency below WEAK_SALIENCY_RATIO ("" otherwise)."""
+        ratio = abs(self.delta / self.sigma)
+        if self.source == NAMEPLATE_ONLY or not self.salient() or ratio >= WEAK_SALIENCY_RATIO:
+            return ""
+        return (f"weak saliency (|Δ|/Σ = {100.0 * ratio:.1f} % < {100.0 * WEAK_SALIENCY_RATIO:g} %): expect angle "
+                f"errors beyond ours' targets (0.02 rad RMS) and a lost lock under fast load steps")
+
     def tracking_current_limit_A(self, min_slope=MIN_CONVERGENCE_SLOPE):
         """The largest current |i_q| [A] up to which the convergence slope (interpolated linearly in the
-        table) stays at or above ``min_slope`` on both signs of the current; the table's end if it never
-        falls below."""
-        currents, slopes = self.saliency_shift_i_q_A, self.convergence_slope
-        if slopes[np.argmin(np.abs(currents))] < min_slope:
-            return 0.0
-        limit = float(np.max(np.abs(currents)))
-        for j in range(len(currents) - 1):
-            (i0, i1), (f0, f1) = currents[j:j + 2], slopes[j:j + 2]
-            for inner, outer, f_inner, f_outer in ((i1, i0, f1, f0), (i0, i1, f0, f1)):
-                if abs(outer) > abs(inner) and f_inner >= min_slope > f_outer:
-                    crossing = inner + (outer - inner) * (f_inner - min_slope) / (f_inner - f_outer)
-                    limit = min(limit, abs(float(crossing)))
+        table) stays at or above ``min_slope`` on both signs of the current and, where the commissioning
+        measured it, the saliency keeps SALIENCY_RETAINED of its strength at no load; the table's end if
+        neither falls below."""
+        currents = self.saliency_shift_i_q_A
+        limit = _held_up_to(currents, self.convergence_slope, min_slope)
+        if self.saliency_ratio is not None:
+            ratio = np.abs(self.saliency_ratio)
+            limit = min(limit, _held_up_to(currents, ratio, SALIENCY_RETAINED * ratio[np.argmin(np.abs(currents))]))
         return limit
+
+def _held_up_to(currents, values, threshold):
+    """The largest |current| [A] up to which ``values`` (a table over ``currents``, interpolated linearly)
+    stays at or above ``threshold`` on both signs; 0 where the value at zero current is below it."""
+    if values[np.argmin(np.abs(currents))] < threshold:
+        return 0.0
+    limit = float(np.max(np.abs(currents)))
+    for j in range(len(currents) - 1):
+        (i0, i1), (f0, f1) = currents[j:j + 2], values[j:j + 2]
+        for inner, outer, f_inner, f_outer in ((i1, i0, f1, f0), (i0, i1, f0, f1)):
+            if abs(outer) > abs(inner) and f_inner >= threshold > f_outer:
+                crossing = inner + (outer - inner) * (f_inner - threshold) / (f_inner - f_outer)
+                limit = min(limit, abs(float(crossing)))
+    return limit
 
 
 SCALARS = ("R_s_ohm", "dead_time_voltage_V", "sensor_gain_a", "sensor_gain_b", "sensor_gain_c",
@@ -122,6 +148,8 @@ SCALARS = ("R_s_ohm", "dead_time_voltage_V", "sensor_gain_a", "sensor_gain_b", "
 TABLES = ("saliency_shift_i_q_A", "saliency_shift_rad", "convergence_slope")
 ROTATING = ("psi_f_Wb", "J_kgm2")
 """Values only the rotating test measures: optional in a file (a shaft that cannot turn)."""
+OPTIONAL_TABLES = ("saliency_ratio",)
+"""Tables a file written before they were measured lacks."""
 
 
 SCALAR_RANGES = {"R_s_ohm": (0.0, None, False), "dead_time_voltage_V": (0.0, None, True),
@@ -177,6 +205,8 @@ def save_commissioning(path, commissioning, motor, method, conditions=None):
     values.update({key: float(getattr(commissioning, key)) for key in ROTATING
                    if math.isfinite(getattr(commissioning, key))})
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in TABLES})
+    values.update({key: [float(v) for v in getattr(commissioning, key)] for key in OPTIONAL_TABLES
+                   if getattr(commissioning, key) is not None})
     document = {"motor": motor, "method": method, "date": datetime.date.today().isoformat(),
                 "conditions": dict(conditions or {}), "values": values}
     path = Path(path)
@@ -209,16 +239,18 @@ def load_commissioning(path):
             raise CommissioningError(f"{path}: values.{error}") from None
         parsed[key] = float(value)
     lengths = set()
-    for key in TABLES:
+    for key in TABLES + OPTIONAL_TABLES:
         table = values.get(key)
+        if key in OPTIONAL_TABLES and table is None:
+            continue
         if not isinstance(table, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
                                                   and math.isfinite(v) for v in table):
             raise CommissioningError(f"{path}: values.{key}: must be a list of finite numbers")
         parsed[key] = np.asarray(table, dtype=float)
         lengths.add(len(table))
     if len(lengths) != 1 or lengths == {0}:
-        raise CommissioningError(f"{path}: values: the tables {', '.join(TABLES)} must have one equal, "
-                                 f"non-zero length")
+        raise CommissioningError(f"{path}: values: the tables {', '.join(TABLES + OPTIONAL_TABLES)} must have one "
+                                 f"equal, non-zero length")
     if np.any(np.diff(parsed["saliency_shift_i_q_A"]) <= 0.0):
         raise CommissioningError(f"{path}: values.saliency_shift_i_q_A: must be ascending")
     for key in ROTATING:
