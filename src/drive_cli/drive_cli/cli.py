@@ -880,10 +880,15 @@ def cmd_tune_speed(args):
     from foc_controller.params import DEFAULTS
     from foc_controller.tuning import SZABO_TABLE2, speed_bandwidth_damping, speed_pi_gains
     from hf_estimator.pll_model import margins
+    from motor_params.scaled_loops import scaled_loops
 
     m = _nameplate_arg(args.motor)
+    if not math.isfinite(m.J_kgm2):
+        raise CommandLineError(f"--motor {args.motor}: nameplate.J_kgm2 unknown: no speed loop to tune "
+                               f"(`drive commission --rotating` measures it)")
     k_t = 1.5 * m.n_p * m.psi_f_Wb
-    requested = args.bandwidth or DEFAULTS["speed_bandwidth_rad_s"]
+    requested = args.bandwidth or scaled_loops(m, load_motor(args.motor, "--motor").inverter,
+                                               1e-4).speed_bandwidth_rad_s
     zeta = args.damping or DEFAULTS["speed_damping"]
     pll = args.pll_crossover
     source = "--pll-crossover"
@@ -1512,7 +1517,8 @@ def build_parser():
                                 help="speed PI gains from a bandwidth and damping, kept below the PLL")
     speed.add_argument("--motor", default="szabo_ipmsm", metavar="NAME|FILE",
                        help="a shipped motor or a motor file (J, B, k_t)")
-    speed.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default 40)")
+    speed.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default: scaled to the motor, "
+                                                       "40 for the shipped ones)")
     speed.add_argument("--damping", type=float, help="ζ (default 1)")
     speed.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS,
                        help="whose PLL crossover (carrier model, current gains) bounds the speed loop")
