@@ -126,6 +126,7 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
     return Motor(name, plate, InverterRating(float(U_dc), delay), plant, path or source, description,
                  source if given_by is None else given_by)
 
+
 def nameplate(name_or_path):
     """The nameplate of a shipped motor or a motor file; MotorFileError names the known ones."""
     return load_motor(name_or_path).nameplate
