@@ -52,7 +52,7 @@ def estimator_for_scenario(scenario, commissioning):
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
     except ValueError as error:
         raise ScenarioError(f"{scenario.source}: estimator: {error.args[0]}") from None
-    if injects(scenario.estimator):
+    if injects(scenario.estimator) and commissioning.weak_saliency_note():
         notes.append(commissioning.weak_saliency_note())
     note = "; ".join(n for n in (estimator.injection_note, *notes) if n)
     amplitude = estimator.injection_amplitude_V
