@@ -40,8 +40,10 @@ design).
    where F ≥ ¾ (Commissioning.tracking_current_limit_A).
 5. The amplitude is the scenario's, raised where the commissioned motor needs it: a weak saliency gives a
    weak angle signal, the saliency current I_Δ = U_h·|Δ|/ω_h, against the commissioned sensor noise σ.
-   Below ``saliency_snr_min`` σ (8) the error grows faster than 1/I_Δ (noise and dead-time voltage near
-   the phase currents' zero crossings), so U_h is raised to reach it, at most to HF_RIPPLE_MAX_PER_RATED
+   Below ``saliency_snr_min`` σ (8, at an 18 Hz loop; × √(bandwidth/18 Hz) for a wider one, whose noise
+   grows so: a light rotor's loops scale up, docs/motors-and-control.md) the error grows faster than 1/I_Δ
+   (noise and dead-time voltage near the phase currents' zero crossings), so U_h is raised to reach it,
+   at most to HF_RIPPLE_MAX_PER_RATED
    of the rated current in HF ripple and HF_VOLTAGE_MAX_PER_LINEAR of the linear voltage range
    (docs/results.md, "A plant off its nameplate").
 6. A type-2 loop (PI + integrator) on ε with ω_n, ζ placed directly (ε has unit slope); its integrator
@@ -92,6 +94,9 @@ blocks it would measure the old error again and jump twice."""
 MIN_EXCITATION_SPREAD = 0.1
 """4 det/trace² of the fit window's voltage covariance (0: one axis excited, 1: both alike; ours' ±δ axes
 give 0.5): below this the window cannot tell g_qq apart and Σ is taken from the commissioning (item 3b)."""
+SNR_REFERENCE_HZ = 18.0
+"""``saliency_snr_min`` holds for this tracking bandwidth; a wider loop passes more noise (its variance
+grows with the bandwidth), so the wanted ratio grows as √(bandwidth / this)."""
 HF_RIPPLE_MAX_PER_RATED = 0.5
 """The largest HF current ripple U_h·Σ/ω_h ours allows itself when it raises its amplitude, per rated
 current (Wang's own reversal runs at 0.38)."""
@@ -283,8 +288,9 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     zeta = float(s["pll_damping"])
     pole = ACCELERATION_POLE_RATIO * omega_n if s["pll_type"] == 3 else 0.0
+    snr_min = float(s["saliency_snr_min"]) * math.sqrt(max(1.0, float(s["pll_bandwidth_Hz"]) / SNR_REFERENCE_HZ))
     amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, inverter,
-                                          2.0 * math.pi / (N * T_s), float(s["saliency_snr_min"]))
+                                          2.0 * math.pi / (N * T_s), snr_min)
     delay_periods = inverter.delay_periods
     base = HISTORY + (delay_periods + 2) + 4 * 2 * N
     startup = make_startup(base, nameplate, commissioning, T_s, inverter, 1.0, s)
