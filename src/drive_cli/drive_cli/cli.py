@@ -1192,18 +1192,21 @@ def cmd_bench_motor(args):
 
     if args.angles < 1:
         raise CommandLineError(f"--angles: must be at least 1, not {args.angles}")
+    if not 1e-6 <= args.sample_period <= 1e-2:
+        raise CommandLineError(f"--sample-period: must lie in [1e-06, 0.01] s, not {args.sample_period!r}")
     motors = [load_motor(m, "drive bench motor") for m in args.motors]
     reports = []
     try:
         for motor in motors:
             progress = None if args.json else terminal_progress(motor.name)
-            reports.append(motor_bench(motor, args.angles, progress))
+            reports.append(motor_bench(motor, args.angles, progress, args.sample_period))
     except Interrupted as stop:
         if args.json:
             _print_json({"benchmark": "motor", "results": reports, "interrupted": True})
         return _exit_code(stop.signum)
     if args.json:
-        _print_json({"benchmark": "motor", "angles": args.angles, "results": reports})
+        _print_json({"benchmark": "motor", "angles": args.angles, "sample_period_s": args.sample_period,
+                     "results": reports})
         return 0
     for r in reports:
         s = r["startup"]
@@ -1438,6 +1441,8 @@ def build_parser():
                                                      "a load step at 5 %% rated speed on the loops scaled to each")
     motor_bench.add_argument("motors", nargs="+", metavar="NAME|FILE", help="shipped motors or motor files")
     motor_bench.add_argument("--angles", type=int, default=24, help="start angles over the electrical circle")
+    motor_bench.add_argument("--sample-period", type=float, default=1e-4, metavar="S",
+                             help="the drive's sampling period [s] (default 1e-4)")
     motor_bench.add_argument("--json", action="store_true")
     motor_bench.set_defaults(func=cmd_bench_motor)
 

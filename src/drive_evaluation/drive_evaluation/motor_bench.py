@@ -54,22 +54,22 @@ def verdict(metrics, faults, refused):
     return "within targets" if within else "over target"
 
 
-def motor_bench(motor_ref, angles=24, progress=None):
-    """The bench of one motor (shipped name or file): its commissioning against the plant's truth, the
-    start-up sweep and the cases; a report dictionary (SI units)."""
+def motor_bench(motor_ref, angles=24, progress=None, T_s=1e-4):
+    """The bench of one motor (shipped name or file) sampled every ``T_s``: its commissioning against the
+    plant's truth, the start-up sweep and the cases; a report dictionary (SI units)."""
     motor = load_motor(motor_ref, "drive bench motor")
     with tempfile.TemporaryDirectory(prefix="motor_bench_") as folder:
         commissioning = Path(folder) / f"{motor.name}.yaml"
-        first = case_scenario(motor, "speed step 5 → 10 %", "nameplate")
+        first = case_scenario(motor, "speed step 5 → 10 %", "nameplate", T_s)
         run = commission_in_process(first)
         measured = run.procedure.result()
         save_commissioning(commissioning, measured, motor.name, "drive bench motor")
         steps = len(CASES) + 1
         sweep = startup_sweep(motor, STANDARD_CASES[0], angles=angles, seeds=(1,), commissioning=commissioning,
-                              progress=progress and (lambda f: progress(f / steps)))
+                              progress=progress and (lambda f: progress(f / steps)), T_s=T_s)
         cases = []
         for i, case in enumerate(CASES):
-            result = run_scenario(case_scenario(motor, case, commissioning))
+            result = run_scenario(case_scenario(motor, case, commissioning, T_s))
             metrics = compute_metrics(result)
             faults = supervision_faults(result)
             refused = (result.startup or {}).get("refused")
@@ -82,7 +82,7 @@ def motor_bench(motor_ref, angles=24, progress=None):
             if progress:
                 progress((i + 2) / steps)
     facts = result.estimator_facts
-    return {"motor": motor.name, "file": motor.source, "description": motor.description,
+    return {"motor": motor.name, "file": motor.source, "description": motor.description, "sample_period_s": T_s,
             "commissioning_error": {key: float(getattr(measured, key) / run.truth[key] - 1.0)
                                     for key in ("R_s_ohm", "L_dh_H", "L_qh_H") if run.truth.get(key)},
             "current_limit_A": result.current_limit_A, "warnings": configuration_warnings(result),

@@ -37,16 +37,17 @@ nothing of it or told its torque by the robot; a gravity-like 0.3 rated load fro
 rotor during start-up."""
 
 
-def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None, commissioning=""):
+def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None, commissioning="", T_s=None):
     """The scenario of one bench run on ``motor`` (a shipped name, a motor file or a Motor), with the
-    ``commissioning`` file given (default: the scenario's lookup)."""
+    ``commissioning`` file given (default: the scenario's lookup), sampled every ``T_s`` (default: the
+    shipped scenario's, else 10 kHz)."""
     m = load_motor(motor, "--motor")
     shipped = load_scenario(MOTOR_SCENARIOS[m.name]) if m.shipped else None
     plate = m.nameplate
     speed = SPEED_PER_RATED * plate.rated_speed_rpm
     data = {"motor": m.source, "estimator": {"type": estimator or "injection_frame", "settings": settings or {}},
             "injection": dict(shipped.injection) if shipped else {}, "duration_s": DURATION_S,
-            "sampling_period_s": shipped.T_s if shipped else 1e-4,
+            "sampling_period_s": T_s or (shipped.T_s if shipped else 1e-4),
             "speed": {"unit": "rpm", "interpolation": "linear",
                       "points": [[0.0, 0.0], [HOLD_S, 0.0], [HOLD_S + RAMP_S, speed]]},
             "load": {"unit": "rated", "points": [[0.0, case.load_per_rated]]}, "seed": seed,
@@ -58,7 +59,8 @@ def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None, com
     return parse_scenario(data, f"startup_{m.name}", "drive bench startup")
 
 
-def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progress=None, commissioning=""):
+def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progress=None, commissioning="",
+                  T_s=None):
     """One row per (angle, seed): the start-up metrics (metrics.startup_metrics) of a bench run, and
     the summary of them all."""
     rows = []
@@ -66,7 +68,7 @@ def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progr
     for i in range(angles):
         theta_e = 2.0 * math.pi * i / angles - math.pi
         for seed in seeds:
-            scenario = bench_scenario(motor, estimator, theta_e, seed, case, commissioning=commissioning)
+            scenario = bench_scenario(motor, estimator, theta_e, seed, case, commissioning=commissioning, T_s=T_s)
             result = run_scenario(scenario)
             rows.append({"theta_e_rad": theta_e, "seed": seed, **startup_metrics(scenario, result.log, result.n_p),
                          "refused": (result.startup or {}).get("refused")})
