@@ -335,3 +335,21 @@ def test_the_rotating_test_refuses_where_the_drive_did_not_follow(joint, tmp_pat
         **experiment(motor, commissioning).plant_deviation, "J": 50.0})
     with pytest.raises(RotatingTestError, match="ψ_f and J not measured"):
         rotating_test_in_process(heavy, commissioning)
+
+
+def test_ours_takes_a_type_3_loop_where_acceleration_sets_its_bandwidth_and_the_signal_allows(joint):
+    """The joint's acceleration sets ours' bandwidth and its saliency stands clear of the noise: type 3
+    (no lag behind a constant acceleration); the same with too little signal, or the shipped motors whose
+    loops the minimum sets: type 2."""
+    from hf_estimator.injection_frame import tracking_loop_type
+    motor, commissioning = joint
+    s = experiment(motor, commissioning, duration_s=0.01, speed=[[0.0, 0.0]])
+    assert "type-3 tracking loop" in run_scenario(s).estimator_facts["injection_note"]
+    record = resolve_commissioning(load_motor(motor).nameplate, str(commissioning))
+    omega_h = 2.0 * math.pi * 2000.0
+    assert tracking_loop_type("auto", 5.0, record, omega_h, 8.0)[0] == 3
+    assert tracking_loop_type("auto", 0.2, record, omega_h, 8.0)[0] == 2
+    assert tracking_loop_type(2, 5.0, record, omega_h, 8.0) == (2, "")
+    for name in ("wang_spmsm", "szabo_ipmsm"):
+        m = load_motor(name)
+        assert not scaled_loops(m.nameplate, m.inverter, 1e-4).acceleration_limited

@@ -84,11 +84,13 @@ def _check_followed(t, state, omega_m, rated_speed_rad_s):
 
 
 def _settled_s(t, omega_m, target):
-    """The first instant after the step from which ω̂_m stays within SETTLED_SHARE of ``target`` for
-    END_AVERAGE_S (the second hold's start when it never does)."""
-    inside = (t >= STEP_S) & (np.abs(omega_m - target) <= SETTLED_SHARE * abs(target))
+    """The first instant after the step from which ω̂_m, averaged over END_AVERAGE_S (the estimate is
+    noisy sample by sample), stays within SETTLED_SHARE of ``target`` for END_AVERAGE_S (the second
+    hold's start when it never does)."""
     T_s = t[1] - t[0]
     need = max(1, int(round(END_AVERAGE_S / T_s)))
+    smooth = np.convolve(omega_m, np.ones(need) / need, mode="same")
+    inside = (t >= STEP_S) & (np.abs(smooth - target) <= SETTLED_SHARE * abs(target))
     run = 0
     for k in np.nonzero(t >= STEP_S)[0]:
         run = run + 1 if inside[k] else 0

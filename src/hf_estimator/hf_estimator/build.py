@@ -27,6 +27,8 @@ def scaled_injection(scenario, plate):
         injection = {"frequency_Hz": loops.injection_frequency_Hz, "amplitude_V": loops.injection_amplitude_V,
                      **injection}
         settings.setdefault("pll_bandwidth_Hz", loops.tracking_bandwidth_Hz)
+        if scenario.estimator == "injection_frame" and loops.acceleration_limited:
+            settings.setdefault("pll_type", "auto")
     settings = {**injection, **settings}
     amplitude = settings.get("amplitude_V")
     if isinstance(amplitude, (int, float)) and amplitude > loops.amplitude_cap_V:

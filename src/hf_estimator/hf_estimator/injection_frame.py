@@ -52,7 +52,8 @@ design).
    acceleration a by a/ω_n² (0.1 rad at 4000 rpm/s on `szabo_ipmsm`); with ``pll_type`` 3 an acceleration
    integrator ahead of the speed integrator removes that lag: s³ + k_p s² + k_i s + k_a = (s + p)(s² +
    2ζω_n s + ω_n²), p = ACCELERATION_POLE_RATIO·ω_n. Its acceleration is zero whenever ours is not
-   tracking (start-up, hold): the estimate then coasts at constant speed.
+   tracking (start-up, hold): the estimate then coasts at constant speed. ``pll_type`` "auto"
+   (tracking_loop_type) takes type 3 where the signal has the noise margin for it.
 7. Start-up (startup.py): while aligning, a fit that finds the axis further than ALIGN_JUMP_RAD away
    moves θ̂ onto it at once (ε is in radians) and the next fit waits for a window of fresh samples; the
    loop settles the rest. Ours aligns in a few carrier periods instead of the loop's settling time.
@@ -124,6 +125,21 @@ def injection_amplitude(requested_V, commissioning, nameplate, inverter, omega_h
     limited = f"; held by the {cap_name} cap" if wanted > amplitude else ""
     return amplitude, (f"raised from {requested_V:g} V: saliency current {reached:.1f} σ of the commissioned "
                        f"sensor noise, {snr_min:g} wanted{limited}")
+
+
+def tracking_loop_type(requested, amplitude_V, commissioning, omega_h, snr_min):
+    """(2 or 3, what the drive says of it) for ``pll_type`` ``requested``: "auto" (set where the rotor's
+    acceleration sets the bandwidth, hf_estimator.build) takes the type-3 loop, which follows a constant
+    acceleration without lag but passes more noise, where the saliency current U_h·|Δ|/ω_h reaches
+    ``snr_min`` times the commissioned sensor noise; else type 2."""
+    if requested != "auto":
+        return requested, ""
+    noise = commissioning.sensor_noise_A
+    reached = amplitude_V * abs(commissioning.delta) / omega_h / noise if noise > 0.0 else 0.0
+    if commissioning.salient() and reached >= snr_min * (1.0 - 1e-9):
+        return 3, f"type-3 tracking loop: the rotor's acceleration sets its bandwidth, {reached:.1f} σ of signal"
+    return 2, (f"type-2 tracking loop: {reached:.1f} σ of signal leaves no noise margin for type 3"
+               if noise > 0.0 else "type-2 tracking loop: sensor noise not commissioned")
 
 
 class InjectionFrameParams(NamedTuple):
@@ -287,10 +303,13 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     zeta = float(s["pll_damping"])
-    pole = ACCELERATION_POLE_RATIO * omega_n if s["pll_type"] == 3 else 0.0
+    omega_h = 2.0 * math.pi / (N * T_s)
     snr_min = float(s["saliency_snr_min"]) * math.sqrt(max(1.0, float(s["pll_bandwidth_Hz"]) / SNR_REFERENCE_HZ))
-    amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, inverter,
-                                          2.0 * math.pi / (N * T_s), snr_min)
+    amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, inverter, omega_h,
+                                          snr_min)
+    loop_type, loop_note = tracking_loop_type(s["pll_type"], amplitude, commissioning, omega_h, snr_min)
+    note = "; ".join(n for n in (note, loop_note) if n)
+    pole = ACCELERATION_POLE_RATIO * omega_n if loop_type == 3 else 0.0
     delay_periods = inverter.delay_periods
     base = HISTORY + (delay_periods + 2) + 4 * 2 * N
     startup = make_startup(base, nameplate, commissioning, T_s, inverter, 1.0, s)

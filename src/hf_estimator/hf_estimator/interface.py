@@ -179,7 +179,7 @@ SETTING_CHECKS = {
     "speed_bandwidth_Hz": _frequency,
     "observable_backemf_per_rated": lambda key, value, T_s: number(key, value, 0.0, 1.0),
     "pll_damping": lambda key, value, T_s: positive(key, value),
-    "pll_type": lambda key, value, T_s: choice(key, value, (2, 3)),
+    "pll_type": lambda key, value, T_s: choice(key, value, (2, 3, "auto")),
     "A_p": _optional_positive,
     "T_i_s": _optional_positive,
     "T_f_s": lambda key, value, T_s: positive(key, value),

@@ -10,6 +10,8 @@ acceleration by a_e/ω_n². The rule:
    carrier's f_h / CARRIER_PER_TRACKING (the fit window of two carrier periods delays the error).
 2. Carrier: f_s / SAMPLES_PER_CARRIER, raised to CARRIER_PER_TRACKING × the tracking bandwidth the motor
    needs, up to f_s / MIN_SAMPLES_PER_CARRIER.
+   Where that acceleration, not the minimum, sets the bandwidth, ours' loop is type 3 when its signal has
+   the noise margin (hf_estimator.injection_frame.tracking_loop_type).
 3. Speed loop: ω_s = √(a_e / EXCURSION_RAD) (a load step then turns the rotor by about EXCURSION_RAD
    electrical before the loop holds it), at least MIN_SPEED_BANDWIDTH_RAD_S; the controller keeps it a
    cascade step below the tracking loop and the current loops (foc_controller.params).
@@ -48,6 +50,9 @@ class ScaledLoops(NamedTuple):
     largest_tracked_load_step_per_rated: float
     """The load step (per rated torque) whose acceleration the tracking loop still follows within
     ACCELERATION_LAG_RAD (∞ where J is not known)."""
+    acceleration_limited: bool
+    """The rotor's acceleration, not MIN_TRACKING_HZ, sets the tracking bandwidth (ours may then take a
+    type-3 loop, which follows a constant acceleration without lag)."""
     notes: tuple
 
 
@@ -77,4 +82,5 @@ def scaled_loops(nameplate, inverter, T_s):
     cap = HF_VOLTAGE_PER_LINEAR * inverter.U_dc_V / math.sqrt(3.0)
     sigma = 0.5 * (1.0 / nameplate.L_d_H + 1.0 / nameplate.L_q_H)
     amplitude = min(HF_RIPPLE_PER_RATED * nameplate.rated_current_A * 2.0 * math.pi * carrier_Hz / sigma, cap)
-    return ScaledLoops(a_e, tracking_Hz, carrier_Hz, amplitude, speed, cap, tracked_step, tuple(notes))
+    return ScaledLoops(a_e, tracking_Hz, carrier_Hz, amplitude, speed, cap, tracked_step,
+                       wanted_Hz > MIN_TRACKING_HZ, tuple(notes))
