@@ -78,3 +78,22 @@ def test_bench_rejects_zero_repeats():
     proc = subprocess.run([sys.executable, "-m", "drive_cli.cli", "bench", "throughput",
                            "--repeats", "0"], capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stderr.strip() == "drive: --repeats: must be at least 1, not 0"
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["run", "wang_100rpm", "--duration", "inf"], "argument --duration: must be a finite number, not 'inf'"),
+    (["run", "wang_100rpm", "--duration", "nan"], "argument --duration: must be a finite number, not 'nan'"),
+    (["launch", "wang_100rpm", "--timeout", "nan"], "argument --timeout: must be a finite number"),
+    (["run", "wang_100rpm", "--duration", "1e9"], "--duration: 1e+09 s at 0.0001 s per sample is more than 10000000"),
+    (["bench", "graph", "--duration", "1e9"], "--duration: 1e+09 s at 0.0001 s per sample is more than 10000000"),
+])
+def test_numeric_options_are_checked_before_anything_runs(capsys, argv, message):
+    """inf, nan and a duration past the scenario file's sample cap: exit 2 and the option named, never an
+    allocation of terabytes or a traceback."""
+    try:
+        code = main(argv)
+    except SystemExit as stop:
+        code = stop.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err

@@ -4,6 +4,7 @@ truth, an unknown drive_config key, another sample period), and a corpus of them
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -192,6 +193,25 @@ def test_a_corpus_gives_one_summary_row_per_estimator(conventional, tmp_path):
     assert aligned["scored"] == 0 and aligned["not_applicable"] == 3 and aligned["rms_median"] is None
     out = subprocess.run(DRIVE + ["bench", "replay", str(corpus / "[ab]")], capture_output=True, text=True)
     assert out.returncode == 0 and "replay of 2 bags" in out.stdout, out.stderr
+
+
+def test_a_corpus_skips_what_is_not_a_bag_and_scores_the_rest(conventional, tmp_path):
+    """A glob over a shelf with a README, an empty folder and a bag: one line on stderr per skipped path
+    (naming it), the bag scored, exit 0; nothing but skips: one line, exit 2."""
+    shelf = tmp_path / "shelf"
+    write_foreign_bag(shelf / "a", conventional, v2_config(conventional, "conventional"))
+    (shelf / "README.md").write_text("recordings of the left wheel\n")
+    (shelf / "empty").mkdir()
+    out = subprocess.run(DRIVE + ["bench", "replay", str(shelf / "*"), "--estimators", "injection_frame", "--json"],
+                         capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    assert report["bags"] == 1 and report["summary"][0]["scored"] == 1
+    assert sorted(Path(s["path"]).name for s in report["skipped"]) == ["README.md", "empty"]
+    lines = [line for line in out.stderr.splitlines() if line.startswith("drive: skipped")]
+    assert len(lines) == 2 and any("README.md" in line for line in lines)
+    out = subprocess.run(DRIVE + ["bench", "replay", str(shelf / "[Re]*")], capture_output=True, text=True)
+    assert out.returncode == 2 and "none of its 2 paths could be replayed" in out.stderr
 
 
 def test_ours_on_a_recording_of_synchronous_beats_it(tmp_path):

@@ -26,6 +26,7 @@ from drive_interface.interrupt import Interrupted
 from drive_interface.strict_json import dumps
 from drive_scenarios.scenario import (
     MAX_BLOCK_SAMPLES,
+    MAX_SAMPLES,
     PACED_BLOCK_SAMPLES,
     behind_an_inverter,
     link_block_samples,
@@ -108,15 +109,36 @@ def _estimator_arg(args):
                                f"(known: {', '.join(estimator_names())})")
 
 
+def finite_float(text):
+    """argparse type: a finite real number (inf and nan are refused as the option's error)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"must be a finite number, not {text!r}")
+    return value
+
+
+def _duration_arg(duration, T_s):
+    """--duration checked: positive, and within the sample cap a scenario file has (MAX_SAMPLES at T_s)."""
+    if duration is None:
+        return None
+    if duration <= 0.0:
+        raise CommandLineError(f"--duration: must be positive, not {duration}")
+    if duration / T_s > MAX_SAMPLES:
+        raise CommandLineError(f"--duration: {duration:g} s at {T_s:g} s per sample is more than {MAX_SAMPLES} "
+                               f"samples (the cap a scenario file has too)")
+    return duration
+
+
 def _scenario_arg(args):
     """The scenario named on the command line, with --estimator and --duration applied."""
     _estimator_arg(args)
     scenario = load_scenario(args.scenario, estimator_override=args.estimator,
                              override_source="command line --estimator", motor_override=args.motor,
                              motor_source="--motor")
-    if args.duration is not None:
-        if args.duration <= 0.0:
-            raise CommandLineError(f"--duration: must be positive, not {args.duration}")
+    if _duration_arg(args.duration, scenario.T_s) is not None:
         scenario = dataclasses.replace(scenario, duration_s=args.duration)
     if args.commissioning:
         scenario = dataclasses.replace(scenario, commissioning=args.commissioning)
@@ -292,12 +314,11 @@ def cmd_launch(args):
     from drive_launch.launcher import launch
     from drive_runner.runner import terminal_progress
 
-    if args.duration is not None and args.duration <= 0.0:
-        raise CommandLineError(f"--duration: must be positive, not {args.duration}")
     _estimator_arg(args)
     scenario = load_scenario(args.scenario, estimator_override=args.estimator,
                              override_source="command line --estimator", motor_override=args.motor,
                              motor_source="--motor")
+    _duration_arg(args.duration, scenario.T_s)
     _record_arg(args.record)
     if args.paced and not args.link:
         raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
@@ -360,6 +381,7 @@ def cmd_bench_bridge(args):
         if link not in ("pty", "can"):
             raise CommandLineError(f"--links: 'pty' and/or 'can', not {link!r}")
     duration = args.duration if args.duration is not None or args.paced else 1.0
+    _duration_arg(duration, load_scenario(args.scenario).T_s)
     if args.block_samples is not None:
         from drive_bridge.inverter_protocol import MAX_BLOCK
         if not 1 <= args.block_samples <= MAX_BLOCK:
@@ -793,27 +815,37 @@ def _save_report(report, path):
 
 
 def _replay_corpus(bags, names, args):
-    """Every bag of a corpus replayed; one summary row per estimator."""
+    """Every bag of a corpus replayed; one summary row per estimator. A path that is not a bag, or a bag
+    that cannot be replayed, is skipped with one line on stderr (and listed under ``skipped``)."""
     from drive_evaluation.replay import replay, summarise
     from drive_runner.runner import terminal_progress
 
-    per_bag = []
+    per_bag, skipped = [], []
     progress = terminal_progress(f"replay of {len(bags)} bags")
     for i, bag in enumerate(bags):
-        recording = _recording(bag, args)
-        entries, _ = replay(recording, names)
-        per_bag.append({**recording.report(), "results": entries})
+        try:
+            recording = _recording(bag, args)
+            entries, _ = replay(recording, names)
+        except DriveError as error:
+            skipped.append({"path": bag, "reason": str(error)})
+            print(f"drive: skipped {bag}: {error}", file=sys.stderr)
+        else:
+            per_bag.append({**recording.report(), "results": entries})
         if progress:
             progress((i + 1) / len(bags))
+    if not per_bag:
+        raise CommandLineError(f"bag: {args.bag}: none of its {len(bags)} paths could be replayed")
     summary = summarise(per_bag, names)
-    report = {"benchmark": "replay corpus", "pattern": args.bag, "bags": len(bags), "summary": summary,
-              "per_bag": per_bag}
+    report = {"benchmark": "replay corpus", "pattern": args.bag, "bags": len(per_bag), "summary": summary,
+              "skipped": skipped, "per_bag": per_bag}
     if args.out:
         _save_report(report, Path(args.out) / "replay_corpus.json")
     if args.json:
         _print_json(report)
         return 0
-    print(f"replay of {len(bags)} bags ({args.bag})")
+    print(f"replay of {len(per_bag)} bags ({args.bag})" + (f", {len(skipped)} paths skipped (not a bag, or "
+                                                            f"not replayable: one line each above)"
+                                                            if skipped else ""))
     print(f"  {'estimator':22s}{'scored':>8s}{'n/a':>5s}{'lost':>6s}{'RMS med':>10s}{'RMS worst':>11s}"
           f"{'bias med':>10s}{'bias worst':>11s}{'peak med':>10s}{'peak worst':>11s}{'samples/s':>12s}")
     for row in summary:
@@ -1042,8 +1074,7 @@ def cmd_tune_pll(args):
 
 def cmd_bench_graph(args):
     from drive_evaluation.bench import graph_throughput
-    if args.duration <= 0.0:
-        raise CommandLineError(f"--duration: must be positive, not {args.duration}")
+    _duration_arg(args.duration, load_scenario(args.scenario).T_s)
     if args.repeats < 1:
         raise CommandLineError(f"--repeats: must be at least 1, not {args.repeats}")
     report = graph_throughput(args.scenario, args.duration, record=args.record, repeats=args.repeats,
@@ -1057,9 +1088,8 @@ def cmd_bench_graph(args):
 
 
 def cmd_bench_blocks(args):
-    from drive_evaluation.bench import block_size_table
-    if args.duration <= 0.0:
-        raise CommandLineError(f"--duration: must be positive, not {args.duration}")
+    from drive_evaluation.bench import BLOCK_SCENARIOS, block_size_table
+    _duration_arg(args.duration, min(load_scenario(name).T_s for name in BLOCK_SCENARIOS))
     if args.repeats < 1:
         raise CommandLineError(f"--repeats: must be at least 1, not {args.repeats}")
     report = block_size_table(_block_sizes(args.block_samples), duration_s=args.duration, repeats=args.repeats,
@@ -1091,7 +1121,7 @@ def _recording_options(parser):
     parser.add_argument("--motor", metavar="PRESET|FILE",
                         help="the motor, for a bag whose drive_config does not name one: a shipped motor or a "
                              "YAML/JSON file of the contract's drive_config motor keys")
-    parser.add_argument("--sample-period", type=float, metavar="S",
+    parser.add_argument("--sample-period", type=finite_float, metavar="S",
                         help="the sample period [s], for a bag without drive_config")
     parser.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     parser.add_argument("--windows", metavar="T0:T1[,T0:T1...]",
@@ -1328,7 +1358,7 @@ def build_parser():
     run.add_argument("scenario", help="shipped scenario name (see 'drive scenarios') or YAML path")
     run.add_argument("--estimator", help="override the scenario's estimator")
     run.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
-    run.add_argument("--duration", type=float, help="override the duration [s]")
+    run.add_argument("--duration", type=finite_float, help="override the duration [s]")
     run.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     run.add_argument("--block-samples", type=int, metavar="N",
                      help="override the scenario's block_samples: data in blocks of N samples, the command "
@@ -1357,7 +1387,7 @@ def build_parser():
     template.set_defaults(func=cmd_motor_template)
     show = motor_sub.add_parser("show", help="a motor's nameplate, inverter and the loops scaled to it")
     show.add_argument("motor", metavar="NAME|FILE")
-    show.add_argument("--sample-period", type=float, default=1e-4, metavar="S", help="sampling period [s]")
+    show.add_argument("--sample-period", type=finite_float, default=1e-4, metavar="S", help="sampling period [s]")
     show.add_argument("--json", action="store_true")
     show.set_defaults(func=cmd_motor_show)
 
@@ -1393,7 +1423,7 @@ def build_parser():
     graph = bench_sub.add_parser("graph", help="real-time factor of the lock-step ROS graph at the "
                                                "scenario's sampling rate, composed and separate")
     graph.add_argument("--scenario", default="wang_100rpm")
-    graph.add_argument("--duration", type=float, default=0.5, help="simulated seconds per run")
+    graph.add_argument("--duration", type=finite_float, default=0.5, help="simulated seconds per run")
     graph.add_argument("--record", action="store_true", help="also record every per-sample topic")
     graph.add_argument("--block-samples", default="1", metavar="N[,N...]",
                        help="block sizes to time (samples per message; default 1)")
@@ -1403,14 +1433,14 @@ def build_parser():
     blocks = bench_sub.add_parser("blocks", help="per block size: the graph's real-time factor (composed, "
                                                  "separate) and ours' angle error on the four Wang scenarios")
     blocks.add_argument("--block-samples", default="1,5,10,20", metavar="N[,N...]")
-    blocks.add_argument("--duration", type=float, default=0.5, help="simulated seconds per graph run")
+    blocks.add_argument("--duration", type=finite_float, default=0.5, help="simulated seconds per graph run")
     blocks.add_argument("--repeats", type=int, default=2, help="timed graph runs per configuration")
     blocks.add_argument("--json", action="store_true")
     blocks.set_defaults(func=cmd_bench_blocks)
     bench_bridge = bench_sub.add_parser("bridge", help="sustained closed-loop sample rate and command "
                                                        "latency through the bridge, over a pty and a CAN bus")
     bench_bridge.add_argument("--scenario", default="wang_100rpm")
-    bench_bridge.add_argument("--duration", type=float,
+    bench_bridge.add_argument("--duration", type=finite_float,
                               help="simulated seconds per run (default 1, or the whole scenario with --paced)")
     bench_bridge.add_argument("--links", default="pty,can", help="comma-separated: pty, can")
     bench_bridge.add_argument("--repeats", type=int, default=3, help="timed runs per link (best kept)")
@@ -1427,7 +1457,7 @@ def build_parser():
                                                                "shipped)")
     startup.add_argument("--angles", type=int, default=72, help="start angles over the electrical circle")
     startup.add_argument("--seeds", type=int, default=3, help="noise seeds 1..S per angle")
-    startup.add_argument("--load", type=float, help="one case: this fraction of rated load, opposing the "
+    startup.add_argument("--load", type=finite_float, help="one case: this fraction of rated load, opposing the "
                                                     "command (default: the three standard cases)")
     startup.add_argument("--brake", action="store_true", help="with --load: held by a brake until first torque")
     startup.add_argument("--feedforward", action="store_true",
@@ -1441,7 +1471,7 @@ def build_parser():
                                                      "a load step at 5 %% rated speed on the loops scaled to each")
     motor_bench.add_argument("motors", nargs="+", metavar="NAME|FILE", help="shipped motors or motor files")
     motor_bench.add_argument("--angles", type=int, default=24, help="start angles over the electrical circle")
-    motor_bench.add_argument("--sample-period", type=float, default=1e-4, metavar="S",
+    motor_bench.add_argument("--sample-period", type=finite_float, default=1e-4, metavar="S",
                              help="the drive's sampling period [s] (default 1e-4)")
     motor_bench.add_argument("--json", action="store_true")
     motor_bench.set_defaults(func=cmd_bench_motor)
@@ -1488,12 +1518,12 @@ def build_parser():
     pll.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS)
     pll.add_argument("--model", default="carrier", choices=("carrier", "szabo"),
                      help="model the tuned gains come from (both are reported)")
-    pll.add_argument("--phase-margin", type=float, default=60.0, help="[deg]")
-    pll.add_argument("--crossover", type=float, help="[rad/s] (default: the highest reaching the margin "
+    pll.add_argument("--phase-margin", type=finite_float, default=60.0, help="[deg]")
+    pll.add_argument("--crossover", type=finite_float, help="[rad/s] (default: the highest reaching the margin "
                                                      "with the PI zero a decade below)")
-    pll.add_argument("--frequency", type=float, help="injection frequency [Hz] (default: the estimator's)")
-    pll.add_argument("--amplitude", type=float, help="injection amplitude [V] (default: the estimator's)")
-    pll.add_argument("--u-star", type=float, help="synchronous: demodulation amplitude u* (default 1)")
+    pll.add_argument("--frequency", type=finite_float, help="injection frequency [Hz] (default: the estimator's)")
+    pll.add_argument("--amplitude", type=finite_float, help="injection amplitude [V] (default: the estimator's)")
+    pll.add_argument("--u-star", type=finite_float, help="synchronous: demodulation amplitude u* (default 1)")
     pll.add_argument("--T-f", help="synchronous: loop filter time constant [s] (default 0.53 ms), or 'auto': "
                                    "the largest reaching --crossover at --phase-margin")
     pll.add_argument("--demodulation", choices=("paper", "aligned"),
@@ -1513,8 +1543,8 @@ def build_parser():
     current = tune_sub.add_parser("current", help="d/q current PI gains from a bandwidth and damping")
     current.add_argument("--motor", default="szabo_ipmsm", metavar="NAME|FILE",
                          help="a shipped motor or a motor file (nameplate R, L_d, L_q)")
-    current.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default 2π·250)")
-    current.add_argument("--damping", type=float, help="ζ (default 0.8)")
+    current.add_argument("--bandwidth", type=finite_float, help="closed-loop ω_n [rad/s] (default 2π·250)")
+    current.add_argument("--damping", type=finite_float, help="ζ (default 0.8)")
     current.add_argument("--axis", choices=("d", "q", "both"), default="both")
     current.add_argument("--json", action="store_true")
     current.set_defaults(func=cmd_tune_current)
@@ -1522,14 +1552,14 @@ def build_parser():
                                 help="speed PI gains from a bandwidth and damping, kept below the PLL")
     speed.add_argument("--motor", default="szabo_ipmsm", metavar="NAME|FILE",
                        help="a shipped motor or a motor file (J, B, k_t)")
-    speed.add_argument("--bandwidth", type=float, help="closed-loop ω_n [rad/s] (default: scaled to the motor, "
+    speed.add_argument("--bandwidth", type=finite_float, help="closed-loop ω_n [rad/s] (default: scaled to the motor, "
                                                        "40 for the shipped ones)")
-    speed.add_argument("--damping", type=float, help="ζ (default 1)")
+    speed.add_argument("--damping", type=finite_float, help="ζ (default 1)")
     speed.add_argument("--estimator", default="synchronous", choices=PLL_ESTIMATORS,
                        help="whose PLL crossover (carrier model, current gains) bounds the speed loop")
     speed.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
-    speed.add_argument("--pll-crossover", type=float, help="[rad/s] instead of the estimator's model")
-    speed.add_argument("--ratio", type=float, default=0.25, help="speed bandwidth ≤ ratio × PLL crossover")
+    speed.add_argument("--pll-crossover", type=finite_float, help="[rad/s] instead of the estimator's model")
+    speed.add_argument("--ratio", type=finite_float, default=0.25, help="speed bandwidth ≤ ratio × PLL crossover")
     speed.add_argument("--json", action="store_true")
     speed.set_defaults(func=cmd_tune_speed)
 
@@ -1537,7 +1567,7 @@ def build_parser():
     launch.add_argument("scenario", help="shipped scenario name or YAML path")
     launch.add_argument("--estimator", help="override the scenario's estimator")
     launch.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
-    launch.add_argument("--duration", type=float, help="override the duration [s]")
+    launch.add_argument("--duration", type=finite_float, help="override the duration [s]")
     launch.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     launch.add_argument("--block-samples", type=int, metavar="N",
                         help="override the scenario's block_samples: the per-sample topics travel in blocks of N "
@@ -1547,7 +1577,7 @@ def build_parser():
     launch.add_argument("--executor", choices=EXECUTORS, default="events",
                         help="events (rclpy.experimental.EventsExecutor, default) or single (fallback)")
     launch.add_argument("--namespace", default=DEFAULT_NAMESPACE)
-    launch.add_argument("--timeout", type=float, default=1.0, help="lock-step answer timeout [s]")
+    launch.add_argument("--timeout", type=finite_float, default=1.0, help="lock-step answer timeout [s]")
     launch.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     launch.add_argument("--no-plot", action="store_true")
     launch.add_argument("--record", metavar="BAG",
@@ -1572,7 +1602,7 @@ def build_parser():
                         help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced)")
     bridge.add_argument("--estimator", help="override the scenario's estimator")
     bridge.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
-    bridge.add_argument("--duration", type=float, help="override the duration [s]")
+    bridge.add_argument("--duration", type=finite_float, help="override the duration [s]")
     bridge.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
     bridge.add_argument("--out", help="plot directory (default runs/SCENARIO)")
     bridge.add_argument("--no-plot", action="store_true")
@@ -1584,7 +1614,7 @@ def build_parser():
     echo.add_argument("--namespace", default=DEFAULT_NAMESPACE)
     echo.add_argument("--count", type=int, help="stop after this many printed messages")
     echo.add_argument("--every", type=int, default=1, help="print every N-th message")
-    echo.add_argument("--timeout", type=float, help="stop after this many seconds")
+    echo.add_argument("--timeout", type=finite_float, help="stop after this many seconds")
     echo.add_argument("--json", action="store_true", help="one JSON object per line")
     echo.set_defaults(func=cmd_echo)
 
