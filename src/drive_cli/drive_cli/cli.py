@@ -109,6 +109,14 @@ def _estimator_arg(args):
                                f"(known: {', '.join(estimator_names())})")
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse whose errors are one line naming the command and the option (its subcommands inherit it);
+    ``--help`` shows the usage."""
+
+    def error(self, message):
+        self.exit(EXIT_REFUSED, f"{self.prog}: {message} (`{self.prog} --help` shows the usage)\n")
+
+
 def finite_float(text):
     """argparse type: a finite real number (inf and nan are refused as the option's error)."""
     try:
@@ -1351,7 +1359,7 @@ def cmd_bench(args):
 
 
 def build_parser():
-    parser = argparse.ArgumentParser(prog="drive", description="Sensorless PMSM drive stack.")
+    parser = OneLineParser(prog="drive", description="Sensorless PMSM drive stack.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser("run", help="run a scenario in one process, print metrics, write plots")
