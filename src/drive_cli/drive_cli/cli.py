@@ -28,6 +28,7 @@ from drive_scenarios.scenario import (
     MAX_BLOCK_SAMPLES,
     MAX_SAMPLES,
     PACED_BLOCK_SAMPLES,
+    SAMPLING_PERIOD_RANGE_S,
     behind_an_inverter,
     link_block_samples,
     load_scenario,
@@ -128,6 +129,14 @@ def finite_float(text):
     return value
 
 
+def _sample_period_arg(T_s):
+    """--sample-period checked against the range a scenario file's sampling_period_s has."""
+    low, high = SAMPLING_PERIOD_RANGE_S
+    if not low <= T_s <= high:
+        raise CommandLineError(f"--sample-period: must lie in [{low:g}, {high:g}] s, not {T_s!r}")
+    return T_s
+
+
 def _duration_arg(duration, T_s):
     """--duration checked: positive, and within the sample cap a scenario file has (MAX_SAMPLES at T_s)."""
     if duration is None:
@@ -185,11 +194,11 @@ def cmd_run(args):
             recording_error = f"{args.record}: writing interrupted; the bag is closed as far as written"
         if recording_error:
             extra["recording_error"] = recording_error
-    plot_error = _report(result, args, extra)
+    plot_error, metrics = _report(result, args, extra)
     if recording_error:
         _output_failed(recording_error)
     return _exit_code(interrupted, output_error=recording_error or plot_error, not_tracking=_not_tracking(result),
-                      not_following=bool(supervision_faults(result)))
+                      not_following=bool(metrics["supervision"]))
 
 
 def _warn_if_nameplate_only(source, motor, scenario_name):
@@ -202,8 +211,8 @@ def _warn_if_nameplate_only(source, motor, scenario_name):
 
 
 def _report(result, args, extra=None):
-    """Print a run's metrics (drive run, launch, bridge), write its plot unless --no-plot; returns why
-    the plot could not be written, or None (the metrics are printed either way)."""
+    """Print a run's metrics (drive run, launch, bridge), write its plot unless --no-plot; returns (why
+    the plot could not be written, or None; the metrics, printed either way)."""
     from drive_evaluation.metrics import compute_metrics
     from drive_evaluation.plots import plot_run
 
@@ -231,7 +240,7 @@ def _report(result, args, extra=None):
             metrics["plot_error"] = _os_error_line(error)
     if args.json:
         _print_json(metrics)
-        return _output_failed(metrics.get("plot_error"))
+        return _output_failed(metrics.get("plot_error")), metrics
     print(f"scenario {metrics['scenario']} ({metrics['motor']}), estimator {metrics['estimator']}, "
           f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s")
     if "motor_knowledge" in metrics:
@@ -277,7 +286,7 @@ def _report(result, args, extra=None):
           f"{'; '.join(fault_line(f) for f in metrics['supervision']) or 'the shaft followed its command'}")
     for path in metrics.get("plots", []):
         print(f"  plot: {path}")
-    return _output_failed(metrics.get("plot_error"))
+    return _output_failed(metrics.get("plot_error")), metrics
 
 
 def _startup_line(startup):
@@ -357,11 +366,11 @@ def cmd_launch(args):
         extra["bag"] = args.record
     if result.recording_error:
         extra["recording_error"] = result.recording_error
-    plot_error = _report(result, args, extra)
+    plot_error, metrics = _report(result, args, extra)
     if result.recording_error:
         _output_failed(result.recording_error)
     return _exit_code(result.interrupted, faults, result.recording_error or plot_error,
-                      not_following=bool(supervision_faults(result)))
+                      not_following=bool(metrics["supervision"]))
 
 
 def cmd_bridge(args):
@@ -377,8 +386,8 @@ def cmd_bridge(args):
              "samples_per_s": round(result.log.shape[0] / result.wall_time_s) if result.wall_time_s > 0 else None,
              "bridge": result.counters, "frame_errors": result.frame_errors,
              "inverter": result.inverter_counters, "timing": result.timing, "interrupted": bool(result.interrupted)}
-    plot_error = _report(result, args, extra)
-    return _exit_code(result.interrupted, output_error=plot_error, not_following=bool(supervision_faults(result)))
+    plot_error, metrics = _report(result, args, extra)
+    return _exit_code(result.interrupted, output_error=plot_error, not_following=bool(metrics["supervision"]))
 
 
 def cmd_bench_bridge(args):
@@ -589,9 +598,7 @@ def cmd_motor_show(args):
     from motor_params.scaled_loops import scaled_loops
 
     motor = load_motor(args.motor, "motor")
-    T_s = args.sample_period
-    if not 1e-6 <= T_s <= 1e-2:
-        raise CommandLineError(f"--sample-period: must lie in [1e-06, 0.01] s, not {T_s!r}")
+    T_s = _sample_period_arg(args.sample_period)
     loops = scaled_loops(motor.nameplate, motor.inverter, T_s)
     report = {"name": motor.name, "file": motor.source, "description": motor.description,
               "nameplate": motor.nameplate._asdict(), "inverter": motor.inverter._asdict(),
@@ -869,13 +876,6 @@ def _replay_corpus(bags, names, args):
     return 0
 
 
-def _nameplate_arg(name):
-    try:
-        return load_motor(name, "--motor").nameplate
-    except KeyError as error:
-        raise CommandLineError(f"--motor: {error.args[0]}") from None
-
-
 def _gains_entry(gains):
     return {"A_p": gains.kp, "T_i_s": gains.kp / gains.ki, "kp": gains.kp, "ki": gains.ki}
 
@@ -884,7 +884,7 @@ def cmd_tune_current(args):
     from foc_controller.params import DEFAULTS
     from foc_controller.tuning import SZABO_TABLE2, current_bandwidth_damping, current_pi_gains
 
-    m = _nameplate_arg(args.motor)
+    m = load_motor(args.motor, "--motor").nameplate
     omega_n = args.bandwidth or DEFAULTS["current_bandwidth_rad_s"]
     zeta = args.damping or DEFAULTS["current_damping"]
     axes = ("d", "q") if args.axis == "both" else (args.axis,)
@@ -922,13 +922,13 @@ def cmd_tune_speed(args):
     from hf_estimator.pll_model import margins
     from motor_params.scaled_loops import scaled_loops
 
-    m = _nameplate_arg(args.motor)
+    motor = load_motor(args.motor, "--motor")
+    m = motor.nameplate
     if not math.isfinite(m.J_kgm2):
         raise CommandLineError(f"--motor {args.motor}: nameplate.J_kgm2 unknown: no speed loop to tune "
                                f"(`drive commission --rotating` measures it)")
     k_t = 1.5 * m.n_p * m.psi_f_Wb
-    requested = args.bandwidth or scaled_loops(m, load_motor(args.motor, "--motor").inverter,
-                                               1e-4).speed_bandwidth_rad_s
+    requested = args.bandwidth or scaled_loops(m, motor.inverter, 1e-4).speed_bandwidth_rad_s
     zeta = args.damping or DEFAULTS["speed_damping"]
     pll = args.pll_crossover
     source = "--pll-crossover"
@@ -1230,8 +1230,7 @@ def cmd_bench_motor(args):
 
     if args.angles < 1:
         raise CommandLineError(f"--angles: must be at least 1, not {args.angles}")
-    if not 1e-6 <= args.sample_period <= 1e-2:
-        raise CommandLineError(f"--sample-period: must lie in [1e-06, 0.01] s, not {args.sample_period!r}")
+    _sample_period_arg(args.sample_period)
     motors = [load_motor(m, "drive bench motor") for m in args.motors]
     reports = []
     try:

@@ -270,6 +270,13 @@ def with_drive(scenario, drive):
         answer_periods=drive.answer_periods, drive_file=drive.drive_file)
 
 
+def _refuse_experiment_keys(data, fail):
+    """``fail`` on the first key of a drive configuration's document that is not a drive key."""
+    for key in sorted(set(data) - set(DRIVE_KEYS) - {"description"}, key=str):
+        fail(key, f"not a drive key (a drive configuration holds {', '.join(DRIVE_KEYS)}; the experiment "
+                  f"belongs to a scenario)")
+
+
 def _drive_part(data, source, fail):
     """A scenario's ``drive: FILE``: the file's drive keys in the scenario's place (relative paths in it
     taken from its own folder), and the file's path."""
@@ -284,9 +291,10 @@ def _drive_part(data, source, fail):
     drive = _read_yaml(file, "drive configuration")
     if not isinstance(drive, dict):
         raise ScenarioError(f"{file}: top level must be a mapping of keys")
-    for key in sorted(set(drive) - set(DRIVE_KEYS) - {"description"}, key=str):
-        raise ScenarioError(f"{file}: {key}: not a drive key (a drive configuration holds "
-                            f"{', '.join(DRIVE_KEYS)}; the experiment belongs to the scenario)")
+
+    def fail_in_drive(key, problem):
+        raise ScenarioError(f"{file}: {key}: {problem}")
+    _refuse_experiment_keys(drive, fail_in_drive)
     for key in sorted(set(drive) & set(data) - {"description"}, key=str):
         fail(key, f"given here and in the drive configuration {file}: one place only")
     for key in ("motor", "commissioning"):
@@ -309,9 +317,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         raise ScenarioError(f"{source}: top level must be a mapping of keys")
     drive_file = source if drive_only else ""
     if drive_only:
-        for key in sorted(set(data) - set(DRIVE_KEYS) - {"description"}, key=str):
-            fail(key, f"not a drive key (a drive configuration holds {', '.join(DRIVE_KEYS)}; the experiment "
-                      f"belongs to a scenario)")
+        _refuse_experiment_keys(data, fail)
     else:
         for key in sorted(set(data) - TOP_KEYS, key=str):
             fail(key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")

@@ -54,8 +54,8 @@ def estimator_for_scenario(scenario, commissioning):
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
     except ValueError as error:
         raise ScenarioError(f"{scenario.source}: estimator: {error.args[0]}") from None
-    if injects(scenario.estimator) and commissioning.weak_saliency_note():
-        notes.append(commissioning.weak_saliency_note())
+    if injects(scenario.estimator):
+        notes += [n for n in (commissioning.weak_saliency_note(),) if n]
     note = "; ".join(n for n in (estimator.injection_note, *notes) if n)
     amplitude = estimator.injection_amplitude_V
     if amplitude is None and notes:

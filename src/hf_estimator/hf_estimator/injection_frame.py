@@ -106,6 +106,12 @@ HF_VOLTAGE_MAX_PER_LINEAR = 0.8
 loop's at low speed)."""
 
 
+def saliency_snr(amplitude_V, commissioning, omega_h):
+    """The saliency current U_h·|Δ|/ω_h in commissioned sensor-noise σ (0 where the noise is not measured)."""
+    noise = commissioning.sensor_noise_A
+    return amplitude_V * abs(commissioning.delta) / omega_h / noise if noise > 0.0 else 0.0
+
+
 def injection_amplitude(requested_V, commissioning, nameplate, inverter, omega_h, snr_min):
     """Ours' HF amplitude [V] and what it says of it: ``requested_V`` raised so that the saliency current
     U_h·|Δ|/ω_h reaches ``snr_min`` times the commissioned sensor noise, within the ripple and voltage
@@ -121,7 +127,7 @@ def injection_amplitude(requested_V, commissioning, nameplate, inverter, omega_h
         caps["voltage"] = HF_VOLTAGE_MAX_PER_LINEAR * inverter.U_dc_V / math.sqrt(3.0)
     cap_name = min(caps, key=caps.get)
     amplitude = max(requested_V, min(wanted, caps[cap_name]))
-    reached = amplitude * delta / omega_h / noise
+    reached = saliency_snr(amplitude, commissioning, omega_h)
     limited = f"; held by the {cap_name} cap" if wanted > amplitude else ""
     return amplitude, (f"raised from {requested_V:g} V: saliency current {reached:.1f} σ of the commissioned "
                        f"sensor noise, {snr_min:g} wanted{limited}")
@@ -134,12 +140,11 @@ def tracking_loop_type(requested, amplitude_V, commissioning, omega_h, snr_min):
     ``snr_min`` times the commissioned sensor noise; else type 2."""
     if requested != "auto":
         return requested, ""
-    noise = commissioning.sensor_noise_A
-    reached = amplitude_V * abs(commissioning.delta) / omega_h / noise if noise > 0.0 else 0.0
+    reached = saliency_snr(amplitude_V, commissioning, omega_h)
     if commissioning.salient() and reached >= snr_min * (1.0 - 1e-9):
         return 3, f"type-3 tracking loop: the rotor's acceleration sets its bandwidth, {reached:.1f} σ of signal"
     return 2, (f"type-2 tracking loop: {reached:.1f} σ of signal leaves no noise margin for type 3"
-               if noise > 0.0 else "type-2 tracking loop: sensor noise not commissioned")
+               if commissioning.sensor_noise_A > 0.0 else "type-2 tracking loop: sensor noise not commissioned")
 
 
 class InjectionFrameParams(NamedTuple):

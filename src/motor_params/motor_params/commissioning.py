@@ -76,10 +76,13 @@ class Commissioning(NamedTuple):
     saliency_ratio: np.ndarray = None
     """|Δ|/Σ at the table's currents (i_d = 0) [1]; None: not measured (a file written before)."""
 
+    def rotating_values(self):
+        """{key: value} of what the rotating test measured (ROTATING keys it ran for; empty if it did not)."""
+        return {key: float(getattr(self, key)) for key in ROTATING if math.isfinite(getattr(self, key))}
+
     def refined(self, plate):
         """The nameplate ``plate`` with what the rotating test measured (ψ_f, J) in place of its own."""
-        measured = {key: float(getattr(self, key)) for key in ROTATING if math.isfinite(getattr(self, key))}
-        return plate._replace(**measured)
+        return plate._replace(**self.rotating_values())
 
     def calibration(self):
         """The current sensors' correction (control_math.current_sensing)."""
@@ -202,8 +205,7 @@ def resolve_commissioning(plate, given="", label="commissioning"):
 def save_commissioning(path, commissioning, motor, method, conditions=None):
     """Write ``commissioning`` to a new YAML file at ``path`` (floats written exactly); returns the path."""
     values = {key: float(getattr(commissioning, key)) for key in SCALARS}
-    values.update({key: float(getattr(commissioning, key)) for key in ROTATING
-                   if math.isfinite(getattr(commissioning, key))})
+    values.update(commissioning.rotating_values())
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in TABLES})
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in OPTIONAL_TABLES
                    if getattr(commissioning, key) is not None})

@@ -1,8 +1,6 @@
 """Every motor value the drive uses, with where it came from: the nameplate, the commissioning file,
 or a default (published in drive_config and printed by `drive run`)."""
-import math
-
-from .commissioning import ROTATING, SCALARS, TABLES
+from .commissioning import SCALARS, TABLES
 
 NAMEPLATE_VALUES = ("n_p", "psi_f_Wb", "rated_current_A", "rated_speed_rpm", "rated_torque_Nm", "current_limit_A",
                     "J_kgm2", "B_Nms")
@@ -13,10 +11,8 @@ def motor_knowledge(plate, commissioning):
     and J the rotating test's where it ran) and of the commissioning record (its scalars; its tables by
     their length)."""
     knowledge = {key: {"value": getattr(plate, key), "source": "nameplate"} for key in NAMEPLATE_VALUES}
-    for key in ROTATING:
-        if math.isfinite(getattr(commissioning, key)):
-            knowledge[key] = {"value": float(getattr(commissioning, key)),
-                              "source": f"commissioning file {commissioning.source} (rotating test)"}
+    for key, value in commissioning.rotating_values().items():
+        knowledge[key] = {"value": value, "source": f"commissioning file {commissioning.source} (rotating test)"}
     sources = commissioning.sources()
     for key in SCALARS:
         knowledge[key] = {"value": float(getattr(commissioning, key)), "source": sources[key]}
