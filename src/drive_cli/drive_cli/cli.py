@@ -1246,9 +1246,13 @@ def cmd_bench_motor(args):
                      "results": reports})
         return 0
     for r in reports:
-        s = r["startup"]
         errors = ", ".join(f"{k} {100.0 * v:+.2f} %" for k, v in r["commissioning_error"].items())
         print(f"{r['motor']}: {r['description'] or r['file']}")
+        if r.get("refused"):
+            print(f"  commissioned (against the plant's truth): {errors}")
+            print(f"  REFUSED {r['refused']}")
+            continue
+        s = r["startup"]
         print(f"  commissioned (against the plant's truth): {errors}; current limit {r['current_limit_A']:.3g} A")
         print(f"  loops: tracking {r['tracking_bandwidth_Hz']:.3g} Hz, carrier {r['injection_frequency_Hz']:.4g} Hz, "
               f"{r['injection_amplitude_V']:.3g} V")

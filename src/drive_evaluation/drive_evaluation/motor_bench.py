@@ -10,7 +10,7 @@ from drive_evaluation.metrics import compute_metrics, configuration_warnings, su
 from drive_evaluation.startup_bench import STANDARD_CASES, startup_sweep
 from drive_runner.commissioning_run import commission_in_process
 from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import parse_scenario
+from drive_scenarios.scenario import ScenarioError, parse_scenario
 from motor_params.commissioning import save_commissioning
 from motor_params.motor_file import load_motor
 
@@ -65,8 +65,11 @@ def motor_bench(motor_ref, angles=24, progress=None, T_s=1e-4):
         measured = run.procedure.result()
         save_commissioning(commissioning, measured, motor.name, "drive bench motor")
         steps = len(CASES) + 1
-        sweep = startup_sweep(motor, STANDARD_CASES[0], angles=angles, seeds=(1,), commissioning=commissioning,
-                              progress=progress and (lambda f: progress(f / steps)), T_s=T_s)
+        try:
+            sweep = startup_sweep(motor, STANDARD_CASES[0], angles=angles, seeds=(1,), commissioning=commissioning,
+                                  progress=progress and (lambda f: progress(f / steps)), T_s=T_s)
+        except ScenarioError as error:
+            return refused_motor(motor, measured, run.truth, T_s, str(error).partition("estimator: ")[2] or str(error))
         cases = []
         for i, case in enumerate(CASES):
             result = run_scenario(case_scenario(motor, case, commissioning, T_s))
@@ -82,9 +85,7 @@ def motor_bench(motor_ref, angles=24, progress=None, T_s=1e-4):
             if progress:
                 progress((i + 2) / steps)
     facts = result.estimator_facts
-    return {"motor": motor.name, "file": motor.source, "description": motor.description, "sample_period_s": T_s,
-            "commissioning_error": {key: float(getattr(measured, key) / run.truth[key] - 1.0)
-                                    for key in ("R_s_ohm", "L_dh_H", "L_qh_H") if run.truth.get(key)},
+    return {**_motor_facts(motor, measured, run.truth, T_s),
             "current_limit_A": result.current_limit_A, "warnings": configuration_warnings(result),
             "tracking_bandwidth_Hz": facts.get("tracking_bandwidth_Hz"),
             "injection_frequency_Hz": facts.get("injection_frequency_Hz"),
@@ -92,3 +93,20 @@ def motor_bench(motor_ref, angles=24, progress=None, T_s=1e-4):
             "startup": {key: sweep[key] for key in ("runs", "polarity_correct_fraction", "angle_error_max_e_rad",
                                                     "duration_max_s", "lock_lost", "not_started")},
             "cases": cases}
+
+
+def _motor_facts(motor, measured, truth, T_s):
+    return {"motor": motor.name, "file": motor.source, "description": motor.description, "sample_period_s": T_s,
+            "commissioning_error": {key: float(getattr(measured, key) / truth[key] - 1.0)
+                                    for key in ("R_s_ohm", "L_dh_H", "L_qh_H") if truth.get(key)}}
+
+
+def refused_motor(motor, measured, truth, T_s, reason):
+    """The report of a motor the commissioned drive refuses to run (``reason``: its one line): every case
+    refused, nothing scored."""
+    return {**_motor_facts(motor, measured, truth, T_s), "current_limit_A": None, "warnings": [],
+            "tracking_bandwidth_Hz": None, "injection_frequency_Hz": None, "injection_amplitude_V": None,
+            "startup": None, "refused": reason,
+            "cases": [{"case": case, "angle_error_rms": None, "angle_error_peak": None,
+                       "speed_tracking_error_rms": None, "polarity_correct": None, "lock_lost_s": None,
+                       "supervision": [], "verdict": f"refused: {reason}"} for case in CASES]}

@@ -190,6 +190,7 @@ SETTING_CHECKS = {
     "dither_rad": lambda key, value, T_s: number(key, value, 0.0, math.pi / 4.0),
     "signal_smoothing_Hz": _frequency,
     "dead_time_model": lambda key, value, T_s: flag(key, value),
+    "run_on_weak_signal": lambda key, value, T_s: flag(key, value),
     "saliency_snr_min": lambda key, value, T_s: number(key, value, 0.0, None, low_inclusive=True),
     "align_tolerance_rad": lambda key, value, T_s: positive(key, value, 1.0),
     "settle_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
