@@ -12,6 +12,7 @@ import pytest
 from drive_interface.log import COLUMN
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario
+from motor_params.commissioning import commissioning_record
 
 DRIVE = [sys.executable, "-m", "drive_cli.cli"]
 SCENARIO = """\
@@ -76,15 +77,20 @@ def write_foreign_bag(path, result, config=None, truth=True):
 
 
 def v2_config(result, estimator, **extra):
+    """A v2 drive_config with the commissioning the recording drive ran on (``commissioning`` in extra
+    replaces it; None leaves it out)."""
+    extra = {"commissioning": commissioning_record(result.commissioning), **extra}
+    if extra["commissioning"] is None:
+        del extra["commissioning"]
     return {"contract_version": 2, "node": "someone_elses_drive", "T_s_s": result.scenario.T_s,
             "command_delay_periods": 1, "motor": WANG_MOTOR,
             "injection": {"kind": "pulsating_sine", "frequency_Hz": result.scenario.injection["frequency_Hz"],
                           "amplitude_V": 5.0}, "estimator": estimator, **extra}
 
 
-def replay(bag, *options):
+def replay(bag, *options, cwd=None):
     out = subprocess.run(DRIVE + ["bench", "replay", str(bag), "--json", "--no-plot", *options],
-                         capture_output=True, text=True)
+                         capture_output=True, text=True, cwd=cwd)
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     return report, {e["estimator"]: e for e in report["results"]}
@@ -226,3 +232,30 @@ def test_ours_on_a_recording_of_synchronous_beats_it(tmp_path):
     assert report["recorded_estimator"] == "synchronous" and own["applicable"] and ours["applicable"]
     assert not ours["lost"] and not own["lost"]
     assert ours["angle_error_rms"] < 0.6 * own["angle_error_rms"]
+
+
+def test_a_replay_takes_the_recorded_commissioning_wherever_it_runs(conventional, tmp_path):
+    """The recording drive ran on commissioning/wang_spmsm.yaml (found in the repository root): its bag keeps
+    the values in drive_config, so a replay from another directory scores the same to the last digit and
+    says where they came from; a bag that records none replays on the nameplate and says so, wherever it runs;
+    --commissioning replaces the recorded one."""
+    from drive_bags.writer import write_run_bag
+    assert conventional.commissioning.source == "commissioning/wang_spmsm.yaml"
+    bag = write_run_bag(conventional, tmp_path / "runner")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    here, ours_here = replay(bag, "--estimators", "injection_frame")
+    there, ours_there = replay(bag, "--estimators", "injection_frame", cwd=elsewhere)
+    assert here["sources"]["commissioning"] == there["sources"]["commissioning"] == (
+        "drive_config commissioning (recorded from commissioning/wang_spmsm.yaml)")
+    for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak"):
+        assert ours_here["injection_frame"][key] == ours_there["injection_frame"][key]
+    assert ours_here["injection_frame"]["angle_error_rms"] < 0.02
+    bare = write_foreign_bag(tmp_path / "v2_bare", conventional, v2_config(conventional, "conventional",
+                                                                          commissioning=None))
+    for cwd in (None, elsewhere):
+        report, _ = replay(bare, "--estimators", "injection_frame", cwd=cwd)
+        assert report["sources"]["commissioning"].startswith("nameplate only: the bag records no commissioning")
+    told, _ = replay(bag, "--estimators", "injection_frame", "--commissioning",
+                     str(Path("commissioning/wang_spmsm.yaml").resolve()), cwd=elsewhere)
+    assert told["sources"]["commissioning"].endswith("(the bag's not used)")

@@ -17,6 +17,7 @@ from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.strict_json import dumps
 from drive_interface.topics import CONTRACT_VERSION, TOPICS, VECTOR3, full_name
 from hf_estimator.interface import contract_injection
+from motor_params.commissioning import commissioning_record
 from motor_params.nameplate import contract_motor
 
 from .common import BagError, BagWriteError, offered_qos, sample_stamp_ns, typestore
@@ -197,6 +198,8 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
               "current_limit_A": result.current_limit_A, "non_idealities": scenario.non_idealities,
               "block_samples": scenario.block_samples, "answer_periods": scenario.answer_periods,
               "command_delay_periods": scenario.drive_delay_periods()}
+    if result.commissioning is not None:
+        config["commissioning"] = commissioning_record(result.commissioning)
     t_ns = np.round(np.arange(n) * scenario.T_s * 1e9).astype(np.int64)
     sec, nanosec = np.divmod(t_ns, 1_000_000_000)
     col = {name: log[:, c[name]] for name in LOG_COLUMNS}

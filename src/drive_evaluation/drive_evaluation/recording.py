@@ -12,7 +12,13 @@ from drive_bags.common import BagError
 from drive_bags.reader import bag_scenario, bag_topics, has_ground_truth, log_from_topics, recorded_estimator
 from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
-from motor_params.commissioning import CommissioningError, resolve_commissioning
+from motor_params.commissioning import (
+    NAMEPLATE_ONLY,
+    CommissioningError,
+    nameplate_commissioning,
+    recorded_commissioning,
+    resolve_commissioning,
+)
 from motor_params.motor_file import load_nameplate, recorded_nameplate
 from motor_params.nameplate import NameplateError
 
@@ -93,7 +99,7 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
         raise BagError(f"{path}: drive_config says n_p {recorded_n_p}, the motor ({sources['motor']}) {plate.n_p}")
     log, T_s = log_from_topics(path, namespace, topics, configs, T_s, plate.n_p)
     delay = _delay(scenario, configs, sources)
-    known = _commissioning(path, plate, commissioning, scenario, sources)
+    known = _commissioning(path, plate, commissioning, configs, sources)
     recorded = recorded_estimator(configs)
     sources["recorded_estimator"] = "drive_config" if recorded else "not in the bag"
     settings = dict(scenario.estimator_settings) if scenario and recorded == scenario.estimator else {}
@@ -174,17 +180,25 @@ def _delay(scenario, configs, sources):
     return CONTRACT_DELAY_PERIODS
 
 
-def _commissioning(path, plate, given, scenario, sources):
+def _commissioning(path, plate, given, configs, sources):
+    """The commissioning the replay runs on: the command line's, else the one the recording drive ran on
+    (its drive_config ``commissioning``), else the nameplate alone, never a file looked up where the replay
+    happens to run; ``sources`` says which."""
+    recorded = next((c["commissioning"] for c in configs if "commissioning" in c), None)
     try:
         if given:
             known = resolve_commissioning(plate, given, "--commissioning")
-        elif scenario is not None and scenario.motor.name == plate.name:
-            known = resolve_commissioning(plate, scenario.commissioning, f"{scenario.source}: commissioning")
+            sources["commissioning"] = f"--commissioning {given}" + (" (the bag's not used)" if recorded else "")
+        elif recorded is not None:
+            known = recorded_commissioning(plate, recorded, "drive_config commissioning")
+            sources["commissioning"] = known.source if known.source != NAMEPLATE_ONLY else (
+                "drive_config commissioning: the recording drive knew its nameplate only")
         else:
-            known = resolve_commissioning(plate, "", "commissioning")
+            known = nameplate_commissioning(plate)
+            sources["commissioning"] = ("nameplate only: the bag records no commissioning (give --commissioning "
+                                        "FILE)")
     except CommissioningError as error:
         raise BagError(f"{path}: {error}") from None
-    sources["commissioning"] = known.source
     return known
 
 

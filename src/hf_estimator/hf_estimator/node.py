@@ -31,6 +31,7 @@ from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_interface.topics import TOPICS
 from drive_interface.wire import BlockWire, JointWire, Vector3Wire
 from drive_scenarios.node import ScenarioNode
+from motor_params.commissioning import commissioning_record
 from motor_params.knowledge import motor_knowledge
 
 from .block import ESTIMATE_WIDTH, estimator_block
@@ -90,6 +91,7 @@ class EstimatorNode(ScenarioNode):
         self.watch_foreign_publishers((currents, voltages))
         self.publish_config({**e.facts(), "injection": contract_injection(e.facts(), self.scenario.injection),
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning),
+                             "commissioning": commissioning_record(self.commissioning),
                              "estimator_parameters": e.params})
 
     def build(self, scenario):

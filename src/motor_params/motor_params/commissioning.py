@@ -202,18 +202,42 @@ def resolve_commissioning(plate, given="", label="commissioning"):
     return commissioning
 
 
-def save_commissioning(path, commissioning, motor, method, conditions=None):
-    """Write ``commissioning`` to a new YAML file at ``path`` (floats written exactly); returns the path."""
+def commissioning_values(commissioning):
+    """The values of a commissioning record as its file holds them (floats exact, tables as lists)."""
     values = {key: float(getattr(commissioning, key)) for key in SCALARS}
     values.update(commissioning.rotating_values())
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in TABLES})
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in OPTIONAL_TABLES
                    if getattr(commissioning, key) is not None})
+    return values
+
+
+def save_commissioning(path, commissioning, motor, method, conditions=None):
+    """Write ``commissioning`` to a new YAML file at ``path`` (floats written exactly); returns the path."""
     document = {"motor": motor, "method": method, "date": datetime.date.today().isoformat(),
-                "conditions": dict(conditions or {}), "values": values}
+                "conditions": dict(conditions or {}), "values": commissioning_values(commissioning)}
     path = Path(path)
     path.write_text(yaml.safe_dump(document, sort_keys=False, width=100))
     return path
+
+
+def commissioning_record(commissioning):
+    """What a recording keeps of the drive's commissioning (its drive_config ``commissioning``): where it came
+    from, and the values themselves unless it is the nameplate alone, so that a replay needs no file."""
+    if commissioning.source == NAMEPLATE_ONLY:
+        return {"source": NAMEPLATE_ONLY}
+    return {"source": commissioning.source, "values": commissioning_values(commissioning)}
+
+
+def recorded_commissioning(plate, record, where):
+    """The Commissioning a recording's drive_config ``record`` (commissioning_record) holds; ``where`` names it
+    in a CommissioningError."""
+    if not isinstance(record, dict) or not isinstance(record.get("source"), str):
+        raise CommissioningError(f"{where}: not a commissioning record (a mapping with source and values)")
+    if record["source"] == NAMEPLATE_ONLY:
+        return nameplate_commissioning(plate)
+    commissioning, _ = commissioning_from_document(record, where)
+    return commissioning._replace(source=f"{where} (recorded from {record['source']})")
 
 
 def load_commissioning(path):
@@ -225,6 +249,12 @@ def load_commissioning(path):
         raise CommissioningError(f"{path}: cannot read the commissioning file ({error.strerror})") from None
     except (yaml.YAMLError, UnicodeDecodeError) as error:
         raise CommissioningError(f"{path}: not a commissioning file ({str(error).splitlines()[0]})") from None
+    return commissioning_from_document(document, path)
+
+
+def commissioning_from_document(document, path):
+    """(Commissioning, metadata without the values) from a commissioning document (a file's, or a record's in
+    a recording); ``path`` names it in a CommissioningError."""
     if not isinstance(document, dict) or not isinstance(document.get("values"), dict):
         raise CommissioningError(f"{path}: values: missing (a mapping of the measured quantities)")
     values = document["values"]
