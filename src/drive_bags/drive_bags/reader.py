@@ -162,7 +162,7 @@ def bag_log(path, T_s=None, namespace=None):
     (NaN where the bag says nothing), the sample period (``T_s``, else the drive_config's, else the
     stamps') and the bag's drive_config entries."""
     namespace, topics, configs = bag_topics(path, namespace)
-    log, T_s = log_from_topics(path, namespace, topics, configs, T_s)
+    log, T_s, _ = log_from_topics(path, namespace, topics, configs, T_s)
     return log, T_s, configs
 
 
@@ -181,30 +181,59 @@ def bag_topics(path, namespace=None):
     return namespace, topics, configs
 
 
+GRID_TOLERANCE = 0.25
+"""A stamp within this share of T_s of a sample instant is placed on it (its jitter measured); one further
+off is not a sample of this grid and is dropped (counted)."""
+
+
 def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
-    """(log, T_s) from bag_topics' messages (bag_log); ``n_p`` turns mechanical angles electrical (default:
-    the drive_config's)."""
+    """(log, T_s, timing) from bag_topics' messages (bag_log); ``n_p`` turns mechanical angles electrical
+    (default: the drive_config's). Samples are indexed from the recording's own first sample, whatever the
+    clock's epoch (a robot's wall clock or sim time), the grid's origin the median of the current stamps'
+    offsets from it (one jittered stamp does not set it); a simulation's bag (its drive_config names a
+    scenario) keeps its clock's zero, the run's sample 0. ``timing``: the epoch [s], the stamps' jitter about the grid
+    (RMS and largest [s]) and how many were off it (docs/recordings.md)."""
     n_p = n_p or _pole_pairs(configs)
     blocks = not topics.get("currents") and bool(topics.get("currents_block"))
     currents = "currents_block" if blocks else "currents"
     if not topics.get(currents):
         raise BagError(f"{path}: no {full_name(namespace, 'currents')} messages; the contract needs them")
     stamps = np.array([_stamp_ns(m.header.stamp) for _, m in topics[currents]], dtype=np.int64)
+    width = len(topics[currents][0][1].position) if blocks else 1
     if T_s is None:
         T_s = next((float(c["T_s_s"]) for c in configs if "T_s_s" in c), None)
     if T_s is None:
-        steps = np.diff(stamps) / (len(topics[currents][0][1].position) if blocks else 1)
+        steps = np.diff(stamps) / width
         if steps.size == 0 or steps.min() <= 0:
             raise BagError(f"{path}: {full_name(namespace, currents)} stamps are not increasing sample "
                            f"instants")
         T_s = float(np.median(steps)) * 1e-9
-    n = int(round(stamps[-1] * 1e-9 / T_s)) + (len(topics[currents][-1][1].position) if blocks else 1)
+    simulation = any(isinstance(c.get("scenario"), str) or "source" in c for c in configs)
+    T_ns = T_s * 1e9
+    epoch_ns = log_epoch_ns = 0
+    if not simulation:
+        first = int(stamps.min())
+        offsets = (stamps - first).astype(float)
+        epoch_ns = first + int(round(float(np.median(offsets - np.round(offsets / T_ns) * T_ns))))
+        log_epoch_ns = int(topics[currents][0][0]) + (epoch_ns - int(stamps[0]))
+    if (stamps.max() - epoch_ns) / T_ns > MAX_SAMPLES:
+        raise BagError(f"{path}: {full_name(namespace, currents)} stamps span {(stamps.max() - epoch_ns) * 1e-9:.3g} s "
+                       f"from {epoch_ns * 1e-9:.3f} s, more than {MAX_SAMPLES} samples of {T_s:g} s")
+    n = int(round((stamps.max() - epoch_ns) / T_ns)) + width
     log = np.full((n, len(LOG_COLUMNS)), np.nan)
     log[:, COLUMN["t"]] = np.arange(n) * T_s
+    residuals = []
+    off_grid = [0]
 
     def index(stamp):
-        k = int(round(_stamp_ns(stamp) * 1e-9 / T_s))
-        return k if 0 <= k < n else None
+        offset = _stamp_ns(stamp) - epoch_ns
+        k = int(round(offset / T_ns))
+        residual = offset - k * T_ns
+        if abs(residual) > GRID_TOLERANCE * T_ns or not 0 <= k < n:
+            off_grid[0] += 1
+            return None
+        residuals.append(residual)
+        return k
 
     for topic in SAMPLE_LOGGED:
         for _, m in topics.get(topic, []):
@@ -217,15 +246,23 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
             if k is not None:
                 fill_block(log, k, topic, (m.position, m.velocity, m.effort), n_p)
     for topic in HELD_LOGGED:
-        _hold(log[:, COLUMN[TOPICS[topic].log_columns[0]]], topics.get(topic, []), T_s, n)
-    return log, T_s
+        _hold(log[:, COLUMN[TOPICS[topic].log_columns[0]]], topics.get(topic, []), T_s, n, log_epoch_ns)
+    jitter = np.abs(np.asarray(residuals, dtype=float)) * 1e-9
+    timing = {"epoch_s": epoch_ns * 1e-9, "jitter_rms_s": float(np.sqrt(np.mean(jitter ** 2))) if jitter.size else 0.0,
+              "jitter_max_s": float(jitter.max()) if jitter.size else 0.0, "off_grid_messages": off_grid[0]}
+    return log, T_s, timing
 
 
-def _hold(column, messages, T_s, n):
-    """Fill a column with unstamped commands, each held from its log time on."""
+MAX_SAMPLES = 200_000_000
+"""A recording longer than this many samples (5.6 h at 10 kHz; 13 GiB of log) is refused, not allocated."""
+
+
+def _hold(column, messages, T_s, n, epoch_ns=0):
+    """Fill a column with unstamped commands, each held from its log time (from ``epoch_ns``; one logged
+    before the first sample holds from it) on."""
     for t, m in messages:
-        k = int(round(t * 1e-9 / T_s))
-        if 0 <= k < n:
+        k = max(0, int(round((t - epoch_ns) * 1e-9 / T_s)))
+        if k < n:
             column[k:] = m.data
 
 

@@ -797,6 +797,12 @@ def cmd_bench_replay(args):
     print(f"  recorded excitation (measured): {e['kind']}"
           + (f", {e['frequency_Hz']:.0f} Hz, {e['amplitude_V']:.3g} V" if e["kind"] != "none" else ""))
     print("  from: " + "; ".join(f"{key} {value}" for key, value in recording.sources.items()))
+    timing, lost = recording.timing, {k: v for k, v in recording.gaps["missing_samples"].items() if v}
+    print(f"  stamps from {timing['epoch_s']:.6f} s, jitter {timing['jitter_rms_s'] * 1e6:.2g} µs RMS "
+          f"({timing['jitter_max_s'] * 1e6:.2g} max), {timing['off_grid_messages']} off the grid; missing samples: "
+          + (", ".join(f"{k} {v}" for k, v in lost.items()) or "none")
+          + (f"; cut: the last {recording.gaps['cut_samples']} samples incomplete, left off" if recording.gaps[
+              "cut_samples"] else ""))
     if not truth:
         print("  no ground truth (rotor_state) in this bag: scored for consistency only")
     columns = [("samples/s", "samples_per_second", "{:,.0f}"), ("observable", "observable_fraction", "{:.3f}")]

@@ -161,20 +161,22 @@ def angle_scores(log, n_p, steady, start_s):
     windows ((t0, t1) [s]), its peak after ``start_s``, speed estimation error RMS over the windows, time
     with the lock lost (|error| > π/2) after ``start_s`` and when first, the fraction of samples after
     ``start_s`` the estimator reports tracking, and the lock losses it reported. None where the log has
-    no ground truth."""
+    no ground truth. Samples a recording lost (NaN) are left out of every figure."""
     t = log[:, COLUMN["t"]]
     error = angle_error(log, n_p)
-    steady_mask = _mask(t, steady)
+    known = np.isfinite(error)
+    steady_mask = _mask(t, steady) & known
     evaluated = t >= start_s
     rms, bias, _ = _stats(error[steady_mask])
-    _, _, peak = _stats(error[evaluated])
+    _, _, peak = _stats(error[evaluated & known])
     speed_estimation_error = log[:, COLUMN["omega_m"]] - log[:, COLUMN["omega_e_hat"]] / n_p
     lock_lost_s, lock_lost_at_s = lock_loss(t, error, start_s)
     state = log[:, COLUMN["state"]]
+    reported = evaluated & np.isfinite(state)
     return {"angle_error_rms": rms, "angle_error_bias": bias, "angle_error_peak": peak,
-            "speed_error_rms": _stats(speed_estimation_error[steady_mask])[0],
+            "speed_error_rms": _stats(speed_estimation_error[steady_mask & np.isfinite(speed_estimation_error)])[0],
             "lock_lost_s": lock_lost_s, "lock_lost_at_s": lock_lost_at_s,
-            "observable_fraction": float(np.mean(state[evaluated] == TRACKING_STATE)) if evaluated.any() else None,
+            "observable_fraction": float(np.mean(state[reported] == TRACKING_STATE)) if reported.any() else None,
             "lock_lost": reported_losses(state)}
 
 

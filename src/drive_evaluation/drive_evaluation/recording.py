@@ -12,6 +12,7 @@ from drive_bags.common import BagError
 from drive_bags.reader import bag_scenario, bag_topics, has_ground_truth, log_from_topics, recorded_estimator
 from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
+from drive_interface.topics import BLOCK_TOPIC, SAMPLE_LOGGED, TOPICS
 from motor_params.commissioning import (
     NAMEPLATE_ONLY,
     CommissioningError,
@@ -37,6 +38,8 @@ this share of the rated speed plus AUTO_SPEED_SHARE of its own magnitude, and th
 tracks throughout."""
 AUTO_SPEED_SHARE = 0.05
 AUTO_SMOOTHING_S = 0.02
+AUTO_KNOWN_SHARE = 0.99
+"""...with the speed known in this share of a block's samples (lost messages hold the last one)."""
 
 
 @dataclasses.dataclass
@@ -63,6 +66,10 @@ class Recording:
     scenario: object
     """The scenario the bag was recorded from (drive_scenarios Scenario), or None."""
     sources: dict
+    timing: dict
+    """The stamps' epoch, jitter and messages off the grid (drive_bags.reader.log_from_topics)."""
+    gaps: dict
+    """``missing_samples`` per topic within the replayed span, and ``cut_samples`` left off its end."""
 
     @property
     def n_p(self):
@@ -77,7 +84,8 @@ class Recording:
         return {"bag": self.path, "scenario": self.scenario.name if self.scenario else None,
                 "recorded_estimator": self.estimator or None, "samples": int(self.log.shape[0]),
                 "sample_period_s": self.T_s, "motor": self.nameplate.name, "ground_truth": self.ground_truth,
-                "excitation": self.excitation, "sources": self.sources,
+                "excitation": self.excitation, "sources": self.sources, "timing": self.timing,
+                "missing_samples": self.gaps["missing_samples"], "cut_samples": self.gaps["cut_samples"],
                 "windows": {"source": self.sources["windows"], "steady_s": [list(w) for w in self.windows]}}
 
 
@@ -97,7 +105,8 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
     recorded_n_p = next((c["n_p"] for c in configs if "n_p" in c), None)
     if recorded_n_p is not None and recorded_n_p != plate.n_p:
         raise BagError(f"{path}: drive_config says n_p {recorded_n_p}, the motor ({sources['motor']}) {plate.n_p}")
-    log, T_s = log_from_topics(path, namespace, topics, configs, T_s, plate.n_p)
+    log, T_s, timing = log_from_topics(path, namespace, topics, configs, T_s, plate.n_p)
+    log, gaps = whole_span(path, log, topics)
     delay = _delay(scenario, configs, sources)
     known = _commissioning(path, plate, commissioning, configs, sources)
     recorded = recorded_estimator(configs)
@@ -125,7 +134,28 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
             raise BagError(f"{path}: no steady interval found to score ({note}); give --windows T0:T1[,...]")
         start, sources["windows"] = chosen[0][0], f"automatic: {note}"
     return Recording(path, log, T_s, plate, known, delay, recorded, settings, injection, excitation, carrier,
-                     chosen, start, scenario, sources)
+                     chosen, start, scenario, sources, timing, gaps)
+
+
+INPUT_TOPICS = ("currents", "voltage_command")
+"""What every replayed estimator reads: a sample is whole where both are there."""
+
+
+def whole_span(path, log, topics):
+    """(log up to its last whole sample, gaps): a recording cut mid-sample (a signal, a power loss) ends
+    where both INPUT_TOPICS last arrived; within it, each logged topic's missing samples are counted (lost
+    messages are gaps, replay steps over them: drive_evaluation.replay). BagError where no sample is whole."""
+    whole = np.isfinite(log[:, COLUMN["i_a_meas"]]) & np.isfinite(log[:, COLUMN["u_alpha"]])
+    if not whole.any():
+        raise BagError(f"{path}: no sample holds both currents and voltage_command; nothing to replay")
+    end = int(np.nonzero(whole)[0][-1]) + 1
+    cut, log = log.shape[0] - end, log[:end]
+    missing = {}
+    for topic in SAMPLE_LOGGED:
+        column = COLUMN[TOPICS[topic].log_columns[0]]
+        if topics.get(topic) or topics.get(BLOCK_TOPIC[topic]):
+            missing[topic] = int(np.isnan(log[:, column]).sum())
+    return log, {"missing_samples": missing, "cut_samples": cut}
 
 
 def _sample_period(path, given, configs, sources):
@@ -246,6 +276,8 @@ def automatic_windows(log, T_s, plate):
         speed, which = log[:, c["omega_m"]], "the measured speed"
     if not np.isfinite(speed).any():
         return [], "the bag has neither rotor_estimate nor rotor_state"
+    known = np.isfinite(speed)
+    speed = held(speed)
     smooth = max(1, int(round(AUTO_SMOOTHING_S / T_s)))
     filled = np.nan_to_num(speed)
     smoothed = np.convolve(filled, np.ones(smooth) / smooth, mode="same")
@@ -259,7 +291,7 @@ def automatic_windows(log, T_s, plate):
         values = smoothed[part]
         span = float(values.max() - values.min())
         steady = (span <= AUTO_SPEED_SPAN * rated + AUTO_SPEED_SHARE * float(np.abs(values).mean())
-                  and np.isfinite(speed[part]).all() and tracked[part].all())
+                  and known[part].mean() >= AUTO_KNOWN_SHARE and tracked[part].all())
         if steady:
             t0, t1 = k0 * T_s, (k0 + block) * T_s
             if chosen and abs(chosen[-1][1] - t0) < 0.5 * T_s:
@@ -269,3 +301,12 @@ def automatic_windows(log, T_s, plate):
     return chosen, (f"{AUTO_WINDOW_S:g} s blocks from {AUTO_START_S:g} s where {which} spans at most "
                     f"{AUTO_SPEED_SPAN:.0%} of rated speed + {AUTO_SPEED_SHARE:.0%} of itself and the recorded "
                     f"estimator tracks")
+
+
+def held(values, lost=None):
+    """``values`` with each sample the recording lost (NaN, or ``lost``) holding the last one before it: the
+    recorded estimate handed to the replayed estimators' encoder inputs across a gap."""
+    missing = np.isnan(values) if lost is None else lost
+    index = np.where(missing, 0, np.arange(values.size))
+    np.maximum.accumulate(index, out=index)
+    return values[index]

@@ -27,6 +27,7 @@ from motor_params.nameplate import InverterRating
 
 from .excitation import MAX_CARRIER_PHASE_RAD, MIN_CARRIER_FRACTION, carrier_match
 from .metrics import _mask, angle_error, angle_scores, reported_losses
+from .recording import held
 
 TIMED_RUNS = 3
 """Each estimator replays the bag this many times from its fresh state; the fastest run is reported."""
@@ -37,25 +38,47 @@ SCORED = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_erro
 
 
 def replay_inputs(recording):
-    """(currents n × 3, the voltage applied in the period before each sample n × 2) of a Recording (the
-    command of d + 1 samples before, d the recording drive's delay); a BagError names what is missing."""
-    return logged_inputs(recording.log, recording.delay_periods, recording.path)
+    """(currents n × 3, the voltage applied in the period before each sample n × 2, whole: n booleans) of a
+    Recording (the command of d + 1 samples before, d the recording drive's delay)."""
+    return logged_inputs(recording.log, recording.delay_periods)
 
 
-def logged_inputs(log, delay_periods, source):
-    """replay_inputs of a run's ``log`` (LOG_COLUMNS) with the drive's delay; BagError names ``source``."""
-    from drive_bags.common import BagError
+def logged_inputs(log, delay_periods):
+    """replay_inputs of a run's ``log`` (LOG_COLUMNS) with the drive's delay. A sample is whole where its
+    currents and the voltage that acted before it are known; replay steps the estimators over the others (a
+    lost message: the estimator meets the next sample, as a drive node would), and the first whole sample
+    after a gap carries the voltage of every period since the last whole one, summed (the voltages of lost
+    periods where known): the current step it sees is the one that voltage drove, so a fit or an integrator
+    of voltage stays consistent across the gap (docs/recordings.md). A lost voltage_command whose injection
+    message arrived is rebuilt: that injection plus the fundamental (command less injection) interpolated
+    between its neighbours."""
     currents = log[:, [COLUMN["i_a_meas"], COLUMN["i_b_meas"], COLUMN["i_c_meas"]]]
-    voltage = log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]]
-    for name, values in (("currents", currents), ("voltage_command", voltage)):
-        missing = int(np.isnan(values[:, 0]).sum())
-        if missing:
-            raise BagError(f"{source}: {name}: {missing} of {len(values)} samples missing; replay "
-                           f"needs every one")
+    voltage = rebuilt_voltage(log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]],
+                              log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]])
     lag = delay_periods + 1
     u_applied = np.zeros((len(voltage), 2))
     u_applied[lag:] = voltage[:-lag]
-    return np.ascontiguousarray(currents), u_applied
+    whole = np.isfinite(currents).all(axis=1) & np.isfinite(u_applied).all(axis=1)
+    if not whole.all():
+        summed = np.cumsum(np.nan_to_num(u_applied), axis=0)
+        at = np.nonzero(whole)[0]
+        u_applied[at[1:]] = summed[at[1:]] - summed[at[:-1]]
+    return np.ascontiguousarray(currents), u_applied, whole
+
+
+def rebuilt_voltage(voltage, injection):
+    """``voltage`` (n × 2) with each lost sample (NaN) whose ``injection`` is known rebuilt as that injection
+    plus the fundamental voltage − injection interpolated linearly between the known samples around it."""
+    lost = np.isnan(voltage).any(axis=1) & np.isfinite(injection).all(axis=1)
+    known = np.isfinite(voltage).all(axis=1) & np.isfinite(injection).all(axis=1)
+    if not lost.any() or known.sum() < 2:
+        return voltage
+    voltage = voltage.copy()
+    at, where = np.nonzero(known)[0], np.nonzero(lost)[0]
+    for j in range(2):
+        fundamental = voltage[at, j] - injection[at, j]
+        voltage[where, j] = np.interp(where, at, fundamental) + injection[where, j]
+    return voltage
 
 
 def replayed_estimator(recording, name):
@@ -106,7 +129,7 @@ def applicability(recording, name, frequency, requested, scored):
 
 def replay(recording, estimators):
     """Replay each estimator on a Recording (drive_evaluation.recording) → ([entry dict], [RunResult])."""
-    currents, u_applied = replay_inputs(recording)
+    currents, u_applied, whole = replay_inputs(recording)
     log0 = recording.log
     truth = recording.ground_truth
     n_p = recording.n_p
@@ -114,8 +137,9 @@ def replay(recording, estimators):
                np.ascontiguousarray(n_p * log0[:, COLUMN["omega_m"]]))
     unresolved = log0[:, COLUMN["state"]] != TRACKING
     unresolved &= np.isfinite(log0[:, COLUMN["state"]])
-    estimate = (np.ascontiguousarray(np.where(unresolved, np.nan, log0[:, COLUMN["theta_e_hat"]])),
-                np.ascontiguousarray(log0[:, COLUMN["omega_e_hat"]]))
+    estimate = (np.ascontiguousarray(held(np.where(unresolved, np.nan, log0[:, COLUMN["theta_e_hat"]]),
+                                          np.isnan(log0[:, COLUMN["state"]]))),
+                np.ascontiguousarray(held(log0[:, COLUMN["omega_e_hat"]])))
     t = log0[:, COLUMN["t"]]
     scored = _mask(t, recording.windows)
     calibration = recording.commissioning.calibration()
@@ -124,20 +148,21 @@ def replay(recording, estimators):
         e = replayed_estimator(recording, name)
         theta_ref, omega_ref = encoder if excitation_need(name) == "encoder" else estimate
         out = np.zeros((len(currents), len(ESTIMATE_COLUMNS)))
-        replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, currents[:2], u_applied[:2], theta_ref[:2],
-                       omega_ref[:2], calibration, out[:2])
+        replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, currents[:2], u_applied[:2], whole[:2],
+                       theta_ref[:2], omega_ref[:2], calibration, out[:2])
         wall = math.inf
         for _ in range(TIMED_RUNS):
             x, z = e.x.copy(), e.z.copy()
             start = time.perf_counter()
-            replay_samples(e.step, x, z, e.params, currents, u_applied, theta_ref, omega_ref, calibration, out)
+            replay_samples(e.step, x, z, e.params, currents, u_applied, whole, theta_ref, omega_ref, calibration,
+                           out)
             wall = min(wall, time.perf_counter() - start)
         log = log0.copy()
         for j, column in enumerate(ESTIMATE_COLUMNS):
             log[:, COLUMN[column]] = out[:, j]
         applicable, reason = applicability(recording, name, e.injection_frequency_Hz, out[:, 2:4], scored)
         scores = angle_scores(log, n_p, recording.windows, recording.start_s)
-        entry = {"estimator": name, "applicable": applicable, "reason": reason, "samples": len(currents),
+        entry = {"estimator": name, "applicable": applicable, "reason": reason, "samples": int(whole.sum()),
                  "samples_per_second": len(currents) / wall,
                  "observable_fraction": scores["observable_fraction"] if applicable else None}
         if applicable:

@@ -100,10 +100,10 @@ def observer_on_run(result, scenario):
     commissioning = result.commissioning
     inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
     e = make_estimator("flux_observer", scenario.motor.nameplate, scenario.T_s, {}, commissioning, inverter)
-    currents, u_applied = logged_inputs(result.log, scenario.drive_delay_periods(), scenario.name)
+    currents, u_applied, whole = logged_inputs(result.log, scenario.drive_delay_periods())
     out = np.zeros((len(currents), len(ESTIMATE_COLUMNS)))
     zeros = np.zeros(len(currents))
-    replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, currents, u_applied, zeros, zeros,
+    replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, currents, u_applied, whole, zeros, zeros,
                    commissioning.calibration(), out)
     log = result.log.copy()
     for j, column in enumerate(ESTIMATE_COLUMNS):

@@ -99,16 +99,22 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
 
 
 @njit
-def replay_samples(est_step, ex, ez, ep, currents, u_applied, theta_e_reference, omega_e_reference, calibration,
-                   out):
+def replay_samples(est_step, ex, ez, ep, currents, u_applied, whole, theta_e_reference, omega_e_reference,
+                   calibration, out):
     """Run an estimator over recorded samples: ``currents`` (n × 3, measured a, b, c; corrected by the
     commissioned ``calibration`` as in the drive), ``u_applied`` (n × 2, the voltage command that acted
     in the period before each sample: the command of d + 1 samples before, d the recorded drive's delay),
     and the electrical angle and speed handed to the kernel's encoder inputs (``sensored`` reads the
     recorded ground truth there; an injecting estimator replayed with ``polarity_from_recording`` reads the
     recorded drive's estimate, hf_estimator.startup item 5). ``out`` rows receive θ̂_e, ω̂_e, u_inj_α,
-    u_inj_β, ε, signal, state, U_h, w, leader (hf_estimator.block.ESTIMATE_COLUMNS)."""
+    u_inj_β, ε, signal, state, U_h, w, leader (hf_estimator.block.ESTIMATE_COLUMNS). Where ``whole`` is
+    false (a sample the recording lost) the estimator is not stepped: it meets the next sample, its index k
+    kept, as a drive node meets a lost message; the row is NaN."""
     for k in range(currents.shape[0]):
+        if not whole[k]:
+            for j in range(ESTIMATE_WIDTH):
+                out[k, j] = np.nan
+            continue
         c_a, c_b, c_c = corrected_currents(currents[k, 0], currents[k, 1], currents[k, 2], calibration)
         result = est_step(ex, ez, ep, k, c_a, c_b, c_c, u_applied[k, 0], u_applied[k, 1], theta_e_reference[k],
                           omega_e_reference[k])
