@@ -276,9 +276,9 @@ def test_a_robots_recording_replays_wall_clock_jitter_lost_messages_and_a_cut(tm
     """Written with rosbags alone, as a robot records: stamps from a wall clock at 1.76e9 s with ±3 µs
     jitter, 0.2 % of every topic's messages lost, drive_config without a scenario. Replay indexes from the
     first sample, measures the jitter, counts each topic's lost samples, steps ours over them and scores it
-    within 30 % of the clean recording's RMS (0.0124 against 0.0102) and under ours' 0.02 rad. Cut mid-chunk (a power loss: no
-    metadata.yaml, the .mcap truncated), `drive bag reindex` mends it and ours replays up to its last
-    whole sample with the same quality."""
+    within 30 % of the clean recording's RMS (0.0124 against 0.0102) and under ours' 0.02 rad. Cut
+    mid-chunk (a power loss: no metadata.yaml, the .mcap truncated), `drive bag reindex` mends it and ours
+    replays up to its last whole sample with the same quality."""
     run = recorded_run(tmp_path, "injection_frame")
     config = v2_config(run, "injection_frame")
     clean, clean_ours = replay(write_foreign_bag(tmp_path / "clean", run, config), "--estimators", "injection_frame",
