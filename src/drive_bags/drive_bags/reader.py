@@ -181,6 +181,8 @@ def bag_topics(path, namespace=None):
     return namespace, topics, configs
 
 
+SIM_CLOCK_START_MAX_S = 60.0
+"""A bag naming a scenario whose first stamp is before this is on sim time (the run's sample 0 at 0 s)."""
 GRID_TOLERANCE = 0.25
 """A stamp within this share of T_s of a sample instant is placed on it (its jitter measured); one further
 off is not a sample of this grid and is dropped (counted)."""
@@ -191,8 +193,9 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
     (default: the drive_config's). Samples are indexed from the recording's own first sample, whatever the
     clock's epoch (a robot's wall clock or sim time), the grid's origin the median of the current stamps'
     offsets from it (one jittered stamp does not set it); a simulation's bag (its drive_config names a
-    scenario) keeps its clock's zero, the run's sample 0. ``timing``: the epoch [s], the stamps' jitter about the grid
-    (RMS and largest [s]) and how many were off it (docs/recordings.md)."""
+    scenario, its stamps sim time from near 0) keeps its clock's zero, the run's sample 0. ``timing``: the
+    epoch [s], the stamps' jitter about the grid (RMS and largest [s]) and how many were off it
+    (docs/recordings.md)."""
     n_p = n_p or _pole_pairs(configs)
     blocks = not topics.get("currents") and bool(topics.get("currents_block"))
     currents = "currents_block" if blocks else "currents"
@@ -209,6 +212,7 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
                            f"instants")
         T_s = float(np.median(steps)) * 1e-9
     simulation = any(isinstance(c.get("scenario"), str) or "source" in c for c in configs)
+    simulation &= bool(stamps.min() < SIM_CLOCK_START_MAX_S * 1e9)
     T_ns = T_s * 1e9
     epoch_ns = log_epoch_ns = 0
     if not simulation:

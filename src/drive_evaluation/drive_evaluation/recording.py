@@ -137,14 +137,11 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
                      chosen, start, scenario, sources, timing, gaps)
 
 
-INPUT_TOPICS = ("currents", "voltage_command")
-"""What every replayed estimator reads: a sample is whole where both are there."""
-
-
 def whole_span(path, log, topics):
     """(log up to its last whole sample, gaps): a recording cut mid-sample (a signal, a power loss) ends
-    where both INPUT_TOPICS last arrived; within it, each logged topic's missing samples are counted (lost
-    messages are gaps, replay steps over them: drive_evaluation.replay). BagError where no sample is whole."""
+    where currents and voltage_command (what every replayed estimator reads) last arrived; within it, each
+    logged topic's missing samples are counted (lost messages are gaps, replay steps over them:
+    drive_evaluation.replay). BagError where no sample is whole."""
     whole = np.isfinite(log[:, COLUMN["i_a_meas"]]) & np.isfinite(log[:, COLUMN["u_alpha"]])
     if not whole.any():
         raise BagError(f"{path}: no sample holds both currents and voltage_command; nothing to replay")
