@@ -423,6 +423,9 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks):
                                    err_msg=name)
     values = result.diagnostics["/drive/drive_bridge"]["values"]
     assert int(values["commands"]) > 0 and values["link"] == "up"
+    timing = result.timing
+    assert timing["hop_us"] > 0.0
+    assert timing["latency_p99_hops"] == pytest.approx(timing["latency_p99_us"] / timing["hop_us"])
     assert values["dropped"] == values["safe_state"] == values["faults_cleared"] == "0"
 
 

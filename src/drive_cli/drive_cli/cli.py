@@ -23,6 +23,7 @@ from drive_interface.exit_codes import (
 )
 from drive_interface.graph import DEFAULT_NAMESPACE, EXECUTORS
 from drive_interface.interrupt import Interrupted
+from drive_interface.realtime import add_scheduling_arguments
 from drive_interface.strict_json import dumps
 from drive_scenarios.scenario import (
     MAX_BLOCK_SAMPLES,
@@ -351,15 +352,18 @@ def cmd_launch(args):
     result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
                     timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,
-                    extra_parameters=extra or None,
+                    extra_parameters=extra or None, rt_priority=args.rt_priority, cpus=args.cpus,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
+    for line in result.scheduling:
+        if "refused" in line:
+            print(f"drive: warning: {line}", file=sys.stderr)
     faults = result.node_faults
     plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
     extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}, "
                       f"{plant}",
              "real_time_factor": round(result.scenario.duration_s / result.wall_time_s, 4)
              if result.wall_time_s > 0 else None,
-             "interrupted": bool(result.interrupted), "node_faults": faults}
+             "interrupted": bool(result.interrupted), "node_faults": faults, "scheduling": result.scheduling}
     if result.timing:
         extra["timing"] = result.timing
     if args.record:
@@ -409,6 +413,8 @@ def cmd_bench_bridge(args):
     if args.json:
         _print_json(report)
         return 0
+    hop = report["links"][0]["hop_us"] if report["links"] else None
+    hop_line = f"  one rclpy hop on this machine: {hop:.1f} µs (latencies in hops in --json)" if hop else ""
     if args.paced:
         print(f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter on its own clock "
               f"at {report['sampling_rate_Hz']:g} Hz; worst of {report['repeats']})")
@@ -422,6 +428,7 @@ def cmd_bench_bridge(args):
                   f"{microseconds[0]:>9s} µs "
                   f"{microseconds[1]:>6s} µs {microseconds[2]:>6s} µs {angles[0]:>10s} {angles[1]:>7s} "
                   f"{row['lock_lost']:5d}")
+        print(hop_line)
         return 0
     print(f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter paced by the "
           f"host's answers; best of {report['repeats']})")
@@ -431,6 +438,7 @@ def cmd_bench_bridge(args):
         print(f"  {row['link']:6s} {row['samples_per_s']:10.0f} {row['latency_p50_us']:9.0f} µs "
               f"{row['latency_p99_us']:6.0f} µs {row['host_p50_us']:6.0f} µs {row['host_p99_us']:6.0f} µs "
               f"{row['link_echo_us']:7.0f} µs {row['missing_commands']:8d}")
+    print(hop_line)
     return 0
 
 
@@ -1605,6 +1613,7 @@ def build_parser():
     launch.add_argument("--paced", action="store_true",
                         help="with --link: the virtual inverter on its own clock at the sampling rate, never "
                              "waiting for the graph: a late command is zero volts, counted")
+    add_scheduling_arguments(launch)
     launch.add_argument("--json", action="store_true")
     launch.set_defaults(func=cmd_launch)
 

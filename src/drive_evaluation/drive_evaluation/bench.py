@@ -14,7 +14,6 @@ from pathlib import Path
 import numpy as np
 
 from drive_interface import interrupt
-from drive_interface.errors import DriveError
 from drive_interface.log import LOG_COLUMNS
 from drive_runner.runner import build_drive
 from drive_scenarios.scenario import load_scenario
@@ -124,6 +123,8 @@ def _graph_runs(report, scenario_name, duration_s, record, repeats, progress, bl
             progress(f"  N = {block:<3d} {processes:9s} {executor:7s} real-time factor {entry['real_time_factor']:.3f} "
                      f"(median {entry['real_time_factor_median']:.3f}; {entry['us_per_sample']:.0f} µs per sample, "
                      f"{entry['us_per_delivered_message']:.0f} µs per delivered message)")
+    from drive_launch.hop_cost import hop_latency
+
     hop = hop_latency()
     report["interrupted"] = interrupt.requested()
     if report["interrupted"]:
@@ -167,55 +168,6 @@ def block_size_table(block_sizes, scenarios=BLOCK_SCENARIOS, duration_s=0.5, rep
                          f"{row['angle_error_bias']:+.4f}  peak {row['angle_error_peak']:.4f}  lost "
                          f"{row['lock_lost_s']:.3f} s")
     return report
-
-
-def hop_latency(round_trips=20000):
-    """Wall time of one message hop (publish → take → callback) between two nodes of one process on
-    the events executor, from a ping-pong of Vector3Stamped with the lock-step QoS: the floor under
-    every sample of the graph."""
-    import rclpy
-    from geometry_msgs.msg import Vector3Stamped
-    from rclpy.node import Node
-    from rclpy.signals import SignalHandlerOptions
-    from rclpy.task import Future
-
-    from drive_interface.node import make_executor, topic_qos
-
-    PER_SAMPLE_QOS = topic_qos("currents")
-
-    context = rclpy.Context()
-    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
-    executor = make_executor("events", context)
-    try:
-        a, b = Node("bench_ping", context=context), Node("bench_pong", context=context)
-        ping = a.create_publisher(Vector3Stamped, "bench_ping", PER_SAMPLE_QOS)
-        pong = b.create_publisher(Vector3Stamped, "bench_pong", PER_SAMPLE_QOS)
-        done, count, message = Future(), [0], Vector3Stamped()
-
-        def on_pong(_):
-            count[0] += 1
-            if count[0] >= round_trips:
-                done.set_result(True)
-            else:
-                ping.publish(message)
-        b.create_subscription(Vector3Stamped, "bench_ping", pong.publish, PER_SAMPLE_QOS)
-        a.create_subscription(Vector3Stamped, "bench_pong", on_pong, PER_SAMPLE_QOS)
-        executor.add_node(a)
-        executor.add_node(b)
-        end = time.monotonic() + 10.0
-        while min(ping.get_subscription_count(), pong.get_subscription_count()) < 1:
-            if time.monotonic() > end:
-                raise DriveError("the ping-pong nodes of the hop benchmark did not match within 10 s")
-            executor.spin_once(timeout_sec=0.05)
-        start = time.perf_counter()
-        ping.publish(message)
-        while not done.done():
-            executor.spin_until_future_complete(done, timeout_sec=1.0)
-        wall = time.perf_counter() - start
-        return {"round_trips": round_trips, "us_per_hop": 1e6 * wall / (2 * round_trips)}
-    finally:
-        executor.shutdown()
-        context.try_shutdown()
 
 
 def link_echo_us(link, rounds=2000):
@@ -281,8 +233,10 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
     commands and their latency, and the angle error of the run, worst of ``repeats``. Latency: the
     inverter's time from sending TELEMETRY(k) to receiving COMMAND(k); host: the host's part of it
     (telemetry decoded, estimator and controller run, command encoded and written). ``block_samples``:
-    N (None: the scenario's)."""
+    N (None: the scenario's). Beside them the machine's rclpy hop cost (``hop_us``) and the latencies in hops,
+    so that figures compare across machines."""
     from drive_evaluation.metrics import compute_metrics
+    from drive_launch.hop_cost import HOP_ROUND_TRIPS_BESIDE_A_RUN, hop_latency
     from drive_runner.bridge_loop import run_through_bridge
 
     scenario = load_scenario(scenario_ref)
@@ -292,6 +246,7 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
     blocks = block_samples or scenario.block_samples
     linked = dataclasses.replace(scenario, block_samples=blocks)
     rows = []
+    hop_us = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN)["us_per_hop"]
     for link in links:
         run_through_bridge(dataclasses.replace(linked, duration_s=min(scenario.duration_s, 0.05)), link)
         best = None
@@ -305,7 +260,9 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
                "latency_p50_us": _percentile(latencies, 50), "latency_p99_us": _percentile(latencies, 99),
                "host_p50_us": _percentile(host, 50), "host_p99_us": _percentile(host, 99),
                "link_echo_us": link_echo_us(link),
-               "missing_commands": int(best.inverter_counters["missing"])}
+               "missing_commands": int(best.inverter_counters["missing"]), "hop_us": hop_us}
+        row.update({key.replace("_us", "_hops"): row[key] / hop_us if row[key] is not None else None
+                    for key in ("latency_p50_us", "latency_p99_us", "host_p50_us", "host_p99_us")})
         if paced:
             metrics = compute_metrics(best)
             row.update(best.timing)

@@ -21,6 +21,7 @@ from std_msgs.msg import String
 from .exit_codes import EXIT_NODE_FAULTS, EXIT_REFUSED
 from .graph import EXECUTORS
 from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sources, label, unknown_parameters
+from .realtime import add_scheduling_arguments, collect_young, collector_held, real_time_scheduling
 from .stamps import stamp_parts
 from .strict_json import dumps
 from .topics import TOPICS
@@ -130,7 +131,8 @@ class ContractNode(Node):
         self.callbacks = 0
         self.config_pub = self.create_publisher(String, "drive_config", topic_qos("drive_config"))
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", topic_qos("/diagnostics"))
-        self.create_timer(float(self.get_parameter(name).value), self.publish_diagnostics)
+        self.collector_s = 0.0
+        self.create_timer(float(self.get_parameter(name).value), self.periodic_status)
 
     def publish_config(self, config):
         """drive_config: this node, its parameters (``self.parameters``), a latched error, and ``config``."""
@@ -248,11 +250,17 @@ class ContractNode(Node):
         """Node-specific key/values for /diagnostics (lock, observability, saturation...)."""
         return {}
 
+    def periodic_status(self):
+        """Every ``diagnostics_period_s``: the garbage made since the last period collected (while the
+        collector is held out of the sample path, drive_interface.realtime), then /diagnostics."""
+        self.collector_s = max(self.collector_s, collect_young())
+        self.publish_diagnostics()
+
     def publish_diagnostics(self):
         h = self.health
         values = {"run_complete": self.run_complete, "callbacks": self.callbacks,
                   "callback_mean_us": 1e6 * self.callback_time_s / max(self.callbacks, 1),
-                  "callback_max_us": 1e6 * self.callback_max_s,
+                  "callback_max_us": 1e6 * self.callback_max_s, "collector_max_us": 1e6 * self.collector_s,
                   **{f"faults.{kind}": n for kind, n in sorted(h.counters.items())},
                   **self.status_values()}
         level = DiagnosticStatus.ERROR if h.latched else h.level
@@ -265,7 +273,7 @@ class ContractNode(Node):
         self.diagnostics_pub.publish(array)
         self.diagnostics_sent_at = time.monotonic()
         h.reset()
-        self.callback_max_s = 0.0
+        self.callback_max_s = self.collector_s = 0.0
 
 
 def describe(text):
@@ -308,6 +316,7 @@ def run_node(make_node, program, argv=None):
     ros_args = argv[argv.index("--ros-args"):] if "--ros-args" in argv else []
     parser = argparse.ArgumentParser(prog=program)
     parser.add_argument("--executor", choices=EXECUTORS, default="events")
+    add_scheduling_arguments(parser)
     args = parser.parse_args(argv[:len(argv) - len(ros_args)])
     ROS_ARGS[:] = ros_args
     try:
@@ -329,11 +338,17 @@ def run_node(make_node, program, argv=None):
         rclpy.try_shutdown()
         return _refuse(program, "; ".join(unknown))
     node.get_logger().info(node.start_line())
+    applied, refused = real_time_scheduling(args.rt_priority, args.cpus)
+    for line in applied:
+        node.get_logger().info(line)
+    for line in refused:
+        node.get_logger().warning(line)
     executor = make_executor(args.executor, rclpy.get_default_context())
     executor.add_node(node)
     try:
-        while not stop.done() and node.exit_code is None:
-            executor.spin_until_future_complete(stop, timeout_sec=0.25)
+        with collector_held():
+            while not stop.done() and node.exit_code is None:
+                executor.spin_until_future_complete(stop, timeout_sec=0.25)
     finally:
         executor.shutdown()
         node.destroy_node()

@@ -20,9 +20,12 @@ from drive_bridge.virtual_inverter import timing_report
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
+from drive_interface.realtime import collector_held, normal_scheduling, real_time_scheduling
 from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import behind_an_inverter, resolve
+
+from .hop_cost import HOP_ROUND_TRIPS_BESIDE_A_RUN, hop_latency, in_hops
 
 PROCESSES = ("composed", "separate")
 LINKS = ("pty", "can")
@@ -152,6 +155,8 @@ class GraphResult(RunResult):
     """{node: {"faults": {kind: count}, "messages": [...]}} of every node that reported a fault."""
     timing: dict = None
     """Behind a virtual inverter: how the graph kept pace with it (virtual_inverter.timing_report)."""
+    scheduling: list = None
+    """What real-time scheduling was applied or refused (drive_interface.realtime), one line each."""
 
 
 def node_parameters(scenario_ref, estimator=None, duration_s=None, timeout_s=1.0, extra=None):
@@ -185,18 +190,20 @@ class DriveSpec:
 
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
-           progress=None, extra_parameters=None, bag=None, link=None, paced=False):
+           progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
     ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
-    virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock."""
+    virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock.
+    ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes (drive_interface.realtime)."""
     spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced)
-    return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress)[0]
+    return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress, rt_priority,
+                       cpus)[0]
 
 
 def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
-                startup_timeout_s=60.0, progress=None):
+                startup_timeout_s=60.0, progress=None, rt_priority=0, cpus=None):
     """Run several drives side by side in one graph (one namespace each); one GraphResult per spec. A
     scenario whose drive is a drive configuration file (``drive: FILE``) gives the estimator that file and
     no scenario (as on a robot); the plant and the controller's speed schedule take the experiment."""
@@ -221,6 +228,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         if spec.link == "can" and processes == "separate":
             raise GraphError("a virtual CAN bus (python-can's) lives in one process: it needs the nodes "
                              "composed, or a pty link")
+    hop = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN) if any(spec.link for spec in specs) else None
     locks = []
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
@@ -274,7 +282,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                 if processes == "composed":
                     nodes.append(make_node(role, context, spec.namespace, role_parameters))
                 else:
-                    children.append((role, _spawn(role, spec.namespace, role_parameters, executor)))
+                    children.append((role, _spawn(role, spec.namespace, role_parameters, executor, rt_priority,
+                                                  cpus)))
             driver_node = Node("drive_launcher", context=context, namespace=spec.namespace)
             nodes.append(driver_node)
             driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
@@ -286,10 +295,16 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             ex.add_node(node)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
-        while not all_done.done():
-            ex.spin_until_future_complete(all_done, timeout_sec=1.0)
+        applied, refused = real_time_scheduling(rt_priority, cpus)
+        try:
+            with collector_held():
+                while not all_done.done():
+                    ex.spin_until_future_complete(all_done, timeout_sec=1.0)
+        finally:
+            if applied:
+                normal_scheduling()
         nodes[-1].destroy_timer(watcher)
-        results = [_result(driver, drive, record, processes, executor, requested())
+        results = [_result(driver, drive, record, processes, executor, requested(), hop)
                    for driver, drive in zip(drivers, drives)]
     finally:
         polling.__exit__(None, None, None)
@@ -300,6 +315,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             lock.release()
     for result, error in zip(results, recording_errors):
         result.recording_error = error
+        result.scheduling = applied + refused
     return results
 
 
@@ -329,7 +345,7 @@ def _close(recorder):
     return None
 
 
-def _result(driver, drive, record, processes, executor, interrupted):
+def _result(driver, drive, record, processes, executor, interrupted, hop=None):
     """The GraphResult of one drive (``drive``: the runner's composition of the same scenario, for its
     current limit and commissioning record)."""
     scenario = driver.scenario
@@ -347,7 +363,7 @@ def _result(driver, drive, record, processes, executor, interrupted):
                        processes=processes, executor=executor,
                        interrupted=interrupted,
                        diagnostics=dict(driver.diagnostics), node_faults=driver.faults(),
-                       timing=timing_report(driver.inverter, scenario.T_s) if driver.inverter else None)
+                       timing=in_hops(timing_report(driver.inverter, scenario.T_s), hop) if driver.inverter else None)
 
 
 def _virtual_inverter(scenario, link, workdir, drive_id, paced, timeout_s):
@@ -371,8 +387,10 @@ def _watch(drivers, children, all_done):
         all_done.set_result(True)
 
 
-def _spawn(name, namespace, parameters, executor):
-    args = [sys.executable, "-m", NODES[name], "--executor", executor, "--ros-args", "-r", f"__ns:={namespace}"]
+def _spawn(name, namespace, parameters, executor, rt_priority=0, cpus=None):
+    scheduling = ["--rt-priority", str(rt_priority)] + (["--cpus", ",".join(map(str, sorted(cpus)))] if cpus else [])
+    args = [sys.executable, "-m", NODES[name], "--executor", executor, *scheduling, "--ros-args", "-r",
+            f"__ns:={namespace}"]
     for name, value in parameters.items():
         args += ["-p", f"{name}:={_ros_value(value)}"]
     return subprocess.Popen(args)

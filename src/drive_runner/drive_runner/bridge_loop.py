@@ -3,8 +3,6 @@ thread behind a pseudo-terminal or a CAN bus, the bridge core, and the estimator
 answering each telemetry frame (with blocks of N samples, each TELEMETRY_BLOCK by the block kernels and
 one COMMAND_BLOCK). For tests, `drive bridge` and `drive bench bridge`."""
 import contextlib
-import gc
-import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -18,6 +16,7 @@ from drive_bridge.inverter_protocol import COMMAND_MISSING, MAX_BLOCK, PWM_OFF
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_interface.interrupt import Interrupted
 from drive_interface.log import COLUMN, LOG_COLUMNS
+from drive_interface.realtime import collector_held
 from drive_scenarios.scenario import behind_an_inverter
 from foc_controller.control import controller_block, controller_step
 from hf_estimator.block import ESTIMATE_WIDTH, estimator_block
@@ -72,28 +71,6 @@ def virtual_inverter_link(scenario, link, **inverter_options):
             inverter.stop()
             bridge.close()
             endpoint.close()
-
-
-GIL_SWITCH_S = 2e-4
-"""Python's thread switch interval during a loop through the bridge (its default is 5 ms): the host and
-the virtual inverter share one interpreter, and a thread woken by the link waits this long at most for
-the other to hand over."""
-
-
-@contextlib.contextmanager
-def collector_held():
-    """Python's cyclic garbage collector off (after one collection) for a loop through the bridge: a
-    full collection in a large process pauses past the link timeout (50 ms) and reads as a lost link.
-    The thread switch interval is GIL_SWITCH_S meanwhile."""
-    gc.collect()
-    gc.disable()
-    interval = sys.getswitchinterval()
-    sys.setswitchinterval(GIL_SWITCH_S)
-    try:
-        yield
-    finally:
-        sys.setswitchinterval(interval)
-        gc.enable()
 
 
 def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):

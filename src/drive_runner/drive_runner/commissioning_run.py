@@ -60,7 +60,9 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
     """Run the procedure with the simulated plant behind the virtual inverter and the bridge core on
     ``link`` ('pty' or 'can'), in this process (bridge_loop's link and garbage-collector handling);
     returns a CommissioningRun (truth from the inverter)."""
-    from .bridge_loop import collector_held, virtual_inverter_link
+    from drive_interface.realtime import collector_held
+
+    from .bridge_loop import virtual_inverter_link
 
     procedure = procedure_for_scenario(scenario, settings)
     n = procedure.total_samples

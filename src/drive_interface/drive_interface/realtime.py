@@ -1,0 +1,120 @@
+"""Soft real time for a drive's process (docs/ros-graph.md, "Real time"): the cyclic garbage collector kept
+out of the sample path, a short thread switch interval, and, where the system allows it, real-time
+scheduling and CPU affinity for every thread of the process. No rclpy."""
+import contextlib
+import gc
+import os
+import sys
+import time
+
+GIL_SWITCH_S = 2e-4
+"""Python's thread switch interval while a drive runs (its default is 5 ms): a thread woken by the link or
+the middleware waits this long at most for the one holding the interpreter to hand over."""
+
+
+@contextlib.contextmanager
+def collector_held(switch_s=GIL_SWITCH_S):
+    """The cyclic garbage collector off for the run (after one full collection, whose survivors are frozen
+    out of every later one) and the thread switch interval ``switch_s``: a full collection in a large process
+    pauses for tens of ms (measured: up to 140 ms in `drive launch`), longer than the link's watchdog. Cyclic
+    garbage made meanwhile is collected by ``collect_young`` where the host calls it (a status timer)."""
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(switch_s)
+    try:
+        yield
+    finally:
+        sys.setswitchinterval(interval)
+        gc.unfreeze()
+        gc.enable()
+
+
+def collect_young():
+    """While the collector is held: collect the objects made since the last call (generations 0 and 1: a
+    short pause, as only what outlived its reference counts is left there); its duration [s], 0 when the
+    collector is not held."""
+    if gc.isenabled():
+        return 0.0
+    start = time.perf_counter()
+    gc.collect(1)
+    return time.perf_counter() - start
+
+
+def _threads():
+    try:
+        return [int(tid) for tid in os.listdir("/proc/self/task")]
+    except OSError:
+        return [0]
+
+
+def real_time_scheduling(priority=0, cpus=None):
+    """SCHED_FIFO at ``priority`` (1-99; 0: left as it is) for every thread of this process, and the
+    process's CPU affinity ``cpus`` (a set of CPU numbers; None: left as it is). Returns (what was applied,
+    what the system refused), each a list of one-line statements; a refusal is never an exception."""
+    applied, refused = [], []
+    if cpus:
+        try:
+            for tid in _threads():
+                os.sched_setaffinity(tid, cpus)
+            applied.append(f"CPU affinity {','.join(str(c) for c in sorted(cpus))}")
+        except (OSError, ValueError) as error:
+            refused.append(f"CPU affinity {sorted(cpus)} refused: {error.strerror or error}")
+    if priority:
+        try:
+            for tid in _threads():
+                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))
+            applied.append(f"SCHED_FIFO priority {priority}")
+        except (OSError, AttributeError) as error:
+            reason = getattr(error, "strerror", None) or str(error)
+            refused.append(f"SCHED_FIFO priority {priority} refused: {reason} (needs CAP_SYS_NICE or an rtprio "
+                           f"limit, e.g. in /etc/security/limits.conf); the drive runs with normal scheduling")
+    return applied, refused
+
+
+def normal_scheduling():
+    """Every thread of this process back to SCHED_OTHER on every CPU (after ``real_time_scheduling``)."""
+    every = set(range(os.cpu_count() or 1))
+    for tid in _threads():
+        try:
+            os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+            os.sched_setaffinity(tid, every)
+        except OSError:
+            pass
+
+
+def cpu_set(text):
+    """argparse type of ``--cpus``: "0", "0,1" or "0-1" → a set of CPU numbers."""
+    import argparse
+    cpus = set()
+    try:
+        for part in text.split(","):
+            first, _, last = part.partition("-")
+            cpus |= set(range(int(first), int(last or first) + 1))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a CPU list such as 0 or 0,1 or 0-1: {text!r}") from None
+    available = os.sched_getaffinity(0)
+    if not cpus or not cpus <= available:
+        raise argparse.ArgumentTypeError(f"CPUs {text!r} are not among this process's {sorted(available)}")
+    return cpus
+
+
+def fifo_priority(text):
+    """argparse type of ``--rt-priority``: 0 (normal scheduling) or a SCHED_FIFO priority 1-99."""
+    import argparse
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= 99:
+        raise argparse.ArgumentTypeError(f"a SCHED_FIFO priority 1-99, or 0 for normal scheduling, not {text!r}")
+    return value
+
+
+def add_scheduling_arguments(parser):
+    """``--rt-priority`` and ``--cpus`` (real_time_scheduling) on a drive process's command line."""
+    parser.add_argument("--rt-priority", type=fifo_priority, default=0, metavar="1-99",
+                        help="SCHED_FIFO priority for every thread of the process (default 0: normal scheduling)")
+    parser.add_argument("--cpus", type=cpu_set, default=None, metavar="LIST",
+                        help="CPU affinity of the process, e.g. 1 or 0-1 (default: every CPU)")
