@@ -336,9 +336,9 @@ def wait_for_subscriber(namespace, topic, timeout_s=30.0):
 
 
 def test_launch_json_and_echo_from_a_second_process(tmp_path):
-    """The echo is in the graph before the launch, and the run lasts long enough (1 s simulated, a few
-    seconds) for the plant's new angle_error publisher to match it: volatile topics reach only matched
-    readers."""
+    """The echo is in the graph before the launch. Volatile topics reach only matched readers: the plant
+    starts once its angle_error reaches every subscriber its graph shows, and the run lasts (1 s simulated,
+    a few seconds) for a new process's discovery to find one its graph did not show yet."""
     path = scenario_file(tmp_path)
     echo = subprocess.Popen(DRIVE + ["echo", "angle_error", "--namespace", "/echoed", "--count", "3",
                                      "--json", "--timeout", "60"], stdout=subprocess.PIPE, text=True)
@@ -423,6 +423,9 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks):
                                    err_msg=name)
     values = result.diagnostics["/drive/drive_bridge"]["values"]
     assert int(values["commands"]) > 0 and values["link"] == "up"
+    timing = result.timing
+    assert timing["hop_us"] > 0.0
+    assert timing["latency_p99_hops"] == pytest.approx(timing["latency_p99_us"] / timing["hop_us"])
     timing = result.timing
     assert timing["hop_us"] > 0.0
     assert timing["latency_p99_hops"] == pytest.approx(timing["latency_p99_us"] / timing["hop_us"])

@@ -43,3 +43,16 @@ def test_cpu_lists_and_priorities_are_checked():
     assert realtime.fifo_priority("0") == 0 and realtime.fifo_priority("99") == 99
     with pytest.raises(argparse.ArgumentTypeError, match="1-99"):
         realtime.fifo_priority("100")
+
+
+def test_the_real_time_bench_and_launch_check_their_options():
+    import subprocess
+    drive = [sys.executable, "-m", "drive_cli.cli"]
+    run = subprocess.run(drive + ["bench", "bridge", "--graph"], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and run.stderr.strip().endswith("give --paced --graph")
+    run = subprocess.run(drive + ["bench", "bridge", "--paced", "--graph", "--levers", "turbo"], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and "--levers: 'turbo' is not one of plain, collector" in run.stderr
+    run = subprocess.run(drive + ["launch", "wang_100rpm", "--rt-priority", "100"], capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode == 2 and "--rt-priority: a SCHED_FIFO priority 1-99" in run.stderr

@@ -260,6 +260,8 @@ def _report(result, args, extra=None):
                               f"{' | '.join(d['messages'])}" for name, d in value.items()) or "none"
         elif isinstance(value, dict):
             value = ", ".join(f"{k} {v}" for k, v in value.items() if v) or "none"
+        elif isinstance(value, list):
+            value = "; ".join(str(v) for v in value) or "none"
         print(f"  {key:36s} {value}")
     rows = [("angle error RMS (steady)", "angle_error_rms", "rad"),
             ("angle error bias (steady)", "angle_error_bias", "rad"),
@@ -395,12 +397,29 @@ def cmd_bridge(args):
 
 
 def cmd_bench_bridge(args):
-    from drive_evaluation.bench import bridge_rates
+    from drive_evaluation.bench import REAL_TIME_LEVERS, bridge_rates, graph_real_time
 
     links = args.links.split(",")
     for link in links:
         if link not in ("pty", "can"):
             raise CommandLineError(f"--links: 'pty' and/or 'can', not {link!r}")
+    if args.graph or args.load or args.levers:
+        if not (args.paced and args.graph):
+            raise CommandLineError("--graph, --load and --levers measure the ROS graph on the inverter's clock: "
+                                   "give --paced --graph")
+        levers = (args.levers or "collector").split(",")
+        for lever in levers:
+            if lever not in REAL_TIME_LEVERS:
+                raise CommandLineError(f"--levers: {lever!r} is not one of {', '.join(REAL_TIME_LEVERS)}")
+        if args.repeats < 1:
+            raise CommandLineError(f"--repeats: at least 1, not {args.repeats}")
+        print(f"drive launch {args.scenario} --link L --paced, {args.repeats} runs per link and lever"
+              f"{', one core kept busy by another process' if args.load else ''}", file=sys.stderr)
+        report = graph_real_time(args.scenario, links, args.repeats, args.load, levers,
+                                 progress=lambda line: print(line, file=sys.stderr))
+        if args.json:
+            _print_json(report)
+        return _exit_code(report["interrupted"])
     duration = args.duration if args.duration is not None or args.paced else 1.0
     _duration_arg(duration, load_scenario(args.scenario).T_s)
     if args.block_samples is not None:
@@ -1473,6 +1492,14 @@ def build_parser():
                               help="the inverter on its own clock, never waiting: late commands, latency, angle error")
     bench_bridge.add_argument("--block-samples", type=int, metavar="N",
                               help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced)")
+    bench_bridge.add_argument("--graph", action="store_true",
+                              help="with --paced: through the ROS graph as `drive launch --link L --paced` runs it "
+                                   "(per run: late periods, watchdog trips, lock, latency in µs and hops)")
+    bench_bridge.add_argument("--load", action="store_true",
+                              help="with --graph: another process keeps one core busy meanwhile")
+    bench_bridge.add_argument("--levers", metavar="L[,L...]",
+                              help="with --graph: soft real-time levers, measured one at a time: plain, collector "
+                                   "(default), collector+fifo, collector+fifo+cpu1")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
 

@@ -16,7 +16,7 @@ import numpy as np
 from drive_interface import interrupt
 from drive_interface.log import LOG_COLUMNS
 from drive_runner.runner import build_drive
-from drive_scenarios.scenario import load_scenario
+from drive_scenarios.scenario import PACED_BLOCK_SAMPLES, load_scenario
 
 BENCH_SCENARIO = "wang_100rpm"
 
@@ -271,3 +271,64 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
         rows.append(row)
     return {"scenario": scenario.name, "samples": scenario.n_samples, "repeats": repeats, "paced": paced,
             "sampling_rate_Hz": 1.0 / scenario.T_s, "links": rows}
+
+
+REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {},
+                    "collector+fifo": {"rt_priority": 50}, "collector+fifo+cpu1": {"rt_priority": 50, "cpus": {1}}}
+"""The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
+"Real time"): none; the garbage collector held out of the sample path (the default); and SCHED_FIFO
+priority 50; and the process on CPU 1."""
+
+
+def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None):
+    """`drive bench bridge --paced --graph`: the robot's configuration, `drive launch --link L --paced`
+    (the composed graph behind the virtual inverter on its own clock, blocks of PACED_BLOCK_SAMPLES), run
+    ``repeats`` times per link and lever; with ``load`` another process keeps one core busy meanwhile. Per
+    run: late periods, watchdog trips, lock losses, ours' angle error and the latencies in µs and in hops
+    (each run measures the rclpy hop beside it). A signal stops it; what was done is returned."""
+    from drive_launch.launcher import launch
+
+    from .metrics import compute_metrics
+
+    scenario = load_scenario(scenario_ref)
+    report = {"benchmark": "graph_real_time", "scenario": scenario.name, "samples": scenario.n_samples,
+              "block_samples": PACED_BLOCK_SAMPLES, "repeats": repeats, "load": load, "rows": [], "interrupted": 0}
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if load else None
+    try:
+        with interrupt.polled():
+            for link in links:
+                for lever in levers:
+                    runs = []
+                    for _ in range(repeats):
+                        result = launch(scenario_ref, record=True, link=link, paced=True,
+                                        extra_parameters={"block_samples": PACED_BLOCK_SAMPLES},
+                                        **REAL_TIME_LEVERS[lever])
+                        report["interrupted"] = result.interrupted or interrupt.requested()
+                        if report["interrupted"]:
+                            return report
+                        metrics, t = compute_metrics(result), result.timing
+                        runs.append({"late_fraction": t["late_fraction"], "watchdog_trips": t["watchdog_trips"],
+                                     "overruns": t["overruns"], "lock_lost": metrics["lock_lost"],
+                                     "lock_lost_s": metrics["lock_lost_s"],
+                                     "angle_error_rms": metrics["angle_error_rms"],
+                                     **{key: t[key] for key in ("hop_us", "latency_p50_us", "latency_p99_us",
+                                                                "latency_max_us", "latency_p50_hops",
+                                                                "latency_p99_hops", "latency_max_hops")},
+                                     "scheduling": result.scheduling})
+                    worst = max(runs, key=lambda r: r["late_fraction"])
+                    row = {"link": link, "lever": lever, "runs": runs, "worst_late_fraction": worst["late_fraction"],
+                           "runs_without_a_late_period": sum(r["late_fraction"] == 0.0 for r in runs),
+                           "watchdog_trips": sum(r["watchdog_trips"] for r in runs),
+                           "runs_lock_held": sum(r["lock_lost_s"] == 0.0 for r in runs)}
+                    report["rows"].append(row)
+                    if progress:
+                        late = ", ".join(f"{100 * r['late_fraction']:.2f}" for r in runs)
+                        p99 = ", ".join(f"{r['latency_p99_hops']:.0f}" for r in runs)
+                        progress(f"  {link:4s} {lever:20s} late {late} %, watchdog trips {row['watchdog_trips']}, "
+                                 f"lock held in {row['runs_lock_held']} of {len(runs)}, latency p99 {p99} hops "
+                                 f"(hop {runs[0]['hop_us']:.1f} µs)")
+    finally:
+        if busy is not None:
+            busy.kill()
+            busy.wait()
+    return report

@@ -5,6 +5,7 @@ driver commanding speed and load and recording the per-sample topics into the ru
 The estimator and controller nodes load the commissioning record the one-process runner would (the
 scenario's ``commissioning``, a --commissioning override, or the default file in the working
 directory, else the nameplate alone)."""
+import contextlib
 import signal
 import subprocess
 import sys
@@ -190,20 +191,22 @@ class DriveSpec:
 
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
-           progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None):
+           progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None,
+           hold_collector=True):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
     ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
     virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock.
-    ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes (drive_interface.realtime)."""
+    ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes; ``hold_collector``: the garbage
+    collector out of the sample path (drive_interface.realtime; off only to measure what it gives)."""
     spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced)
     return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress, rt_priority,
-                       cpus)[0]
+                       cpus, hold_collector)[0]
 
 
 def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
-                startup_timeout_s=60.0, progress=None, rt_priority=0, cpus=None):
+                startup_timeout_s=60.0, progress=None, rt_priority=0, cpus=None, hold_collector=True):
     """Run several drives side by side in one graph (one namespace each); one GraphResult per spec. A
     scenario whose drive is a drive configuration file (``drive: FILE``) gives the estimator that file and
     no scenario (as on a robot); the plant and the controller's speed schedule take the experiment."""
@@ -297,7 +300,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
         applied, refused = real_time_scheduling(rt_priority, cpus)
         try:
-            with collector_held():
+            with collector_held() if hold_collector else contextlib.nullcontext():
                 while not all_done.done():
                     ex.spin_until_future_complete(all_done, timeout_sec=1.0)
         finally:

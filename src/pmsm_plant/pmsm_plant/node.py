@@ -143,14 +143,17 @@ class PlantNode(ScenarioNode):
 
     def ready(self):
         """Every lock-step partner is matched: `currents` reaches every subscriber the graph shows (at
-        least estimator and controller; a graph entry is not yet a match), a `voltage_command` publisher
-        is matched, `estimator_state` too while a brake holds, and the launcher's go has come when the
-        scenario is the schedule. With the shaft held (commissioning) one partner answers currents with
-        voltages and no estimator runs."""
+        least estimator and controller; a graph entry is not yet a match), so do `rotor_state` and
+        `angle_error` (a watcher already in the graph, `drive echo`, gets the run from its first sample), a
+        `voltage_command` publisher is matched, `estimator_state` too while a brake holds, and the
+        launcher's go has come when the scenario is the schedule. With the shaft held (commissioning) one
+        partner answers currents with voltages and no estimator runs."""
         matched = self.currents_pub.get_subscription_count()
         held = self.parameters["shaft_held"]
-        currents, estimate = self.contract_topics("currents", "rotor_estimate")
-        return (matched >= max(1 if held else 2, self.count_subscribers(currents))
+        currents, estimate, rotor = self.contract_topics("currents", "rotor_estimate", "rotor_state")
+        watched = all(publisher.get_subscription_count() >= self.count_subscribers(topic)
+                      for publisher, topic in ((self.rotor_state_pub, rotor), (self.angle_error_pub, "angle_error")))
+        return (watched and matched >= max(1 if held else 2, self.count_subscribers(currents))
                 and self.voltage_sub.get_publisher_count() >= 1
                 and (held or self.count_publishers(estimate) >= 1)
                 and (self.state_sub is None or self.state_sub.get_publisher_count() >= 1) and self.go)
