@@ -73,13 +73,13 @@ def real_time_scheduling(priority=0, cpus=None):
     return applied, refused
 
 
-def normal_scheduling():
-    """Every thread of this process back to SCHED_OTHER on every CPU (after ``real_time_scheduling``)."""
-    every = set(range(os.cpu_count() or 1))
+def normal_scheduling(cpus):
+    """Every thread of this process back to SCHED_OTHER on ``cpus`` (its affinity before
+    ``real_time_scheduling``)."""
     for tid in _threads():
         try:
             os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
-            os.sched_setaffinity(tid, every)
+            os.sched_setaffinity(tid, cpus)
         except OSError:
             pass
 

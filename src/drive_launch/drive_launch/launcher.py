@@ -6,6 +6,7 @@ The estimator and controller nodes load the commissioning record the one-process
 scenario's ``commissioning``, a --commissioning override, or the default file in the working
 directory, else the nameplate alone)."""
 import contextlib
+import os
 import signal
 import subprocess
 import sys
@@ -231,7 +232,6 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         if spec.link == "can" and processes == "separate":
             raise GraphError("a virtual CAN bus (python-can's) lives in one process: it needs the nodes "
                              "composed, or a pty link")
-    hop = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN) if any(spec.link for spec in specs) else None
     locks = []
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
@@ -252,6 +252,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
     polling.__enter__()
     ex = None
     try:
+        hop = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN) if any(spec.link for spec in specs) else None
         ex = make_executor(executor, context)
         for i, spec in enumerate(specs):
             parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
@@ -298,6 +299,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             ex.add_node(node)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
+        affinity = os.sched_getaffinity(0)
         applied, refused = real_time_scheduling(rt_priority, cpus)
         try:
             with collector_held() if hold_collector else contextlib.nullcontext():
@@ -305,7 +307,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                     ex.spin_until_future_complete(all_done, timeout_sec=1.0)
         finally:
             if applied:
-                normal_scheduling()
+                normal_scheduling(affinity)
         nodes[-1].destroy_timer(watcher)
         results = [_result(driver, drive, record, processes, executor, requested(), hop)
                    for driver, drive in zip(drivers, drives)]
