@@ -1499,7 +1499,7 @@ def build_parser():
                               help="with --graph: another process keeps one core busy meanwhile")
     bench_bridge.add_argument("--levers", metavar="L[,L...]",
                               help="with --graph: soft real-time levers, measured one at a time: plain, collector "
-                                   "(default), collector+fifo, collector+fifo+cpu1")
+                                   "(default), collector+cpu1, collector+fifo, collector+fifo+cpu1")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
 

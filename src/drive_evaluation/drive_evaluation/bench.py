@@ -273,11 +273,11 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
             "sampling_rate_Hz": 1.0 / scenario.T_s, "links": rows}
 
 
-REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {},
+REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {}, "collector+cpu1": {"cpus": {1}},
                     "collector+fifo": {"rt_priority": 50}, "collector+fifo+cpu1": {"rt_priority": 50, "cpus": {1}}}
 """The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
-"Real time"): none; the garbage collector held out of the sample path (the default); and SCHED_FIFO
-priority 50; and the process on CPU 1."""
+"Real time"): none; the garbage collector held out of the sample path (the default); and the process on
+CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1)."""
 
 
 def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None):
