@@ -58,7 +58,7 @@ def commission_in_process(scenario, settings=None, progress=None):
 
 def commission_through_bridge(scenario, link="pty", settings=None, progress=None):
     """Run the procedure with the simulated plant behind the virtual inverter and the bridge core on
-    ``link`` ('pty' or 'can'), in this process (bridge_loop's link and garbage-collector handling);
+    ``link`` ('pty' or 'can'), in this process (bridge_loop's link, the collector held: drive_interface.realtime);
     returns a CommissioningRun (truth from the inverter)."""
     from drive_interface.realtime import collector_held
 
