@@ -24,6 +24,11 @@ except ImportError:
     pass
 
 
+def pytest_configure(config):
+    config.addinivalue_line("markers", "unit: physics and core tests, no ROS graph and no long runs "
+                                       "(`pytest -m unit`: about half a minute; a module says so with pytestmark)")
+
+
 @pytest.fixture(autouse=True)
 def in_a_temporary_directory(tmp_path, monkeypatch):
     """Every test runs in its own temporary directory: what a command writes by default (runs/, plots,

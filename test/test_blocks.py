@@ -3,9 +3,12 @@ how the samples are grouped into blocks (docs/architecture.md, "Block transport"
 import dataclasses
 
 import numpy as np
+import pytest
 
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario
+
+pytestmark = pytest.mark.unit
 
 
 def test_the_samples_depend_on_the_delay_not_on_the_block_size():

@@ -9,6 +9,8 @@ from drive_interface.log import COLUMN
 from foc_controller.tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
 from helpers import run, scenario
 
+pytestmark = pytest.mark.unit
+
 
 def test_current_rule_places_closed_loop_poles():
     """L s² + (R + k_p) s + k_i has roots with the requested ω_n and ζ."""

@@ -17,6 +17,8 @@ from motor_params.motor_file import load_motor
 from pmsm_plant.model import N_STATE, plant_advance, plant_outputs, plant_reset, saturation_saliency_angle
 from pmsm_plant.presets import PRESETS, plant_parameters
 
+pytestmark = pytest.mark.unit
+
 WANG = PRESETS["wang_spmsm"]
 WANG_INVERTER = load_motor("wang_spmsm", "test").inverter
 

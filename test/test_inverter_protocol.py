@@ -30,6 +30,8 @@ from drive_bridge.inverter_protocol import (
     unwrap16,
 )
 
+pytestmark = pytest.mark.unit
+
 FIRMWARE = Path(__file__).resolve().parents[1] / "firmware" / "inverter_protocol"
 VECTORS = FIRMWARE / "test_vectors.txt"
 CLASSES = {cls.__name__.upper(): cls for cls in (Telemetry, Hello, Command, Control, Heartbeat)}

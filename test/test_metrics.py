@@ -7,6 +7,8 @@ from drive_evaluation.metrics import LOCK_LOST_RAD, lock_loss, settling_summary,
 from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_scenarios.scenario import parse_scenario
 
+pytestmark = pytest.mark.unit
+
 T_S = 1e-3
 
 

@@ -27,6 +27,8 @@ from pmsm_plant.model import (
 from pmsm_plant.params import InverterParams, MechanicsParams, SensorParams
 from pmsm_plant.presets import PRESETS, plant_parameters
 
+pytestmark = pytest.mark.unit
+
 SZABO = PRESETS["szabo_ipmsm"]
 SZABO = SZABO.__class__(**{**SZABO.__dict__, "machine": SZABO.machine._replace(a_d=0.0)})
 """The IPMSM with its linear magnetics (the analytic models below are linear; the preset's d-axis

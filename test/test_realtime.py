@@ -9,6 +9,8 @@ import pytest
 
 from drive_interface import realtime
 
+pytestmark = pytest.mark.unit
+
 
 def test_the_collector_is_held_for_the_run_and_given_back():
     before = sys.getswitchinterval()

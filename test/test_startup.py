@@ -17,6 +17,8 @@ from drive_scenarios.scenario import ScenarioError, load_scenario, parse_scenari
 from hf_estimator.startup import NO_SALIENCY, REFUSALS
 from motor_params.motor_file import nameplate
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.mark.parametrize("motor", ["wang_spmsm", "szabo_ipmsm"])
 @pytest.mark.parametrize("case", STANDARD_CASES, ids=lambda case: case.name)

@@ -10,6 +10,8 @@ from drive_cli.cli import main
 from foc_controller.params import make_controller_params
 from foc_controller.tuning import SZABO_TABLE2
 
+pytestmark = pytest.mark.unit
+
 
 def run_json(capsys, *argv):
     assert main(list(argv) + ["--json"]) == 0

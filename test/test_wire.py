@@ -23,6 +23,8 @@ from geometry_msgs.msg import Vector3Stamped  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
 
+pytestmark = pytest.mark.unit
+
 values = st.floats(allow_nan=False, width=64)
 stamps = st.tuples(st.integers(0, 2 ** 31 - 1), st.integers(0, 999_999_999))
 names = st.text(st.characters(codec="ascii", exclude_characters="\0"), max_size=12)
