@@ -26,7 +26,7 @@ except ImportError:
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "unit: physics and core tests, no ROS graph and no long runs "
-                                       "(`pytest -m unit`: about half a minute; a module says so with pytestmark)")
+                                       "(`pytest -m unit`: under a minute; a module says so with pytestmark)")
 
 
 @pytest.fixture(autouse=True)
