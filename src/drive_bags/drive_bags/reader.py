@@ -186,6 +186,9 @@ SIM_CLOCK_START_MAX_S = 60.0
 GRID_TOLERANCE = 0.25
 """A stamp within this share of T_s of a sample instant is placed on it (its jitter measured); one further
 off is not a sample of this grid and is dropped (counted)."""
+MAX_RECORDING_SAMPLES = 200_000_000
+"""A recording longer than this many samples (5.6 h at 10 kHz; 13 GiB of log) is refused, not allocated (a
+recording may be longer than a simulation, drive_scenarios.scenario.MAX_SAMPLES)."""
 
 
 def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
@@ -220,9 +223,9 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
         offsets = (stamps - first).astype(float)
         epoch_ns = first + int(round(float(np.median(offsets - np.round(offsets / T_ns) * T_ns))))
         log_epoch_ns = int(topics[currents][0][0]) + (epoch_ns - int(stamps[0]))
-    if (stamps.max() - epoch_ns) / T_ns > MAX_SAMPLES:
+    if (stamps.max() - epoch_ns) / T_ns > MAX_RECORDING_SAMPLES:
         raise BagError(f"{path}: {full_name(namespace, currents)} stamps span {(stamps.max() - epoch_ns) * 1e-9:.3g} s "
-                       f"from {epoch_ns * 1e-9:.3f} s, more than {MAX_SAMPLES} samples of {T_s:g} s")
+                       f"from {epoch_ns * 1e-9:.3f} s, more than {MAX_RECORDING_SAMPLES} samples of {T_s:g} s")
     n = int(round((stamps.max() - epoch_ns) / T_ns)) + width
     log = np.full((n, len(LOG_COLUMNS)), np.nan)
     log[:, COLUMN["t"]] = np.arange(n) * T_s
@@ -255,10 +258,6 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
     timing = {"epoch_s": epoch_ns * 1e-9, "jitter_rms_s": float(np.sqrt(np.mean(jitter ** 2))) if jitter.size else 0.0,
               "jitter_max_s": float(jitter.max()) if jitter.size else 0.0, "off_grid_messages": off_grid[0]}
     return log, T_s, timing
-
-
-MAX_SAMPLES = 200_000_000
-"""A recording longer than this many samples (5.6 h at 10 kHz; 13 GiB of log) is refused, not allocated."""
 
 
 def _hold(column, messages, T_s, n, epoch_ns=0):

@@ -260,8 +260,6 @@ def _report(result, args, extra=None):
                               f"{' | '.join(d['messages'])}" for name, d in value.items()) or "none"
         elif isinstance(value, dict):
             value = ", ".join(f"{k} {v}" for k, v in value.items() if v) or "none"
-        elif isinstance(value, list):
-            value = "; ".join(str(v) for v in value) or "none"
         print(f"  {key:36s} {value}")
     rows = [("angle error RMS (steady)", "angle_error_rms", "rad"),
             ("angle error bias (steady)", "angle_error_bias", "rad"),
@@ -356,9 +354,8 @@ def cmd_launch(args):
                     timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,
                     extra_parameters=extra or None, rt_priority=args.rt_priority, cpus=args.cpus,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
-    for line in result.scheduling:
-        if "refused" in line:
-            print(f"drive: warning: {line}", file=sys.stderr)
+    for line in result.scheduling["refused"]:
+        print(f"drive: warning: {line}", file=sys.stderr)
     faults = result.node_faults
     plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
     extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}, "

@@ -73,15 +73,22 @@ def real_time_scheduling(priority=0, cpus=None):
     return applied, refused
 
 
-def normal_scheduling(cpus):
-    """Every thread of this process back to SCHED_OTHER on ``cpus`` (its affinity before
-    ``real_time_scheduling``)."""
-    for tid in _threads():
-        try:
-            os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
-            os.sched_setaffinity(tid, cpus)
-        except OSError:
-            pass
+@contextlib.contextmanager
+def real_time_scheduled(priority=0, cpus=None):
+    """``real_time_scheduling`` for a run, yielding {"applied": [...], "refused": [...]}; afterwards every
+    thread of the process is back to SCHED_OTHER on the CPUs it had."""
+    before = os.sched_getaffinity(0)
+    applied, refused = real_time_scheduling(priority, cpus)
+    try:
+        yield {"applied": applied, "refused": refused}
+    finally:
+        if applied:
+            for tid in _threads():
+                try:
+                    os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+                    os.sched_setaffinity(tid, before)
+                except OSError:
+                    pass
 
 
 def cpu_set(text):

@@ -6,7 +6,6 @@ The estimator and controller nodes load the commissioning record the one-process
 scenario's ``commissioning``, a --commissioning override, or the default file in the working
 directory, else the nameplate alone)."""
 import contextlib
-import os
 import signal
 import subprocess
 import sys
@@ -22,7 +21,7 @@ from drive_bridge.virtual_inverter import timing_report
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
-from drive_interface.realtime import collector_held, normal_scheduling, real_time_scheduling
+from drive_interface.realtime import collector_held, real_time_scheduled
 from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import behind_an_inverter, resolve
@@ -157,8 +156,9 @@ class GraphResult(RunResult):
     """{node: {"faults": {kind: count}, "messages": [...]}} of every node that reported a fault."""
     timing: dict = None
     """Behind a virtual inverter: how the graph kept pace with it (virtual_inverter.timing_report)."""
-    scheduling: list = None
-    """What real-time scheduling was applied or refused (drive_interface.realtime), one line each."""
+    scheduling: dict = None
+    """{"applied": [...], "refused": [...]}: the real-time scheduling of the run (drive_interface.realtime),
+    one line each."""
 
 
 def node_parameters(scenario_ref, estimator=None, duration_s=None, timeout_s=1.0, extra=None):
@@ -299,15 +299,10 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             ex.add_node(node)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
-        affinity = os.sched_getaffinity(0)
-        applied, refused = real_time_scheduling(rt_priority, cpus)
-        try:
-            with collector_held() if hold_collector else contextlib.nullcontext():
-                while not all_done.done():
-                    ex.spin_until_future_complete(all_done, timeout_sec=1.0)
-        finally:
-            if applied:
-                normal_scheduling(affinity)
+        with real_time_scheduled(rt_priority, cpus) as scheduling, \
+                collector_held() if hold_collector else contextlib.nullcontext():
+            while not all_done.done():
+                ex.spin_until_future_complete(all_done, timeout_sec=1.0)
         nodes[-1].destroy_timer(watcher)
         results = [_result(driver, drive, record, processes, executor, requested(), hop)
                    for driver, drive in zip(drivers, drives)]
@@ -320,7 +315,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             lock.release()
     for result, error in zip(results, recording_errors):
         result.recording_error = error
-        result.scheduling = applied + refused
+        result.scheduling = scheduling
     return results
 
 
