@@ -21,7 +21,7 @@ from std_msgs.msg import String
 from .exit_codes import EXIT_NODE_FAULTS, EXIT_REFUSED
 from .graph import EXECUTORS
 from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sources, label, unknown_parameters
-from .realtime import add_scheduling_arguments, collect_young, collector_held, real_time_scheduling
+from .realtime import add_scheduling_arguments, collect_young, collector_held, real_time_scheduled
 from .stamps import stamp_parts
 from .strict_json import dumps
 from .topics import TOPICS
@@ -338,15 +338,14 @@ def run_node(make_node, program, argv=None):
         rclpy.try_shutdown()
         return _refuse(program, "; ".join(unknown))
     node.get_logger().info(node.start_line())
-    applied, refused = real_time_scheduling(args.rt_priority, args.cpus)
-    for line in applied:
-        node.get_logger().info(line)
-    for line in refused:
-        node.get_logger().warning(line)
     executor = make_executor(args.executor, rclpy.get_default_context())
     executor.add_node(node)
     try:
-        with collector_held():
+        with real_time_scheduled(args.rt_priority, args.cpus) as scheduling, collector_held():
+            for line in scheduling["applied"]:
+                node.get_logger().info(line)
+            for line in scheduling["refused"]:
+                node.get_logger().warning(line)
             while not stop.done() and node.exit_code is None:
                 executor.spin_until_future_complete(stop, timeout_sec=0.25)
     finally:
