@@ -188,6 +188,16 @@ def test_every_numba_kernel_has_a_docstring():
     assert missing == []
 
 
+CLI_MODULE_MAX_LINES = 300
+
+
+def test_the_command_line_is_one_module_per_family():
+    """Each drive_cli module stays under CLI_MODULE_MAX_LINES (a report's text lines live with the report:
+    drive_evaluation.*_report, drive_bags)."""
+    for path in (SRC / "drive_cli" / "drive_cli").glob("*.py"):
+        assert len(path.read_text().splitlines()) < CLI_MODULE_MAX_LINES, path.name
+
+
 def test_nothing_cites_a_path_outside_the_repository():
     tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True)
     offending = []

@@ -95,7 +95,7 @@ def test_a_signal_swallowed_by_a_c_callback_still_stops_the_command(monkeypatch,
     traceback."""
     import ctypes
 
-    from drive_cli import cli
+    from drive_cli import cli, run
     from drive_interface import interrupt
 
     def job(args):
@@ -103,7 +103,7 @@ def test_a_signal_swallowed_by_a_c_callback_still_stops_the_command(monkeypatch,
         callback()
         return 0
 
-    monkeypatch.setattr(cli, "cmd_scenarios", job)
+    monkeypatch.setattr(run, "cmd_scenarios", job)
     assert cli.main(["scenarios"]) == 128 + signal.SIGTERM
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.strip() == "drive: scenarios: interrupted by SIGTERM"

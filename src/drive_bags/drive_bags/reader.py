@@ -68,6 +68,21 @@ def bag_info(path):
     return info
 
 
+
+def bag_info_lines(info):
+    """bag_info as text lines, like `ros2 bag info`."""
+    lines = [f"bag {info['bag']}: storage {info['storage']}, compression {info['compression']}"]
+    lines += [f"  file {f['path']} ({f['bytes']:,} bytes)" for f in info["files"]]
+    lines.append(f"  duration {info['duration_s']:.6f} s (start {info['start_s']:.6f} s, "
+                 f"end {info['end_s']:.6f} s), {info['messages']:,} messages")
+    width = max((len(t["topic"]) for t in info["topics"]), default=0)
+    for t in info["topics"]:
+        qos = t["offered_qos"][0] if t["offered_qos"] else {}
+        qos_text = "/".join(str(qos.get(key, "?")).lower() for key in ("reliability", "durability", "depth"))
+        lines.append(f"  {t['topic']:{width}s}  {t['type']:38s} {t['count']:8d}  {t['serialization']}  {qos_text}")
+    lines += [f"  warning: {warning}" for warning in info["warnings"]]
+    return lines
+
 def _summary(file):
     """The .mcap file's summary, or None when it has none that reads."""
     from mcap.reader import make_reader

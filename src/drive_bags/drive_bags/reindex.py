@@ -287,3 +287,11 @@ def reindex(path, force=False):
     info["recovery"] = {"messages": len(found.messages), "skipped": dict(found.skipped),
                         "originals": str(originals)}
     return info
+
+
+def reindex_line(info):
+    """What reindex did, in one line."""
+    recovery = info["recovery"]
+    skipped = ", ".join(f"{n} {what}" for what, n in recovery["skipped"].items()) or "nothing"
+    return (f"{info['bag']}: rebuilt, {info['messages']:,} messages over {info['duration_s']:.6f} s; "
+            f"skipped: {skipped}; the original files are kept in {recovery['originals']}")
