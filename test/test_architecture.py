@@ -188,6 +188,20 @@ def test_every_numba_kernel_has_a_docstring():
     assert missing == []
 
 
+def test_topic_names_come_only_from_the_topic_table():
+    """Nodes, the launcher and the bags name a contract topic by drive_interface.topics' constants, never
+    by a string of their own (a JSON key of drive_config that happens to share a topic's name is not one)."""
+    from drive_interface.topics import TOPICS
+    names = "|".join(re.escape(name) for name in TOPICS)
+    quoted = re.compile(rf"""(["'])({names})\1(?!\s*:)""")
+    places = [*SRC.glob("*/*/node.py"), *SRC.glob("*/*/*_node.py"), *SRC.glob("drive_launch/drive_launch/*.py"),
+              *SRC.glob("drive_bags/drive_bags/*.py")]
+    offending = [f"{path.relative_to(SRC)}:{number}" for path in places
+                 for number, line in enumerate(path.read_text().splitlines(), 1)
+                 if quoted.search(line) and ".get(" not in line]
+    assert offending == []
+
+
 CLI_MODULE_MAX_LINES = 300
 
 

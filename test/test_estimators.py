@@ -10,7 +10,7 @@ from drive_interface.log import COLUMN
 from drive_runner.runner import run_scenario
 from helpers import ideal_commissioning as commission
 from helpers import run, scenario, shipped
-from hf_estimator.injection_frame import injection_amplitude
+from hf_estimator.injection_frame import raised_injection_amplitude
 from hf_estimator.registry import make_estimator
 from motor_params.commissioning import MIN_CONVERGENCE_SLOPE, nameplate_commissioning
 from motor_params.motor_file import load_motor
@@ -137,14 +137,14 @@ def test_ours_raises_its_amplitude_until_the_saliency_current_stands_above_the_n
     plate, omega_h = WANG.nameplate, 2.0 * math.pi * 1000.0
     c = commission(WANG.machine, plate.current_limit_A)._replace(sensor_noise_A=0.01)
     wanted = 8.0 * 0.01 * omega_h / abs(c.delta)
-    amplitude, note = injection_amplitude(5.0, c, plate, WANG_INVERTER, omega_h, 8.0)
+    amplitude, note = raised_injection_amplitude(5.0, c, plate, WANG_INVERTER, omega_h, 8.0)
     assert amplitude == pytest.approx(wanted) and 6.0 < wanted < 7.0 and "8.0 σ" in note
     weak = c._replace(L_dh_H=0.93e-3, L_qh_H=0.87e-3)
-    amplitude, note = injection_amplitude(5.0, weak, plate, WANG_INVERTER, omega_h, 8.0)
+    amplitude, note = raised_injection_amplitude(5.0, weak, plate, WANG_INVERTER, omega_h, 8.0)
     assert amplitude == pytest.approx(0.8 * 24.0 / math.sqrt(3.0)) and note.endswith("held by the voltage cap")
     for record, snr, requested in ((c._replace(sensor_noise_A=0.0), 8.0, 5.0), (nameplate_commissioning(plate), 8.0,
                                    5.0), (c, 0.0, 5.0), (c, 8.0, 10.0)):
-        assert injection_amplitude(requested, record, plate, WANG_INVERTER, omega_h, snr) == (requested, "")
+        assert raised_injection_amplitude(requested, record, plate, WANG_INVERTER, omega_h, snr) == (requested, "")
 
 
 def test_injection_frame_locks_at_100_rpm_closed_loop():

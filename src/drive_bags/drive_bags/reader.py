@@ -9,7 +9,16 @@ from pathlib import Path
 import numpy as np
 
 from drive_interface.log import COLUMN, LOG_COLUMNS, fill_block, fill_sample
-from drive_interface.topics import BLOCK_LOGGED, HELD_LOGGED, SAMPLE_LOGGED, TOPICS, full_name
+from drive_interface.topics import (
+    BLOCK_LOGGED,
+    CURRENTS,
+    DRIVE_CONFIG,
+    HELD_LOGGED,
+    SAMPLE_LOGGED,
+    TOPICS,
+    block,
+    full_name,
+)
 from drive_runner.runner import RunResult
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import ScenarioError, load_scenario
@@ -183,14 +192,14 @@ def bag_log(path, T_s=None, namespace=None):
 
 def bag_topics(path, namespace=None):
     """(namespace, the logged topics' messages, the drive_config entries as dicts) of a bag, read once."""
-    wanted = SAMPLE_LOGGED + BLOCK_LOGGED + HELD_LOGGED + ("drive_config",)
+    wanted = SAMPLE_LOGGED + BLOCK_LOGGED + HELD_LOGGED + (DRIVE_CONFIG,)
     namespace, topics = read_topics(path, wanted, namespace)
     configs = []
-    for _, message in topics.get("drive_config", []):
+    for _, message in topics.get(DRIVE_CONFIG, []):
         try:
             config = json.loads(message.data)
         except ValueError:
-            raise BagError(f"{path}: {full_name(namespace, 'drive_config')}: a message is not JSON") from None
+            raise BagError(f"{path}: {full_name(namespace, DRIVE_CONFIG)}: a message is not JSON") from None
         if isinstance(config, dict):
             configs.append(config)
     return namespace, topics, configs
@@ -215,10 +224,10 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
     epoch [s], the stamps' jitter about the grid (RMS and largest [s]) and how many were off it
     (docs/recordings.md)."""
     n_p = n_p or _pole_pairs(configs)
-    blocks = not topics.get("currents") and bool(topics.get("currents_block"))
-    currents = "currents_block" if blocks else "currents"
+    blocks = not topics.get(CURRENTS) and bool(topics.get(block(CURRENTS)))
+    currents = block(CURRENTS) if blocks else CURRENTS
     if not topics.get(currents):
-        raise BagError(f"{path}: no {full_name(namespace, 'currents')} messages; the contract needs them")
+        raise BagError(f"{path}: no {full_name(namespace, CURRENTS)} messages; the contract needs them")
     stamps = np.array([_stamp_ns(m.header.stamp) for _, m in topics[currents]], dtype=np.int64)
     width = len(topics[currents][0][1].position) if blocks else 1
     if T_s is None:

@@ -15,7 +15,27 @@ from control_math.frames import wrap
 from drive_interface.interrupt import deferred
 from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.strict_json import dumps
-from drive_interface.topics import CONTRACT_VERSION, TOPICS, VECTOR3, full_name
+from drive_interface.topics import (
+    ANGLE_ERROR,
+    CLOCK,
+    CONTRACT_VERSION,
+    CURRENTS,
+    DIAGNOSTICS,
+    DRIVE_CONFIG,
+    ESTIMATOR_BLEND,
+    ESTIMATOR_STATE,
+    INJECTION,
+    JOINT_STATES,
+    LOAD_TORQUE,
+    ROTOR_ESTIMATE,
+    ROTOR_STATE,
+    SPEED_COMMAND,
+    TOPICS,
+    TORQUE_FEEDFORWARD,
+    VECTOR3,
+    VOLTAGE_COMMAND,
+    full_name,
+)
 from hf_estimator.interface import contract_injection
 from motor_params.commissioning import commissioning_record
 from motor_params.nameplate import contract_motor
@@ -187,7 +207,7 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
     n, n_p, c = log.shape[0], result.n_p, COLUMN
     writer = BagWriter(path, chunk_bytes)
     for topic, t in TOPICS.items():
-        if topic in ("/diagnostics", "joint_states"):
+        if topic in (DIAGNOSTICS, JOINT_STATES):
             continue
         writer.add(full_name(namespace, topic), t.type, offered_qos(topic))
     config = {"contract_version": CONTRACT_VERSION, "node": "drive run", "n_p": n_p, "scenario": scenario.name,
@@ -216,24 +236,24 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
     speed_changes = np.ones(n, dtype=bool)
     speed_changes[1:] = col["omega_m_ref"][1:] != col["omega_m_ref"][:-1]
     per_sample = [
-        ("/clock", _cdr_scalars(("<i4", "<u4"), sec, nanosec), None),
-        ("speed_command", _cdr_scalars(("<f8",), col["omega_m_ref"]), speed_changes),
-        ("load_torque", _cdr_scalars(("<f8",), col["tau_load"]), None),
-        ("rotor_state", logged("rotor_state"), None),
-        ("currents", logged("currents"), None),
-        ("injection", logged("injection"), None),
-        ("rotor_estimate", logged("rotor_estimate"), None),
-        ("estimator_state", logged("estimator_state"), None),
-        ("estimator_blend", logged("estimator_blend"), None),
-        ("angle_error", _cdr_vector3_stamped(sec, nanosec, TOPICS["angle_error"].frame_id,
+        (CLOCK, _cdr_scalars(("<i4", "<u4"), sec, nanosec), None),
+        (SPEED_COMMAND, _cdr_scalars(("<f8",), col["omega_m_ref"]), speed_changes),
+        (LOAD_TORQUE, _cdr_scalars(("<f8",), col["tau_load"]), None),
+        (ROTOR_STATE, logged(ROTOR_STATE), None),
+        (CURRENTS, logged(CURRENTS), None),
+        (INJECTION, logged(INJECTION), None),
+        (ROTOR_ESTIMATE, logged(ROTOR_ESTIMATE), None),
+        (ESTIMATOR_STATE, logged(ESTIMATOR_STATE), None),
+        (ESTIMATOR_BLEND, logged(ESTIMATOR_BLEND), None),
+        (ANGLE_ERROR, _cdr_vector3_stamped(sec, nanosec, TOPICS[ANGLE_ERROR].frame_id,
                                              wrap.py_func(n_p * (col["theta_m"] - theta_hat_m)),
                                              col["omega_m"] - omega_hat_m, 0.0), None),
-        ("voltage_command", logged("voltage_command"), None)]
+        (VOLTAGE_COMMAND, logged(VOLTAGE_COMMAND), None)]
     if scenario.torque_feedforward is not None:
         feedforward = scenario.feedforward()[:n]
         changes = np.ones(n, dtype=bool)
         changes[1:] = feedforward[1:] != feedforward[:-1]
-        per_sample.insert(2, ("torque_feedforward", _cdr_scalars(("<f8",), feedforward), changes))
+        per_sample.insert(2, (TORQUE_FEEDFORWARD, _cdr_scalars(("<f8",), feedforward), changes))
     streams = []
     for topic, records in ((t, r) for t, r, _ in per_sample):
         records["enc"] = CDR_LITTLE_ENDIAN
@@ -241,7 +261,7 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
     masks = [mask for _, _, mask in per_sample]
     config_data = writer.store.serialize_cdr(writer.store.types["std_msgs/msg/String"](
         data=dumps(config)), "std_msgs/msg/String")
-    writer.write(full_name(namespace, "drive_config"), config_data, False, 0)
+    writer.write(full_name(namespace, DRIVE_CONFIG), config_data, False, 0)
     write = writer.write
     try:
         for k in range(n):

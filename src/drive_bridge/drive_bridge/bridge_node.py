@@ -24,7 +24,7 @@ from std_srvs.srv import Trigger
 from control_math.frames import wrap
 from drive_interface.node import ContractNode, finite, run_node, stamp, topic_qos
 from drive_interface.stamps import sample_at, sample_of, stamp_parts
-from drive_interface.topics import TOPICS
+from drive_interface.topics import ANGLE_ERROR, CURRENTS, ROTOR_ESTIMATE, ROTOR_STATE, TOPICS, VOLTAGE_COMMAND, block
 from drive_interface.wire import BlockWire
 
 from .inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
@@ -66,22 +66,22 @@ class InverterBridgeNode(ContractNode):
                                      block_samples=self.block_samples)
         self.offer_clock()
         self.clock_pub = self.claim_clock()
-        self.angle_error_pub = self.create_publisher(Vector3Stamped, "angle_error", topic_qos("angle_error"))
+        self.angle_error_pub = self.create_publisher(Vector3Stamped, ANGLE_ERROR, topic_qos(ANGLE_ERROR))
         if self.block_samples > 1:
-            self.currents_pub = self.sample_publisher("currents_block")
-            self.rotor_state_pub = self.sample_publisher("rotor_state_block")
-            self.sample_subscription("voltage_command_block", self.timed(self.on_voltage_block))
-            self.sample_subscription("rotor_estimate_block", self.on_rotor_estimate_block)
-            self.currents_wire = BlockWire(TOPICS["currents"].frame_id)
+            self.currents_pub = self.sample_publisher(block(CURRENTS))
+            self.rotor_state_pub = self.sample_publisher(block(ROTOR_STATE))
+            self.sample_subscription(block(VOLTAGE_COMMAND), self.timed(self.on_voltage_block))
+            self.sample_subscription(block(ROTOR_ESTIMATE), self.on_rotor_estimate_block)
+            self.currents_wire = BlockWire(TOPICS[CURRENTS].frame_id)
             self.rotor_state_wire = BlockWire()
             self.block = []
         else:
-            self.currents_pub = self.create_publisher(Vector3Stamped, "currents", topic_qos("currents"))
-            self.rotor_state_pub = self.create_publisher(JointState, "rotor_state", topic_qos("rotor_state"))
-            self.create_subscription(Vector3Stamped, "voltage_command", self.timed(self.on_voltage_command),
-                                     topic_qos("voltage_command"))
-            self.create_subscription(JointState, "rotor_estimate", self.on_rotor_estimate,
-                                     topic_qos("rotor_estimate"))
+            self.currents_pub = self.create_publisher(Vector3Stamped, CURRENTS, topic_qos(CURRENTS))
+            self.rotor_state_pub = self.create_publisher(JointState, ROTOR_STATE, topic_qos(ROTOR_STATE))
+            self.create_subscription(Vector3Stamped, VOLTAGE_COMMAND, self.timed(self.on_voltage_command),
+                                     topic_qos(VOLTAGE_COMMAND))
+            self.create_subscription(JointState, ROTOR_ESTIMATE, self.on_rotor_estimate,
+                                     topic_qos(ROTOR_ESTIMATE))
         self.create_service(Trigger, "clear_faults", self.on_clear_faults)
         self.T_s = None
         self.k = None
@@ -95,7 +95,7 @@ class InverterBridgeNode(ContractNode):
     def read_link(self):
         """The link thread: poll, publish each sample, report new faults."""
         currents, rotor, clock = Vector3Stamped(), JointState(name=["rotor"]), Clock()
-        currents.header.frame_id = TOPICS["currents"].frame_id
+        currents.header.frame_id = TOPICS[CURRENTS].frame_id
         previous, logged = None, ""
         while self.running:
             samples = self.bridge.poll(0.02)

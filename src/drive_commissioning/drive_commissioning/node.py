@@ -12,7 +12,7 @@ from geometry_msgs.msg import Vector3Stamped
 
 from drive_interface.node import finite, run_node, stamp, topic_qos
 from drive_interface.stamps import sample_of
-from drive_interface.topics import TOPICS
+from drive_interface.topics import CURRENTS, TOPICS, VOLTAGE_COMMAND
 from drive_scenarios.node import ScenarioNode
 from motor_params.commissioning import save_commissioning
 
@@ -30,23 +30,23 @@ class CommissioningNode(ScenarioNode):
         self.aborted = None
         self.written = None
         self.voltage_msg = Vector3Stamped()
-        self.voltage_msg.header.frame_id = TOPICS["voltage_command"].frame_id
+        self.voltage_msg.header.frame_id = TOPICS[VOLTAGE_COMMAND].frame_id
         self.voltage_pub = None
         if not self.configured:
             self.publish_config({})
             return
         self.trip_A = self.trip_current_A()
-        currents = self.create_subscription(Vector3Stamped, "currents", self.timed(self.on_currents),
-                                            topic_qos("currents"))
+        currents = self.create_subscription(Vector3Stamped, CURRENTS, self.timed(self.on_currents),
+                                            topic_qos(CURRENTS))
         self.open_when_matched([currents], self.open_outputs)
-        self.watch_peer("currents", "the plant")
+        self.watch_peer(CURRENTS, "the plant")
         self.publish_config({"procedure": METHOD, "samples": self.procedure.total_samples})
 
     def build(self, scenario):
         self.procedure = procedure_for_scenario(scenario)
 
     def open_outputs(self):
-        self.voltage_pub = self.create_publisher(Vector3Stamped, "voltage_command", topic_qos("voltage_command"))
+        self.voltage_pub = self.create_publisher(Vector3Stamped, VOLTAGE_COMMAND, topic_qos(VOLTAGE_COMMAND))
 
     def on_currents(self, msg):
         k = sample_of(msg.header, self.T_s)

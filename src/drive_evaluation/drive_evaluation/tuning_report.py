@@ -95,7 +95,8 @@ def pll_tuning(design, estimator, motor, phase_margin_deg, crossover_rad_s, mode
     A_now, T_now = design.current_gains
     report = {"motor": motor, "estimator": estimator, "mapping": MAPPINGS[estimator],
               "injection": {"frequency_Hz": design.path.omega_h_rad_s / (2.0 * math.pi),
-                            "amplitude_V": design.path.u_h_V, "demodulation_amplitude": design.path.u_star},
+                            "amplitude_V": design.path.injection_amplitude_V,
+                            "demodulation_amplitude": design.path.u_star},
               "request": {"phase_margin_deg": phase_margin_deg, "crossover_rad_s": crossover_rad_s, "model": model},
               "T_f_s": T_f_s, "tuned": {}, "current_gains": {"A_p": A_now, "T_i_s": T_now}}
     for name, loop in models.items():

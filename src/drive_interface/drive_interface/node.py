@@ -18,6 +18,8 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
+from drive_interface.topics import CLOCK, DIAGNOSTICS, DRIVE_CONFIG
+
 from .exit_codes import EXIT_NODE_FAULTS, EXIT_REFUSED
 from .graph import EXECUTORS
 from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sources, label, unknown_parameters
@@ -129,8 +131,8 @@ class ContractNode(Node):
         self.callback_time_s = 0.0
         self.callback_max_s = 0.0
         self.callbacks = 0
-        self.config_pub = self.create_publisher(String, "drive_config", topic_qos("drive_config"))
-        self.diagnostics_pub = self.create_publisher(DiagnosticArray, "/diagnostics", topic_qos("/diagnostics"))
+        self.config_pub = self.create_publisher(String, DRIVE_CONFIG, topic_qos(DRIVE_CONFIG))
+        self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, topic_qos(DIAGNOSTICS))
         self.collector_s = 0.0
         self.create_timer(float(self.get_parameter(name).value), self.periodic_status)
 
@@ -167,10 +169,10 @@ class ContractNode(Node):
         and the node says which."""
         if not self.get_parameter("publish_clock").value:
             return None
-        if self.count_publishers("/clock"):
+        if self.count_publishers(CLOCK):
             self.get_logger().info("/clock is published by another node of the graph; this node does not")
             return None
-        return self.create_publisher(Clock, "/clock", topic_qos("/clock"))
+        return self.create_publisher(Clock, CLOCK, topic_qos(CLOCK))
 
     def watch_foreign_publishers(self, topics):
         """Count a ``foreign_publisher`` fault each time one of the lock-step input ``topics`` gets more

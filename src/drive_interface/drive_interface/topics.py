@@ -46,28 +46,36 @@ class Topic(NamedTuple):
     """The per-sample topic whose samples it carries in blocks (docs/ros-graph.md, "Block transport")."""
 
 
+CURRENTS, ROTOR_STATE, ROTOR_ESTIMATE, INJECTION, VOLTAGE_COMMAND = (
+    "currents", "rotor_state", "rotor_estimate", "injection", "voltage_command")
+ESTIMATOR_STATE, ESTIMATOR_BLEND, CLOCK, ANGLE_ERROR, JOINT_STATES = (
+    "estimator_state", "estimator_blend", "/clock", "angle_error", "joint_states")
+SPEED_COMMAND, LOAD_TORQUE, TORQUE_FEEDFORWARD, DRIVE_CONFIG, DIAGNOSTICS = (
+    "speed_command", "load_torque", "torque_feedforward", "drive_config", "/diagnostics")
+"""The contract's topic names: code names a topic by these, never by a string of its own."""
+
 VECTOR3 = "geometry_msgs/msg/Vector3Stamped"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 FLOAT64 = "std_msgs/msg/Float64"
 
 TOPICS = {t.name: t for t in (
-    Topic("currents", VECTOR3, PER_SAMPLE_QOS, True, True, ("i_a_meas", "i_b_meas", "i_c_meas"), frame_id="abc"),
-    Topic("rotor_state", JOINT_STATE, PER_SAMPLE_QOS, True, True, ("theta_m", "omega_m", "tau_e")),
-    Topic("rotor_estimate", JOINT_STATE, PER_SAMPLE_QOS, True, True, ("theta_e_hat", "omega_e_hat"),
+    Topic(CURRENTS, VECTOR3, PER_SAMPLE_QOS, True, True, ("i_a_meas", "i_b_meas", "i_c_meas"), frame_id="abc"),
+    Topic(ROTOR_STATE, JOINT_STATE, PER_SAMPLE_QOS, True, True, ("theta_m", "omega_m", "tau_e")),
+    Topic(ROTOR_ESTIMATE, JOINT_STATE, PER_SAMPLE_QOS, True, True, ("theta_e_hat", "omega_e_hat"),
           electrical=True),
-    Topic("injection", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_inj_alpha", "u_inj_beta"), frame_id="alpha_beta"),
-    Topic("voltage_command", VECTOR3, PER_SAMPLE_QOS, True, True, ("u_alpha", "u_beta"), frame_id="alpha_beta"),
-    Topic("estimator_state", VECTOR3, PER_SAMPLE_QOS, True, True, ("eps", "signal", "state")),
-    Topic("estimator_blend", VECTOR3, PER_SAMPLE_QOS, True, True,
+    Topic(INJECTION, VECTOR3, PER_SAMPLE_QOS, True, True, ("u_inj_alpha", "u_inj_beta"), frame_id="alpha_beta"),
+    Topic(VOLTAGE_COMMAND, VECTOR3, PER_SAMPLE_QOS, True, True, ("u_alpha", "u_beta"), frame_id="alpha_beta"),
+    Topic(ESTIMATOR_STATE, VECTOR3, PER_SAMPLE_QOS, True, True, ("eps", "signal", "state")),
+    Topic(ESTIMATOR_BLEND, VECTOR3, PER_SAMPLE_QOS, True, True,
           ("injection_amplitude", "observer_weight", "leader")),
-    Topic("/clock", "rosgraph_msgs/msg/Clock", PER_SAMPLE_QOS, True, True),
-    Topic("angle_error", VECTOR3, COMMAND_QOS, False, True),
-    Topic("joint_states", JOINT_STATE, COMMAND_QOS, False, True),
-    Topic("speed_command", FLOAT64, COMMAND_QOS, False, False, ("omega_m_ref",)),
-    Topic("load_torque", FLOAT64, COMMAND_QOS, False, False, ("tau_load",)),
-    Topic("torque_feedforward", FLOAT64, COMMAND_QOS, False, False),
-    Topic("drive_config", "std_msgs/msg/String", LATCHED_QOS, False, False),
-    Topic("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS, False, False),
+    Topic(CLOCK, "rosgraph_msgs/msg/Clock", PER_SAMPLE_QOS, True, True),
+    Topic(ANGLE_ERROR, VECTOR3, COMMAND_QOS, False, True),
+    Topic(JOINT_STATES, JOINT_STATE, COMMAND_QOS, False, True),
+    Topic(SPEED_COMMAND, FLOAT64, COMMAND_QOS, False, False, ("omega_m_ref",)),
+    Topic(LOAD_TORQUE, FLOAT64, COMMAND_QOS, False, False, ("tau_load",)),
+    Topic(TORQUE_FEEDFORWARD, FLOAT64, COMMAND_QOS, False, False),
+    Topic(DRIVE_CONFIG, "std_msgs/msg/String", LATCHED_QOS, False, False),
+    Topic(DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS, False, False),
 )}
 TOPICS.update({f"{t.name}_block": t._replace(name=f"{t.name}_block", type=JOINT_STATE, per_sample=False,
                                              block_of=t.name)
@@ -77,6 +85,11 @@ with its first sample's instant, the per-sample message's three values as three 
 (x, y, z of a Vector3Stamped; position, velocity, effort of a JointState) in position, velocity, effort."""
 BLOCK_TOPIC = {t.block_of: t.name for t in TOPICS.values() if t.block_of}
 """Per-sample topic → its block twin."""
+
+
+def block(topic):
+    """The block twin of the per-sample topic ``topic`` (``currents`` → ``currents_block``)."""
+    return BLOCK_TOPIC[topic]
 
 SAMPLE_LOGGED = tuple(t.name for t in TOPICS.values() if t.per_sample and t.log_columns)
 """The per-sample topics whose content goes into a run's log, each message into its sample's row."""

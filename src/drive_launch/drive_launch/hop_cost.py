@@ -4,6 +4,7 @@ import os
 import time
 
 from drive_interface.errors import DriveError
+from drive_interface.topics import CURRENTS
 
 HOP_ROUND_TRIPS_BESIDE_A_RUN = 2000
 """Round trips timed beside a real-time run (about 0.1 s)."""
@@ -21,7 +22,7 @@ def hop_latency(round_trips=20000):
 
     from drive_interface.node import make_executor, topic_qos
 
-    PER_SAMPLE_QOS = topic_qos("currents")
+    PER_SAMPLE_QOS = topic_qos(CURRENTS)
 
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)

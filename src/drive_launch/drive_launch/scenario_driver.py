@@ -10,7 +10,23 @@ from drive_bags.common import offered_qos
 from drive_interface.log import COLUMN, LOG_COLUMNS, fill_block, fill_values
 from drive_interface.node import message_class, topic_qos
 from drive_interface.stamps import sample_at, stamp_ns
-from drive_interface.topics import BLOCK_TOPIC, SAMPLE_LOGGED, TOPICS
+from drive_interface.topics import (
+    BLOCK_TOPIC,
+    CURRENTS,
+    DIAGNOSTICS,
+    ESTIMATOR_BLEND,
+    ESTIMATOR_STATE,
+    INJECTION,
+    LOAD_TORQUE,
+    ROTOR_ESTIMATE,
+    ROTOR_STATE,
+    SAMPLE_LOGGED,
+    SPEED_COMMAND,
+    TOPICS,
+    TORQUE_FEEDFORWARD,
+    VOLTAGE_COMMAND,
+    block,
+)
 from drive_interface.wire import WireError, decode_block, decoder_of
 
 ERROR = 2
@@ -48,20 +64,20 @@ class ScenarioDriver:
             self.log[:, COLUMN["t"]] = np.arange(self.n) * scenario.T_s
             self.log[:, COLUMN["omega_m_ref"]] = self.speed
             self.log[:, COLUMN["tau_load"]] = self.load
-        self.load_pub = node.create_publisher(Float64, "load_torque", topic_qos("load_torque"))
+        self.load_pub = node.create_publisher(Float64, LOAD_TORQUE, topic_qos(LOAD_TORQUE))
         self.recorder = recorder
         self.inverter = inverter
         self.blocks = scenario.block_samples > 1
         self.carried = BLOCK_TOPIC if self.blocks else {topic: topic for topic in SAMPLE_LOGGED}
         """Per-sample topic → the topic that carries it in this drive (itself, or its block twin)."""
-        handlers = {"/diagnostics": self.on_diagnostics}
-        recorded = tuple(self.carried[topic] for topic in SAMPLE_LOGGED if topic != "voltage_command")
+        handlers = {DIAGNOSTICS: self.on_diagnostics}
+        recorded = tuple(self.carried[topic] for topic in SAMPLE_LOGGED if topic != VOLTAGE_COMMAND)
         if record:
             handlers.update({topic: self.logger_of(topic) for topic in recorded})
         if record or recorder:
-            handlers[self.carried["voltage_command"]] = self.on_voltage
-        self.recorded_commands = {"speed_command": self.speed, "load_torque": self.load,
-                                  "torque_feedforward": self.feedforward}
+            handlers[self.carried[VOLTAGE_COMMAND]] = self.on_voltage
+        self.recorded_commands = {SPEED_COMMAND: self.speed, LOAD_TORQUE: self.load,
+                                  TORQUE_FEEDFORWARD: self.feedforward}
         self.last_recorded = {}
         self.received = dict.fromkeys((topic for topic in handlers if topic in self.carried.values()), 0)
         """Samples received per recorded topic."""
@@ -107,7 +123,7 @@ class ScenarioDriver:
         per-sample ones but `estimator_state`, decimated to each block's first sample; otherwise the
         block twins)."""
         if self.blocks:
-            left_out = set(SAMPLE_LOGGED) - {"estimator_state"}
+            left_out = set(SAMPLE_LOGGED) - {ESTIMATOR_STATE}
         else:
             left_out = set(BLOCK_TOPIC.values())
         return set(TOPICS) - set(self.recorded_commands) - left_out
@@ -150,12 +166,12 @@ class ScenarioDriver:
         an inverter, which keeps its own load and clock, no plant subscribes to load_torque)."""
         r = 1 if self.record or self.recorder else 0
         sensored = self.scenario.estimator == "sensored"
-        endpoints = [("currents", 1, 2 + r), ("rotor_estimate", 1, 2 + r), ("injection", 1, 1 + r),
-                     ("voltage_command", 1, 2 + r), ("estimator_state", 1, 1 + r), ("estimator_blend", 1, r)]
+        endpoints = [(CURRENTS, 1, 2 + r), (ROTOR_ESTIMATE, 1, 2 + r), (INJECTION, 1, 1 + r),
+                     (VOLTAGE_COMMAND, 1, 2 + r), (ESTIMATOR_STATE, 1, 1 + r), (ESTIMATOR_BLEND, 1, r)]
         if self.inverter is None:
-            endpoints += [("rotor_state", 1, r + sensored)]
+            endpoints += [(ROTOR_STATE, 1, r + sensored)]
         endpoints = [(self.carried[topic], pubs, subs) for topic, pubs, subs in endpoints]
-        return endpoints + ([("load_torque", 1, 1)] if self.inverter is None else [])
+        return endpoints + ([(LOAD_TORQUE, 1, 1)] if self.inverter is None else [])
 
     def missing_endpoints(self):
         missing = []
@@ -180,7 +196,7 @@ class ScenarioDriver:
         """Write the schedule's commands of sample k into the bag: the load every sample, the speed and
         the feed-forward where they change (as `drive run --record` writes them)."""
         for topic, values in self.recorded_commands.items():
-            if values is None or (topic != "load_torque" and self.last_recorded.get(topic) == values[k]):
+            if values is None or (topic != LOAD_TORQUE and self.last_recorded.get(topic) == values[k]):
                 continue
             self.last_recorded[topic] = values[k]
             self.recorder.write(self.node.resolve_topic_name(topic), serialize_message(Float64(data=float(values[k]))),
@@ -257,9 +273,9 @@ class ScenarioDriver:
                 self.record_commands(j)
         if self.record:
             if self.blocks:
-                fill_block(self.log, k0, "voltage_command_block", values, self.n_p)
+                fill_block(self.log, k0, block(VOLTAGE_COMMAND), values, self.n_p)
             else:
-                fill_values(self.log[k], "voltage_command", values, self.n_p)
+                fill_values(self.log[k], VOLTAGE_COMMAND, values, self.n_p)
         if k == self.n - 1:
             self.finished_at = time.monotonic()
             if self.complete():

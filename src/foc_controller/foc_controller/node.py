@@ -30,7 +30,19 @@ from std_msgs.msg import Float64, String
 from control_math.current_sensing import corrected_currents
 from drive_interface.node import describe, finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
-from drive_interface.topics import TOPICS
+from drive_interface.topics import (
+    CURRENTS,
+    DRIVE_CONFIG,
+    ESTIMATOR_STATE,
+    INJECTION,
+    JOINT_STATES,
+    ROTOR_ESTIMATE,
+    SPEED_COMMAND,
+    TOPICS,
+    TORQUE_FEEDFORWARD,
+    VOLTAGE_COMMAND,
+    block,
+)
 from drive_interface.wire import BlockWire, Vector3Wire
 from drive_scenarios.node import ScenarioNode
 from drive_scenarios.parameters import SCHEDULE_PARAMETER
@@ -59,33 +71,33 @@ class ControllerNode(ScenarioNode):
         super().__init__("foc_controller", **kwargs)
         self.declare_parameter("joint_states_decimation", 100)
         self.decimation = max(1, int(self.get_parameter("joint_states_decimation").value))
-        self.joint_pub = self.create_publisher(JointState, "joint_states", topic_qos("joint_states"))
+        self.joint_pub = self.create_publisher(JointState, JOINT_STATES, topic_qos(JOINT_STATES))
         if self.block_samples > 1:
-            inputs = [self.sample_subscription("currents_block", self.timed(self.on_currents_block)),
-                      self.sample_subscription("rotor_estimate_block", self.on_estimate_block),
-                      self.sample_subscription("injection_block", self.on_injection_block),
-                      self.sample_subscription("estimator_state_block", self.on_estimator_state_block)]
+            inputs = [self.sample_subscription(block(CURRENTS), self.timed(self.on_currents_block)),
+                      self.sample_subscription(block(ROTOR_ESTIMATE), self.on_estimate_block),
+                      self.sample_subscription(block(INJECTION), self.on_injection_block),
+                      self.sample_subscription(block(ESTIMATOR_STATE), self.on_estimator_state_block)]
         else:
-            inputs = [self.sample_subscription("currents", self.timed(self.on_currents)),
-                      self.sample_subscription("rotor_estimate", self.on_estimate),
-                      self.sample_subscription("injection", self.on_injection),
-                      self.sample_subscription("estimator_state", self.on_estimator_state)]
+            inputs = [self.sample_subscription(CURRENTS, self.timed(self.on_currents)),
+                      self.sample_subscription(ROTOR_ESTIMATE, self.on_estimate),
+                      self.sample_subscription(INJECTION, self.on_injection),
+                      self.sample_subscription(ESTIMATOR_STATE, self.on_estimator_state)]
         self.open_when_matched(inputs, self.open_outputs, ready=lambda: self.params or not self.configured)
-        self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
-        self.create_subscription(Float64, "torque_feedforward", self.on_torque_feedforward,
-                                 topic_qos("torque_feedforward"))
+        self.create_subscription(Float64, SPEED_COMMAND, self.on_speed_command, topic_qos(SPEED_COMMAND))
+        self.create_subscription(Float64, TORQUE_FEEDFORWARD, self.on_torque_feedforward,
+                                 topic_qos(TORQUE_FEEDFORWARD))
         self.tau_feedforward = 0.0
-        self.create_subscription(String, "drive_config", self.on_drive_config, topic_qos("drive_config"))
+        self.create_subscription(String, DRIVE_CONFIG, self.on_drive_config, topic_qos(DRIVE_CONFIG))
         self.add_on_set_parameters_callback(self.on_set_parameters)
-        self.watch_peer(self.contract_topics("currents")[0], "the plant")
-        self.watch_foreign_publishers(self.contract_topics("currents", "rotor_estimate", "injection",
-                                                           "estimator_state"))
+        self.watch_peer(self.contract_topics(CURRENTS)[0], "the plant")
+        self.watch_foreign_publishers(self.contract_topics(CURRENTS, ROTOR_ESTIMATE, INJECTION,
+                                                           ESTIMATOR_STATE))
         self.currents, self.estimates, self.injections, self.states = {}, {}, {}, {}
         self.k = 0
         self.omega_m_ref = 0.0
         self.current_limited = False
-        self.voltage_wire = Vector3Wire(TOPICS["voltage_command"].frame_id)
-        self.block_wire = BlockWire(TOPICS["voltage_command"].frame_id)
+        self.voltage_wire = Vector3Wire(TOPICS[VOLTAGE_COMMAND].frame_id)
+        self.block_wire = BlockWire(TOPICS[VOLTAGE_COMMAND].frame_id)
         self.declare_parameter("joint_name", "", descriptor=describe(
             "the joint's name in joint_states (empty: the namespace's last part, e.g. left_wheel)"))
         self.joint_msg = JointState(name=[self.get_parameter("joint_name").value or default_joint_name(
@@ -139,7 +151,7 @@ class ControllerNode(ScenarioNode):
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
 
     def open_outputs(self):
-        self.voltage_pub = self.sample_publisher(self.contract_topics("voltage_command")[0])
+        self.voltage_pub = self.sample_publisher(self.contract_topics(VOLTAGE_COMMAND)[0])
 
     def on_set_parameters(self, parameters):
         for p in parameters:

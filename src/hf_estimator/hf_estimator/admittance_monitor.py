@@ -12,7 +12,7 @@ class MonitorParams(NamedTuple):
     """HF admittance monitor: correlates current steps with the applied injection in its own frame."""
 
     T_s_s: float
-    U_h_V: float
+    injection_amplitude_V: float
     delay_periods: int
     window: int
     """Samples averaged: one carrier period (rounded)."""
@@ -60,7 +60,7 @@ def monitor_step(x, base, p, k, i_alpha, i_beta, carrier_now, angle_now):
     if k < p.delay_periods + 1:
         return 0.0, 0.0
     step_d, step_q = rotate(d_alpha, d_beta, -angle_then)
-    scale = 1.0 / (p.T_s_s * p.U_h_V)
+    scale = 1.0 / (p.T_s_s * p.injection_amplitude_V)
     prod_d = carrier_then * step_d * scale
     prod_q = carrier_then * step_q * scale
     c2 = carrier_then * carrier_then
@@ -82,9 +82,10 @@ def monitor_step(x, base, p, k, i_alpha, i_beta, carrier_now, angle_now):
     return x[base + MON_DELTA], observable
 
 
-def make_monitor(T_s, U_h, f_h, delay_periods, commissioning, observable_ratio=0.02,
+def make_monitor(T_s, injection_amplitude_V, f_h, delay_periods, commissioning, observable_ratio=0.02,
                  smoothing_Hz=20.0):
-    return MonitorParams(T_s_s=T_s, U_h_V=U_h, delay_periods=int(delay_periods),
-                         window=max(2, int(round(1.0 / (f_h * T_s)))), sigma_hat=commissioning.sigma,
+    return MonitorParams(T_s_s=T_s, injection_amplitude_V=injection_amplitude_V,
+                         delay_periods=int(delay_periods), window=max(2, int(round(1.0 / (f_h * T_s)))),
+                         sigma_hat=commissioning.sigma,
                          observable_ratio=observable_ratio,
                          smoothing=1.0 - math.exp(-2.0 * math.pi * smoothing_Hz * T_s))

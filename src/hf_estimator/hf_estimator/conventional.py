@@ -53,7 +53,7 @@ demodulation keeps its whole gain (pll_model.aligned_demodulation_phase)."""
 class WangParams(NamedTuple):
     T_s_s: float
     omega_h_rad_s: float
-    U_h_V: float
+    injection_amplitude_V: float
     demodulation_amplitude: float
     demodulation_phase_rad: float
     kp: float
@@ -74,10 +74,12 @@ def conventional_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta
     eps = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA],
                               p.demodulation_amplitude, math.sin(p.omega_h_rad_s * t + p.demodulation_phase_rad))
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
-        x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
+        x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.injection_amplitude_V, p.kp, p.ki, p.T_s_s,
+        eps)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, eps, observable, theta_e_encoder)
-    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state, p.U_h_V, 0.0, float(LEADER_INJECTION)
+    return (x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state, p.injection_amplitude_V, 0.0,
+            float(LEADER_INJECTION))
 
 
 def demodulation_phase(name, demodulation, commissioning, T_s, delay_periods, f_h, bandpass):
@@ -96,8 +98,8 @@ def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, inv
     """A Wang estimator (``conventional``, ``improved`` or their aligned variants) with the kernel ``step``
     and its settings; ``bandpass_used``: the band-pass precedes the demodulation (not in ``improved``)."""
     s = check_settings(name, settings, defaults, T_s)
-    f_h, U_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
-    gain = s["demodulation_amplitude"] * U_h * commissioning.delta / (2.0 * math.pi * f_h)
+    f_h, injection_amplitude_V = float(s["frequency_Hz"]), float(s["amplitude_V"])
+    gain = s["demodulation_amplitude"] * injection_amplitude_V * commissioning.delta / (2.0 * math.pi * f_h)
     salient = gain > 0.0 and commissioning.salient()
     kp, ki = loop_gains(gain, s["pll_bandwidth_Hz"], s["pll_damping"]) if salient else (0.0, 0.0)
     if (s["A_p"] is None) != (s["T_i_s"] is None):
@@ -109,11 +111,11 @@ def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, inv
     delay_periods = inverter.delay_periods
     phase = demodulation_phase(name, s["demodulation"], commissioning, T_s, delay_periods, f_h,
                                bandpass if bandpass_used else np.zeros((0, 6)))
-    monitor = make_monitor(T_s, U_h, f_h, delay_periods, commissioning, s["observable_ratio"])
+    monitor = make_monitor(T_s, injection_amplitude_V, f_h, delay_periods, commissioning, s["observable_ratio"])
     startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, inverter,
                            gain if salient else 0.0, s)
     params = WangParams(
-        T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, U_h_V=U_h,
+        T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, injection_amplitude_V=injection_amplitude_V,
         demodulation_amplitude=float(s["demodulation_amplitude"]), demodulation_phase_rad=phase, kp=kp, ki=ki,
         lowpass=butterworth_lowpass(s["lowpass_order"], s["lowpass_Hz"], T_s), bandpass=bandpass,
         monitor=monitor, startup=startup)

@@ -163,7 +163,7 @@ def full_speed_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, 
     state = hf_state if starting or w == 0.0 else TRACKING
     leader = LEADER_BACKEMF if w >= 0.5 else LEADER_INJECTION
     return (x[THETA], x[OMEGA], x[FADE] * hf[2], x[FADE] * hf[3], (1.0 - w) * hf[4] + w * ob[4], hf[5],
-            float(state), x[FADE] * p.hf.U_h_V, w, float(leader))
+            float(state), x[FADE] * p.hf.injection_amplitude_V, w, float(leader))
 
 
 def _ordered(settings):

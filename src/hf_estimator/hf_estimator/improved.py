@@ -34,10 +34,12 @@ def improved_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, th
     i_beta_l = sos_step(p.lowpass, z[1], i_beta * modulation)
     eps = i_beta_l * math.cos(x[THETA]) - i_alpha_l * math.sin(x[THETA])
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
-        x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.U_h_V, p.kp, p.ki, p.T_s_s, eps)
+        x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.injection_amplitude_V, p.kp, p.ki, p.T_s_s,
+        eps)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, eps, observable, theta_e_encoder)
-    return x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state, p.U_h_V, 0.0, float(LEADER_INJECTION)
+    return (x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state, p.injection_amplitude_V, 0.0,
+            float(LEADER_INJECTION))
 
 
 @register("improved", "d̂ injection, αβ × 2 sin ω_h t, 300 Hz low-pass, two-phase PLL (faithful)",

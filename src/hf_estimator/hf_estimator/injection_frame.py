@@ -112,13 +112,13 @@ HF_VOLTAGE_MAX_PER_LINEAR = 0.8
 loop's at low speed)."""
 
 
-def saliency_snr(amplitude_V, commissioning, omega_h):
+def saliency_snr(injection_amplitude_V, commissioning, omega_h):
     """The saliency current U_h·|Δ|/ω_h in commissioned sensor-noise σ (0 where the noise is not measured)."""
     noise = commissioning.sensor_noise_A
-    return amplitude_V * abs(commissioning.delta) / omega_h / noise if noise > 0.0 else 0.0
+    return injection_amplitude_V * abs(commissioning.delta) / omega_h / noise if noise > 0.0 else 0.0
 
 
-def injection_amplitude(requested_V, commissioning, nameplate, inverter, omega_h, snr_min):
+def raised_injection_amplitude(requested_V, commissioning, nameplate, inverter, omega_h, snr_min):
     """Ours' HF amplitude [V] and what it says of it: ``requested_V`` raised so that the saliency current
     U_h·|Δ|/ω_h reaches ``snr_min`` times the commissioned sensor noise, within the ripple and voltage
     caps; unchanged when the saliency or the noise is not measured, or ``snr_min`` is 0."""
@@ -132,22 +132,22 @@ def injection_amplitude(requested_V, commissioning, nameplate, inverter, omega_h
     if math.isfinite(inverter.U_dc_V):
         caps["voltage"] = HF_VOLTAGE_MAX_PER_LINEAR * inverter.U_dc_V / math.sqrt(3.0)
     cap_name = min(caps, key=caps.get)
-    amplitude = max(requested_V, min(wanted, caps[cap_name]))
-    reached = saliency_snr(amplitude, commissioning, omega_h)
-    limited = f"; held by the {cap_name} cap" if wanted > amplitude else ""
-    return amplitude, (f"raised from {requested_V:g} V: saliency current {reached:.1f} σ of the commissioned "
-                       f"sensor noise, {snr_min:g} wanted{limited}")
+    injection_amplitude_V = max(requested_V, min(wanted, caps[cap_name]))
+    reached = saliency_snr(injection_amplitude_V, commissioning, omega_h)
+    limited = f"; held by the {cap_name} cap" if wanted > injection_amplitude_V else ""
+    return injection_amplitude_V, (f"raised from {requested_V:g} V: saliency current {reached:.1f} σ of the "
+                                   f"commissioned sensor noise, {snr_min:g} wanted{limited}")
 
 
-def weak_signal_note(amplitude_V, commissioning, omega_h, snr_min, run_on_weak_signal=False):
-    """What the drive says of a weak angle signal (item 5b; "" where it is not weak): where the saliency
-    current at ``amplitude_V`` (ours' largest, the caps applied) stays below WEAK_SIGNAL_SHARE of the ``snr_min``
-    σ its tracking loop wants, ours' targets are out of reach: ValueError (the drive refuses) unless
-    ``run_on_weak_signal``. Silent where the saliency or the noise is not measured."""
-    reached = saliency_snr(amplitude_V, commissioning, omega_h)
+def weak_signal_note(injection_amplitude_V, commissioning, omega_h, snr_min, run_on_weak_signal=False):
+    """What the drive says of a weak angle signal ("" where it is not weak): where the saliency current at
+    ``injection_amplitude_V`` [V] (ours' largest, the caps applied) stays below WEAK_SIGNAL_SHARE of the
+    ``snr_min`` σ its tracking loop wants, ours' targets are out of reach: ValueError (the drive refuses)
+    unless ``run_on_weak_signal``. Silent where the saliency or the noise is not measured."""
+    reached = saliency_snr(injection_amplitude_V, commissioning, omega_h)
     if snr_min <= 0.0 or reached <= 0.0 or not commissioning.salient() or reached >= WEAK_SIGNAL_SHARE * snr_min:
         return ""
-    problem = (f"saliency current {reached:.1f} σ of the commissioned sensor noise at {amplitude_V:.3g} V, "
+    problem = (f"saliency current {reached:.1f} σ of the commissioned sensor noise at {injection_amplitude_V:.3g} V, "
                f"{snr_min:.3g} σ wanted by the tracking loop")
     if not run_on_weak_signal:
         raise ValueError(f"{problem}: too weak an angle signal for ours' targets; refused (the setting "
@@ -155,14 +155,14 @@ def weak_signal_note(amplitude_V, commissioning, omega_h, snr_min, run_on_weak_s
     return f"run on a weak angle signal ({problem}): angle errors beyond ours' targets"
 
 
-def tracking_loop_type(requested, amplitude_V, commissioning, omega_h, snr_min):
+def tracking_loop_type(requested, injection_amplitude_V, commissioning, omega_h, snr_min):
     """(2 or 3, what the drive says of it) for ``pll_type`` ``requested``: "auto" (set where the rotor's
     acceleration sets the bandwidth, hf_estimator.build) takes the type-3 loop, which follows a constant
     acceleration without lag but passes more noise, where the saliency current U_h·|Δ|/ω_h reaches
     ``snr_min`` times the commissioned sensor noise; else type 2."""
     if requested != "auto":
         return requested, ""
-    reached = saliency_snr(amplitude_V, commissioning, omega_h)
+    reached = saliency_snr(injection_amplitude_V, commissioning, omega_h)
     if commissioning.salient() and reached >= snr_min * (1.0 - 1e-9):
         return 3, f"type-3 tracking loop: the rotor's acceleration sets its bandwidth, {reached:.1f} σ of signal"
     return 2, (f"type-2 tracking loop: {reached:.1f} σ of signal leaves no noise margin for type 3"
@@ -172,7 +172,7 @@ def tracking_loop_type(requested, amplitude_V, commissioning, omega_h, snr_min):
 class InjectionFrameParams(NamedTuple):
     T_s_s: float
     N: int
-    U_h_V: float
+    injection_amplitude_V: float
     R_s_ohm: float
     """Commissioned stator resistance (the nameplate's when not commissioned)."""
     dither_rad: float
@@ -213,7 +213,7 @@ def _fit_error(x, n, p):
     # Normal equations for (g_dd, g_qq, g_dq): [[aa, 0, ab], [0, bb, ab], [ab, ab, aa + bb]].
     if aa + bb <= 0.0:
         return 0.0, 0.0, 0.0
-    scale = 1.0 / (p.T_s_s * p.U_h_V)
+    scale = 1.0 / (p.T_s_s * p.injection_amplitude_V)
     s = p.saliency_sign
     if 4.0 * (aa * bb - ab * ab) < MIN_EXCITATION_SPREAD * (aa + bb) ** 2:
         # One axis φ excited (item 3b): Δ sin 2(e − φ) across it is Σ-free; along it the commissioned |Δ|.
@@ -273,8 +273,8 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_b
     if k >= p.delay_periods + 2:
         y1, y2 = rotate(d_alpha, d_beta, -axis_then)
         v_d, v_q = rotate(drive_alpha, drive_beta, -axis_then)
-        a = v_d / p.U_h_V
-        b = v_q / p.U_h_V
+        a = v_d / p.injection_amplitude_V
+        b = v_q / p.injection_amplitude_V
         new = (a, b, y1, y2, a * a, b * b, a * b, a * y1, b * y2, b * y1 + a * y2)
         slot = 4 * (k % window)
         old_a, old_b = x[ring + slot], x[ring + slot + 1]
@@ -311,12 +311,12 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_b
     sign_now = 1.0 if (k // p.N) % 2 == 0 else -1.0
     axis_now = x[THETA] + omega * (p.delay_periods + 0.5) * p.T_s_s
     x[issued + k % depth] = axis_now
-    u_alpha, u_beta = rotate(p.U_h_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
+    u_alpha, u_beta = rotate(p.injection_amplitude_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, eps, observable, theta_e_encoder)
     if state != TRACKING:
         x[ACCELERATION] = 0.0
-    return (x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, x[DELTA_SMOOTH], state, p.U_h_V, 0.0,
+    return (x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, x[DELTA_SMOOTH], state, p.injection_amplitude_V, 0.0,
             float(LEADER_INJECTION))
 
 
@@ -332,17 +332,17 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
     zeta = float(s["pll_damping"])
     omega_h = 2.0 * math.pi / (N * T_s)
     snr_min = float(s["saliency_snr_min"]) * math.sqrt(max(1.0, float(s["pll_bandwidth_Hz"]) / SNR_REFERENCE_HZ))
-    amplitude, note = injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate, inverter, omega_h,
-                                          snr_min)
-    loop_type, loop_note = tracking_loop_type(s["pll_type"], amplitude, commissioning, omega_h, snr_min)
-    weak_note = weak_signal_note(amplitude, commissioning, omega_h, snr_min, bool(s["run_on_weak_signal"]))
+    injection_amplitude_V, note = raised_injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate,
+                                                             inverter, omega_h, snr_min)
+    loop_type, loop_note = tracking_loop_type(s["pll_type"], injection_amplitude_V, commissioning, omega_h, snr_min)
+    weak_note = weak_signal_note(injection_amplitude_V, commissioning, omega_h, snr_min, bool(s["run_on_weak_signal"]))
     note = "; ".join(n for n in (note, weak_note, loop_note) if n)
     pole = ACCELERATION_POLE_RATIO * omega_n if loop_type == 3 else 0.0
     delay_periods = inverter.delay_periods
     base = HISTORY + (delay_periods + 2) + 4 * 2 * N
     startup = make_startup(base, nameplate, commissioning, T_s, inverter, 1.0, s)
     params = InjectionFrameParams(
-        T_s_s=T_s, N=N, U_h_V=amplitude, R_s_ohm=commissioning.R_s_ohm,
+        T_s_s=T_s, N=N, injection_amplitude_V=injection_amplitude_V, R_s_ohm=commissioning.R_s_ohm,
         dither_rad=float(s["dither_rad"]),
         delay_periods=int(delay_periods), kp=2.0 * zeta * omega_n + pole, ki=omega_n ** 2 + 2.0 * zeta * omega_n * pole,
         ka=pole * omega_n ** 2,
@@ -357,5 +357,5 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
     x = np.zeros(base + startup_size(startup))
     startup_reset(x, startup)
     return Estimator("injection_frame", injection_frame_step, params, x, np.zeros((1, 1, 2)),
-                     1.0 / (N * T_s), float(s["pll_bandwidth_Hz"]), injection_amplitude_V=amplitude,
+                     1.0 / (N * T_s), float(s["pll_bandwidth_Hz"]), injection_amplitude_V=injection_amplitude_V,
                      injection_note=note)

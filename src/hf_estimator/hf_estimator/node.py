@@ -28,7 +28,17 @@ from control_math.current_sensing import corrected_currents
 from drive_interface.estimator_states import LEADER_NAMES, LOCK_LOST, STATE_NAMES
 from drive_interface.node import finite, run_node
 from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
-from drive_interface.topics import TOPICS
+from drive_interface.topics import (
+    CURRENTS,
+    ESTIMATOR_BLEND,
+    ESTIMATOR_STATE,
+    INJECTION,
+    ROTOR_ESTIMATE,
+    ROTOR_STATE,
+    TOPICS,
+    VOLTAGE_COMMAND,
+    block,
+)
 from drive_interface.wire import BlockWire, JointWire, Vector3Wire
 from drive_scenarios.node import ScenarioNode
 from motor_params.commissioning import commissioning_record
@@ -52,9 +62,9 @@ class EstimatorNode(ScenarioNode):
         self.encoder = {}
         self.waiting_since = None
         self.estimate_wire = JointWire("rotor")
-        self.injection_wire = Vector3Wire(TOPICS["injection"].frame_id)
-        self.state_wire = Vector3Wire(TOPICS["estimator_state"].frame_id)
-        self.blend_wire = Vector3Wire(TOPICS["estimator_blend"].frame_id)
+        self.injection_wire = Vector3Wire(TOPICS[INJECTION].frame_id)
+        self.state_wire = Vector3Wire(TOPICS[ESTIMATOR_STATE].frame_id)
+        self.blend_wire = Vector3Wire(TOPICS[ESTIMATOR_BLEND].frame_id)
         self.blend = (0.0, 0.0, 0.0)
         """The last sample's injection amplitude [V], observer weight and leader code (`estimator_blend`)."""
         self.block_wire = BlockWire()
@@ -75,18 +85,18 @@ class EstimatorNode(ScenarioNode):
         self.theta_hat = self.omega_hat = 0.0
         self.trip_A = self.trip_current_A()
         if self.block_samples > 1:
-            inputs = [self.sample_subscription("currents_block", self.timed(self.on_currents_block))]
-            self.sample_subscription("voltage_command_block", self.on_voltage_block)
+            inputs = [self.sample_subscription(block(CURRENTS), self.timed(self.on_currents_block))]
+            self.sample_subscription(block(VOLTAGE_COMMAND), self.on_voltage_block)
             if self.sensored:
-                inputs.append(self.sample_subscription("rotor_state_block", self.on_rotor_state_block))
+                inputs.append(self.sample_subscription(block(ROTOR_STATE), self.on_rotor_state_block))
         else:
-            inputs = [self.sample_subscription("currents", self.timed(self.on_currents))]
-            self.sample_subscription("voltage_command", self.on_voltage_command)
+            inputs = [self.sample_subscription(CURRENTS, self.timed(self.on_currents))]
+            self.sample_subscription(VOLTAGE_COMMAND, self.on_voltage_command)
             if self.sensored:
-                inputs.append(self.sample_subscription("rotor_state", self.on_rotor_state))
+                inputs.append(self.sample_subscription(ROTOR_STATE, self.on_rotor_state))
         self.open_when_matched(inputs, self.open_outputs)
         self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
-        currents, voltages = self.contract_topics("currents", "voltage_command")
+        currents, voltages = self.contract_topics(CURRENTS, VOLTAGE_COMMAND)
         self.watch_peer(currents, "the plant")
         self.watch_foreign_publishers((currents, voltages))
         self.publish_config({**e.facts(), "injection": contract_injection(e.facts(), self.scenario.injection),
@@ -103,16 +113,16 @@ class EstimatorNode(ScenarioNode):
         """The answer publishers; `voltage_command` is not waited for (the controller opens its own
         publisher only after these match, and sample 0 needs no previous command). In blocks, the block
         twins and `estimator_state` of each block's first sample (introspection)."""
-        self.state_pub = self.sample_publisher("estimator_state")
+        self.state_pub = self.sample_publisher(ESTIMATOR_STATE)
         if self.configured and self.block_samples > 1:
-            self.estimate_pub = self.sample_publisher("rotor_estimate_block")
-            self.injection_pub = self.sample_publisher("injection_block")
-            self.state_block_pub = self.sample_publisher("estimator_state_block")
-            self.blend_pub = self.sample_publisher("estimator_blend_block")
+            self.estimate_pub = self.sample_publisher(block(ROTOR_ESTIMATE))
+            self.injection_pub = self.sample_publisher(block(INJECTION))
+            self.state_block_pub = self.sample_publisher(block(ESTIMATOR_STATE))
+            self.blend_pub = self.sample_publisher(block(ESTIMATOR_BLEND))
         else:
-            self.estimate_pub = self.sample_publisher("rotor_estimate")
-            self.injection_pub = self.sample_publisher("injection")
-            self.blend_pub = self.sample_publisher("estimator_blend")
+            self.estimate_pub = self.sample_publisher(ROTOR_ESTIMATE)
+            self.injection_pub = self.sample_publisher(INJECTION)
+            self.blend_pub = self.sample_publisher(ESTIMATOR_BLEND)
 
     def warm_up(self):
         e = self.estimator
@@ -279,7 +289,7 @@ class EstimatorNode(ScenarioNode):
 
     def watchdog(self):
         if self.waiting_since and time.monotonic() - self.waiting_since > self.timeout_s / 2.0:
-            topic = self.resolve_topic_name(self.contract_topics("voltage_command")[0])
+            topic = self.resolve_topic_name(self.contract_topics(VOLTAGE_COMMAND)[0])
             self.fault("timeout", f"sample {self.k}: no {topic} for the commands acting in its period(s); "
                                   f"estimating with zero voltage (what the plant applied)")
             if self.block_samples > 1:

@@ -41,7 +41,7 @@ class PllProcess:
         return (self.p1 * s * s + self.p2 * s + self.p3) / ((s - self.lambda_d) * (s - self.lambda_q))
 
 
-def pll_process(R_ohm, L_d_H, L_q_H, f_h_Hz, u_h_V, u_star):
+def pll_process(R_ohm, L_d_H, L_q_H, f_h_Hz, injection_amplitude_V, u_star):
     """G_p and K from the motor's R, L_d, L_q and the injection (Szabó Eq. 24-38). ValueError for a
     round rotor (L_d = L_q): the q̂ current then carries no angle information (§2.3, case 2)."""
     if L_d_H == L_q_H:
@@ -58,7 +58,7 @@ def pll_process(R_ohm, L_d_H, L_q_H, f_h_Hz, u_h_V, u_star):
     p1 = -a + b + c  # Eq. (35)
     p2 = a * lambda_q - b * lambda_d - c * lambda_d - c * lambda_q  # Eq. (36)
     p3 = c * lambda_d * lambda_q  # Eq. (37)
-    K = 0.5 * u_h_V * u_star * S  # Eq. (38)
+    K = 0.5 * injection_amplitude_V * u_star * S  # Eq. (38)
     return PllProcess(p1, p2, p3, lambda_d, lambda_q, K, c, phi_star)
 
 
@@ -138,7 +138,7 @@ class CarrierPath:
     T_s_s: float
     delay_periods: int
     omega_h_rad_s: float
-    u_h_V: float
+    injection_amplitude_V: float
     u_star: float
     """Demodulation carrier amplitude (Szabó u*, Wang's 2)."""
     carrier_phase_difference_rad: float
@@ -198,7 +198,7 @@ def carrier_loop(path):
             rot * psi_d * admittance(path.L_q_H, omega + w_h) * band(omega + w_h)
             + np.conj(rot * psi_d) * admittance(path.L_q_H, omega - w_h) * band(omega - w_h))
         F = sos_response(path.lowpass, omega, T_s)
-        gain = path.error_sign * path.u_h_V
+        gain = path.error_sign * path.injection_amplitude_V
         rotor = gain * F * (N - (M + 1j * omega * S) * z ** 1.5)
         if path.alphabeta:
             return gain * (F * M * z - N), rotor
@@ -304,11 +304,10 @@ def carrier_path(estimator, R_ohm, L_dh_H, L_qh_H, delay_periods):
                        f"(covered: {', '.join(CARRIERS)} and their _aligned variants)")
     phase, sign, alphabeta = CARRIERS[base]
     p = estimator.params
-    u_h = getattr(p, "u_h_V", None) or p.U_h_V
     u_star = getattr(p, "u_star", None) or p.demodulation_amplitude
     phase -= getattr(p, "demodulation_phase_rad", 0.0)
-    return CarrierPath(R_ohm, L_dh_H, L_qh_H, p.T_s_s, delay_periods, p.omega_h_rad_s, u_h, u_star, phase,
-                       sign, np.zeros((0, 6)) if alphabeta else p.bandpass, p.lowpass, alphabeta)
+    return CarrierPath(R_ohm, L_dh_H, L_qh_H, p.T_s_s, delay_periods, p.omega_h_rad_s, p.injection_amplitude_V, u_star,
+                       phase, sign, np.zeros((0, 6)) if alphabeta else p.bandpass, p.lowpass, alphabeta)
 
 
 def fastest_pi(loop, phase_margin_deg, pi_zero_ratio=10.0):

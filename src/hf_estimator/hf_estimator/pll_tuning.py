@@ -57,7 +57,7 @@ def pll_design(nameplate, commissioning, inverter, estimator_name, settings, T_s
     szabo = None
     if not path.alphabeta:
         process = pll_process(R, commissioning.L_dh_H, commissioning.L_qh_H,
-                              path.omega_h_rad_s / (2.0 * math.pi), path.u_h_V, path.u_star)
+                              path.omega_h_rad_s / (2.0 * math.pi), path.injection_amplitude_V, path.u_star)
         szabo = szabo_loop(process, lambda omega: sos_response(path.lowpass, omega, T_s),
                            0.999 * math.pi / T_s)
     return PllDesign(nameplate.name, estimator, path, carrier_loop(path), szabo)

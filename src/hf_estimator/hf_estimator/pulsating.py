@@ -37,11 +37,12 @@ def q_axis_demodulation(z, bandpass, lowpass, i_alpha, i_beta, theta, amplitude,
 
 
 @njit(cache=True)
-def pulsating_track_and_inject(x, monitor, k, i_alpha, i_beta, carrier, U_h, kp, ki, T_s, error):
+def pulsating_track_and_inject(x, monitor, k, i_alpha, i_beta, carrier, injection_amplitude_V, kp, ki, T_s,
+                               error):
     """What the papers' methods do after demodulating ε: the PI tracking loop, the HF admittance
     monitor, and the next injection U_h·carrier along the new d̂ (Wang Eq. 7, Szabó Eq. 6).
     Returns (ω_PI, u_inj_α, u_inj_β, signal, observable)."""
     omega = pi_tracking_loop(x, THETA, INTEGRAL, kp, ki, T_s, error)
     signal, observable = monitor_step(x, MONITOR, monitor, k, i_alpha, i_beta, carrier, x[THETA])
-    u_alpha, u_beta = rotate(U_h * carrier, 0.0, x[THETA])
+    u_alpha, u_beta = rotate(injection_amplitude_V * carrier, 0.0, x[THETA])
     return omega, u_alpha, u_beta, signal, observable

@@ -43,7 +43,7 @@ DEFAULTS = {"frequency_Hz": 1500.0, "amplitude_V": 40.0, "u_star": 1.0, "A_p": 4
 class SynchronousParams(NamedTuple):
     T_s_s: float
     omega_h_rad_s: float
-    u_h_V: float
+    injection_amplitude_V: float
     u_star: float
     kp: float
     ki: float
@@ -64,11 +64,12 @@ def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta,
     i_qhf = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA], p.u_star,
                                 math.cos(p.omega_h_rad_s * t + p.demodulation_phase_rad))
     omega, u_alpha, u_beta, signal_strength, observable = pulsating_track_and_inject(
-        x, p.monitor, k, i_alpha, i_beta, math.sin(p.omega_h_rad_s * t), p.u_h_V, p.kp, p.ki, p.T_s_s,
+        x, p.monitor, k, i_alpha, i_beta, math.sin(p.omega_h_rad_s * t), p.injection_amplitude_V, p.kp, p.ki, p.T_s_s,
         -i_qhf)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
                                           u_beta, -i_qhf, observable, theta_e_encoder)
-    return x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, state, p.u_h_V, 0.0, float(LEADER_INJECTION)
+    return (x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, state, p.injection_amplitude_V, 0.0,
+            float(LEADER_INJECTION))
 
 
 def first_order_lowpass(T_f, T_s):
@@ -82,17 +83,18 @@ def first_order_lowpass(T_f, T_s):
                         "demodulation: aligned is ours)", "Szabó & Veszprémi, §2.2-2.3, Eq. (6), (15)-(22), Table 2")
 def make_synchronous(nameplate, T_s, settings, commissioning, inverter, name="synchronous", defaults=DEFAULTS):
     s = check_settings(name, settings, defaults, T_s)
-    f_h, u_h = float(s["frequency_Hz"]), float(s["amplitude_V"])
+    f_h, injection_amplitude_V = float(s["frequency_Hz"]), float(s["amplitude_V"])
     ratio = float(s["bandpass_ratio"])
     bandpass = butterworth_bandpass(1, f_h / ratio, min(f_h * ratio, 0.49 / T_s), T_s)
     delay_periods = inverter.delay_periods
     phase = demodulation_phase("synchronous", s["demodulation"], commissioning, T_s, delay_periods, f_h, bandpass)
-    monitor = make_monitor(T_s, u_h, f_h, delay_periods, commissioning, s["observable_ratio"])
-    gain = float(s["u_star"]) * u_h * commissioning.delta / (2.0 * math.pi * f_h)
+    monitor = make_monitor(T_s, injection_amplitude_V, f_h, delay_periods, commissioning, s["observable_ratio"])
+    gain = float(s["u_star"]) * injection_amplitude_V * commissioning.delta / (2.0 * math.pi * f_h)
     startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, inverter,
                            gain if commissioning.salient() else 0.0, s)
     params = SynchronousParams(
-        T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, u_h_V=u_h, u_star=float(s["u_star"]),
+        T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, injection_amplitude_V=injection_amplitude_V,
+        u_star=float(s["u_star"]),
         kp=float(s["A_p"]), ki=float(s["A_p"]) / float(s["T_i_s"]),
         lowpass=first_order_lowpass(float(s["T_f_s"]), T_s),
         bandpass=bandpass, demodulation_phase_rad=phase,

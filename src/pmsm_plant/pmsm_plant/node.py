@@ -33,7 +33,18 @@ from control_math.command_delay import applied_voltage, issue_command
 from control_math.frames import wrap
 from drive_interface.node import SamplePublisher, finite, run_node, topic_qos
 from drive_interface.stamps import sample_at, stamp_ns, stamp_parts
-from drive_interface.topics import TOPICS
+from drive_interface.topics import (
+    ANGLE_ERROR,
+    CURRENTS,
+    ESTIMATOR_STATE,
+    LOAD_TORQUE,
+    ROTOR_ESTIMATE,
+    ROTOR_STATE,
+    SPEED_COMMAND,
+    TOPICS,
+    VOLTAGE_COMMAND,
+    block,
+)
 from drive_interface.wire import BlockWire, JointWire, Vector3Wire, encode_clock
 from drive_scenarios.node import ScenarioNode
 from drive_scenarios.parameters import SCHEDULE_PARAMETER
@@ -54,19 +65,19 @@ class PlantNode(ScenarioNode):
         self.scheduled = bool(self.get_parameter("scenario_schedule").value)
         self.go = not self.scheduled
         self.angle_error_decimation = max(1, int(self.get_parameter("angle_error_decimation").value))
-        self.currents_pub = self.sample_publisher(self.contract_topics("currents")[0])
-        self.rotor_state_pub = self.sample_publisher(self.contract_topics("rotor_state")[0])
+        self.currents_pub = self.sample_publisher(self.contract_topics(CURRENTS)[0])
+        self.rotor_state_pub = self.sample_publisher(self.contract_topics(ROTOR_STATE)[0])
         self.clock_pub = None
-        self.angle_error_pub = SamplePublisher(self.create_publisher(Vector3Stamped, "angle_error",
-                                                                     topic_qos("angle_error")))
+        self.angle_error_pub = SamplePublisher(self.create_publisher(Vector3Stamped, ANGLE_ERROR,
+                                                                     topic_qos(ANGLE_ERROR)))
         if self.block_samples > 1:
-            self.voltage_sub = self.sample_subscription("voltage_command_block", self.timed(self.on_voltage_block))
-            self.sample_subscription("rotor_estimate_block", self.on_rotor_estimate_block)
+            self.voltage_sub = self.sample_subscription(block(VOLTAGE_COMMAND), self.timed(self.on_voltage_block))
+            self.sample_subscription(block(ROTOR_ESTIMATE), self.on_rotor_estimate_block)
         else:
-            self.voltage_sub = self.sample_subscription("voltage_command", self.timed(self.on_voltage_command))
-            self.sample_subscription("rotor_estimate", self.on_rotor_estimate)
-        self.create_subscription(Float64, "load_torque", self.on_load_torque, topic_qos("load_torque"))
-        self.create_subscription(Float64, "speed_command", self.on_speed_command, topic_qos("speed_command"))
+            self.voltage_sub = self.sample_subscription(VOLTAGE_COMMAND, self.timed(self.on_voltage_command))
+            self.sample_subscription(ROTOR_ESTIMATE, self.on_rotor_estimate)
+        self.create_subscription(Float64, LOAD_TORQUE, self.on_load_torque, topic_qos(LOAD_TORQUE))
+        self.create_subscription(Float64, SPEED_COMMAND, self.on_speed_command, topic_qos(SPEED_COMMAND))
         self.braked = bool(self.configured and self.scenario.brake)
         """Waiting for the estimator's first tracking sample (the brake's lift time starts there)."""
         self.brake_release_k = None
@@ -74,9 +85,9 @@ class PlantNode(ScenarioNode):
         self.pending_command = None
         self.state_sub = None
         if self.braked:
-            self.state_sub = (self.sample_subscription("estimator_state_block", self.on_estimator_state_block)
+            self.state_sub = (self.sample_subscription(block(ESTIMATOR_STATE), self.on_estimator_state_block)
                               if self.block_samples > 1 else
-                              self.sample_subscription("estimator_state", self.on_estimator_state))
+                              self.sample_subscription(ESTIMATOR_STATE, self.on_estimator_state))
         self.k = 0
         self.tau_load = 0.0
         self.omega_imposed = 0.0
@@ -87,10 +98,10 @@ class PlantNode(ScenarioNode):
         self.history = {}
         self.estimate_seen = -1
         self.zero_voltage_periods = 0
-        self.currents_wire = Vector3Wire(TOPICS["currents"].frame_id)
+        self.currents_wire = Vector3Wire(TOPICS[CURRENTS].frame_id)
         self.rotor_state_wire = JointWire("rotor")
-        self.error_wire = Vector3Wire(TOPICS["angle_error"].frame_id)
-        self.currents_block_wire = BlockWire(TOPICS["currents"].frame_id)
+        self.error_wire = Vector3Wire(TOPICS[ANGLE_ERROR].frame_id)
+        self.currents_block_wire = BlockWire(TOPICS[CURRENTS].frame_id)
         self.rotor_state_block_wire = BlockWire()
         self.schedule = None
         if self.configured:
@@ -106,7 +117,7 @@ class PlantNode(ScenarioNode):
                                  "mode": s.mode, "machine": p.machine, "mechanics": p.mechanics,
                                  "inverter": p.inverter, "sensor": p.sensor, "non_idealities": s.non_idealities})
             self.create_timer(min(self.timeout_s / 4.0, 0.05), self.watchdog)
-            self.watch_foreign_publishers(self.contract_topics("voltage_command"))
+            self.watch_foreign_publishers(self.contract_topics(VOLTAGE_COMMAND))
         else:
             self.publish_config({})
 
@@ -150,9 +161,9 @@ class PlantNode(ScenarioNode):
         partner answers currents with voltages and no estimator runs."""
         matched = self.currents_pub.get_subscription_count()
         held = self.parameters["shaft_held"]
-        currents, estimate, rotor = self.contract_topics("currents", "rotor_estimate", "rotor_state")
+        currents, estimate, rotor = self.contract_topics(CURRENTS, ROTOR_ESTIMATE, ROTOR_STATE)
         watched = all(publisher.get_subscription_count() >= self.count_subscribers(topic)
-                      for publisher, topic in ((self.rotor_state_pub, rotor), (self.angle_error_pub, "angle_error")))
+                      for publisher, topic in ((self.rotor_state_pub, rotor), (self.angle_error_pub, ANGLE_ERROR)))
         return (watched and matched >= max(1 if held else 2, self.count_subscribers(currents))
                 and self.voltage_sub.get_publisher_count() >= 1
                 and (held or self.count_publishers(estimate) >= 1)
@@ -170,7 +181,7 @@ class PlantNode(ScenarioNode):
         if time.monotonic() - self.sent_at <= self.timeout_s:
             return
         estimating = not self.parameters["shaft_held"] and self.estimate_seen < self.k
-        silent = "rotor_estimate" if estimating else "voltage_command"
+        silent = ROTOR_ESTIMATE if estimating else VOLTAGE_COMMAND
         self.fault("timeout", f"sample {self.k}: no answer within {self.timeout_s:g} s (silent topic: "
                               f"{self.resolve_topic_name(self.contract_topics(silent)[0])}); zero voltage applied")
         if self.block_samples > 1:
