@@ -18,7 +18,8 @@ from drive_runner.commissioning_run import commission_in_process
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario, parse_scenario
 from foc_controller.supervision import SpeedSupervisor, speed_supervision
-from hf_estimator.startup import REFUSALS, ROTOR_MOVED, linear_polarity_ratio
+from hf_estimator.polarity_test import linear_polarity_ratio
+from hf_estimator.startup import REFUSALS, ROTOR_MOVED
 from motor_params.commissioning import CommissioningError, resolve_commissioning, save_commissioning
 from motor_params.motor_file import MotorFileError, load_motor
 from motor_params.scaled_loops import scaled_loops

@@ -11,10 +11,10 @@ import pytest
 from drive_evaluation.metrics import compute_metrics
 from drive_evaluation.startup_bench import STANDARD_CASES, startup_sweep
 from drive_interface.exit_codes import EXIT_NOT_TRACKING
-from drive_interface.log import COLUMN
-from drive_runner.runner import run_scenario
+from drive_interface.log import COLUMN, LOG_COLUMNS
+from drive_runner.runner import RunResult, build_drive, run_scenario
 from drive_scenarios.scenario import ScenarioError, load_scenario, parse_scenario, scenario_names
-from hf_estimator.startup import NO_SALIENCY, REFUSALS
+from hf_estimator.startup import NO_SALIENCY, REFUSALS, estimator_startup, startup_follow
 from motor_params.motor_file import nameplate
 
 pytestmark = pytest.mark.unit
@@ -38,9 +38,18 @@ def test_a_reduced_start_grid_finds_the_polarity_every_time(motor, case):
 
 
 def forced_slip(name, at_s, duration_s):
-    scenario = load_scenario(name)
-    settings = {**scenario.estimator_settings, "slip_at_s": at_s, "slip_rad": math.pi}
-    return run_scenario(dataclasses.replace(scenario, estimator_settings=settings, duration_s=duration_s))
+    """The scenario's drive run to ``at_s``, θ̂ turned by π there (as a slip would: the start-up's
+    back-EMF residual turned with it), then run to the end."""
+    scenario = dataclasses.replace(load_scenario(name), duration_s=duration_s)
+    drive = build_drive(scenario)
+    n, slip = scenario.n_samples, int(round(at_s / scenario.T_s))
+    log = np.zeros((n, len(LOG_COLUMNS)))
+    drive.run(0, slip, log[:slip])
+    e = drive.estimator
+    startup_follow(e.x, e.params.startup, e.x[0] + math.pi, e.x[1])
+    drive.run(slip, n, log[slip:])
+    return RunResult(scenario, e.name, log, 0.0, drive.controller.i_max_A, 0, drive.commissioning, e.facts(),
+                     estimator_startup(e))
 
 
 def test_a_forced_slip_is_detected_and_the_drive_tracks_again():

@@ -48,7 +48,8 @@ from .injection_frame import ACCELERATION as OURS_ACCELERATION
 from .injection_frame import DEFAULTS as INJECTION_DEFAULTS
 from .injection_frame import InjectionFrameParams, injection_frame_step, make_injection_frame
 from .interface import Estimator, check_settings, register
-from .startup import StartupParams, dead_time_uncertainty_V, startup_follow
+from .startup import dead_time_uncertainty_V, startup_follow
+from .startup_state import StartupParams
 
 THETA, OMEGA, WEIGHT, FADE, READY, AGREEMENT, AGREED, CURRENT, ACCELERATION, PREV_OMEGA, WEIGHT_TARGET, \
     FADE_TARGET = range(12)

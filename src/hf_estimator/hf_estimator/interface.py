@@ -207,8 +207,6 @@ SETTING_CHECKS = {
     "lost_hold_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
     "max_restarts": lambda key, value, T_s: number(key, value, 0, 100, low_inclusive=True, integer=True),
     "backemf_polarity_ratio": lambda key, value, T_s: positive(key, value),
-    "slip_at_s": lambda key, value, T_s: number(key, value, -1.0, None, low_inclusive=True),
-    "slip_rad": lambda key, value, T_s: number(key, value, -2.0 * math.pi, 2.0 * math.pi, low_inclusive=True),
     "polarity_from_recording": lambda key, value, T_s: flag(key, value),
     **{key: lambda key, value, T_s: positive(key, value) for key in (
         "handover_backemf_ratio", "handback_backemf_ratio", "quiet_backemf_ratio", "inject_backemf_ratio")},

@@ -1,0 +1,56 @@
+"""The start-up's alignment (docs/startup.md; startup.py, item 1): the estimator's own tracker converges on its own
+injection to the saliency axis (mod π). Aligned once its error, scaled to radians by the estimator's gain
+and smoothed, has stayed below ``align_tolerance_rad`` (MOVING_TOLERANCE_FACTOR times more at speed) for
+settle_samples. Not aligned within align_timeout_samples: the start is refused (the rotor moving, or no
+saliency), or, after a lost lock, counted as another loss."""
+import math
+
+from numba import njit
+
+from drive_interface.estimator_states import ALIGNING, HOLD
+
+from .startup_state import (
+    E_ALPHA,
+    E_BETA,
+    ERROR,
+    INTEGRAL,
+    NO_SALIENCY,
+    REFUSED,
+    RESTARTS,
+    ROTOR_MOVED,
+    SETTLED,
+    backemf_clear,
+    lose_lock,
+)
+
+ALIGN_SMOOTHING_S = 2e-3
+"""Time constant of the smoothed error the alignment is judged by."""
+MOVING_TOLERANCE_FACTOR = 4.0
+"""Re-acquiring a rotor fast enough for its back-EMF to tell the polarity, the alignment tolerance is
+this many times wider: the tracker lags an accelerating rotor (a loaded shaft dragged at zero torque),
+and the lock monitor checks the result against the back-EMF."""
+
+
+@njit(cache=True)
+def alignment_step(x, p, k, since, u_inj_alpha, u_inj_beta, eps, observable):
+    """Sample k, ``since`` samples into the alignment, with the estimator's ε and observable flag →
+    (aligned, u_α, u_β [V], state code): aligned, the polarity test begins; else the answer for sample k
+    (the estimator's injection while aligning, zero voltage once refused)."""
+    b = p.base
+    if observable > 0.5 and p.error_gain != 0.0:
+        x[b + ERROR] += p.error_smoothing * (eps / p.error_gain - x[b + ERROR])
+        tolerance = p.align_tolerance_rad
+        if backemf_clear(x, p, abs(x[INTEGRAL]) * p.psi_f_Wb):
+            tolerance *= MOVING_TOLERANCE_FACTOR
+        x[b + SETTLED] = x[b + SETTLED] + 1.0 if abs(x[b + ERROR]) < tolerance else 0.0
+    else:
+        x[b + SETTLED] = 0.0
+    if x[b + SETTLED] >= p.settle_samples:
+        return True, 0.0, 0.0, float(ALIGNING)
+    if since < p.align_timeout_samples:
+        return False, u_inj_alpha, u_inj_beta, float(ALIGNING)
+    if x[b + RESTARTS] == 0.0:
+        moving = backemf_clear(x, p, max(abs(x[INTEGRAL]) * p.psi_f_Wb, math.hypot(x[b + E_ALPHA], x[b + E_BETA])))
+        x[b + REFUSED] = ROTOR_MOVED if observable > 0.5 or moving else NO_SALIENCY
+        return False, 0.0, 0.0, float(HOLD)
+    return False, u_inj_alpha, u_inj_beta, lose_lock(x, p, k)

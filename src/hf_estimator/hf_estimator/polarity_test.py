@@ -1,0 +1,168 @@
+"""The start-up's polarity test (docs/startup.md; startup.py, items 2 and 5): the magnet's polarity on the aligned axis, from
+voltage pulses + − − + (every other sequence mirrored) after a quiet time, from the back-EMF's sign at
+speed, or in replay from the recording drive's own choice. With i_j the d̂ current at the j-th pulse
+boundary, S = −i₀ + 2i₁ − 2i₂ + 2i₃ − i₄ = 2(A₊ − A₋) and T = −i₀ + 2i₁ − 2i₃ + i₄ = 2(A₊ + A₋); the magnet
+saturates the d axis further when i_d > 0, so S/T < −margin means θ̂ is the magnet's south."""
+import math
+
+from numba import njit
+
+from control_math.frames import rotate, wrap
+from drive_interface.estimator_states import ALIGNING, HOLD, POLARITY
+
+from .startup_state import (
+    FLIPPED,
+    HELD_AT,
+    INTEGRAL,
+    INTEGRAL_HELD,
+    NO_POLARITY,
+    POLARITY_RATIO,
+    QUIET,
+    REFUSED,
+    RESIDUAL_Q,
+    SCORE,
+    SPAN,
+    THETA,
+    THETA_HELD,
+    TRIES,
+    backemf_clear,
+    enter,
+    hold,
+    turn,
+)
+
+
+@njit(cache=True)
+def _sequence_sign(sequence):
+    """+1 for the sequences + − − +, −1 for the mirrored − + + − (every other one)."""
+    return 1.0 if sequence % 2 == 0 else -1.0
+
+
+@njit(cache=True)
+def polarity_coefficients(m, n, length, sequences):
+    """(S, T) weights of the d̂ current at pulse-clock sample m (module docstring)."""
+    c_s = (-1.0, 2.0, -2.0, 2.0, -1.0)
+    c_t = (-1.0, 2.0, 0.0, -2.0, 1.0)
+    if m < 0 or m % n != 0 or m > sequences * length:
+        return 0.0, 0.0
+    w_s, w_t = 0.0, 0.0
+    if m > 0 and m % length == 0:
+        w_s += c_s[4]
+        w_t += c_t[4] * _sequence_sign(m // length - 1)
+    if m < sequences * length:
+        j = (m % length) // n
+        w_s += c_s[j]
+        w_t += c_t[j] * _sequence_sign(m // length)
+    return w_s, w_t
+
+
+@njit(cache=True)
+def pulse_sign(since, n):
+    """+1 or −1: the sign of the polarity pulse issued at pulse-clock sample ``since``."""
+    quarter = (since % (4 * n)) // n
+    return (1.0 if quarter == 0 or quarter == 3 else -1.0) * _sequence_sign(since // (4 * n))
+
+
+def linear_polarity_ratio(R_s_ohm, L_H, T_s, n, sequences, delay_periods):
+    """S/T of the polarity pulses (n samples each, ``sequences`` of them, the drive's whole delay) on a
+    linear R–L winding: the share the resistance gives where a pulse is not short against L/R (−0.03 at
+    R·n·T_s/L ≈ 1.2, a 20 W gimbal motor, as large as its saturation's), not the magnet's. The test takes
+    it off the measured S/T."""
+    a = math.exp(-R_s_ohm * T_s / L_H)
+    gain = (1.0 - a) / R_s_ohm if R_s_ohm > 0.0 else T_s / L_H
+    length, i, score, span = 4 * n, 0.0, 0.0, 0.0
+    for k in range(sequences * length + delay_periods + 1):
+        w_s, w_t = polarity_coefficients(k - delay_periods, n, length, sequences)
+        score += w_s * i
+        span += w_t * i
+        issued = k - delay_periods
+        i = a * i + gain * (pulse_sign(issued, n) if 0 <= issued < sequences * length else 0.0)
+    return score / span
+
+
+@njit(cache=True)
+def polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, theta_e_recorded):
+    """The axis aligned at sample k: θ̂ and ω̂ held; at speed (or in replay, with the recording drive's
+    estimate θ̂_e [rad], NaN where it has none) the polarity is decided at once, else the injection stops
+    for the quiet time before the pulses. → (u_α, u_β [V], state code)."""
+    b = p.base
+    x[b + THETA_HELD] = x[THETA]
+    x[b + INTEGRAL_HELD] = x[INTEGRAL]
+    x[b + HELD_AT] = k
+    x[b + SCORE] = 0.0
+    x[b + SPAN] = 0.0
+    at_speed = backemf_clear(x, p, abs(x[INTEGRAL]) * p.psi_f_Wb)
+    recorded = p.polarity_from_recording and theta_e_recorded == theta_e_recorded
+    if p.polarity_from_recording and not recorded and not at_speed:
+        return u_inj_alpha, u_inj_beta, float(ALIGNING)
+    if at_speed or recorded:
+        if recorded:
+            flip = abs(wrap(theta_e_recorded - x[THETA])) > 0.5 * math.pi
+        else:
+            backemf_q = x[b + RESIDUAL_Q] + x[INTEGRAL] * p.psi_f_Wb
+            flip = backemf_q * x[INTEGRAL] < 0.0
+        x[b + FLIPPED] = 1.0 if flip else 0.0
+        x[b + POLARITY_RATIO] = 0.0
+        if flip:
+            turn(x, p, math.pi)
+        enter(x, p, k - p.pulse_sequences * 4 * p.pulse_samples - p.delay_periods - 1, POLARITY)
+        return u_inj_alpha, u_inj_beta, float(POLARITY)
+    x[b + INTEGRAL_HELD] = 0.0
+    x[b + QUIET] = k + 1.0
+    return 0.0, 0.0, float(ALIGNING)
+
+
+@njit(cache=True)
+def quiet_over(x, p, k):
+    """During the quiet time before the pulses (θ̂ held, zero voltage): whether it is over at sample k,
+    then the test entered."""
+    b = p.base
+    hold(x, p, k)
+    if k - (x[b + QUIET] - 1.0) < p.quiet_samples:
+        return False
+    x[b + QUIET] = 0.0
+    enter(x, p, k, POLARITY)
+    return True
+
+
+@njit(cache=True)
+def polarity_step(x, p, k, since, i_alpha, i_beta, u_inj_alpha, u_inj_beta):
+    """Sample k, ``since`` samples into the test: pulses issued and the d̂ current scored, the decision
+    (θ̂ turned by π for the south; no asymmetry: a quarter turn and another try, refused after
+    polarity_tries), then the flush on the estimator's injection. → (done: the flush is over, u_α, u_β [V],
+    state code)."""
+    b = p.base
+    length = 4 * p.pulse_samples
+    issue_end = p.pulse_sequences * length
+    decide_at = issue_end + p.delay_periods
+    if since <= decide_at:
+        axis = hold(x, p, k)
+        i_d, _ = rotate(i_alpha, i_beta, -axis)
+        w_s, w_t = polarity_coefficients(since - p.delay_periods, p.pulse_samples, length, p.pulse_sequences)
+        x[b + SCORE] += w_s * i_d
+        x[b + SPAN] += w_t * i_d
+        if since < issue_end:
+            sign = pulse_sign(since, p.pulse_samples)
+            u_alpha, u_beta = rotate(sign * p.pulse_V, 0.0, axis + x[b + INTEGRAL_HELD] * p.T_s_s)
+            return False, u_alpha, u_beta, float(POLARITY)
+        if since < decide_at:
+            return False, 0.0, 0.0, float(POLARITY)
+        ratio = x[b + SCORE] / x[b + SPAN] - p.polarity_linear_ratio if x[b + SPAN] > 0.0 else 0.0
+        x[b + POLARITY_RATIO] = ratio
+        if abs(ratio) < p.polarity_margin:
+            x[b + TRIES] += 1.0
+            if x[b + TRIES] >= p.polarity_tries:
+                x[b + REFUSED] = NO_POLARITY
+                return False, 0.0, 0.0, float(HOLD)
+            x[b + THETA_HELD] += 0.5 * math.pi
+            turn(x, p, 0.5 * math.pi)
+            x[b + QUIET] = k + 1.0
+            enter(x, p, k, ALIGNING)
+            return False, 0.0, 0.0, float(ALIGNING)
+        x[b + FLIPPED] = 1.0 if ratio < 0.0 else 0.0
+        if ratio < 0.0:
+            turn(x, p, math.pi)
+        return False, u_inj_alpha, u_inj_beta, float(POLARITY)
+    if since < decide_at + p.flush_samples:
+        return False, u_inj_alpha, u_inj_beta, float(POLARITY)
+    return True, 0.0, 0.0, float(POLARITY)
