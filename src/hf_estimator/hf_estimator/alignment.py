@@ -1,5 +1,5 @@
-"""The start-up's alignment (docs/startup.md; startup.py, item 1): the estimator's own tracker converges on its own
-injection to the saliency axis (mod π). Aligned once its error, scaled to radians by the estimator's gain
+"""The start-up's alignment (docs/startup.md; startup.py, item 1): the estimator's own tracker converges on
+its own injection to the saliency axis (mod π). Aligned once its error, scaled to radians by the estimator's gain
 and smoothed, has stayed below ``align_tolerance_rad`` (MOVING_TOLERANCE_FACTOR times more at speed) for
 settle_samples. Not aligned within align_timeout_samples: the start is refused (the rotor moving, or no
 saliency), or, after a lost lock, counted as another loss."""

@@ -1,5 +1,5 @@
-"""The start-up's lock monitor (docs/startup.md; startup.py, items 3 and 4): the back-EMF in the θ̂ frame measured
-from the applied voltage and the currents against what the estimate implies; a lock lost where they part
+"""The start-up's lock monitor (docs/startup.md; startup.py, items 3 and 4): the back-EMF in the θ̂ frame
+measured from the applied voltage and the currents against what the estimate implies; a lock lost where they part
 for long enough; and, during the hold after a loss, the rotor's angle and speed fitted to its back-EMF."""
 import math
 
