@@ -1,6 +1,6 @@
 """The start-up's polarity test (docs/startup.md; startup.py, items 2 and 5): the magnet's polarity on the
-aligned axis, from voltage pulses + − − + (every other sequence mirrored) after a quiet time, from the back-EMF's sign at
-speed, or in replay from the recording drive's own choice. With i_j the d̂ current at the j-th pulse
+aligned axis, from voltage pulses + − − + (every other sequence mirrored) after a quiet time, from the
+back-EMF's sign at speed, or in replay from the recording drive's own choice. With i_j the d̂ current at the j-th pulse
 boundary, S = −i₀ + 2i₁ − 2i₂ + 2i₃ − i₄ = 2(A₊ − A₋) and T = −i₀ + 2i₁ − 2i₃ + i₄ = 2(A₊ + A₋); the magnet
 saturates the d axis further when i_d > 0, so S/T < −margin means θ̂ is the magnet's south."""
 import math
