@@ -188,6 +188,40 @@ def test_every_numba_kernel_has_a_docstring():
     assert missing == []
 
 
+def test_every_estimator_steps_on_named_records():
+    """Each registered estimator's step reads a SAMPLE and writes an ESTIMATE record, on a state record
+    whose first fields are θ̂ and ω̂; the ESTIMATE fields are the log's columns of the same names."""
+    import inspect
+
+    from drive_interface.estimator_records import ESTIMATE_FIELDS
+    from drive_interface.log import COLUMN
+    from hf_estimator.registry import estimator_names, make_estimator
+    from motor_params.commissioning import nameplate_commissioning
+    from motor_params.motor_file import load_motor
+
+    assert set(ESTIMATE_FIELDS) <= set(COLUMN)
+    motor = load_motor("wang_spmsm", "test")
+    for name in estimator_names():
+        e = make_estimator(name, motor.nameplate, 1e-4, {}, nameplate_commissioning(motor.nameplate),
+                           motor.inverter._replace(delay_periods=1))
+        assert list(inspect.signature(e.step.py_func).parameters) == ["x", "p", "k", "sample", "out"], name
+        assert e.state.shape == (1,) and e.state.dtype.names[:2] == ("theta", "omega"), name
+
+
+def test_record_types_are_mangled_alike_in_every_process():
+    """Kernels cached on disk by one process are linked by name in another: a record type's mangled name
+    must not depend on what else the process typed first (numba issue #7654, drive_interface.numba_records),
+    and two layouts must never share one."""
+    program = ("import sys, numpy as np, numba; from drive_interface import numba_records; "
+               "from numba.core.itanium_mangler import mangle_type; "
+               "[numba.typeof(np.zeros(1, [(n, 'f8')])[0]) for n in sys.argv[1:]]; "
+               "print(*(mangle_type(numba.typeof(np.zeros(1, [('theta', 'f8'), ('ring', 'f8', (n,))])[0])) "
+               "for n in (3, 5)))")
+    names = [subprocess.run([sys.executable, "-c", program, *before], capture_output=True, text=True,
+                            check=True).stdout.split() for before in ((), ("a", "b", "c"))]
+    assert names[0] == names[1] and names[0][0] != names[0][1]
+
+
 def test_topic_names_come_only_from_the_topic_table():
     """Nodes, the launcher and the bags name a contract topic by drive_interface.topics' constants, never
     by a string of their own (a JSON key of drive_config that happens to share a topic's name is not one)."""

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from control_math.command_delay import applied_voltage, command_line, issue_command
+from drive_interface.estimator_records import SAMPLE, estimates
 from drive_interface.log import COLUMN
 from drive_runner.runner import run_scenario
 from helpers import ideal_commissioning as commission
@@ -39,11 +40,13 @@ def held_shaft_response(name, error_e, saturation=True, samples=600, excitation=
     rating = WANG_INVERTER._replace(delay_periods=inverter.delay_periods)
     e = make_estimator(name, WANG.nameplate, 1e-4, hold, c, rating)
     line = command_line(inverter.delay_periods)
+    sample, out = np.zeros(1, SAMPLE)[0], estimates(1)[0]
     for k in range(samples):
-        i_a, i_b, i_c, _ = plant_outputs(x, machine)
-        _, _, u_a, u_b, eps, signal, observable, *_ = e.step(e.x, e.z, e.params, k, i_a, i_b, i_c,
-                                                             *applied_voltage(line, k - 1), 0.0, 0.0)
-        issue_command(line, k, *(excitation(k) if excitation else (u_a, u_b)))
+        sample["i_a"], sample["i_b"], sample["i_c"], _ = plant_outputs(x, machine)
+        sample["u_applied_alpha"], sample["u_applied_beta"] = applied_voltage(line, k - 1)
+        e.step(e.state[0], e.params, k, sample, out)
+        eps, signal, observable = out["eps"], out["signal"], out["state"]
+        issue_command(line, k, *(excitation(k) if excitation else (out["u_inj_alpha"], out["u_inj_beta"])))
         plant_advance(x, *applied_voltage(line, k), 0.0, True, 0.0, machine, WANG.mechanics, inverter, 1e-4, 1)
     return eps, signal, observable, c
 

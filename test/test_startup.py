@@ -46,7 +46,8 @@ def forced_slip(name, at_s, duration_s):
     log = np.zeros((n, len(LOG_COLUMNS)))
     drive.run(0, slip, log[:slip])
     e = drive.estimator
-    startup_follow(e.x, e.params.startup, e.x[0] + math.pi, e.x[1])
+    x = e.state[0]
+    startup_follow(x, e.params.startup, x["theta"] + math.pi, x["omega"])
     drive.run(slip, n, log[slip:])
     return RunResult(scenario, e.name, log, 0.0, drive.controller.i_max_A, 0, drive.commissioning, e.facts(),
                      estimator_startup(e))

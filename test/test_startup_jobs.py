@@ -11,26 +11,16 @@ from hf_estimator.alignment import alignment_step
 from hf_estimator.interface import check_settings
 from hf_estimator.lock_monitor import backemf_residual, fit_backemf_angle, lock_step, seed_from_backemf
 from hf_estimator.polarity_test import polarity_begin, polarity_step
-from hf_estimator.startup import DEFAULTS, make_startup, startup_reset
-from hf_estimator.startup_state import (
-    E_ALPHA,
-    E_BETA,
-    FLIPPED,
-    INTEGRAL,
-    NO_SALIENCY,
-    REFUSED,
-    RESIDUAL_Q,
-    RESTARTS,
-    ROTOR_MOVED,
-    THETA,
-)
+from hf_estimator.startup import DEFAULTS, fresh_startup, make_startup
+from hf_estimator.startup_state import NO_SALIENCY, ROTOR_MOVED, STARTUP
 from motor_params.commissioning import nameplate_commissioning
 from motor_params.motor_file import load_motor
 
 pytestmark = pytest.mark.unit
 
 T_S = 1e-4
-BASE = 2
+STATE = np.dtype([("theta", np.float64), ("omega", np.float64), ("startup", STARTUP)])
+"""The least estimator state a start-up job works on."""
 MOTOR = load_motor("wang_spmsm", "test")
 PLATE = MOTOR.nameplate
 COMMISSIONING = nameplate_commissioning(PLATE)
@@ -38,11 +28,10 @@ INVERTER = MOTOR.inverter._replace(delay_periods=1)
 
 
 def startup(**settings):
-    """(fresh x with the start-up at BASE, its StartupParams) for the Wang motor known by its nameplate."""
-    p = make_startup(BASE, PLATE, COMMISSIONING, T_S, INVERTER, 1.0,
-                     check_settings("test", settings, DEFAULTS, T_S))
-    x = np.zeros(BASE + 29)
-    startup_reset(x, p)
+    """(a fresh state record x, aligning; its StartupParams) for the Wang motor known by its nameplate."""
+    p = make_startup(PLATE, COMMISSIONING, T_S, INVERTER, 1.0, check_settings("test", settings, DEFAULTS, T_S))
+    x = np.zeros(1, STATE)[0]
+    fresh_startup(x["startup"])
     return x, p
 
 
@@ -61,19 +50,19 @@ def test_an_alignment_that_times_out_is_refused_and_says_why(observable, speed, 
     """Not settled by align_timeout: refused at zero voltage. No saliency seen and the rotor still: no
     saliency; saliency seen but never settling, or a rotor turning: it moved."""
     x, p = startup()
-    x[INTEGRAL] = speed
+    x["omega"] = speed
     eps = 0.5 if observable else 0.0
     aligned, u_alpha, u_beta, code = alignment_step(x, p, p.align_timeout_samples, p.align_timeout_samples,
                                                     1.0, 1.0, eps, observable)
     assert not aligned and (u_alpha, u_beta, code) == (0.0, 0.0, float(HOLD))
-    assert x[BASE + REFUSED] == refusal
+    assert x["startup"]["refused"] == refusal
 
 
 def test_after_a_lost_lock_a_timed_out_alignment_is_another_loss():
     x, p = startup()
-    x[BASE + RESTARTS] = 1.0
+    x["startup"]["restarts"] = 1.0
     *_, code = alignment_step(x, p, 5000, p.align_timeout_samples, 1.0, 1.0, 0.0, 0.0)
-    assert code == float(LOCK_LOST) and x[BASE + RESTARTS] == 2.0 and x[BASE + REFUSED] == 0.0
+    assert code == float(LOCK_LOST) and x["startup"]["restarts"] == 2.0 and x["startup"]["refused"] == 0.0
 
 
 def pulse_response(x, p, k0, inductance, resistance=0.05):
@@ -99,8 +88,8 @@ def test_the_pulses_tell_the_magnets_polarity_from_the_d_axis_saturation(south):
     sign = -1.0 if south else 1.0
     code = pulse_response(x, p, 0, lambda i: PLATE.L_d_H * (1.0 - 0.1 * math.tanh(sign * i / 5.0)))
     assert code == float(POLARITY)
-    assert x[BASE + FLIPPED] == float(south)
-    assert x[THETA] == pytest.approx(math.pi if south else 0.0)
+    assert x["startup"]["flipped"] == float(south)
+    assert x["theta"] == pytest.approx(math.pi if south else 0.0)
 
 
 def test_pulses_on_a_linear_winding_find_no_polarity_and_turn_a_quarter():
@@ -108,7 +97,7 @@ def test_pulses_on_a_linear_winding_find_no_polarity_and_turn_a_quarter():
     equilibrium), and after polarity_tries refused."""
     x, p = startup()
     code = pulse_response(x, p, 0, lambda i: PLATE.L_d_H, resistance=COMMISSIONING.R_s_ohm)
-    assert code == float(ALIGNING) and x[THETA] == pytest.approx(0.5 * math.pi)
+    assert code == float(ALIGNING) and x["theta"] == pytest.approx(0.5 * math.pi)
 
 
 def test_at_speed_the_back_emf_gives_the_polarity_without_pulses():
@@ -116,11 +105,11 @@ def test_at_speed_the_back_emf_gives_the_polarity_without_pulses():
     the flush begins at once."""
     x, p = startup()
     omega = -400.0
-    x[INTEGRAL] = omega
-    x[BASE + RESIDUAL_Q] = -2.0 * omega * PLATE.psi_f_Wb
+    x["omega"] = omega
+    x["startup"]["residual_q"] = -2.0 * omega * PLATE.psi_f_Wb
     u_alpha, u_beta, code = polarity_begin(x, p, 100, 1.0, 0.0, math.nan)
     assert code == float(POLARITY) and (u_alpha, u_beta) == (1.0, 0.0)
-    assert x[BASE + FLIPPED] == 1.0 and x[THETA] == pytest.approx(math.pi)
+    assert x["startup"]["flipped"] == 1.0 and x["theta"] == pytest.approx(math.pi)
 
 
 def backemf_samples(x, p, theta_offset, omega, samples):
@@ -129,7 +118,7 @@ def backemf_samples(x, p, theta_offset, omega, samples):
     codes = []
     for k in range(samples):
         theta = omega * k * T_S
-        x[THETA], x[INTEGRAL] = theta + theta_offset, omega
+        x["theta"], x["omega"] = theta + theta_offset, omega
         mid = theta - 0.5 * omega * T_S
         e = omega * PLATE.psi_f_Wb
         residual = backemf_residual(x, p, k, 0.0, 0.0, -e * math.sin(mid), e * math.cos(mid))
@@ -156,11 +145,11 @@ def test_after_a_lost_lock_the_back_emf_gives_angle_speed_and_polarity():
     e = abs(omega) * PLATE.psi_f_Wb
     for since in range(p.lost_hold_samples):
         theta = theta0 + omega * since * T_S
-        x[BASE + E_ALPHA] = -math.copysign(e, omega) * math.sin(theta)
-        x[BASE + E_BETA] = math.copysign(e, omega) * math.cos(theta)
+        x["startup"]["e_alpha"] = -math.copysign(e, omega) * math.sin(theta)
+        x["startup"]["e_beta"] = math.copysign(e, omega) * math.cos(theta)
         fit_backemf_angle(x, p, since)
-    x[THETA] = 0.0
+    x["theta"] = 0.0
     assert seed_from_backemf(x, p, p.lost_hold_samples - 1)
-    assert x[INTEGRAL] == pytest.approx(omega, rel=1e-6)
-    error = math.remainder(x[THETA] - (theta0 + omega * (p.lost_hold_samples - 1) * T_S), 2.0 * math.pi)
+    assert x["omega"] == pytest.approx(omega, rel=1e-6)
+    error = math.remainder(x["theta"] - (theta0 + omega * (p.lost_hold_samples - 1) * T_S), 2.0 * math.pi)
     assert abs(error) < 1e-6

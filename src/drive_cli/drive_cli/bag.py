@@ -1,7 +1,7 @@
 """``drive echo`` and ``drive bag info|reindex``: a drive topic as it goes by, and recordings."""
 from drive_interface.graph import DEFAULT_NAMESPACE
 
-from .options import CommandLineError, finite_float, print_json
+from .options import CommandLineError, finite_float, print_report
 
 
 def cmd_echo(args):
@@ -14,21 +14,13 @@ def cmd_echo(args):
 
 def cmd_bag_info(args):
     from drive_bags.reader import bag_info, bag_info_lines
-    info = bag_info(args.bag)
-    if args.json:
-        print_json(info)
-    else:
-        print("\n".join(bag_info_lines(info)))
+    print_report(bag_info(args.bag), args, bag_info_lines)
     return 0
 
 
 def cmd_bag_reindex(args):
     from drive_bags.reindex import reindex, reindex_line
-    info = reindex(args.bag, force=args.force)
-    if args.json:
-        print_json(info)
-    else:
-        print(reindex_line(info))
+    print_report(reindex(args.bag, force=args.force), args, lambda info: [reindex_line(info)])
     return 0
 
 

@@ -12,7 +12,7 @@ from .options import (
     CommandLineError,
     finite_float,
     motor_reference,
-    print_json,
+    print_report,
     sample_period_arg,
 )
 
@@ -67,21 +67,14 @@ def cmd_commission(args):
         truth = {**(truth or {}), **{key: rotating_truth[key] for key in ("psi_f_Wb", "J_kgm2")}}
     report = commissioning_report(out, scenario.motor.name, METHOD, host, conditions, wall, procedure, record, rated,
                                   truth, true_currents, rotating)
-    if args.json:
-        print_json(report)
-    else:
-        print("\n".join(commissioning_lines(report)))
+    print_report(report, args, commissioning_lines)
     return 0
 
 
 def cmd_presets(args):
     from drive_evaluation.motor_report import presets_lines, presets_report
 
-    entries = presets_report()
-    if args.json:
-        print_json(entries)
-    else:
-        print("\n".join(presets_lines(entries)))
+    print_report(presets_report(), args, presets_lines)
     return 0
 
 
@@ -94,11 +87,8 @@ def cmd_motor_template(args):
 def cmd_motor_show(args):
     from drive_evaluation.motor_report import motor_lines, motor_report
 
-    report = motor_report(load_motor(args.motor, "motor"), sample_period_arg(args.sample_period))
-    if args.json:
-        print_json(report)
-    else:
-        print("\n".join(motor_lines(report)))
+    print_report(motor_report(load_motor(args.motor, "motor"), sample_period_arg(args.sample_period)), args,
+                 motor_lines)
     return 0
 
 

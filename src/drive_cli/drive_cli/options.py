@@ -52,6 +52,14 @@ def print_json(data):
     print(dumps(data, indent=2, ensure_ascii=False))
 
 
+def print_report(report, args, lines):
+    """Print ``report`` as JSON with --json, else as its text ``lines(report)``."""
+    if args.json:
+        print_json(report)
+    else:
+        print("\n".join(lines(report)))
+
+
 def exit_code(interrupted=0, node_faults=None, output_error=None, not_tracking=False, not_following=False):
     """128 + the signal that stopped the run, else the worst of drive_interface.exit_codes (an output, bag
     or plot, not written in full; the drive not tracking at the end; the shaft not following its command;

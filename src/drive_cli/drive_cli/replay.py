@@ -6,7 +6,7 @@ from pathlib import Path
 from drive_interface.errors import DriveError
 from drive_interface.strict_json import dumps
 
-from .options import CommandLineError, estimator_list, print_json, recording_options, windows_arg
+from .options import CommandLineError, estimator_list, print_report, recording_options, windows_arg
 
 
 def _recording(bag, args):
@@ -51,10 +51,7 @@ def cmd_bench_compare(args):
     if not args.no_plot:
         out = Path(args.out) if args.out else Path("runs") / "compare"
         report["plot"] = str(plot_angle_errors(list(results), names, out / f"{names[0]}_vs_{names[1]}.png"))
-    if args.json:
-        print_json(report)
-    else:
-        print("\n".join(compare_lines(report, names)))
+    print_report(report, args, lambda r: compare_lines(r, names))
     return 0
 
 
@@ -80,10 +77,7 @@ def cmd_bench_replay(args):
                                                      f"{recording.estimator or 'an unnamed estimator'}): "
                                                      f"θ_e − θ̂_e per estimator"))
     _save_report(report, out / "replay.json")
-    if args.json:
-        print_json(report)
-    else:
-        print("\n".join(replay_lines(report, recording)))
+    print_report(report, args, lambda r: replay_lines(r, recording))
     return 0
 
 
@@ -113,10 +107,7 @@ def _replay_corpus(bags, names, args):
               "summary": summarise(per_bag, names), "skipped": skipped, "per_bag": per_bag}
     if args.out:
         _save_report(report, Path(args.out) / "replay_corpus.json")
-    if args.json:
-        print_json(report)
-    else:
-        print("\n".join(corpus_lines(report)))
+    print_report(report, args, corpus_lines)
     return 0
 
 

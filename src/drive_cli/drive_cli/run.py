@@ -180,25 +180,31 @@ def cmd_estimators(args):
     return 0
 
 
+def _drive_arguments(parser):
+    """What run, launch and bridge share: the scenario, what replaces its estimator, motor, duration and
+    commissioning, and the outputs."""
+    parser.add_argument("scenario", help="shipped scenario name (see 'drive scenarios') or YAML path")
+    parser.add_argument("--estimator", help="override the scenario's estimator")
+    parser.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
+    parser.add_argument("--duration", type=finite_float, help="override the duration [s]")
+    parser.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
+    parser.add_argument("--out", help="plot directory (default runs/SCENARIO)")
+    parser.add_argument("--no-plot", action="store_true", help="skip the PNG plot")
+    parser.add_argument("--json", action="store_true", help="print the metrics as JSON")
+
+
 def add_commands(sub):
     """run, scenarios, estimators, launch, bridge."""
     run = sub.add_parser("run", help="run a scenario in one process, print metrics, write plots")
-    run.add_argument("scenario", help="shipped scenario name (see 'drive scenarios') or YAML path")
-    run.add_argument("--estimator", help="override the scenario's estimator")
-    run.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
-    run.add_argument("--duration", type=finite_float, help="override the duration [s]")
-    run.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
+    _drive_arguments(run)
     run.add_argument("--block-samples", type=int, metavar="N",
                      help="override the scenario's block_samples: data in blocks of N samples, the command "
                           "acting N − 1 periods later (docs/architecture.md)")
     run.add_argument("--answer-periods", type=int, metavar="P",
                      help="periods the host has from a block's last sample to its first command acting "
                           "(default: the inverter's 1; docs/architecture.md)")
-    run.add_argument("--out", help="plot directory (default runs/SCENARIO)")
-    run.add_argument("--no-plot", action="store_true", help="skip the PNG plot")
     run.add_argument("--record", metavar="BAG",
                      help="write the run as a rosbag2/MCAP bag into this new directory")
-    run.add_argument("--json", action="store_true", help="print the metrics as JSON")
     run.set_defaults(func=cmd_run)
 
     for name, func, text in (("scenarios", cmd_scenarios, "list shipped scenarios"),
@@ -208,11 +214,7 @@ def add_commands(sub):
         p.set_defaults(func=func)
 
     launch = sub.add_parser("launch", help="run a scenario through the ROS 2 graph (nodes over topics)")
-    launch.add_argument("scenario", help="shipped scenario name or YAML path")
-    launch.add_argument("--estimator", help="override the scenario's estimator")
-    launch.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
-    launch.add_argument("--duration", type=finite_float, help="override the duration [s]")
-    launch.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
+    _drive_arguments(launch)
     launch.add_argument("--block-samples", type=int, metavar="N",
                         help="override the scenario's block_samples: the per-sample topics travel in blocks of N "
                              f"(docs/ros-graph.md; {PACED_BLOCK_SAMPLES} with --link and --paced)")
@@ -222,8 +224,6 @@ def add_commands(sub):
                         help="events (rclpy.experimental.EventsExecutor, default) or single (fallback)")
     launch.add_argument("--namespace", default=DEFAULT_NAMESPACE)
     launch.add_argument("--timeout", type=finite_float, default=1.0, help="lock-step answer timeout [s]")
-    launch.add_argument("--out", help="plot directory (default runs/SCENARIO)")
-    launch.add_argument("--no-plot", action="store_true")
     launch.add_argument("--record", metavar="BAG",
                         help="record every drive topic into this new rosbag2 directory")
     launch.add_argument("--link", choices=("pty", "can"),
@@ -233,23 +233,15 @@ def add_commands(sub):
                         help="with --link: the virtual inverter on its own clock at the sampling rate, never "
                              "waiting for the graph: a late command is zero volts, counted")
     add_scheduling_arguments(launch)
-    launch.add_argument("--json", action="store_true")
     launch.set_defaults(func=cmd_launch)
 
     bridge = sub.add_parser("bridge", help="the sensorless loop through the inverter bridge and the virtual "
                                            "inverter, in one process")
-    bridge.add_argument("scenario", help="shipped scenario name or YAML path")
+    _drive_arguments(bridge)
     bridge.add_argument("--link", choices=("pty", "can"), default="pty")
     bridge.add_argument("--paced", action="store_true",
                         help="the inverter on its own clock at the sampling rate, never waiting for the host: a "
                              "late command is zero volts, counted")
     bridge.add_argument("--block-samples", type=int, metavar="N",
                         help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced)")
-    bridge.add_argument("--estimator", help="override the scenario's estimator")
-    bridge.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
-    bridge.add_argument("--duration", type=finite_float, help="override the duration [s]")
-    bridge.add_argument("--commissioning", metavar="FILE", help=COMMISSIONING_HELP)
-    bridge.add_argument("--out", help="plot directory (default runs/SCENARIO)")
-    bridge.add_argument("--no-plot", action="store_true")
-    bridge.add_argument("--json", action="store_true")
     bridge.set_defaults(func=cmd_bridge)

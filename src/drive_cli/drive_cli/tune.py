@@ -6,16 +6,9 @@ from pathlib import Path
 from drive_interface.interrupt import Interrupted
 from motor_params.motor_file import load_motor
 
-from .options import COMMISSIONING_HELP, CommandLineError, exit_code, finite_float, print_json
+from .options import COMMISSIONING_HELP, CommandLineError, exit_code, finite_float, print_report
 
 PLL_ESTIMATORS = ("synchronous", "conventional", "improved")
-
-
-def _print(report, args, lines):
-    if args.json:
-        print_json(report)
-    else:
-        print("\n".join(lines(report)))
 
 
 def cmd_tune_current(args):
@@ -29,7 +22,7 @@ def cmd_tune_current(args):
         report = current_tuning(args.motor, plate, omega_n, zeta, ("d", "q") if args.axis == "both" else (args.axis,))
     except ValueError as error:
         raise CommandLineError(f"--bandwidth: {error}") from None
-    _print(report, args, current_tuning_lines)
+    print_report(report, args, current_tuning_lines)
     return 0
 
 
@@ -59,7 +52,7 @@ def cmd_tune_speed(args):
                               args.ratio)
     except ValueError as error:
         raise CommandLineError(f"--bandwidth: {error}") from None
-    _print(report, args, speed_tuning_lines)
+    print_report(report, args, speed_tuning_lines)
     return 0
 
 
@@ -128,7 +121,7 @@ def cmd_tune_pll(args):
         out = Path(args.out) if args.out else Path("runs") / "tune"
         report["plots"] = plot_pll(design, choice["A_p"], choice["T_i_s"], report.get("check"),
                                    out / f"{load_motor(args.motor, '--motor').name}_{args.estimator}")
-    _print(report, args, pll_tuning_lines)
+    print_report(report, args, pll_tuning_lines)
     return exit_code(interrupted)
 
 

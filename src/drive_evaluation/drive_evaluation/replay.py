@@ -17,11 +17,11 @@ import time
 
 import numpy as np
 
+from drive_interface.estimator_records import ESTIMATE_FIELDS, estimates
 from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
 from drive_runner.loop import replay_samples
 from drive_runner.runner import RunResult
-from hf_estimator.block import ESTIMATE_COLUMNS
 from hf_estimator.interface import excitation_need, injects, make_estimator
 from motor_params.nameplate import InverterRating
 
@@ -147,20 +147,21 @@ def replay(recording, estimators):
     for name in estimators:
         e = replayed_estimator(recording, name)
         theta_ref, omega_ref = encoder if excitation_need(name) == "encoder" else estimate
-        out = np.zeros((len(currents), len(ESTIMATE_COLUMNS)))
-        replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, currents[:2], u_applied[:2], whole[:2],
+        out = estimates(len(currents))
+        replay_samples(e.step, e.state.copy(), e.params, currents[:2], u_applied[:2], whole[:2],
                        theta_ref[:2], omega_ref[:2], calibration, out[:2])
         wall = math.inf
         for _ in range(TIMED_RUNS):
-            x, z = e.x.copy(), e.z.copy()
+            state = e.state.copy()
             start = time.perf_counter()
-            replay_samples(e.step, x, z, e.params, currents, u_applied, whole, theta_ref, omega_ref, calibration,
-                           out)
+            replay_samples(e.step, state, e.params, currents, u_applied, whole, theta_ref, omega_ref,
+                           calibration, out)
             wall = min(wall, time.perf_counter() - start)
         log = log0.copy()
-        for j, column in enumerate(ESTIMATE_COLUMNS):
-            log[:, COLUMN[column]] = out[:, j]
-        applicable, reason = applicability(recording, name, e.injection_frequency_Hz, out[:, 2:4], scored)
+        for field in ESTIMATE_FIELDS:
+            log[:, COLUMN[field]] = out[field]
+        injection = np.column_stack((out["u_inj_alpha"], out["u_inj_beta"]))
+        applicable, reason = applicability(recording, name, e.injection_frequency_Hz, injection, scored)
         scores = angle_scores(log, n_p, recording.windows, recording.start_s)
         entry = {"estimator": name, "applicable": applicable, "reason": reason, "samples": int(whole.sum()),
                  "samples_per_second": len(currents) / wall,

@@ -8,11 +8,11 @@ import math
 
 import numpy as np
 
+from drive_interface.estimator_records import ESTIMATE_FIELDS, estimates
 from drive_interface.estimator_states import LEADER_BACKEMF
 from drive_interface.log import COLUMN
 from drive_runner.loop import replay_samples
 from drive_runner.runner import run_scenario, scenario_commissioning
-from hf_estimator.block import ESTIMATE_COLUMNS
 from hf_estimator.registry import make_estimator
 
 from .metrics import _mask, angle_error, compute_metrics, windows
@@ -101,13 +101,13 @@ def observer_on_run(result, scenario):
     inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
     e = make_estimator("flux_observer", scenario.motor.nameplate, scenario.T_s, {}, commissioning, inverter)
     currents, u_applied, whole = logged_inputs(result.log, scenario.drive_delay_periods())
-    out = np.zeros((len(currents), len(ESTIMATE_COLUMNS)))
+    out = estimates(len(currents))
     zeros = np.zeros(len(currents))
-    replay_samples(e.step, e.x.copy(), e.z.copy(), e.params, currents, u_applied, whole, zeros, zeros,
+    replay_samples(e.step, e.state.copy(), e.params, currents, u_applied, whole, zeros, zeros,
                    commissioning.calibration(), out)
     log = result.log.copy()
-    for j, column in enumerate(ESTIMATE_COLUMNS):
-        log[:, COLUMN[column]] = out[:, j]
+    for field in ESTIMATE_FIELDS:
+        log[:, COLUMN[field]] = out[field]
     return log
 
 

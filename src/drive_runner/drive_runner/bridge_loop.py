@@ -9,17 +9,18 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from control_math.command_delay import applied_voltage, command_line, issue_command
+from control_math.command_delay import command_line, issue_command
 from control_math.current_sensing import corrected_currents
 from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.inverter_protocol import COMMAND_MISSING, MAX_BLOCK, PWM_OFF
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
+from drive_interface.estimator_records import estimates
 from drive_interface.interrupt import Interrupted
 from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.realtime import collector_held
 from drive_scenarios.scenario import behind_an_inverter
 from foc_controller.control import controller_block, controller_step
-from hf_estimator.block import ESTIMATE_WIDTH, estimator_block
+from hf_estimator.block import estimator_block, sample_inputs
 from motor_params.nameplate import trip_current_A
 
 from .loop import write_row
@@ -148,23 +149,29 @@ class _SampleAnswer:
     def __init__(self, host, scenario, line, log):
         self.host, self.scenario, self.line, self.log = host, scenario, line, log
         self.calibration = host.commissioning.calibration()
+        self.trip_A = trip_current_A(scenario.motor.nameplate)
+        self.currents, self.encoder, self.estimate = np.zeros((1, 3)), np.zeros((1, 2)), estimates(1)
+        self.inputs = sample_inputs()
 
     def sample(self, s, bridge):
         """Answer sample ``s``; the samples answered (its k)."""
         host, line, k = self.host, self.line, s.k
         e, cx, cz, cp = host.estimator, host.controller_x, host.controller_z, host.controller
-        theta_e = cp.n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+        self.currents[0] = s.i_a, s.i_b, s.i_c
+        self.encoder[0, 0] = cp.n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+        estimator_block(e.step, e.state, e.params, k, 1, self.currents, line, self.encoder, self.calibration,
+                        self.trip_A, self.estimate, self.inputs)
+        est = self.estimate[0]
         c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, self.calibration)
-        theta_hat, omega_hat, u_inj_a, u_inj_b, eps, signal, state, amplitude, weight, leader = e.step(
-            e.x, e.z, e.params, k, c_a, c_b, c_c, *applied_voltage(line, k - 1), theta_e, 0.0)
         u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-            cx, cz, cp, c_a, c_b, c_c, theta_hat, omega_hat, host.speed_ref[k], u_inj_a, u_inj_b, state,
-            host.tau_feedforward[k])
+            cx, cz, cp, c_a, c_b, c_c, est["theta_e_hat"], est["omega_e_hat"], host.speed_ref[k], est["u_inj_alpha"],
+            est["u_inj_beta"], est["state"], host.tau_feedforward[k])
         issue_command(line, k, u_a, u_b)
         bridge.command(k, u_a, u_b)
         write_row(self.log[k], k * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c,
-                  theta_hat, omega_hat, u_a, u_b, u_inj_a, u_inj_b, host.speed_ref[k], i_d, i_q, i_d_ref,
-                  i_q_ref, eps, signal, state, amplitude, weight, leader)
+                  est["theta_e_hat"], est["omega_e_hat"], u_a, u_b, est["u_inj_alpha"], est["u_inj_beta"],
+                  host.speed_ref[k], i_d, i_q, i_d_ref, i_q_ref, est["eps"], est["signal"], est["state"],
+                  est["injection_amplitude"], est["observer_weight"], est["leader"])
         return (k,)
 
 
@@ -179,7 +186,7 @@ class _BlockAnswer:
         self.trip_A = trip_current_A(scenario.motor.nameplate)
         N = scenario.block_samples
         self.currents, self.encoder = np.zeros((N, 3)), np.zeros((N, 2))
-        self.est_out, self.ctrl_out = np.zeros((N, ESTIMATE_WIDTH)), np.zeros((N, 6))
+        self.est_out, self.ctrl_out, self.inputs = estimates(N), np.zeros((N, 6)), sample_inputs()
         self.pending = []
         self.warm_up()
 
@@ -188,8 +195,8 @@ class _BlockAnswer:
         costs up to 0.3 s)."""
         host, N = self.host, self.scenario.block_samples
         e = host.estimator
-        estimator_block(e.step, e.x.copy(), e.z.copy(), e.params, 0, N, self.currents, self.line.copy(),
-                        self.encoder, self.calibration, self.trip_A, self.est_out)
+        estimator_block(e.step, e.state.copy(), e.params, 0, N, self.currents, self.line.copy(),
+                        self.encoder, self.calibration, self.trip_A, self.est_out, self.inputs)
         controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.currents,
                          self.est_out, host.speed_ref[:N], host.tau_feedforward[:N], self.calibration, self.trip_A,
                          self.ctrl_out)
@@ -214,8 +221,8 @@ class _BlockAnswer:
         for i, p in enumerate(pending):
             self.currents[i] = p.i_a, p.i_b, p.i_c
             self.encoder[i, 0] = n_p * p.theta_m if p.theta_m == p.theta_m else 0.0
-        estimator_block(e.step, e.x, e.z, e.params, k0, n, self.currents, line, self.encoder, self.calibration,
-                        self.trip_A, self.est_out)
+        estimator_block(e.step, e.state, e.params, k0, n, self.currents, line, self.encoder, self.calibration,
+                        self.trip_A, self.est_out, self.inputs)
         controller_block(host.controller_x, host.controller_z, host.controller, n, self.currents, self.est_out,
                          host.speed_ref[k0:k0 + n], host.tau_feedforward[k0:k0 + n], self.calibration, self.trip_A,
                          self.ctrl_out)
@@ -230,6 +237,8 @@ class _BlockAnswer:
         for i in range(n):
             j = k0 + i
             issue_command(line, j, c[i, 0], c[i, 1])
+            e = est[i]
             write_row(rows[i], j * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, m[i, 0], m[i, 1], m[i, 2],
-                      est[i, 0], est[i, 1], c[i, 0], c[i, 1], est[i, 2], est[i, 3], self.host.speed_ref[j], c[i, 2],
-                      c[i, 3], c[i, 4], c[i, 5], est[i, 4], est[i, 5], est[i, 6], est[i, 7], est[i, 8], est[i, 9])
+                      e["theta_e_hat"], e["omega_e_hat"], c[i, 0], c[i, 1], e["u_inj_alpha"], e["u_inj_beta"],
+                      self.host.speed_ref[j], c[i, 2], c[i, 3], c[i, 4], c[i, 5], e["eps"], e["signal"], e["state"],
+                      e["injection_amplitude"], e["observer_weight"], e["leader"])

@@ -8,9 +8,10 @@ from numba import njit
 
 from control_math.command_delay import issue_command
 from control_math.current_sensing import corrected_currents
+from drive_interface.estimator_records import ESTIMATE, SAMPLE
 from drive_interface.estimator_states import TRACKING
 from foc_controller.control import controller_block
-from hf_estimator.block import ESTIMATE_WIDTH, estimator_block
+from hf_estimator.block import estimator_block
 from pmsm_plant.model import NOT_RELEASED, plant_block
 
 
@@ -52,14 +53,15 @@ def write_row(row, t, theta_m, omega_m, tau_e, tau_load, i_a, i_b, i_c, i_a_meas
 
 @njit
 def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor, seed, T_s, substeps,
-               est_step, ex, ez, ep, cx, cz, cp, speed_ref, tau_load, tau_ff, imposed, brake, calibration, trip_A,
+               est_step, est_state, ep, cx, cz, cp, speed_ref, tau_load, tau_ff, imposed, brake, calibration, trip_A,
                log):
     """Run samples k_start..k_end−1 (k_start a multiple of ``block``) in blocks of ``block`` samples;
     row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
 
-    px: plant state (pmsm_plant.model); line: the delay line (control_math.command_delay); ex, ez, ep: the
-    estimator's state, filter state and parameters; cx, cz, cp: the controller's. speed_ref [rad/s],
-    tau_load and the controller's torque feed-forward tau_ff [N·m] are indexed by k; with ``imposed``
+    px: plant state (pmsm_plant.model); line: the delay line (control_math.command_delay); est_state, ep:
+    the estimator's state (Estimator.state) and parameters; cx, cz, cp: the controller's state, filter state and
+    parameters. speed_ref [rad/s], tau_load and the controller's torque feed-forward tau_ff [N·m] are
+    indexed by k; with ``imposed``
     the shaft follows speed_ref. With brake[0] = 1 a holding brake keeps the shaft at rest until sample
     brake[1], set when the estimator first reports tracking at sample k_t: k_t plus brake[2] (the brake's
     lift time in samples), but no earlier than the first period simulated after the block that reported
@@ -71,7 +73,8 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
     """
     n_p = machine.n_p
     plant_out = np.zeros((block, 10))
-    est_out = np.zeros((block, ESTIMATE_WIDTH))
+    est_out = np.zeros(block, ESTIMATE)
+    inputs = np.zeros(1, SAMPLE)
     ctrl_out = np.zeros((block, 6))
     encoder = np.zeros((block, 2))
     for k0 in range(k_start, k_end, block):
@@ -84,39 +87,42 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
         for i in range(n):
             encoder[i, 0] = n_p * plant_out[i, 6]
             encoder[i, 1] = n_p * plant_out[i, 7]
-        estimator_block(est_step, ex, ez, ep, k0, n, plant_out[:, 3:6], line, encoder, calibration, trip_A, est_out)
+        estimator_block(est_step, est_state, ep, k0, n, plant_out[:, 3:6], line, encoder, calibration, trip_A,
+                        est_out, inputs)
         controller_block(cx, cz, cp, n, plant_out[:, 3:6], est_out, speed_ref[k0:k0 + n], tau_ff[k0:k0 + n],
                          calibration, trip_A, ctrl_out)
         for i in range(n):
             k = k0 + i
             p, e, c = plant_out[i], est_out[i], ctrl_out[i]
             issue_command(line, k, c[0], c[1])
-            if brake[0] > 0.5 and brake[1] < 0.0 and e[6] == TRACKING:
+            if brake[0] > 0.5 and brake[1] < 0.0 and e.state == TRACKING:
                 brake[1] = max(k + brake[2], k0 + n - 1)
             write_row(log[k - k_start], k * T_s, p[6], p[7], p[8], p[9], p[0], p[1], p[2], p[3], p[4], p[5],
-                      e[0], e[1], c[0], c[1], e[2], e[3], speed_ref[k], c[2], c[3], c[4], c[5], e[4], e[5], e[6],
-                      e[7], e[8], e[9])
+                      e.theta_e_hat, e.omega_e_hat, c[0], c[1], e.u_inj_alpha, e.u_inj_beta, speed_ref[k], c[2], c[3],
+                      c[4], c[5], e.eps, e.signal, e.state, e.injection_amplitude, e.observer_weight, e.leader)
 
 
 @njit
-def replay_samples(est_step, ex, ez, ep, currents, u_applied, whole, theta_e_reference, omega_e_reference,
+def replay_samples(est_step, est_state, ep, currents, u_applied, whole, theta_e_reference, omega_e_reference,
                    calibration, out):
     """Run an estimator over recorded samples: ``currents`` (n × 3, measured a, b, c; corrected by the
     commissioned ``calibration`` as in the drive), ``u_applied`` (n × 2, the voltage command that acted
     in the period before each sample: the command of d + 1 samples before, d the recorded drive's delay),
     and the electrical angle and speed handed to the kernel's encoder inputs (``sensored`` reads the
     recorded ground truth there; an injecting estimator replayed with ``polarity_from_recording`` reads the
-    recorded drive's estimate, hf_estimator.startup item 5). ``out`` rows receive θ̂_e, ω̂_e, u_inj_α,
-    u_inj_β, ε, signal, state, U_h, w, leader (hf_estimator.block.ESTIMATE_COLUMNS). Where ``whole`` is
-    false (a sample the recording lost) the estimator is not stepped: it meets the next sample, its index k
-    kept, as a drive node meets a lost message; the row is NaN."""
+    recorded drive's estimate, hf_estimator.startup item 5). ``out``: one ESTIMATE record per sample.
+    Where ``whole`` is false (a sample the recording lost) the estimator is not stepped: it meets the next
+    sample, its index k kept, as a drive node meets a lost message; its record is NaN."""
+    ex = est_state[0]
+    sample = np.zeros(1, SAMPLE)[0]
     for k in range(currents.shape[0]):
         if not whole[k]:
-            for j in range(ESTIMATE_WIDTH):
-                out[k, j] = np.nan
+            out[k].theta_e_hat = out[k].omega_e_hat = out[k].u_inj_alpha = out[k].u_inj_beta = np.nan
+            out[k].eps = out[k].signal = out[k].state = np.nan
+            out[k].injection_amplitude = out[k].observer_weight = out[k].leader = np.nan
             continue
-        c_a, c_b, c_c = corrected_currents(currents[k, 0], currents[k, 1], currents[k, 2], calibration)
-        result = est_step(ex, ez, ep, k, c_a, c_b, c_c, u_applied[k, 0], u_applied[k, 1], theta_e_reference[k],
-                          omega_e_reference[k])
-        for j in range(ESTIMATE_WIDTH):
-            out[k, j] = result[j]
+        sample.i_a, sample.i_b, sample.i_c = corrected_currents(currents[k, 0], currents[k, 1], currents[k, 2],
+                                                                calibration)
+        sample.u_applied_alpha, sample.u_applied_beta = u_applied[k, 0], u_applied[k, 1]
+        sample.theta_e_encoder, sample.omega_e_encoder = theta_e_reference[k], omega_e_reference[k]
+        est_step(ex, ep, k, sample, out[k])

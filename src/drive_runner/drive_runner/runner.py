@@ -75,7 +75,7 @@ class Drive:
         block_samples); ``log`` receives one row per sample."""
         p, e = self.plant, self.estimator
         run_blocks(k_start, k_end, self.scenario.block_samples, p.x, p.line, p.machine, p.mechanics, p.inverter,
-                   p.sensor, p.seed, p.T_s, p.substeps, e.step, e.x, e.z, e.params, self.controller_x,
+                   p.sensor, p.seed, p.T_s, p.substeps, e.step, e.state, e.params, self.controller_x,
                    self.controller_z, self.controller, self.speed_ref, self.tau_load, self.tau_feedforward,
                    p.imposed_speed, self.brake, self.commissioning.calibration(),
                    trip_current_A(self.scenario.motor.nameplate), log)

@@ -23,6 +23,7 @@ from control_math.current_sensing import corrected_currents
 from control_math.filters import sos_step
 from control_math.frames import SQRT3, clarke_contract, rotate
 from control_math.pi import pi_limited
+from drive_interface import numba_records  # noqa: F401  (controller_block takes records: cached safely)
 from drive_interface.estimator_states import ALIGNING, LOCK_LOST, POLARITY, TRACKING
 
 # Controller state layout (integrators, filtered speed, torque gate, last θ̂); the notch states (d, q)
@@ -147,7 +148,7 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
 @njit(cache=True)
 def controller_block(x, z_notch, c, n, currents, estimates, speed_ref, tau_feedforward, calibration, trip_A, out):
     """n consecutive samples of ``controller_step``: currents (n × 3, measured [A], corrected here by the
-    commissioned ``calibration``), estimates (n × 10, hf_estimator.block.ESTIMATE_COLUMNS), the speed
+    commissioned ``calibration``), estimates (n ESTIMATE records, drive_interface.estimator_records), the speed
     reference [rad/s] and torque feed-forward [N·m] of each sample (n). Rows of ``out`` (n × 6): u_α, u_β
     [V], i_d, i_q, i_d*, i_q* [A]. A sample with currents not finite or beyond ``trip_A``, or a non-finite
     estimate or injection, gets zero voltage and leaves the state untouched. Returns the number of such
@@ -158,16 +159,18 @@ def controller_block(x, z_notch, c, n, currents, estimates, speed_ref, tau_feedf
         e = estimates[i]
         row = out[i]
         if not (math.isfinite(i_a) and math.isfinite(i_b) and math.isfinite(i_c)
-                and math.isfinite(e[0]) and math.isfinite(e[1]) and math.isfinite(e[2]) and math.isfinite(e[3])) \
+                and math.isfinite(e.theta_e_hat) and math.isfinite(e.omega_e_hat) and math.isfinite(e.u_inj_alpha)
+                and math.isfinite(e.u_inj_beta)) \
                 or max(abs(i_a), abs(i_b), abs(i_c)) > trip_A:
             bad += 1
             for j in range(6):
                 row[j] = 0.0
             continue
         c_a, c_b, c_c = corrected_currents(i_a, i_b, i_c, calibration)
-        state = e[6] if math.isfinite(e[6]) else 0.0
+        state = e.state if math.isfinite(e.state) else 0.0
         row[0], row[1], row[2], row[3], row[4], row[5] = controller_step(
-            x, z_notch, c, c_a, c_b, c_c, e[0], e[1], speed_ref[i], e[2], e[3], state, tau_feedforward[i])
+            x, z_notch, c, c_a, c_b, c_c, e.theta_e_hat, e.omega_e_hat, speed_ref[i], e.u_inj_alpha, e.u_inj_beta,
+            state, tau_feedforward[i])
     return bad
 
 

@@ -28,6 +28,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
 from control_math.current_sensing import corrected_currents
+from drive_interface.estimator_records import estimates
 from drive_interface.node import describe, finite, run_node, stamp, topic_qos
 from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_interface.topics import (
@@ -145,7 +146,7 @@ class ControllerNode(ScenarioNode):
                                           self.params.i_max_A, self.T_s)
         self.x, self.z = controller_state(self.params)
         controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), np.zeros((1, 10)),
+        controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), estimates(1),
                          np.zeros(1), np.zeros(1), self.calibration, self.trip_A, np.zeros((1, 6)))
         self.publish_config({"controller": self.params, "estimator": config["estimator"],
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
@@ -250,8 +251,11 @@ class ControllerNode(ScenarioNode):
                 speed, feedforward = self.schedule[0][k0:k0 + n], self.schedule[1][k0:k0 + n]
             else:
                 speed, feedforward = np.full(n, self.omega_m_ref), np.full(n, self.tau_feedforward)
-            estimates = np.column_stack((self.n_p * estimate[0], self.n_p * estimate[1], *injection, *state))
-            bad = controller_block(self.x, self.z, self.params, n, np.column_stack(currents), estimates, speed,
+            estimated = estimates(n)
+            estimated["theta_e_hat"], estimated["omega_e_hat"] = self.n_p * estimate[0], self.n_p * estimate[1]
+            estimated["u_inj_alpha"], estimated["u_inj_beta"] = injection
+            estimated["eps"], estimated["signal"], estimated["state"] = state
+            bad = controller_block(self.x, self.z, self.params, n, np.column_stack(currents), estimated, speed,
                                    feedforward, self.calibration, self.trip_A, out)
             if bad:
                 self.fault("bad_input", f"block {k0}: {bad} of {n} samples with currents beyond the "

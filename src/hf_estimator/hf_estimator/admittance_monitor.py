@@ -3,6 +3,7 @@ estimators by correlating current steps with the applied injection in its own fr
 import math
 from typing import NamedTuple
 
+import numpy as np
 from numba import njit
 
 from control_math.frames import rotate
@@ -24,39 +25,34 @@ class MonitorParams(NamedTuple):
     """First-order smoothing factor per sample of the reported |Δ̂|."""
 
 
-# Monitor state layout inside an estimator's x, from a base offset.
-MON_PREV_IA, MON_PREV_IB, MON_SUM_D, MON_SUM_Q, MON_SUM_C2, MON_DELTA, MON_COUNT = range(7)
-MON_HISTORY = 7
-"""Then three ring buffers: issued injection (carrier, angle) per sample, and products (d, q, c²)."""
-
-
-def monitor_size(p):
-    return MON_HISTORY + 2 * (p.delay_periods + 2) + 3 * p.window
+def monitor_dtype(p):
+    """The monitor's state record for MonitorParams p: the previous currents [A], the sliding sums of the
+    products (d, q, c²) and their count, the smoothed |Δ̂| [1/H], the ring of issued injections (carrier,
+    angle) × (delay + 2) and the ring of products (d, q, c²) × window."""
+    return np.dtype([*[(name, np.float64) for name in ("prev_ia", "prev_ib", "sum_d", "sum_q", "sum_c2", "delta",
+                                                       "count")],
+                     ("issued", np.float64, (p.delay_periods + 2, 2)), ("products", np.float64, (p.window, 3))])
 
 
 @njit(cache=True)
-def monitor_step(x, base, p, k, i_alpha, i_beta, carrier_now, angle_now):
-    """Update with sample k's currents; record the injection issued now (carrier value c and axis angle).
+def monitor_step(m, p, k, i_alpha, i_beta, carrier_now, angle_now):
+    """Update the monitor state ``m`` (monitor_dtype) with sample k's currents; record the injection
+    issued now (carrier value c and axis angle).
 
     The current step i[k] − i[k−1] answers the voltage applied during period k−1, i.e. the injection
     issued at sample k−1−delay. Rotated into that injection's frame and correlated with its carrier
     over one carrier period, it gives D = Σ + Δ cos 2e (in-phase) and Q = Δ sin 2e (quadrature) [1/H],
-    e = θ − θ_inj. Returns (|Δ̂| smoothed [1/H], observable flag). State in x from ``base``: MON_PREV_IA
-    .. MON_COUNT, then the ring of issued (carrier, angle) × (delay + 2) and the product ring (d, q, c²) ×
-    window (monitor_size)."""
-    hist = base + MON_HISTORY
+    e = θ − θ_inj. Returns (|Δ̂| smoothed [1/H], observable flag)."""
     depth = p.delay_periods + 2
-    ring = hist + 2 * depth
-    slot_now = k % depth
-    slot_then = (k - 1 - p.delay_periods) % depth
-    carrier_then = x[hist + 2 * slot_then]
-    angle_then = x[hist + 2 * slot_then + 1]
-    d_alpha = i_alpha - x[base + MON_PREV_IA]
-    d_beta = i_beta - x[base + MON_PREV_IB]
-    x[base + MON_PREV_IA] = i_alpha
-    x[base + MON_PREV_IB] = i_beta
-    x[hist + 2 * slot_now] = carrier_now
-    x[hist + 2 * slot_now + 1] = angle_now
+    then = m.issued[(k - 1 - p.delay_periods) % depth]
+    carrier_then, angle_then = then[0], then[1]
+    d_alpha = i_alpha - m.prev_ia
+    d_beta = i_beta - m.prev_ib
+    m.prev_ia = i_alpha
+    m.prev_ib = i_beta
+    now = m.issued[k % depth]
+    now[0] = carrier_now
+    now[1] = angle_now
     if k < p.delay_periods + 1:
         return 0.0, 0.0
     step_d, step_q = rotate(d_alpha, d_beta, -angle_then)
@@ -64,22 +60,22 @@ def monitor_step(x, base, p, k, i_alpha, i_beta, carrier_now, angle_now):
     prod_d = carrier_then * step_d * scale
     prod_q = carrier_then * step_q * scale
     c2 = carrier_then * carrier_then
-    slot = k % p.window
-    x[base + MON_SUM_D] += prod_d - x[ring + 3 * slot]
-    x[base + MON_SUM_Q] += prod_q - x[ring + 3 * slot + 1]
-    x[base + MON_SUM_C2] += c2 - x[ring + 3 * slot + 2]
-    x[ring + 3 * slot] = prod_d
-    x[ring + 3 * slot + 1] = prod_q
-    x[ring + 3 * slot + 2] = c2
-    x[base + MON_COUNT] += 1.0
-    if x[base + MON_COUNT] < p.window or x[base + MON_SUM_C2] <= 0.0:
+    old = m.products[k % p.window]
+    m.sum_d += prod_d - old[0]
+    m.sum_q += prod_q - old[1]
+    m.sum_c2 += c2 - old[2]
+    old[0] = prod_d
+    old[1] = prod_q
+    old[2] = c2
+    m.count += 1.0
+    if m.count < p.window or m.sum_c2 <= 0.0:
         return 0.0, 0.0
-    D = x[base + MON_SUM_D] / x[base + MON_SUM_C2]
-    Q = x[base + MON_SUM_Q] / x[base + MON_SUM_C2]
+    D = m.sum_d / m.sum_c2
+    Q = m.sum_q / m.sum_c2
     delta = math.hypot(Q, D - p.sigma_hat)
-    x[base + MON_DELTA] += p.smoothing * (delta - x[base + MON_DELTA])
-    observable = 1.0 if x[base + MON_DELTA] > p.observable_ratio * p.sigma_hat else 0.0
-    return x[base + MON_DELTA], observable
+    m.delta += p.smoothing * (delta - m.delta)
+    observable = 1.0 if m.delta > p.observable_ratio * p.sigma_hat else 0.0
+    return m.delta, observable
 
 
 def make_monitor(T_s, injection_amplitude_V, f_h, delay_periods, commissioning, observable_ratio=0.02,

@@ -10,15 +10,8 @@ from numba import njit
 from drive_interface.estimator_states import ALIGNING, HOLD
 
 from .startup_state import (
-    E_ALPHA,
-    E_BETA,
-    ERROR,
-    INTEGRAL,
     NO_SALIENCY,
-    REFUSED,
-    RESTARTS,
     ROTOR_MOVED,
-    SETTLED,
     backemf_clear,
     lose_lock,
 )
@@ -36,21 +29,21 @@ def alignment_step(x, p, k, since, u_inj_alpha, u_inj_beta, eps, observable):
     """Sample k, ``since`` samples into the alignment, with the estimator's ε and observable flag →
     (aligned, u_α, u_β [V], state code): aligned, the polarity test begins; else the answer for sample k
     (the estimator's injection while aligning, zero voltage once refused)."""
-    b = p.base
+    s = x.startup
     if observable > 0.5 and p.error_gain != 0.0:
-        x[b + ERROR] += p.error_smoothing * (eps / p.error_gain - x[b + ERROR])
+        s.error += p.error_smoothing * (eps / p.error_gain - s.error)
         tolerance = p.align_tolerance_rad
-        if backemf_clear(x, p, abs(x[INTEGRAL]) * p.psi_f_Wb):
+        if backemf_clear(x, p, abs(x.omega) * p.psi_f_Wb):
             tolerance *= MOVING_TOLERANCE_FACTOR
-        x[b + SETTLED] = x[b + SETTLED] + 1.0 if abs(x[b + ERROR]) < tolerance else 0.0
+        s.settled = s.settled + 1.0 if abs(s.error) < tolerance else 0.0
     else:
-        x[b + SETTLED] = 0.0
-    if x[b + SETTLED] >= p.settle_samples:
+        s.settled = 0.0
+    if s.settled >= p.settle_samples:
         return True, 0.0, 0.0, float(ALIGNING)
     if since < p.align_timeout_samples:
         return False, u_inj_alpha, u_inj_beta, float(ALIGNING)
-    if x[b + RESTARTS] == 0.0:
-        moving = backemf_clear(x, p, max(abs(x[INTEGRAL]) * p.psi_f_Wb, math.hypot(x[b + E_ALPHA], x[b + E_BETA])))
-        x[b + REFUSED] = ROTOR_MOVED if observable > 0.5 or moving else NO_SALIENCY
+    if s.restarts == 0.0:
+        moving = backemf_clear(x, p, max(abs(x.omega) * p.psi_f_Wb, math.hypot(s.e_alpha, s.e_beta)))
+        s.refused = ROTOR_MOVED if observable > 0.5 or moving else NO_SALIENCY
         return False, 0.0, 0.0, float(HOLD)
     return False, u_inj_alpha, u_inj_beta, lose_lock(x, p, k)

@@ -23,21 +23,19 @@ from numba import njit
 
 from control_math.filters import butterworth_bandpass, butterworth_lowpass
 from control_math.frames import clarke_contract
-from drive_interface.estimator_states import LEADER_INJECTION
 
 from .admittance_monitor import MonitorParams, make_monitor
 from .interface import Estimator, check_settings, register
+from .outputs import write_injecting_estimate
 from .pll_model import aligned_demodulation_phase
 from .pulsating import (
-    INTEGRAL,
-    THETA,
     pulsating_state,
     pulsating_track_and_inject,
     q_axis_demodulation,
-    startup_base,
 )
 from .startup import DEFAULTS as STARTUP_DEFAULTS
-from .startup import StartupParams, make_startup, startup_step
+from .startup import make_startup, startup_step
+from .startup_state import StartupParams
 from .tracking_loop import loop_gains
 
 DEFAULTS = {"frequency_Hz": 900.0, "amplitude_V": 5.0, "demodulation_amplitude": 2.0,
@@ -65,21 +63,29 @@ class WangParams(NamedTuple):
 
 
 @njit(cache=True)
-def conventional_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder):
-    """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI integrator, u_inj_α,
-    u_inj_β, ε [A], |Δ̂| [1/H], start-up state code). State x: θ̂, the PI integrator, the admittance monitor,
-    the start-up (pulsating.py); z: band-pass sections z[0], low-pass sections z[1]; p: WangParams."""
+def conventional_step(x, p, k, sample, out):
+    """One sample (interface.py) → ``out``: θ̂_e, ω̂_e = the PI integrator, the injection, ε [A], signal
+    |Δ̂| [1/H], the start-up's state. State x (pulsating.py): its filters are the band-pass and the
+    low-pass; p: WangParams."""
     t = k * p.T_s_s
-    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
-    eps = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA],
+    i_alpha, i_beta = clarke_contract(sample.i_a, sample.i_b, sample.i_c)
+    eps = q_axis_demodulation(x.filters, p.bandpass, p.lowpass, i_alpha, i_beta, x.theta,
                               p.demodulation_amplitude, math.sin(p.omega_h_rad_s * t + p.demodulation_phase_rad))
+    wang_answer(x, p, k, sample, out, i_alpha, i_beta, eps)
+
+
+@njit(cache=True)
+def wang_answer(x, p, k, sample, out, i_alpha, i_beta, eps):
+    """What ``conventional`` and ``improved`` do with their ε: track it, monitor the admittance, inject
+    U_h cos ω_h t on the new d̂ (Wang Eq. 7), supervise the start-up, answer θ̂ and the PI integrator."""
+    t = k * p.T_s_s
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.injection_amplitude_V, p.kp, p.ki, p.T_s_s,
         eps)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
-                                          u_beta, eps, observable, theta_e_encoder)
-    return (x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state, p.injection_amplitude_V, 0.0,
-            float(LEADER_INJECTION))
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, sample.u_applied_alpha,
+                                          sample.u_applied_beta, u_alpha, u_beta, eps, observable,
+                                          sample.theta_e_encoder)
+    write_injecting_estimate(out, x.theta, x.omega, u_alpha, u_beta, eps, signal, state, p.injection_amplitude_V)
 
 
 def demodulation_phase(name, demodulation, commissioning, T_s, delay_periods, f_h, bandpass):
@@ -112,16 +118,14 @@ def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, inv
     phase = demodulation_phase(name, s["demodulation"], commissioning, T_s, delay_periods, f_h,
                                bandpass if bandpass_used else np.zeros((0, 6)))
     monitor = make_monitor(T_s, injection_amplitude_V, f_h, delay_periods, commissioning, s["observable_ratio"])
-    startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, inverter,
-                           gain if salient else 0.0, s)
+    startup = make_startup(nameplate, commissioning, T_s, inverter, gain if salient else 0.0, s)
     params = WangParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, injection_amplitude_V=injection_amplitude_V,
         demodulation_amplitude=float(s["demodulation_amplitude"]), demodulation_phase_rad=phase, kp=kp, ki=ki,
         lowpass=butterworth_lowpass(s["lowpass_order"], s["lowpass_Hz"], T_s), bandpass=bandpass,
         monitor=monitor, startup=startup)
     sections = max(params.lowpass.shape[0], params.bandpass.shape[0])
-    return Estimator(name, step, params, pulsating_state(monitor, startup),
-                     np.zeros((2, sections, 2)), f_h, float(s["pll_bandwidth_Hz"]))
+    return Estimator(name, step, params, pulsating_state(monitor, sections), f_h, float(s["pll_bandwidth_Hz"]))
 
 
 @register("conventional", "d̂ injection, band-pass, q̂ demodulation, low-pass, PI (faithful)",

@@ -32,7 +32,11 @@ from drive_interface.estimator_states import HOLD, LEADER_BACKEMF, TRACKING
 
 from .interface import Estimator, check_settings, register
 
-THETA, OMEGA, PSI_D, PSI_Q, PREV_ID, PREV_IQ, E_D, OMEGA_S, STARTED = range(9)
+FLUX_OBSERVER = np.dtype([(name, np.float64) for name in ("theta", "omega", "psi_d", "psi_q", "prev_id", "prev_iq",
+                                                            "e_d", "omega_s", "started")])
+"""The observer's state: θ̂ [rad], ω̂ [rad/s], ψ̂_s (d, q) [Wb], the previous period's current (d, q) [A],
+the d part of its flux error (the q part is not fed back: k_2 = k_1) [Wb], ω_s (estimated rotor frame)
+[rad/s], a started flag."""
 DEFAULTS = {"speed_bandwidth_Hz": 100.0, "observable_backemf_per_rated": 0.05}
 
 
@@ -53,42 +57,50 @@ class FluxObserverParams(NamedTuple):
 
 
 @njit(cache=True)
-def flux_observer_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder,
-                       omega_e_encoder):
-    """One sample (interface.py): currents [A] and the voltage applied in the period before [V] →
-    (θ̂_e, ω̂_e, 0, 0 (no injection), ε [rad], back-EMF |ω̂|ψ_f [V], state code). State x: θ̂, ω̂, ψ̂_s (d, q),
-    the previous period's current, the d part of its flux error (the q part is not fed back: k_2 = k_1)
-    and ω_s (estimated rotor frame), a started flag."""
-    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
-    if x[STARTED] > 0.5:
+def flux_observer_step(x, p, k, sample, out):
+    """One sample (interface.py): the currents and the voltage applied in the period before → ``out``:
+    θ̂_e, ω̂_e, no injection, ε [rad], signal the back-EMF |ω̂|ψ_f [V], the state code, weight 1. State x:
+    FLUX_OBSERVER."""
+    i_alpha, i_beta = clarke_contract(sample.i_a, sample.i_b, sample.i_c)
+    u_applied_alpha, u_applied_beta = sample.u_applied_alpha, sample.u_applied_beta
+    if x.started > 0.5:
         if p.dead_time_voltage_V != 0.0:
-            prev_alpha, prev_beta = rotate(x[PREV_ID], x[PREV_IQ], x[THETA])
+            prev_alpha, prev_beta = rotate(x.prev_id, x.prev_iq, x.theta)
             start_a, start_b, start_c = inverse_clarke(prev_alpha, prev_beta)
             loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
             u_applied_alpha -= p.dead_time_voltage_V * loss_alpha
             u_applied_beta -= p.dead_time_voltage_V * loss_beta
-        e_d, w_s = x[E_D], x[OMEGA_S]
-        u_d, u_q = rotate(u_applied_alpha, u_applied_beta, -(x[THETA] + 0.5 * p.T_s_s * w_s))
-        k_1 = p.sigma_0 + 0.2 * abs(x[OMEGA])
+        e_d, w_s = x.e_d, x.omega_s
+        u_d, u_q = rotate(u_applied_alpha, u_applied_beta, -(x.theta + 0.5 * p.T_s_s * w_s))
+        k_1 = p.sigma_0 + 0.2 * abs(x.omega)
         # ψ_a is real here, so k_2 = k_1 and k_1 e + k_2 e* = 2 k_1 Re(e).
-        d_psi_d = u_d - p.R_s_ohm * x[PREV_ID] + w_s * x[PSI_Q] + 2.0 * k_1 * e_d
-        d_psi_q = u_q - p.R_s_ohm * x[PREV_IQ] - w_s * x[PSI_D]
-        x[PSI_D] += p.T_s_s * d_psi_d
-        x[PSI_Q] += p.T_s_s * d_psi_q
-        x[THETA] += p.T_s_s * w_s
-        x[OMEGA] += p.T_s_s * 0.25 * p.alpha_d * (w_s - x[OMEGA])
-    i_d, i_q = rotate(i_alpha, i_beta, -x[THETA])
-    e_d = p.L_d_H * i_d + p.psi_f_Wb - x[PSI_D]
-    e_q = p.L_q_H * i_q - x[PSI_Q]
+        d_psi_d = u_d - p.R_s_ohm * x.prev_id + w_s * x.psi_q + 2.0 * k_1 * e_d
+        d_psi_q = u_q - p.R_s_ohm * x.prev_iq - w_s * x.psi_d
+        x.psi_d += p.T_s_s * d_psi_d
+        x.psi_q += p.T_s_s * d_psi_q
+        x.theta += p.T_s_s * w_s
+        x.omega += p.T_s_s * 0.25 * p.alpha_d * (w_s - x.omega)
+    i_d, i_q = rotate(i_alpha, i_beta, -x.theta)
+    e_d = p.L_d_H * i_d + p.psi_f_Wb - x.psi_d
+    e_q = p.L_q_H * i_q - x.psi_q
     psi_a = p.psi_f_Wb + (p.L_d_H - p.L_q_H) * i_d
     eps = -e_q / psi_a if psi_a != 0.0 else 0.0
-    x[E_D] = e_d
-    x[OMEGA_S] = x[OMEGA] + p.alpha_d * eps
-    x[PREV_ID], x[PREV_IQ] = i_d, i_q
-    x[STARTED] = 1.0
-    backemf = abs(x[OMEGA]) * p.psi_f_Wb
+    x.e_d = e_d
+    x.omega_s = x.omega + p.alpha_d * eps
+    x.prev_id, x.prev_iq = i_d, i_q
+    x.started = 1.0
+    backemf = abs(x.omega) * p.psi_f_Wb
     state = TRACKING if backemf > p.observable_backemf_V else HOLD
-    return x[THETA], x[OMEGA], 0.0, 0.0, eps, backemf, float(state), 0.0, 1.0, float(LEADER_BACKEMF)
+    out.theta_e_hat = x.theta
+    out.omega_e_hat = x.omega
+    out.u_inj_alpha = 0.0
+    out.u_inj_beta = 0.0
+    out.eps = eps
+    out.signal = backemf
+    out.state = state
+    out.injection_amplitude = 0.0
+    out.observer_weight = 1.0
+    out.leader = LEADER_BACKEMF
 
 
 @njit(cache=True)
@@ -97,14 +109,14 @@ def flux_observer_follow(x, p, theta, omega):
     a blend, hf_estimator.full_speed), and its flux to the current model's in that frame (L_d i_d + ψ_f,
     L_q i_q; flux error zero): released, it starts where the leader is instead of from the flux it
     integrated without its own angle correction (which would turn θ̂ at once by its q error)."""
-    i_d, i_q = rotate(x[PREV_ID], x[PREV_IQ], x[THETA] - theta)
-    x[PREV_ID], x[PREV_IQ] = i_d, i_q
-    x[PSI_D] = p.L_d_H * i_d + p.psi_f_Wb
-    x[PSI_Q] = p.L_q_H * i_q
-    x[E_D] = 0.0
-    x[THETA] = theta
-    x[OMEGA] = omega
-    x[OMEGA_S] = omega
+    i_d, i_q = rotate(x.prev_id, x.prev_iq, x.theta - theta)
+    x.prev_id, x.prev_iq = i_d, i_q
+    x.psi_d = p.L_d_H * i_d + p.psi_f_Wb
+    x.psi_q = p.L_q_H * i_q
+    x.e_d = 0.0
+    x.theta = theta
+    x.omega = omega
+    x.omega_s = omega
 
 
 @register("flux_observer", "back-EMF: reduced-order stator-flux observer in estimated rotor coordinates, "
@@ -122,7 +134,7 @@ def make_flux_observer(nameplate, T_s, settings, commissioning, inverter):
         observable_backemf_V=float(s["observable_backemf_per_rated"]) * omega_rated * nameplate.psi_f_Wb,
         dead_time_voltage_V=commissioning.dead_time_voltage_V,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A)
-    x = np.zeros(STARTED + 1)
-    x[PSI_D] = nameplate.psi_f_Wb
-    return Estimator("flux_observer", flux_observer_step, params, x, np.zeros((1, 1, 2)), 0.0,
+    state = np.zeros(1, FLUX_OBSERVER)
+    state["psi_d"] = nameplate.psi_f_Wb
+    return Estimator("flux_observer", flux_observer_step, params, state, 0.0,
                      float(s["speed_bandwidth_Hz"]))

@@ -40,21 +40,21 @@ import numpy as np
 from numba import njit
 
 from control_math.frames import clarke_contract, wrap
+from drive_interface.estimator_records import ESTIMATE
 from drive_interface.estimator_states import ALIGNING, LEADER_BACKEMF, LEADER_INJECTION, LOCK_LOST, POLARITY, TRACKING
 
 from .flux_observer import DEFAULTS as OBSERVER_DEFAULTS
 from .flux_observer import FluxObserverParams, flux_observer_follow, flux_observer_step, make_flux_observer
-from .injection_frame import ACCELERATION as OURS_ACCELERATION
 from .injection_frame import DEFAULTS as INJECTION_DEFAULTS
 from .injection_frame import InjectionFrameParams, injection_frame_step, make_injection_frame
 from .interface import Estimator, check_settings, register
 from .startup import dead_time_uncertainty_V, startup_follow
-from .startup_state import StartupParams
 
-THETA, OMEGA, WEIGHT, FADE, READY, AGREEMENT, AGREED, CURRENT, ACCELERATION, PREV_OMEGA, WEIGHT_TARGET, \
-    FADE_TARGET = range(12)
-HF_STATE = 12
-"""x: the blend's state, then ours' state (hf_size entries), then the observer's (obs_size)."""
+BLEND_FIELDS = ("theta", "omega", "weight", "fade", "ready", "agreement", "agreed", "current", "acceleration",
+                "prev_omega", "weight_target", "fade_target")
+"""The blend's state: θ̂, ω̂, the observer's weight w and the injection's fade h (and their targets), the
+samples since the carrier came back in full, the smoothed |θ̂_obs − θ̂_hf| and the samples it stayed
+within agreement, the smoothed current magnitude [A], ω̂'s rate of change [rad/s²] and the previous ω̂."""
 
 BLEND_DEFAULTS = {"handover_backemf_ratio": 3.0, "handback_backemf_ratio": 2.0, "quiet_backemf_ratio": 6.0,
                   "inject_backemf_ratio": 5.0, "agreement_rad": 0.03, "disagreement_rad": 0.06,
@@ -73,10 +73,6 @@ SMOOTHING_S = 0.01
 class FullSpeedParams(NamedTuple):
     hf: InjectionFrameParams
     obs: FluxObserverParams
-    hf_size: int
-    obs_size: int
-    startup: StartupParams
-    """Ours' start-up with its base in this x (for summaries; the kernel passes ``hf.startup`` to ours)."""
     T_s_s: float
     psi_f_Wb: float
     dead_time_error_V: float
@@ -102,69 +98,74 @@ def _slew(value, target, step):
 
 
 @njit(cache=True)
-def full_speed_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder,
-                    omega_e_encoder):
-    """One sample (interface.py) → (θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε [rad], ours' |Δ̂| [1/H], state code,
-    injection amplitude [V], observer weight, leader). State x: THETA … FADE_TARGET, then ours' and the
-    observer's states; p: FullSpeedParams."""
-    ours = x[HF_STATE:HF_STATE + p.hf_size]
-    observer = x[HF_STATE + p.hf_size:HF_STATE + p.hf_size + p.obs_size]
-    hf = injection_frame_step(ours, z, p.hf, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder,
-                              omega_e_encoder)
-    ob = flux_observer_step(observer, z, p.obs, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta,
-                            theta_e_encoder, omega_e_encoder)
-    hf_state = int(hf[6])
+def full_speed_step(x, p, k, sample, out):
+    """One sample (interface.py) → ``out``: the blend's θ̂_e, ω̂_e, ours' injection faded, the weighted ε
+    [rad], ours' |Δ̂| [1/H], the state, the injection's amplitude [V], the observer's weight and the
+    leader. State x: the blend's (BLEND_FIELDS), ours' ``hf`` and the observer's ``observer`` states and
+    their estimates of this sample (``hf_out``, ``observer_out``); p: FullSpeedParams."""
+    ours, observer, hf, ob = x.hf, x.observer, x.hf_out, x.observer_out
+    injection_frame_step(ours, p.hf, k, sample, hf)
+    flux_observer_step(observer, p.obs, k, sample, ob)
+    hf_state = int(hf.state)
 
-    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
-    x[CURRENT] += p.smoothing * (math.hypot(i_alpha, i_beta) - x[CURRENT])
-    u_err = p.dead_time_error_V + p.resistance_error_ohm * x[CURRENT]
-    omega = x[OMEGA]
+    i_alpha, i_beta = clarke_contract(sample.i_a, sample.i_b, sample.i_c)
+    x.current += p.smoothing * (math.hypot(i_alpha, i_beta) - x.current)
+    u_err = p.dead_time_error_V + p.resistance_error_ohm * x.current
+    omega = x.omega
     if k > 0:
-        x[ACCELERATION] += p.smoothing * ((omega - x[PREV_OMEGA]) / p.T_s_s - x[ACCELERATION])
-    x[PREV_OMEGA] = omega
-    ahead = omega + x[ACCELERATION] * p.lookahead_s
+        x.acceleration += p.smoothing * ((omega - x.prev_omega) / p.T_s_s - x.acceleration)
+    x.prev_omega = omega
+    ahead = omega + x.acceleration * p.lookahead_s
     speed_ahead = 0.0 if ahead * omega <= 0.0 else min(abs(omega), abs(ahead))
     health = abs(omega) * p.psi_f_Wb / u_err
     health_ahead = speed_ahead * p.psi_f_Wb / u_err
 
-    ours_free = x[FADE] >= 1.0 and x[READY] >= p.ready_samples
-    observer_free = x[WEIGHT] > 0.0 or health >= p.handover
-    x[AGREEMENT] += p.smoothing * (abs(wrap(observer[0] - ours[0])) - x[AGREEMENT])
-    if ours_free and observer_free and x[AGREEMENT] < p.agreement_rad:
-        x[AGREED] += 1.0
+    ours_free = x.fade >= 1.0 and x.ready >= p.ready_samples
+    observer_free = x.weight > 0.0 or health >= p.handover
+    x.agreement += p.smoothing * (abs(wrap(observer.theta - ours.theta)) - x.agreement)
+    if ours_free and observer_free and x.agreement < p.agreement_rad:
+        x.agreed += 1.0
     else:
-        x[AGREED] = 0.0
+        x.agreed = 0.0
     starting = hf_state == ALIGNING or hf_state == POLARITY or hf_state == LOCK_LOST
     if starting:
-        x[WEIGHT] = x[WEIGHT_TARGET] = 0.0
-        x[FADE] = x[FADE_TARGET] = 1.0
+        x.weight = x.weight_target = 0.0
+        x.fade = x.fade_target = 1.0
     else:
-        if x[WEIGHT_TARGET] == 0.0 and hf_state == TRACKING and health > p.handover and (
-                x[AGREED] >= p.agreement_samples or health > CLEAR_RATIO * p.quiet):
-            x[WEIGHT_TARGET] = 1.0
-        elif x[WEIGHT_TARGET] == 1.0 and ours_free and (
-                health_ahead < p.handback or health < p.quiet and x[AGREEMENT] > p.disagreement_rad):
-            x[WEIGHT_TARGET] = 0.0
-        if x[WEIGHT] >= 1.0 and health > p.quiet:
-            x[FADE_TARGET] = 0.0
+        if x.weight_target == 0.0 and hf_state == TRACKING and health > p.handover and (
+                x.agreed >= p.agreement_samples or health > CLEAR_RATIO * p.quiet):
+            x.weight_target = 1.0
+        elif x.weight_target == 1.0 and ours_free and (
+                health_ahead < p.handback or health < p.quiet and x.agreement > p.disagreement_rad):
+            x.weight_target = 0.0
+        if x.weight >= 1.0 and health > p.quiet:
+            x.fade_target = 0.0
         elif health_ahead < p.inject:
-            x[FADE_TARGET] = 1.0
-        x[WEIGHT] = _slew(x[WEIGHT], x[WEIGHT_TARGET], p.blend_step)
-        x[FADE] = _slew(x[FADE], x[FADE_TARGET], p.fade_step)
-    x[READY] = x[READY] + 1.0 if x[FADE] >= 1.0 else 0.0
+            x.fade_target = 1.0
+        x.weight = _slew(x.weight, x.weight_target, p.blend_step)
+        x.fade = _slew(x.fade, x.fade_target, p.fade_step)
+    x.ready = x.ready + 1.0 if x.fade >= 1.0 else 0.0
 
-    w = x[WEIGHT]
-    x[THETA] = ours[0] + w * wrap(observer[0] - ours[0])
-    x[OMEGA] = ours[1] + w * (observer[1] - ours[1])
-    if not starting and x[READY] < p.ready_samples:
-        startup_follow(ours, p.hf.startup, x[THETA], x[OMEGA])
-        ours[OURS_ACCELERATION] = x[ACCELERATION]
+    w = x.weight
+    x.theta = ours.theta + w * wrap(observer.theta - ours.theta)
+    x.omega = ours.omega + w * (observer.omega - ours.omega)
+    if not starting and x.ready < p.ready_samples:
+        startup_follow(ours, p.hf.startup, x.theta, x.omega)
+        ours.acceleration = x.acceleration
     if w == 0.0 and health < p.handover:
-        flux_observer_follow(observer, p.obs, x[THETA], x[OMEGA])
+        flux_observer_follow(observer, p.obs, x.theta, x.omega)
     state = hf_state if starting or w == 0.0 else TRACKING
     leader = LEADER_BACKEMF if w >= 0.5 else LEADER_INJECTION
-    return (x[THETA], x[OMEGA], x[FADE] * hf[2], x[FADE] * hf[3], (1.0 - w) * hf[4] + w * ob[4], hf[5],
-            float(state), x[FADE] * p.hf.injection_amplitude_V, w, float(leader))
+    out.theta_e_hat = x.theta
+    out.omega_e_hat = x.omega
+    out.u_inj_alpha = x.fade * hf.u_inj_alpha
+    out.u_inj_beta = x.fade * hf.u_inj_beta
+    out.eps = (1.0 - w) * hf.eps + w * ob.eps
+    out.signal = hf.signal
+    out.state = state
+    out.injection_amplitude = x.fade * p.hf.injection_amplitude_V
+    out.observer_weight = w
+    out.leader = leader
 
 
 def _ordered(settings):
@@ -198,22 +199,22 @@ def make_full_speed(nameplate, T_s, settings, commissioning, inverter):
 
     def samples(seconds):
         return max(1, int(round(seconds / T_s)))
-    hf_size, obs_size = len(ours.x), len(observer.x)
     params = FullSpeedParams(
-        hf=ours.params, obs=observer.params, hf_size=hf_size, obs_size=obs_size,
-        startup=ours.params.startup._replace(base=HF_STATE + ours.params.startup.base),
-        T_s_s=T_s, psi_f_Wb=nameplate.psi_f_Wb, dead_time_error_V=max(dead_time_error, 1e-6),
+        hf=ours.params, obs=observer.params, T_s_s=T_s, psi_f_Wb=nameplate.psi_f_Wb,
+        dead_time_error_V=max(dead_time_error, 1e-6),
         resistance_error_ohm=RESISTANCE_ERROR * commissioning.R_s_ohm,
         smoothing=1.0 - math.exp(-T_s / SMOOTHING_S), handover=s["handover_backemf_ratio"],
         handback=s["handback_backemf_ratio"], quiet=s["quiet_backemf_ratio"], inject=s["inject_backemf_ratio"],
         agreement_rad=s["agreement_rad"], disagreement_rad=s["disagreement_rad"],
         agreement_samples=samples(s["agreement_s"]), blend_step=T_s / s["blend_s"], fade_step=T_s / s["fade_s"],
         ready_samples=samples(s["ready_s"]), lookahead_s=s["lookahead_s"])
-    x = np.zeros(HF_STATE + hf_size + obs_size)
-    x[FADE] = x[FADE_TARGET] = 1.0
-    x[READY] = params.ready_samples
-    x[HF_STATE:HF_STATE + hf_size] = ours.x
-    x[HF_STATE + hf_size:] = observer.x
-    return Estimator("full_speed", full_speed_step, params, x, np.zeros((1, 1, 2)), ours.injection_frequency_Hz,
+    state = np.zeros(1, np.dtype([*[(name, np.float64) for name in BLEND_FIELDS], ("hf", ours.state.dtype),
+                                  ("observer", observer.state.dtype), ("hf_out", ESTIMATE),
+                                  ("observer_out", ESTIMATE)]))
+    state["fade"] = state["fade_target"] = 1.0
+    state["ready"] = params.ready_samples
+    state["hf"] = ours.state
+    state["observer"] = observer.state
+    return Estimator("full_speed", full_speed_step, params, state, ours.injection_frequency_Hz,
                      ours.tracking_bandwidth_Hz, injection_amplitude_V=ours.injection_amplitude_V,
                      injection_note=ours.injection_note)

@@ -13,33 +13,24 @@ from numba import njit
 
 from control_math.filters import sos_step
 from control_math.frames import clarke_contract
-from drive_interface.estimator_states import LEADER_INJECTION
 
-from .conventional import DEFAULTS, make_wang
+from .conventional import DEFAULTS, make_wang, wang_answer
 from .interface import register
-from .pulsating import INTEGRAL, THETA, pulsating_track_and_inject
-from .startup import startup_step
 
 
 @njit(cache=True)
-def improved_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder):
-    """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI integrator, u_inj_α,
-    u_inj_β, ε [A] of Eq. 22, |Δ̂| [1/H], start-up state code). State x: θ̂, the PI integrator, the
-    admittance monitor, the start-up (pulsating.py); z: the α low-pass z[0] and the β low-pass z[1];
-    p: WangParams."""
+def improved_step(x, p, k, sample, out):
+    """One sample (interface.py) → ``out``: θ̂_e, ω̂_e = the PI integrator, the injection, ε [A] of Eq. 22,
+    signal |Δ̂| [1/H], the start-up's state. State x (pulsating.py): its filters are the α and the β
+    low-pass; p: WangParams."""
     t = k * p.T_s_s
-    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
+    z = x.filters
+    i_alpha, i_beta = clarke_contract(sample.i_a, sample.i_b, sample.i_c)
     modulation = p.demodulation_amplitude * math.sin(p.omega_h_rad_s * t + p.demodulation_phase_rad)
     i_alpha_l = sos_step(p.lowpass, z[0], i_alpha * modulation)
     i_beta_l = sos_step(p.lowpass, z[1], i_beta * modulation)
-    eps = i_beta_l * math.cos(x[THETA]) - i_alpha_l * math.sin(x[THETA])
-    _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
-        x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.injection_amplitude_V, p.kp, p.ki, p.T_s_s,
-        eps)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
-                                          u_beta, eps, observable, theta_e_encoder)
-    return (x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, signal, state, p.injection_amplitude_V, 0.0,
-            float(LEADER_INJECTION))
+    eps = i_beta_l * math.cos(x.theta) - i_alpha_l * math.sin(x.theta)
+    wang_answer(x, p, k, sample, out, i_alpha, i_beta, eps)
 
 
 @register("improved", "d̂ injection, αβ × 2 sin ω_h t, 300 Hz low-pass, two-phase PLL (faithful)",

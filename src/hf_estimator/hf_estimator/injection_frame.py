@@ -69,19 +69,32 @@ from numba import njit
 from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from control_math.frames import clarke_contract, inverse_clarke, rotate
 from control_math.tables import table_value
-from drive_interface.estimator_states import ALIGNING, LEADER_INJECTION, TRACKING
+from drive_interface.estimator_states import ALIGNING, TRACKING
 
 from .interface import Estimator, check_settings, register
+from .outputs import write_injecting_estimate
 from .startup import DEFAULTS as STARTUP_DEFAULTS
-from .startup import StartupParams, make_startup, startup_code, startup_reset, startup_size, startup_step
+from .startup import fresh_startup, make_startup, startup_code, startup_step
+from .startup_state import STARTUP, StartupParams
 from .tracking_loop import pi_tracking_loop
 
-THETA, INTEGRAL, PREV_IA, PREV_IB, COUNT, DELTA_SMOOTH, I_Q_SMOOTH, ACCELERATION = range(8)
-SUMS = 8
-"""Sliding sums from here: a, b, y1, y2, aa, bb, ab, a·y1, b·y2, b·y1 + a·y2 (10)."""
 N_SUMS = 10
-HISTORY = SUMS + N_SUMS
-"""Then the ring of the injection axis per sample × (d + 2), then the regressor ring (a, b, y1, y2) × 2N."""
+"""Sliding sums of the fit: a, b, y1, y2, aa, bb, ab, a·y1, b·y2, b·y1 + a·y2."""
+
+
+def injection_frame_state(delay_periods, N):
+    """Fresh state of ours (θ̂ = 0, ω̂ = 0, aligning) for the drive's whole delay and N samples per carrier
+    period, as one record: θ̂ ``theta`` [rad], the loop's integrator ``omega`` [rad/s], the previous
+    currents (αβ) [A], the fit's sample count, the smoothed |Δ̂| [1/H] and î_q [A], the type-3 loop's
+    acceleration [rad/s²], the fit's sliding ``sums``, the ring of the injection axis issued per sample ×
+    (d + 2), the regressor ring (a, b, y1, y2) × 2N, and the start-up's ``startup``."""
+    state = np.zeros(1, np.dtype([
+        *[(name, np.float64) for name in ("theta", "omega", "prev_ia", "prev_ib", "count", "delta_smooth",
+                                          "i_q_smooth", "acceleration")],
+        ("sums", np.float64, N_SUMS), ("issued", np.float64, delay_periods + 2),
+        ("regressors", np.float64, (2 * N, 4)), ("startup", STARTUP)]))
+    fresh_startup(state[0]["startup"])
+    return state
 
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
@@ -203,13 +216,14 @@ class InjectionFrameParams(NamedTuple):
 @njit(cache=True)
 def _fit_error(x, n, p):
     """Least-squares Γ̂ from the sliding sums → (e [rad], |Δ̂| [1/H], Σ̂ [1/H])."""
-    s_a, s_b, s_y1, s_y2 = x[SUMS], x[SUMS + 1], x[SUMS + 2], x[SUMS + 3]
-    aa = x[SUMS + 4] - s_a * s_a / n
-    bb = x[SUMS + 5] - s_b * s_b / n
-    ab = x[SUMS + 6] - s_a * s_b / n
-    ay1 = x[SUMS + 7] - s_a * s_y1 / n
-    by2 = x[SUMS + 8] - s_b * s_y2 / n
-    mixed = x[SUMS + 9] - (s_b * s_y1 + s_a * s_y2) / n
+    sums = x.sums
+    s_a, s_b, s_y1, s_y2 = sums[0], sums[1], sums[2], sums[3]
+    aa = sums[4] - s_a * s_a / n
+    bb = sums[5] - s_b * s_b / n
+    ab = sums[6] - s_a * s_b / n
+    ay1 = sums[7] - s_a * s_y1 / n
+    by2 = sums[8] - s_b * s_y2 / n
+    mixed = sums[9] - (s_b * s_y1 + s_a * s_y2) / n
     # Normal equations for (g_dd, g_qq, g_dq): [[aa, 0, ab], [0, bb, ab], [ab, ab, aa + bb]].
     if aa + bb <= 0.0:
         return 0.0, 0.0, 0.0
@@ -238,36 +252,30 @@ def _fit_error(x, n, p):
 
 
 @njit(cache=True)
-def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder,
-                         omega_e_encoder):
-    """One sample (interface.py): currents i_a, i_b, i_c [A] and the voltage applied in the period before
-    (u_applied) [V] →
-    (θ̂_e, ω̂_e = the loop's integrator, u_inj_α, u_inj_β, ε [rad], |Δ̂| [1/H], start-up state code).
-    State x: θ̂, integrator, previous currents, fit count, smoothed |Δ̂| and î_q (indices
-    THETA..I_Q_SMOOTH), the 10 sliding sums (SUMS), the ring of the injection axis per sample × (d + 2),
-    the regressor ring (a, b, y1, y2) × 2N, the start-up state; z unused; p: InjectionFrameParams."""
-    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
+def injection_frame_step(x, p, k, sample, out):
+    """One sample (interface.py): the currents and the voltage applied in the period before → ``out``:
+    θ̂_e, ω̂_e = the loop's integrator, the injection, ε [rad], signal |Δ̂| [1/H], the start-up's state.
+    State x: injection_frame_state; p: InjectionFrameParams."""
+    i_alpha, i_beta = clarke_contract(sample.i_a, sample.i_b, sample.i_c)
     depth = p.delay_periods + 2
-    issued = HISTORY
-    ring = HISTORY + depth
     window = 2 * p.N
 
     # The voltage applied in period k−1 was issued at k−1−d, aimed at the axis of then.
-    axis_then = x[issued + (k - 1 - p.delay_periods) % depth]
-    d_alpha = i_alpha - x[PREV_IA]
-    d_beta = i_beta - x[PREV_IB]
-    drive_alpha = u_applied_alpha - p.R_s_ohm * 0.5 * (i_alpha + x[PREV_IA])
-    drive_beta = u_applied_beta - p.R_s_ohm * 0.5 * (i_beta + x[PREV_IB])
+    axis_then = x.issued[(k - 1 - p.delay_periods) % depth]
+    d_alpha = i_alpha - x.prev_ia
+    d_beta = i_beta - x.prev_ib
+    drive_alpha = sample.u_applied_alpha - p.R_s_ohm * 0.5 * (i_alpha + x.prev_ia)
+    drive_beta = sample.u_applied_beta - p.R_s_ohm * 0.5 * (i_beta + x.prev_ib)
     if p.dead_time_voltage_V != 0.0:
-        start_a, start_b, start_c = inverse_clarke(x[PREV_IA], x[PREV_IB])
+        start_a, start_b, start_c = inverse_clarke(x.prev_ia, x.prev_ib)
         loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
         drive_alpha -= p.dead_time_voltage_V * loss_alpha
         drive_beta -= p.dead_time_voltage_V * loss_beta
-    x[PREV_IA] = i_alpha
-    x[PREV_IB] = i_beta
+    x.prev_ia = i_alpha
+    x.prev_ib = i_beta
 
-    _, i_q = rotate(i_alpha, i_beta, -x[THETA])
-    x[I_Q_SMOOTH] += p.current_smoothing * (i_q - x[I_Q_SMOOTH])
+    _, i_q = rotate(i_alpha, i_beta, -x.theta)
+    x.i_q_smooth += p.current_smoothing * (i_q - x.i_q_smooth)
     eps = 0.0
     observable = 0.0
     if k >= p.delay_periods + 2:
@@ -276,48 +284,48 @@ def injection_frame_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_b
         a = v_d / p.injection_amplitude_V
         b = v_q / p.injection_amplitude_V
         new = (a, b, y1, y2, a * a, b * b, a * b, a * y1, b * y2, b * y1 + a * y2)
-        slot = 4 * (k % window)
-        old_a, old_b = x[ring + slot], x[ring + slot + 1]
-        old_y1, old_y2 = x[ring + slot + 2], x[ring + slot + 3]
+        regressor = x.regressors[k % window]
+        old_a, old_b, old_y1, old_y2 = regressor[0], regressor[1], regressor[2], regressor[3]
         old = (old_a, old_b, old_y1, old_y2, old_a * old_a, old_b * old_b, old_a * old_b,
                old_a * old_y1, old_b * old_y2, old_b * old_y1 + old_a * old_y2)
         for j in range(N_SUMS):
-            x[SUMS + j] += new[j] - old[j]
-        x[ring + slot] = a
-        x[ring + slot + 1] = b
-        x[ring + slot + 2] = y1
-        x[ring + slot + 3] = y2
-        x[COUNT] += 1.0
-        if x[COUNT] >= window:
+            x.sums[j] += new[j] - old[j]
+        regressor[0] = a
+        regressor[1] = b
+        regressor[2] = y1
+        regressor[3] = y2
+        x.count += 1.0
+        if x.count >= window:
             error, delta, sigma = _fit_error(x, float(window), p)
-            x[DELTA_SMOOTH] += p.smoothing * (delta - x[DELTA_SMOOTH])
-            if x[DELTA_SMOOTH] > p.observable_ratio * abs(sigma):
+            x.delta_smooth += p.smoothing * (delta - x.delta_smooth)
+            if x.delta_smooth > p.observable_ratio * abs(sigma):
                 observable = 1.0
-                eps = error - table_value(x[I_Q_SMOOTH], p.shift_i_q_A, p.shift_rad)
+                eps = error - table_value(x.i_q_smooth, p.shift_i_q_A, p.shift_rad)
                 jump = max(ALIGN_JUMP_RAD, 4.0 * p.startup.align_tolerance_rad)
-                if startup_code(x, p.startup) == ALIGNING and abs(eps) > jump:
-                    x[THETA] += eps
-                    x[COUNT] = -max(0.0, p.delay_periods + 1.0 - p.N)
+                if startup_code(x) == ALIGNING and abs(eps) > jump:
+                    x.theta += eps
+                    x.count = -max(0.0, p.delay_periods + 1.0 - p.N)
                     eps = 0.0
                     observable = 0.0
 
     if p.ka != 0.0:
-        x[ACCELERATION] += p.T_s_s * p.ka * eps
-        x[INTEGRAL] += p.T_s_s * x[ACCELERATION]
-    pi_tracking_loop(x, THETA, INTEGRAL, p.kp, p.ki, p.T_s_s, eps)
-    omega = x[INTEGRAL]
+        x.acceleration += p.T_s_s * p.ka * eps
+        x.omega += p.T_s_s * x.acceleration
+    pi_tracking_loop(x, p.kp, p.ki, p.T_s_s, eps)
+    omega = x.omega
 
     carrier_now = math.cos(2.0 * math.pi * (k % p.N) / p.N)
     sign_now = 1.0 if (k // p.N) % 2 == 0 else -1.0
-    axis_now = x[THETA] + omega * (p.delay_periods + 0.5) * p.T_s_s
-    x[issued + k % depth] = axis_now
+    axis_now = x.theta + omega * (p.delay_periods + 0.5) * p.T_s_s
+    x.issued[k % depth] = axis_now
     u_alpha, u_beta = rotate(p.injection_amplitude_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
-                                          u_beta, eps, observable, theta_e_encoder)
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, sample.u_applied_alpha,
+                                          sample.u_applied_beta, u_alpha, u_beta, eps, observable,
+                                          sample.theta_e_encoder)
     if state != TRACKING:
-        x[ACCELERATION] = 0.0
-    return (x[THETA], x[INTEGRAL], u_alpha, u_beta, eps, x[DELTA_SMOOTH], state, p.injection_amplitude_V, 0.0,
-            float(LEADER_INJECTION))
+        x.acceleration = 0.0
+    write_injecting_estimate(out, x.theta, x.omega, u_alpha, u_beta, eps, x.delta_smooth, state,
+                             p.injection_amplitude_V)
 
 
 @register("injection_frame", "ours: incremental admittance fitted from current steps and the applied "
@@ -339,8 +347,7 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
     note = "; ".join(n for n in (note, weak_note, loop_note) if n)
     pole = ACCELERATION_POLE_RATIO * omega_n if loop_type == 3 else 0.0
     delay_periods = inverter.delay_periods
-    base = HISTORY + (delay_periods + 2) + 4 * 2 * N
-    startup = make_startup(base, nameplate, commissioning, T_s, inverter, 1.0, s)
+    startup = make_startup(nameplate, commissioning, T_s, inverter, 1.0, s)
     params = InjectionFrameParams(
         T_s_s=T_s, N=N, injection_amplitude_V=injection_amplitude_V, R_s_ohm=commissioning.R_s_ohm,
         dither_rad=float(s["dither_rad"]),
@@ -354,8 +361,6 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
         sigma_per_H=commissioning.sigma, delta_abs_per_H=abs(commissioning.delta),
         saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0, startup=startup)
-    x = np.zeros(base + startup_size(startup))
-    startup_reset(x, startup)
-    return Estimator("injection_frame", injection_frame_step, params, x, np.zeros((1, 1, 2)),
+    return Estimator("injection_frame", injection_frame_step, params, injection_frame_state(delay_periods, N),
                      1.0 / (N * T_s), float(s["pll_bandwidth_Hz"]), injection_amplitude_V=injection_amplitude_V,
                      injection_note=note)

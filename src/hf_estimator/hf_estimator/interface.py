@@ -1,24 +1,25 @@
 """What every estimator core provides, and the registry the runner and the nodes build them from.
 
-A core is a numba step function called once per sample k with the measured phase currents:
+A core is a numba step function called once per sample k, on named records
+(drive_interface.estimator_records):
 
-    step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder)
-        -> (θ̂_e, ω̂_e, u_inj_α, u_inj_β, ε, signal, state, U_h, w, leader)
+    step(x, p, k, sample, out)
 
-θ̂_e is the unwrapped electrical angle estimate at sample k, ω̂_e the electrical speed estimate fed to
-the speed loop, u_inj the HF voltage to superimpose for the period that follows sample k (stationary
-frame), ε the demodulated error driving the tracking loop, ``signal`` the measured angle-information
-strength (estimator-specific units, documented per estimator) and ``state`` the start-up state code
-(startup.py: 0 hold, 1 aligning, 2 polarity test, 3 tracking, 4 lock lost; the controller applies torque
-only once it has reached 3). U_h is the carrier amplitude it injects with [V] (0: none), w the weight of
-the back-EMF observer in θ̂ (0 … 1) and ``leader`` the source θ̂ follows
-(drive_interface.estimator_states: 0 injection, 1 back-EMF, 2 encoder): `estimator_blend`. u_applied is
-the voltage that acted in the period before sample k, the one that made the current step i[k] − i[k−1]:
+``sample`` (SAMPLE) holds the measured phase currents (corrected by the commissioned calibration), the
+voltage that acted in the period before sample k, the one that made the current step i[k] − i[k−1]:
 `voltage_command`(k−1−d), d the drive's delay (control_math.command_delay; the caller keeps the delay
-line, so a block of samples needs only commands of earlier blocks). x (1-D) and z (filter sections) are
-the estimator's state, θ̂ at x[0] and its speed integrator at x[1]; p its parameters, the start-up's as
-``p.startup``. Every estimator starts at θ̂ = 0, ω̂ = 0: it is told nothing of the angle. The encoder
-inputs are read only by the ``sensored`` pass-through.
+line, so a block of samples needs only commands of earlier blocks), and the encoder's angle and speed,
+read only by the ``sensored`` pass-through (and in replay by an estimator taking the recording's polarity).
+The step writes ``out`` (ESTIMATE): θ̂_e, unwrapped, ω̂_e for the speed loop, the HF voltage u_inj to
+superimpose for the period that follows sample k (stationary frame), the demodulated error ε, ``signal``
+the measured angle-information strength (estimator-specific units, documented per estimator), ``state``
+the start-up state code (startup.py: 0 hold, 1 aligning, 2 polarity test, 3 tracking, 4 lock lost; the
+controller applies torque only once it has reached 3), the carrier amplitude it injects with [V] (0:
+none), the weight of the back-EMF observer in θ̂ (0 … 1) and the source θ̂ follows
+(drive_interface.estimator_states). x is the estimator's state, one record of its own dtype whose
+``theta`` and ``omega`` are θ̂ and ω̂ (filters, rings and the start-up's ``startup`` among its fields); p
+its parameters, the start-up's as ``p.startup``. Every estimator starts at θ̂ = 0, ω̂ = 0: it is told
+nothing of the angle.
 
 What an estimator knows of the motor is its nameplate (``motor_params.nameplate``) and the commissioning
 record measured on it (``motor_params.commissioning``); never the plant.
@@ -40,8 +41,8 @@ class Estimator:
     name: str
     step: Callable
     params: Any
-    x: np.ndarray
-    z: np.ndarray
+    state: np.ndarray
+    """Its state record, as a one-element structured array (``state[0]`` is the kernels' x)."""
     injection_frequency_Hz: float
     tracking_bandwidth_Hz: float = math.inf
     """Natural frequency of the angle-tracking loop (∞ for a sensor): the speed loop is kept below it."""

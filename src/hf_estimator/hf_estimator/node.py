@@ -23,8 +23,8 @@ import time
 
 import numpy as np
 
-from control_math.command_delay import applied_voltage, command_line, issue_command
-from control_math.current_sensing import corrected_currents
+from control_math.command_delay import command_line, issue_command
+from drive_interface.estimator_records import estimates
 from drive_interface.estimator_states import LEADER_NAMES, LOCK_LOST, STATE_NAMES
 from drive_interface.node import finite, run_node
 from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
@@ -44,7 +44,7 @@ from drive_scenarios.node import ScenarioNode
 from motor_params.commissioning import commissioning_record
 from motor_params.knowledge import motor_knowledge
 
-from .block import ESTIMATE_WIDTH, estimator_block
+from .block import estimator_block, sample_inputs
 from .build import estimator_for_scenario
 from .interface import contract_injection
 from .startup import estimator_startup
@@ -108,6 +108,7 @@ class EstimatorNode(ScenarioNode):
         self.commissioning = self.load_commissioning(scenario)
         self.calibration = self.commissioning.calibration()
         self.estimator = estimator_for_scenario(scenario, self.commissioning)
+        self.inputs = sample_inputs()
 
     def open_outputs(self):
         """The answer publishers; `voltage_command` is not waited for (the controller opens its own
@@ -126,10 +127,8 @@ class EstimatorNode(ScenarioNode):
 
     def warm_up(self):
         e = self.estimator
-        e.step(e.x.copy(), e.z.copy(), e.params, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        if self.block_samples > 1:
-            estimator_block(e.step, e.x.copy(), e.z.copy(), e.params, 0, 1, np.zeros((1, 3)), command_line(1),
-                            np.zeros((1, 2)), self.calibration, 1.0, np.zeros((1, ESTIMATE_WIDTH)))
+        estimator_block(e.step, e.state.copy(), e.params, 0, 1, np.zeros((1, 3)), command_line(1),
+                        np.zeros((1, 2)), self.calibration, 1.0, estimates(1), self.inputs)
 
     def on_currents(self, sec, nanosec, i_a, i_b, i_c):
         k = sample_at(sec, nanosec, self.T_s)
@@ -181,18 +180,20 @@ class EstimatorNode(ScenarioNode):
         if acted > self.issued:
             issue_command(self.line, acted, 0.0, 0.0)
             self.issued = acted
-        u_alpha, u_beta = applied_voltage(self.line, k - 1)
         theta_enc, omega_enc = self.encoder.pop(k, (0.0, 0.0))
         self.k = k + 1
         if not finite(i_a, i_b, i_c) or max(abs(i_a), abs(i_b), abs(i_c)) > self.trip_A:
             self.fault("bad_input", f"currents at sample {k}: ({i_a}, {i_b}, {i_c}) A are not finite or "
                                     f"beyond the {self.trip_A:g} A trip; estimate held, no injection")
-            self.answer(k, self.theta_hat, self.omega_hat, 0.0, 0.0, 0.0, self.signal, 0.0, 0.0, *self.blend[1:])
+            held = estimates(1)[0]
+            held["theta_e_hat"], held["omega_e_hat"], held["signal"] = self.theta_hat, self.omega_hat, self.signal
+            held["observer_weight"], held["leader"] = self.blend[1:]
+            self.answer(k, held)
         else:
-            e = self.estimator
-            i_a, i_b, i_c = corrected_currents(i_a, i_b, i_c, self.calibration)
-            self.answer(k, *e.step(e.x, e.z, e.params, k, i_a, i_b, i_c, u_alpha, u_beta, theta_enc,
-                                   omega_enc))
+            e, out = self.estimator, estimates(1)
+            estimator_block(e.step, e.state, e.params, k, 1, np.array([[i_a, i_b, i_c]]), self.line,
+                            np.array([[theta_enc, omega_enc]]), self.calibration, self.trip_A, out, self.inputs)
+            self.answer(k, out[0])
         self.try_step()
 
     def note_state(self, k, state):
@@ -207,16 +208,18 @@ class EstimatorNode(ScenarioNode):
             self.fault("start_refused", f"sample {k}: {summary['refused']}")
         self.state = state
 
-    def answer(self, k, theta_hat, omega_hat, u_inj_alpha, u_inj_beta, eps, signal, state, amplitude, weight, leader):
-        self.theta_hat, self.omega_hat = theta_hat, omega_hat
-        self.note_state(k, state)
-        self.signal = signal
-        self.blend = (amplitude, weight, leader)
+    def answer(self, k, estimate):
+        """Publish sample k's ESTIMATE record on the per-sample topics."""
+        e = estimate
+        self.theta_hat, self.omega_hat, self.signal = e["theta_e_hat"], e["omega_e_hat"], e["signal"]
+        self.note_state(k, e["state"])
+        self.blend = (e["injection_amplitude"], e["observer_weight"], e["leader"])
         sec, nanosec = stamp_parts(k, self.T_s)
-        self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, u_inj_alpha, u_inj_beta, 0.0))
-        self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, theta_hat / self.n_p, omega_hat / self.n_p))
-        self.state_pub.publish(self.state_wire.encode(sec, nanosec, eps, signal, state))
-        self.blend_pub.publish(self.blend_wire.encode(sec, nanosec, amplitude, weight, leader))
+        self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, e["u_inj_alpha"], e["u_inj_beta"], 0.0))
+        self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, e["theta_e_hat"] / self.n_p,
+                                                            e["omega_e_hat"] / self.n_p))
+        self.state_pub.publish(self.state_wire.encode(sec, nanosec, e["eps"], e["signal"], e["state"]))
+        self.blend_pub.publish(self.blend_wire.encode(sec, nanosec, *self.blend))
         self.sample_handled(k)
 
     def on_currents_block(self, sec, nanosec, i_a, i_b, i_c):
@@ -268,23 +271,26 @@ class EstimatorNode(ScenarioNode):
         encoder = self.encoder.pop(k0, None)
         if encoder is None or len(encoder) != n:
             encoder = np.zeros((n, 2))
-        e, out = self.estimator, np.empty((n, ESTIMATE_WIDTH))
-        bad = estimator_block(e.step, e.x, e.z, e.params, k0, n, currents, self.line, encoder, self.calibration,
-                              self.trip_A, out)
+        e, records = self.estimator, estimates(n)
+        bad = estimator_block(e.step, e.state, e.params, k0, n, currents, self.line, encoder, self.calibration,
+                              self.trip_A, records, self.inputs)
         if bad:
             self.fault("bad_input", f"currents of block {k0}: {bad} of {n} samples not finite or beyond the "
                                     f"{self.trip_A:g} A trip; estimate held, no injection there")
         self.k = k0 + n
-        for i in np.flatnonzero(out[:, 6] != np.concatenate(([self.state], out[:-1, 6]))):
-            self.note_state(k0 + i, out[i, 6])
-        self.theta_hat, self.omega_hat, self.signal = out[-1, 0], out[-1, 1], out[-1, 5]
-        self.blend = tuple(out[-1, 7:10])
+        state = records["state"]
+        for i in np.flatnonzero(state != np.concatenate(([self.state], state[:-1]))):
+            self.note_state(k0 + i, state[i])
+        last = records[-1]
+        self.theta_hat, self.omega_hat, self.signal = last["theta_e_hat"], last["omega_e_hat"], last["signal"]
+        self.blend = (last["injection_amplitude"], last["observer_weight"], last["leader"])
         sec, nanosec = stamp_parts(k0, self.T_s)
-        self.injection_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 2], out[:, 3]))
-        self.estimate_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 0] / self.n_p, out[:, 1] / self.n_p))
-        self.state_block_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 4], out[:, 5], out[:, 6]))
-        self.state_pub.publish(self.state_wire.encode(sec, nanosec, out[0, 4], out[0, 5], out[0, 6]))
-        self.blend_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 7], out[:, 8], out[:, 9]))
+        r, wire = records, self.block_wire
+        self.injection_pub.publish(wire.encode(sec, nanosec, r["u_inj_alpha"], r["u_inj_beta"]))
+        self.estimate_pub.publish(wire.encode(sec, nanosec, r["theta_e_hat"] / self.n_p, r["omega_e_hat"] / self.n_p))
+        self.state_block_pub.publish(wire.encode(sec, nanosec, r["eps"], r["signal"], state))
+        self.state_pub.publish(self.state_wire.encode(sec, nanosec, r[0]["eps"], r[0]["signal"], r[0]["state"]))
+        self.blend_pub.publish(wire.encode(sec, nanosec, r["injection_amplitude"], r["observer_weight"], r["leader"]))
         self.sample_handled(k0 + n - 1)
 
     def watchdog(self):

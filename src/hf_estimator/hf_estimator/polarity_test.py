@@ -11,20 +11,7 @@ from control_math.frames import rotate, wrap
 from drive_interface.estimator_states import ALIGNING, HOLD, POLARITY
 
 from .startup_state import (
-    FLIPPED,
-    HELD_AT,
-    INTEGRAL,
-    INTEGRAL_HELD,
     NO_POLARITY,
-    POLARITY_RATIO,
-    QUIET,
-    REFUSED,
-    RESIDUAL_Q,
-    SCORE,
-    SPAN,
-    THETA,
-    THETA_HELD,
-    TRIES,
     backemf_clear,
     enter,
     hold,
@@ -85,30 +72,30 @@ def polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, theta_e_recorded):
     """The axis aligned at sample k: θ̂ and ω̂ held; at speed (or in replay, with the recording drive's
     estimate θ̂_e [rad], NaN where it has none) the polarity is decided at once, else the injection stops
     for the quiet time before the pulses. → (u_α, u_β [V], state code)."""
-    b = p.base
-    x[b + THETA_HELD] = x[THETA]
-    x[b + INTEGRAL_HELD] = x[INTEGRAL]
-    x[b + HELD_AT] = k
-    x[b + SCORE] = 0.0
-    x[b + SPAN] = 0.0
-    at_speed = backemf_clear(x, p, abs(x[INTEGRAL]) * p.psi_f_Wb)
+    s = x.startup
+    s.theta_held = x.theta
+    s.omega_held = x.omega
+    s.held_at = k
+    s.score = 0.0
+    s.span = 0.0
+    at_speed = backemf_clear(x, p, abs(x.omega) * p.psi_f_Wb)
     recorded = p.polarity_from_recording and theta_e_recorded == theta_e_recorded
     if p.polarity_from_recording and not recorded and not at_speed:
         return u_inj_alpha, u_inj_beta, float(ALIGNING)
     if at_speed or recorded:
         if recorded:
-            flip = abs(wrap(theta_e_recorded - x[THETA])) > 0.5 * math.pi
+            flip = abs(wrap(theta_e_recorded - x.theta)) > 0.5 * math.pi
         else:
-            backemf_q = x[b + RESIDUAL_Q] + x[INTEGRAL] * p.psi_f_Wb
-            flip = backemf_q * x[INTEGRAL] < 0.0
-        x[b + FLIPPED] = 1.0 if flip else 0.0
-        x[b + POLARITY_RATIO] = 0.0
+            backemf_q = s.residual_q + x.omega * p.psi_f_Wb
+            flip = backemf_q * x.omega < 0.0
+        s.flipped = 1.0 if flip else 0.0
+        s.polarity_ratio = 0.0
         if flip:
             turn(x, p, math.pi)
         enter(x, p, k - p.pulse_sequences * 4 * p.pulse_samples - p.delay_periods - 1, POLARITY)
         return u_inj_alpha, u_inj_beta, float(POLARITY)
-    x[b + INTEGRAL_HELD] = 0.0
-    x[b + QUIET] = k + 1.0
+    s.omega_held = 0.0
+    s.quiet = k + 1.0
     return 0.0, 0.0, float(ALIGNING)
 
 
@@ -116,11 +103,11 @@ def polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, theta_e_recorded):
 def quiet_over(x, p, k):
     """During the quiet time before the pulses (θ̂ held, zero voltage): whether it is over at sample k,
     then the test entered."""
-    b = p.base
+    s = x.startup
     hold(x, p, k)
-    if k - (x[b + QUIET] - 1.0) < p.quiet_samples:
+    if k - (s.quiet - 1.0) < p.quiet_samples:
         return False
-    x[b + QUIET] = 0.0
+    s.quiet = 0.0
     enter(x, p, k, POLARITY)
     return True
 
@@ -131,7 +118,7 @@ def polarity_step(x, p, k, since, i_alpha, i_beta, u_inj_alpha, u_inj_beta):
     (θ̂ turned by π for the south; no asymmetry: a quarter turn and another try, refused after
     polarity_tries), then the flush on the estimator's injection. → (done: the flush is over, u_α, u_β [V],
     state code)."""
-    b = p.base
+    s = x.startup
     length = 4 * p.pulse_samples
     issue_end = p.pulse_sequences * length
     decide_at = issue_end + p.delay_periods
@@ -139,27 +126,27 @@ def polarity_step(x, p, k, since, i_alpha, i_beta, u_inj_alpha, u_inj_beta):
         axis = hold(x, p, k)
         i_d, _ = rotate(i_alpha, i_beta, -axis)
         w_s, w_t = polarity_coefficients(since - p.delay_periods, p.pulse_samples, length, p.pulse_sequences)
-        x[b + SCORE] += w_s * i_d
-        x[b + SPAN] += w_t * i_d
+        s.score += w_s * i_d
+        s.span += w_t * i_d
         if since < issue_end:
             sign = pulse_sign(since, p.pulse_samples)
-            u_alpha, u_beta = rotate(sign * p.pulse_V, 0.0, axis + x[b + INTEGRAL_HELD] * p.T_s_s)
+            u_alpha, u_beta = rotate(sign * p.pulse_V, 0.0, axis + s.omega_held * p.T_s_s)
             return False, u_alpha, u_beta, float(POLARITY)
         if since < decide_at:
             return False, 0.0, 0.0, float(POLARITY)
-        ratio = x[b + SCORE] / x[b + SPAN] - p.polarity_linear_ratio if x[b + SPAN] > 0.0 else 0.0
-        x[b + POLARITY_RATIO] = ratio
+        ratio = s.score / s.span - p.polarity_linear_ratio if s.span > 0.0 else 0.0
+        s.polarity_ratio = ratio
         if abs(ratio) < p.polarity_margin:
-            x[b + TRIES] += 1.0
-            if x[b + TRIES] >= p.polarity_tries:
-                x[b + REFUSED] = NO_POLARITY
+            s.tries += 1.0
+            if s.tries >= p.polarity_tries:
+                s.refused = NO_POLARITY
                 return False, 0.0, 0.0, float(HOLD)
-            x[b + THETA_HELD] += 0.5 * math.pi
+            s.theta_held += 0.5 * math.pi
             turn(x, p, 0.5 * math.pi)
-            x[b + QUIET] = k + 1.0
+            s.quiet = k + 1.0
             enter(x, p, k, ALIGNING)
             return False, 0.0, 0.0, float(ALIGNING)
-        x[b + FLIPPED] = 1.0 if ratio < 0.0 else 0.0
+        s.flipped = 1.0 if ratio < 0.0 else 0.0
         if ratio < 0.0:
             turn(x, p, math.pi)
         return False, u_inj_alpha, u_inj_beta, float(POLARITY)

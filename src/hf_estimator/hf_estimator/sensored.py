@@ -5,7 +5,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from drive_interface.estimator_states import LEADER_ENCODER
+from drive_interface.estimator_states import LEADER_ENCODER, TRACKING
 
 from .interface import Estimator, check_settings, register
 
@@ -14,11 +14,26 @@ class SensoredParams(NamedTuple):
     n_p: int
 
 
+SENSORED = np.dtype([("theta", np.float64), ("omega", np.float64)])
+"""Its state: the last angle [rad] and speed [rad/s] passed through."""
+
+
 @njit(cache=True)
-def sensored_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder):
-    """One sample (interface.py): the encoder's θ_e, ω_e passed through, no injection, ε 0, signal 1,
-    state tracking (an encoder needs no start-up). No state."""
-    return theta_e_encoder, omega_e_encoder, 0.0, 0.0, 0.0, 1.0, 3.0, 0.0, 0.0, float(LEADER_ENCODER)
+def sensored_step(x, p, k, sample, out):
+    """One sample (interface.py) → ``out``: the encoder's θ_e, ω_e passed through, no injection, ε 0,
+    signal 1, state tracking (an encoder needs no start-up)."""
+    x.theta = sample.theta_e_encoder
+    x.omega = sample.omega_e_encoder
+    out.theta_e_hat = x.theta
+    out.omega_e_hat = x.omega
+    out.u_inj_alpha = 0.0
+    out.u_inj_beta = 0.0
+    out.eps = 0.0
+    out.signal = 1.0
+    out.state = TRACKING
+    out.injection_amplitude = 0.0
+    out.observer_weight = 0.0
+    out.leader = LEADER_ENCODER
 
 
 @register("sensored", "encoder pass-through (no injection): validates plant and controller", "none",
@@ -26,5 +41,4 @@ def sensored_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, th
           injection_kind="none")
 def make_sensored(nameplate, T_s, settings, commissioning, inverter):
     check_settings("sensored", settings, {}, T_s)
-    return Estimator("sensored", sensored_step, SensoredParams(nameplate.n_p),
-                     np.zeros(1), np.zeros((1, 1, 2)), 0.0)
+    return Estimator("sensored", sensored_step, SensoredParams(nameplate.n_p), np.zeros(1, SENSORED), 0.0)

@@ -63,21 +63,10 @@ from .alignment import ALIGN_SMOOTHING_S, alignment_step
 from .lock_monitor import backemf_residual, lock_step, reacquire_step
 from .polarity_test import linear_polarity_ratio, polarity_begin, polarity_step, quiet_over
 from .startup_state import (
-    CODE,
-    ENTERED,
-    ERROR,
-    FLIPPED,
-    INTEGRAL,
     NO_POLARITY,
     NO_SALIENCY,
     NOT_REFUSED,
-    POLARITY_RATIO,
-    QUIET,
-    REFUSED,
-    RESTARTS,
     ROTOR_MOVED,
-    SLOTS,
-    THETA,
     TOO_MANY_LOSSES,
     StartupParams,
     enter,
@@ -115,14 +104,8 @@ def dead_time_uncertainty_V(inverter, commissioning, share):
     return share * 4.0 / 3.0 * commissioning.dead_time_voltage_V
 
 
-@njit(cache=True)
-def startup_size(p):
-    """Entries of the start-up state in an estimator's x."""
-    return SLOTS
-
-
-def make_startup(base, nameplate, commissioning, T_s, inverter, error_gain, settings):
-    """StartupParams for an estimator whose start-up state begins at x[base], on ``inverter``
+def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
+    """StartupParams for an estimator on ``inverter``
     (InverterRating: U_dc, ∞ when unknown, and the drive's whole delay); ``settings``: its checked
     settings (interface.check_settings, DEFAULTS among them), ``error_gain`` its ε per radian."""
     s = settings
@@ -143,7 +126,7 @@ def make_startup(base, nameplate, commissioning, T_s, inverter, error_gain, sett
     def samples(seconds):
         return max(1, int(round(seconds / T_s)))
     return StartupParams(
-        base=base, T_s_s=T_s, delay_periods=int(inverter.delay_periods), error_gain=float(error_gain),
+        T_s_s=T_s, delay_periods=int(inverter.delay_periods), error_gain=float(error_gain),
         align_tolerance_rad=s["align_tolerance_rad"], settle_samples=samples(s["settle_s"]),
         align_timeout_samples=samples(s["align_timeout_s"]), quiet_samples=samples(s["quiet_s"]),
         error_smoothing=1.0 - math.exp(-1.0 / samples(ALIGN_SMOOTHING_S)),
@@ -162,29 +145,25 @@ def make_startup(base, nameplate, commissioning, T_s, inverter, error_gain, sett
         polarity_from_recording=bool(s["polarity_from_recording"]))
 
 
-@njit(cache=True)
-def startup_reset(x, p):
-    """Fresh start-up state: aligning from sample 0."""
-    b = p.base
-    for j in range(startup_size(p)):
-        x[b + j] = 0.0
-    x[b + CODE] = ALIGNING
-    x[b + ERROR] = 1.0
+def fresh_startup(startup):
+    """Set a start-up record (STARTUP, zeroed) aligning from sample 0."""
+    startup["code"] = ALIGNING
+    startup["error"] = 1.0
 
 
 @njit(cache=True)
-def startup_code(x, p):
-    """The current state code."""
-    return int(x[p.base + CODE])
+def startup_code(x):
+    """The start-up's current state code in the estimator state ``x``."""
+    return int(x.startup.code)
 
 
 @njit(cache=True)
 def startup_follow(x, p, theta, omega):
-    """Set θ̂ (x[0]) and its integrator (x[1]) to another source's ``theta`` [rad] and ``omega`` [rad/s]
+    """Set θ̂ (x.theta) and ω̂ (x.omega) to another source's ``theta`` [rad] and ``omega`` [rad/s]
     (the follower of a blend, hf_estimator.full_speed; a test's forced slip), the back-EMF residual turned
     with θ̂."""
-    turn(x, p, theta - x[THETA])
-    x[INTEGRAL] = omega
+    turn(x, p, theta - x.theta)
+    x.omega = omega
 
 
 @njit(cache=True)
@@ -194,16 +173,16 @@ def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_in
     applied in the period before sample k [V], the estimator's injection for the coming period [V], its ε
     and observable flag; ``theta_e_recorded``: in replay, the recording drive's own estimate θ̂_e [rad] (NaN
     where the bag has none), read only with ``polarity_from_recording``. Hands the sample to the job of the
-    state it is in; may turn or hold θ̂ (x[0]) and its integrator (x[1]). Returns (u_inj_α, u_inj_β, state
+    state it is in; may turn or hold θ̂ (x.theta) and ω̂ (x.omega). Returns (u_inj_α, u_inj_β, state
     code)."""
-    b = p.base
+    s = x.startup
     residual = backemf_residual(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta)
-    code = int(x[b + CODE])
-    since = k - int(x[b + ENTERED])
-    if x[b + REFUSED] != NOT_REFUSED:
-        return 0.0, 0.0, float(HOLD if x[b + REFUSED] != TOO_MANY_LOSSES else LOCK_LOST)
+    code = int(s.code)
+    since = k - int(s.entered)
+    if s.refused != NOT_REFUSED:
+        return 0.0, 0.0, float(HOLD if s.refused != TOO_MANY_LOSSES else LOCK_LOST)
     if code == ALIGNING:
-        if x[b + QUIET] > 0.0:
+        if s.quiet > 0.0:
             if not quiet_over(x, p, k):
                 return 0.0, 0.0, float(ALIGNING)
             since = 0
@@ -223,17 +202,21 @@ def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_in
     return u_inj_alpha, u_inj_beta, lock_step(x, p, k, residual, observable)
 
 
-def startup_summary(x, p):
-    """What the start-up state says after a run: {state, refused (reason or None), polarity_ratio,
-    flipped, lock_losses, tracking_since_sample}."""
-    b = p.base
-    refused = int(x[b + REFUSED])
-    return {"state": STATE_NAMES[int(x[b + CODE])], "refused": REFUSALS.get(refused),
-            "polarity_ratio": float(x[b + POLARITY_RATIO]), "flipped": bool(x[b + FLIPPED]),
-            "restarts": int(x[b + RESTARTS])}
+def startup_summary(startup):
+    """What a start-up record (STARTUP) says after a run: {state, refused (reason or None), polarity_ratio,
+    flipped, restarts}."""
+    return {"state": STATE_NAMES[int(startup["code"])], "refused": REFUSALS.get(int(startup["refused"])),
+            "polarity_ratio": float(startup["polarity_ratio"]), "flipped": bool(startup["flipped"]),
+            "restarts": int(startup["restarts"])}
 
 
 def estimator_startup(estimator):
-    """startup_summary of a built estimator (hf_estimator.interface.Estimator), None if it has no start-up."""
-    p = getattr(estimator.params, "startup", None)
-    return None if p is None else startup_summary(estimator.x, p)
+    """startup_summary of a built estimator (hf_estimator.interface.Estimator): its state's ``startup``
+    record, or ours' in a blend (``hf``); None if it has none."""
+    state = estimator.state[0]
+    names = state.dtype.names
+    if "startup" in names:
+        return startup_summary(state["startup"])
+    if "hf" in names:
+        return startup_summary(state["hf"]["startup"])
+    return None

@@ -1,30 +1,31 @@
-"""The start-up's state and parameters, shared by its jobs (docs/startup.md): the slots it keeps in an
-estimator's x from ``p.base`` on, StartupParams, and the moves every job makes: entering a state, turning
-or holding θ̂, counting a lost lock."""
+"""The start-up's state and parameters, shared by its jobs (docs/startup.md): STARTUP, the record it
+keeps as the ``startup`` field of an estimator's state (whose ``theta`` and ``omega`` are θ̂ and ω̂),
+StartupParams, and the moves every job makes: entering a state, turning or holding θ̂, counting a lost
+lock."""
 from typing import NamedTuple
 
+import numpy as np
 from numba import njit
 
 from control_math.frames import rotate
 from drive_interface.estimator_states import LOCK_LOST
 
-(CODE, ENTERED, SETTLED, ERROR, THETA_HELD, INTEGRAL_HELD, SCORE, SPAN, TRIES, REFUSED, RESTARTS,
- RESIDUAL_D, RESIDUAL_Q, PREV_IA, PREV_IB, BAD, POLARITY_RATIO, FLIPPED, HELD_AT, QUIET, E_ALPHA,
- E_BETA, FIT_N, FIT_T, FIT_P, FIT_TP, FIT_TT, PHI_RAW, PHI_UNWRAPPED) = range(29)
-"""Slots after p.base. The supervisor's: CODE, ENTERED, REFUSED, RESTARTS and the held θ̂ (THETA_HELD,
-INTEGRAL_HELD, HELD_AT); the alignment's: SETTLED, ERROR, QUIET; the polarity test's: SCORE, SPAN, TRIES,
-POLARITY_RATIO, FLIPPED; the lock monitor's: RESIDUAL_D/Q, PREV_IA/IB, BAD, E_ALPHA/BETA and the lost-lock
-fit FIT_* and PHI_*."""
-SLOTS = 29
-THETA, INTEGRAL = 0, 1
-"""Every estimator keeps θ̂ at x[0] and its speed integrator (ω̂) at x[1]."""
+STARTUP = np.dtype([(name, np.float64) for name in (
+    "code", "entered", "refused", "restarts", "theta_held", "omega_held", "held_at",
+    "settled", "error", "quiet",
+    "score", "span", "tries", "polarity_ratio", "flipped",
+    "residual_d", "residual_q", "prev_ia", "prev_ib", "bad", "e_alpha", "e_beta",
+    "fit_n", "fit_t", "fit_p", "fit_tp", "fit_tt", "phi_raw", "phi_unwrapped")])
+"""The supervisor's: the state code, the sample it was entered at, why the start was refused, the lost
+locks counted, θ̂ and ω̂ held (and since when); the alignment's: samples settled, the smoothed error
+[rad], the quiet time's start + 1; the polarity test's: S, T, tries, S/T and whether θ̂ was turned by π;
+the lock monitor's: the back-EMF residual (θ̂ frame) [V], the previous currents, samples beyond the
+threshold, the back-EMF (αβ) [V], and the lost-lock fit of its angle (FIT sums, φ raw and unwrapped)."""
 NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES, ROTOR_MOVED = 0, 1, 2, 3, 4
-"""Why a start-up was refused (REFUSED slot)."""
+"""Why a start-up was refused (its ``refused`` field)."""
 
 
 class StartupParams(NamedTuple):
-    base: int
-    """Index of the start-up state in the estimator's x."""
     T_s_s: float
     delay_periods: int
     error_gain: float
@@ -62,36 +63,36 @@ class StartupParams(NamedTuple):
 @njit(cache=True)
 def enter(x, p, k, code):
     """Enter state ``code`` at sample k."""
-    b = p.base
-    x[b + CODE] = code
-    x[b + ENTERED] = k
-    x[b + SETTLED] = 0.0
-    x[b + ERROR] = 1.0
-    x[b + BAD] = 0.0
+    s = x.startup
+    s.code = code
+    s.entered = k
+    s.settled = 0.0
+    s.error = 1.0
+    s.bad = 0.0
 
 
 @njit(cache=True)
 def turn(x, p, angle):
     """θ̂ turned by ``angle`` [rad]; the back-EMF residual, kept in the θ̂ frame, turned with it."""
-    b = p.base
-    x[THETA] += angle
-    x[b + RESIDUAL_D], x[b + RESIDUAL_Q] = rotate(x[b + RESIDUAL_D], x[b + RESIDUAL_Q], -angle)
+    s = x.startup
+    x.theta += angle
+    s.residual_d, s.residual_q = rotate(s.residual_d, s.residual_q, -angle)
 
 
 @njit(cache=True)
 def hold(x, p, k):
     """Keep θ̂ at the held angle turning at the held speed, and the integrator at the held speed → θ̂."""
-    b = p.base
-    x[INTEGRAL] = x[b + INTEGRAL_HELD]
-    x[THETA] = x[b + THETA_HELD] + x[b + INTEGRAL_HELD] * (k - x[b + HELD_AT]) * p.T_s_s
-    return x[THETA]
+    s = x.startup
+    x.omega = s.omega_held
+    x.theta = s.theta_held + s.omega_held * (k - s.held_at) * p.T_s_s
+    return x.theta
 
 
 @njit(cache=True)
 def lose_lock(x, p, k):
     """Enter LOCK_LOST at sample k, counting the loss → the state code."""
     enter(x, p, k, LOCK_LOST)
-    x[p.base + RESTARTS] += 1.0
+    x.startup.restarts += 1.0
     return float(LOCK_LOST)
 
 

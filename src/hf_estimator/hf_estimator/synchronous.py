@@ -20,20 +20,19 @@ from numba import njit
 
 from control_math.filters import butterworth_bandpass
 from control_math.frames import clarke_contract
-from drive_interface.estimator_states import LEADER_INJECTION
 
 from .admittance_monitor import MonitorParams, make_monitor
 from .conventional import demodulation_phase
 from .interface import Estimator, check_settings, register
+from .outputs import write_injecting_estimate
 from .pulsating import (
-    THETA,
     pulsating_state,
     pulsating_track_and_inject,
     q_axis_demodulation,
-    startup_base,
 )
 from .startup import DEFAULTS as STARTUP_DEFAULTS
-from .startup import StartupParams, make_startup, startup_step
+from .startup import make_startup, startup_step
+from .startup_state import StartupParams
 
 DEFAULTS = {"frequency_Hz": 1500.0, "amplitude_V": 40.0, "u_star": 1.0, "A_p": 4853.0,
             "T_i_s": 0.136, "T_f_s": 0.53e-3, "bandpass_ratio": math.sqrt(2.0),
@@ -55,21 +54,22 @@ class SynchronousParams(NamedTuple):
 
 
 @njit(cache=True)
-def synchronous_step(x, z, p, k, i_a, i_b, i_c, u_applied_alpha, u_applied_beta, theta_e_encoder, omega_e_encoder):
-    """One sample (interface.py): currents i_a, i_b, i_c [A] → (θ̂_e, ω̂_e = the PI output, u_inj_α, u_inj_β,
-    ε = −î_qhf [A], |Δ̂| [1/H], start-up state code). State x: θ̂, the PI integrator, the admittance
-    monitor, the start-up (pulsating.py); z: band-pass sections z[0], T_f low-pass z[1]; p: SynchronousParams."""
+def synchronous_step(x, p, k, sample, out):
+    """One sample (interface.py) → ``out``: θ̂_e, ω̂_e = the PI output, the injection, ε = −î_qhf [A], signal
+    |Δ̂| [1/H], the start-up's state. State x (pulsating.py): its filters are the band-pass and the T_f
+    low-pass; p: SynchronousParams."""
     t = k * p.T_s_s
-    i_alpha, i_beta = clarke_contract(i_a, i_b, i_c)
-    i_qhf = q_axis_demodulation(z, p.bandpass, p.lowpass, i_alpha, i_beta, x[THETA], p.u_star,
+    i_alpha, i_beta = clarke_contract(sample.i_a, sample.i_b, sample.i_c)
+    i_qhf = q_axis_demodulation(x.filters, p.bandpass, p.lowpass, i_alpha, i_beta, x.theta, p.u_star,
                                 math.cos(p.omega_h_rad_s * t + p.demodulation_phase_rad))
     omega, u_alpha, u_beta, signal_strength, observable = pulsating_track_and_inject(
         x, p.monitor, k, i_alpha, i_beta, math.sin(p.omega_h_rad_s * t), p.injection_amplitude_V, p.kp, p.ki, p.T_s_s,
         -i_qhf)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_alpha,
-                                          u_beta, -i_qhf, observable, theta_e_encoder)
-    return (x[THETA], omega, u_alpha, u_beta, -i_qhf, signal_strength, state, p.injection_amplitude_V, 0.0,
-            float(LEADER_INJECTION))
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, sample.u_applied_alpha,
+                                          sample.u_applied_beta, u_alpha, u_beta, -i_qhf, observable,
+                                          sample.theta_e_encoder)
+    write_injecting_estimate(out, x.theta, omega, u_alpha, u_beta, -i_qhf, signal_strength, state,
+                             p.injection_amplitude_V)
 
 
 def first_order_lowpass(T_f, T_s):
@@ -90,8 +90,7 @@ def make_synchronous(nameplate, T_s, settings, commissioning, inverter, name="sy
     phase = demodulation_phase("synchronous", s["demodulation"], commissioning, T_s, delay_periods, f_h, bandpass)
     monitor = make_monitor(T_s, injection_amplitude_V, f_h, delay_periods, commissioning, s["observable_ratio"])
     gain = float(s["u_star"]) * injection_amplitude_V * commissioning.delta / (2.0 * math.pi * f_h)
-    startup = make_startup(startup_base(monitor), nameplate, commissioning, T_s, inverter,
-                           gain if commissioning.salient() else 0.0, s)
+    startup = make_startup(nameplate, commissioning, T_s, inverter, gain if commissioning.salient() else 0.0, s)
     params = SynchronousParams(
         T_s_s=T_s, omega_h_rad_s=2.0 * math.pi * f_h, injection_amplitude_V=injection_amplitude_V,
         u_star=float(s["u_star"]),
@@ -100,8 +99,7 @@ def make_synchronous(nameplate, T_s, settings, commissioning, inverter, name="sy
         bandpass=bandpass, demodulation_phase_rad=phase,
         monitor=monitor, startup=startup)
     omega_n = math.sqrt(abs(gain) * params.ki)
-    return Estimator(name, synchronous_step, params, pulsating_state(monitor, startup),
-                     np.zeros((2, 1, 2)), f_h, omega_n / (2.0 * math.pi))
+    return Estimator(name, synchronous_step, params, pulsating_state(monitor, 1), f_h, omega_n / (2.0 * math.pi))
 
 
 @register("synchronous_aligned", "synchronous with its demodulation carrier in phase with the sampled q̂ "

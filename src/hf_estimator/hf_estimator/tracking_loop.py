@@ -5,16 +5,17 @@ from numba import njit
 
 
 @njit(cache=True)
-def pi_tracking_loop(x, i_theta, i_integral, kp, ki, T_s, error):
-    """PI + integrator (Wang Fig. 6, Szabó Fig. 3): ω_PI = k_p ε + ∫k_i ε, θ̂ = ∫ω_PI (state in x).
+def pi_tracking_loop(x, kp, ki, T_s, error):
+    """PI + integrator (Wang Fig. 6, Szabó Fig. 3): ω_PI = k_p ε + ∫k_i ε, θ̂ = ∫ω_PI, in the estimator
+    state x (θ̂ its ``theta``, the integrator its ``omega``).
 
-    Returns ω_PI; the integrator state x[i_integral] is the smoother speed estimate. Which one an
+    Returns ω_PI; the integrator x.omega is the smoother speed estimate. Which one an
     estimator hands the speed loop is its choice: the proportional part carries the demodulation ripple
     (hundreds of rad/s behind a 300 Hz low-pass), which fed to the speed loop and the back-EMF
     decoupling closes an unstable loop through the estimator (docs/hf-demodulation.md §3)."""
-    x[i_integral] += T_s * ki * error
-    omega = kp * error + x[i_integral]
-    x[i_theta] += T_s * omega
+    x.omega += T_s * ki * error
+    omega = kp * error + x.omega
+    x.theta += T_s * omega
     return omega
 
 

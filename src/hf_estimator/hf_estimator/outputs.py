@@ -1,0 +1,20 @@
+"""What an injecting estimator's step writes into its ESTIMATE record (drive_interface.estimator_records)."""
+from numba import njit
+
+from drive_interface.estimator_states import LEADER_INJECTION
+
+
+@njit(cache=True)
+def write_injecting_estimate(out, theta_e_hat, omega_e_hat, u_inj_alpha, u_inj_beta, eps, signal, state,
+                             injection_amplitude):
+    """Fill ``out`` for an estimator that follows its own injection alone (observer weight 0)."""
+    out.theta_e_hat = theta_e_hat
+    out.omega_e_hat = omega_e_hat
+    out.u_inj_alpha = u_inj_alpha
+    out.u_inj_beta = u_inj_beta
+    out.eps = eps
+    out.signal = signal
+    out.state = state
+    out.injection_amplitude = injection_amplitude
+    out.observer_weight = 0.0
+    out.leader = LEADER_INJECTION
