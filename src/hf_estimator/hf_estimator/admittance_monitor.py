@@ -8,6 +8,8 @@ from numba import njit
 
 from control_math.frames import rotate
 
+from .interface import MAX_CARRIER_SAMPLES, MAX_DELAY_PERIODS, ring_capacity
+
 
 class MonitorParams(NamedTuple):
     """HF admittance monitor: correlates current steps with the applied injection in its own frame."""
@@ -25,13 +27,13 @@ class MonitorParams(NamedTuple):
     """First-order smoothing factor per sample of the reported |Δ̂|."""
 
 
-def monitor_dtype(p):
-    """The monitor's state record for MonitorParams p: the previous currents [A], the sliding sums of the
-    products (d, q, c²) and their count, the smoothed |Δ̂| [1/H], the ring of issued injections (carrier,
-    angle) × (delay + 2) and the ring of products (d, q, c²) × window."""
-    return np.dtype([*[(name, np.float64) for name in ("prev_ia", "prev_ib", "sum_d", "sum_q", "sum_c2", "delta",
-                                                       "count")],
-                     ("issued", np.float64, (p.delay_periods + 2, 2)), ("products", np.float64, (p.window, 3))])
+MONITOR = np.dtype([*[(name, np.float64) for name in ("prev_ia", "prev_ib", "sum_d", "sum_q", "sum_c2", "delta",
+                                                      "count")],
+                    ("issued", np.float64, (MAX_DELAY_PERIODS + 2, 2)),
+                    ("products", np.float64, (MAX_CARRIER_SAMPLES, 3))])
+"""The monitor's state: the previous currents [A], the sliding sums of the products (d, q, c²) and their
+count, the smoothed |Δ̂| [1/H], the ring of issued injections (carrier, angle) of the last delay + 2
+samples and the ring of products (d, q, c²) of one carrier period (the rings' first entries used)."""
 
 
 @njit(cache=True)
@@ -80,8 +82,10 @@ def monitor_step(m, p, k, i_alpha, i_beta, carrier_now, angle_now):
 
 def make_monitor(T_s, injection_amplitude_V, f_h, delay_periods, commissioning, observable_ratio=0.02,
                  smoothing_Hz=20.0):
+    window = max(2, int(round(1.0 / (f_h * T_s))))
+    ring_capacity(window, delay_periods)
     return MonitorParams(T_s_s=T_s, injection_amplitude_V=injection_amplitude_V,
-                         delay_periods=int(delay_periods), window=max(2, int(round(1.0 / (f_h * T_s)))),
+                         delay_periods=int(delay_periods), window=window,
                          sigma_hat=commissioning.sigma,
                          observable_ratio=observable_ratio,
                          smoothing=1.0 - math.exp(-2.0 * math.pi * smoothing_Hz * T_s))

@@ -124,8 +124,7 @@ def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, inv
         demodulation_amplitude=float(s["demodulation_amplitude"]), demodulation_phase_rad=phase, kp=kp, ki=ki,
         lowpass=butterworth_lowpass(s["lowpass_order"], s["lowpass_Hz"], T_s), bandpass=bandpass,
         monitor=monitor, startup=startup)
-    sections = max(params.lowpass.shape[0], params.bandpass.shape[0])
-    return Estimator(name, step, params, pulsating_state(monitor, sections), f_h, float(s["pll_bandwidth_Hz"]))
+    return Estimator(name, step, params, pulsating_state(), f_h, float(s["pll_bandwidth_Hz"]))
 
 
 @register("conventional", "d̂ injection, band-pass, q̂ demodulation, low-pass, PI (faithful)",

@@ -71,7 +71,7 @@ from control_math.frames import clarke_contract, inverse_clarke, rotate
 from control_math.tables import table_value
 from drive_interface.estimator_states import ALIGNING, TRACKING
 
-from .interface import Estimator, check_settings, register
+from .interface import MAX_CARRIER_SAMPLES, MAX_DELAY_PERIODS, Estimator, check_settings, register, ring_capacity
 from .outputs import write_injecting_estimate
 from .startup import DEFAULTS as STARTUP_DEFAULTS
 from .startup import fresh_startup, make_startup, startup_code, startup_step
@@ -82,17 +82,20 @@ N_SUMS = 10
 """Sliding sums of the fit: a, b, y1, y2, aa, bb, ab, a·y1, b·y2, b·y1 + a·y2."""
 
 
-def injection_frame_state(delay_periods, N):
-    """Fresh state of ours (θ̂ = 0, ω̂ = 0, aligning) for the drive's whole delay and N samples per carrier
-    period, as one record: θ̂ ``theta`` [rad], the loop's integrator ``omega`` [rad/s], the previous
-    currents (αβ) [A], the fit's sample count, the smoothed |Δ̂| [1/H] and î_q [A], the type-3 loop's
-    acceleration [rad/s²], the fit's sliding ``sums``, the ring of the injection axis issued per sample ×
-    (d + 2), the regressor ring (a, b, y1, y2) × 2N, and the start-up's ``startup``."""
-    state = np.zeros(1, np.dtype([
-        *[(name, np.float64) for name in ("theta", "omega", "prev_ia", "prev_ib", "count", "delta_smooth",
-                                          "i_q_smooth", "acceleration")],
-        ("sums", np.float64, N_SUMS), ("issued", np.float64, delay_periods + 2),
-        ("regressors", np.float64, (2 * N, 4)), ("startup", STARTUP)]))
+INJECTION_FRAME = np.dtype([
+    *[(name, np.float64) for name in ("theta", "omega", "prev_ia", "prev_ib", "count", "delta_smooth", "i_q_smooth",
+                                      "acceleration")],
+    ("sums", np.float64, N_SUMS), ("issued", np.float64, MAX_DELAY_PERIODS + 2),
+    ("regressors", np.float64, (2 * MAX_CARRIER_SAMPLES, 4)), ("startup", STARTUP)])
+"""Ours' state: θ̂ [rad], the loop's integrator ω̂ [rad/s], the previous currents (αβ) [A], the fit's sample
+count, the smoothed |Δ̂| [1/H] and î_q [A], the type-3 loop's acceleration [rad/s²], the fit's sliding sums,
+the ring of the injection axis issued in the last d + 2 samples, the regressor ring (a, b, y1, y2) of two
+carrier periods (the rings' first entries used), and the start-up's."""
+
+
+def injection_frame_state():
+    """Fresh state of ours (θ̂ = 0, ω̂ = 0, aligning): INJECTION_FRAME."""
+    state = np.zeros(1, INJECTION_FRAME)
     fresh_startup(state[0]["startup"])
     return state
 
@@ -336,6 +339,7 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
     N = int(round(1.0 / (float(s["frequency_Hz"]) * T_s)))
     if N < 3:
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
+    ring_capacity(N, inverter.delay_periods)
     omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
     zeta = float(s["pll_damping"])
     omega_h = 2.0 * math.pi / (N * T_s)
@@ -361,6 +365,6 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
         sigma_per_H=commissioning.sigma, delta_abs_per_H=abs(commissioning.delta),
         saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0, startup=startup)
-    return Estimator("injection_frame", injection_frame_step, params, injection_frame_state(delay_periods, N),
+    return Estimator("injection_frame", injection_frame_step, params, injection_frame_state(),
                      1.0 / (N * T_s), float(s["pll_bandwidth_Hz"]), injection_amplitude_V=injection_amplitude_V,
                      injection_note=note)

@@ -144,6 +144,22 @@ def _frequency(key, value, T_s):
 
 MIN_INJECTION_FREQUENCY_HZ = 10.0
 """An HF carrier lies far above the fundamental; below this it is a mistake (and its period overflows)."""
+MAX_CARRIER_SAMPLES = 1000
+MAX_DELAY_PERIODS = 200
+"""The rings in an estimator's state hold up to this many samples of one carrier period and of the drive's
+delay (blocks of 100 samples answered 101 periods late: 200), whatever the motor and sampling: one state
+layout per estimator, compiled once (docs/architecture.md "Estimator records")."""
+
+
+def ring_capacity(carrier_samples, delay_periods):
+    """Check a carrier of ``carrier_samples`` per period and the drive's delay against the rings' capacity;
+    ValueError naming what does not fit."""
+    if carrier_samples > MAX_CARRIER_SAMPLES:
+        raise ValueError(f"frequency_Hz: {carrier_samples} samples per carrier period, more than the "
+                         f"{MAX_CARRIER_SAMPLES} an estimator's state holds (a higher carrier)")
+    if delay_periods > MAX_DELAY_PERIODS:
+        raise ValueError(f"the drive's delay of {delay_periods} periods is more than the {MAX_DELAY_PERIODS} an "
+                         f"estimator's state holds")
 
 
 def _injection_frequency(key, value, T_s):

@@ -6,19 +6,23 @@ from numba import njit
 from control_math.filters import sos_step
 from control_math.frames import rotate
 
-from .admittance_monitor import monitor_dtype, monitor_step
+from .admittance_monitor import MONITOR, monitor_step
 from .startup import fresh_startup
 from .startup_state import STARTUP
 from .tracking_loop import pi_tracking_loop
 
+MAX_SECTIONS = 8
+"""Second-order sections a filter of the papers' estimators may have (order 8: interface's checks)."""
+PULSATING = np.dtype([("theta", np.float64), ("omega", np.float64), ("monitor", MONITOR), ("startup", STARTUP),
+                      ("filters", np.float64, (2, MAX_SECTIONS, 2))])
+"""A pulsating-injection estimator's state: θ̂ [rad], the PI integrator ω̂ [rad/s], the admittance
+monitor's, the start-up's, and the two filters' section states (band-pass or α low-pass, low-pass or β
+low-pass; their first sections used)."""
 
-def pulsating_state(monitor, sections):
-    """Fresh state (θ̂ = 0, ω̂ = 0, aligning) of a pulsating-injection estimator with monitor parameters
-    ``monitor`` and filters of ``sections`` second-order sections, as one record: θ̂ ``theta`` [rad], the
-    PI integrator ``omega`` [rad/s], the admittance monitor's ``monitor``, the start-up's ``startup``, and
-    ``filters``, the two filters' section states (band-pass or α low-pass, low-pass or β low-pass)."""
-    state = np.zeros(1, np.dtype([("theta", np.float64), ("omega", np.float64), ("monitor", monitor_dtype(monitor)),
-                                  ("startup", STARTUP), ("filters", np.float64, (2, sections, 2))]))
+
+def pulsating_state():
+    """Fresh state (θ̂ = 0, ω̂ = 0, aligning) of a pulsating-injection estimator (PULSATING)."""
+    state = np.zeros(1, PULSATING)
     fresh_startup(state[0]["startup"])
     return state
 

@@ -99,7 +99,7 @@ def make_synchronous(nameplate, T_s, settings, commissioning, inverter, name="sy
         bandpass=bandpass, demodulation_phase_rad=phase,
         monitor=monitor, startup=startup)
     omega_n = math.sqrt(abs(gain) * params.ki)
-    return Estimator(name, synchronous_step, params, pulsating_state(monitor, 1), f_h, omega_n / (2.0 * math.pi))
+    return Estimator(name, synchronous_step, params, pulsating_state(), f_h, omega_n / (2.0 * math.pi))
 
 
 @register("synchronous_aligned", "synchronous with its demodulation carrier in phase with the sampled q̂ "
