@@ -289,3 +289,13 @@ def test_flux_observer_holds_where_the_back_emf_is_too_small():
         s = scenario(estimator="flux_observer", mode="imposed_speed", duration_s=0.1,
                      speed={"unit": "rpm", "points": [[0.0, rpm]]})
         assert (run_scenario(s).log[:, COLUMN["state"]] == 0.0).all()
+
+
+@pytest.mark.parametrize("name", ["injection_frame", "conventional", "synchronous", "full_speed"])
+def test_a_carrier_longer_than_the_state_holds_is_refused_naming_the_setting(name):
+    """20 Hz at 50 kHz sampling is 2500 samples a period, beyond the 1000 an estimator's rings hold: one
+    ValueError naming frequency_Hz (the drive's one-line refusal), never a ring that wraps early."""
+    plate = WANG.nameplate
+    with pytest.raises(ValueError, match="frequency_Hz: 2500 samples per carrier period"):
+        make_estimator(name, plate, 2e-5, {"frequency_Hz": 20.0}, nameplate_commissioning(plate),
+                       WANG_INVERTER._replace(delay_periods=1))
