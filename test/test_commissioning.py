@@ -10,16 +10,21 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from drive_commissioning.loaded import DURATION_S, HOLD_S, LEVELS, START_S, LoadedTestError, loaded_shift
 from drive_commissioning.procedure import procedure_for_scenario
 
 from control_math.tables import table_value
 from drive_evaluation.metrics import compute_metrics
+from drive_interface.estimator_states import TRACKING
+from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_runner.commissioning_run import commission_in_process, commission_through_bridge
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import ScenarioError, load_scenario, parse_scenario
+from hf_estimator.injection_frame import loaded_correction
 from motor_params.commissioning import (
     CommissioningError,
     load_commissioning,
+    nameplate_commissioning,
     resolve_commissioning,
     save_commissioning,
 )
@@ -259,3 +264,65 @@ def test_the_current_limit_keeps_half_the_saliency_and_a_weak_one_is_named():
     weak = base._replace(L_dh_H=0.85e-3, L_qh_H=0.9e-3)
     assert "weak saliency (|Δ|/Σ = 2.9 %" in weak.weak_saliency_note()
     assert nameplate_commissioning(nameplate("wang_spmsm"))._replace(L_qh_H=0.88e-3).weak_saliency_note() == ""
+
+
+def held_shaft_log(moved, zero_drift=0.0, lost_at_s=None):
+    """A loaded test's log as ours would write it on a held shaft: θ̂ = 0.3 + moved(i_q) at each hold's
+    current (±1, ±2, ±3 A), the zero holds drifting by ``zero_drift`` from the first to the last."""
+    t = np.arange(int(round(DURATION_S / 1e-4))) * 1e-4
+    log = np.zeros((t.size, len(LOG_COLUMNS)))
+    log[:, COLUMN["t"]] = t
+    log[:, COLUMN["state"]] = TRACKING
+    hold = np.clip(((t - START_S) // HOLD_S).astype(int), 0, len(LEVELS) - 1)
+    i_q = 3.0 * np.asarray(LEVELS)[hold] * (t >= START_S)
+    log[:, COLUMN["i_q"]] = i_q
+    log[:, COLUMN["theta_e_hat"]] = 0.3 + moved(i_q) + zero_drift * t / DURATION_S
+    if lost_at_s is not None:
+        log[t >= lost_at_s, COLUMN["state"]] = 0
+    return log
+
+
+def test_the_loaded_test_reads_ours_error_under_load_from_a_held_shaft():
+    """θ̂ moved by 0.004·i_q + 0.0005·i_q³ rad under load, with a convergence slope of 0.9: the correction is
+    0.9 × that at every hold (fitted odd, held beyond the largest current); a move within the zero holds'
+    spread (its odd part: a move alike at ±i_q is the zero reference's error) gives no correction; a shaft
+    that turned or ours losing track is refused, nothing measured."""
+    grid = np.linspace(-4.0, 4.0, 9)
+    record = nameplate_commissioning(nameplate("wang_spmsm"))._replace(
+        saliency_shift_i_q_A=grid, saliency_shift_rad=np.zeros(9), convergence_slope=np.full(9, 0.9))
+    result = loaded_shift(held_shaft_log(lambda i: 0.004 * i + 0.0005 * i ** 3), record)
+    assert result["significant"] and result["zero_spread_rad"] < 1e-12 and result["top_current_A"] == 3.0
+    for hold in result["holds"]:
+        i = hold["i_q_A"]
+        assert hold["correction_rad"] == pytest.approx(0.9 * (0.004 * i + 0.0005 * i ** 3), abs=1e-9)
+    expected = 0.9 * (0.004 * np.clip(grid, -3, 3) + 0.0005 * np.clip(grid, -3, 3) ** 3)
+    assert np.allclose(result["estimator_shift_rad"], expected, atol=1e-9)
+    quiet = loaded_shift(held_shaft_log(lambda i: 0.0005 * np.sign(i), zero_drift=0.001), record)
+    assert not quiet["significant"] and not quiet["estimator_shift_rad"].any()
+    even = loaded_shift(held_shaft_log(lambda i: 0.01 * np.abs(i) + 0.0003 * i, zero_drift=0.001), record)
+    assert not even["significant"] and not even["estimator_shift_rad"].any()
+    with pytest.raises(LoadedTestError, match="moved by 0.0.* rad between holds .*shaft turned"):
+        loaded_shift(held_shaft_log(lambda i: 0.0 * i, zero_drift=0.05), record)
+    with pytest.raises(LoadedTestError, match="ours stopped tracking for .* %"):
+        loaded_shift(held_shaft_log(lambda i: 0.0 * i, lost_at_s=1.0), record)
+
+
+def test_ours_takes_the_loaded_correction_only_at_the_tests_carrier_and_amplitude(tmp_path):
+    """The file keeps the loaded test's table with its carrier and amplitude (all or none of the three); ours
+    adds the table where it runs within 2 % of both, else it leaves it out and says why."""
+    record = commission_in_process(load_scenario("wang_100rpm")).procedure.result()
+    correction = 0.01 * record.saliency_shift_i_q_A / 5.0
+    tested = record._replace(estimator_shift_rad=correction, loaded_test_frequency_Hz=1000.0,
+                             loaded_test_amplitude_V=5.0)
+    path = save_commissioning(tmp_path / "m.yaml", tested, "wang_spmsm", "standstill_tests")
+    loaded, _ = load_commissioning(path)
+    assert np.array_equal(loaded.estimator_shift_rad, correction) and loaded.loaded_test_amplitude_V == 5.0
+    shift, note = loaded_correction(loaded, 1000.0, 5.05)
+    assert np.array_equal(shift, record.saliency_shift_rad + correction) and note == ""
+    shift, note = loaded_correction(loaded, 1000.0, 6.0)
+    assert np.array_equal(shift, record.saliency_shift_rad)
+    assert "measured at 1000 Hz, 5 V, ours runs at 1000 Hz, 6 V" in note and "--loaded" in note
+    assert loaded_correction(record, 1000.0, 5.0) == (record.saliency_shift_rad, "")
+    (tmp_path / "half.yaml").write_text(path.read_text().replace("  loaded_test_amplitude_V: 5.0\n", ""))
+    with pytest.raises(CommissioningError, match=r"half.yaml: values: estimator_shift_rad, .* go together"):
+        load_commissioning(tmp_path / "half.yaml")

@@ -25,9 +25,10 @@ def cmd_commission(args):
     from motor_params.commissioning import default_commissioning_file, save_commissioning
 
     scenario = load_scenario(args.scenario, motor_override=args.motor, motor_source="--motor")
-    if args.rotating and (args.graph or args.link):
-        raise CommandLineError("--rotating: the rotating test runs in one process only (not yet over --graph or "
-                               "--link)")
+    for option, asked in (("--rotating", args.rotating), ("--loaded", args.loaded)):
+        if asked and (args.graph or args.link):
+            raise CommandLineError(f"{option}: the {option[2:]} test runs in one process only (not yet over --graph "
+                                   f"or --link)")
     out = Path(args.out) if args.out else default_commissioning_file(scenario.motor.name)
     if out.exists() and not args.force:
         raise CommandLineError(f"--out: {out} already exists (--force replaces it)")
@@ -65,8 +66,19 @@ def cmd_commission(args):
         conditions["rotating_test"] = {"speeds_rad_s": estimates["speeds_rad_s"], "load": "none, shaft free"}
         save_commissioning(out, record, scenario.motor.name, METHOD, conditions)
         truth = {**(truth or {}), **{key: rotating_truth[key] for key in ("psi_f_Wb", "J_kgm2")}}
+    loaded = None
+    if args.loaded:
+        from drive_runner.commissioning_run import loaded_test_in_process
+        loaded, _ = loaded_test_in_process(scenario, out, progress=progress)
+        record = record._replace(estimator_shift_rad=loaded["estimator_shift_rad"],
+                                 loaded_test_frequency_Hz=loaded["injection_frequency_Hz"],
+                                 loaded_test_amplitude_V=loaded["injection_amplitude_V"])
+        conditions["loaded_test"] = {"shaft": "held (brake)", "top_current_A": loaded["top_current_A"],
+                                     "injection_frequency_Hz": loaded["injection_frequency_Hz"],
+                                     "injection_amplitude_V": loaded["injection_amplitude_V"]}
+        save_commissioning(out, record, scenario.motor.name, METHOD, conditions)
     report = commissioning_report(out, scenario.motor.name, METHOD, host, conditions, wall, procedure, record, rated,
-                                  truth, true_currents, rotating)
+                                  truth, true_currents, rotating, loaded)
     print_report(report, args, commissioning_lines)
     return 0
 
@@ -116,6 +128,9 @@ def add_commands(sub):
     commission.add_argument("--motor", metavar="NAME|FILE", help=MOTOR_HELP)
     commission.add_argument("--out", help="file to write (default commissioning/MOTOR.yaml)")
     commission.add_argument("--force", action="store_true", help="replace an existing file")
+    commission.add_argument("--loaded", action="store_true",
+                            help="then the loaded test (shaft still held): ours runs as the scenario configures it, "
+                                 "under loads of both signs, and measures its own angle error under load")
     commission.add_argument("--link", choices=("pty", "can"),
                             help="through the bridge: the virtual inverter behind this link")
     commission.add_argument("--graph", action="store_true",

@@ -99,6 +99,17 @@ def motor_bench_lines(reports):
         lines.append(f"  loops: tracking {r['tracking_bandwidth_Hz']:.3g} Hz, carrier "
                      f"{r['injection_frequency_Hz']:.4g} Hz, {r['injection_amplitude_V']:.3g} V")
         lines += [f"  WARNING {line}" for line in r["warnings"]]
+        if r["drive_notes"]:
+            lines.append(f"  the drive says: {r['drive_notes']}")
+        loaded = r["loaded_test"]
+        if "refused" in loaded:
+            lines.append(f"  loaded test: {loaded['refused']}")
+        elif loaded["significant"]:
+            lines.append(f"  loaded test: ours' error under load corrected ({loaded['correction_at_rated_rad']:+.4f} "
+                         f"rad at rated current)")
+        else:
+            lines.append(f"  loaded test: within 3× its own noise ({loaded['zero_spread_rad']:.3g} rad at zero "
+                         f"current): no correction")
         fraction = s["polarity_correct_fraction"]
         lines.append(f"  start-up over {s['runs']} angles: polarity "
                      f"{formatted(None if fraction is None else 100.0 * fraction, '{:.1f} %')}, "

@@ -1,14 +1,18 @@
 """``drive bench motor FILE ...``: a motor nobody tuned for, as a robot builder meets it (docs/motors-and-
 control.md "Measured on motors nobody tuned for"). For each motor file: commission it from its nameplate
-(shaft held, in simulation), start it from angles over the electrical circle (polarity), then run ours on
-the loops scaled to it through the issue's cases at 5 % rated speed. Each case says what the drive said:
+(shaft held, in simulation) and let it measure ours' error under load (the loaded test, shaft still held),
+start it from angles over the electrical circle (polarity), then run ours on the loops scaled to it through
+the issue's cases at 5 % rated speed. Each case says what the drive said:
 within ours' targets, over them, refused (and why), lock lost, or the shaft not following (supervision)."""
 import tempfile
 from pathlib import Path
 
+import numpy as np
+from drive_commissioning.loaded import LoadedTestError
+
 from drive_evaluation.metrics import compute_metrics, configuration_warnings, supervision_faults
 from drive_evaluation.startup_bench import STANDARD_CASES, startup_sweep
-from drive_runner.commissioning_run import commission_in_process
+from drive_runner.commissioning_run import commission_in_process, loaded_test_in_process
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import ScenarioError, parse_scenario
 from motor_params.commissioning import save_commissioning
@@ -66,6 +70,7 @@ def motor_bench(motor_ref, angles=24, progress=None, T_s=1e-4):
         save_commissioning(commissioning, measured, motor.name, "drive bench motor")
         steps = len(CASES) + 1
         try:
+            loaded = loaded_test(first, measured, commissioning)
             sweep = startup_sweep(motor, STANDARD_CASES[0], angles=angles, seeds=(1,), commissioning=commissioning,
                                   progress=progress and (lambda f: progress(f / steps)), T_s=T_s)
         except ScenarioError as error:
@@ -85,14 +90,33 @@ def motor_bench(motor_ref, angles=24, progress=None, T_s=1e-4):
             if progress:
                 progress((i + 2) / steps)
     facts = result.estimator_facts
+    rated = motor.nameplate.rated_current_A
     return {**_motor_facts(motor, measured, run.truth, T_s),
             "current_limit_A": result.current_limit_A, "warnings": configuration_warnings(result),
+            "drive_notes": facts.get("injection_note", ""),
+            "loaded_test": loaded if "refused" in loaded else {
+                "significant": loaded["significant"], "zero_spread_rad": loaded["zero_spread_rad"],
+                "correction_at_rated_rad": float(np.interp(rated, measured.saliency_shift_i_q_A,
+                                                           loaded["estimator_shift_rad"]))},
             "tracking_bandwidth_Hz": facts.get("tracking_bandwidth_Hz"),
             "injection_frequency_Hz": facts.get("injection_frequency_Hz"),
             "injection_amplitude_V": facts.get("injection_amplitude_V"),
             "startup": {key: sweep[key] for key in ("runs", "polarity_correct_fraction", "angle_error_max_e_rad",
                                                     "duration_max_s", "lock_lost", "not_started")},
             "cases": cases}
+
+
+def loaded_test(scenario, measured, commissioning):
+    """The loaded test on the standstill record ``measured`` saved at ``commissioning``: its result, the file
+    rewritten with ours' correction; {"refused": why} where the test did not hold its conditions."""
+    try:
+        loaded, _ = loaded_test_in_process(scenario, commissioning)
+    except LoadedTestError as error:
+        return {"refused": str(error)}
+    save_commissioning(commissioning, measured._replace(
+        estimator_shift_rad=loaded["estimator_shift_rad"], loaded_test_frequency_Hz=loaded["injection_frequency_Hz"],
+        loaded_test_amplitude_V=loaded["injection_amplitude_V"]), scenario.motor.name, "drive bench motor")
+    return loaded
 
 
 def _motor_facts(motor, measured, truth, T_s):
@@ -104,7 +128,8 @@ def _motor_facts(motor, measured, truth, T_s):
 def refused_motor(motor, measured, truth, T_s, reason):
     """The report of a motor the commissioned drive refuses to run (``reason``: its one line): every case
     refused, nothing scored."""
-    return {**_motor_facts(motor, measured, truth, T_s), "current_limit_A": None, "warnings": [],
+    return {**_motor_facts(motor, measured, truth, T_s), "current_limit_A": None, "warnings": [], "drive_notes": "",
+            "loaded_test": None,
             "tracking_bandwidth_Hz": None, "injection_frequency_Hz": None, "injection_amplitude_V": None,
             "startup": None, "refused": reason,
             "cases": [{"case": case, "angle_error_rms": None, "angle_error_peak": None,

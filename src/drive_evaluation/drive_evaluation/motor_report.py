@@ -85,10 +85,12 @@ def motor_lines(report):
 
 
 def commissioning_report(out, motor_name, method, host, conditions, wall_time_s, procedure, record, rated_A,
-                         truth=None, true_currents=None, rotating=None):
+                         truth=None, true_currents=None, rotating=None, loaded=None):
     """What ``drive commission`` wrote to ``out`` and identified (procedure: the finished
     drive_commissioning.procedure run; record: its Commissioning, with ψ_f and J from ``rotating`` when
-    the rotating test ran), beside the plant's ``truth`` where a simulation knows it."""
+    the rotating test ran and ours' correction from ``loaded`` (drive_commissioning.loaded.loaded_shift with
+    its conditions and the true error at each hold) when the loaded test ran), beside the plant's ``truth``
+    where a simulation knows it."""
     from motor_params.commissioning import SCALARS
 
     identified = {key: float(getattr(record, key)) for key in SCALARS}
@@ -109,6 +111,12 @@ def commissioning_report(out, motor_name, method, host, conditions, wall_time_s,
         report["peak_true_current_A"] = float(np.max(np.abs(true_currents)))
     if rotating:
         report["rotating_test"] = rotating
+    if loaded:
+        identified["estimator_shift_at_rated_rad"] = table_value(rated_A, record.saliency_shift_i_q_A,
+                                                                 record.estimator_shift_rad)
+        report["loaded_test"] = {key: loaded[key] for key in ("top_current_A", "zero_spread_rad", "significant",
+                                                              "injection_frequency_Hz", "injection_amplitude_V",
+                                                              "holds")}
     return report
 
 
@@ -130,4 +138,14 @@ def commissioning_lines(report):
         lines.append(line)
     peak = report.get("peak_true_current_A", report["peak_measured_current_A"])
     lines.append(f"  peak phase current {peak:.3f} A (limit {report['current_limit_A']:.3f} A)")
+    loaded = report.get("loaded_test")
+    if loaded:
+        outcome = ("ours corrects it from now on" if loaded["significant"] else
+                   f"within 3× its own noise ({loaded['zero_spread_rad']:.3g} rad at zero current): no correction")
+        lines.append(f"  loaded test (shaft held, ours at {loaded['injection_frequency_Hz']:.0f} Hz, "
+                     f"{loaded['injection_amplitude_V']:.3g} V): θ̂ moved under load; {outcome}")
+        lines.append(f"  {'i_q [A]':>12s} {'θ̂ moved [rad]':>15s} {'correction':>11s} {'true θ − θ̂':>11s}")
+        for hold in loaded["holds"]:
+            lines.append(f"  {hold['i_q_A']:12.3f} {hold['moved_rad']:+15.4f} {hold['correction_rad']:+11.4f} "
+                         f"{hold['true_error_rad']:+11.4f}")
     return lines

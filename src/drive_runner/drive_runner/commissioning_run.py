@@ -123,3 +123,51 @@ def rotating_test_in_process(scenario, commissioning_file, progress=None):
     plant = plant_for_scenario(test)
     truth = {"psi_f_Wb": plant.machine.psi_f_Wb, "J_kgm2": plant.mechanics.J_kgm2, "B_Nms": plant.mechanics.B_Nms}
     return estimates, truth, result
+
+
+def loaded_test_in_process(scenario, commissioning_file, progress=None):
+    """The loaded test (drive_commissioning.loaded) on the scenario's simulated plant, shaft held: the drive,
+    commissioned at standstill (``commissioning_file``), runs ours as the scenario configures it and steps its
+    torque feed-forward. Returns (the loaded_shift result with ``injection_frequency_Hz`` and
+    ``injection_amplitude_V`` ours ran at, and each hold's true angle error θ − θ̂ [rad] as
+    ``true_error_rad``, for scoring; the RunResult). A correction the file already holds, where ours ran
+    with it, stays in the one returned."""
+    from drive_commissioning.loaded import (
+        DURATION_S,
+        LEVELS,
+        SPEED_BANDWIDTH_RAD_S,
+        hold_windows,
+        loaded_shift,
+        test_current_A,
+        torque_profile,
+    )
+
+    from drive_interface.log import COLUMN
+    from drive_runner.runner import run_scenario
+    from drive_scenarios.scenario import Table
+    from hf_estimator.injection_frame import loaded_correction
+    from motor_params.commissioning import resolve_commissioning
+
+    record = resolve_commissioning(scenario.motor.nameplate, str(commissioning_file), "the standstill commissioning")
+    plate = record.refined(scenario.motor.nameplate)
+    top = test_current_A(record, plate.current_limit_A)
+    profile = torque_profile(top, 1.5 * plate.n_p * plate.psi_f_Wb)
+    ours = scenario.estimator == "injection_frame"
+    test = dataclasses.replace(
+        shaft_held(scenario, DURATION_S), estimator="injection_frame",
+        estimator_settings=scenario.estimator_settings if ours else {}, commissioning=str(commissioning_file),
+        controller={**scenario.controller, "speed_bandwidth_rad_s": SPEED_BANDWIDTH_RAD_S},
+        torque_feedforward=Table(tuple(t for t, _ in profile), tuple(v for _, v in profile), "linear"))
+    result = run_scenario(test, progress)
+    measured = loaded_shift(result.log, record)
+    facts = result.estimator_facts
+    frequency_Hz, amplitude_V = float(facts["injection_frequency_Hz"]), float(facts["injection_amplitude_V"])
+    ran_with, _ = loaded_correction(record, frequency_Hz, amplitude_V)
+    measured.update(injection_frequency_Hz=frequency_Hz, injection_amplitude_V=amplitude_V,
+                    estimator_shift_rad=measured["estimator_shift_rad"] + ran_with - record.saliency_shift_rad)
+    n_p, log = result.n_p, result.log
+    error = np.angle(np.exp(1j * (n_p * log[:, COLUMN["theta_m"]] - log[:, COLUMN["theta_e_hat"]])))
+    loaded = [w for w, level in zip(hold_windows(log[:, COLUMN["t"]]), LEVELS) if level != 0.0]
+    for hold, window in zip(measured["holds"], loaded):
+        hold["true_error_rad"] = float(np.mean(error[window]))
+    return measured, result

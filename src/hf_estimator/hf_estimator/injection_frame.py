@@ -38,8 +38,14 @@ design).
    turns under a still current vector, so ε moves by only F = 1 + i_q·∂δ/∂i_d per radian of angle
    error (0.91 at rated current, −0.2 at 1.5× rated: no angle information); the drive keeps the current
    where F ≥ ¾ (Commissioning.tracking_current_limit_A).
+4b. Ours' own error under load, which the standstill tables do not hold (its fit on a flux map that curves
+   over the HF ripple: 0.022 rad at rated current on a robot joint at 5 samples per carrier period), is
+   measured by the optional loaded test (shaft held, drive_commissioning.loaded) and added to the shift
+   table where ours runs the test's carrier and amplitude (loaded_correction).
 5. The amplitude is the scenario's, raised where the commissioned motor needs it: a weak saliency gives a
-   weak angle signal, the saliency current I_Δ = U_h·|Δ|/ω_h, against the commissioned sensor noise σ.
+   weak angle signal, the saliency current I_Δ = U_h·|Δ|/ω_h at no load or at rated current, whichever
+   is smaller (|Δ| there from the commissioned |Δ|/Σ table: the q axis saturating under load takes some
+   away), against the commissioned sensor noise σ.
    Below ``saliency_snr_min`` σ (8, at an 18 Hz loop; × √(bandwidth/18 Hz) for a wider one, whose noise
    grows so: a light rotor's loops scale up, docs/motors-and-control.md) the error grows faster than 1/I_Δ
    (noise and dead-time voltage near the phase currents' zero crossings), so U_h is raised to reach it,
@@ -126,6 +132,25 @@ current (Wang's own reversal runs at 0.38)."""
 HF_VOLTAGE_MAX_PER_LINEAR = 0.8
 """The largest amplitude ours raises itself to, per linear voltage range U_dc/√3 (the rest is the current
 loop's at low speed)."""
+LOADED_TEST_MATCH = 0.02
+"""Ours adds the loaded test's correction where it runs within this share of the test's carrier and
+amplitude (its error under load grows in proportion to the amplitude: docs/motors-and-control.md)."""
+
+
+def loaded_correction(commissioning, frequency_Hz, injection_amplitude_V):
+    """(ours' shift table [rad] over commissioning.saliency_shift_i_q_A, what ours says of it): the standstill
+    shift plus the loaded test's correction (item 4b) where ours runs within LOADED_TEST_MATCH of the test's
+    carrier and amplitude, else the standstill shift alone and a note saying why."""
+    shift, correction = commissioning.saliency_shift_rad, commissioning.estimator_shift_rad
+    if correction is None:
+        return shift, ""
+    tested_Hz, tested_V = commissioning.loaded_test_frequency_Hz, commissioning.loaded_test_amplitude_V
+    if (abs(frequency_Hz / tested_Hz - 1.0) <= LOADED_TEST_MATCH
+            and abs(injection_amplitude_V / tested_V - 1.0) <= LOADED_TEST_MATCH):
+        return shift + correction, ""
+    return shift, (f"the loaded test's correction left out: it was measured at {tested_Hz:.0f} Hz, {tested_V:.3g} V, "
+                   f"ours runs at {frequency_Hz:.0f} Hz, {injection_amplitude_V:.3g} V (`drive commission --loaded` "
+                   f"with this drive measures it again)")
 
 
 def saliency_snr(injection_amplitude_V, commissioning, omega_h):
@@ -136,9 +161,11 @@ def saliency_snr(injection_amplitude_V, commissioning, omega_h):
 
 def raised_injection_amplitude(requested_V, commissioning, nameplate, inverter, omega_h, snr_min):
     """Ours' HF amplitude [V] and what it says of it: ``requested_V`` raised so that the saliency current
-    U_h·|Δ|/ω_h reaches ``snr_min`` times the commissioned sensor noise, within the ripple and voltage
+    U_h·|Δ|/ω_h, at no load and at rated current (|Δ| as much smaller as the commissioned table of |Δ|/Σ
+    shows there), reaches ``snr_min`` times the commissioned sensor noise, within the ripple and voltage
     caps; unchanged when the saliency or the noise is not measured, or ``snr_min`` is 0."""
-    noise, delta = commissioning.sensor_noise_A, abs(commissioning.delta)
+    retained = min(1.0, commissioning.saliency_retained(nameplate.rated_current_A))
+    noise, delta = commissioning.sensor_noise_A, abs(commissioning.delta) * retained
     if snr_min <= 0.0 or noise <= 0.0 or not commissioning.salient():
         return requested_V, ""
     wanted = snr_min * noise * omega_h / delta
@@ -149,9 +176,10 @@ def raised_injection_amplitude(requested_V, commissioning, nameplate, inverter, 
         caps["voltage"] = HF_VOLTAGE_MAX_PER_LINEAR * inverter.U_dc_V / math.sqrt(3.0)
     cap_name = min(caps, key=caps.get)
     injection_amplitude_V = max(requested_V, min(wanted, caps[cap_name]))
-    reached = saliency_snr(injection_amplitude_V, commissioning, omega_h)
+    reached = saliency_snr(injection_amplitude_V, commissioning, omega_h) * retained
     limited = f"; held by the {cap_name} cap" if wanted > injection_amplitude_V else ""
-    return injection_amplitude_V, (f"raised from {requested_V:g} V: saliency current {reached:.1f} σ of the "
+    at = " at rated current" if retained < 1.0 else ""
+    return injection_amplitude_V, (f"raised from {requested_V:g} V: saliency current{at} {reached:.1f} σ of the "
                                    f"commissioned sensor noise, {snr_min:g} wanted{limited}")
 
 
@@ -348,7 +376,8 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
                                                              inverter, omega_h, snr_min)
     loop_type, loop_note = tracking_loop_type(s["pll_type"], injection_amplitude_V, commissioning, omega_h, snr_min)
     weak_note = weak_signal_note(injection_amplitude_V, commissioning, omega_h, snr_min, bool(s["run_on_weak_signal"]))
-    note = "; ".join(n for n in (note, weak_note, loop_note) if n)
+    shift_rad, loaded_note = loaded_correction(commissioning, 1.0 / (N * T_s), injection_amplitude_V)
+    note = "; ".join(n for n in (note, weak_note, loop_note, loaded_note) if n)
     pole = ACCELERATION_POLE_RATIO * omega_n if loop_type == 3 else 0.0
     delay_periods = inverter.delay_periods
     startup = make_startup(nameplate, commissioning, T_s, inverter, 1.0, s)
@@ -360,7 +389,7 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
         observable_ratio=float(s["observable_ratio"]),
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
         current_smoothing=1.0 - math.exp(-2.0 / N),
-        shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad,
+        shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=shift_rad,
         dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] else 0.0,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
         sigma_per_H=commissioning.sigma, delta_abs_per_H=abs(commissioning.delta),

@@ -75,6 +75,18 @@ class Commissioning(NamedTuple):
     """Inertia of the rotor and what turns with it, from the rotating test [kg·m²]; NaN: not run."""
     saliency_ratio: np.ndarray = None
     """|Δ|/Σ at the table's currents (i_d = 0) [1]; None: not measured (a file written before)."""
+    estimator_shift_rad: np.ndarray = None
+    """Ours' own angle error under load at the table's currents, from the loaded test (shaft held,
+    drive_commissioning.loaded) [rad]: added to ours' shift table where it runs the test's carrier and
+    amplitude; None: not run."""
+    loaded_test_frequency_Hz: float = math.nan
+    """The carrier ours ran during the loaded test [Hz]; NaN: not run."""
+    loaded_test_amplitude_V: float = math.nan
+    """The HF amplitude ours ran during the loaded test [V]; NaN: not run."""
+
+    def loaded_test_values(self):
+        """{key: value} of the loaded test's conditions (empty where it did not run)."""
+        return {key: float(getattr(self, key)) for key in LOADED if math.isfinite(getattr(self, key))}
 
     def rotating_values(self):
         """{key: value} of what the rotating test measured (ROTATING keys it ran for; empty if it did not)."""
@@ -119,6 +131,16 @@ class Commissioning(NamedTuple):
         return (f"weak saliency (|Δ|/Σ = {100.0 * ratio:.1f} % < {100.0 * WEAK_SALIENCY_RATIO:g} %): expect angle "
                 f"errors beyond ours' targets (0.02 rad RMS) and a lost lock under fast load steps")
 
+    def saliency_retained(self, i_q_A):
+        """The share of its no-load |Δ|/Σ the saliency keeps at q current ±``i_q_A`` [A] (the smaller of the
+        two signs, interpolated in the table); 1 where the commissioning did not measure it."""
+        if self.saliency_ratio is None:
+            return 1.0
+        currents, ratio = self.saliency_shift_i_q_A, np.abs(self.saliency_ratio)
+        at_zero = float(np.interp(0.0, currents, ratio))
+        loaded = min(float(np.interp(i_q_A, currents, ratio)), float(np.interp(-i_q_A, currents, ratio)))
+        return loaded / at_zero if at_zero > 0.0 else 1.0
+
     def tracking_current_limit_A(self, min_slope=MIN_CONVERGENCE_SLOPE):
         """The largest current |i_q| [A] up to which the convergence slope (interpolated linearly in the
         table) stays at or above ``min_slope`` on both signs of the current and, where the commissioning
@@ -151,8 +173,10 @@ SCALARS = ("R_s_ohm", "dead_time_voltage_V", "sensor_gain_a", "sensor_gain_b", "
 TABLES = ("saliency_shift_i_q_A", "saliency_shift_rad", "convergence_slope")
 ROTATING = ("psi_f_Wb", "J_kgm2")
 """Values only the rotating test measures: optional in a file (a shaft that cannot turn)."""
-OPTIONAL_TABLES = ("saliency_ratio",)
-"""Tables a file written before they were measured lacks."""
+LOADED = ("loaded_test_frequency_Hz", "loaded_test_amplitude_V")
+"""The loaded test's conditions: optional in a file (a test the shaft's brake may not allow)."""
+OPTIONAL_TABLES = ("saliency_ratio", "estimator_shift_rad")
+"""Tables a file written before they were measured lacks (estimator_shift_rad: the loaded test's)."""
 
 
 SCALAR_RANGES = {"R_s_ohm": (0.0, None, False), "dead_time_voltage_V": (0.0, None, True),
@@ -206,6 +230,7 @@ def commissioning_values(commissioning):
     """The values of a commissioning record as its file holds them (floats exact, tables as lists)."""
     values = {key: float(getattr(commissioning, key)) for key in SCALARS}
     values.update(commissioning.rotating_values())
+    values.update(commissioning.loaded_test_values())
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in TABLES})
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in OPTIONAL_TABLES
                    if getattr(commissioning, key) is not None})
@@ -285,11 +310,14 @@ def commissioning_from_document(document, path):
                                  f"equal, non-zero length")
     if np.any(np.diff(parsed["saliency_shift_i_q_A"]) <= 0.0):
         raise CommissioningError(f"{path}: values.saliency_shift_i_q_A: must be ascending")
-    for key in ROTATING:
+    for key in ROTATING + LOADED:
         if values.get(key) is not None:
             try:
                 parsed[key] = float(number(key, values[key], 0.0))
             except ValueError as error:
                 raise CommissioningError(f"{path}: values.{error}") from None
+    if ("estimator_shift_rad" in parsed) != all(key in parsed for key in LOADED):
+        raise CommissioningError(f"{path}: values: estimator_shift_rad, {', '.join(LOADED)}: the loaded test's "
+                                 f"result and its conditions go together (give all or none)")
     metadata = {key: value for key, value in document.items() if key != "values"}
     return Commissioning(**parsed, source=str(path)), metadata
