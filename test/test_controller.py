@@ -80,3 +80,18 @@ def test_back_emf_amplitude_at_no_load():
     omega_e = 3 * 2000.0 * 2.0 * math.pi / 60.0
     assert np.mean(u) == pytest.approx(omega_e * 0.305, rel=5e-3)
     assert np.max(np.abs(late[:, COLUMN["i_a"]])) < 0.02
+
+
+def test_the_speed_filter_stays_above_a_wide_tracking_loop():
+    """Unless set, the speed estimate's filter sits at 1.25 × the estimator's tracking bandwidth where that
+    exceeds the 100 Hz default (a 116 Hz loop: 145 Hz), else stays at 100 Hz; a set value is kept."""
+    from foc_controller.params import make_controller_params
+    from motor_params.motor_file import load_motor
+    m = load_motor("wang_spmsm")
+
+    def filter_Hz(bandwidth_Hz, settings=None):
+        c = make_controller_params(m.nameplate, m.inverter, 5e-5, settings, 1000.0, bandwidth_Hz)
+        return -math.log(1.0 - c.speed_filter_gain) / (2.0 * math.pi * 5e-5)
+    assert filter_Hz(116.0) == pytest.approx(145.0)
+    assert filter_Hz(18.0) == pytest.approx(100.0) and filter_Hz(80.0) == pytest.approx(100.0)
+    assert filter_Hz(116.0, {"speed_filter_Hz": 60.0}) == pytest.approx(60.0)

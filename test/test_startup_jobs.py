@@ -65,17 +65,23 @@ def test_after_a_lost_lock_a_timed_out_alignment_is_another_loss():
     assert code == float(LOCK_LOST) and x["startup"]["restarts"] == 2.0 and x["startup"]["refused"] == 0.0
 
 
-def pulse_response(x, p, k0, inductance, resistance=0.05):
+def pulse_response(x, p, k0, inductance, resistance=0.05, beside_V=0.0, told=True):
     """The polarity test run on a d-axis winding i[k+1] = i[k] + T_s (u − R i) / L(i), the command issued
-    at sample k acting in the period before sample k + d + 1; θ̂ held at 0 → the test's last answer."""
+    at sample k acting in the period before sample k + d + 1, ``beside_V`` added to it from the first pulse
+    on (a frozen fundamental) and, when ``told``, in the applied voltage the test is given; θ̂ held at 0 →
+    the test's last answer."""
     i, commands, k, done = 0.0, {}, k0, False
+
+    def acting(issued):
+        return commands.get(issued, 0.0) + (beside_V if issued >= k0 else 0.0)
     while not done:
+        applied = acting(k - p.delay_periods - 1) if told else commands.get(k - p.delay_periods - 1, 0.0)
+        x["startup"]["u_net_alpha"], x["startup"]["u_net_beta"] = applied, 0.0
         done, u_alpha, _, code = polarity_step(x, p, k, k - k0, i, 0.0, 0.0, 0.0)
         if code != float(POLARITY):
             return code
         commands[k] = u_alpha
-        u = commands.get(k - p.delay_periods, 0.0)
-        i += T_S * (u - resistance * i) / inductance(i)
+        i += T_S * (acting(k - p.delay_periods) - resistance * i) / inductance(i)
         k += 1
     return code
 
@@ -90,6 +96,25 @@ def test_the_pulses_tell_the_magnets_polarity_from_the_d_axis_saturation(south):
     assert code == float(POLARITY)
     assert x["startup"]["flipped"] == float(south)
     assert x["theta"] == pytest.approx(math.pi if south else 0.0)
+
+
+def test_a_voltage_beside_the_pulses_leaves_the_polarity_ratio():
+    """The controller's fundamental frozen at a voltage the dead-time zone ate while aligning acts in full
+    beside the pulses: its current's exponential rise, given to the test as applied voltage, is modelled
+    and taken off (S/T within 0.0012 of the test without it: the model's winding is linear); untold, ±0.5 V
+    moves S/T by +0.0024 / −0.0040 on this winding (L/R 3.3 ms against 0.5 ms pulses; at 0.65 ms, a robot
+    joint's, the share grows)."""
+    def saturating(i):
+        return PLATE.L_d_H * (1.0 - 0.1 * math.tanh(i / 5.0))
+    ratios = {}
+    for beside_V, told in ((0.0, True), (0.5, True), (-0.5, True), (0.5, False), (-0.5, False)):
+        x, p = startup()
+        pulse_response(x, p, 0, saturating, COMMISSIONING.R_s_ohm, beside_V, told)
+        ratios[beside_V, told] = x["startup"]["polarity_ratio"]
+    clean = ratios[0.0, True]
+    for beside_V in (0.5, -0.5):
+        assert ratios[beside_V, True] == pytest.approx(clean, abs=1.2e-3)
+    assert abs(ratios[0.5, False] - clean) > 0.002 and abs(ratios[-0.5, False] - clean) > 0.002
 
 
 def test_pulses_on_a_linear_winding_find_no_polarity_and_turn_a_quarter():

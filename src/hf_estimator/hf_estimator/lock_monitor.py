@@ -21,19 +21,21 @@ from .startup_state import (
 def backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta):
     """Update the low-passed back-EMF residual (θ̂ frame) with sample k's currents (α, β) [A] and the
     voltage (u_α, u_β) [V] applied in the period before it → its magnitude [V]. e = u − R̂ī − L̂·Δi/T_s per
-    axis (the HF cancelling), the commissioned dead-time loss removed; residual = e − (ω̂ΔL i_q,
-    ω̂(ψ_f + ΔL i_d))."""
+    axis (the HF cancelling), the commissioned dead-time loss removed (the voltage net of it kept as
+    ``u_net_alpha``, ``u_net_beta`` for the polarity test); residual = e − (ω̂ΔL i_q, ω̂(ψ_f + ΔL i_d))."""
     s = x.startup
     prev_a, prev_b = s.prev_ia, s.prev_ib
     s.prev_ia = i_alpha
     s.prev_ib = i_beta
-    if k < p.delay_periods + 2:
-        return 0.0
     if p.dead_time_voltage_V != 0.0:
         start_a, start_b, start_c = inverse_clarke(prev_a, prev_b)
         loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
         u_alpha -= p.dead_time_voltage_V * loss_alpha
         u_beta -= p.dead_time_voltage_V * loss_beta
+    s.u_net_alpha = u_alpha
+    s.u_net_beta = u_beta
+    if k < p.delay_periods + 2:
+        return 0.0
     omega = x.omega
     angle = x.theta - 0.5 * omega * p.T_s_s
     u_d, u_q = rotate(u_alpha, u_beta, -angle)

@@ -61,7 +61,7 @@ from motor_params.commissioning import NAMEPLATE_ONLY
 
 from .alignment import ALIGN_SMOOTHING_S, alignment_step
 from .lock_monitor import backemf_residual, lock_step, reacquire_step
-from .polarity_test import linear_polarity_ratio, polarity_begin, polarity_step, quiet_over
+from .polarity_test import linear_polarity_ratio, polarity_begin, polarity_step, quiet_over, winding_step
 from .startup_state import (
     NO_POLARITY,
     NO_SALIENCY,
@@ -118,6 +118,7 @@ def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
     n = max(2, int(round(s["pulse_s"] / T_s)),
             math.ceil(I_p * commissioning.L_dh_H / (T_s * (u_max - resistive))))
     pulse_V = I_p * commissioning.L_dh_H / (n * T_s) + resistive
+    other_decay, other_gain = winding_step(commissioning.R_s_ohm, commissioning.L_dh_H, T_s)
     omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * 2.0 * math.pi / 60.0
     threshold = (LOCK_RESISTANCE_ERROR * commissioning.R_s_ohm * nameplate.rated_current_A
                  + dead_time_uncertainty_V(inverter, commissioning, LOCK_DEAD_TIME_ERROR)
@@ -134,6 +135,7 @@ def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
         polarity_margin=s["polarity_margin"], polarity_tries=int(s["polarity_tries"]),
         polarity_linear_ratio=linear_polarity_ratio(commissioning.R_s_ohm, commissioning.L_dh_H, T_s, n,
                                                     int(s["pulse_sequences"]), int(inverter.delay_periods)),
+        other_decay=other_decay, other_gain=other_gain,
         flush_samples=samples(s["flush_s"]), R_s_ohm=commissioning.R_s_ohm, L_dh_H=commissioning.L_dh_H,
         L_qh_H=commissioning.L_qh_H, delta_L_H=nameplate.L_d_H - nameplate.L_q_H, psi_f_Wb=nameplate.psi_f_Wb,
         dead_time_voltage_V=commissioning.dead_time_voltage_V,

@@ -13,14 +13,16 @@ from drive_interface.estimator_states import LOCK_LOST
 STARTUP = np.dtype([(name, np.float64) for name in (
     "code", "entered", "refused", "restarts", "theta_held", "omega_held", "held_at",
     "settled", "error", "quiet",
-    "score", "span", "tries", "polarity_ratio", "flipped",
-    "residual_d", "residual_q", "prev_ia", "prev_ib", "bad", "e_alpha", "e_beta",
+    "score", "span", "tries", "polarity_ratio", "flipped", "other_current",
+    "residual_d", "residual_q", "prev_ia", "prev_ib", "u_net_alpha", "u_net_beta", "bad", "e_alpha", "e_beta",
     "fit_n", "fit_t", "fit_p", "fit_tp", "fit_tt", "phi_raw", "phi_unwrapped")])
 """The supervisor's: the state code, the sample it was entered at, why the start was refused, the lost
 locks counted, θ̂ and ω̂ held (and since when); the alignment's: samples settled, the smoothed error
-[rad], the quiet time's start + 1; the polarity test's: S, T, tries, S/T and whether θ̂ was turned by π;
-the lock monitor's: the back-EMF residual (θ̂ frame) [V], the previous currents, samples beyond the
-threshold, the back-EMF (αβ) [V], and the lost-lock fit of its angle (FIT sums, φ raw and unwrapped)."""
+[rad], the quiet time's start + 1; the polarity test's: S, T, tries, S/T, whether θ̂ was turned by π and
+the d̂ current the voltage beside its pulses drives (a linear winding's) [A]; the lock monitor's: the
+back-EMF residual (θ̂ frame) [V], the previous currents, the voltage applied before this sample net of the
+dead-time loss [V], samples beyond the threshold, the back-EMF (αβ) [V], and the lost-lock fit of its
+angle (FIT sums, φ raw and unwrapped)."""
 NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES, ROTOR_MOVED = 0, 1, 2, 3, 4
 """Why a start-up was refused (its ``refused`` field)."""
 
@@ -41,6 +43,9 @@ class StartupParams(NamedTuple):
     polarity_margin: float
     polarity_linear_ratio: float
     """S/T that a linear R–L gives the pulses (polarity_test.linear_polarity_ratio), taken off the measured one."""
+    other_decay: float
+    other_gain: float
+    """(a, b) of the linear winding the voltage beside the pulses drives: i ← a·i + b·u (winding_step)."""
     polarity_tries: int
     flush_samples: int
     R_s_ohm: float
