@@ -240,12 +240,25 @@ def supervision_faults(result):
 
 def configuration_warnings(result):
     """What the drive says of its configuration before anything went wrong: the sensorless current limit
-    below rated current, a weak saliency (motor_params.commissioning.WEAK_SALIENCY_RATIO) under injection."""
-    plate, lines = result.scenario.motor.nameplate, []
+    below rated current, a weak saliency (motor_params.commissioning.WEAK_SALIENCY_RATIO) under injection,
+    and a rated load step that may outrun ours' tracking where its loops are scaled to the motor and the
+    sampling rate caps them (motor_params.scaled_loops)."""
+    from hf_estimator.build import SCALED_TRACKING
+    from motor_params.scaled_loops import scaled_loops
+
+    scenario, lines = result.scenario, []
+    plate = scenario.motor.nameplate
     if result.current_limit_A < plate.rated_current_A:
         lines.append(f"current limit {result.current_limit_A:.3g} A is below the rated {plate.rated_current_A:g} A "
                      f"(the saliency tracker's limit, measured at commissioning): rated load cannot be held")
     facts = result.estimator_facts or {}
     if result.commissioning is not None and facts.get("injection_frequency_Hz"):
         lines += [note for note in (result.commissioning.weak_saliency_note(),) if note]
+    if (result.commissioning is not None and scenario.estimator in SCALED_TRACKING
+            and "pll_bandwidth_Hz" not in scenario.estimator_settings):
+        loops = scaled_loops(result.commissioning.refined(plate), scenario.motor.inverter, scenario.T_s)
+        if loops.largest_tracked_load_step_per_rated < 1.0:
+            lines.append(f"a rated load step may outrun ours' angle tracking (steps above "
+                         f"{loops.largest_tracked_load_step_per_rated:.2f} × rated torque at {1.0 / scenario.T_s:.0f} "
+                         f"Hz sampling; faster sampling raises the limit)")
     return lines
