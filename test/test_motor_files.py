@@ -421,7 +421,7 @@ def test_sampled_faster_as_the_drive_advises_the_joint_holds_a_rated_load_step(j
     polarity right every time (the polarity test takes off the current the voltage beside its pulses drives,
     docs/startup.md) and a rated load step stays within ours' targets (measured 0.0194 / 0.126 rad)."""
     from drive_evaluation.startup_bench import STANDARD_CASES, startup_sweep
-    from drive_runner.commissioning_run import loaded_test_in_process
+    from drive_runner.commissioning_run import loaded_test_in_process, with_loaded_test
     from drive_scenarios.scenario import Table
     motor, _ = joint
     slow = run_scenario(experiment(motor, duration_s=0.01, speed=[[0.0, 0.0]]))
@@ -431,9 +431,7 @@ def test_sampled_faster_as_the_drive_advises_the_joint_holds_a_rated_load_step(j
     record = run.procedure.result()
     commissioning = save_commissioning(tmp_path / "fast.yaml", record, "test_joint", "test")
     loaded, _ = loaded_test_in_process(experiment(motor, commissioning, sampling_period_s=5e-5), commissioning)
-    save_commissioning(commissioning, record._replace(
-        estimator_shift_rad=loaded["estimator_shift_rad"], loaded_test_frequency_Hz=loaded["injection_frequency_Hz"],
-        loaded_test_amplitude_V=loaded["injection_amplitude_V"]), "test_joint", "test")
+    save_commissioning(commissioning, with_loaded_test(record, loaded), "test_joint", "test")
     sweep = startup_sweep(load_motor(motor), STANDARD_CASES[0], angles=8, seeds=(1,), commissioning=commissioning,
                           T_s=5e-5)
     assert sweep["polarity_correct_fraction"] == 1.0 and sweep["not_started"] == 0

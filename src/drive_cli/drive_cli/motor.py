@@ -68,11 +68,9 @@ def cmd_commission(args):
         truth = {**(truth or {}), **{key: rotating_truth[key] for key in ("psi_f_Wb", "J_kgm2")}}
     loaded = None
     if args.loaded:
-        from drive_runner.commissioning_run import loaded_test_in_process
+        from drive_runner.commissioning_run import loaded_test_in_process, with_loaded_test
         loaded, _ = loaded_test_in_process(scenario, out, progress=progress)
-        record = record._replace(estimator_shift_rad=loaded["estimator_shift_rad"],
-                                 loaded_test_frequency_Hz=loaded["injection_frequency_Hz"],
-                                 loaded_test_amplitude_V=loaded["injection_amplitude_V"])
+        record = with_loaded_test(record, loaded)
         conditions["loaded_test"] = {"shaft": "held (brake)", "top_current_A": loaded["top_current_A"],
                                      "injection_frequency_Hz": loaded["injection_frequency_Hz"],
                                      "injection_amplitude_V": loaded["injection_amplitude_V"]}

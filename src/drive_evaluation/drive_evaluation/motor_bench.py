@@ -12,7 +12,7 @@ from drive_commissioning.loaded import LoadedTestError
 
 from drive_evaluation.metrics import compute_metrics, configuration_warnings, supervision_faults
 from drive_evaluation.startup_bench import STANDARD_CASES, startup_sweep
-from drive_runner.commissioning_run import commission_in_process, loaded_test_in_process
+from drive_runner.commissioning_run import commission_in_process, loaded_test_in_process, with_loaded_test
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import ScenarioError, parse_scenario
 from motor_params.commissioning import save_commissioning
@@ -113,9 +113,7 @@ def loaded_test(scenario, measured, commissioning):
         loaded, _ = loaded_test_in_process(scenario, commissioning)
     except LoadedTestError as error:
         return {"refused": str(error)}
-    save_commissioning(commissioning, measured._replace(
-        estimator_shift_rad=loaded["estimator_shift_rad"], loaded_test_frequency_Hz=loaded["injection_frequency_Hz"],
-        loaded_test_amplitude_V=loaded["injection_amplitude_V"]), scenario.motor.name, "drive bench motor")
+    save_commissioning(commissioning, with_loaded_test(measured, loaded), scenario.motor.name, "drive bench motor")
     return loaded
 
 

@@ -142,6 +142,7 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
         torque_profile,
     )
 
+    from control_math.frames import wrap
     from drive_interface.log import COLUMN
     from drive_runner.runner import run_scenario
     from drive_scenarios.scenario import Table
@@ -166,8 +167,16 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
     measured.update(injection_frequency_Hz=frequency_Hz, injection_amplitude_V=amplitude_V,
                     estimator_shift_rad=measured["estimator_shift_rad"] + ran_with - record.saliency_shift_rad)
     n_p, log = result.n_p, result.log
-    error = np.angle(np.exp(1j * (n_p * log[:, COLUMN["theta_m"]] - log[:, COLUMN["theta_e_hat"]])))
+    error = wrap.py_func(n_p * log[:, COLUMN["theta_m"]] - log[:, COLUMN["theta_e_hat"]])
     loaded = [w for w, level in zip(hold_windows(log[:, COLUMN["t"]]), LEVELS) if level != 0.0]
     for hold, window in zip(measured["holds"], loaded):
         hold["true_error_rad"] = float(np.mean(error[window]))
     return measured, result
+
+
+def with_loaded_test(record, loaded):
+    """The commissioning ``record`` with ours' correction from a ``loaded_test_in_process`` result ``loaded``
+    and the carrier and amplitude it was measured at."""
+    return record._replace(estimator_shift_rad=loaded["estimator_shift_rad"],
+                           loaded_test_frequency_Hz=loaded["injection_frequency_Hz"],
+                           loaded_test_amplitude_V=loaded["injection_amplitude_V"])
