@@ -114,9 +114,11 @@ def test_the_drive_knows_the_motor_only_by_its_nameplate_and_what_it_measures():
 
 
 def test_the_bridge_package_holds_only_the_inverter_link():
+    """The protocol, the links (a serial port, a CAN bus, the CAN cable between processes), the bridge and
+    its node; and the virtual inverter that stands in for a real one, with its own process."""
     names = {p.stem for p in (SRC / "drive_bridge" / "drive_bridge").glob("*.py")}
-    assert names == {"__init__", "inverter_protocol", "inverter_link", "inverter_bridge", "bridge_node",
-                     "virtual_inverter"}
+    assert names == {"__init__", "inverter_protocol", "inverter_link", "can_cable", "inverter_bridge", "bridge_node",
+                     "virtual_inverter", "inverter_process"}
 
 
 def declared(package):

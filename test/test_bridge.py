@@ -350,3 +350,76 @@ def test_a_paced_inverter_applies_a_block_during_the_block_after_next(tmp_path):
         thread.join(2.0)
         bridge.close()
         endpoint.close()
+
+
+@pytest.mark.parametrize("link", ["pty", "can"])
+def test_a_paced_inverter_in_its_own_process_keeps_its_duties(tmp_path, link):
+    """The virtual inverter as `drive launch --paced` runs it, in a process of its own (over a pty, or
+    the CAN cable between processes): the same 40 periods as above, every 4th command 1.25 periods late,
+    give the same count of missing commands in its report, with the runs of missing periods."""
+    from drive_bridge.inverter_link import CanLink, SerialLink
+    from drive_bridge.inverter_process import InverterProcess
+    from drive_bridge.virtual_inverter import timing_report
+
+    T_s = SCENARIO.T_s
+    path = tmp_path / ("inverter0" if link == "pty" else "can_cable0")
+    inverter = InverterProcess({"scenario": "wang_100rpm", "duration_s": 40 * T_s}, link, path, 50.0, 1.0)
+    host_link = SerialLink(str(path)) if link == "pty" else CanLink(str(path), 0, "cable")
+    bridge = InverterBridge(host_link)
+    try:
+        bridge.poll(0.0)
+        inverter.start()
+        seen, deadline = 0, time.monotonic() + 10.0
+        while seen < 40 and time.monotonic() < deadline:
+            for s in bridge.poll(0.01):
+                seen += 1
+                if s.k % 4 == 3:
+                    time.sleep(0.025)
+                bridge.command(s.k, 1.0, 0.0)
+        time.sleep(0.05)
+        inverter.join(5.0)
+        timing = timing_report(inverter, 1.0 / 50.0)
+        assert seen == 40 and timing["periods"] == 40
+        assert timing["missing"] == 9 and inverter.counters["watchdog_trips"] == 0
+        assert timing["missing_runs"]["count"] == 9 and timing["missing_runs"]["longest_periods"] == 1
+        assert [j for j, _ in inverter.missing_runs] == [k + 1 for k in range(3, 36, 4)]
+    finally:
+        bridge.close()
+        inverter.close()
+    assert inverter.process.returncode == 0
+
+
+def test_an_inverter_process_that_cannot_start_says_why_in_one_line(tmp_path, capfd):
+    from drive_bridge.inverter_process import InverterProcess, InverterProcessError
+
+    with pytest.raises(InverterProcessError, match="did not start"):
+        InverterProcess({"scenario": "no_such_scenario"}, "pty", tmp_path / "inverter0", 50.0, 1.0)
+    lines = capfd.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("virtual inverter: ") and "no_such_scenario" in lines[0]
+
+
+def test_the_can_cable_is_a_bus_between_processes_that_loses_nothing_queued(tmp_path):
+    """Two members of one cable (a directory of sockets): a CAN FD frame arrives whole; 200 frames sent
+    before the other reads arrive all, in order (the kernel's queue of 10 unconnected datagrams does not
+    apply to the connected pair); a frame sent with nobody else on the cable is lost, not an error."""
+    import can
+
+    from drive_bridge.can_cable import CableBus
+
+    alone = CableBus(tmp_path / "cable")
+    alone.send(can.Message(arbitration_id=0x100, data=b"x", is_extended_id=False))
+    a, b = alone, CableBus(tmp_path / "cable")
+    try:
+        b.send(can.Message(arbitration_id=0x101, data=b"hello", is_extended_id=False))
+        assert a.recv(1.0).data == b"hello" and b.recv(0.05) is None
+        a.send(can.Message(arbitration_id=0x123, data=bytes(range(64)), is_fd=True, bitrate_switch=True,
+                           is_extended_id=False))
+        got = b.recv(1.0)
+        assert (got.arbitration_id, bytes(got.data), got.is_fd, got.bitrate_switch) == (0x123, bytes(range(64)),
+                                                                                       True, True)
+        for i in range(200):
+            a.send(can.Message(arbitration_id=0x200, data=i.to_bytes(2, "little"), is_extended_id=False))
+        assert [int.from_bytes(b.recv(1.0).data, "little") for _ in range(200)] == list(range(200))
+    finally:
+        a.shutdown()
+        b.shutdown()

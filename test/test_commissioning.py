@@ -131,6 +131,23 @@ def test_the_graph_host_gives_the_one_process_record(tmp_path):
     assert report["truth"]["R_s_ohm"] == 0.27 and set(report["identified"]) >= set(report["truth"])
 
 
+def test_the_graph_host_behind_the_virtual_inverter_gives_the_bridge_loops_record(tmp_path):
+    """`drive commission --graph --link pty`: the virtual inverter and the drive_bridge node in the plant
+    node's place write the record the one-process loop through the same bridge writes, to the last digit."""
+    from drive_runner.commissioning_run import commission_through_bridge
+
+    out = tmp_path / "graph_pty.yaml"
+    done = subprocess.run(DRIVE + ["commission", "wang_100rpm", "--graph", "--link", "pty", "--out", str(out),
+                                   "--json", "--namespace", "/commission_graph_pty"],
+                          capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    graph, _ = load_commissioning(out)
+    local = commission_through_bridge(load_scenario("wang_100rpm"), "pty").procedure.result()
+    for key in ("R_s_ohm", "dead_time_voltage_V", "sensor_gain_b", "L_dh_H", "L_qh_H"):
+        assert getattr(graph, key) == getattr(local, key), key
+    assert np.array_equal(graph.saliency_shift_rad, local.saliency_shift_rad)
+
+
 def test_the_file_round_trips_and_a_bad_one_names_its_key(tmp_path):
     record = commission_in_process(load_scenario("szabo_profile")).procedure.result()
     path = save_commissioning(tmp_path / "m.yaml", record, "szabo_ipmsm", "standstill_tests", {"x": 1})

@@ -17,7 +17,7 @@ from drive_interface.log import COLUMN
 from drive_runner.commissioning_run import commission_in_process
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario, parse_scenario
-from foc_controller.supervision import SpeedSupervisor, speed_supervision
+from foc_controller.supervision import SpeedSupervisor, speed_supervision, supervision_block
 from hf_estimator.polarity_test import linear_polarity_ratio
 from hf_estimator.startup import REFUSALS, ROTOR_MOVED
 from motor_params.commissioning import CommissioningError, resolve_commissioning, save_commissioning
@@ -235,6 +235,14 @@ def test_the_supervision_names_what_the_shaft_does():
     for k in range(t.size):
         stepwise.step(k, ref[k], 4 * backwards[k], 0.0, 3.0)
     assert [(f["kind"], round(f["start_s"], 2)) for f in stepwise.faults] == [("dragged backwards", 0.51)]
+    blockwise = SpeedSupervisor(4, 100.0, 10.0, 1e-4)
+    blockwise.warm_up()
+    compiled = len(supervision_block.signatures)
+    out = np.zeros((t.size, 6))
+    for k0 in range(0, t.size, 10):
+        blockwise.update(k0, ref[k0:k0 + 10], 4 * backwards[k0:k0 + 10], out[k0:k0 + 10, 5], tracking[k0:k0 + 10])
+    assert [(f["kind"], round(f["start_s"], 2)) for f in blockwise.faults] == [("dragged backwards", 0.51)]
+    assert len(supervision_block.signatures) == compiled, "the warm-up loads the kernel the blocks call"
 
 
 def overload(joint, tmp_path):

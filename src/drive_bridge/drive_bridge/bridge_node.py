@@ -17,12 +17,13 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
 from geometry_msgs.msg import Vector3Stamped
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.logging import LoggingSeverity
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from control_math.frames import wrap
-from drive_interface.node import ContractNode, finite, run_node, stamp, topic_qos
+from drive_interface.node import ContractNode, finite, log_line, run_node, stamp, topic_qos
 from drive_interface.stamps import sample_at, sample_of, stamp_parts
 from drive_interface.topics import ANGLE_ERROR, CURRENTS, ROTOR_ESTIMATE, ROTOR_STATE, TOPICS, VOLTAGE_COMMAND, block
 from drive_interface.wire import BlockWire
@@ -83,6 +84,7 @@ class InverterBridgeNode(ContractNode):
             self.create_subscription(JointState, ROTOR_ESTIMATE, self.on_rotor_estimate,
                                      topic_qos(ROTOR_ESTIMATE))
         self.create_service(Trigger, "clear_faults", self.on_clear_faults)
+        wrap(0.0)
         self.T_s = None
         self.k = None
         self.n_p = None
@@ -101,7 +103,8 @@ class InverterBridgeNode(ContractNode):
             samples = self.bridge.poll(0.02)
             if not self.bridge.open and self.bridge.last_error not in ("", logged):
                 logged = self.bridge.last_error
-                self.get_logger().error(f"inverter link: {logged}; retrying every {self.bridge.reconnect_s:g} s")
+                log_line(self, LoggingSeverity.ERROR,
+                         f"inverter link: {logged}; retrying every {self.bridge.reconnect_s:g} s")
             hello = self.bridge.hello
             if hello is not None and self.T_s is None:
                 self.configure(hello)

@@ -158,9 +158,16 @@ class PtyEndpoint:
 
 
 def can_bus(channel, interface=None):
-    """A python-can bus: ``interface`` as given, else SocketCAN when the kernel has PF_CAN and the
-    channel exists, else python-can's in-process virtual bus on ``channel``."""
+    """A python-can bus: ``interface`` as given ('cable': drive_bridge.can_cable's bus between processes,
+    ``channel`` its directory), else SocketCAN when the kernel has PF_CAN and the channel exists, else
+    python-can's in-process virtual bus on ``channel``."""
     import can
+    if interface == "cable":
+        from .can_cable import CableBus
+        try:
+            return CableBus(channel)
+        except OSError as error:
+            raise LinkDown(f"CAN cable:{channel}: {error}") from None
     if interface is None:
         interface = "socketcan" if socketcan_available(channel) else "virtual"
     try:

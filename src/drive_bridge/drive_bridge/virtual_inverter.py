@@ -127,6 +127,8 @@ class VirtualInverter:
         sent more than a period behind its clock (its Python simulation, not the host, was slow); its
         clock then restarts from that moment, as the host cannot be blamed for periods a real inverter's
         timer would have kept."""
+        self.missing_runs = []
+        """[first period, periods] of each run of periods in a row without a command in time."""
         self.latencies_s = []
         """Time from TELEMETRY(_BLOCK) sent to its COMMAND(_BLOCK) received, per command message in time."""
         self.late_latencies_s = []
@@ -222,6 +224,9 @@ class VirtualInverter:
             self.enabled = bool(flags & ENABLE)
             self.counters["commands"] += 1
         else:
+            if self.missing == 0:
+                self.missing_runs.append([j, 0])
+            self.missing_runs[-1][1] += 1
             self.missing += 1
             self.missing_in_block = True
             self.counters["missing"] += 1
@@ -403,10 +408,14 @@ LATENCY_BINS_PER_PERIOD = (0.0, 0.25, 0.5, 0.75, 1.0, 2.0, 5.0, 10.0, math.inf)
 """Edges of the command latency histogram, in sampling periods: below 1 a command can be in time."""
 
 
+MISSING_RUNS_SHOWN = 20
+
+
 def timing_report(inverter, T_s):
     """How the host kept pace with a virtual inverter: periods run, commands missing (late or never
     sent: zero volts), their fraction, latency percentiles [µs] over every command that came (late ones
-    included) and the histogram of those latencies (edges in sampling periods and µs)."""
+    included), the histogram of those latencies (edges in sampling periods and µs) and the runs of missing
+    periods (how many, the longest, the first ones as [time s, periods])."""
     every = np.concatenate([inverter.latencies_s, inverter.late_latencies_s]) * 1e6
     edges = np.asarray(LATENCY_BINS_PER_PERIOD)
     counts, _ = np.histogram(every, bins=edges * T_s * 1e6)
@@ -419,4 +428,12 @@ def timing_report(inverter, T_s):
               "latency_histogram": {"edges_periods": [float(e) if math.isfinite(e) else None for e in edges],
                                     "counts": [int(c) for c in counts]},
               "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],
-              "host_silent_trips": inverter.counters["host_silent_trips"]}
+              "host_silent_trips": inverter.counters["host_silent_trips"],
+              "missing_runs": missing_runs(inverter.missing_runs, T_s)}
+
+
+def missing_runs(runs, T_s):
+    """How many runs of periods without a command in time, the longest [periods], the first ones as
+    [time s, periods]."""
+    return {"count": len(runs), "longest_periods": max((n for _, n in runs), default=0),
+            "first": [[round(j * T_s, 4), n] for j, n in runs[:MISSING_RUNS_SHOWN]]}

@@ -85,8 +85,13 @@ def _graph_real_time(args, links):
     _at_least_one(("--repeats", args.repeats))
     print(f"drive launch {args.scenario} --link L --paced, {args.repeats} runs per link and lever"
           f"{', one core kept busy by another process' if args.load else ''}", file=sys.stderr)
+    blocks = args.block_samples or PACED_BLOCK_SAMPLES
+    from drive_bridge.inverter_protocol import MAX_BLOCK
+    if not 2 <= blocks <= MAX_BLOCK:
+        raise CommandLineError(f"--block-samples: the paced graph runs in blocks of 2 to {MAX_BLOCK} samples, "
+                               f"not {blocks}")
     report = graph_real_time(args.scenario, links, args.repeats, args.load, levers,
-                             progress=lambda line: print(line, file=sys.stderr))
+                             progress=lambda line: print(line, file=sys.stderr), block_samples=blocks)
     if args.json:
         print_json(report)
     return exit_code(report["interrupted"])
@@ -163,6 +168,7 @@ def add_bench_commands(bench_sub):
                               help="with --graph: another process keeps one core busy meanwhile")
     bench_bridge.add_argument("--levers", metavar="L[,L...]",
                               help="with --graph: soft real-time levers, measured one at a time: plain, collector "
-                                   "(default), collector+cpu1, collector+fifo, collector+fifo+cpu1")
+                                   "(default), collector+cpu1, collector+fifo, collector+fifo+cpu1, "
+                                   "collector+fifo+cpu1+inverter_in_host")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)

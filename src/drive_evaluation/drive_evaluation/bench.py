@@ -274,15 +274,18 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
 
 
 REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {}, "collector+cpu1": {"cpus": {1}},
-                    "collector+fifo": {"rt_priority": 50}, "collector+fifo+cpu1": {"rt_priority": 50, "cpus": {1}}}
+                    "collector+fifo": {"rt_priority": 50}, "collector+fifo+cpu1": {"rt_priority": 50, "cpus": {1}},
+                    "collector+fifo+cpu1+inverter_in_host": {"rt_priority": 50, "cpus": {1}, "inverter_apart": False}}
 """The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
 "Real time"): none; the garbage collector held out of the sample path (the default); and the process on
-CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1)."""
+CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1). The virtual inverter runs in a process of
+its own (on the other CPU where the graph has one) but in the last, where it is a thread of the graph's."""
 
 
-def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None):
+def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None,
+                    block_samples=PACED_BLOCK_SAMPLES):
     """`drive bench bridge --paced --graph`: the robot's configuration, `drive launch --link L --paced`
-    (the composed graph behind the virtual inverter on its own clock, blocks of PACED_BLOCK_SAMPLES), run
+    (the composed graph behind the virtual inverter on its own clock, blocks of ``block_samples``), run
     ``repeats`` times per link and lever; with ``load`` another process keeps one core busy meanwhile. Per
     run: late periods, watchdog trips, lock losses, ours' angle error and the latencies in µs and in hops
     (each run measures the rclpy hop beside it). A signal stops it; what was done is returned."""
@@ -292,7 +295,7 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
 
     scenario = load_scenario(scenario_ref)
     report = {"benchmark": "graph_real_time", "scenario": scenario.name, "samples": scenario.n_samples,
-              "block_samples": PACED_BLOCK_SAMPLES, "repeats": repeats, "load": load, "rows": [], "interrupted": 0}
+              "block_samples": block_samples, "repeats": repeats, "load": load, "rows": [], "interrupted": 0}
     busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if load else None
     try:
         with interrupt.polled():
@@ -301,7 +304,7 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                     runs = []
                     for _ in range(repeats):
                         result = launch(scenario_ref, record=True, link=link, paced=True,
-                                        extra_parameters={"block_samples": PACED_BLOCK_SAMPLES},
+                                        extra_parameters={"block_samples": block_samples},
                                         **REAL_TIME_LEVERS[lever])
                         report["interrupted"] = result.interrupted or interrupt.requested()
                         if report["interrupted"]:
@@ -311,6 +314,8 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                                      "overruns": t["overruns"], "lock_lost": metrics["lock_lost"],
                                      "lock_lost_s": metrics["lock_lost_s"],
                                      "angle_error_rms": metrics["angle_error_rms"],
+                                     "angle_error_peak": metrics["angle_error_peak"],
+                                     "missing_runs": t["missing_runs"],
                                      **{key: t[key] for key in ("hop_us", "latency_p50_us", "latency_p99_us",
                                                                 "latency_max_us", "latency_p50_hops",
                                                                 "latency_p99_hops", "latency_max_hops")},

@@ -12,6 +12,7 @@ import time
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import ParameterDescriptor
+from rclpy.logging import LoggingSeverity
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -30,10 +31,25 @@ from .topics import TOPICS
 from .wire import WireError, decode_block, decoder_of
 
 FAULT_REPORT_MIN_S = 0.1
+FAULT_LOG_PERIOD_S = 1.0
+"""A node logs each kind of fault at most this often (all are counted, and shown on /diagnostics)."""
 PEER_CHECK_PERIOD_S = 0.5
 PEER_GONE_CHECKS = 3
 """Consecutive checks without the peer's publisher before a node gives up on it (graph changes are
 seen through discovery, which can lag)."""
+
+
+def log_line(node, severity, message):
+    """Log ``message`` at ``severity`` (rclpy.logging.LoggingSeverity) under ``node``'s logger (the console,
+    /rosout), its caller read from the calling frame. rclpy's own ``logger.error`` looks for its caller with
+    ``inspect`` on every call, throttled or not: 0.6 ms in a small process, tens of ms in a drive's (module
+    scans, the interpreter lock held: docs/ros-graph.md, "Real time"); this costs a few µs."""
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+    logger = node.get_logger()
+    if logger.is_enabled_for(severity):
+        caller = sys._getframe(1)
+        rclpy_implementation.rclpy_logging_rcutils_log(severity, logger.name, message, caller.f_code.co_name,
+                                                       caller.f_code.co_filename, caller.f_lineno)
 
 
 def qos_profile(spec):
@@ -124,6 +140,7 @@ class ContractNode(Node):
         if not self.has_parameter(name):
             self.declare_parameter(name, 1.0, descriptor=describe("period of /diagnostics [s]"))
         self.health = Health()
+        self.fault_logged_at = {}
         self.run_complete = False
         self.exit_code = None
         """Set when the node decides to end (its peer is gone); its executable then exits with it."""
@@ -143,11 +160,15 @@ class ContractNode(Node):
         self.config_pub.publish(String(data=dumps(config)))
 
     def fault(self, kind, message):
-        """Count a fault, log it (throttled) and show it on /diagnostics: at once when the last status
-        said ok (at most every ``FAULT_REPORT_MIN_S``), else at the next period. Counters are cumulative."""
+        """Count a fault, log it (each kind at most every ``FAULT_LOG_PERIOD_S``) and show it on /diagnostics:
+        at once when the last status said ok (at most every ``FAULT_REPORT_MIN_S``), else at the next
+        period. Counters are cumulative."""
         first = self.health.level == DiagnosticStatus.OK
         self.health.fault(kind, message)
-        self.get_logger().error(message, throttle_duration_sec=1.0)
+        now = time.monotonic()
+        if now - self.fault_logged_at.get(kind, -math.inf) >= FAULT_LOG_PERIOD_S:
+            self.fault_logged_at[kind] = now
+            log_line(self, LoggingSeverity.ERROR, message)
         if first and time.monotonic() - self.diagnostics_sent_at >= FAULT_REPORT_MIN_S:
             self.publish_diagnostics()
 
@@ -202,8 +223,8 @@ class ContractNode(Node):
             absent[0] = absent[0] + 1 if seen[0] and count == 0 else 0
             if absent[0] >= PEER_GONE_CHECKS and self.exit_code is None:
                 self.exit_code = 0 if self.run_complete and not self.health.counters else EXIT_NODE_FAULTS
-                self.get_logger().error(f"{peer} is gone (no publisher of {name}): outputs stay safe, "
-                                        f"the node exits")
+                log_line(self, LoggingSeverity.ERROR, f"{peer} is gone (no publisher of {name}): outputs stay "
+                                                      f"safe, the node exits")
         self.create_timer(PEER_CHECK_PERIOD_S, check)
 
     def sample_subscription(self, topic, callback):

@@ -49,7 +49,7 @@ def commission_over_ros(scenario_ref, namespace=DEFAULT_NAMESPACE, link=None, ti
         refuse_occupied(context, [namespace])
         ex = make_executor("events", context)
         if link:
-            inverter, host_link = _virtual_inverter(scenario, link, workdir.name, 0)
+            inverter, host_link = _virtual_inverter(scenario, parameters, link, workdir.name, 0, False, timeout_s)
             nodes.append(make_node("drive_bridge", context, namespace, {"link_timeout_s": timeout_s,
                                                                         "command_timeout_s": timeout_s},
                                    link=host_link))

@@ -188,20 +188,25 @@ class DriveSpec:
     drive_bridge node in the plant's place."""
     paced: bool = False
     """With a link: the virtual inverter on its own clock at the sampling rate, never waiting."""
+    inverter_apart: bool = True
+    """Paced: the virtual inverter in a process of its own (as a real one is a device of its own); False
+    puts it on a thread of the launcher's process (only to measure what the separation gives)."""
 
 
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
            progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None,
-           hold_collector=True):
+           hold_collector=True, inverter_apart=True):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
     ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
     virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock.
     ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes; ``hold_collector``: the garbage
-    collector out of the sample path (drive_interface.realtime; off only to measure what it gives)."""
-    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced)
+    collector out of the sample path (drive_interface.realtime; off only to measure what it gives);
+    ``inverter_apart``: a paced inverter in a process of its own (DriveSpec)."""
+    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced,
+                     inverter_apart)
     return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress, rt_priority,
                        cpus, hold_collector)[0]
 
@@ -229,9 +234,10 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
     for spec in specs:
         if spec.link not in (None,) + LINKS:
             raise GraphError(f"unknown virtual link {spec.link!r} (known: {', '.join(LINKS)})")
-        if spec.link == "can" and processes == "separate":
+        if spec.link == "can" and processes == "separate" and not (spec.paced and spec.inverter_apart):
             raise GraphError("a virtual CAN bus (python-can's) lives in one process: it needs the nodes "
-                             "composed, or a pty link")
+                             "composed, a pty link, or --paced (the inverter in a process of its own on a CAN "
+                             "cable between processes)")
     locks = []
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
@@ -271,7 +277,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                      "hf_estimator": estimator, "foc_controller": scheduled}
             inverter = None
             if spec.link:
-                inverter, host_link = _virtual_inverter(scenario, spec.link, workdir.name, i, spec.paced, timeout_s)
+                inverter, host_link = _virtual_inverter(scenario, parameters, spec.link, workdir.name, i, spec.paced,
+                                                        timeout_s, rt_priority, cpus, spec.inverter_apart)
                 inverters.append(inverter)
                 del roles["pmsm_plant"]
                 period = float(all_parameters(parameters)["diagnostics_period_s"])
@@ -281,7 +288,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                 if processes == "composed":
                     nodes.append(make_node("drive_bridge", context, spec.namespace, timeouts, link=host_link))
                 else:
-                    roles["drive_bridge"] = {"link": "serial", "port": host_link.port, **timeouts}
+                    roles["drive_bridge"] = {**_link_parameters(host_link), **timeouts}
             for role, role_parameters in roles.items():
                 if processes == "composed":
                     nodes.append(make_node(role, context, spec.namespace, role_parameters))
@@ -366,14 +373,40 @@ def _result(driver, drive, record, processes, executor, interrupted, hop=None):
                        timing=in_hops(timing_report(driver.inverter, scenario.T_s), hop) if driver.inverter else None)
 
 
-def _virtual_inverter(scenario, link, workdir, drive_id, paced, timeout_s):
-    """A virtual inverter for ``scenario`` (not yet running; on its own clock when ``paced``, else
-    waiting for each of the graph's commands as long as a plant node would, ``timeout_s``) and the
-    host's end of its link."""
+def _virtual_inverter(scenario, parameters, link, workdir, drive_id, paced, timeout_s, rt_priority=0, cpus=None,
+                      apart=True):
+    """A virtual inverter for ``scenario`` (not yet running) and the host's end of its link. Paced, it runs
+    on its own clock, ``apart`` in a process of its own, as a real inverter is a device of its own (on the
+    CPUs the host's ``cpus`` leave, if any; CAN then on a cable between processes, drive_bridge.can_cable);
+    else it waits for each of the graph's commands as long as a plant node would (``timeout_s``). Not apart,
+    it runs on a thread of the host's process."""
+    import os
+
+    from drive_bridge.inverter_link import CanLink, SerialLink
+    from drive_bridge.inverter_process import InverterProcess, InverterProcessError
     from drive_bridge.virtual_inverter import VirtualInverter, make_links
-    endpoint, host_link = make_links(link, workdir, drive_id)
-    rate = 1.0 / scenario.T_s if paced else None
-    return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id), host_link
+    if not (paced and apart):
+        endpoint, host_link = make_links(link, workdir, drive_id)
+        rate = 1.0 / scenario.T_s if paced else None
+        return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id), \
+            host_link
+    path = Path(workdir) / (f"inverter{drive_id}" if link == "pty" else f"can_cable{drive_id}")
+    others = set(os.sched_getaffinity(0)) - set(cpus) if cpus else None
+    try:
+        inverter = InverterProcess(parameters, link, path, 1.0 / scenario.T_s, timeout_s, drive_id, rt_priority,
+                                   others or None)
+    except InverterProcessError as error:
+        raise GraphError(str(error)) from None
+    host_link = SerialLink(str(path)) if link == "pty" else CanLink(str(path), drive_id, "cable")
+    return inverter, host_link
+
+
+def _link_parameters(host_link):
+    """The drive_bridge node's link parameters for ``host_link`` (a node in a process of its own)."""
+    if hasattr(host_link, "port"):
+        return {"link": "serial", "port": host_link.port}
+    return {"link": "can", "can_channel": host_link.channel, "can_interface": host_link.interface or "",
+            "drive_id": host_link.drive_id}
 
 
 def _watch(drivers, children, all_done):

@@ -144,6 +144,7 @@ class ControllerNode(ScenarioNode):
         self.trip_A = self.trip_current_A()
         self.supervisor = SpeedSupervisor(self.n_p, self.nameplate().rated_speed_rpm * math.pi / 30.0,
                                           self.params.i_max_A, self.T_s)
+        self.supervisor.warm_up()
         self.x, self.z = controller_state(self.params)
         controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), estimates(1),

@@ -82,9 +82,15 @@ class SpeedSupervisor:
         self.faults = []
         self.open = {}
 
+    def warm_up(self):
+        """Load the block kernel before the first sample (a first call from Python loads it from numba's
+        cache, milliseconds the first block cannot spare behind a paced inverter)."""
+        one = np.zeros(1)
+        supervision_block(self.state.copy(), self.params, one, one, one, one, np.zeros(1, dtype=np.int64))
+
     def update(self, k0, omega_m_ref, omega_e_hat, i_q_ref, state):
         """Samples k0, k0+1, … (arrays): the faults raised in them."""
-        arrays = [np.asarray(a, dtype=float) for a in (omega_m_ref, omega_e_hat, i_q_ref, state)]
+        arrays = [np.ascontiguousarray(a, dtype=float) for a in (omega_m_ref, omega_e_hat, i_q_ref, state)]
         events = np.zeros(len(arrays[0]), dtype=np.int64)
         supervision_block(self.state, self.params, *arrays, events)
         raised = []

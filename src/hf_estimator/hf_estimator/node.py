@@ -127,6 +127,7 @@ class EstimatorNode(ScenarioNode):
 
     def warm_up(self):
         e = self.estimator
+        issue_command(command_line(1), 0, 0.0, 0.0)
         estimator_block(e.step, e.state.copy(), e.params, 0, 1, np.zeros((1, 3)), command_line(1),
                         np.zeros((1, 2)), self.calibration, 1.0, estimates(1), self.inputs)
 

@@ -1,0 +1,98 @@
+"""A virtual CAN bus between processes on one host, for machines without SocketCAN (no PF_CAN, so no
+vcan): every member of the bus is a UNIX datagram socket in one directory, the bus's channel, and a frame
+sent goes to every other member, as on a CAN bus. python-can's own virtual bus lives in one process; this
+one lets the virtual inverter run in a process of its own (drive_bridge.inverter_process). No rclpy.
+
+A frame on the socket: arbitration id (uint32, little-endian), flags (bit 0 extended id, bit 1 CAN FD,
+bit 2 bit-rate switch), then the data bytes (0-64)."""
+import os
+import select
+import socket
+import struct
+import time
+
+import can
+
+HEADER = struct.Struct("<IB")
+EXTENDED, FD, BRS = 1, 2, 4
+MEMBERS_REFRESH_S = 0.05
+"""How often a member looks for members that joined or left the bus."""
+SOCKET_BUFFER_BYTES = 1 << 20
+
+
+class CableBus(can.BusABC):
+    """One member of the bus whose directory is ``channel`` (created if missing). A frame sent while no
+    other member is there is lost, as on a bus with no other node."""
+
+    def __init__(self, channel, can_filters=None, receive_own_messages=False, fd=True, **kwargs):
+        super().__init__(channel, can_filters=can_filters, **kwargs)
+        self.directory = str(channel)
+        self.channel_info = f"cable {self.directory}"
+        os.makedirs(self.directory, exist_ok=True)
+        self.path = os.path.join(self.directory, f"member-{os.getpid()}-{id(self):x}.sock")
+        self.socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, SOCKET_BUFFER_BYTES)
+        self.socket.bind(self.path)
+        self.socket.setblocking(False)
+        self.members, self.members_at = [], 0.0
+        self.connected = None
+        self._open = True
+
+    def fileno(self):
+        return self.socket.fileno()
+
+    def _peers(self):
+        now = time.monotonic()
+        if now - self.members_at > MEMBERS_REFRESH_S:
+            self.members_at = now
+            self.members = [os.path.join(self.directory, name) for name in sorted(os.listdir(self.directory))
+                            if name.endswith(".sock") and os.path.join(self.directory, name) != self.path]
+        return self.members
+
+    def send(self, msg, timeout=None):
+        """To every other member; with one other member, on a socket connected both ways (so that the
+        kernel's small queue limit of unconnected datagrams, net.unix.max_dgram_qlen, does not apply)."""
+        if not self._open:
+            raise can.CanOperationError(f"{self.channel_info}: closed")
+        flags = (EXTENDED if msg.is_extended_id else 0) | (FD if msg.is_fd else 0) | (BRS if msg.bitrate_switch else 0)
+        frame = HEADER.pack(msg.arbitration_id, flags) + bytes(msg.data)
+        peers = self._peers()
+        try:
+            if len(peers) == 1:
+                if self.connected != peers[0]:
+                    self.socket.connect(peers[0])
+                    self.connected = peers[0]
+                self.socket.send(frame)
+            else:
+                for peer in peers:
+                    self.socket.sendto(frame, peer)
+        except (ConnectionRefusedError, ConnectionResetError, FileNotFoundError):
+            self.connected, self.members_at = None, 0.0
+        except BlockingIOError:
+            raise can.CanOperationError(f"{self.channel_info}: a member's receive queue is full") from None
+
+    def _recv_internal(self, timeout):
+        if not self._open:
+            raise can.CanOperationError(f"{self.channel_info}: closed")
+        ready, _, _ = select.select([self.socket], [], [], timeout)
+        if not ready:
+            return None, False
+        try:
+            frame = self.socket.recv(HEADER.size + 64)
+        except BlockingIOError:
+            return None, False
+        identifier, flags = HEADER.unpack_from(frame)
+        data = frame[HEADER.size:]
+        return can.Message(timestamp=time.time(), arbitration_id=identifier, is_extended_id=bool(flags & EXTENDED),
+                           is_fd=bool(flags & FD), bitrate_switch=bool(flags & BRS), data=data, dlc=len(data),
+                           channel=self.directory, is_rx=True), False
+
+    def shutdown(self):
+        super().shutdown()
+        if self._open:
+            self._open = False
+            self.socket.close()
+            try:
+                os.unlink(self.path)
+            except FileNotFoundError:
+                pass
