@@ -423,3 +423,27 @@ def test_the_can_cable_is_a_bus_between_processes_that_loses_nothing_queued(tmp_
     finally:
         a.shutdown()
         b.shutdown()
+
+
+@pytest.mark.parametrize("first_answer, before_start, missing", [(3, 3, 0), (None, 10, 29)])
+def test_the_drive_starts_with_its_first_command_in_time(tmp_path, first_answer, before_start, missing):
+    """On its own 50 Hz clock, 40 periods: a host that answers from sample 3 on starts the drive there (the
+    3 periods before have PWM off and are not missing, no watchdog); one that never answers has the
+    watchdog's 10 periods of grace, then every period is missing and the watchdog trips."""
+    from drive_bridge.virtual_inverter import timing_report
+
+    forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
+    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, forty, rate_Hz=50.0)
+    try:
+        while thread.is_alive():
+            for s in bridge.poll(0.01):
+                if first_answer is not None and s.k >= first_answer:
+                    bridge.command(s.k, 1.0, 0.0)
+        timing = timing_report(inverter, 1.0 / 50.0)
+        assert timing["periods_before_start"] == before_start and timing["missing"] == missing
+        assert inverter.counters["watchdog_trips"] == (missing >= inverter.watchdog_periods)
+    finally:
+        inverter.stop()
+        thread.join(2.0)
+        bridge.close()
+        endpoint.close()

@@ -43,6 +43,7 @@ class InverterProcess:
         self.k = 0
         self.counters = {"missing": 0, "watchdog_trips": 0, "overruns": 0, "host_silent_trips": 0}
         self.latencies_s, self.late_latencies_s, self.missing_runs = [], [], []
+        self.before_start = 0
         self.scheduling = {"applied": [], "refused": []}
         self.stopped = False
         self.report = None
@@ -92,6 +93,7 @@ class InverterProcess:
                 self.latencies_s = self.report["latencies_s"]
                 self.late_latencies_s = self.report["late_latencies_s"]
                 self.missing_runs = self.report["missing_runs"]
+                self.before_start = self.report["before_start"]
                 self.scheduling = self.report["scheduling"]
 
     def close(self, timeout_s=2.0):
@@ -158,6 +160,7 @@ def main(argv=None):
         inverter.run()
     report = {"k": inverter.k, "counters": inverter.counters, "latencies_s": inverter.latencies_s,
               "late_latencies_s": inverter.late_latencies_s, "missing_runs": inverter.missing_runs,
+              "before_start": inverter.before_start,
               "scheduling": {"applied": applied, "refused": refused}}
     try:
         print(json.dumps(report), flush=True)

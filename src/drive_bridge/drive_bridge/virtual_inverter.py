@@ -127,6 +127,10 @@ class VirtualInverter:
         sent more than a period behind its clock (its Python simulation, not the host, was slow); its
         clock then restarts from that moment, as the host cannot be blamed for periods a real inverter's
         timer would have kept."""
+        self.started = False
+        """A command came in time: the drive runs, and the watchdog counts."""
+        self.before_start = 0
+        """Periods without a command before the drive started (PWM off; docs/inverter-protocol.md)."""
         self.missing_runs = []
         """[first period, periods] of each run of periods in a row without a command in time."""
         self.latencies_s = []
@@ -216,10 +220,16 @@ class VirtualInverter:
 
     def decide(self, j):
         """The voltage of period j [V, αβ]: command(j − d) if it came in time and the bridge switches, else
-        zero (a missing command counts; the watchdog trips after ``watchdog_periods`` in a row)."""
+        zero (a missing command counts; the watchdog trips after ``watchdog_periods`` in a row). The drive
+        starts with the first command in time: periods before it, within ``watchdog_periods`` of the first
+        a command can act in, have PWM off and count as before the start, not as missing."""
         c = j - self.delay
         u_alpha, u_beta, flags, in_time = self.commands.pop(c, (0.0, 0.0, 0, False))
+        if not in_time and not self.started and j < self.delay + self.watchdog_periods:
+            self.before_start += 1
+            return 0.0, 0.0
         if in_time:
+            self.started = True
             self.missing = 0
             self.enabled = bool(flags & ENABLE)
             self.counters["commands"] += 1
@@ -414,8 +424,9 @@ MISSING_RUNS_SHOWN = 20
 def timing_report(inverter, T_s):
     """How the host kept pace with a virtual inverter: periods run, commands missing (late or never
     sent: zero volts), their fraction, latency percentiles [µs] over every command that came (late ones
-    included), the histogram of those latencies (edges in sampling periods and µs) and the runs of missing
-    periods (how many, the longest, the first ones as [time s, periods])."""
+    included), the histogram of those latencies (edges in sampling periods and µs), the runs of missing
+    periods (how many, the longest, the first ones as [time s, periods]) and the periods before the drive
+    started (before its first command in time, PWM off: not missing)."""
     every = np.concatenate([inverter.latencies_s, inverter.late_latencies_s]) * 1e6
     edges = np.asarray(LATENCY_BINS_PER_PERIOD)
     counts, _ = np.histogram(every, bins=edges * T_s * 1e6)
@@ -429,6 +440,7 @@ def timing_report(inverter, T_s):
                                     "counts": [int(c) for c in counts]},
               "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],
               "host_silent_trips": inverter.counters["host_silent_trips"],
+              "periods_before_start": inverter.before_start,
               "missing_runs": missing_runs(inverter.missing_runs, T_s)}
 
 

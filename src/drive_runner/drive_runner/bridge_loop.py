@@ -152,6 +152,24 @@ class _SampleAnswer:
         self.trip_A = trip_current_A(scenario.motor.nameplate)
         self.currents, self.encoder, self.estimate = np.zeros((1, 3)), np.zeros((1, 2)), estimates(1)
         self.inputs = sample_inputs()
+        self.warm_up()
+
+    def warm_up(self):
+        """Load the kernels on copies of the states before the inverter starts: a first call loads a kernel
+        from numba's cache (up to 0.3 s), longer than the bridge's link timeout in lock-step."""
+        host, est = self.host, self.estimate[0]
+        e = host.estimator
+        estimator_block(e.step, e.state.copy(), e.params, 0, 1, self.currents, self.line.copy(), self.encoder,
+                        self.calibration, self.trip_A, self.estimate, self.inputs)
+        corrected_currents(0.0, 0.0, 0.0, self.calibration)
+        controller_step(host.controller_x.copy(), host.controller_z.copy(), host.controller, 0.0, 0.0, 0.0,
+                        est["theta_e_hat"], est["omega_e_hat"], host.speed_ref[0], est["u_inj_alpha"],
+                        est["u_inj_beta"], est["state"], host.tau_feedforward[0])
+        issue_command(self.line.copy(), 0, 0.0, 0.0)
+        write_row(np.zeros(len(LOG_COLUMNS)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                  est["theta_e_hat"], est["omega_e_hat"], 0.0, 0.0, est["u_inj_alpha"], est["u_inj_beta"],
+                  host.speed_ref[0], 0.0, 0.0, 0.0, 0.0, est["eps"], est["signal"], est["state"],
+                  est["injection_amplitude"], est["observer_weight"], est["leader"])
 
     def sample(self, s, bridge):
         """Answer sample ``s``; the samples answered (its k)."""
