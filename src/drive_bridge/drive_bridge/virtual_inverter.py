@@ -66,6 +66,8 @@ class FaultPlan:
     """Hold the frame back and send it after the next one."""
     garbage_every: int = 0
     """Insert random bytes before the frame (resynchronisation; serial only)."""
+    lose_command_every: int = 0
+    """Lose every Nth command message the host sends (to the inverter, an answer that came too late)."""
     seed: int = 1
     counts: dict = field(default_factory=dict)
 
@@ -115,6 +117,7 @@ class VirtualInverter:
         """Periods before this one have their voltage in the plant's delay line."""
         self.last_heard = time.monotonic()
         self.held_back = None
+        self.commands_heard = 0
         self.commands = {}
         """sample → (u_α [V], u_β [V], flags, in time) of each command received and not yet applied."""
         self.bad_frames = 0
@@ -318,6 +321,11 @@ class VirtualInverter:
         first period began; once per sample: a repeat or one for a period already past is discarded), a
         CONTROL carried out."""
         now = self.last_heard = time.monotonic()
+        if isinstance(message, (Command, CommandBlock)) and self.faults.lose_command_every:
+            self.commands_heard += 1
+            if self.commands_heard % self.faults.lose_command_every == 0:
+                self.faults.counts["commands_lost"] = self.faults.counts.get("commands_lost", 0) + 1
+                return
         if isinstance(message, (Command, CommandBlock)):
             if isinstance(message, Command):
                 seq, values = message.seq, ((message.u_alpha, message.u_beta),)

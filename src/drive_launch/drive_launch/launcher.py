@@ -45,7 +45,7 @@ class NamespaceOccupiedError(GraphError):
     """Another drive's nodes are in the namespace asked for."""
 
 
-DRIVE_NODE_NAMES = set(NODES) | {"drive_launcher"}
+DRIVE_NODE_NAMES = set(NODES) | {"drive_launcher", "drive_recorder"}
 DISCOVERY_S = 1.0
 """How long the launcher looks at the graph for another drive in its namespaces before it creates its
 nodes. Discovery of a busy process can take longer (2-3 s measured here); a drive found later is refused
@@ -253,10 +253,10 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
     recorders = [BagWriter(spec.bag) if spec.bag else None for spec in specs]
     workdir = tempfile.TemporaryDirectory(prefix="drive_bridge_")
     inverters = []
-    children, nodes, drivers, drives = [], [], [], []
+    children, nodes, drivers, drives, listeners = [], [], [], [], []
     polling = polled()
     polling.__enter__()
-    ex = None
+    ex = listening = None
     try:
         hop = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN) if any(spec.link for spec in specs) else None
         ex = make_executor(executor, context)
@@ -297,26 +297,34 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                                                   cpus)))
             driver_node = Node("drive_launcher", context=context, namespace=spec.namespace)
             nodes.append(driver_node)
+            listener = Node("drive_recorder", context=context, namespace=spec.namespace)
+            listeners.append(listener)
             driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
-                                    startup_timeout_s, progress if i == 0 else None, recorders[i], inverter)
+                                    startup_timeout_s, progress if i == 0 else None, recorders[i], inverter,
+                                    listener)
             driver.done = Future()
             drives.append(drive)
             drivers.append(driver)
         for node in nodes:
             ex.add_node(node)
+        listening = Listening(make_executor(executor, context), listeners)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
         with real_time_scheduled(rt_priority, cpus) as scheduling, \
                 collector_held() if hold_collector else contextlib.nullcontext():
+            listening.start()
             while not all_done.done():
                 ex.spin_until_future_complete(all_done, timeout_sec=1.0)
+            listening.stop()
         nodes[-1].destroy_timer(watcher)
         results = [_result(driver, drive, record, processes, executor, requested(), hop)
                    for driver, drive in zip(drivers, drives)]
     finally:
         polling.__exit__(None, None, None)
         _stop_children([child for _, child in children])
-        tear_down(ex, nodes, context, inverters, workdir)
+        if listening is not None:
+            listening.stop()
+        tear_down(ex, nodes + listeners, context, inverters, workdir)
         recording_errors = [_close(recorder) for recorder in recorders]
         for lock in locks:
             lock.release()
@@ -324,6 +332,39 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         result.recording_error = error
         result.scheduling = scheduling
     return results
+
+
+class Listening:
+    """The launcher's listeners (what it records, /diagnostics) spun by their own executor on a thread of
+    their own, scheduled below the drive's threads (SCHED_OTHER where the drive runs SCHED_FIFO): what is
+    recorded never waits in, nor delays, the queue of the drive's own callbacks."""
+
+    def __init__(self, executor, nodes):
+        import threading
+        self.executor, self.stopped = executor, threading.Event()
+        for node in nodes:
+            executor.add_node(node)
+        self.thread = threading.Thread(target=self.spin, name="drive_recorder", daemon=True)
+
+    def start(self):
+        self.thread.start()
+
+    def spin(self):
+        import os
+        try:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        except (OSError, AttributeError):
+            pass
+        while not self.stopped.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def stop(self):
+        """Stop spinning (every message taken so far handled), then the executor."""
+        if not self.stopped.is_set():
+            self.stopped.set()
+            if self.thread.is_alive():
+                self.thread.join(5.0)
+            self.executor.shutdown()
 
 
 def tear_down(ex, nodes, context, inverters, workdir):

@@ -1,5 +1,6 @@
 """The launcher's scenario driver: the node that stands in for the dyno and the operator of a simulated
 drive, and records what the graph says."""
+import threading
 import time
 
 import numpy as np
@@ -51,8 +52,11 @@ class ScenarioDriver:
     it starts the inverter at sample 0."""
 
     def __init__(self, node, scenario, record, settle_s, startup_timeout_s, progress, recorder=None,
-                 inverter=None):
+                 inverter=None, listener=None):
         self.node, self.scenario = node, scenario
+        self.listener = listener or node
+        """The node that takes what the graph says (its subscriptions): the launcher spins it on a thread of
+        its own, so that what is recorded never waits in the drive's queue of callbacks."""
         self.n = scenario.n_samples
         self.n_p = scenario.motor.nameplate.n_p
         self.record = record
@@ -66,6 +70,8 @@ class ScenarioDriver:
             self.log[:, COLUMN["tau_load"]] = self.load
         self.load_pub = node.create_publisher(Float64, LOAD_TORQUE, topic_qos(LOAD_TORQUE))
         self.recorder = recorder
+        self.writing = threading.Lock()
+        """The recorder is written from the listener's thread and, at the start, from the driver's."""
         self.inverter = inverter
         self.blocks = scenario.block_samples > 1
         self.carried = BLOCK_TOPIC if self.blocks else {topic: topic for topic in SAMPLE_LOGGED}
@@ -111,7 +117,7 @@ class ScenarioDriver:
                 handler = self.deserializing(cls, handler)
             if self.recorder:
                 handler = self.recording(topic, handler, TOPICS[topic].stamped)
-            self.node.create_subscription(cls, topic, handler, qos, raw=True)
+            self.listener.create_subscription(cls, topic, handler, qos, raw=True)
         if self.recorder:
             for topic in sorted(self.bag_topics() | set(self.recorded_commands)):
                 name = self.node.resolve_topic_name(topic)
@@ -133,7 +139,8 @@ class ScenarioDriver:
         name = self.node.resolve_topic_name(topic)
 
         def callback(data):
-            self.recorder.write(name, data, stamped)
+            with self.writing:
+                self.recorder.write(name, data, stamped)
             if handler:
                 handler(data)
         return callback
@@ -199,8 +206,10 @@ class ScenarioDriver:
             if values is None or (topic != LOAD_TORQUE and self.last_recorded.get(topic) == values[k]):
                 continue
             self.last_recorded[topic] = values[k]
-            self.recorder.write(self.node.resolve_topic_name(topic), serialize_message(Float64(data=float(values[k]))),
-                                False, stamp_ns(k, self.scenario.T_s))
+            with self.writing:
+                self.recorder.write(self.node.resolve_topic_name(topic),
+                                    serialize_message(Float64(data=float(values[k]))), False,
+                                    stamp_ns(k, self.scenario.T_s))
 
     def tick(self):
         now = time.monotonic()
