@@ -669,3 +669,21 @@ def test_a_round_rotor_is_refused_on_diagnostics_over_the_graph(tmp_path):
     assert faults["faults"]["start_refused"] == 1
     assert any("no saliency found" in message for message in faults["messages"])
     assert not (result.log[:, COLUMN["state"]] == TRACKING).any()
+
+
+def test_the_paced_graph_with_its_inverter_apart_and_its_recorder_on_a_thread_records_every_sample(tmp_path):
+    """The paced graph as a robot's computer runs it, with the lever that puts the virtual inverter in a
+    process of its own on the CAN cable (drive_bridge.can_cable) and, with real-time scheduling asked for
+    (granted or refused in one line), the recorder on a thread of its own: every period runs, every sample
+    is recorded, and the periods before the drive's first command stay within the watchdog's grace."""
+    from drive_launch.launcher import DriveSpec, launch_many
+    path = scenario_file(tmp_path, rpm=0.0)
+    spec = DriveSpec(str(path), "/apart", duration_s=0.3, link="can", paced=True, inverter_apart=True,
+                     extra_parameters={"block_samples": 10})
+    result, = launch_many([spec], rt_priority=50, cpus={1})
+    n = result.scenario.n_samples
+    assert result.timing["periods"] == n and result.log.shape[0] == n
+    for name in ("i_a_meas", "theta_e_hat", "u_alpha"):
+        assert np.isfinite(result.log[:, COLUMN[name]]).all(), name
+    assert result.timing["periods_before_start"] <= 30
+    assert len(result.scheduling["applied"]) + len(result.scheduling["refused"]) == 2

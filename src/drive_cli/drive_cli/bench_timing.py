@@ -169,6 +169,6 @@ def add_bench_commands(bench_sub):
     bench_bridge.add_argument("--levers", metavar="L[,L...]",
                               help="with --graph: soft real-time levers, measured one at a time: plain, collector "
                                    "(default), collector+cpu1, collector+fifo, collector+fifo+cpu1, "
-                                   "collector+fifo+cpu1+inverter_in_host")
+                                   "collector+fifo+cpu1+inverter_apart")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)

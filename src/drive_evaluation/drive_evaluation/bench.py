@@ -275,11 +275,11 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
 
 REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {}, "collector+cpu1": {"cpus": {1}},
                     "collector+fifo": {"rt_priority": 50}, "collector+fifo+cpu1": {"rt_priority": 50, "cpus": {1}},
-                    "collector+fifo+cpu1+inverter_in_host": {"rt_priority": 50, "cpus": {1}, "inverter_apart": False}}
+                    "collector+fifo+cpu1+inverter_apart": {"rt_priority": 50, "cpus": {1}, "inverter_apart": True}}
 """The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
 "Real time"): none; the garbage collector held out of the sample path (the default); and the process on
-CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1). The virtual inverter runs in a process of
-its own (on the other CPU where the graph has one) but in the last, where it is a thread of the graph's."""
+CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1). The virtual inverter runs on a thread of the
+graph's process but in the last, where it has a process of its own (on the CPU the graph leaves)."""
 
 
 def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None,

@@ -188,15 +188,16 @@ class DriveSpec:
     drive_bridge node in the plant's place."""
     paced: bool = False
     """With a link: the virtual inverter on its own clock at the sampling rate, never waiting."""
-    inverter_apart: bool = True
-    """Paced: the virtual inverter in a process of its own (as a real one is a device of its own); False
-    puts it on a thread of the launcher's process (only to measure what the separation gives)."""
+    inverter_apart: bool = False
+    """Paced: the virtual inverter in a process of its own (as a real one is a device of its own) instead of
+    a thread of the launcher's: on this 2-core machine it makes the graph later, not earlier (docs/results.md,
+    2026-11-26), so it is a lever to measure, not the default."""
 
 
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
            progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None,
-           hold_collector=True, inverter_apart=True):
+           hold_collector=True, inverter_apart=False):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
@@ -236,8 +237,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             raise GraphError(f"unknown virtual link {spec.link!r} (known: {', '.join(LINKS)})")
         if spec.link == "can" and processes == "separate" and not (spec.paced and spec.inverter_apart):
             raise GraphError("a virtual CAN bus (python-can's) lives in one process: it needs the nodes "
-                             "composed, a pty link, or --paced (the inverter in a process of its own on a CAN "
-                             "cable between processes)")
+                             "composed, or a pty link")
     locks = []
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
@@ -307,15 +307,21 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             drivers.append(driver)
         for node in nodes:
             ex.add_node(node)
-        listening = Listening(make_executor(executor, context), listeners)
+        if rt_priority:
+            listening = Listening(make_executor(executor, context), listeners)
+        else:
+            for listener in listeners:
+                ex.add_node(listener)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
         with real_time_scheduled(rt_priority, cpus) as scheduling, \
                 collector_held() if hold_collector else contextlib.nullcontext():
-            listening.start()
+            if listening:
+                listening.start()
             while not all_done.done():
                 ex.spin_until_future_complete(all_done, timeout_sec=1.0)
-            listening.stop()
+            if listening:
+                listening.stop()
         nodes[-1].destroy_timer(watcher)
         results = [_result(driver, drive, record, processes, executor, requested(), hop)
                    for driver, drive in zip(drivers, drives)]
@@ -335,9 +341,11 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
 
 
 class Listening:
-    """The launcher's listeners (what it records, /diagnostics) spun by their own executor on a thread of
-    their own, scheduled below the drive's threads (SCHED_OTHER where the drive runs SCHED_FIFO): what is
-    recorded never waits in, nor delays, the queue of the drive's own callbacks."""
+    """With real-time scheduling, the launcher's listeners (what it records, /diagnostics) spun by their own
+    executor on a thread of their own, below the drive's SCHED_FIFO threads (SCHED_OTHER): what is recorded
+    never waits in, nor delays, the queue of the drive's own callbacks. Without it the listeners share the
+    drive's executor: two threads of one interpreter at the same priority on two CPUs made the graph later
+    (docs/results.md, 2026-11-26)."""
 
     def __init__(self, executor, nodes):
         import threading
