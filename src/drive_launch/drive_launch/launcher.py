@@ -307,17 +307,16 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             drivers.append(driver)
         for node in nodes:
             ex.add_node(node)
-        if rt_priority:
-            listening = Listening(make_executor(executor, context), listeners)
-        else:
-            for listener in listeners:
-                ex.add_node(listener)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
         with real_time_scheduled(rt_priority, cpus) as scheduling, \
                 collector_held() if hold_collector else contextlib.nullcontext():
-            if listening:
+            if any(line.startswith("SCHED_FIFO") for line in scheduling["applied"]):
+                listening = Listening(make_executor(executor, context), listeners)
                 listening.start()
+            else:
+                for listener in listeners:
+                    ex.add_node(listener)
             while not all_done.done():
                 ex.spin_until_future_complete(all_done, timeout_sec=1.0)
             if listening:
@@ -341,7 +340,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
 
 
 class Listening:
-    """With real-time scheduling, the launcher's listeners (what it records, /diagnostics) spun by their own
+    """Where the drive runs SCHED_FIFO, the launcher's listeners (what it records, /diagnostics) spun by their own
     executor on a thread of their own, below the drive's SCHED_FIFO threads (SCHED_OTHER): what is recorded
     never waits in, nor delays, the queue of the drive's own callbacks. Without it the listeners share the
     drive's executor: two threads of one interpreter at the same priority on two CPUs made the graph later
