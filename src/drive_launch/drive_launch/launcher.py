@@ -464,6 +464,9 @@ def _watch(drivers, children, all_done):
         for role, child in children:
             if child.poll() is not None:
                 driver.finish(f"node process {role} exited with code {child.returncode}")
+        inverter_process = getattr(driver.inverter, "process", None)
+        if inverter_process is not None and inverter_process.poll() is not None:
+            driver.finish(f"the virtual inverter's process exited with code {inverter_process.returncode}")
     if all(driver.done.done() for driver in drivers) and not all_done.done():
         all_done.set_result(True)
 
