@@ -83,13 +83,13 @@ def _graph_real_time(args, links):
         if lever not in REAL_TIME_LEVERS:
             raise CommandLineError(f"--levers: {lever!r} is not one of {', '.join(REAL_TIME_LEVERS)}")
     _at_least_one(("--repeats", args.repeats))
-    print(f"drive launch {args.scenario} --link L --paced, {args.repeats} runs per link and lever"
-          f"{', one core kept busy by another process' if args.load else ''}", file=sys.stderr)
-    blocks = args.block_samples or PACED_BLOCK_SAMPLES
+    blocks = link_block_samples(True, args.block_samples)
     from drive_bridge.inverter_protocol import MAX_BLOCK
     if not 2 <= blocks <= MAX_BLOCK:
         raise CommandLineError(f"--block-samples: the paced graph runs in blocks of 2 to {MAX_BLOCK} samples, "
                                f"not {blocks}")
+    print(f"drive launch {args.scenario} --link L --paced, {args.repeats} runs per link and lever"
+          f"{', one core kept busy by another process' if args.load else ''}", file=sys.stderr)
     report = graph_real_time(args.scenario, links, args.repeats, args.load, levers,
                              progress=lambda line: print(line, file=sys.stderr), block_samples=blocks)
     if args.json:

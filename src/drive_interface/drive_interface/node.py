@@ -169,7 +169,7 @@ class ContractNode(Node):
         if now - self.fault_logged_at.get(kind, -math.inf) >= FAULT_LOG_PERIOD_S:
             self.fault_logged_at[kind] = now
             log_line(self, LoggingSeverity.ERROR, message)
-        if first and time.monotonic() - self.diagnostics_sent_at >= FAULT_REPORT_MIN_S:
+        if first and now - self.diagnostics_sent_at >= FAULT_REPORT_MIN_S:
             self.publish_diagnostics()
 
     def complete_run(self):
