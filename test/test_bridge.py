@@ -9,6 +9,7 @@ import pytest
 
 from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.inverter_protocol import (
+    COMMAND_MISSING,
     ENABLE,
     ENCODER_VALID,
     OVERCURRENT,
@@ -282,6 +283,23 @@ def test_a_telemetry_block_becomes_its_samples_and_commands_go_back_as_one_block
     command = link.sent[-1]
     assert isinstance(command, CommandBlock) and command.seq == 20 and command.flags == ENABLE
     assert command.samples == tuple((i, 0) for i in range(10))
+
+
+def test_the_can_fd_frames_of_a_block_come_as_one_block_and_say_when_it_ran_at_zero_volts():
+    """A block of 10 on CAN FD comes as frames of 6 and 4 samples: the host gives one block of 10 (its
+    status: the periods at zero volts); the first part of a block whose rest never comes is given as it
+    is once nothing else comes."""
+    hello = Hello(0, 0, 2, 10, 100_000, 0.001, 0.002, 10.0, 30)
+    parts = [TelemetryBlock(20, 24000, COMMAND_MISSING, ((1, 2, -3, 0),) * 6),
+             TelemetryBlock(26, 24000, COMMAND_MISSING, ((4, 5, -9, 0),) * 4),
+             TelemetryBlock(30, 24000, 0, ((1, 1, -2, 0),) * 6)]
+    bridge = InverterBridge(ScriptedLink([hello, *parts]), block_samples=10)
+    [block] = bridge.poll_blocks(0.01)
+    assert block.k0 == 20 and len(block) == 10 and block.at_zero_volts
+    assert block.currents_A[6] == pytest.approx([0.004, 0.005, -0.009])
+    [rest] = bridge.poll_blocks(0.01)
+    assert rest.k0 == 30 and len(rest) == 6 and not rest.at_zero_volts
+    assert bridge.counters["samples"] == 16 and bridge.counters["dropped"] == 0
 
 
 @pytest.fixture(scope="module")

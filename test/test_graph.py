@@ -687,3 +687,18 @@ def test_the_paced_graph_with_its_inverter_apart_and_its_recorder_on_a_thread_re
         assert np.isfinite(result.log[:, COLUMN[name]]).all(), name
     assert result.timing["periods_before_start"] <= 30
     assert len(result.scheduling["applied"]) + len(result.scheduling["refused"]) == 2
+
+
+def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_feels_a_lost_block():
+    """Behind the paced inverter every 37th command block is lost (zero volts for its periods, as for a late
+    one). The bridge publishes `zero_voltage` for each block the inverter reports so, before its currents;
+    the estimator pairs those periods with zero volts, not their commands: ours stays near its targets
+    (0.023 / 0.09 rad RMS / peak measured; 0.12 / 0.5 when the estimator is not told)."""
+    from drive_evaluation.metrics import compute_metrics
+    result = launch("wang_100rpm", namespace="/lossy", link="can", paced=True, lose_command_every=37,
+                    extra_parameters={"block_samples": 10}, rt_priority=50, cpus={1})
+    metrics = compute_metrics(result)
+    assert 0.025 <= result.timing["late_fraction"] <= 0.05
+    told = result.diagnostics["/lossy/hf_estimator"]["values"]["zero_voltage_periods"]
+    assert int(told) >= result.timing["missing"]
+    assert not metrics["lock_lost"] and metrics["angle_error_rms"] < 0.04 and metrics["angle_error_peak"] < 0.2

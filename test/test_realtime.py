@@ -5,6 +5,7 @@ import gc
 import os
 import sys
 
+import numpy as np
 import pytest
 
 from drive_interface import realtime
@@ -58,3 +59,19 @@ def test_the_real_time_bench_and_launch_check_their_options():
     run = subprocess.run(drive + ["launch", "wang_100rpm", "--rt-priority", "100"], capture_output=True, text=True,
                          timeout=60)
     assert run.returncode == 2 and "--rt-priority: a SCHED_FIFO priority 1-99" in run.stderr
+    run = subprocess.run(drive + ["bench", "bridge", "--paced", "--graph", "--lose-command-every", "-1"],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "--lose-command-every: N ≥ 0" in run.stderr
+
+
+def test_the_platform_probe_wakes_every_period_and_counts_the_late_ones():
+    """`drive bench platform`'s probe: one wake-up per period over the time asked, none early, and the
+    figures (percentiles, stalls over 0.5 ms) taken from those latencies."""
+    late, scheduling = realtime.wakeup_latencies(0.2, period_s=1e-3)
+    assert len(late) == 200 and (late >= 0.0).all() and scheduling == {"applied": [], "refused": []}
+    report = realtime.stall_report(late, 1e-3)
+    assert report["seconds"] == pytest.approx(0.2) and report["stalls_over_0_5_ms"] == (late > 5e-4).sum()
+    assert report["latency_p50_us"] <= report["latency_p99_us"] <= report["latency_max_us"]
+    fake = realtime.stall_report(np.array([1e-5, 2e-3, 7e-4, 1e-5]), 1e-3)
+    assert fake["stalls_over_0_5_ms"] == 2 and fake["stalls_over_1_ms"] == 1 and fake["stalls_per_s"] == 500.0
+    assert fake["stalled_ms"] == pytest.approx(2.7)

@@ -25,7 +25,16 @@ from std_srvs.srv import Trigger
 from control_math.frames import wrap
 from drive_interface.node import ContractNode, finite, log_line, run_node, stamp, topic_qos
 from drive_interface.stamps import sample_at, sample_of, stamp_parts
-from drive_interface.topics import ANGLE_ERROR, CURRENTS, ROTOR_ESTIMATE, ROTOR_STATE, TOPICS, VOLTAGE_COMMAND, block
+from drive_interface.topics import (
+    ANGLE_ERROR,
+    CURRENTS,
+    ROTOR_ESTIMATE,
+    ROTOR_STATE,
+    TOPICS,
+    VOLTAGE_COMMAND,
+    ZERO_VOLTAGE,
+    block,
+)
 from drive_interface.wire import BlockWire
 
 from .inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
@@ -44,6 +53,7 @@ PARAMETERS = {
     "block_samples": (1, "samples per TELEMETRY_BLOCK the inverter announces, N (1: a frame per sample)"),
 }
 HISTORY_SAMPLES = 64
+NO_CHANNEL = np.zeros(0)
 
 
 class InverterBridgeNode(ContractNode):
@@ -68,6 +78,9 @@ class InverterBridgeNode(ContractNode):
         self.offer_clock()
         self.clock_pub = self.claim_clock()
         self.angle_error_pub = self.create_publisher(Vector3Stamped, ANGLE_ERROR, topic_qos(ANGLE_ERROR))
+        self.zero_voltage_pub = self.sample_publisher(ZERO_VOLTAGE)
+        self.zero_voltage_wire = BlockWire()
+        self.zero_voltage_periods = 0
         if self.block_samples > 1:
             self.currents_pub = self.sample_publisher(block(CURRENTS))
             self.rotor_state_pub = self.sample_publisher(block(ROTOR_STATE))
@@ -75,7 +88,6 @@ class InverterBridgeNode(ContractNode):
             self.sample_subscription(block(ROTOR_ESTIMATE), self.on_rotor_estimate_block)
             self.currents_wire = BlockWire(TOPICS[CURRENTS].frame_id)
             self.rotor_state_wire = BlockWire()
-            self.block = []
         else:
             self.currents_pub = self.create_publisher(Vector3Stamped, CURRENTS, topic_qos(CURRENTS))
             self.rotor_state_pub = self.create_publisher(JointState, ROTOR_STATE, topic_qos(ROTOR_STATE))
@@ -95,12 +107,12 @@ class InverterBridgeNode(ContractNode):
         self.thread.start()
 
     def read_link(self):
-        """The link thread: poll, publish each sample, report new faults."""
+        """The link thread: poll, publish each sample (each whole block), report new faults."""
         currents, rotor, clock = Vector3Stamped(), JointState(name=["rotor"]), Clock()
         currents.header.frame_id = TOPICS[CURRENTS].frame_id
         previous, logged = None, ""
         while self.running:
-            samples = self.bridge.poll(0.02)
+            blocks = self.bridge.poll_blocks(0.02)
             if not self.bridge.open and self.bridge.last_error not in ("", logged):
                 logged = self.bridge.last_error
                 log_line(self, LoggingSeverity.ERROR,
@@ -109,11 +121,13 @@ class InverterBridgeNode(ContractNode):
             if hello is not None and self.T_s is None:
                 self.configure(hello)
             if self.block_samples > 1:
-                for s in samples:
-                    self.gather(s, clock)
+                for b in blocks:
+                    self.publish_block(b, clock)
                 self.report_new_faults()
                 continue
-            for s in samples:
+            for b in blocks:
+                self.report_zero_volts(b)
+            for s in (s for b in blocks for s in b.samples()):
                 self.k = s.k
                 t = stamp(s.k, self.T_s)
                 if self.clock_pub:
@@ -133,26 +147,19 @@ class InverterBridgeNode(ContractNode):
                 self.currents_pub.publish(currents)
             self.report_new_faults()
 
-    def gather(self, s, clock):
-        """With blocks: collect sample ``s``; at a whole block's last sample publish `/clock` (its first
-        sample), `rotor_state_block` (when the encoder is valid throughout) and `currents_block`."""
-        N = self.block_samples
-        if s.k % N == 0:
-            self.block = [s]
-        elif self.block and self.block[-1].k == s.k - 1:
-            self.block.append(s)
-        else:
-            self.block = []
-        if len(self.block) < N:
+    def publish_block(self, b, clock):
+        """A whole block (its first sample a multiple of N, N samples; a part of one is dropped): `/clock`
+        (its first sample), `rotor_state_block` (when the encoder is valid throughout) and `currents_block`."""
+        N, k0 = self.block_samples, b.k0
+        self.k = k0 + len(b) - 1
+        if len(b) != N or k0 % N:
             return
-        block, self.block = self.block, []
-        k0 = block[0].k
-        self.k = block[-1].k
+        self.report_zero_volts(b)
         sec, nanosec = stamp_parts(k0, self.T_s)
         if self.clock_pub:
             clock.clock = stamp(k0, self.T_s)
             self.clock_pub.publish(clock)
-        theta = np.array([b.theta_m for b in block])
+        theta = b.theta_m
         if not np.isnan(theta).any():
             before = self.history.get(k0 - N)
             previous = before[0][-1] if before is not None else theta[0]
@@ -161,9 +168,16 @@ class InverterBridgeNode(ContractNode):
             self.history.pop(k0 - HISTORY_SAMPLES * N, None)
             self.rotor_state_pub.publish(self.rotor_state_wire.encode(sec, nanosec, theta, velocity,
                                                                       np.full(N, np.nan)))
-        currents = np.array([(b.i_a, b.i_b, b.i_c) for b in block])
-        self.currents_pub.publish(self.currents_wire.encode(sec, nanosec, currents[:, 0], currents[:, 1],
-                                                            currents[:, 2]))
+        i = b.currents_A
+        self.currents_pub.publish(self.currents_wire.encode(sec, nanosec, i[:, 0], i[:, 1], i[:, 2]))
+
+    def report_zero_volts(self, b):
+        """`zero_voltage` for a block whose periods ran at zero volts, before its currents: the estimator
+        then pairs them with zero, not with their commands."""
+        if b.at_zero_volts and self.T_s is not None:
+            self.zero_voltage_periods += len(b)
+            self.zero_voltage_pub.publish(self.zero_voltage_wire.encode(*stamp_parts(b.k0, self.T_s),
+                                                                        np.ones(len(b)), NO_CHANNEL))
 
     def on_voltage_block(self, sec, nanosec, u_alpha, u_beta, _):
         if self.T_s is None:
@@ -248,6 +262,7 @@ class InverterBridgeNode(ContractNode):
     def status_values(self):
         b = self.bridge
         return {"link": "lost" if b.lost else "up", "inverter_status": ",".join(b.status_names()) or "ok",
+                "zero_voltage_periods": self.zero_voltage_periods,
                 "last_sample": b.last_seq if b.last_seq is not None else -1,
                 **b.counters, **{f"frame_errors.{k}": v for k, v in b.frame_errors().items()}}
 

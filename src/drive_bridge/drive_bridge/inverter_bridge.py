@@ -11,12 +11,14 @@ import numpy as np
 from .inverter_link import LinkDown
 from .inverter_protocol import (
     CLEARED_BY_HOST,
+    COMMAND_MISSING,
     CONTROL_CLEAR_FAULTS,
     CONTROL_DISABLE,
     CONTROL_SEND_HELLO,
     ENABLE,
     ENCODER_VALID,
     OVERCURRENT,
+    PWM_OFF,
     STATUS_NAMES,
     Command,
     CommandBlock,
@@ -43,6 +45,35 @@ class BridgeSample:
     theta_m: float
     """Encoder angle, continuous [rad, mechanical]; NaN without a valid encoder."""
     status: int
+
+
+@dataclass(frozen=True, eq=False)
+class BridgeBlock:
+    """Consecutive samples k0 … k0 + n − 1 as one TELEMETRY_BLOCK (or one TELEMETRY: n = 1) brought them."""
+
+    k0: int
+    currents_A: np.ndarray
+    """(n, 3) phase currents i_a, i_b, i_c [A]."""
+    theta_m: np.ndarray
+    """(n,) encoder angle, continuous [rad, mechanical]; NaN without a valid encoder."""
+    u_dc_V: float
+    status: int
+    """The inverter's status word (a block's: as at its last sample)."""
+
+    def __len__(self):
+        return len(self.theta_m)
+
+    @property
+    def at_zero_volts(self):
+        """True when the periods k0 … k0 + n − 1 ran at zero volts, not as commanded: the inverter reports a
+        command missing or PWM off (docs/inverter-protocol.md, "Timing"; a block's status covers all its
+        periods)."""
+        return bool(self.status & (COMMAND_MISSING | PWM_OFF))
+
+    def samples(self):
+        """The block sample by sample."""
+        return [BridgeSample(self.k0 + i, i_a, i_b, i_c, self.u_dc_V, theta, self.status)
+                for i, ((i_a, i_b, i_c), theta) in enumerate(zip(self.currents_A.tolist(), self.theta_m.tolist()))]
 
 
 class InverterBridge:
@@ -74,6 +105,8 @@ class InverterBridge:
         self.safe = False
         self.clear_sent = False
         self.next_open_at = 0.0
+        self.part = None
+        """The first samples of a block whose rest has not come yet (CAN FD frames)."""
         self.send_lock = threading.Lock()
 
     def frame_errors(self):
@@ -82,6 +115,12 @@ class InverterBridge:
 
     def poll(self, timeout_s):
         """Samples received within ``timeout_s`` (in order, duplicates and late ones dropped)."""
+        return [sample for block in self.poll_blocks(timeout_s) for sample in block.samples()]
+
+    def poll_blocks(self, timeout_s):
+        """BridgeBlocks received within ``timeout_s``, one per block of N samples (a TELEMETRY_BLOCK, or its
+        CAN FD frames put together) or per TELEMETRY; in order, duplicates and late ones dropped. A part of a
+        block is held until the rest comes, and given as it is when something else comes or nothing does."""
         now = time.monotonic()
         if not self.open:
             if now < self.next_open_at:
@@ -95,7 +134,7 @@ class InverterBridge:
         except LinkDown as error:
             self._link_down(str(error))
             return []
-        samples = []
+        blocks = []
         for message in messages:
             if isinstance(message, Hello) and message.block_samples != self.block_samples:
                 self.counters["block_mismatch"] += 1
@@ -106,12 +145,29 @@ class InverterBridge:
                 self.hello = message
             elif isinstance(message, (Telemetry, TelemetryBlock)) and not (self.hello is None
                                                                           and self.counters["block_mismatch"]):
-                for telemetry in _per_sample(message):
-                    sample = self._telemetry(telemetry)
-                    if sample is not None:
-                        samples.append(sample)
+                block = self._telemetry(*_entries(message))
+                if block is not None:
+                    blocks.extend(self._assemble(block))
+        if not messages and self.part is not None:
+            blocks.append(self.part)
+            self.part = None
         self._check_timeouts()
-        return samples
+        return blocks
+
+    def _assemble(self, block):
+        """The whole blocks ``block`` completes (with the part held before it), in order."""
+        N, part, done = self.block_samples, self.part, []
+        self.part = None
+        if part is not None and block.k0 == part.k0 + len(part) and block.k0 // N == part.k0 // N:
+            block = BridgeBlock(part.k0, np.vstack((part.currents_A, block.currents_A)),
+                                np.concatenate((part.theta_m, block.theta_m)), block.u_dc_V, block.status)
+        elif part is not None:
+            done.append(part)
+        if (block.k0 + len(block)) % N:
+            self.part = block
+        else:
+            done.append(block)
+        return done
 
     def _open(self):
         try:
@@ -134,14 +190,18 @@ class InverterBridge:
             self.lost = True
             self.counters["link_lost"] += 1
 
-    def _telemetry(self, t):
+    def _telemetry(self, seq, entries, u_dc, status):
+        """The BridgeBlock of samples seq … (``entries``: their (i_a, i_b, i_c, encoder) counts), or None
+        for one before HELLO, a repeat or a late one; every gap counted as dropped samples."""
+        n = len(entries)
         if self.hello is None:
-            self.counters["before_hello"] += 1
-            if self.counters["before_hello"] % 100 == 1:
+            before = self.counters["before_hello"]
+            self.counters["before_hello"] += n
+            if (before + n - 1) // 100 != (before - 1) // 100:
                 self._send(Control(CONTROL_SEND_HELLO))
             return None
         if self.last_seq is not None:
-            step = (t.seq - self.last_seq) % 2 ** 32
+            step = (seq - self.last_seq) % 2 ** 32
             if step == 0:
                 self.counters["duplicated"] += 1
                 return None
@@ -149,31 +209,33 @@ class InverterBridge:
                 self.counters["reordered"] += 1
                 return None
             self.counters["dropped"] += step - 1
-            if t.seq < self.last_seq:
+            if seq < self.last_seq:
                 self.k_offset += 2 ** 32
-        self.last_seq = t.seq
+        k0 = self.k_offset + seq
+        if seq + n > 2 ** 32:
+            self.k_offset += 2 ** 32
+        self.last_seq = (seq + n - 1) % 2 ** 32
         now = time.monotonic()
         self.last_telemetry_at = now
         if self.lost:
             self.lost = False
             self.last_command_at = None
-        new_faults = t.status & ~self.status & (OVERCURRENT | CLEARED_BY_HOST)
+        new_faults = status & ~self.status & (OVERCURRENT | CLEARED_BY_HOST)
         self.counters["inverter_faults"] += bin(new_faults).count("1")
-        self.status = t.status
-        if not t.status & CLEARED_BY_HOST:
+        self.status = status
+        if not status & CLEARED_BY_HOST:
             self.clear_sent = False
-        self.counters["samples"] += 1
+        self.counters["samples"] += n
         h = self.hello
-        theta = math.nan
-        if t.status & ENCODER_VALID:
-            turn = t.encoder / 65536.0 * 2.0 * math.pi
-            if math.isnan(self.theta_m):
-                theta = turn
-            else:
-                theta = self.theta_m + math.remainder(turn - self.theta_m, 2.0 * math.pi)
-        self.theta_m = theta
-        return BridgeSample(self.k_offset + t.seq, t.i_a * h.current_lsb_A, t.i_b * h.current_lsb_A,
-                            t.i_c * h.current_lsb_A, t.u_dc * h.voltage_lsb_V, theta, t.status)
+        counts = np.array(entries, dtype=float)
+        theta = np.full(n, math.nan)
+        if status & ENCODER_VALID:
+            previous = self.theta_m
+            for i, turn in enumerate((counts[:, 3] * (2.0 * math.pi / 65536.0)).tolist()):
+                previous = turn if math.isnan(previous) else previous + math.remainder(turn - previous, 2.0 * math.pi)
+                theta[i] = previous
+        self.theta_m = theta[-1]
+        return BridgeBlock(k0, counts[:, :3] * h.current_lsb_A, theta, u_dc * h.voltage_lsb_V, status)
 
     def _check_timeouts(self):
         now = time.monotonic()
@@ -254,12 +316,11 @@ class InverterBridge:
         self.open = False
 
 
-def _per_sample(message):
-    """TELEMETRY of each sample of a TELEMETRY_BLOCK (u_dc and status as at its last sample)."""
+def _entries(message):
+    """(seq, ((i_a, i_b, i_c, encoder), ...), u_dc, status) of a TELEMETRY or a TELEMETRY_BLOCK."""
     if isinstance(message, Telemetry):
-        return (message,)
-    return [Telemetry((message.seq + i) % 2 ** 32, i_a, i_b, i_c, message.u_dc, encoder, message.status)
-            for i, (i_a, i_b, i_c, encoder) in enumerate(message.samples)]
+        return message.seq, ((message.i_a, message.i_b, message.i_c, message.encoder),), message.u_dc, message.status
+    return message.seq, message.samples, message.u_dc, message.status
 
 
 def _int16(value):

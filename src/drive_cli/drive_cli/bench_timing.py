@@ -1,7 +1,9 @@
-"""``drive bench throughput|graph|blocks|bridge``: how fast the drive runs, in one process, over the ROS
-graph and through the inverter bridge, with the hop cost beside every real-time figure."""
+"""``drive bench throughput|graph|blocks|bridge|platform``: how fast the drive runs, in one process, over the ROS
+graph and through the inverter bridge, with the hop cost beside every real-time figure, and the
+machine's own wake-up floor."""
 import sys
 
+from drive_interface.realtime import add_scheduling_arguments
 from drive_scenarios.scenario import PACED_BLOCK_SAMPLES, link_block_samples, load_scenario
 
 from .options import CommandLineError, block_sizes, duration_arg, estimator_list, exit_code, finite_float, print_json
@@ -83,15 +85,20 @@ def _graph_real_time(args, links):
         if lever not in REAL_TIME_LEVERS:
             raise CommandLineError(f"--levers: {lever!r} is not one of {', '.join(REAL_TIME_LEVERS)}")
     _at_least_one(("--repeats", args.repeats))
+    if args.lose_command_every < 0 or (args.lose_command_every and any("inverter_apart" in lever for lever in levers)):
+        raise CommandLineError(f"--lose-command-every: N ≥ 0, with the inverter in the launcher's process (not "
+                               f"inverter_apart), not {args.lose_command_every}")
     blocks = link_block_samples(True, args.block_samples)
     from drive_bridge.inverter_protocol import MAX_BLOCK
     if not 2 <= blocks <= MAX_BLOCK:
         raise CommandLineError(f"--block-samples: the paced graph runs in blocks of 2 to {MAX_BLOCK} samples, "
                                f"not {blocks}")
+    lost = f", every {args.lose_command_every}th command block lost" if args.lose_command_every else ""
     print(f"drive launch {args.scenario} --link L --paced, {args.repeats} runs per link and lever"
-          f"{', one core kept busy by another process' if args.load else ''}", file=sys.stderr)
+          f"{', one core kept busy by another process' if args.load else ''}{lost}", file=sys.stderr)
     report = graph_real_time(args.scenario, links, args.repeats, args.load, levers,
-                             progress=lambda line: print(line, file=sys.stderr), block_samples=blocks)
+                             progress=lambda line: print(line, file=sys.stderr), block_samples=blocks,
+                             lose_command_every=args.lose_command_every)
     if args.json:
         print_json(report)
     return exit_code(report["interrupted"])
@@ -105,7 +112,7 @@ def cmd_bench_bridge(args):
     for link in links:
         if link not in ("pty", "can"):
             raise CommandLineError(f"--links: 'pty' and/or 'can', not {link!r}")
-    if args.graph or args.load or args.levers:
+    if args.graph or args.load or args.levers or args.lose_command_every:
         return _graph_real_time(args, links)
     duration = args.duration if args.duration is not None or args.paced else 1.0
     duration_arg(duration, load_scenario(args.scenario).T_s)
@@ -123,8 +130,36 @@ def cmd_bench_bridge(args):
     return 0
 
 
+def cmd_bench_platform(args):
+    """bench platform: how late a SCHED_FIFO thread wakes on this machine, with nothing of the drive running."""
+    import subprocess
+
+    from drive_interface.realtime import stall_report, wakeup_latencies
+
+    _at_least_one(("--seconds", args.seconds))
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if args.load else None
+    try:
+        late, scheduling = wakeup_latencies(args.seconds, 1e-3, args.rt_priority, args.cpus)
+    finally:
+        if busy is not None:
+            busy.kill()
+            busy.wait()
+    for line in scheduling["refused"]:
+        print(f"drive: warning: {line}", file=sys.stderr)
+    report = {"benchmark": "platform", "load": args.load, "scheduling": scheduling,
+              **stall_report(late, 1e-3)}
+    if args.json:
+        print_json(report)
+    else:
+        print(f"{report['wakeups']} wake-ups every 1 ms ({', '.join(scheduling['applied']) or 'normal scheduling'}"
+              f"{', one core kept busy' if args.load else ''}): late p50 {report['latency_p50_us']:.0f} µs, "
+              f"p99 {report['latency_p99_us']:.0f} µs, max {report['latency_max_us']:.0f} µs; "
+              f"{report['stalls_over_0_5_ms']} stalls over 0.5 ms ({report['stalls_over_1_ms']} over 1 ms)")
+    return 0
+
+
 def add_bench_commands(bench_sub):
-    """bench throughput, graph, blocks, bridge."""
+    """bench throughput, graph, blocks, bridge, platform."""
     tp = bench_sub.add_parser("throughput", help="closed-loop samples/s in one process, per estimator")
     tp.add_argument("--estimators", help="comma-separated (default: all)")
     tp.add_argument("--samples", type=int, default=1_000_000)
@@ -170,5 +205,15 @@ def add_bench_commands(bench_sub):
                               help="with --graph: soft real-time levers, measured one at a time: plain, collector "
                                    "(default), collector+cpu1, collector+fifo, collector+fifo+cpu1, "
                                    "collector+fifo+cpu1+inverter_apart")
+    bench_bridge.add_argument("--lose-command-every", type=int, default=0, metavar="N",
+                              help="with --graph: the inverter loses every Nth command block (as if late: zero "
+                                   "volts), to measure how ours degrades")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
+    platform = bench_sub.add_parser("platform", help="the machine's own floor: how late a SCHED_FIFO thread "
+                                                     "wakes every 1 ms, nothing of the drive running")
+    platform.add_argument("--seconds", type=finite_float, default=15.0)
+    platform.add_argument("--load", action="store_true", help="another process keeps one core busy meanwhile")
+    add_scheduling_arguments(platform)
+    platform.add_argument("--json", action="store_true")
+    platform.set_defaults(func=cmd_bench_platform)

@@ -283,19 +283,22 @@ graph's process but in the last, where it has a process of its own (on the CPU t
 
 
 def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None,
-                    block_samples=PACED_BLOCK_SAMPLES):
+                    block_samples=PACED_BLOCK_SAMPLES, lose_command_every=0):
     """`drive bench bridge --paced --graph`: the robot's configuration, `drive launch --link L --paced`
     (the composed graph behind the virtual inverter on its own clock, blocks of ``block_samples``), run
     ``repeats`` times per link and lever; with ``load`` another process keeps one core busy meanwhile. Per
     run: late periods, watchdog trips, lock losses, ours' angle error and the latencies in µs and in hops
-    (each run measures the rclpy hop beside it). A signal stops it; what was done is returned."""
+    (each run measures the rclpy hop beside it); ``lose_command_every``: the inverter loses every Nth command
+    block (ours' degradation). A signal stops it; what was done is returned."""
     from drive_launch.launcher import launch
 
     from .metrics import compute_metrics
+    from .speed_range import meets_targets
 
     scenario = load_scenario(scenario_ref)
     report = {"benchmark": "graph_real_time", "scenario": scenario.name, "samples": scenario.n_samples,
-              "block_samples": block_samples, "repeats": repeats, "load": load, "rows": [], "interrupted": 0}
+              "block_samples": block_samples, "repeats": repeats, "load": load,
+              "lose_command_every": lose_command_every, "rows": [], "interrupted": 0}
     busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if load else None
     try:
         with interrupt.polled():
@@ -305,12 +308,13 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                     for _ in range(repeats):
                         result = launch(scenario_ref, record=True, link=link, paced=True,
                                         extra_parameters={"block_samples": block_samples},
-                                        **REAL_TIME_LEVERS[lever])
+                                        lose_command_every=lose_command_every, **REAL_TIME_LEVERS[lever])
                         report["interrupted"] = result.interrupted or interrupt.requested()
                         if report["interrupted"]:
                             return report
                         metrics, t = compute_metrics(result), result.timing
                         runs.append({"late_fraction": t["late_fraction"], "watchdog_trips": t["watchdog_trips"],
+                                     "meets_targets": meets_targets(metrics),
                                      "overruns": t["overruns"], "lock_lost": metrics["lock_lost"],
                                      "lock_lost_s": metrics["lock_lost_s"],
                                      "angle_error_rms": metrics["angle_error_rms"],
@@ -324,13 +328,15 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                     row = {"link": link, "lever": lever, "runs": runs, "worst_late_fraction": worst["late_fraction"],
                            "runs_without_a_late_period": sum(r["late_fraction"] == 0.0 for r in runs),
                            "watchdog_trips": sum(r["watchdog_trips"] for r in runs),
-                           "runs_lock_held": sum(r["lock_lost_s"] == 0.0 for r in runs)}
+                           "runs_lock_held": sum(r["lock_lost_s"] == 0.0 for r in runs),
+                           "runs_meeting_targets": sum(r["meets_targets"] for r in runs)}
                     report["rows"].append(row)
                     if progress:
                         late = ", ".join(f"{100 * r['late_fraction']:.2f}" for r in runs)
                         p99 = ", ".join(f"{r['latency_p99_hops']:.0f}" for r in runs)
                         progress(f"  {link:4s} {lever:20s} late {late} %, watchdog trips {row['watchdog_trips']}, "
-                                 f"lock held in {row['runs_lock_held']} of {len(runs)}, latency p99 {p99} hops "
+                                 f"lock held in {row['runs_lock_held']} of {len(runs)}, ours within its targets in "
+                                 f"{row['runs_meeting_targets']}, latency p99 {p99} hops "
                                  f"(hop {runs[0]['hop_us']:.1f} µs)")
     finally:
         if busy is not None:

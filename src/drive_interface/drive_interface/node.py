@@ -27,7 +27,7 @@ from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sour
 from .realtime import add_scheduling_arguments, collect_young, collector_held, real_time_scheduled
 from .stamps import stamp_parts
 from .strict_json import dumps
-from .topics import TOPICS
+from .topics import TOPICS, ZERO_VOLTAGE
 from .wire import WireError, decode_block, decoder_of
 
 FAULT_REPORT_MIN_S = 0.1
@@ -233,7 +233,7 @@ class ContractNode(Node):
         velocity and effort of a JointState, None where empty; of a block topic, its three channels as
         float64 arrays, drive_interface.wire.decode_block). Bytes that are not the topic's type are a
         ``bad_input`` fault and go no further."""
-        decode = decode_block if TOPICS[topic].block_of else decoder_of(TOPICS[topic].type)
+        decode = decode_block if TOPICS[topic].block_of or topic == ZERO_VOLTAGE else decoder_of(TOPICS[topic].type)
 
         def take(data):
             try:

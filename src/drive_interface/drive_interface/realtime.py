@@ -125,3 +125,38 @@ def add_scheduling_arguments(parser):
                         help="SCHED_FIFO priority for every thread of the process (default 0: normal scheduling)")
     parser.add_argument("--cpus", type=cpu_set, default=None, metavar="LIST",
                         help="CPU affinity of the process, e.g. 1 or 0-1 (default: every CPU)")
+
+
+STALL_S = 5e-4
+"""A wake-up later than this is a stall: half of a block of 10 at 10 kHz."""
+
+
+def wakeup_latencies(seconds, period_s=1e-3, priority=0, cpus=None):
+    """The machine's own floor for a drive: a thread of this process sleeps to each multiple of
+    ``period_s`` for ``seconds`` (SCHED_FIFO ``priority`` and ``cpus`` where allowed, as a drive's threads)
+    and measures how late it wakes. Returns (latencies [s] as a float64 array, the scheduling applied and
+    refused). Run in a process with nothing else to do, it measures the kernel and the hypervisor alone."""
+    import numpy as np
+    n = max(1, int(round(seconds / period_s)))
+    late = np.zeros(n)
+    with real_time_scheduled(priority, cpus) as scheduling:
+        start = time.monotonic()
+        for i in range(n):
+            due = start + (i + 1) * period_s
+            remaining = due - time.monotonic()
+            if remaining > 0:
+                time.sleep(remaining)
+            late[i] = time.monotonic() - due
+    return late, scheduling
+
+
+def stall_report(late, period_s):
+    """Wake-up latency figures of ``wakeup_latencies`` [µs], and the stalls (later than STALL_S) per second."""
+    import numpy as np
+    seconds = len(late) * period_s
+    stalls = late > STALL_S
+    return {"seconds": seconds, "period_s": period_s, "wakeups": len(late),
+            "latency_p50_us": float(np.percentile(late, 50) * 1e6),
+            "latency_p99_us": float(np.percentile(late, 99) * 1e6), "latency_max_us": float(late.max() * 1e6),
+            "stalls_over_0_5_ms": int(stalls.sum()), "stalls_over_1_ms": int((late > 1e-3).sum()),
+            "stalls_per_s": float(stalls.sum() / seconds), "stalled_ms": float(late[stalls].sum() * 1e3)}

@@ -52,6 +52,7 @@ ESTIMATOR_STATE, ESTIMATOR_BLEND, CLOCK, ANGLE_ERROR, JOINT_STATES = (
     "estimator_state", "estimator_blend", "/clock", "angle_error", "joint_states")
 SPEED_COMMAND, LOAD_TORQUE, TORQUE_FEEDFORWARD, DRIVE_CONFIG, DIAGNOSTICS = (
     "speed_command", "load_torque", "torque_feedforward", "drive_config", "/diagnostics")
+ZERO_VOLTAGE = "zero_voltage"
 """The contract's topic names: code names a topic by these, never by a string of its own."""
 
 VECTOR3 = "geometry_msgs/msg/Vector3Stamped"
@@ -76,7 +77,10 @@ TOPICS = {t.name: t for t in (
     Topic(TORQUE_FEEDFORWARD, FLOAT64, COMMAND_QOS, False, False),
     Topic(DRIVE_CONFIG, "std_msgs/msg/String", LATCHED_QOS, False, False),
     Topic(DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS, False, False),
+    Topic(ZERO_VOLTAGE, JOINT_STATE, PER_SAMPLE_QOS, False, True),
 )}
+"""`zero_voltage` (behind an inverter, docs/ros-graph.md "Block transport"): the periods of a block (or a
+sample) that ran at zero volts instead of their command, published before that block's currents."""
 TOPICS.update({f"{t.name}_block": t._replace(name=f"{t.name}_block", type=JOINT_STATE, per_sample=False,
                                              block_of=t.name)
                for t in list(TOPICS.values()) if t.per_sample and t.log_columns})

@@ -192,12 +192,15 @@ class DriveSpec:
     """Paced: the virtual inverter in a process of its own (as a real one is a device of its own) instead of
     a thread of the launcher's: on this 2-core machine it makes the graph later, not earlier (docs/results.md,
     2026-11-26), so it is a lever to measure, not the default."""
+    lose_command_every: int = 0
+    """With a link, the inverter on a thread of the launcher: it loses every Nth command message the graph
+    sends, as if it came too late (zero volts; the graceful degradation measured, 0: never)."""
 
 
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
            progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None,
-           hold_collector=True, inverter_apart=False):
+           hold_collector=True, inverter_apart=False, lose_command_every=0):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
@@ -205,9 +208,10 @@ def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", 
     virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock.
     ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes; ``hold_collector``: the garbage
     collector out of the sample path (drive_interface.realtime; off only to measure what it gives);
-    ``inverter_apart``: a paced inverter in a process of its own (DriveSpec)."""
+    ``inverter_apart``: a paced inverter in a process of its own, ``lose_command_every``: its lost commands
+    (DriveSpec)."""
     spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced,
-                     inverter_apart)
+                     inverter_apart, lose_command_every)
     return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress, rt_priority,
                        cpus, hold_collector)[0]
 
@@ -278,7 +282,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             inverter = None
             if spec.link:
                 inverter, host_link = _virtual_inverter(scenario, parameters, spec.link, workdir.name, i, spec.paced,
-                                                        timeout_s, rt_priority, cpus, spec.inverter_apart)
+                                                        timeout_s, rt_priority, cpus, spec.inverter_apart,
+                                                        spec.lose_command_every)
                 inverters.append(inverter)
                 del roles["pmsm_plant"]
                 period = float(all_parameters(parameters)["diagnostics_period_s"])
@@ -422,22 +427,25 @@ def _result(driver, drive, record, processes, executor, interrupted, hop=None):
 
 
 def _virtual_inverter(scenario, parameters, link, workdir, drive_id, paced, timeout_s, rt_priority=0, cpus=None,
-                      apart=True):
+                      apart=True, lose_command_every=0):
     """A virtual inverter for ``scenario`` (not yet running) and the host's end of its link. Paced, it runs
     on its own clock, ``apart`` in a process of its own, as a real inverter is a device of its own (on the
     CPUs the host's ``cpus`` leave, if any; CAN then on a cable between processes, drive_bridge.can_cable);
     else it waits for each of the graph's commands as long as a plant node would (``timeout_s``). Not apart,
-    it runs on a thread of the host's process."""
+    it runs on a thread of the host's process and loses every ``lose_command_every``th command (0: none)."""
     import os
 
     from drive_bridge.inverter_link import CanLink, SerialLink
     from drive_bridge.inverter_process import InverterProcess, InverterProcessError
-    from drive_bridge.virtual_inverter import VirtualInverter, make_links
+    from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
     if not (paced and apart):
         endpoint, host_link = make_links(link, workdir, drive_id)
         rate = 1.0 / scenario.T_s if paced else None
-        return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id), \
-            host_link
+        return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id,
+                               faults=FaultPlan(lose_command_every=lose_command_every)), host_link
+    if lose_command_every:
+        raise GraphError("lose_command_every: only with the virtual inverter on a thread of the launcher, not "
+                         "apart")
     path = Path(workdir) / (f"inverter{drive_id}" if link == "pty" else f"can_cable{drive_id}")
     others = set(os.sched_getaffinity(0)) - set(cpus) if cpus else None
     try:

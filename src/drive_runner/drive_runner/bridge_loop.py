@@ -12,7 +12,7 @@ import numpy as np
 from control_math.command_delay import command_line, issue_command
 from control_math.current_sensing import corrected_currents
 from drive_bridge.inverter_bridge import InverterBridge
-from drive_bridge.inverter_protocol import COMMAND_MISSING, MAX_BLOCK, PWM_OFF
+from drive_bridge.inverter_protocol import MAX_BLOCK
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_interface.estimator_records import estimates
 from drive_interface.interrupt import Interrupted
@@ -75,9 +75,9 @@ def virtual_inverter_link(scenario, link, **inverter_options):
 
 
 def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
-    """The host's loop. The estimator pairs each current step with the voltage that acted: a command the
-    inverter reports missing or not applied (COMMAND_MISSING or PWM_OFF at sample k: the command of sample
-    k − d) and the command of a sample never received are zero in its delay line."""
+    """The host's loop. The estimator pairs each current step with the voltage that acted: the commands of
+    periods the inverter ran at zero volts (``BridgeBlock.at_zero_volts``: period j, the command of sample
+    j − d) and the command of a sample never received are zero in its delay line."""
     host = build_drive(scenario)
     n = scenario.n_samples
     delay = scenario.drive_delay_periods()
@@ -96,27 +96,29 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
         with collector_held():
             inverter.start()
             while inverter.is_alive() or bridge.open:
-                samples = bridge.poll(0.05)
+                blocks = bridge.poll_blocks(0.05)
                 arrived = time.perf_counter()
-                if not samples and not inverter.is_alive():
+                if not blocks and not inverter.is_alive() and bridge.part is None:
                     break
-                for s in samples:
-                    k = s.k
-                    if k >= n:
+                for b in blocks:
+                    k0, k_end = b.k0, min(b.k0 + len(b), n)
+                    if k0 >= n:
                         continue
-                    for missed in range(next_k, k):
+                    for missed in range(next_k, k0):
                         issue_command(line, missed, 0.0, 0.0)
-                    next_k = k + 1
-                    if s.status & (COMMAND_MISSING | PWM_OFF) and k >= delay:
-                        issue_command(line, k - delay, 0.0, 0.0)
-                    for answered in answer.sample(s, bridge):
+                    next_k = k_end
+                    if b.at_zero_volts:
+                        for k in range(max(k0, delay), k_end):
+                            issue_command(line, k - delay, 0.0, 0.0)
+                    for answered in answer.block(b, bridge):
                         host_s[answered] = time.perf_counter() - arrived
                         received[answered] = True
-                    if inverter_hook:
-                        inverter_hook(inverter, endpoint, k)
-                    if progress and k - last_report >= n // 100:
-                        last_report = k
-                        progress(k / n)
+                    for k in range(k0, k_end):
+                        if inverter_hook:
+                            inverter_hook(inverter, endpoint, k)
+                        if progress and k - last_report >= n // 100:
+                            last_report = k
+                            progress(k / n)
                 if received[n - 1]:
                     break
     except Interrupted as stop:
@@ -171,8 +173,17 @@ class _SampleAnswer:
                   host.speed_ref[0], 0.0, 0.0, 0.0, 0.0, est["eps"], est["signal"], est["state"],
                   est["injection_amplitude"], est["observer_weight"], est["leader"])
 
+    def block(self, b, bridge):
+        """Answer each sample of ``b``; the samples answered."""
+        answered = []
+        for s in b.samples():
+            if s.k < self.scenario.n_samples:
+                self.sample(s, bridge)
+                answered.append(s.k)
+        return answered
+
     def sample(self, s, bridge):
-        """Answer sample ``s``; the samples answered (its k)."""
+        """Answer sample ``s``: the estimator's and the controller's step, COMMAND(k)."""
         host, line, k = self.host, self.line, s.k
         e, cx, cz, cp = host.estimator, host.controller_x, host.controller_z, host.controller
         self.currents[0] = s.i_a, s.i_b, s.i_c
@@ -190,7 +201,6 @@ class _SampleAnswer:
                   est["theta_e_hat"], est["omega_e_hat"], u_a, u_b, est["u_inj_alpha"], est["u_inj_beta"],
                   host.speed_ref[k], i_d, i_q, i_d_ref, i_q_ref, est["eps"], est["signal"], est["state"],
                   est["injection_amplitude"], est["observer_weight"], est["leader"])
-        return (k,)
 
 
 class _BlockAnswer:
@@ -205,7 +215,6 @@ class _BlockAnswer:
         N = scenario.block_samples
         self.currents, self.encoder = np.zeros((N, 3)), np.zeros((N, 2))
         self.est_out, self.ctrl_out, self.inputs = estimates(N), np.zeros((N, 6)), sample_inputs()
-        self.pending = []
         self.warm_up()
 
     def warm_up(self):
@@ -220,25 +229,18 @@ class _BlockAnswer:
                          self.ctrl_out)
         self.issue_and_log(self.line.copy(), np.zeros((1, len(LOG_COLUMNS))), 0, 1)
 
-    def sample(self, s, bridge):
-        """Gather sample ``s``; at a block's last sample, answer the block: the samples answered."""
-        N, k = self.scenario.block_samples, s.k
-        if k % N == 0:
-            self.pending = [s]
-        elif self.pending and self.pending[-1].k == k - 1:
-            self.pending.append(s)
-        else:
-            self.pending = []
-        k0 = k - k % N
+    def block(self, b, bridge):
+        """Answer block ``b`` when it is a whole one (its first sample a multiple of N; N samples, or the
+        run's last ones): the samples answered."""
+        N, k0 = self.scenario.block_samples, b.k0
         n = min(N, self.scenario.n_samples - k0)
-        if len(self.pending) < n or self.pending[0].k != k0:
+        if k0 % N or len(b) < n:
             return ()
-        host, line, pending = self.host, self.line, self.pending
-        self.pending = []
+        host, line = self.host, self.line
         e, n_p = host.estimator, host.controller.n_p
-        for i, p in enumerate(pending):
-            self.currents[i] = p.i_a, p.i_b, p.i_c
-            self.encoder[i, 0] = n_p * p.theta_m if p.theta_m == p.theta_m else 0.0
+        self.currents[:n] = b.currents_A[:n]
+        theta = b.theta_m[:n]
+        self.encoder[:n, 0] = np.where(np.isnan(theta), 0.0, n_p * theta)
         estimator_block(e.step, e.state, e.params, k0, n, self.currents, line, self.encoder, self.calibration,
                         self.trip_A, self.est_out, self.inputs)
         controller_block(host.controller_x, host.controller_z, host.controller, n, self.currents, self.est_out,

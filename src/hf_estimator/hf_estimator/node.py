@@ -37,6 +37,7 @@ from drive_interface.topics import (
     ROTOR_STATE,
     TOPICS,
     VOLTAGE_COMMAND,
+    ZERO_VOLTAGE,
     block,
 )
 from drive_interface.wire import BlockWire, JointWire, Vector3Wire
@@ -84,6 +85,10 @@ class EstimatorNode(ScenarioNode):
         self.k = 0
         self.theta_hat = self.omega_hat = 0.0
         self.trip_A = self.trip_current_A()
+        self.zero_volts = set()
+        """Samples whose commands the inverter reported not applied (`zero_voltage`), not yet in the line."""
+        self.zero_voltage_periods = 0
+        self.sample_subscription(ZERO_VOLTAGE, self.on_zero_voltage)
         if self.block_samples > 1:
             inputs = [self.sample_subscription(block(CURRENTS), self.timed(self.on_currents_block))]
             self.sample_subscription(block(VOLTAGE_COMMAND), self.on_voltage_block)
@@ -157,8 +162,27 @@ class EstimatorNode(ScenarioNode):
         for k in range(self.issued + 1, k0):
             issue_command(self.line, k, 0.0, 0.0)
         for i, (u_a, u_b) in enumerate(zip(u_alpha, u_beta)):
-            issue_command(self.line, k0 + i, *((u_a, u_b) if finite(u_a, u_b) else (0.0, 0.0)))
+            zero = not finite(u_a, u_b) or k0 + i in self.zero_volts
+            issue_command(self.line, k0 + i, *((0.0, 0.0) if zero else (u_a, u_b)))
         self.issued = max(self.issued, k0 + len(u_alpha) - 1)
+        if self.zero_volts:
+            self.zero_volts = {k for k in self.zero_volts if k > self.issued}
+
+    def on_zero_voltage(self, sec, nanosec, zero, _, __):
+        """Periods j … of a block (or a sample) ran at zero volts (the inverter's report through the bridge):
+        the commands of samples j − d are zero in the delay line, as they acted (those still in it, or when
+        they come)."""
+        j0 = sample_at(sec, nanosec, self.T_s)
+        if j0 is None or zero is None:
+            return
+        oldest = self.issued - self.delay
+        for j in j0 + np.flatnonzero(zero):
+            k = int(j) - self.delay
+            if k > self.issued:
+                self.zero_volts.add(k)
+            elif k >= max(oldest, 0):
+                issue_command(self.line, k, 0.0, 0.0)
+            self.zero_voltage_periods += 1
 
     def on_rotor_state(self, sec, nanosec, theta_m, omega_m, _):
         k = sample_at(sec, nanosec, self.T_s)
@@ -311,7 +335,7 @@ class EstimatorNode(ScenarioNode):
         return {"sample": getattr(self, "k", 0), "state": STATE_NAMES.get(int(self.state), "?"),
                 "lock_lost": self.lock_losses, "signal": self.signal, "estimator": self.estimator.name,
                 "injection_amplitude_V": amplitude, "observer_weight": weight,
-                "leader": LEADER_NAMES.get(int(leader), "?")}
+                "leader": LEADER_NAMES.get(int(leader), "?"), "zero_voltage_periods": self.zero_voltage_periods}
 
 
 def main(argv=None):
