@@ -698,7 +698,7 @@ def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_fe
     result = launch("wang_100rpm", namespace="/lossy", link="can", paced=True, lose_command_every=37,
                     extra_parameters={"block_samples": 10}, rt_priority=50, cpus={1})
     metrics = compute_metrics(result)
-    assert 0.025 <= result.timing["late_fraction"] <= 0.05
+    assert 0.025 <= result.timing["late_fraction"] <= 0.1
     told = result.diagnostics["/lossy/hf_estimator"]["values"]["zero_voltage_periods"]
     assert int(told) >= result.timing["missing"]
     assert not metrics["lock_lost"] and metrics["angle_error_rms"] < 0.04 and metrics["angle_error_peak"] < 0.2
