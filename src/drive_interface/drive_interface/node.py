@@ -27,7 +27,7 @@ from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sour
 from .realtime import add_scheduling_arguments, collect_young, collector_held, real_time_scheduled
 from .stamps import stamp_parts
 from .strict_json import dumps
-from .topics import TOPICS, ZERO_VOLTAGE
+from .topics import TOPICS
 from .wire import WireError, decode_block, decoder_of
 
 FAULT_REPORT_MIN_S = 0.1
@@ -230,10 +230,10 @@ class ContractNode(Node):
     def sample_subscription(self, topic, callback):
         """Subscribe ``callback(sec, nanosec, a, b, c)`` to a per-sample contract topic, taken serialized
         and decoded by drive_interface.wire (a, b, c: x, y, z of a Vector3Stamped; the first position,
-        velocity and effort of a JointState, None where empty; of a block topic, its three channels as
-        float64 arrays, drive_interface.wire.decode_block). Bytes that are not the topic's type are a
-        ``bad_input`` fault and go no further."""
-        decode = decode_block if TOPICS[topic].block_of or topic == ZERO_VOLTAGE else decoder_of(TOPICS[topic].type)
+        velocity and effort of a JointState, None where empty; of a topic of channels (a block twin,
+        `zero_voltage`), its three channels as float64 arrays, drive_interface.wire.decode_block). Bytes
+        that are not the topic's type are a ``bad_input`` fault and go no further."""
+        decode = decode_block if TOPICS[topic].channels else decoder_of(TOPICS[topic].type)
 
         def take(data):
             try:

@@ -44,6 +44,9 @@ class Topic(NamedTuple):
     """header.frame_id of its messages."""
     block_of: str = ""
     """The per-sample topic whose samples it carries in blocks (docs/ros-graph.md, "Block transport")."""
+    channels: bool = False
+    """Its JointState messages carry channels of samples (drive_interface.wire.decode_block): the block
+    twins and `zero_voltage`."""
 
 
 CURRENTS, ROTOR_STATE, ROTOR_ESTIMATE, INJECTION, VOLTAGE_COMMAND = (
@@ -77,12 +80,12 @@ TOPICS = {t.name: t for t in (
     Topic(TORQUE_FEEDFORWARD, FLOAT64, COMMAND_QOS, False, False),
     Topic(DRIVE_CONFIG, "std_msgs/msg/String", LATCHED_QOS, False, False),
     Topic(DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS, False, False),
-    Topic(ZERO_VOLTAGE, JOINT_STATE, PER_SAMPLE_QOS, False, True),
+    Topic(ZERO_VOLTAGE, JOINT_STATE, PER_SAMPLE_QOS, False, True, channels=True),
 )}
 """`zero_voltage` (behind an inverter, docs/ros-graph.md "Block transport"): the periods of a block (or a
 sample) that ran at zero volts instead of their command, published before that block's currents."""
 TOPICS.update({f"{t.name}_block": t._replace(name=f"{t.name}_block", type=JOINT_STATE, per_sample=False,
-                                             block_of=t.name)
+                                             block_of=t.name, channels=True)
                for t in list(TOPICS.values()) if t.per_sample and t.log_columns})
 """Each logged per-sample topic has a block twin (``currents_block`` …): sensor_msgs/JointState, stamped
 with its first sample's instant, the per-sample message's three values as three channels of N samples

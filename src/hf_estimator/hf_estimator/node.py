@@ -173,7 +173,7 @@ class EstimatorNode(ScenarioNode):
         the commands of samples j − d are zero in the delay line, as they acted (those still in it, or when
         they come)."""
         j0 = sample_at(sec, nanosec, self.T_s)
-        if j0 is None or zero is None:
+        if j0 is None:
             return
         oldest = self.issued - self.delay
         for j in j0 + np.flatnonzero(zero):
