@@ -107,3 +107,34 @@ def test_a_signal_swallowed_by_a_c_callback_still_stops_the_command(monkeypatch,
     assert cli.main(["scenarios"]) == 128 + signal.SIGTERM
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.strip() == "drive: scenarios: interrupted by SIGTERM"
+
+
+def swallowed_sigterm():
+    """SIGTERM's raise landing in a C callback, as a collection's finalizer or numba's compiler would take
+    it: recorded, not raised."""
+    import ctypes
+
+    from drive_interface import interrupt
+    ctypes.CFUNCTYPE(None)(lambda: interrupt._handler(signal.SIGTERM, None))()
+
+
+@pytest.mark.parametrize("loop", ["runner", "bridge"])
+def test_a_long_loop_stops_at_its_next_pass_after_a_swallowed_signal(loop):
+    """A swallowed raise must not let a 60 s job run to its end: the loop's checkpoint raises it."""
+    import dataclasses
+
+    from drive_interface import interrupt
+    from drive_runner.bridge_loop import run_through_bridge
+    from drive_runner.runner import run_scenario
+    from drive_scenarios.scenario import load_scenario
+
+    scenario = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=60.0)
+    with interrupt.handled():
+        if loop == "runner":
+            result = run_scenario(scenario, progress=lambda fraction: swallowed_sigterm(), chunk_samples=2000)
+        else:
+            result = run_through_bridge(scenario, command_wait_s=0.02,
+                                        inverter_hook=lambda inverter, endpoint, k: k == 100 and swallowed_sigterm())
+    assert result.interrupted == signal.SIGTERM
+    assert 0 < len(result.log) <= {"runner": 2000, "bridge": 1000}[loop]
+    assert interrupt.requested() == 0

@@ -3,7 +3,8 @@ next Python instruction, so a compiled kernel finishes its chunk first); inside 
 held until the block ends, so a swap of files or a bag's close is never cut half-way. Jobs that can
 stop cleanly by themselves (the ROS graph) poll ``requested()`` inside ``polled()`` instead. A raise
 that lands in a C callback (numba's compiler calls back into Python) is swallowed there; the signal
-stays recorded in ``requested()``, which the command line checks when the job returns."""
+stays recorded in ``requested()``: a long job's loop calls ``checkpoint()`` each pass, and the command line
+checks ``requested()`` when the job returns."""
 import signal
 import sys
 from contextlib import contextmanager
@@ -54,6 +55,7 @@ def handled():
         yield
     finally:
         sys.unraisablehook = hook
+        _state.signum = 0
         for signum, handler in previous.items():
             signal.signal(signum, handler)
 
@@ -70,6 +72,14 @@ def _quiet_about_interrupts(hook):
 def requested():
     """The first signal that asked the job to stop, or 0."""
     return _state.signum
+
+
+def checkpoint():
+    """Raise the signal recorded if its raise was swallowed (a C callback: a finalizer run by a collection,
+    numba's compiler); nothing inside deferred() or polled(). Called each pass of a long job's loop, where
+    a raise that was not swallowed would have left the loop already."""
+    if _state.raising and _state.signum:
+        raise Interrupted(_state.signum)
 
 
 @contextmanager
@@ -110,5 +120,6 @@ def polled():
     finally:
         _state.pending = False
         if borrowed:
+            _state.signum = 0
             for signum, handler in previous.items():
                 signal.signal(signum, handler)

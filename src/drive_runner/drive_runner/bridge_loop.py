@@ -15,7 +15,7 @@ from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.inverter_protocol import MAX_BLOCK
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_interface.estimator_records import estimates
-from drive_interface.interrupt import Interrupted
+from drive_interface.interrupt import Interrupted, checkpoint
 from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.realtime import collector_held
 from drive_scenarios.scenario import behind_an_inverter
@@ -96,6 +96,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
         with collector_held():
             inverter.start()
             while inverter.is_alive() or bridge.open:
+                checkpoint()
                 blocks = bridge.poll_blocks(0.05)
                 arrived = time.perf_counter()
                 if not blocks and not inverter.is_alive() and bridge.part is None:

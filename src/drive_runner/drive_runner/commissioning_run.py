@@ -60,6 +60,7 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
     """Run the procedure with the simulated plant behind the virtual inverter and the bridge core on
     ``link`` ('pty' or 'can'), in this process (bridge_loop's link, the collector held: drive_interface.realtime);
     returns a CommissioningRun (truth from the inverter)."""
+    from drive_interface.interrupt import checkpoint
     from drive_interface.realtime import collector_held
 
     from .bridge_loop import virtual_inverter_link
@@ -72,6 +73,7 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
         inverter.start()
         with collector_held():
             while not procedure.done and (inverter.is_alive() or bridge.open):
+                checkpoint()
                 for s in bridge.poll(0.05):
                     if s.k == procedure.k:
                         bridge.command(s.k, *procedure.step(s.k, s.i_a, s.i_b, s.i_c))

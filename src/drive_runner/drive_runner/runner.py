@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drive_interface.interrupt import Interrupted, deferred
+from drive_interface.interrupt import Interrupted, checkpoint, deferred
 from drive_interface.log import LOG_COLUMNS
 from foc_controller.build import controller_for_scenario
 from foc_controller.control import controller_state
@@ -121,6 +121,7 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
     try:
         for k0 in range(0, n, chunk_samples):
             k1 = min(k0 + chunk_samples, n)
+            checkpoint()
             with deferred():
                 drive.run(k0, k1, log[k0:k1])
                 done = k1
