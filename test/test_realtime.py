@@ -1,5 +1,6 @@
 """Soft real time of a drive's process (drive_interface.realtime): the garbage collector held out of the
-sample path and given back, scheduling that the system refuses said in one line, CPU lists checked."""
+sample path and given back, scheduling that the system refuses said in one line, CPU lists checked, the
+kernel's unbound workqueues moved for a run and put back."""
 import argparse
 import gc
 import os
@@ -46,6 +47,24 @@ def test_cpu_lists_and_priorities_are_checked():
     assert realtime.fifo_priority("0") == 0 and realtime.fifo_priority("99") == 99
     with pytest.raises(argparse.ArgumentTypeError, match="1-99"):
         realtime.fifo_priority("100")
+
+
+def test_the_kernels_unbound_workqueues_go_where_asked_for_the_run_and_come_back(tmp_path):
+    """A system-wide setting: put back after the run, also when the run fails; a refusal is one line."""
+    mask = tmp_path / "cpumask"
+    mask.write_text("3\n")
+    with pytest.raises(RuntimeError), realtime.unbound_work_on({1}, mask) as work:
+        assert mask.read_text() == "2"
+        assert work == {"applied": ["kernel's unbound workqueues on CPU 1"], "refused": []}
+        raise RuntimeError
+    assert mask.read_text() == "3"
+    with realtime.unbound_work_on(None, mask) as work:
+        assert work == {"applied": [], "refused": []} and mask.read_text() == "3"
+    with realtime.unbound_work_on({0, 1}, tmp_path / "absent") as work:
+        assert not work["applied"] and len(work["refused"]) == 1
+        assert work["refused"][0].startswith(f"kernel's unbound workqueues on CPU 0,1 refused: {tmp_path / 'absent'}")
+    assert realtime.cpu_mask({0, 1}) == "3" and realtime.cpu_mask({1, 4}) == "12"
+    assert realtime.cpu_mask({33}) == "2,00000000"
 
 
 def test_the_real_time_bench_and_launch_check_their_options():

@@ -204,7 +204,8 @@ def add_bench_commands(bench_sub):
     bench_bridge.add_argument("--levers", metavar="L[,L...]",
                               help="with --graph: soft real-time levers, measured one at a time: plain, collector "
                                    "(default), collector+cpu1, collector+fifo, collector+fifo+cpu1, "
-                                   "collector+fifo+cpu1+inverter_apart")
+                                   "collector+fifo+cpu1+inverter_apart, collector+fifo+cpu1+workqueue1 (the "
+                                   "kernel's unbound workqueues on CPU 1 too; needs root)")
     bench_bridge.add_argument("--lose-command-every", type=int, default=0, metavar="N",
                               help="with --graph: the inverter loses every Nth command block (as if late: zero "
                                    "volts), to measure how ours degrades")

@@ -275,11 +275,13 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
 
 REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {}, "collector+cpu1": {"cpus": {1}},
                     "collector+fifo": {"rt_priority": 50}, "collector+fifo+cpu1": {"rt_priority": 50, "cpus": {1}},
-                    "collector+fifo+cpu1+inverter_apart": {"rt_priority": 50, "cpus": {1}, "inverter_apart": True}}
+                    "collector+fifo+cpu1+inverter_apart": {"rt_priority": 50, "cpus": {1}, "inverter_apart": True},
+                    "collector+fifo+cpu1+workqueue1": {"rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1}}}
 """The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
 "Real time"): none; the garbage collector held out of the sample path (the default); and the process on
-CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1). The virtual inverter runs on a thread of the
-graph's process but in the last, where it has a process of its own (on the CPU the graph leaves)."""
+CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1); and the kernel's unbound workqueues (a serial
+link's bytes pass through one) on CPU 1 too. The virtual inverter runs on a thread of the graph's process
+but in inverter_apart, where it has a process of its own (on the CPU the graph leaves)."""
 
 
 def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None,
@@ -338,6 +340,8 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                                  f"lock held in {row['runs_lock_held']} of {len(runs)}, ours within its targets in "
                                  f"{row['runs_meeting_targets']}, latency p99 {p99} hops "
                                  f"(hop {runs[0]['hop_us']:.1f} µs)")
+                        for line in sorted({line for r in runs for line in r["scheduling"]["refused"]}):
+                            progress(f"       {lever}: {line}")
     finally:
         if busy is not None:
             busy.kill()

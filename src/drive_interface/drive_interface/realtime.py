@@ -91,6 +91,53 @@ def real_time_scheduled(priority=0, cpus=None):
                     pass
 
 
+WORKQUEUE_CPUMASK = "/sys/devices/virtual/workqueue/cpumask"
+"""The CPUs the kernel's unbound workqueues may run on (a hexadecimal mask). Bytes written to a serial port
+or a pty reach the reader through one (the tty layer's flush_to_ldisc, an ordinary task's priority): where
+an ordinary task holds its CPU, the reader waits (measured: 1.2-1.6 ms, docs/results.md)."""
+
+
+def cpu_mask(cpus):
+    """``cpus`` (a set of CPU numbers) as a sysfs CPU mask: hexadecimal, 32 CPUs per comma-separated group."""
+    bits = sum(1 << c for c in cpus)
+    groups = []
+    while True:
+        groups.append(bits & 0xFFFFFFFF)
+        bits >>= 32
+        if not bits:
+            break
+    return ",".join(f"{g:08x}" if i else f"{g:x}" for i, g in enumerate(reversed(groups)))
+
+
+@contextlib.contextmanager
+def unbound_work_on(cpus, mask_file=WORKQUEUE_CPUMASK):
+    """The kernel's unbound workqueues on ``cpus`` (None: left as they are) for a run, the mask before it put
+    back afterwards. System-wide: every unbound kernel work item runs there meanwhile. Yields
+    {"applied": [...], "refused": [...]} as real_time_scheduled; a refusal is never an exception."""
+    applied, refused, before = [], [], None
+    if cpus:
+        text = ",".join(str(c) for c in sorted(cpus))
+        try:
+            with open(mask_file) as f:
+                before = f.read().strip()
+            with open(mask_file, "w") as f:
+                f.write(cpu_mask(cpus))
+            applied.append(f"kernel's unbound workqueues on CPU {text}")
+        except OSError as error:
+            before = None
+            refused.append(f"kernel's unbound workqueues on CPU {text} refused: {mask_file}: "
+                           f"{error.strerror or error} (needs root); they stay where they were")
+    try:
+        yield {"applied": applied, "refused": refused}
+    finally:
+        if before is not None:
+            try:
+                with open(mask_file, "w") as f:
+                    f.write(before)
+            except OSError:
+                pass
+
+
 def cpu_set(text):
     """argparse type of ``--cpus``: "0", "0,1" or "0-1" → a set of CPU numbers."""
     import argparse
@@ -119,12 +166,18 @@ def fifo_priority(text):
     return value
 
 
-def add_scheduling_arguments(parser):
-    """``--rt-priority`` and ``--cpus`` (real_time_scheduling) on a drive process's command line."""
+def add_scheduling_arguments(parser, workqueues=False):
+    """``--rt-priority`` and ``--cpus`` (real_time_scheduling) on a drive process's command line; with
+    ``workqueues``, ``--workqueue-cpus`` (unbound_work_on) too."""
     parser.add_argument("--rt-priority", type=fifo_priority, default=0, metavar="1-99",
                         help="SCHED_FIFO priority for every thread of the process (default 0: normal scheduling)")
     parser.add_argument("--cpus", type=cpu_set, default=None, metavar="LIST",
                         help="CPU affinity of the process, e.g. 1 or 0-1 (default: every CPU)")
+    if workqueues:
+        parser.add_argument("--workqueue-cpus", type=cpu_set, default=None, metavar="LIST",
+                            help="the kernel's unbound workqueues (a serial link's bytes pass through one) on "
+                                 "these CPUs for the run, system-wide, put back afterwards; needs root "
+                                 "(default: left as they are)")
 
 
 STALL_S = 5e-4

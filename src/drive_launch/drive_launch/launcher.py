@@ -21,7 +21,7 @@ from drive_bridge.virtual_inverter import timing_report
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
-from drive_interface.realtime import collector_held, real_time_scheduled
+from drive_interface.realtime import collector_held, real_time_scheduled, unbound_work_on
 from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import behind_an_inverter, resolve
@@ -200,24 +200,26 @@ class DriveSpec:
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
            progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None,
-           hold_collector=True, inverter_apart=False, lose_command_every=0):
+           hold_collector=True, inverter_apart=False, lose_command_every=0, workqueue_cpus=None):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
     ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
     virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock.
-    ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes; ``hold_collector``: the garbage
-    collector out of the sample path (drive_interface.realtime; off only to measure what it gives);
+    ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes; ``workqueue_cpus``: the kernel's
+    unbound workqueues there for the run; ``hold_collector``: the garbage collector out of the sample path
+    (drive_interface.realtime; off only to measure what it gives);
     ``inverter_apart``: a paced inverter in a process of its own, ``lose_command_every``: its lost commands
     (DriveSpec)."""
     spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced,
                      inverter_apart, lose_command_every)
     return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress, rt_priority,
-                       cpus, hold_collector)[0]
+                       cpus, hold_collector, workqueue_cpus)[0]
 
 
 def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
-                startup_timeout_s=60.0, progress=None, rt_priority=0, cpus=None, hold_collector=True):
+                startup_timeout_s=60.0, progress=None, rt_priority=0, cpus=None, hold_collector=True,
+                workqueue_cpus=None):
     """Run several drives side by side in one graph (one namespace each); one GraphResult per spec. A
     scenario whose drive is a drive configuration file (``drive: FILE``) gives the estimator that file and
     no scenario (as on a robot); the plant and the controller's speed schedule take the experiment."""
@@ -314,8 +316,9 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             ex.add_node(node)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
-        with real_time_scheduled(rt_priority, cpus) as scheduling, \
+        with real_time_scheduled(rt_priority, cpus) as scheduling, unbound_work_on(workqueue_cpus) as work, \
                 collector_held() if hold_collector else contextlib.nullcontext():
+            scheduling = {key: scheduling[key] + work[key] for key in scheduling}
             if any(line.startswith("SCHED_FIFO") for line in scheduling["applied"]):
                 listening = Listening(make_executor(executor, context), listeners)
                 listening.start()
