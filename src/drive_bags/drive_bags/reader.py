@@ -16,6 +16,7 @@ from drive_interface.topics import (
     HELD_LOGGED,
     SAMPLE_LOGGED,
     TOPICS,
+    ZERO_VOLTAGE,
     block,
     full_name,
 )
@@ -186,13 +187,13 @@ def bag_log(path, T_s=None, namespace=None):
     (NaN where the bag says nothing), the sample period (``T_s``, else the drive_config's, else the
     stamps') and the bag's drive_config entries."""
     namespace, topics, configs = bag_topics(path, namespace)
-    log, T_s, _ = log_from_topics(path, namespace, topics, configs, T_s)
+    log, T_s, _, _ = log_from_topics(path, namespace, topics, configs, T_s)
     return log, T_s, configs
 
 
 def bag_topics(path, namespace=None):
     """(namespace, the logged topics' messages, the drive_config entries as dicts) of a bag, read once."""
-    wanted = SAMPLE_LOGGED + BLOCK_LOGGED + HELD_LOGGED + (DRIVE_CONFIG,)
+    wanted = SAMPLE_LOGGED + BLOCK_LOGGED + HELD_LOGGED + (ZERO_VOLTAGE, DRIVE_CONFIG)
     namespace, topics = read_topics(path, wanted, namespace)
     configs = []
     for _, message in topics.get(DRIVE_CONFIG, []):
@@ -216,7 +217,9 @@ recording may be longer than a simulation, drive_scenarios.scenario.MAX_SAMPLES)
 
 
 def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
-    """(log, T_s, timing) from bag_topics' messages (bag_log); ``n_p`` turns mechanical angles electrical
+    """(log, T_s, timing, zero_volts) from bag_topics' messages (bag_log); ``zero_volts``: per sample, True where
+    the period from it ran at zero volts (the bridge's `zero_voltage`: the inverter's report of a command missing
+    or PWM off, docs/drive-interface.md); ``n_p`` turns mechanical angles electrical
     (default: the drive_config's). Samples are indexed from the recording's own first sample, whatever the
     clock's epoch (a robot's wall clock or sim time), the grid's origin the median of the current stamps'
     offsets from it (one jittered stamp does not set it); a simulation's bag (its drive_config names a
@@ -278,10 +281,17 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
                 fill_block(log, k, topic, (m.position, m.velocity, m.effort), n_p)
     for topic in HELD_LOGGED:
         _hold(log[:, COLUMN[TOPICS[topic].log_columns[0]]], topics.get(topic, []), T_s, n, log_epoch_ns)
+    zero_volts = np.zeros(n, dtype=bool)
+    for _, m in topics.get(ZERO_VOLTAGE, []):
+        j = index(m.header.stamp)
+        if j is not None:
+            periods = np.asarray(m.position[:n - j], dtype=float) == 1.0
+            zero_volts[j:j + len(periods)] |= periods
     jitter = np.abs(np.asarray(residuals, dtype=float)) * 1e-9
     timing = {"epoch_s": epoch_ns * 1e-9, "jitter_rms_s": float(np.sqrt(np.mean(jitter ** 2))) if jitter.size else 0.0,
-              "jitter_max_s": float(jitter.max()) if jitter.size else 0.0, "off_grid_messages": off_grid[0]}
-    return log, T_s, timing
+              "jitter_max_s": float(jitter.max()) if jitter.size else 0.0, "off_grid_messages": off_grid[0],
+              "zero_voltage_periods": int(zero_volts.sum())}
+    return log, T_s, timing, zero_volts
 
 
 def _hold(column, messages, T_s, n, epoch_ns=0):

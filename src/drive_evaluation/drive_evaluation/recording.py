@@ -70,6 +70,8 @@ class Recording:
     """The stamps' epoch, jitter and messages off the grid (drive_bags.reader.log_from_topics)."""
     gaps: dict
     """``missing_samples`` per topic within the replayed span, and ``cut_samples`` left off its end."""
+    zero_volts: np.ndarray
+    """Per sample: the period from it ran at zero volts, whatever was commanded (the bag's `zero_voltage`)."""
 
     @property
     def n_p(self):
@@ -105,8 +107,9 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
     recorded_n_p = next((c["n_p"] for c in configs if "n_p" in c), None)
     if recorded_n_p is not None and recorded_n_p != plate.n_p:
         raise BagError(f"{path}: drive_config says n_p {recorded_n_p}, the motor ({sources['motor']}) {plate.n_p}")
-    log, T_s, timing = log_from_topics(path, namespace, topics, configs, T_s, plate.n_p)
+    log, T_s, timing, zero_volts = log_from_topics(path, namespace, topics, configs, T_s, plate.n_p)
     log, gaps = whole_span(path, log, topics)
+    zero_volts = zero_volts[:log.shape[0]]
     delay = _delay(scenario, configs, sources)
     known = _commissioning(path, plate, commissioning, configs, sources)
     recorded = recorded_estimator(configs)
@@ -134,7 +137,7 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
             raise BagError(f"{path}: no steady interval found to score ({note}); give --windows T0:T1[,...]")
         start, sources["windows"] = chosen[0][0], f"automatic: {note}"
     return Recording(path, log, T_s, plate, known, delay, recorded, settings, injection, excitation, carrier,
-                     chosen, start, scenario, sources, timing, gaps)
+                     chosen, start, scenario, sources, timing, gaps, zero_volts)
 
 
 def whole_span(path, log, topics):

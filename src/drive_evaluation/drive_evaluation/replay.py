@@ -39,11 +39,12 @@ SCORED = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_erro
 
 def replay_inputs(recording):
     """(currents n × 3, the voltage applied in the period before each sample n × 2, whole: n booleans) of a
-    Recording (the command of d + 1 samples before, d the recording drive's delay)."""
-    return logged_inputs(recording.log, recording.delay_periods)
+    Recording (the command of d + 1 samples before, d the recording drive's delay; zero where the inverter
+    reported that period at zero volts)."""
+    return logged_inputs(recording.log, recording.delay_periods, recording.zero_volts)
 
 
-def logged_inputs(log, delay_periods):
+def logged_inputs(log, delay_periods, zero_volts=None):
     """replay_inputs of a run's ``log`` (LOG_COLUMNS) with the drive's delay. A sample is whole where its
     currents and the voltage that acted before it are known; replay steps the estimators over the others (a
     lost message: the estimator meets the next sample, as a drive node would), and the first whole sample
@@ -51,10 +52,14 @@ def logged_inputs(log, delay_periods):
     periods where known): the current step it sees is the one that voltage drove, so a fit or an integrator
     of voltage stays consistent across the gap (docs/recordings.md). A lost voltage_command whose injection
     message arrived is rebuilt: that injection plus the fundamental (command less injection) interpolated
-    between its neighbours."""
+    between its neighbours. ``zero_volts`` (per sample: the period from it ran at zero volts) zeroes the
+    command that would have acted there, as the drive's estimator node does with `zero_voltage`."""
     currents = log[:, [COLUMN["i_a_meas"], COLUMN["i_b_meas"], COLUMN["i_c_meas"]]]
     voltage = rebuilt_voltage(log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]],
                               log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]])
+    if zero_volts is not None and zero_volts.any():
+        commands = np.flatnonzero(zero_volts) - delay_periods
+        voltage[commands[commands >= 0]] = 0.0
     lag = delay_periods + 1
     u_applied = np.zeros((len(voltage), 2))
     u_applied[lag:] = voltage[:-lag]
