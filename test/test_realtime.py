@@ -67,6 +67,11 @@ def test_the_kernels_unbound_workqueues_go_where_asked_for_the_run_and_come_back
     assert realtime.cpu_mask({33}) == "2,00000000"
 
 
+def test_the_time_the_hypervisor_took_is_read_per_cpu():
+    stolen = realtime.stolen_s()
+    assert set(stolen) == set(range(os.cpu_count())) and all(t >= 0.0 for t in stolen.values())
+
+
 def test_the_real_time_bench_and_launch_check_their_options():
     import subprocess
     drive = [sys.executable, "-m", "drive_cli.cli"]

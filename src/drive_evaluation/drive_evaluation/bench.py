@@ -15,6 +15,7 @@ import numpy as np
 
 from drive_interface import interrupt
 from drive_interface.log import LOG_COLUMNS
+from drive_interface.realtime import stolen_s
 from drive_runner.runner import build_drive
 from drive_scenarios.scenario import PACED_BLOCK_SAMPLES, load_scenario
 
@@ -308,6 +309,7 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                 for lever in levers:
                     runs = []
                     for _ in range(repeats):
+                        stolen = stolen_s()
                         result = launch(scenario_ref, record=True, link=link, paced=True,
                                         extra_parameters={"block_samples": block_samples},
                                         lose_command_every=lose_command_every, **REAL_TIME_LEVERS[lever])
@@ -325,7 +327,9 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                                      **{key: t[key] for key in ("hop_us", "latency_p50_us", "latency_p99_us",
                                                                 "latency_max_us", "latency_p50_hops",
                                                                 "latency_p99_hops", "latency_max_hops")},
-                                     "scheduling": result.scheduling})
+                                     "scheduling": result.scheduling,
+                                     "stolen_ms": {cpu: round(1e3 * (t - stolen[cpu]))
+                                                   for cpu, t in stolen_s().items() if cpu in stolen}})
                     worst = max(runs, key=lambda r: r["late_fraction"])
                     row = {"link": link, "lever": lever, "runs": runs, "worst_late_fraction": worst["late_fraction"],
                            "runs_without_a_late_period": sum(r["late_fraction"] == 0.0 for r in runs),
@@ -336,10 +340,11 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                     if progress:
                         late = ", ".join(f"{100 * r['late_fraction']:.2f}" for r in runs)
                         p99 = ", ".join(f"{r['latency_p99_hops']:.0f}" for r in runs)
+                        stolen = ", ".join(str(sum(r["stolen_ms"].values())) for r in runs)
                         progress(f"  {link:4s} {lever:20s} late {late} %, watchdog trips {row['watchdog_trips']}, "
                                  f"lock held in {row['runs_lock_held']} of {len(runs)}, ours within its targets in "
                                  f"{row['runs_meeting_targets']}, latency p99 {p99} hops "
-                                 f"(hop {runs[0]['hop_us']:.1f} µs)")
+                                 f"(hop {runs[0]['hop_us']:.1f} µs), stolen by the host {stolen} ms")
                         for line in sorted({line for r in runs for line in r["scheduling"]["refused"]}):
                             progress(f"       {lever}: {line}")
     finally:

@@ -180,6 +180,17 @@ def add_scheduling_arguments(parser, workqueues=False):
                                  "(default: left as they are)")
 
 
+def stolen_s():
+    """Per CPU, the time the hypervisor has given its virtual CPU to others since boot [s] (/proc/stat's
+    steal column, in 10 ms ticks); {} where the system does not say."""
+    try:
+        with open("/proc/stat") as f:
+            lines = [line.split() for line in f if line.startswith("cpu") and line[3].isdigit()]
+        return {int(fields[0][3:]): int(fields[8]) / os.sysconf("SC_CLK_TCK") for fields in lines}
+    except (OSError, ValueError, IndexError):
+        return {}
+
+
 STALL_S = 5e-4
 """A wake-up later than this is a stall: half of a block of 10 at 10 kHz."""
 
