@@ -99,3 +99,24 @@ def test_the_platform_probe_wakes_every_period_and_counts_the_late_ones():
     fake = realtime.stall_report(np.array([1e-5, 2e-3, 7e-4, 1e-5]), 1e-3)
     assert fake["stalls_over_0_5_ms"] == 2 and fake["stalls_over_1_ms"] == 1 and fake["stalls_per_s"] == 500.0
     assert fake["stalled_ms"] == pytest.approx(2.7)
+
+
+def test_status_work_waits_for_the_quiet_part_of_a_block_and_never_more_than_a_period():
+    """Where a bridge node runs the loop, a node's periodic status runs after a command is written, one
+    piece per command; a piece still queued at the node's next period runs then; without a bridge, at once."""
+    quiet, done = realtime.QuietTime(), []
+    collect, publish = (lambda: done.append("collect")), (lambda: done.append("publish"))
+    quiet.later(collect)
+    assert done == ["collect"]
+    quiet.hold()
+    quiet.later(collect, publish)
+    assert done == ["collect"]
+    quiet.quiet()
+    assert done == ["collect", "collect"]
+    quiet.overdue((collect, publish))
+    assert done == ["collect", "collect", "publish"] and not quiet.pending
+    quiet.later(collect)
+    quiet.release()
+    assert not quiet.pending and len(done) == 3
+    quiet.later(publish)
+    assert done[-1] == "publish"

@@ -24,6 +24,7 @@ from std_srvs.srv import Trigger
 
 from control_math.frames import wrap
 from drive_interface.node import ContractNode, finite, log_line, run_node, stamp, topic_qos
+from drive_interface.realtime import QUIET_TIME
 from drive_interface.stamps import sample_at, sample_of, stamp_parts
 from drive_interface.topics import (
     ANGLE_ERROR,
@@ -59,6 +60,7 @@ NO_CHANNEL = np.zeros(0)
 class InverterBridgeNode(ContractNode):
     def __init__(self, link=None, **kwargs):
         super().__init__("drive_bridge", **kwargs)
+        QUIET_TIME.hold()
         for name, (default, text) in PARAMETERS.items():
             self.declare_parameter(name, default, descriptor=ParameterDescriptor(description=text))
         p = {name: self.get_parameter(name).value for name in PARAMETERS}
@@ -190,6 +192,7 @@ class InverterBridgeNode(ContractNode):
             self.bridge.safe_state("bad voltage_command_block")
             return
         self.bridge.command_block(k0, u_alpha, u_beta)
+        QUIET_TIME.quiet()
 
     def on_rotor_estimate_block(self, sec, nanosec, theta_hat_m, omega_hat_m, _):
         """`angle_error` of each block's first sample."""
@@ -238,6 +241,7 @@ class InverterBridgeNode(ContractNode):
             self.bridge.safe_state("bad voltage_command")
             return
         self.bridge.command(k, u.x, u.y)
+        QUIET_TIME.quiet()
 
     def on_clear_faults(self, request, response):
         """The operator's reset (service `clear_faults`): CONTROL 2, the only way an overcurrent clears."""
@@ -274,6 +278,7 @@ class InverterBridgeNode(ContractNode):
         self.running = False
         self.thread.join(timeout=1.0)
         self.bridge.close()
+        QUIET_TIME.release()
         return super().destroy_node()
 
 

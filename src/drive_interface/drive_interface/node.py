@@ -24,7 +24,7 @@ from drive_interface.topics import CLOCK, DIAGNOSTICS, DRIVE_CONFIG
 from .exit_codes import EXIT_NODE_FAULTS, EXIT_REFUSED
 from .graph import EXECUTORS
 from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sources, label, unknown_parameters
-from .realtime import add_scheduling_arguments, collect_young, collector_held, real_time_scheduled
+from .realtime import QUIET_TIME, add_scheduling_arguments, collect_young, collector_held, real_time_scheduled
 from .stamps import stamp_parts
 from .strict_json import dumps
 from .topics import TOPICS
@@ -275,9 +275,14 @@ class ContractNode(Node):
 
     def periodic_status(self):
         """Every ``diagnostics_period_s``: the garbage made since the last period collected (while the
-        collector is held out of the sample path, drive_interface.realtime), then /diagnostics."""
+        collector is held out of the sample path, drive_interface.realtime), then /diagnostics; each in the
+        quiet part of a block where a bridge node runs the loop (QUIET_TIME)."""
+        jobs = (self.collect_garbage, self.publish_diagnostics)
+        QUIET_TIME.overdue(jobs)
+        QUIET_TIME.later(*jobs)
+
+    def collect_garbage(self):
         self.collector_s = max(self.collector_s, collect_young())
-        self.publish_diagnostics()
 
     def publish_diagnostics(self):
         h = self.health

@@ -42,6 +42,52 @@ def collect_young():
     return time.perf_counter() - start
 
 
+class QuietTime:
+    """Work of this process that can wait for the quiet part of a block. Where a drive_bridge node runs the
+    loop (the inverter's clock), each node's periodic status (a young collection, /diagnostics: up to
+    0.5 ms, measured) would otherwise land between a block's telemetry and its command; held, each piece
+    waits for a command to have been written (``quiet``, called by the bridge node) and one piece runs
+    there. A piece still waiting when its node's next period comes runs then (the link is down: no command
+    is written), so /diagnostics is at most one period late."""
+
+    def __init__(self):
+        self.holders = 0
+        self.pending = []
+
+    def hold(self):
+        """A bridge node runs the loop in this process."""
+        self.holders += 1
+
+    def release(self):
+        """That bridge node is gone: with none left, nothing waits (what is queued is dropped: its nodes
+        are being torn down with it; their last status went out with ``complete_run``)."""
+        self.holders -= 1
+        if not self.holders:
+            self.pending.clear()
+
+    def later(self, *jobs):
+        """Run ``jobs`` now, or queue them while held."""
+        if not self.holders:
+            for job in jobs:
+                job()
+            return
+        self.pending.extend(jobs)
+
+    def overdue(self, jobs):
+        """Run those of ``jobs`` still queued, now."""
+        for job in [j for j in self.pending if j in jobs]:
+            self.pending.remove(job)
+            job()
+
+    def quiet(self):
+        """A command was just written: run one queued piece."""
+        if self.pending:
+            self.pending.pop(0)()
+
+
+QUIET_TIME = QuietTime()
+
+
 def _threads():
     try:
         return [int(tid) for tid in os.listdir("/proc/self/task")]
