@@ -1,6 +1,8 @@
 """Soft real time for a drive's process (docs/ros-graph.md, "Real time"): the cyclic garbage collector kept
-out of the sample path, a short thread switch interval, and, where the system allows it, real-time
-scheduling and CPU affinity for every thread of the process. No rclpy."""
+out of the sample path, a short thread switch interval, periodic work kept for the quiet part of a block,
+and, where the system allows it, real-time scheduling and CPU affinity for every thread of the process and
+the kernel's unbound workqueues on the drive's CPUs; the machine's own floor and the hypervisor's steal.
+No rclpy."""
 import contextlib
 import gc
 import os
