@@ -132,18 +132,12 @@ def cmd_bench_bridge(args):
 
 def cmd_bench_platform(args):
     """bench platform: how late a SCHED_FIFO thread wakes on this machine, with nothing of the drive running."""
-    import subprocess
-
+    from drive_evaluation.bench import core_kept_busy
     from drive_interface.realtime import stall_report, wakeup_latencies
 
     _at_least_one(("--seconds", args.seconds))
-    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if args.load else None
-    try:
+    with core_kept_busy(args.load):
         late, scheduling = wakeup_latencies(args.seconds, 1e-3, args.rt_priority, args.cpus)
-    finally:
-        if busy is not None:
-            busy.kill()
-            busy.wait()
     for line in scheduling["refused"]:
         print(f"drive: warning: {line}", file=sys.stderr)
     report = {"benchmark": "platform", "load": args.load, "scheduling": scheduling,

@@ -2,6 +2,7 @@
 and of motulator's signal-injection example when motulator is installed (a side environment is fine).
 ``drive bench graph``: real-time factor of the lock-step ROS graph. ``drive bench blocks``: what the block
 size costs and buys, graph speed against ours' angle error."""
+import contextlib
 import dataclasses
 import importlib.util
 import json
@@ -285,6 +286,18 @@ link's bytes pass through one) on CPU 1 too. The virtual inverter runs on a thre
 but in inverter_apart, where it has a process of its own (on the CPU the graph leaves)."""
 
 
+@contextlib.contextmanager
+def core_kept_busy(load=True):
+    """With ``load``, another process spinning meanwhile (one core kept busy); else nothing."""
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if load else None
+    try:
+        yield
+    finally:
+        if busy is not None:
+            busy.kill()
+            busy.wait()
+
+
 def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None,
                     block_samples=PACED_BLOCK_SAMPLES, lose_command_every=0):
     """`drive bench bridge --paced --graph`: the robot's configuration, `drive launch --link L --paced`
@@ -302,53 +315,47 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
     report = {"benchmark": "graph_real_time", "scenario": scenario.name, "samples": scenario.n_samples,
               "block_samples": block_samples, "repeats": repeats, "load": load,
               "lose_command_every": lose_command_every, "rows": [], "interrupted": 0}
-    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if load else None
-    try:
-        with interrupt.polled():
-            for link in links:
-                for lever in levers:
-                    runs = []
-                    for _ in range(repeats):
-                        stolen = stolen_s()
-                        result = launch(scenario_ref, record=True, link=link, paced=True,
-                                        extra_parameters={"block_samples": block_samples},
-                                        lose_command_every=lose_command_every, **REAL_TIME_LEVERS[lever])
-                        report["interrupted"] = result.interrupted or interrupt.requested()
-                        if report["interrupted"]:
-                            return report
-                        metrics, t = compute_metrics(result), result.timing
-                        runs.append({"late_fraction": t["late_fraction"], "watchdog_trips": t["watchdog_trips"],
-                                     "meets_targets": meets_targets(metrics),
-                                     "overruns": t["overruns"], "lock_lost": metrics["lock_lost"],
-                                     "lock_lost_s": metrics["lock_lost_s"],
-                                     "angle_error_rms": metrics["angle_error_rms"],
-                                     "angle_error_peak": metrics["angle_error_peak"],
-                                     "missing_runs": t["missing_runs"],
-                                     **{key: t[key] for key in ("hop_us", "latency_p50_us", "latency_p99_us",
-                                                                "latency_max_us", "latency_p50_hops",
-                                                                "latency_p99_hops", "latency_max_hops")},
-                                     "scheduling": result.scheduling,
-                                     "stolen_ms": {cpu: round(1e3 * (t - stolen[cpu]))
-                                                   for cpu, t in stolen_s().items() if cpu in stolen}})
-                    worst = max(runs, key=lambda r: r["late_fraction"])
-                    row = {"link": link, "lever": lever, "runs": runs, "worst_late_fraction": worst["late_fraction"],
-                           "runs_without_a_late_period": sum(r["late_fraction"] == 0.0 for r in runs),
-                           "watchdog_trips": sum(r["watchdog_trips"] for r in runs),
-                           "runs_lock_held": sum(r["lock_lost_s"] == 0.0 for r in runs),
-                           "runs_meeting_targets": sum(r["meets_targets"] for r in runs)}
-                    report["rows"].append(row)
-                    if progress:
-                        late = ", ".join(f"{100 * r['late_fraction']:.2f}" for r in runs)
-                        p99 = ", ".join(f"{r['latency_p99_hops']:.0f}" for r in runs)
-                        stolen = ", ".join(str(sum(r["stolen_ms"].values())) for r in runs)
-                        progress(f"  {link:4s} {lever:20s} late {late} %, watchdog trips {row['watchdog_trips']}, "
-                                 f"lock held in {row['runs_lock_held']} of {len(runs)}, ours within its targets in "
-                                 f"{row['runs_meeting_targets']}, latency p99 {p99} hops "
-                                 f"(hop {runs[0]['hop_us']:.1f} µs), stolen by the host {stolen} ms")
-                        for line in sorted({line for r in runs for line in r["scheduling"]["refused"]}):
-                            progress(f"       {lever}: {line}")
-    finally:
-        if busy is not None:
-            busy.kill()
-            busy.wait()
+    with core_kept_busy(load), interrupt.polled():
+        for link in links:
+            for lever in levers:
+                runs = []
+                for _ in range(repeats):
+                    stolen_before = stolen_s()
+                    result = launch(scenario_ref, record=True, link=link, paced=True,
+                                    extra_parameters={"block_samples": block_samples},
+                                    lose_command_every=lose_command_every, **REAL_TIME_LEVERS[lever])
+                    report["interrupted"] = result.interrupted or interrupt.requested()
+                    if report["interrupted"]:
+                        return report
+                    metrics, t = compute_metrics(result), result.timing
+                    runs.append({"late_fraction": t["late_fraction"], "watchdog_trips": t["watchdog_trips"],
+                                 "meets_targets": meets_targets(metrics),
+                                 "overruns": t["overruns"], "lock_lost": metrics["lock_lost"],
+                                 "lock_lost_s": metrics["lock_lost_s"],
+                                 "angle_error_rms": metrics["angle_error_rms"],
+                                 "angle_error_peak": metrics["angle_error_peak"],
+                                 "missing_runs": t["missing_runs"],
+                                 **{key: t[key] for key in ("hop_us", "latency_p50_us", "latency_p99_us",
+                                                            "latency_max_us", "latency_p50_hops",
+                                                            "latency_p99_hops", "latency_max_hops")},
+                                 "scheduling": result.scheduling,
+                                 "stolen_ms": {cpu: round(1e3 * (after - stolen_before[cpu]))
+                                               for cpu, after in stolen_s().items() if cpu in stolen_before}})
+                worst = max(runs, key=lambda r: r["late_fraction"])
+                row = {"link": link, "lever": lever, "runs": runs, "worst_late_fraction": worst["late_fraction"],
+                       "runs_without_a_late_period": sum(r["late_fraction"] == 0.0 for r in runs),
+                       "watchdog_trips": sum(r["watchdog_trips"] for r in runs),
+                       "runs_lock_held": sum(r["lock_lost_s"] == 0.0 for r in runs),
+                       "runs_meeting_targets": sum(r["meets_targets"] for r in runs)}
+                report["rows"].append(row)
+                if progress:
+                    late = ", ".join(f"{100 * r['late_fraction']:.2f}" for r in runs)
+                    p99 = ", ".join(f"{r['latency_p99_hops']:.0f}" for r in runs)
+                    stolen_ms = ", ".join(str(sum(r["stolen_ms"].values())) for r in runs)
+                    progress(f"  {link:4s} {lever:20s} late {late} %, watchdog trips {row['watchdog_trips']}, "
+                             f"lock held in {row['runs_lock_held']} of {len(runs)}, ours within its targets in "
+                             f"{row['runs_meeting_targets']}, latency p99 {p99} hops "
+                             f"(hop {runs[0]['hop_us']:.1f} µs), stolen by the host {stolen_ms} ms")
+                    for line in sorted({line for r in runs for line in r["scheduling"]["refused"]}):
+                        progress(f"       {lever}: {line}")
     return report
