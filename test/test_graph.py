@@ -73,15 +73,18 @@ def assert_same_samples(graph_result, path):
         np.testing.assert_allclose(a, b, rtol=0.0, atol=1e-9, err_msg=name)
 
 
-@pytest.mark.parametrize("processes, block_samples", [("composed", 1), ("separate", 1), ("composed", 10),
-                                                       ("separate", 7)])
-def test_graph_gives_the_runners_samples(tmp_path, processes, block_samples):
+@pytest.mark.parametrize("processes, block_samples, intra_process", [
+    ("composed", 1, False), ("separate", 1, False), ("composed", 10, False), ("separate", 7, False),
+    ("composed", 1, True), ("composed", 7, True)])
+def test_graph_gives_the_runners_samples(tmp_path, processes, block_samples, intra_process):
     """The graph's samples equal the one-process run's with the same block size, start-up included;
-    separate processes with a holding brake lifting 20 ms after the first tracking sample (the plant
-    joins `estimator_state` until then) and the load's torque fed forward (`torque_feedforward`). Blocks
-    of 7 do not divide the run: its last block is shorter."""
-    path = scenario_file(tmp_path, brake=processes == "separate", block_samples=block_samples)
-    result = launch(path, processes=processes, namespace=f"/eq_{processes}_{block_samples}")
+    separate processes and intra-process (the controller taking the estimator's answers directly) with a
+    holding brake lifting 20 ms after the first tracking sample (the plant joins `estimator_state` until
+    then) and the load's torque fed forward (`torque_feedforward`). Blocks of 7 do not divide the run:
+    its last block is shorter."""
+    path = scenario_file(tmp_path, brake=processes == "separate" or intra_process, block_samples=block_samples)
+    result = launch(path, processes=processes, namespace=f"/eq_{processes}_{block_samples}_{intra_process:d}",
+                    intra_process=intra_process)
     assert not result.interrupted and not result.node_faults
     assert_same_samples(result, path)
 
@@ -284,6 +287,38 @@ def test_estimator_holds_its_estimate_on_nan_currents():
         h.close()
 
 
+def test_intra_process_the_controller_takes_the_estimators_answers_not_the_topics():
+    """With the estimator handed to it (drive launch --intra-process) the controller subscribes to none of
+    its lock-step inputs, offers `voltage_command` only once the estimator answers, and answers each
+    sample the estimator hands over; the estimator still publishes its answers for everyone else."""
+    h = Harness("/intra")
+    try:
+        estimator = h.add(EstimatorNode, commissioning=COMMISSIONING)
+        controller = ControllerNode(estimator=estimator, context=h.context, namespace=h.namespace,
+                                    parameter_overrides=parameter_overrides(h.parameters))
+        h.nodes.append(controller)
+        inputs = {f"/intra/{topic}" for topic in ("currents", "rotor_estimate", "injection", "estimator_state")}
+        assert not inputs & {s.topic_name for s in controller.subscriptions}
+        h.listen(Vector3Stamped, "voltage_command")
+        h.listen(JointState, "rotor_estimate")
+        h.spin_until(lambda: controller.params is not None, what="the estimator's drive_config")
+        settled = time.monotonic() + 0.3
+        h.spin_until(lambda: time.monotonic() > settled, what="a while")
+        assert not estimator.answering and not h.tester.count_publishers("/intra/voltage_command")
+        currents = h.publisher(Vector3Stamped, "currents")
+        h.spin_until(lambda: currents.get_subscription_count() and estimator.answering
+                     and controller.voltage_pub and controller.voltage_pub.get_subscription_count() >= 2
+                     and estimator.estimate_pub.get_subscription_count(), what="matching")
+        commands, estimates = h.received["voltage_command"], h.received["rotor_estimate"]
+        for k in range(3):
+            currents.publish(vector(k, 0.0, 0.0, 0.0))
+            h.spin_until(lambda n=k + 1: len(commands) >= n and len(estimates) >= n, what=f"answers of sample {k}")
+            assert sample_of(commands[k].header, 1e-4) == k
+        assert controller.k == 3 and not controller.health.counters
+    finally:
+        h.close()
+
+
 def test_plant_discards_a_wrongly_stamped_command_and_applies_zero_voltage_on_timeout():
     h = Harness("/bad_plant", lockstep_timeout_s=0.3)
     try:
@@ -405,17 +440,19 @@ def test_controller_follows_the_plant_past_a_lost_sample():
         h.close()
 
 
-@pytest.mark.parametrize("link, processes, blocks", [("pty", "separate", 1), ("can", "composed", 1),
-                                                     ("pty", "composed", 10)])
-def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks):
+@pytest.mark.parametrize("link, processes, blocks, intra_process", [
+    ("pty", "separate", 1, False), ("can", "composed", 1, False), ("pty", "composed", 10, False),
+    ("pty", "composed", 1, True), ("can", "composed", 10, True)])
+def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks, intra_process):
     """The virtual inverter behind a pty or a CAN bus and the drive_bridge node in the plant's place:
     the graph closes the loop sample for sample (block for block: TELEMETRY_BLOCK and COMMAND_BLOCK
-    through the bridge node's block topics) as the one-process loop through the bridge does. The speed
-    is constant: nothing gates the inverter's clock on the launcher's speed commands (as on a robot), so
-    a changing speed would land on whichever sample the graph's timing gives it."""
+    through the bridge node's block topics) as the one-process loop through the bridge does, also with
+    the commands handed to the bridge directly (intra-process). The speed is constant: nothing gates the
+    inverter's clock on the launcher's speed commands (as on a robot), so a changing speed would land on
+    whichever sample the graph's timing gives it."""
     from drive_runner.bridge_loop import run_through_bridge
     path = scenario_file(tmp_path, rpm=0.0)
-    result = launch(path, processes=processes, link=link,
+    result = launch(path, processes=processes, link=link, intra_process=intra_process,
                     extra_parameters={"diagnostics_period_s": 0.05, "block_samples": blocks})
     reference = run_through_bridge(dataclasses.replace(load_scenario(path), block_samples=blocks), link)
     for name in ("i_a_meas", "theta_e_hat", "omega_e_hat", "u_alpha", "u_beta"):

@@ -86,6 +86,9 @@ def test_the_real_time_bench_and_launch_check_their_options():
     run = subprocess.run(drive + ["bench", "bridge", "--paced", "--graph", "--lose-command-every", "-1"],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "--lose-command-every: N ≥ 0" in run.stderr
+    run = subprocess.run(drive + ["launch", "wang_100rpm", "--intra-process", "--processes", "separate"],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "--intra-process: needs --processes composed" in run.stderr
 
 
 def test_the_platform_probe_wakes_every_period_and_counts_the_late_ones():

@@ -4,7 +4,8 @@ It publishes what `pmsm_plant` publishes — `currents` stamped k·T_s from the 
 counter, `rotor_state` and `angle_error` when the encoder is valid, `/clock`, `drive_config`,
 `/diagnostics` — and answers `voltage_command`(k) with COMMAND(k). With an inverter sending blocks of
 N samples (parameter ``block_samples``, which must match its HELLO) it publishes `currents_block` and
-`rotor_state_block` of each whole block and answers `voltage_command_block` with COMMAND_BLOCK. The
+`rotor_state_block` of each whole block and answers `voltage_command_block` with COMMAND_BLOCK (composed
+with the controller, ``drive launch --intra-process``: the controller's commands handed over directly). The
 service `clear_faults`
 (std_srvs/Trigger) clears the inverter's latched faults, an overcurrent included. Frames are read on a
 thread of their own, so the graph never waits on the link; the inverter's clock paces everything. Link
@@ -58,7 +59,10 @@ NO_CHANNEL = np.zeros(0)
 
 
 class InverterBridgeNode(ContractNode):
-    def __init__(self, link=None, **kwargs):
+    def __init__(self, link=None, controller=None, **kwargs):
+        """``link``: a link object (composed graphs), else the parameters' link; ``controller``: the
+        ControllerNode of this process to take the voltage commands from directly (``drive launch
+        --intra-process``), instead of subscribing to them."""
         super().__init__("drive_bridge", **kwargs)
         QUIET_TIME.hold()
         for name, (default, text) in PARAMETERS.items():
@@ -86,17 +90,21 @@ class InverterBridgeNode(ContractNode):
         if self.block_samples > 1:
             self.currents_pub = self.sample_publisher(block(CURRENTS))
             self.rotor_state_pub = self.sample_publisher(block(ROTOR_STATE))
-            self.sample_subscription(block(VOLTAGE_COMMAND), self.timed(self.on_voltage_block))
+            if controller is None:
+                self.sample_subscription(block(VOLTAGE_COMMAND), self.timed(self.on_voltage_block))
             self.sample_subscription(block(ROTOR_ESTIMATE), self.on_rotor_estimate_block)
             self.currents_wire = BlockWire(TOPICS[CURRENTS].frame_id)
             self.rotor_state_wire = BlockWire()
         else:
             self.currents_pub = self.create_publisher(Vector3Stamped, CURRENTS, topic_qos(CURRENTS))
             self.rotor_state_pub = self.create_publisher(JointState, ROTOR_STATE, topic_qos(ROTOR_STATE))
-            self.create_subscription(Vector3Stamped, VOLTAGE_COMMAND, self.timed(self.on_voltage_command),
-                                     topic_qos(VOLTAGE_COMMAND))
+            if controller is None:
+                self.create_subscription(Vector3Stamped, VOLTAGE_COMMAND, self.timed(self.on_voltage_command),
+                                         topic_qos(VOLTAGE_COMMAND))
             self.create_subscription(JointState, ROTOR_ESTIMATE, self.on_rotor_estimate,
                                      topic_qos(ROTOR_ESTIMATE))
+        if controller is not None:
+            controller.hand_commands_to(self.timed(self.take_commands))
         self.create_service(Trigger, "clear_faults", self.on_clear_faults)
         wrap(0.0)
         self.T_s = None
@@ -182,12 +190,24 @@ class InverterBridgeNode(ContractNode):
                                                                         np.ones(len(b)), NO_CHANNEL))
 
     def on_voltage_block(self, sec, nanosec, u_alpha, u_beta, _):
+        if self.T_s is not None:
+            self.command_block(sample_at(sec, nanosec, self.T_s), u_alpha, u_beta, f"{sec}.{nanosec:09d}")
+
+    def take_commands(self, k, u_alpha, u_beta):
+        """The voltage command of sample k (floats), or with blocks of the block from sample k (arrays),
+        handed over by the controller of this process (ControllerNode.hand_commands_to): on the link at once."""
         if self.T_s is None:
             return
-        k0 = sample_at(sec, nanosec, self.T_s)
+        if self.block_samples > 1:
+            self.command_block(k, u_alpha, u_beta, f"of sample {k}")
+        else:
+            self.command(k, u_alpha, u_beta, f"of sample {k}")
+
+    def command_block(self, k0, u_alpha, u_beta, which):
+        """COMMAND_BLOCK from sample k0; anything but a block of finite voltages: safe state."""
         if k0 is None or len(u_alpha) != self.block_samples or len(u_beta) != self.block_samples or not (
                 np.isfinite(u_alpha).all() and np.isfinite(u_beta).all()):
-            self.fault("bad_input", f"voltage_command_block {sec}.{nanosec:09d}: not a block of "
+            self.fault("bad_input", f"voltage_command_block {which}: not a block of "
                                     f"{self.block_samples} voltages; safe state")
             self.bridge.safe_state("bad voltage_command_block")
             return
@@ -231,16 +251,18 @@ class InverterBridgeNode(ContractNode):
             self.health.message = f"waiting for the inverter ({self.bridge.last_error or 'no telemetry yet'})"
 
     def on_voltage_command(self, msg):
-        if self.T_s is None:
-            return
-        k = sample_of(msg.header, self.T_s)
-        u = msg.vector
-        if k is None or not finite(u.x, u.y):
-            self.fault("bad_input", f"voltage_command {msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}: "
-                                    f"({u.x}, {u.y}) is not a sample's voltage; safe state")
+        if self.T_s is not None:
+            self.command(sample_of(msg.header, self.T_s), msg.vector.x, msg.vector.y,
+                         f"{msg.header.stamp.sec}.{msg.header.stamp.nanosec:09d}")
+
+    def command(self, k, u_alpha, u_beta, which):
+        """COMMAND of sample k; anything but a sample's finite voltage: safe state."""
+        if k is None or not finite(u_alpha, u_beta):
+            self.fault("bad_input", f"voltage_command {which}: ({u_alpha}, {u_beta}) is not a sample's "
+                                    f"voltage; safe state")
             self.bridge.safe_state("bad voltage_command")
             return
-        self.bridge.command(k, u.x, u.y)
+        self.bridge.command(k, u_alpha, u_beta)
         QUIET_TIME.quiet()
 
     def on_clear_faults(self, request, response):

@@ -49,12 +49,13 @@ def cmd_bench_throughput(args):
 
 
 def cmd_bench_graph(args):
-    from drive_evaluation.bench import graph_throughput
+    from drive_evaluation.bench import GRAPH_CONFIGURATIONS, INTRA_PROCESS, graph_throughput
     duration_arg(args.duration, load_scenario(args.scenario).T_s)
     _at_least_one(("--repeats", args.repeats))
     report = graph_throughput(args.scenario, args.duration, record=args.record, repeats=args.repeats,
                               progress=None if args.json else print,
-                              block_sizes=block_sizes(args.block_samples))
+                              block_sizes=block_sizes(args.block_samples),
+                              configurations=GRAPH_CONFIGURATIONS + ((INTRA_PROCESS,) if args.intra_process else ()))
     if args.json:
         print_json(report)
     elif report["interrupted"]:
@@ -170,6 +171,8 @@ def add_bench_commands(bench_sub):
     graph.add_argument("--block-samples", default="1", metavar="N[,N...]",
                        help="block sizes to time (samples per message; default 1)")
     graph.add_argument("--repeats", type=int, default=2, help="timed runs per configuration (best kept)")
+    graph.add_argument("--intra-process", action="store_true",
+                       help="also composed with the controller taking the estimator's answers directly")
     graph.add_argument("--json", action="store_true")
     graph.set_defaults(func=cmd_bench_graph)
     blocks = bench_sub.add_parser("blocks", help="per block size: the graph's real-time factor (composed, "

@@ -102,6 +102,9 @@ def cmd_launch(args):
     record_arg(args.record)
     if args.paced and not args.link:
         raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
+    if args.intra_process and args.processes != "composed":
+        raise CommandLineError("--intra-process: needs --processes composed (the estimator hands its answers to "
+                               "the controller in one process)")
     extra = {"commissioning": args.commissioning} if args.commissioning else {}
     if args.motor:
         extra["motor_file"] = motor_reference(args.motor)
@@ -115,14 +118,15 @@ def cmd_launch(args):
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
                     timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,
                     extra_parameters=extra or None, rt_priority=args.rt_priority, cpus=args.cpus,
-                    workqueue_cpus=args.workqueue_cpus,
+                    workqueue_cpus=args.workqueue_cpus, intra_process=args.intra_process,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
     for line in result.scheduling["refused"]:
         print(f"drive: warning: {line}", file=sys.stderr)
     faults = result.node_faults
     plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
+    intra = ", the controller taking the estimator's answers directly" if args.intra_process else ""
     extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}, "
-                      f"{plant}",
+                      f"{plant}{intra}",
              "real_time_factor": round(result.scenario.duration_s / result.wall_time_s, 4)
              if result.wall_time_s > 0 else None,
              "interrupted": bool(result.interrupted), "node_faults": faults, "scheduling": result.scheduling}
@@ -223,6 +227,9 @@ def add_commands(sub):
                         help="nodes in this process (default) or one process per node")
     launch.add_argument("--executor", choices=EXECUTORS, default="events",
                         help="events (rclpy.experimental.EventsExecutor, default) or single (fallback)")
+    launch.add_argument("--intra-process", action="store_true",
+                        help="composed: the controller takes the estimator's answers and the currents directly, "
+                             "not over topics (still published for everyone else; docs/ros-graph.md)")
     launch.add_argument("--namespace", default=DEFAULT_NAMESPACE)
     launch.add_argument("--timeout", type=finite_float, default=1.0, help="lock-step answer timeout [s]")
     launch.add_argument("--record", metavar="BAG",

@@ -78,12 +78,18 @@ def motulator_throughput(python, timeout_s=900.0):
 
 
 GRAPH_CONFIGURATIONS = (("composed", "events"), ("composed", "single"), ("separate", "events"))
+INTRA_PROCESS = ("composed", "events", "intra")
+"""The configuration `drive bench graph --intra-process` adds: composed, the controller taking the estimator's
+answers directly (launch's ``intra_process``), INTRA_PROCESS_DELIVERIES messages per block."""
+INTRA_PROCESS_DELIVERIES = 4
+"""Deliveries per block left intra-process: `currents` → estimator, `rotor_estimate` → plant, `voltage_command`
+→ plant, estimator (of launcher.DELIVERIES_PER_SAMPLE; the recorder's not counted)."""
 
 
 def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False, repeats=2, progress=None,
                      block_sizes=(1,), configurations=GRAPH_CONFIGURATIONS):
     """Real-time factor (simulated / wall time) of the lock-step graph per block size N (``block_sizes``;
-    1: one message per sample) and (processes, executor), best and median of ``repeats`` runs after a
+    1: one message per sample) and (processes, executor[, "intra"]), best and median of ``repeats`` runs after a
     short warm-up run; the wall time per sample and per delivered message (launcher.DELIVERIES_PER_SAMPLE
     messages per block), and the ping-pong hop time that bounds it. A signal stops it: the
     configurations done are returned, ``interrupted`` names the signal, and the one cut (a configuration
@@ -103,26 +109,29 @@ def _graph_runs(report, scenario_name, duration_s, record, repeats, progress, bl
     report["interrupted"] = launch(scenario_name, duration_s=0.05, record=record).interrupted
     if report["interrupted"]:
         return
-    for (processes, executor), block in ((c, n) for n in block_sizes for c in configurations):
+    for (processes, executor, *intra), block in ((c, n) for n in block_sizes for c in configurations):
         walls, samples = [], 0
+        deliveries = INTRA_PROCESS_DELIVERIES if intra else DELIVERIES_PER_SAMPLE
         for _ in range(repeats):
             r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
-                       record=record, extra_parameters={"block_samples": block})
+                       record=record, extra_parameters={"block_samples": block}, intra_process=bool(intra))
             report["interrupted"] = r.interrupted or interrupt.requested()
             if report["interrupted"]:
                 return
             walls.append(r.wall_time_s)
             samples = r.scenario.n_samples
         wall, median = min(walls), float(np.median(walls))
-        entry = {"processes": processes, "executor": executor, "block_samples": block, "record": record,
+        entry = {"processes": processes, "executor": executor, "intra_process": bool(intra),
+                 "block_samples": block, "record": record,
                  "samples": samples, "repeats": repeats, "wall_time_s": wall,
                  "real_time_factor": samples * r.scenario.T_s / wall,
                  "real_time_factor_median": samples * r.scenario.T_s / median,
                  "us_per_sample": 1e6 * wall / samples,
-                 "us_per_delivered_message": 1e6 * wall * block / samples / DELIVERIES_PER_SAMPLE}
+                 "us_per_delivered_message": 1e6 * wall * block / samples / deliveries}
         results.append(entry)
         if progress:
-            progress(f"  N = {block:<3d} {processes:9s} {executor:7s} real-time factor {entry['real_time_factor']:.3f} "
+            label = f"{processes}{'-intra' if intra else ''}"
+            progress(f"  N = {block:<3d} {label:15s} {executor:7s} real-time factor {entry['real_time_factor']:.3f} "
                      f"(median {entry['real_time_factor_median']:.3f}; {entry['us_per_sample']:.0f} µs per sample, "
                      f"{entry['us_per_delivered_message']:.0f} µs per delivered message)")
     from drive_launch.hop_cost import hop_latency
@@ -278,11 +287,14 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
 REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {}, "collector+cpu1": {"cpus": {1}},
                     "collector+fifo": {"rt_priority": 50}, "collector+fifo+cpu1": {"rt_priority": 50, "cpus": {1}},
                     "collector+fifo+cpu1+inverter_apart": {"rt_priority": 50, "cpus": {1}, "inverter_apart": True},
-                    "collector+fifo+cpu1+workqueue1": {"rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1}}}
+                    "collector+fifo+cpu1+workqueue1": {"rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1}},
+                    "collector+fifo+cpu1+workqueue1+intra": {"rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1},
+                                                             "intra_process": True}}
 """The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
 "Real time"): none; the garbage collector held out of the sample path (the default); and the process on
 CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1); and the kernel's unbound workqueues (a serial
-link's bytes pass through one) on CPU 1 too. The virtual inverter runs on a thread of the graph's process
+link's bytes pass through one) on CPU 1 too; and the controller taking the estimator's answers directly
+(intra_process: four deliveries a block fewer). The virtual inverter runs on a thread of the graph's process
 but in inverter_apart, where it has a process of its own (on the CPU the graph leaves)."""
 
 

@@ -119,9 +119,11 @@ def refuse_occupied(context, namespaces, discovery_s=DISCOVERY_S):
         probe.destroy_node()
 
 
-def make_node(name, context=None, namespace=None, parameters=None, link=None):
+def make_node(name, context=None, namespace=None, parameters=None, link=None, estimator=None, controller=None):
     """One of the drive's nodes (``drive_interface.graph.NODES``) with ``parameters`` as overrides; the
-    drive_bridge node on ``link`` when given (a link object, for composed graphs)."""
+    drive_bridge node on ``link`` when given (a link object, for composed graphs). Intra-process partners,
+    made before: the controller takes the answers of ``estimator`` (the EstimatorNode of this process)
+    directly, the bridge the commands of ``controller``."""
     from drive_interface.node import parameter_overrides
     kwargs = {"context": context, "namespace": namespace,
               "parameter_overrides": parameter_overrides(parameters or {})}
@@ -133,13 +135,13 @@ def make_node(name, context=None, namespace=None, parameters=None, link=None):
         return EstimatorNode(**kwargs)
     if name == "foc_controller":
         from foc_controller.node import ControllerNode
-        return ControllerNode(**kwargs)
+        return ControllerNode(estimator=estimator, **kwargs)
     if name == "drive_commissioning":
         from drive_commissioning.node import CommissioningNode
         return CommissioningNode(**kwargs)
     if name == "drive_bridge":
         from drive_bridge.bridge_node import InverterBridgeNode
-        return InverterBridgeNode(link=link, **kwargs)
+        return InverterBridgeNode(link=link, controller=controller, **kwargs)
     raise GraphError(f"unknown node '{name}' (known: {', '.join(NODES)})")
 
 
@@ -200,7 +202,7 @@ class DriveSpec:
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
            progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None,
-           hold_collector=True, inverter_apart=False, lose_command_every=0, workqueue_cpus=None):
+           hold_collector=True, inverter_apart=False, lose_command_every=0, workqueue_cpus=None, intra_process=False):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
@@ -210,19 +212,21 @@ def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", 
     unbound workqueues there for the run; ``hold_collector``: the garbage collector out of the sample path
     (drive_interface.realtime; off only to measure what it gives);
     ``inverter_apart``: a paced inverter in a process of its own, ``lose_command_every``: its lost commands
-    (DriveSpec)."""
+    (DriveSpec); ``intra_process``: the controller takes the estimator's answers directly (composed only)."""
     spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced,
                      inverter_apart, lose_command_every)
     return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress, rt_priority,
-                       cpus, hold_collector, workqueue_cpus)[0]
+                       cpus, hold_collector, workqueue_cpus, intra_process)[0]
 
 
 def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
                 startup_timeout_s=60.0, progress=None, rt_priority=0, cpus=None, hold_collector=True,
-                workqueue_cpus=None):
+                workqueue_cpus=None, intra_process=False):
     """Run several drives side by side in one graph (one namespace each); one GraphResult per spec. A
     scenario whose drive is a drive configuration file (``drive: FILE``) gives the estimator that file and
-    no scenario (as on a robot); the plant and the controller's speed schedule take the experiment."""
+    no scenario (as on a robot); the plant and the controller's speed schedule take the experiment. With
+    ``intra_process`` each controller takes its estimator's answers and currents directly, not over topics
+    (they are still published for everyone else: the recorder, tools); it needs the nodes composed."""
     import rclpy
     from rclpy.node import Node
     from rclpy.signals import SignalHandlerOptions
@@ -234,6 +238,9 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
 
     if processes not in PROCESSES:
         raise GraphError(f"processes: must be one of {', '.join(PROCESSES)}, not '{processes}'")
+    if intra_process and processes != "composed":
+        raise GraphError("intra-process: the estimator hands its answers to the controller in one process; "
+                         "it needs the nodes composed, not --processes separate")
     if len({spec.namespace for spec in specs}) < len(specs):
         raise GraphError("drives side by side need distinct namespaces")
     for spec in specs:
@@ -279,8 +286,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             if scenario.drive_file:
                 estimator = {**parameters, "drive_configuration": scenario.drive_file, "scenario": "",
                              "duration_s": scenario.duration_s}
-            roles = {"pmsm_plant": {**scheduled, "publish_clock": i == 0},
-                     "hf_estimator": estimator, "foc_controller": scheduled}
+            plant = {**scheduled, "publish_clock": i == 0, "currents_readers": 1 if intra_process else 2}
+            roles = {"pmsm_plant": plant, "hf_estimator": estimator, "foc_controller": scheduled}
             inverter = None
             if spec.link:
                 inverter, host_link = _virtual_inverter(scenario, parameters, spec.link, workdir.name, i, spec.paced,
@@ -292,13 +299,16 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                 timeouts = {"link_timeout_s": timeout_s, "command_timeout_s": timeout_s,
                             "diagnostics_period_s": period, "publish_clock": i == 0,
                             "block_samples": scenario.block_samples}
-                if processes == "composed":
-                    nodes.append(make_node("drive_bridge", context, spec.namespace, timeouts, link=host_link))
-                else:
-                    roles["drive_bridge"] = {**_link_parameters(host_link), **timeouts}
+                roles["drive_bridge"] = timeouts if processes == "composed" else {**_link_parameters(host_link),
+                                                                                  **timeouts}
+            made = {}
             for role, role_parameters in roles.items():
                 if processes == "composed":
-                    nodes.append(make_node(role, context, spec.namespace, role_parameters))
+                    partners = {"estimator": made.get("hf_estimator"), "controller": made.get("foc_controller")}
+                    made[role] = make_node(role, context, spec.namespace, role_parameters,
+                                           link=host_link if spec.link else None,
+                                           **(partners if intra_process else {}))
+                    nodes.append(made[role])
                 else:
                     children.append((role, _spawn(role, spec.namespace, role_parameters, executor, rt_priority,
                                                   cpus)))
@@ -308,7 +318,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             listeners.append(listener)
             driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
                                     startup_timeout_s, progress if i == 0 else None, recorders[i], inverter,
-                                    listener)
+                                    listener, intra_process)
             driver.done = Future()
             drives.append(drive)
             drivers.append(driver)

@@ -52,8 +52,10 @@ class ScenarioDriver:
     it starts the inverter at sample 0."""
 
     def __init__(self, node, scenario, record, settle_s, startup_timeout_s, progress, recorder=None,
-                 inverter=None, listener=None):
+                 inverter=None, listener=None, intra_process=False):
         self.node, self.scenario = node, scenario
+        self.intra_process = intra_process
+        """The controller takes the estimator's answers and the currents directly (no subscriptions)."""
         self.listener = listener or node
         """The node that takes what the graph says (its subscriptions): the launcher spins it on a thread of
         its own, so that what is recorded never waits in the drive's queue of callbacks."""
@@ -170,11 +172,15 @@ class ScenarioDriver:
 
     def expected_endpoints(self):
         """(topic, publishers, subscribers) that must exist before sample 0, this node included (with
-        an inverter, which keeps its own load and clock, no plant subscribes to load_torque)."""
+        an inverter, which keeps its own load and clock, no plant subscribes to load_torque; intra-process,
+        the controller subscribes to none of the estimator's answers nor to the currents, the bridge not to
+        the commands)."""
         r = 1 if self.record or self.recorder else 0
+        c = 0 if self.intra_process else 1
         sensored = self.scenario.estimator == "sensored"
-        endpoints = [(CURRENTS, 1, 2 + r), (ROTOR_ESTIMATE, 1, 2 + r), (INJECTION, 1, 1 + r),
-                     (VOLTAGE_COMMAND, 1, 2 + r), (ESTIMATOR_STATE, 1, 1 + r), (ESTIMATOR_BLEND, 1, r)]
+        b = 0 if self.intra_process and self.inverter is not None else 1
+        endpoints = [(CURRENTS, 1, 1 + c + r), (ROTOR_ESTIMATE, 1, 1 + c + r), (INJECTION, 1, c + r),
+                     (VOLTAGE_COMMAND, 1, 1 + b + r), (ESTIMATOR_STATE, 1, c + r), (ESTIMATOR_BLEND, 1, r)]
         if self.inverter is None:
             endpoints += [(ROTOR_STATE, 1, r + sensored)]
         endpoints = [(self.carried[topic], pubs, subs) for topic, pubs, subs in endpoints]

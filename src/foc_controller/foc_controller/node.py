@@ -9,7 +9,9 @@ not read. The robot-facing `joint_states` (estimated
 position, speed, torque) is published every ``joint_states_decimation`` samples. Bad currents or
 estimates, or a rejected speed limit, give zero voltage and a reported fault; the node keeps answering.
 With blocks (``block_samples`` N > 1) it joins the four block twins of a block, runs ``controller_block``
-once and answers `voltage_command_block`.
+once and answers `voltage_command_block`. Composed in one process with the estimator
+(``drive launch --intra-process``) it takes the currents and the estimator's answers from the estimator
+node directly, at once, instead of four deliveries; the estimator still publishes them.
 
 The core is built once the estimator's drive_config tells what the controller needs of it: its
 injection frequency (the notch), its tracking bandwidth (the speed loop stays below it) and the current
@@ -66,14 +68,26 @@ def default_joint_name(namespace):
 class ControllerNode(ScenarioNode):
     node_parameters = SCHEDULE_PARAMETER
 
-    def __init__(self, **kwargs):
+    def __init__(self, estimator=None, **kwargs):
+        """``estimator``: the EstimatorNode of this process to take the answers from directly
+        (``drive launch --intra-process``), instead of subscribing to them and to the currents."""
         self.params = None
         self.schedule = None
         super().__init__("foc_controller", **kwargs)
         self.declare_parameter("joint_states_decimation", 100)
         self.decimation = max(1, int(self.get_parameter("joint_states_decimation").value))
         self.joint_pub = self.create_publisher(JointState, JOINT_STATES, topic_qos(JOINT_STATES))
-        if self.block_samples > 1:
+        self.hand_commands = None
+        """In one process, the bridge's ``take_commands(k, u_alpha, u_beta)`` (hand_commands_to), else None."""
+        self.voltage_pub = None
+        """`voltage_command`('s block twin), offered once the core is built and the inputs are matched."""
+        def ready():
+            return (self.params or not self.configured) and (estimator is None or estimator.answering)
+
+        if estimator is not None:
+            inputs = []
+            estimator.hand_answers_to(self.timed(self.take_answers))
+        elif self.block_samples > 1:
             inputs = [self.sample_subscription(block(CURRENTS), self.timed(self.on_currents_block)),
                       self.sample_subscription(block(ROTOR_ESTIMATE), self.on_estimate_block),
                       self.sample_subscription(block(INJECTION), self.on_injection_block),
@@ -83,7 +97,7 @@ class ControllerNode(ScenarioNode):
                       self.sample_subscription(ROTOR_ESTIMATE, self.on_estimate),
                       self.sample_subscription(INJECTION, self.on_injection),
                       self.sample_subscription(ESTIMATOR_STATE, self.on_estimator_state)]
-        self.open_when_matched(inputs, self.open_outputs, ready=lambda: self.params or not self.configured)
+        self.open_when_matched(inputs, self.open_outputs, ready=ready)
         self.create_subscription(Float64, SPEED_COMMAND, self.on_speed_command, topic_qos(SPEED_COMMAND))
         self.create_subscription(Float64, TORQUE_FEEDFORWARD, self.on_torque_feedforward,
                                  topic_qos(TORQUE_FEEDFORWARD))
@@ -200,6 +214,31 @@ class ControllerNode(ScenarioNode):
     def on_estimator_state(self, sec, nanosec, _, __, state):
         self.store(self.states, sec, nanosec, state)
 
+    def hand_commands_to(self, take_commands):
+        """In one process (``drive launch --intra-process``): hand each sample's or block's voltage commands
+        to ``take_commands(k, u_alpha, u_beta)`` (the bridge's; floats, or arrays of the block's samples)
+        before publishing them: the command is on the link before its topic is published."""
+        self.hand_commands = take_commands
+
+    def take_answers(self, k, currents, estimate, injection, state):
+        """Sample or block k's currents and the estimator's answers, handed over in one process
+        (EstimatorNode.hand_answers_to): answered at once; a later k means samples were lost before it.
+        Before `voltage_command` is offered (the core not built yet) nothing is answered: the inverter, whose
+        samples may come before the drive is ready, applies zero volts."""
+        if self.voltage_pub is None:
+            self.k = k + (len(currents[0]) if self.block_samples > 1 else 1)
+            return
+        if k < self.k:
+            self.fault("wrong_stamp", f"answers of sample {k} handed over at sample {self.k}; discarded")
+            return
+        if k > self.k:
+            self.resynchronise(k)
+        if self.block_samples > 1:
+            self.k = self.step_block(k, currents, estimate, injection, state)
+        else:
+            self.step(k, currents, estimate, injection, state)
+            self.k = k + 1
+
     def store(self, table, sec, nanosec, value):
         k = sample_at(sec, nanosec, self.T_s)
         if k is None or not self.k <= k <= self.k + RESYNC_SAMPLES:
@@ -273,6 +312,8 @@ class ControllerNode(ScenarioNode):
                 self.joint_pub.publish(j)
         elif self.params and not self.health.latched:
             self.fault("bad_input", f"block {k0}: inputs of unequal length; zero voltage")
+        if self.hand_commands:
+            self.hand_commands(k0, out[:, 0], out[:, 1])
         sec, nanosec = stamp_parts(k0, self.T_s)
         self.voltage_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 0], out[:, 1]))
         self.sample_handled(k0 + n - 1)
@@ -313,6 +354,8 @@ class ControllerNode(ScenarioNode):
                 j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
                 j.effort = [estimated_torque(self.params, i_d, i_q)]
                 self.joint_pub.publish(j)
+        if self.hand_commands:
+            self.hand_commands(k, u_alpha, u_beta)
         sec, nanosec = stamp_parts(k, self.T_s)
         self.voltage_pub.publish(self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0))
         self.sample_handled(k)

@@ -73,6 +73,11 @@ class EstimatorNode(ScenarioNode):
         self.lock_losses = 0
         self.refusal_reported = False
         self.signal = 0.0
+        self.answering = False
+        """True once the answer publishers are open (their readers can hear the plant)."""
+        self.hand_over = None
+        """In one process, the controller's ``take_answers(k, currents, estimate, injection, state)``
+        (hand_answers_to), else None."""
         if not self.configured:
             self.open_outputs()
             self.publish_config({})
@@ -129,6 +134,14 @@ class EstimatorNode(ScenarioNode):
             self.estimate_pub = self.sample_publisher(ROTOR_ESTIMATE)
             self.injection_pub = self.sample_publisher(INJECTION)
             self.blend_pub = self.sample_publisher(ESTIMATOR_BLEND)
+        self.answering = True
+
+    def hand_answers_to(self, take_answers):
+        """In one process (``drive launch --intra-process``): hand each sample's or block's answers, with
+        its currents, to ``take_answers(k, (i_a, i_b, i_c), (θ̂_m, ω̂_m), (u_α, u_β), state)`` (the
+        controller's; per channel a float, or an array of the block's samples; state: its code, or with
+        blocks (ε, signal, code)) before publishing them: the controller then waits for no delivery."""
+        self.hand_over = take_answers
 
     def warm_up(self):
         e = self.estimator
@@ -213,12 +226,12 @@ class EstimatorNode(ScenarioNode):
             held = estimates(1)[0]
             held["theta_e_hat"], held["omega_e_hat"], held["signal"] = self.theta_hat, self.omega_hat, self.signal
             held["observer_weight"], held["leader"] = self.blend[1:]
-            self.answer(k, held)
+            self.answer(k, held, (i_a, i_b, i_c))
         else:
             e, out = self.estimator, estimates(1)
             estimator_block(e.step, e.state, e.params, k, 1, np.array([[i_a, i_b, i_c]]), self.line,
                             np.array([[theta_enc, omega_enc]]), self.calibration, self.trip_A, out, self.inputs)
-            self.answer(k, out[0])
+            self.answer(k, out[0], (i_a, i_b, i_c))
         self.try_step()
 
     def note_state(self, k, state):
@@ -233,12 +246,16 @@ class EstimatorNode(ScenarioNode):
             self.fault("start_refused", f"sample {k}: {summary['refused']}")
         self.state = state
 
-    def answer(self, k, estimate):
-        """Publish sample k's ESTIMATE record on the per-sample topics."""
+    def answer(self, k, estimate, currents):
+        """Publish sample k's ESTIMATE record on the per-sample topics (handed over first, with the sample's
+        ``currents``, where hand_answers_to said so)."""
         e = estimate
         self.theta_hat, self.omega_hat, self.signal = e["theta_e_hat"], e["omega_e_hat"], e["signal"]
         self.note_state(k, e["state"])
         self.blend = (e["injection_amplitude"], e["observer_weight"], e["leader"])
+        if self.hand_over:
+            self.hand_over(k, currents, (e["theta_e_hat"] / self.n_p, e["omega_e_hat"] / self.n_p),
+                           (e["u_inj_alpha"], e["u_inj_beta"]), e["state"])
         sec, nanosec = stamp_parts(k, self.T_s)
         self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, e["u_inj_alpha"], e["u_inj_beta"], 0.0))
         self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, e["theta_e_hat"] / self.n_p,
@@ -309,10 +326,14 @@ class EstimatorNode(ScenarioNode):
         last = records[-1]
         self.theta_hat, self.omega_hat, self.signal = last["theta_e_hat"], last["omega_e_hat"], last["signal"]
         self.blend = (last["injection_amplitude"], last["observer_weight"], last["leader"])
-        sec, nanosec = stamp_parts(k0, self.T_s)
         r, wire = records, self.block_wire
+        theta_m, omega_m = r["theta_e_hat"] / self.n_p, r["omega_e_hat"] / self.n_p
+        if self.hand_over:
+            self.hand_over(k0, currents.T, (theta_m, omega_m), (r["u_inj_alpha"], r["u_inj_beta"]),
+                           (r["eps"], r["signal"], state))
+        sec, nanosec = stamp_parts(k0, self.T_s)
         self.injection_pub.publish(wire.encode(sec, nanosec, r["u_inj_alpha"], r["u_inj_beta"]))
-        self.estimate_pub.publish(wire.encode(sec, nanosec, r["theta_e_hat"] / self.n_p, r["omega_e_hat"] / self.n_p))
+        self.estimate_pub.publish(wire.encode(sec, nanosec, theta_m, omega_m))
         self.state_block_pub.publish(wire.encode(sec, nanosec, r["eps"], r["signal"], state))
         self.state_pub.publish(self.state_wire.encode(sec, nanosec, r[0]["eps"], r[0]["signal"], r[0]["state"]))
         self.blend_pub.publish(wire.encode(sec, nanosec, r["injection_amplitude"], r["observer_weight"], r["leader"]))

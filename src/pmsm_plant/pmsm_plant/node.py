@@ -56,7 +56,10 @@ HISTORY_SAMPLES = 8
 
 
 class PlantNode(ScenarioNode):
-    node_parameters = SCHEDULE_PARAMETER
+    node_parameters = {**SCHEDULE_PARAMETER, "currents_readers": (
+        2, "lock-step readers of currents to wait for before sample 0: the estimator and the controller (2), or "
+           "the estimator alone where the controller takes them from it in one process (1: drive launch "
+           "--intra-process)")}
 
     def __init__(self, **kwargs):
         super().__init__("pmsm_plant", **kwargs)
@@ -154,17 +157,18 @@ class PlantNode(ScenarioNode):
 
     def ready(self):
         """Every lock-step partner is matched: `currents` reaches every subscriber the graph shows (at
-        least estimator and controller; a graph entry is not yet a match), so do `rotor_state` and
+        least ``currents_readers``; a graph entry is not yet a match), so do `rotor_state` and
         `angle_error` (a watcher already in the graph, `drive echo`, gets the run from its first sample), a
         `voltage_command` publisher is matched, `estimator_state` too while a brake holds, and the
         launcher's go has come when the scenario is the schedule. With the shaft held (commissioning) one
         partner answers currents with voltages and no estimator runs."""
         matched = self.currents_pub.get_subscription_count()
         held = self.parameters["shaft_held"]
+        readers = 1 if held else int(self.get_parameter("currents_readers").value)
         currents, estimate, rotor = self.contract_topics(CURRENTS, ROTOR_ESTIMATE, ROTOR_STATE)
         watched = all(publisher.get_subscription_count() >= self.count_subscribers(topic)
                       for publisher, topic in ((self.rotor_state_pub, rotor), (self.angle_error_pub, ANGLE_ERROR)))
-        return (watched and matched >= max(1 if held else 2, self.count_subscribers(currents))
+        return (watched and matched >= max(readers, self.count_subscribers(currents))
                 and self.voltage_sub.get_publisher_count() >= 1
                 and (held or self.count_publishers(estimate) >= 1)
                 and (self.state_sub is None or self.state_sub.get_publisher_count() >= 1) and self.go)
