@@ -80,10 +80,7 @@ def motulator_throughput(python, timeout_s=900.0):
 GRAPH_CONFIGURATIONS = (("composed", "events"), ("composed", "single"), ("separate", "events"))
 INTRA_PROCESS = ("composed", "events", "intra")
 """The configuration `drive bench graph --intra-process` adds: composed, the controller taking the estimator's
-answers directly (launch's ``intra_process``), INTRA_PROCESS_DELIVERIES messages per block."""
-INTRA_PROCESS_DELIVERIES = 4
-"""Deliveries per block left intra-process: `currents` → estimator, `rotor_estimate` → plant, `voltage_command`
-→ plant, estimator (of launcher.DELIVERIES_PER_SAMPLE; the recorder's not counted)."""
+answers directly (launch's ``intra_process``; launcher.DELIVERIES_PER_SAMPLE_INTRA_PROCESS messages per block)."""
 
 
 def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False, repeats=2, progress=None,
@@ -103,7 +100,7 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
 
 def _graph_runs(report, scenario_name, duration_s, record, repeats, progress, block_sizes, configurations):
     """graph_throughput's runs into ``report``, stopping at the first signal (polled between steps)."""
-    from drive_launch.launcher import DELIVERIES_PER_SAMPLE, launch
+    from drive_launch.launcher import DELIVERIES_PER_SAMPLE, DELIVERIES_PER_SAMPLE_INTRA_PROCESS, launch
 
     results = report["results"]
     report["interrupted"] = launch(scenario_name, duration_s=0.05, record=record).interrupted
@@ -111,7 +108,7 @@ def _graph_runs(report, scenario_name, duration_s, record, repeats, progress, bl
         return
     for (processes, executor, *intra), block in ((c, n) for n in block_sizes for c in configurations):
         walls, samples = [], 0
-        deliveries = INTRA_PROCESS_DELIVERIES if intra else DELIVERIES_PER_SAMPLE
+        deliveries = DELIVERIES_PER_SAMPLE_INTRA_PROCESS if intra else DELIVERIES_PER_SAMPLE
         for _ in range(repeats):
             r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
                        record=record, extra_parameters={"block_samples": block}, intra_process=bool(intra))

@@ -35,6 +35,9 @@ DELIVERIES_PER_SAMPLE = 8
 rotor_estimate → controller, plant; injection, estimator_state → controller; voltage_command → plant,
 estimator. The scenario's schedule costs none (``scenario_schedule``). Composed on one executor thread, a
 sample costs their sum."""
+DELIVERIES_PER_SAMPLE_INTRA_PROCESS = 4
+"""The same with ``intra_process``: the controller's four (currents, rotor_estimate, injection,
+estimator_state) are handed over, not delivered."""
 
 
 class GraphError(DriveError):

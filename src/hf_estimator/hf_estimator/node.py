@@ -253,13 +253,12 @@ class EstimatorNode(ScenarioNode):
         self.theta_hat, self.omega_hat, self.signal = e["theta_e_hat"], e["omega_e_hat"], e["signal"]
         self.note_state(k, e["state"])
         self.blend = (e["injection_amplitude"], e["observer_weight"], e["leader"])
+        theta_m, omega_m = e["theta_e_hat"] / self.n_p, e["omega_e_hat"] / self.n_p
         if self.hand_over:
-            self.hand_over(k, currents, (e["theta_e_hat"] / self.n_p, e["omega_e_hat"] / self.n_p),
-                           (e["u_inj_alpha"], e["u_inj_beta"]), e["state"])
+            self.hand_over(k, currents, (theta_m, omega_m), (e["u_inj_alpha"], e["u_inj_beta"]), e["state"])
         sec, nanosec = stamp_parts(k, self.T_s)
         self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, e["u_inj_alpha"], e["u_inj_beta"], 0.0))
-        self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, e["theta_e_hat"] / self.n_p,
-                                                            e["omega_e_hat"] / self.n_p))
+        self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, theta_m, omega_m))
         self.state_pub.publish(self.state_wire.encode(sec, nanosec, e["eps"], e["signal"], e["state"]))
         self.blend_pub.publish(self.blend_wire.encode(sec, nanosec, *self.blend))
         self.sample_handled(k)
