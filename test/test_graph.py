@@ -27,7 +27,7 @@ from std_msgs.msg import Float64, String
 from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
 from drive_interface.node import Health, parameter_overrides, stamp, topic_qos
-from drive_interface.stamps import sample_of
+from drive_interface.stamps import sample_of, stamp_parts
 from drive_launch.launcher import DriveSpec, launch, launch_many
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario
@@ -315,6 +315,69 @@ def test_intra_process_the_controller_takes_the_estimators_answers_not_the_topic
             h.spin_until(lambda n=k + 1: len(commands) >= n and len(estimates) >= n, what=f"answers of sample {k}")
             assert sample_of(commands[k].header, 1e-4) == k
         assert controller.k == 3 and not controller.health.counters
+    finally:
+        h.close()
+
+
+def test_the_controller_joins_inputs_that_came_before_it_was_ready():
+    """Inputs streaming before the controller offers `voltage_command` (its core waits for the estimator's
+    drive_config; a real inverter may stream before the drive is ready) are not answered, and the
+    controller joins after them: the rest of the sample it saw last is dropped too, the next sample is
+    answered, and none of it is a fault."""
+    h = Harness("/early_inputs")
+    try:
+        node = h.add(ControllerNode)
+        currents = h.publisher(Vector3Stamped, "currents")
+        estimates = h.publisher(JointState, "rotor_estimate")
+        injection = h.publisher(Vector3Stamped, "injection")
+        state = h.publisher(Vector3Stamped, "estimator_state")
+        h.spin_until(lambda: min(p.get_subscription_count() for p in (currents, estimates, injection, state)),
+                     what="matching")
+
+        def sample(k, parts=("currents", "estimate", "injection", "state")):
+            messages = {"currents": (currents, vector(k, 0.0, 0.0, 0.0)), "estimate": (estimates, estimate(k)),
+                        "injection": (injection, vector(k, 0.0, 0.0)),
+                        "state": (state, vector(k, 0.0, 0.0, float(TRACKING)))}
+            for part in parts:
+                publisher, msg = messages[part]
+                publisher.publish(msg)
+
+        for k in range(3):
+            sample(k)
+        sample(3, ("currents",))
+        h.spin_until(lambda: node.k == 4, what="the controller following samples 0..3")
+        assert node.voltage_pub is None and not node.health.counters
+        h.listen(Vector3Stamped, "voltage_command")
+        h.estimator_config()
+        h.spin_until(lambda: h.tester.count_publishers("/early_inputs/voltage_command")
+                     and node.voltage_pub.get_subscription_count(), what="voltage_command offered")
+        sample(3, ("estimate", "injection", "state"))
+        sample(4)
+        h.spin_until(lambda: h.received["voltage_command"], what="voltage_command 4")
+        assert [sample_of(m.header, 1e-4) for m in h.received["voltage_command"]] == [4]
+        assert node.k == 5 and node.joined_at == 4 and not node.health.counters
+    finally:
+        h.close()
+
+
+def test_the_estimator_joins_currents_that_came_before_its_answers_were_open():
+    """Currents that reach the estimator before its answer publishers are open are not answered; it joins
+    after them (the commands of the samples before it zero in its delay line) and answers the next sample
+    at once."""
+    h = Harness("/early_currents")
+    try:
+        node = h.add(EstimatorNode)
+        for k in range(3):
+            node.on_currents(*stamp_parts(k, 1e-4), 0.0, 0.0, 0.0)
+        assert not node.answering and node.k == 3 and node.issued == 2 and not node.health.counters
+        currents = h.publisher(Vector3Stamped, "currents")
+        h.listen(JointState, "rotor_estimate")
+        h.spin_until(lambda: node.answering and currents.get_subscription_count()
+                     and node.estimate_pub.get_subscription_count(), what="the answers open")
+        currents.publish(vector(3, 0.0, 0.0, 0.0))
+        h.spin_until(lambda: h.received["rotor_estimate"], what="rotor_estimate 3")
+        assert [sample_of(m.header, 1e-4) for m in h.received["rotor_estimate"]] == [3]
+        assert node.k == 4 and not node.health.counters
     finally:
         h.close()
 

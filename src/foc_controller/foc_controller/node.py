@@ -109,6 +109,8 @@ class ControllerNode(ScenarioNode):
                                                            ESTIMATOR_STATE))
         self.currents, self.estimates, self.injections, self.states = {}, {}, {}, {}
         self.k = 0
+        self.joined_at = 0
+        """The first sample answered: inputs of earlier ones came before `voltage_command` was offered."""
         self.omega_m_ref = 0.0
         self.current_limited = False
         self.voltage_wire = Vector3Wire(TOPICS[VOLTAGE_COMMAND].frame_id)
@@ -167,6 +169,7 @@ class ControllerNode(ScenarioNode):
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
 
     def open_outputs(self):
+        self.joined_at = self.k
         self.voltage_pub = self.sample_publisher(self.contract_topics(VOLTAGE_COMMAND)[0])
 
     def on_set_parameters(self, parameters):
@@ -225,8 +228,7 @@ class ControllerNode(ScenarioNode):
         (EstimatorNode.hand_answers_to): answered at once; a later k means samples were lost before it.
         Before `voltage_command` is offered (the core not built yet) nothing is answered: the inverter, whose
         samples may come before the drive is ready, applies zero volts."""
-        if self.voltage_pub is None:
-            self.k = k + (len(currents[0]) if self.block_samples > 1 else 1)
+        if self.before_joining(k, len(currents[0]) if self.block_samples > 1 else 1):
             return
         if k < self.k:
             self.fault("wrong_stamp", f"answers of sample {k} handed over at sample {self.k}; discarded")
@@ -239,8 +241,20 @@ class ControllerNode(ScenarioNode):
             self.step(k, currents, estimate, injection, state)
             self.k = k + 1
 
+    def before_joining(self, k, n):
+        """True when the inputs of the n samples from k are not to be answered: they came before
+        `voltage_command` was offered (the core not built yet; a real inverter may stream before the drive is
+        ready, and applies zero volts meanwhile), and the drive joins after them; or they are the rest of
+        the last sample (block) whose first input came before it joined."""
+        if self.voltage_pub is None:
+            self.k = max(self.k, k + n)
+            return True
+        return k + n == self.joined_at
+
     def store(self, table, sec, nanosec, value):
         k = sample_at(sec, nanosec, self.T_s)
+        if k is not None and self.before_joining(k, 1):
+            return
         if k is None or not self.k <= k <= self.k + RESYNC_SAMPLES:
             self.fault("wrong_stamp", f"stamp {sec}.{nanosec:09d} is not a "
                                       f"sample in {self.k}..{self.k + RESYNC_SAMPLES}; discarded")
@@ -268,6 +282,8 @@ class ControllerNode(ScenarioNode):
     def store_block(self, table, sec, nanosec, channels):
         """Keep a block input; run every block whose four inputs are in, in order."""
         k0 = sample_at(sec, nanosec, self.T_s)
+        if k0 is not None and self.before_joining(k0, len(channels[0])):
+            return
         if k0 is None or k0 < self.k or len({len(c) for c in channels}) != 1:
             self.fault("wrong_stamp", f"block stamped {sec}.{nanosec:09d} is not a block from sample {self.k} "
                                       f"with equal channels; discarded")

@@ -149,8 +149,20 @@ class EstimatorNode(ScenarioNode):
         estimator_block(e.step, e.state.copy(), e.params, 0, 1, np.zeros((1, 3)), command_line(1),
                         np.zeros((1, 2)), self.calibration, 1.0, estimates(1), self.inputs)
 
+    def before_joining(self, k, n):
+        """True when the currents of the n samples from k came before the answer publishers are open (a
+        real inverter may stream before the drive is ready): not answered, and the estimator joins after
+        them; the commands of the samples before it are zero in the delay line (nobody answered them)."""
+        if self.answering:
+            return False
+        self.k = max(self.k, k + n)
+        self.take_commands(self.k, [], [])
+        return True
+
     def on_currents(self, sec, nanosec, i_a, i_b, i_c):
         k = sample_at(sec, nanosec, self.T_s)
+        if k is not None and self.before_joining(k, 1):
+            return
         if k is None or not self.k <= k <= self.k + RESYNC_SAMPLES:
             self.fault("wrong_stamp", f"currents stamp {sec}.{nanosec:09d} "
                                       f"is not a sample in {self.k}..{self.k + RESYNC_SAMPLES}; discarded")
@@ -265,6 +277,8 @@ class EstimatorNode(ScenarioNode):
 
     def on_currents_block(self, sec, nanosec, i_a, i_b, i_c):
         k0 = sample_at(sec, nanosec, self.T_s)
+        if k0 is not None and len(i_a) and self.before_joining(k0, len(i_a)):
+            return
         if k0 is None or not self.k <= k0 <= self.k + RESYNC_SAMPLES or not len(i_a) == len(i_b) == len(i_c) > 0:
             self.fault("wrong_stamp", f"currents_block stamped {sec}.{nanosec:09d} is not a block of samples in "
                                       f"{self.k}..{self.k + RESYNC_SAMPLES} with three equal channels; discarded")
