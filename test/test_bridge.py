@@ -229,6 +229,9 @@ def test_a_paced_inverter_counts_late_commands_as_zero_volts(tmp_path):
         assert sum(c for e, c in zip(edges, counts) if e < 1.0) == 30
         assert sum(c for e, c in zip(edges, counts) if e >= 1.0) == timing["late_arrivals"] >= 9
         assert inverter.counters["watchdog_trips"] == 0
+        windows = timing["missing_runs"]["windows_monotonic_s"]
+        assert len(windows) == 9 and all(0.01 < due - sent <= 0.02 for sent, due in windows)
+        assert timing_report(inverter, 1.0 / 50.0, bridge.written_at)["missing_runs_written_in_time"] == 0
     finally:
         inverter.stop()
         thread.join(2.0)
@@ -283,6 +286,41 @@ def test_a_telemetry_block_becomes_its_samples_and_commands_go_back_as_one_block
     command = link.sent[-1]
     assert isinstance(command, CommandBlock) and command.seq == 20 and command.flags == ENABLE
     assert command.samples == tuple((i, 0) for i in range(10))
+
+
+def test_the_bridge_keeps_when_it_wrote_each_command_block_for_a_while():
+    """The write time of the command answering a sample (its block's), in a ring allocated once: NaN for
+    a block never written, and for one written WRITES_KEPT blocks ago."""
+    from drive_bridge.inverter_bridge import WRITES_KEPT
+
+    hello = Hello(0, 0, 2, 10, 100_000, 0.001, 0.002, 10.0, 30)
+    bridge = InverterBridge(ScriptedLink([hello]), block_samples=10)
+    bridge.poll(0.01)
+    before = time.monotonic()
+    bridge.command_block(20, np.zeros(10), np.zeros(10))
+    assert before <= bridge.written_at(20) == bridge.written_at(29) <= time.monotonic()
+    assert np.isnan(bridge.written_at(30)) and np.isnan(bridge.written_at(10))
+    bridge.command_block(20 + 10 * WRITES_KEPT, np.zeros(10), np.zeros(10))
+    assert np.isnan(bridge.written_at(20)) and not np.isnan(bridge.written_at(20 + 10 * WRITES_KEPT))
+
+
+def test_a_late_block_says_whether_the_host_had_written_its_command_in_time():
+    """Of a run's runs of missing periods, those whose first command the host had written before it was
+    due (it reached the inverter late: the link's or the inverter's share), beside each one's window."""
+    from types import SimpleNamespace
+
+    from drive_bridge.virtual_inverter import timing_report
+
+    inverter = SimpleNamespace(latencies_s=[3e-4], late_latencies_s=[2e-3, 2e-3], k=100, rate_Hz=1e4,
+                               before_start=0, counters={"missing": 20, "watchdog_trips": 0, "overruns": 0,
+                                                         "host_silent_trips": 0},
+                               missing_runs=[[40, 10, 5.0, 5.0011, 20], [80, 10, 9.0, 9.0011, 60]])
+    written = {20: 5.0009, 60: 9.0015}
+    timing = timing_report(inverter, 1e-4, written_at=lambda c: written[c])
+    assert timing["missing_runs_written_in_time"] == 1
+    assert timing["missing_runs_written_before_due_us"] == [pytest.approx(200.0), pytest.approx(-400.0)]
+    assert timing["missing_runs"]["windows_monotonic_s"] == [[5.0, 5.0011], [9.0, 9.0011]]
+    assert timing_report(inverter, 1e-4)["missing_runs_written_in_time"] is None
 
 
 def test_the_can_fd_frames_of_a_block_come_as_one_block_and_say_when_it_ran_at_zero_volts():
@@ -418,7 +456,7 @@ def test_a_paced_inverter_in_its_own_process_keeps_its_duties(tmp_path, link):
         assert seen == 40 and timing["periods"] == 40
         assert timing["missing"] == 9 and inverter.counters["watchdog_trips"] == 0
         assert timing["missing_runs"]["count"] == 9 and timing["missing_runs"]["longest_periods"] == 1
-        assert [j for j, _ in inverter.missing_runs] == [k + 1 for k in range(3, 36, 4)]
+        assert [run[0] for run in inverter.missing_runs] == [k + 1 for k in range(3, 36, 4)]
     finally:
         bridge.close()
         inverter.close()

@@ -5,6 +5,8 @@ import argparse
 import gc
 import os
 import sys
+import threading
+import time
 
 import numpy as np
 import pytest
@@ -67,6 +69,28 @@ def test_the_kernels_unbound_workqueues_go_where_asked_for_the_run_and_come_back
     assert realtime.cpu_mask({33}) == "2,00000000"
 
 
+def test_the_cpus_wake_up_latency_is_held_for_the_run_only(tmp_path):
+    """PM QoS: the request (a 32-bit µs count) is written and held open for the run, dropped after it, also
+    when the run fails; None leaves it; a refusal is one line."""
+    request = tmp_path / "cpu_dma_latency"
+    request.write_bytes(b"")
+
+    def held():
+        return any(os.path.realpath(f"/proc/self/fd/{fd}") == str(request) for fd in os.listdir("/proc/self/fd"))
+
+    with pytest.raises(RuntimeError), realtime.cpu_wakeup_latency_held(0, request) as idle:
+        assert request.read_bytes() == b"\0\0\0\0" and held()
+        assert idle == {"applied": [f"CPU wake-up latency held at 0 µs ({request})"], "refused": []}
+        raise RuntimeError
+    assert not held()
+    with realtime.cpu_wakeup_latency_held(None, request) as idle:
+        assert idle == {"applied": [], "refused": []} and not held()
+    with realtime.cpu_wakeup_latency_held(5, tmp_path / "absent") as idle:
+        assert not idle["applied"] and idle["refused"][0].startswith(f"CPU wake-up latency 5 µs refused: {tmp_path}")
+    with pytest.raises(argparse.ArgumentTypeError, match="a whole number of µs ≥ 0, not '-1'"):
+        realtime.microseconds("-1")
+
+
 def test_the_time_the_hypervisor_took_is_read_per_cpu():
     stolen = realtime.stolen_s()
     assert set(stolen) == set(range(os.cpu_count())) and all(t >= 0.0 for t in stolen.values())
@@ -89,6 +113,11 @@ def test_the_real_time_bench_and_launch_check_their_options():
     run = subprocess.run(drive + ["launch", "wang_100rpm", "--intra-process", "--processes", "separate"],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "--intra-process: needs --processes composed" in run.stderr
+    run = subprocess.run(drive + ["launch", "wang_100rpm", "--cpu-dma-latency-us", "x"], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and "--cpu-dma-latency-us: a whole number of µs ≥ 0" in run.stderr
+    run = subprocess.run(drive + ["bench", "bridge", "--watch-machine"], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and run.stderr.strip().endswith("give --paced --graph")
 
 
 def test_the_platform_probe_wakes_every_period_and_counts_the_late_ones():
@@ -102,6 +131,49 @@ def test_the_platform_probe_wakes_every_period_and_counts_the_late_ones():
     fake = realtime.stall_report(np.array([1e-5, 2e-3, 7e-4, 1e-5]), 1e-3)
     assert fake["stalls_over_0_5_ms"] == 2 and fake["stalls_over_1_ms"] == 1 and fake["stalls_per_s"] == 500.0
     assert fake["stalled_ms"] == pytest.approx(2.7)
+
+
+def test_the_machine_watch_notes_a_stall_once_and_says_which_late_blocks_it_explains():
+    """The watch wakes every period and notes a stall once (the wake-ups catching up within it are part of
+    it): here the interpreter held by this thread for 40 ms, with a 10 ms switch interval. A late block is
+    the machine's when the stalls take at least its window less the run's median latency."""
+    from drive_interface.machine_watch import missing_runs_explained, stalled_within, watch
+
+    stop = threading.Event()
+    seen = {}
+    thread = threading.Thread(target=lambda: seen.update(zip(("count", "stalls"), watch(5e-4, stop))))
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(0.01)
+    try:
+        thread.start()
+        time.sleep(0.1)
+        busy_until = time.monotonic() + 0.04
+        while time.monotonic() < busy_until:
+            pass
+        time.sleep(0.1)
+    finally:
+        sys.setswitchinterval(switch)
+        stop.set()
+        thread.join()
+    assert 300 <= seen["count"] <= 482
+    stalls = seen["stalls"]
+    assert any(late >= 5e-3 for _, late in stalls)
+    assert all(later[0] >= due + late for (due, late), later in zip(stalls, stalls[1:]))
+
+    stalls = [[1.0e-4, 1.0e-3], [5.0005, 3e-4]]
+    assert stalled_within(stalls, 0.0, 1.1e-3) == pytest.approx(1.0e-3)
+    windows = [[0.0, 1.1e-3], [5.0, 5.0011], [9.0, 9.0011]]
+    assert missing_runs_explained(windows, stalls, 4e-4) == 1
+
+
+def test_the_machine_watch_runs_beside_as_a_process_of_its_own():
+    from drive_interface.machine_watch import MachineWatch
+
+    with MachineWatch(0) as watch:
+        time.sleep(0.3)
+    report = watch.report
+    assert report["scheduling"] == {"applied": [], "refused": []}
+    assert 300 <= report["wakeups"] <= 800 and watch.process.returncode == 0
 
 
 def test_status_work_waits_for_the_quiet_part_of_a_block_and_never_more_than_a_period():

@@ -158,28 +158,32 @@ class InverterBridgeNode(ContractNode):
             self.report_new_faults()
 
     def publish_block(self, b, clock):
-        """A whole block (its first sample a multiple of N, N samples; a part of one is dropped): `/clock`
-        (its first sample), `rotor_state_block` (when the encoder is valid throughout) and `currents_block`."""
+        """A whole block (its first sample a multiple of N, N samples; a part of one is dropped):
+        `currents_block` first (what the drive answers; the encoder's angles kept before it, for
+        `angle_error`), then `/clock` (its first sample) and `rotor_state_block` (when the encoder is valid
+        throughout)."""
         N, k0 = self.block_samples, b.k0
         self.k = k0 + len(b) - 1
         if len(b) != N or k0 % N:
             return
         self.report_zero_volts(b)
         sec, nanosec = stamp_parts(k0, self.T_s)
-        if self.clock_pub:
-            clock.clock = stamp(k0, self.T_s)
-            self.clock_pub.publish(clock)
         theta = b.theta_m
-        if not np.isnan(theta).any():
+        encoder = not np.isnan(theta).any()
+        if encoder:
             before = self.history.get(k0 - N)
             previous = before[0][-1] if before is not None else theta[0]
             velocity = np.diff(theta, prepend=previous) / self.T_s
             self.history[k0] = (theta, velocity)
             self.history.pop(k0 - HISTORY_SAMPLES * N, None)
-            self.rotor_state_pub.publish(self.rotor_state_wire.encode(sec, nanosec, theta, velocity,
-                                                                      np.full(N, np.nan)))
         i = b.currents_A
         self.currents_pub.publish(self.currents_wire.encode(sec, nanosec, i[:, 0], i[:, 1], i[:, 2]))
+        if self.clock_pub:
+            clock.clock = stamp(k0, self.T_s)
+            self.clock_pub.publish(clock)
+        if encoder:
+            self.rotor_state_pub.publish(self.rotor_state_wire.encode(sec, nanosec, theta, velocity,
+                                                                      np.full(N, np.nan)))
 
     def report_zero_volts(self, b):
         """`zero_voltage` for a block whose periods ran at zero volts, before its currents: the estimator

@@ -31,6 +31,9 @@ from .inverter_protocol import (
 LINK_TIMEOUT_S = 0.05
 COMMAND_TIMEOUT_S = 0.05
 RECONNECT_S = 0.1
+WRITES_KEPT = 4096
+"""Command messages whose write time the bridge keeps (a ring, allocated once): 4 s of blocks of 10 at
+10 kHz."""
 
 
 @dataclass(frozen=True)
@@ -108,6 +111,18 @@ class InverterBridge:
         self.part = None
         """The first samples of a block whose rest has not come yet (CAN FD frames)."""
         self.send_lock = threading.Lock()
+        self.written = np.full((WRITES_KEPT, 2), np.nan)
+        """[first sample answered, monotonic s] of each command message written to the link (a ring)."""
+
+    def written_at(self, k):
+        """When the command answering sample k was written to the link (monotonic s); NaN when it was not,
+        or is no longer kept."""
+        k0 = k - k % self.block_samples
+        first, at = self.written[(k0 // self.block_samples) % WRITES_KEPT]
+        return at if first == k0 else math.nan
+
+    def note_written(self, k0):
+        self.written[(k0 // self.block_samples) % WRITES_KEPT] = k0, time.monotonic()
 
     def frame_errors(self):
         """CRC, framing, version and unknown-type counts of the link's decoder."""
@@ -260,6 +275,7 @@ class InverterBridge:
                           ENABLE if enable else 0)
         self._enabling(enable)
         if self._send(message):
+            self.note_written(k)
             self.counters["commands"] += 1
 
     def command_block(self, k0, u_alpha_V, u_beta_V, enable=True):
@@ -273,6 +289,7 @@ class InverterBridge:
         message = CommandBlock(k0 % 2 ** 32, ENABLE if enable else 0, tuple(map(tuple, counts.astype(int).tolist())))
         self._enabling(enable)
         if self._send(message):
+            self.note_written(k0)
             self.counters["commands"] += 1
 
     def _enabling(self, enable):

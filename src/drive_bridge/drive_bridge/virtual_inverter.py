@@ -135,7 +135,9 @@ class VirtualInverter:
         self.before_start = 0
         """Periods without a command before the drive started (PWM off; docs/inverter-protocol.md)."""
         self.missing_runs = []
-        """[first period, periods] of each run of periods in a row without a command in time."""
+        """[first period, periods, telemetry sent, command due, command's sample] of each run of periods in a
+        row without a command in time; sent and due (monotonic s, paced only; else 0) are the window its
+        first command had."""
         self.latencies_s = []
         """Time from TELEMETRY(_BLOCK) sent to its COMMAND(_BLOCK) received, per command message in time."""
         self.late_latencies_s = []
@@ -238,7 +240,8 @@ class VirtualInverter:
             self.counters["commands"] += 1
         else:
             if self.missing == 0:
-                self.missing_runs.append([j, 0])
+                window = (float(self.sent_at[c]), self.deadline(c)) if self.rate_Hz and 0 <= c < self.k else (0.0, 0.0)
+                self.missing_runs.append([j, 0, *window, c])
             self.missing_runs[-1][1] += 1
             self.missing += 1
             self.missing_in_block = True
@@ -429,12 +432,14 @@ LATENCY_BINS_PER_PERIOD = (0.0, 0.25, 0.5, 0.75, 1.0, 2.0, 5.0, 10.0, math.inf)
 MISSING_RUNS_SHOWN = 20
 
 
-def timing_report(inverter, T_s):
+def timing_report(inverter, T_s, written_at=None):
     """How the host kept pace with a virtual inverter: periods run, commands missing (late or never
     sent: zero volts), their fraction, latency percentiles [µs] over every command that came (late ones
     included), the histogram of those latencies (edges in sampling periods and µs), the runs of missing
     periods (how many, the longest, the first ones as [time s, periods]) and the periods before the drive
-    started (before its first command in time, PWM off: not missing)."""
+    started (before its first command in time, PWM off: not missing). With ``written_at(k)`` (the host
+    bridge's InverterBridge.written_at, on the same machine) also how many of those runs began with a
+    command the host had written to the link in time, and that reached the inverter late."""
     every = np.concatenate([inverter.latencies_s, inverter.late_latencies_s]) * 1e6
     edges = np.asarray(LATENCY_BINS_PER_PERIOD)
     counts, _ = np.histogram(every, bins=edges * T_s * 1e6)
@@ -449,11 +454,24 @@ def timing_report(inverter, T_s):
               "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],
               "host_silent_trips": inverter.counters["host_silent_trips"],
               "periods_before_start": inverter.before_start,
-              "missing_runs": missing_runs(inverter.missing_runs, T_s)}
+              "missing_runs": missing_runs(inverter.missing_runs, T_s),
+              **written_before_due(inverter.missing_runs, written_at)}
+
+
+def written_before_due(runs, written_at):
+    """Of the runs of missing periods, how long before its due time the host wrote each one's first command
+    [µs] (negative: after; NaN: not known), and how many it wrote in time; None without ``written_at``."""
+    if written_at is None:
+        return {"missing_runs_written_in_time": None, "missing_runs_written_before_due_us": None}
+    before = [1e6 * (due - written_at(c)) for _, _, _, due, c in runs if due]
+    return {"missing_runs_written_in_time": sum(b >= 0.0 for b in before),
+            "missing_runs_written_before_due_us": [round(b, 1) if math.isfinite(b) else None for b in before]}
 
 
 def missing_runs(runs, T_s):
     """How many runs of periods without a command in time, the longest [periods], the first ones as
-    [time s, periods]."""
-    return {"count": len(runs), "longest_periods": max((n for _, n in runs), default=0),
-            "first": [[round(j * T_s, 4), n] for j, n in runs[:MISSING_RUNS_SHOWN]]}
+    [time s, periods], and each one's window [telemetry sent, command due] on the machine's monotonic clock
+    (paced; to set beside what else watched the machine then, drive_interface.machine_watch)."""
+    return {"count": len(runs), "longest_periods": max((run[1] for run in runs), default=0),
+            "first": [[round(run[0] * T_s, 4), run[1]] for run in runs[:MISSING_RUNS_SHOWN]],
+            "windows_monotonic_s": [run[2:4] for run in runs if run[3]]}

@@ -99,7 +99,7 @@ def _graph_real_time(args, links):
           f"{', one core kept busy by another process' if args.load else ''}{lost}", file=sys.stderr)
     report = graph_real_time(args.scenario, links, args.repeats, args.load, levers,
                              progress=lambda line: print(line, file=sys.stderr), block_samples=blocks,
-                             lose_command_every=args.lose_command_every)
+                             lose_command_every=args.lose_command_every, watch_machine=args.watch_machine)
     if args.json:
         print_json(report)
     return exit_code(report["interrupted"])
@@ -113,7 +113,7 @@ def cmd_bench_bridge(args):
     for link in links:
         if link not in ("pty", "can"):
             raise CommandLineError(f"--links: 'pty' and/or 'can', not {link!r}")
-    if args.graph or args.load or args.levers or args.lose_command_every:
+    if args.graph or args.load or args.levers or args.lose_command_every or args.watch_machine:
         return _graph_real_time(args, links)
     duration = args.duration if args.duration is not None or args.paced else 1.0
     duration_arg(duration, load_scenario(args.scenario).T_s)
@@ -202,10 +202,16 @@ def add_bench_commands(bench_sub):
                               help="with --graph: soft real-time levers, measured one at a time: plain, collector "
                                    "(default), collector+cpu1, collector+fifo, collector+fifo+cpu1, "
                                    "collector+fifo+cpu1+inverter_apart, collector+fifo+cpu1+workqueue1 (the "
-                                   "kernel's unbound workqueues on CPU 1 too; needs root)")
+                                   "kernel's unbound workqueues on CPU 1 too; needs root), and with +intra (the "
+                                   "nodes hand over in one process), +intra+pmqos (the CPUs kept out of idle "
+                                   "states), +intra+inverter_apart")
     bench_bridge.add_argument("--lose-command-every", type=int, default=0, metavar="N",
                               help="with --graph: the inverter loses every Nth command block (as if late: zero "
                                    "volts), to measure how ours degrades")
+    bench_bridge.add_argument("--watch-machine", action="store_true",
+                              help="with --graph: beside each run a process above the drive's priority on its CPUs "
+                                   "notes the machine's stalls; each run says how many of its late blocks they "
+                                   "explain")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
     platform = bench_sub.add_parser("platform", help="the machine's own floor: how late a SCHED_FIFO thread "

@@ -118,7 +118,8 @@ def cmd_launch(args):
                     processes=args.processes, executor=args.executor, namespace=args.namespace,
                     timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,
                     extra_parameters=extra or None, rt_priority=args.rt_priority, cpus=args.cpus,
-                    workqueue_cpus=args.workqueue_cpus, intra_process=args.intra_process,
+                    workqueue_cpus=args.workqueue_cpus, cpu_dma_latency_us=args.cpu_dma_latency_us,
+                    intra_process=args.intra_process,
                     progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
     for line in result.scheduling["refused"]:
         print(f"drive: warning: {line}", file=sys.stderr)
@@ -240,7 +241,7 @@ def add_commands(sub):
     launch.add_argument("--paced", action="store_true",
                         help="with --link: the virtual inverter on its own clock at the sampling rate, never "
                              "waiting for the graph: a late command is zero volts, counted")
-    add_scheduling_arguments(launch, workqueues=True)
+    add_scheduling_arguments(launch, system_wide=True)
     launch.set_defaults(func=cmd_launch)
 
     bridge = sub.add_parser("bridge", help="the sensorless loop through the inverter bridge and the virtual "

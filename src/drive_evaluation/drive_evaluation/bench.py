@@ -286,12 +286,19 @@ REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {}, "collec
                     "collector+fifo+cpu1+inverter_apart": {"rt_priority": 50, "cpus": {1}, "inverter_apart": True},
                     "collector+fifo+cpu1+workqueue1": {"rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1}},
                     "collector+fifo+cpu1+workqueue1+intra": {"rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1},
-                                                             "intra_process": True}}
+                                                             "intra_process": True},
+                    "collector+fifo+cpu1+workqueue1+intra+pmqos": {
+                        "rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1}, "intra_process": True,
+                        "cpu_dma_latency_us": 0},
+                    "collector+fifo+cpu1+workqueue1+intra+inverter_apart": {
+                        "rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1}, "intra_process": True,
+                        "inverter_apart": True}}
 """The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
 "Real time"): none; the garbage collector held out of the sample path (the default); and the process on
 CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1); and the kernel's unbound workqueues (a serial
 link's bytes pass through one) on CPU 1 too; and the controller taking the estimator's answers directly
-(intra_process: four deliveries a block fewer). The virtual inverter runs on a thread of the graph's process
+(intra_process: four deliveries a block fewer); and the CPUs kept out of idle states slower to leave than
+0 µs (pmqos: PM QoS, /dev/cpu_dma_latency). The virtual inverter runs on a thread of the graph's process
 but in inverter_apart, where it has a process of its own (on the CPU the graph leaves)."""
 
 
@@ -307,14 +314,39 @@ def core_kept_busy(load=True):
             busy.wait()
 
 
+def machine_stalls(report, timing):
+    """What the machine watch saw during one run (None: it gave nothing): its stalls over 0.5 ms and their
+    total [ms], the run's runs of late periods and how many of them the machine's stalls explain."""
+    from drive_interface.machine_watch import missing_runs_explained
+    windows = timing["missing_runs"]["windows_monotonic_s"]
+    if report is None:
+        return {"watched": False, "missing_runs": len(windows)}
+    stalls = report["stalls"]
+    latency_s = 1e-6 * (timing["latency_p50_us"] or 0.0)
+    return {"watched": not report["scheduling"]["refused"], "wakeups": report["wakeups"],
+            "stalls_over_0_5_ms": sum(late > 5e-4 for _, late in stalls),
+            "stalled_ms": round(1e3 * sum(late for _, late in stalls), 3), "missing_runs": len(windows),
+            "missing_runs_explained": missing_runs_explained(windows, stalls, latency_s)}
+
+
+def machine_line(machine):
+    """``explained/late`` of one run, ``?`` where the watch was refused its priority."""
+    if not machine["watched"]:
+        return f"?/{machine['missing_runs']}"
+    return f"{machine['missing_runs_explained']}/{machine['missing_runs']}"
+
+
 def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None,
-                    block_samples=PACED_BLOCK_SAMPLES, lose_command_every=0):
+                    block_samples=PACED_BLOCK_SAMPLES, lose_command_every=0, watch_machine=False):
     """`drive bench bridge --paced --graph`: the robot's configuration, `drive launch --link L --paced`
     (the composed graph behind the virtual inverter on its own clock, blocks of ``block_samples``), run
     ``repeats`` times per link and lever; with ``load`` another process keeps one core busy meanwhile. Per
     run: late periods, watchdog trips, lock losses, ours' angle error and the latencies in µs and in hops
     (each run measures the rclpy hop beside it); ``lose_command_every``: the inverter loses every Nth command
-    block (ours' degradation). A signal stops it; what was done is returned."""
+    block (ours' degradation); ``watch_machine``: beside each run a process above the drive's priority on its
+    CPUs notes when the machine stalls, and each run says how many of its late blocks the machine explains
+    (drive_interface.machine_watch). A signal stops it; what was done is returned."""
+    from drive_interface.machine_watch import MachineWatch
     from drive_launch.launcher import launch
 
     from .metrics import compute_metrics
@@ -330,9 +362,12 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                 runs = []
                 for _ in range(repeats):
                     stolen_before = stolen_s()
-                    result = launch(scenario_ref, record=True, link=link, paced=True,
-                                    extra_parameters={"block_samples": block_samples},
-                                    lose_command_every=lose_command_every, **REAL_TIME_LEVERS[lever])
+                    settings = REAL_TIME_LEVERS[lever]
+                    with (MachineWatch(settings.get("rt_priority", 0) + 1, settings.get("cpus"))
+                          if watch_machine else contextlib.nullcontext()) as watch:
+                        result = launch(scenario_ref, record=True, link=link, paced=True,
+                                        extra_parameters={"block_samples": block_samples},
+                                        lose_command_every=lose_command_every, **settings)
                     report["interrupted"] = result.interrupted or interrupt.requested()
                     if report["interrupted"]:
                         return report
@@ -344,12 +379,15 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                                  "angle_error_rms": metrics["angle_error_rms"],
                                  "angle_error_peak": metrics["angle_error_peak"],
                                  "missing_runs": t["missing_runs"],
+                                 "missing_runs_written_in_time": t["missing_runs_written_in_time"],
+                                 "missing_runs_written_before_due_us": t["missing_runs_written_before_due_us"],
                                  **{key: t[key] for key in ("hop_us", "latency_p50_us", "latency_p99_us",
                                                             "latency_max_us", "latency_p50_hops",
                                                             "latency_p99_hops", "latency_max_hops")},
                                  "scheduling": result.scheduling,
                                  "stolen_ms": {cpu: round(1e3 * (after - stolen_before[cpu]))
-                                               for cpu, after in stolen_s().items() if cpu in stolen_before}})
+                                               for cpu, after in stolen_s().items() if cpu in stolen_before},
+                                 **({"machine": machine_stalls(watch.report, t)} if watch_machine else {})})
                 worst = max(runs, key=lambda r: r["late_fraction"])
                 row = {"link": link, "lever": lever, "runs": runs, "worst_late_fraction": worst["late_fraction"],
                        "runs_without_a_late_period": sum(r["late_fraction"] == 0.0 for r in runs),
@@ -365,6 +403,12 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                              f"lock held in {row['runs_lock_held']} of {len(runs)}, ours within its targets in "
                              f"{row['runs_meeting_targets']}, latency p99 {p99} hops "
                              f"(hop {runs[0]['hop_us']:.1f} µs), stolen by the host {stolen_ms} ms")
+                    written = ", ".join(f"{r['missing_runs_written_in_time']}/{r['missing_runs']['count']}"
+                                        if r["missing_runs_written_in_time"] is not None else "?" for r in runs)
+                    progress(f"       late blocks whose command the host wrote in time: {written}")
+                    if watch_machine:
+                        explained = ", ".join(machine_line(r["machine"]) for r in runs)
+                        progress(f"       late blocks the machine's stalls explain: {explained}")
                     for line in sorted({line for r in runs for line in r["scheduling"]["refused"]}):
                         progress(f"       {lever}: {line}")
     return report

@@ -186,6 +186,46 @@ def unbound_work_on(cpus, mask_file=WORKQUEUE_CPUMASK):
                 pass
 
 
+CPU_DMA_LATENCY = "/dev/cpu_dma_latency"
+
+
+@contextlib.contextmanager
+def cpu_wakeup_latency_held(max_us, request_file=CPU_DMA_LATENCY):
+    """The kernel's CPU wake-up latency limit (PM QoS, ``/dev/cpu_dma_latency``) at ``max_us`` (None: left
+    as it is) for a run: no CPU enters an idle state slower to leave than that (0: the CPUs poll when idle,
+    never halt). System-wide, and only while the request is held; cyclictest holds it so. Yields
+    {"applied": [...], "refused": [...]} as real_time_scheduled; a refusal is never an exception."""
+    applied, refused, request = [], [], None
+    if max_us is not None:
+        try:
+            request = os.open(request_file, os.O_WRONLY)
+            os.write(request, int(max_us).to_bytes(4, sys.byteorder, signed=True))
+            applied.append(f"CPU wake-up latency held at {max_us} µs ({request_file})")
+        except OSError as error:
+            if request is not None:
+                os.close(request)
+                request = None
+            refused.append(f"CPU wake-up latency {max_us} µs refused: {request_file}: {error.strerror or error} "
+                           f"(needs root); the CPUs idle as they were")
+    try:
+        yield {"applied": applied, "refused": refused}
+    finally:
+        if request is not None:
+            os.close(request)
+
+
+def microseconds(text):
+    """argparse type of ``--cpu-dma-latency-us``: a whole number of µs ≥ 0."""
+    import argparse
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"a whole number of µs ≥ 0, not {text!r}")
+    return value
+
+
 def cpu_set(text):
     """argparse type of ``--cpus``: "0", "0,1" or "0-1" → a set of CPU numbers."""
     import argparse
@@ -214,18 +254,23 @@ def fifo_priority(text):
     return value
 
 
-def add_scheduling_arguments(parser, workqueues=False):
+def add_scheduling_arguments(parser, system_wide=False):
     """``--rt-priority`` and ``--cpus`` (real_time_scheduling) on a drive process's command line; with
-    ``workqueues``, ``--workqueue-cpus`` (unbound_work_on) too."""
+    ``system_wide``, the machine's settings for the run too: ``--workqueue-cpus`` (unbound_work_on) and
+    ``--cpu-dma-latency-us`` (cpu_wakeup_latency_held)."""
     parser.add_argument("--rt-priority", type=fifo_priority, default=0, metavar="1-99",
                         help="SCHED_FIFO priority for every thread of the process (default 0: normal scheduling)")
     parser.add_argument("--cpus", type=cpu_set, default=None, metavar="LIST",
                         help="CPU affinity of the process, e.g. 1 or 0-1 (default: every CPU)")
-    if workqueues:
+    if system_wide:
         parser.add_argument("--workqueue-cpus", type=cpu_set, default=None, metavar="LIST",
                             help="the kernel's unbound workqueues (a serial link's bytes pass through one) on "
                                  "these CPUs for the run, system-wide, put back afterwards; needs root "
                                  "(default: left as they are)")
+        parser.add_argument("--cpu-dma-latency-us", type=microseconds, default=None, metavar="US",
+                            help="no CPU idles in a state slower to leave than this for the run (PM QoS "
+                                 "/dev/cpu_dma_latency; 0: CPUs poll when idle), system-wide; needs root "
+                                 "(default: left as it is)")
 
 
 def stolen_s():
@@ -243,6 +288,18 @@ STALL_S = 5e-4
 """A wake-up later than this is a stall: half of a block of 10 at 10 kHz."""
 
 
+def wakeups(period_s, go_on):
+    """Sleep to each multiple of ``period_s`` from now while ``go_on()``; yield each wake-up's (due,
+    late) [monotonic s, s]."""
+    due = time.monotonic()
+    while go_on():
+        due += period_s
+        remaining = due - time.monotonic()
+        if remaining > 0:
+            time.sleep(remaining)
+        yield due, time.monotonic() - due
+
+
 def wakeup_latencies(seconds, period_s=1e-3, priority=0, cpus=None):
     """The machine's own floor for a drive: a thread of this process sleeps to each multiple of
     ``period_s`` for ``seconds`` (SCHED_FIFO ``priority`` and ``cpus`` where allowed, as a drive's threads)
@@ -250,15 +307,8 @@ def wakeup_latencies(seconds, period_s=1e-3, priority=0, cpus=None):
     refused). Run in a process with nothing else to do, it measures the kernel and the hypervisor alone."""
     import numpy as np
     n = max(1, int(round(seconds / period_s)))
-    late = np.zeros(n)
     with real_time_scheduled(priority, cpus) as scheduling:
-        start = time.monotonic()
-        for i in range(n):
-            due = start + (i + 1) * period_s
-            remaining = due - time.monotonic()
-            if remaining > 0:
-                time.sleep(remaining)
-            late[i] = time.monotonic() - due
+        late = np.array([late for _, (_, late) in zip(range(n), wakeups(period_s, lambda: True))])
     return late, scheduling
 
 

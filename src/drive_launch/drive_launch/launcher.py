@@ -21,7 +21,7 @@ from drive_bridge.virtual_inverter import timing_report
 from drive_interface.errors import DriveError
 from drive_interface.graph import DEFAULT_NAMESPACE, NODES
 from drive_interface.interrupt import polled, requested
-from drive_interface.realtime import collector_held, real_time_scheduled, unbound_work_on
+from drive_interface.realtime import collector_held, cpu_wakeup_latency_held, real_time_scheduled, unbound_work_on
 from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import behind_an_inverter, resolve
@@ -205,26 +205,28 @@ class DriveSpec:
 def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
            namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
            progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None,
-           hold_collector=True, inverter_apart=False, lose_command_every=0, workqueue_cpus=None, intra_process=False):
+           hold_collector=True, inverter_apart=False, lose_command_every=0, workqueue_cpus=None,
+           cpu_dma_latency_us=None, intra_process=False):
     """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
 
     SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
     ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
     virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock.
     ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes; ``workqueue_cpus``: the kernel's
-    unbound workqueues there for the run; ``hold_collector``: the garbage collector out of the sample path
+    unbound workqueues there for the run; ``cpu_dma_latency_us``: the CPUs' wake-up latency limit for the run;
+    ``hold_collector``: the garbage collector out of the sample path
     (drive_interface.realtime; off only to measure what it gives);
     ``inverter_apart``: a paced inverter in a process of its own, ``lose_command_every``: its lost commands
     (DriveSpec); ``intra_process``: the controller takes the estimator's answers directly (composed only)."""
     spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced,
                      inverter_apart, lose_command_every)
     return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress, rt_priority,
-                       cpus, hold_collector, workqueue_cpus, intra_process)[0]
+                       cpus, hold_collector, workqueue_cpus, intra_process, cpu_dma_latency_us)[0]
 
 
 def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
                 startup_timeout_s=60.0, progress=None, rt_priority=0, cpus=None, hold_collector=True,
-                workqueue_cpus=None, intra_process=False):
+                workqueue_cpus=None, intra_process=False, cpu_dma_latency_us=None):
     """Run several drives side by side in one graph (one namespace each); one GraphResult per spec. A
     scenario whose drive is a drive configuration file (``drive: FILE``) gives the estimator that file and
     no scenario (as on a robot); the plant and the controller's speed schedule take the experiment. With
@@ -322,6 +324,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
                                     startup_timeout_s, progress if i == 0 else None, recorders[i], inverter,
                                     listener, intra_process)
+            driver.host_bridge = made["drive_bridge"].bridge if spec.link and processes == "composed" else None
             driver.done = Future()
             drives.append(drive)
             drivers.append(driver)
@@ -330,8 +333,9 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
         with real_time_scheduled(rt_priority, cpus) as scheduling, unbound_work_on(workqueue_cpus) as work, \
+                cpu_wakeup_latency_held(cpu_dma_latency_us) as idle, \
                 collector_held() if hold_collector else contextlib.nullcontext():
-            scheduling = {key: scheduling[key] + work[key] for key in scheduling}
+            scheduling = {key: scheduling[key] + work[key] + idle[key] for key in scheduling}
             if any(line.startswith("SCHED_FIFO") for line in scheduling["applied"]):
                 listening = Listening(make_executor(executor, context), listeners)
                 listening.start()
@@ -432,6 +436,7 @@ def _result(driver, drive, record, processes, executor, interrupted, hop=None):
         raise GraphError(f"{driver.node.get_namespace()} ({scenario.name}): {driver.error}")
     end = driver.finished_at or time.monotonic()
     wall = end - driver.started_at if driver.started_at else 0.0
+    written_at = driver.host_bridge.written_at if driver.host_bridge else None
     log = driver.log[:driver.last_sample + 1] if record else driver.log[:0]
     scenario = cut(scenario, driver.last_sample + 1)
     return GraphResult(scenario, scenario.estimator, log, wall, drive.controller.i_max_A,
@@ -439,7 +444,8 @@ def _result(driver, drive, record, processes, executor, interrupted, hop=None):
                        processes=processes, executor=executor,
                        interrupted=interrupted,
                        diagnostics=dict(driver.diagnostics), node_faults=driver.faults(),
-                       timing=in_hops(timing_report(driver.inverter, scenario.T_s), hop) if driver.inverter else None)
+                       timing=in_hops(timing_report(driver.inverter, scenario.T_s, written_at), hop)
+                       if driver.inverter else None)
 
 
 def _virtual_inverter(scenario, parameters, link, workdir, drive_id, paced, timeout_s, rt_priority=0, cpus=None,

@@ -55,6 +55,8 @@ class ScenarioDriver:
                  inverter=None, listener=None, intra_process=False):
         self.node, self.scenario = node, scenario
         self.intra_process = intra_process
+        self.host_bridge = None
+        """Behind a virtual inverter in this process, the bridge node's InverterBridge (its write times)."""
         """The controller takes the estimator's answers and the currents directly (no subscriptions)."""
         self.listener = listener or node
         """The node that takes what the graph says (its subscriptions): the launcher spins it on a thread of
