@@ -315,8 +315,8 @@ def core_kept_busy(load=True):
 
 
 def machine_stalls(report, timing):
-    """What the machine watch saw during one run (None: it gave nothing): its stalls over 0.5 ms and their
-    total [ms], the run's runs of late periods and how many of them the machine's stalls explain."""
+    """What the machine watch saw during one run (None: it gave nothing): how many of its stalls were over
+    0.5 ms, all of them together [ms], the run's runs of late periods and how many the stalls explain."""
     from drive_interface.machine_watch import missing_runs_explained
     windows = timing["missing_runs"]["windows_monotonic_s"]
     if report is None:
