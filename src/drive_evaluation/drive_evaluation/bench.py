@@ -359,10 +359,9 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
     with core_kept_busy(load), interrupt.polled():
         for link in links:
             for lever in levers:
-                runs = []
+                runs, settings = [], REAL_TIME_LEVERS[lever]
                 for _ in range(repeats):
                     stolen_before = stolen_s()
-                    settings = REAL_TIME_LEVERS[lever]
                     with (MachineWatch(settings.get("rt_priority", 0) + 1, settings.get("cpus"))
                           if watch_machine else contextlib.nullcontext()) as watch:
                         result = launch(scenario_ref, record=True, link=link, paced=True,

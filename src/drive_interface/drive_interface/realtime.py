@@ -5,6 +5,7 @@ the kernel's unbound workqueues on the drive's CPUs; the machine's own floor and
 No rclpy."""
 import contextlib
 import gc
+import math
 import os
 import sys
 import time
@@ -216,14 +217,7 @@ def cpu_wakeup_latency_held(max_us, request_file=CPU_DMA_LATENCY):
 
 def microseconds(text):
     """argparse type of ``--cpu-dma-latency-us``: a whole number of µs ≥ 0."""
-    import argparse
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"a whole number of µs ≥ 0, not {text!r}")
-    return value
+    return _whole_number(text, 0, math.inf, "a whole number of µs ≥ 0")
 
 
 def cpu_set(text):
@@ -244,13 +238,18 @@ def cpu_set(text):
 
 def fifo_priority(text):
     """argparse type of ``--rt-priority``: 0 (normal scheduling) or a SCHED_FIFO priority 1-99."""
+    return _whole_number(text, 0, 99, "a SCHED_FIFO priority 1-99, or 0 for normal scheduling")
+
+
+def _whole_number(text, low, high, expected):
+    """``text`` as a whole number from ``low`` to ``high``; else argparse's error: ``expected``, not text."""
     import argparse
     try:
         value = int(text)
     except ValueError:
-        value = -1
-    if not 0 <= value <= 99:
-        raise argparse.ArgumentTypeError(f"a SCHED_FIFO priority 1-99, or 0 for normal scheduling, not {text!r}")
+        value = None
+    if value is None or not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"{expected}, not {text!r}")
     return value
 
 

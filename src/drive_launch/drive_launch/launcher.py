@@ -323,8 +323,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             listeners.append(listener)
             driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
                                     startup_timeout_s, progress if i == 0 else None, recorders[i], inverter,
-                                    listener, intra_process)
-            driver.host_bridge = made["drive_bridge"].bridge if spec.link and processes == "composed" else None
+                                    listener, intra_process,
+                                    made["drive_bridge"].bridge if spec.link and processes == "composed" else None)
             driver.done = Future()
             drives.append(drive)
             drivers.append(driver)

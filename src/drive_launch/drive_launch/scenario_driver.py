@@ -52,12 +52,12 @@ class ScenarioDriver:
     it starts the inverter at sample 0."""
 
     def __init__(self, node, scenario, record, settle_s, startup_timeout_s, progress, recorder=None,
-                 inverter=None, listener=None, intra_process=False):
+                 inverter=None, listener=None, intra_process=False, host_bridge=None):
         self.node, self.scenario = node, scenario
         self.intra_process = intra_process
-        self.host_bridge = None
-        """Behind a virtual inverter in this process, the bridge node's InverterBridge (its write times)."""
         """The controller takes the estimator's answers and the currents directly (no subscriptions)."""
+        self.host_bridge = host_bridge
+        """Behind a virtual inverter in this process, the bridge node's InverterBridge (its write times)."""
         self.listener = listener or node
         """The node that takes what the graph says (its subscriptions): the launcher spins it on a thread of
         its own, so that what is recorded never waits in the drive's queue of callbacks."""
