@@ -15,6 +15,7 @@ from drive_bridge.inverter_protocol import (
     OVERCURRENT,
     PWM_OFF,
     WATCHDOG,
+    Command,
     CommandBlock,
     Hello,
     TelemetryBlock,
@@ -230,8 +231,75 @@ def test_a_paced_inverter_counts_late_commands_as_zero_volts(tmp_path):
         assert sum(c for e, c in zip(edges, counts) if e >= 1.0) == timing["late_arrivals"] >= 9
         assert inverter.counters["watchdog_trips"] == 0
         windows = timing["missing_runs"]["windows_monotonic_s"]
-        assert len(windows) == 9 and all(0.01 < due - sent <= 0.02 for sent, due in windows)
+        assert len(windows) == 9 and all(0.01 < due - sent <= 0.02 + 1e-9 for sent, due in windows)
         assert timing_report(inverter, 1.0 / 50.0, bridge.written_at)["missing_runs_written_in_time"] == 0
+    finally:
+        inverter.stop()
+        thread.join(2.0)
+        bridge.close()
+        endpoint.close()
+
+
+class HeldBackLink:
+    """The inverter's end of a link whose kernel hands every 4th command message over ``hold_s`` late."""
+
+    def __init__(self, endpoint, hold_s):
+        self.endpoint, self.hold_s = endpoint, hold_s
+        self.pending, self.commands = [], 0
+
+    def __getattr__(self, name):
+        return getattr(self.endpoint, name)
+
+    def receive(self, timeout_s):
+        until = time.monotonic() + timeout_s
+        while True:
+            for message in self.endpoint.receive(max(0.0, min(0.001, until - time.monotonic()))):
+                held = isinstance(message, Command) and self.commands % 4 == 3
+                self.commands += isinstance(message, Command)
+                self.pending.append((time.monotonic() + (self.hold_s if held else 0.0), message))
+            ready = [m for at, m in self.pending if at <= time.monotonic()]
+            if ready or time.monotonic() >= until:
+                self.pending = [(at, m) for at, m in self.pending if at > time.monotonic()]
+                return ready
+
+
+@pytest.mark.parametrize("by_host_writes", [False, True])
+def test_a_command_written_in_time_but_read_late_is_the_links_not_the_hosts(tmp_path, by_host_writes):
+    """On a 50 Hz clock the link hands every 4th command to the inverter 25 ms late (a slow kernel worker or
+    inverter thread; the host wrote it at once), and the host itself writes every command answering a
+    sample k ≡ 1 (mod 4) 25 ms late (not yet written when their periods are decided: the runs keep NaN
+    for the write). Judged by when its thread read them, the inverter misses both kinds
+    (10 and 9: the last held-back one would act after the run). Judged as a device, by the host's write
+    time plus the wire's 50 µs (``hear_host_writes``), it misses only the host's 10 and applies the
+    held-back ones in their periods (``read_late``: 9)."""
+    from drive_bridge.virtual_inverter import timing_report
+
+    forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
+    endpoint, host_link = make_links("pty", tmp_path)
+    inverter = VirtualInverter(forty, HeldBackLink(endpoint, 0.025), rate_Hz=50.0)
+    bridge = InverterBridge(host_link, block_samples=forty.block_samples)
+    if by_host_writes:
+        inverter.hear_host_writes(bridge.written_at)
+    bridge.poll(0.0)
+    thread = threading.Thread(target=inverter.run, daemon=True)
+    thread.start()
+    try:
+        while thread.is_alive():
+            for s in bridge.poll(0.01):
+                if s.k % 4 == 1:
+                    time.sleep(0.025)
+                bridge.command(s.k, 1.0, 0.0)
+        timing = timing_report(inverter, 1.0 / 50.0, bridge.written_at)
+        assert timing["periods"] == 40 and inverter.counters["watchdog_trips"] == 0
+        if by_host_writes:
+            assert timing["in_time_by"] == "host write + wire"
+            assert timing["missing"] == 10 and timing["read_late_in_time"] == 9
+            assert timing["missing_runs_written_in_time"] == 0
+            assert all(np.isnan(run[5]) for run in inverter.missing_runs)
+        else:
+            assert timing["in_time_by"] == "inverter read"
+            assert timing["missing"] == 19 and timing["read_late_in_time"] == 0
+            assert timing["missing_runs_written_in_time"] == 9
     finally:
         inverter.stop()
         thread.join(2.0)
@@ -306,7 +374,8 @@ def test_the_bridge_keeps_when_it_wrote_each_command_block_for_a_while():
 
 def test_a_late_block_says_whether_the_host_had_written_its_command_in_time():
     """Of a run's runs of missing periods, those whose first command the host had written before it was
-    due (it reached the inverter late: the link's or the inverter's share), beside each one's window."""
+    due (it reached the inverter late: the link's or the inverter's share), beside each one's window; with
+    the command's time on the wire, written early enough to arrive by then."""
     from types import SimpleNamespace
 
     from drive_bridge.virtual_inverter import timing_report
@@ -321,6 +390,10 @@ def test_a_late_block_says_whether_the_host_had_written_its_command_in_time():
     assert timing["missing_runs_written_before_due_us"] == [pytest.approx(200.0), pytest.approx(-400.0)]
     assert timing["missing_runs"]["windows_monotonic_s"] == [[5.0, 5.0011], [9.0, 9.0011]]
     assert timing_report(inverter, 1e-4)["missing_runs_written_in_time"] is None
+    inverter.command_wire_s = 3e-4
+    timing = timing_report(inverter, 1e-4, written_at=lambda c: written[c])
+    assert timing["missing_runs_written_in_time"] == 0
+    assert timing["missing_runs_written_before_due_us"] == [pytest.approx(-100.0), pytest.approx(-700.0)]
 
 
 def test_the_can_fd_frames_of_a_block_come_as_one_block_and_say_when_it_ran_at_zero_volts():
@@ -392,6 +465,27 @@ def test_a_late_command_block_is_zero_volts_the_host_pairs_and_ours_barely_feels
     assert result.inverter_counters["watchdog_trips"] == 0 and result.received.all()
     error = np.abs(angle_error(result.log, result.n_p)[1000:])
     assert np.sqrt(np.mean(error ** 2)) < rms and error.max() < peak
+
+
+def test_a_block_the_simulation_sent_late_leaves_the_host_its_whole_window_and_no_more():
+    """Blocks of 4 at 10 kHz: a command block is due when its first period begins, 2N = 8 periods after
+    its samples' first: the host's window of N + 1 = 5 periods from the telemetry. Telemetry the simulation
+    sent 50 µs late (under a period: no overrun) moves the deadline by as much, and a command read within
+    those 50 µs counts as in time for that reason (``sent_late``); a restart of the clock after the
+    telemetry left (an overrun of a later block) moves no deadline of a block already sent."""
+    scenario = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s, block_samples=4)
+    inverter = VirtualInverter(scenario, endpoint=None, rate_Hz=1e4)
+    inverter.clock_start, inverter.k = 100.0, 12
+    inverter.sent_at[0:4] = 100.0 + 3e-4
+    inverter.sent_at[4:8], inverter.sent_late_s[4:8] = 100.0 + 7e-4 + 50e-6, 50e-6
+    assert inverter.deadline(2) == pytest.approx(100.0 + 8e-4, abs=1e-9)
+    assert inverter.deadline(5) == pytest.approx(100.0 + 12e-4 + 50e-6, abs=1e-9)
+    assert inverter.deadline(12) == pytest.approx(100.0 + 20e-4, abs=1e-9)
+    assert inverter.in_time(5, 100.0 + 12e-4 + 20e-6) and inverter.counters["sent_late"] == 1
+    assert inverter.in_time(2, 100.0 + 7e-4) and not inverter.in_time(2, 100.0 + 8e-4 + 1e-6)
+    inverter.clock_start += 5e-4
+    assert inverter.deadline(2) == pytest.approx(100.0 + 8e-4, abs=1e-9)
+    assert inverter.deadline(12) == pytest.approx(100.0 + 25e-4, abs=1e-9)
 
 
 def test_a_paced_inverter_applies_a_block_during_the_block_after_next(tmp_path):

@@ -785,7 +785,7 @@ def test_the_paced_graph_with_its_inverter_apart_and_its_recorder_on_a_thread_re
     assert result.timing["periods"] == n and result.log.shape[0] == n
     for name in ("i_a_meas", "theta_e_hat", "u_alpha"):
         assert np.isfinite(result.log[:, COLUMN[name]]).all(), name
-    assert result.timing["periods_before_start"] <= 30
+    assert result.timing["periods_before_start"] <= 30 and result.timing["in_time_by"] == "inverter read"
     assert len(result.scheduling["applied"]) + len(result.scheduling["refused"]) == 2
 
 
@@ -811,7 +811,7 @@ def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_fe
     assert told["angle_error_rms"] < 0.04 and told["angle_error_peak"] < 0.2 and not told["lost"]
     assert blind["angle_error_rms"] > 2.0 * told["angle_error_rms"]
     metrics = compute_metrics(result)
-    assert 0.025 <= result.timing["late_fraction"] <= 0.1
+    assert 0.025 <= result.timing["late_fraction"] <= 0.1 and result.timing["in_time_by"] == "host write + wire"
     told = result.diagnostics["/lossy/hf_estimator"]["values"]["zero_voltage_periods"]
     assert int(told) >= result.timing["missing"]
     assert not metrics["lock_lost"] and metrics["angle_error_rms"] < 0.04 and metrics["angle_error_peak"] < 0.2

@@ -21,12 +21,32 @@ class LinkDown(OSError):
     """The port or bus failed (unplugged, bus-off, closed); reopen to continue."""
 
 
+UART_BAUD = 3_000_000
+"""The serial link's rate the protocol is sized for (docs/inverter-protocol.md): 8N1, 10 bits a byte."""
+CAN_ARBITRATION_BITRATE, CAN_DATA_BITRATE = 1_000_000, 5_000_000
+
+
+def uart_frame_s(n_bytes, baudrate=UART_BAUD):
+    """Time on the wire of ``n_bytes`` sent back to back on a UART, 8N1 [s]."""
+    return 10.0 * n_bytes / baudrate
+
+
+def can_frame_s(n_bytes, fd):
+    """Time on the bus of one CAN frame of ``n_bytes`` data [s], worst-case bit stuffing (one in five) on
+    what is stuffed: classic (11-bit identifier) at the arbitration rate; CAN FD with bit-rate switch, its
+    arbitration, acknowledge and end (30 bits) at the arbitration rate and the rest (DLC, data, stuff
+    count, CRC: 8n + 30 bits) at the data rate."""
+    if not fd:
+        return (1.2 * (34 + 8 * n_bytes) + 13) / CAN_ARBITRATION_BITRATE
+    return 30 / CAN_ARBITRATION_BITRATE + 1.2 * (8 * n_bytes + 30) / CAN_DATA_BITRATE
+
+
 class SerialLink:
     """Protocol frames over a serial port opened by path (a symlink such as /dev/serial/by-id/... is
     followed at each open, so a re-plugged device is found again). pyserial opens and configures the
     port (raw mode, baud rate); frames then go through its file descriptor with select, read and write."""
 
-    def __init__(self, port, baudrate=3_000_000):
+    def __init__(self, port, baudrate=UART_BAUD):
         self.port, self.baudrate = port, baudrate
         self.serial = None
         self.fd = None
@@ -151,6 +171,11 @@ class PtyEndpoint:
     def send(self, message):
         self.send_bytes(encode_frame(message))
 
+    @staticmethod
+    def wire_time_s(message):
+        """Time ``message`` takes on the UART this pty stands for [s]."""
+        return uart_frame_s(len(encode_frame(message)))
+
     def close(self):
         self.unplug()
         if os.path.lexists(self.link_path):
@@ -244,6 +269,12 @@ class CanLink:
         except (can.CanError, OSError) as error:
             self.close()
             raise LinkDown(f"CAN {self.channel}: {error} (bus-off?)") from None
+
+    def wire_time_s(self, message):
+        """Time ``message`` takes on the bus [s] (blocks as CAN FD frames)."""
+        if isinstance(message, (TelemetryBlock, CommandBlock)):
+            return sum(can_frame_s(len(data), True) for _, data in to_canfd(message, self.drive_id))
+        return sum(can_frame_s(len(data), False) for _, data in to_can(message, self.drive_id))
 
     def close(self):
         import can

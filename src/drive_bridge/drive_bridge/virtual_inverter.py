@@ -6,6 +6,7 @@ volts for a missing command, PWM off after ``watchdog_periods`` missing ones
 or 100 ms without the host, and an overcurrent trip. PWM off is modelled as zero volts.
 
 Clock: ``rate_Hz`` paces the periods in wall time (a real inverter's clock; a late command is missing,
+late by when this thread read it or, as a device, by when the host wrote it: ``hear_host_writes``;
 100 ms of host silence trips; a block the simulation itself sends more than a period late is an overrun,
 and the clock restarts there); without it the inverter waits up to ``command_wait_s`` for each command
 (lock-step over the link, for simulations faster or slower than real time; a missing command is one
@@ -119,30 +120,49 @@ class VirtualInverter:
         self.held_back = None
         self.commands_heard = 0
         self.commands = {}
-        """sample → (u_α [V], u_β [V], flags, in time) of each command received and not yet applied."""
+        """sample → (u_α [V], u_β [V], flags, when read [monotonic s]) of each command received and not yet
+        applied."""
         self.bad_frames = 0
         self.sent_frames = 0
         self.stopped = threading.Event()
         self.worker = None
         self.counters = {"commands": 0, "missing": 0, "discarded": 0, "trips": 0, "watchdog_trips": 0,
-                         "host_silent_trips": 0, "link_down": 0, "overruns": 0}
+                         "host_silent_trips": 0, "link_down": 0, "overruns": 0, "sent_late": 0, "read_late": 0}
         """commands: samples whose command came in time. overruns: blocks the simulated inverter itself
         sent more than a period behind its clock (its Python simulation, not the host, was slow); its
         clock then restarts from that moment, as the host cannot be blamed for periods a real inverter's
-        timer would have kept."""
+        timer would have kept. sent_late: periods whose command came after the start of its first period
+        on the clock, but within the host's window from when the simulation sent its telemetry late.
+        read_late: periods whose command this thread read after its deadline, but that had arrived in time
+        by the host's write time (``hear_host_writes``)."""
+        self.host_written_at = None
+        """k → when the host finished writing the command answering sample k (monotonic s, NaN: unknown),
+        or None: a command arrives when this thread reads it."""
+        wire_time_s = getattr(endpoint, "wire_time_s", None)
+        full = CommandBlock(0, ENABLE, ((0, 0),) * self.block_samples) if self.block_samples > 1 else Command(
+            0, 0, 0, ENABLE)
+        self.command_wire_s = wire_time_s(full) if wire_time_s else 0.0
+        """A full command message's time on the wire of the real link this one stands for [s]."""
+        self.heard_up_to = -1
+        """The last sample answered by a command message heard (in time or not, lost or kept)."""
         self.started = False
         """A command came in time: the drive runs, and the watchdog counts."""
         self.before_start = 0
         """Periods without a command before the drive started (PWM off; docs/inverter-protocol.md)."""
         self.missing_runs = []
-        """[first period, periods, telemetry sent, command due, command's sample] of each run of periods in a
-        row without a command in time; sent and due (monotonic s, paced only; else 0) are the window its
-        first command had."""
+        """[first period, periods, telemetry sent, command due, command's sample, host wrote it] of each run of
+        periods in a row without a command in time; sent and due (monotonic s, paced only; else 0) are the
+        window its first command had; when the host wrote it (``hear_host_writes``; NaN when it had not by
+        the time the run's first period was decided) is taken then, as the host keeps its write times for a
+        few seconds only."""
         self.latencies_s = []
         """Time from TELEMETRY(_BLOCK) sent to its COMMAND(_BLOCK) received, per command message in time."""
         self.late_latencies_s = []
         """The same for command messages that came after their first period had begun (zero volts)."""
         self.sent_at = np.zeros(scenario.n_samples)
+        self.sent_late_s = np.zeros(scenario.n_samples)
+        """Per sample: how late on its clock the simulation sent its telemetry [s] (under a period; more is
+        an overrun, and the clock restarts)."""
         self.truth = np.full((scenario.n_samples, 7), np.nan)
 
     def stop(self):
@@ -186,6 +206,8 @@ class VirtualInverter:
             if late > period:
                 self.clock_start += late
                 self.counters["overruns"] += 1
+                late = 0.0
+            self.sent_late_s[k0:k0 + n] = max(late, 0.0)
             self.send_samples(k0, n, out)
             if time.monotonic() >= hello_at:
                 self.send(self.hello)
@@ -196,7 +218,11 @@ class VirtualInverter:
         """Decide the voltages of the periods up to j_last: what the host sends is taken until period
         j_last begins (``rate_Hz``), or until the commands acting in them came (lock-step)."""
         if self.rate_Hz:
-            self.receive_until(self.clock_start + j_last / self.rate_Hz)
+            until = self.clock_start + j_last / self.rate_Hz
+            c_last = j_last - self.delay
+            self.receive_until(max(until, self.deadline(c_last)) if c_last >= 0 else until)
+            if self.host_written_at is not None:
+                self.receive_written(range(max(self.decided - self.delay, 0), min(c_last + 1, self.k)))
         else:
             self.await_commands(self.decided - self.delay, j_last + 1 - self.delay)
         for j in range(max(self.decided, self.delay), j_last + 1):
@@ -217,10 +243,47 @@ class VirtualInverter:
     def switching(self):
         return self.enabled and not self.latched
 
+    def hear_host_writes(self, written_at):
+        """Judge a command by when it reached this device, not by when this thread read it: when the host
+        finished writing it (``written_at(k)``, the host bridge's InverterBridge.written_at on the same
+        machine, monotonic s) plus its time on the link's wire, as a real inverter's receive buffer takes it
+        (docs/bridge.md, "As a device"). Paced only."""
+        self.host_written_at = written_at
+
+    def arrived(self, c):
+        """When the command answering sample c reached the device by the host's write time [monotonic s];
+        inf when that is not known."""
+        if self.host_written_at is None:
+            return math.inf
+        at = self.host_written_at(c) + self.command_wire_s
+        return at if math.isfinite(at) else math.inf
+
+    def in_time(self, c, read_at):
+        """Whether the command answering sample c, read by this thread at ``read_at`` (inf: never), came in
+        time: paced, by its deadline, when read or when it arrived by the host's write time (judged when its
+        period is decided, after the host has noted its write)."""
+        if not self.rate_Hz:
+            return math.isfinite(read_at)
+        due = self.deadline(c)
+        if read_at <= due:
+            if 0 <= c < self.k and read_at > due - self.sent_late_s[c]:
+                self.counters["sent_late"] += 1
+            return True
+        if math.isfinite(read_at) and self.arrived(c) <= due:
+            self.counters["read_late"] += 1
+            return True
+        return False
+
     def deadline(self, c):
-        """When the command answering sample c must have arrived: the start of the first period its
-        message acts in (a block's commands act from one period on)."""
-        first = c - c % self.block_samples
+        """When the command answering sample c must have arrived [monotonic s]: the host's window (N + 1
+        periods with blocks, one without) after its telemetry left. That is the start of the first period
+        the message acts in, on the clock the telemetry was sent by; a simulation that sent it late does not
+        shorten the window, nor does a later restart of its clock lengthen it. A sample not sent yet: that
+        period's start on the clock as it is."""
+        N = self.block_samples
+        first = c - c % N
+        if 0 <= first < self.k:
+            return float(self.sent_at[first]) + (self.delay - N + 1) / self.rate_Hz
         return self.clock_start + (first + self.delay) / self.rate_Hz
 
     def decide(self, j):
@@ -229,7 +292,8 @@ class VirtualInverter:
         starts with the first command in time: periods before it, within ``watchdog_periods`` of the first
         a command can act in, have PWM off and count as before the start, not as missing."""
         c = j - self.delay
-        u_alpha, u_beta, flags, in_time = self.commands.pop(c, (0.0, 0.0, 0, False))
+        u_alpha, u_beta, flags, read_at = self.commands.pop(c, (0.0, 0.0, 0, math.inf))
+        in_time = self.in_time(c, read_at)
         if not in_time and not self.started and j < self.delay + self.watchdog_periods:
             self.before_start += 1
             return 0.0, 0.0
@@ -241,7 +305,8 @@ class VirtualInverter:
         else:
             if self.missing == 0:
                 window = (float(self.sent_at[c]), self.deadline(c)) if self.rate_Hz and 0 <= c < self.k else (0.0, 0.0)
-                self.missing_runs.append([j, 0, *window, c])
+                written = self.host_written_at(c) if self.host_written_at is not None and c >= 0 else math.nan
+                self.missing_runs.append([j, 0, *window, c, float(written)])
             self.missing_runs[-1][1] += 1
             self.missing += 1
             self.missing_in_block = True
@@ -310,6 +375,19 @@ class VirtualInverter:
             for message in self.receive(min(remaining, 0.05)):
                 self.handle(message)
 
+    def receive_written(self, samples):
+        """Take the commands answering ``samples`` that arrived in time by the host's write time and that
+        this thread has not read yet (the link's kernel or this thread was slow), each for at most
+        HOST_SILENCE_S."""
+        for c in samples:
+            if c in self.commands or self.heard_up_to >= c or not self.arrived(c) <= self.deadline(c):
+                continue
+            until = time.monotonic() + HOST_SILENCE_S
+            while (c not in self.commands and self.heard_up_to < c and time.monotonic() < until
+                   and not self.stopped.is_set()):
+                for message in self.receive(min(until - time.monotonic(), 0.05)):
+                    self.handle(message)
+
     def await_commands(self, first, last):
         """Lock-step: wait until the commands answering samples first … last − 1 came, each at most
         ``command_wait_s`` after its telemetry was sent."""
@@ -320,15 +398,10 @@ class VirtualInverter:
                     self.handle(message)
 
     def handle(self, message):
-        """A message from the host: a command stored for its period (in time if it came before its
-        first period began; once per sample: a repeat or one for a period already past is discarded), a
-        CONTROL carried out."""
+        """A message from the host: a command stored for its period with when it was read (whether in
+        time is judged when its period is decided: ``in_time``; once per sample: a repeat or one for a
+        period already decided is discarded), a CONTROL carried out."""
         now = self.last_heard = time.monotonic()
-        if isinstance(message, (Command, CommandBlock)) and self.faults.lose_command_every:
-            self.commands_heard += 1
-            if self.commands_heard % self.faults.lose_command_every == 0:
-                self.faults.counts["commands_lost"] = self.faults.counts.get("commands_lost", 0) + 1
-                return
         if isinstance(message, (Command, CommandBlock)):
             if isinstance(message, Command):
                 seq, values = message.seq, ((message.u_alpha, message.u_beta),)
@@ -337,7 +410,15 @@ class VirtualInverter:
             c0 = seq + (self.k // 2 ** 32) * 2 ** 32
             if c0 > self.k + 2 ** 31:
                 c0 -= 2 ** 32
-            in_time = not self.rate_Hz or now <= self.deadline(c0)
+            if 0 <= c0 <= self.k:
+                self.heard_up_to = max(self.heard_up_to, c0 + len(values) - 1)
+            if self.faults.lose_command_every:
+                self.commands_heard += 1
+                if self.commands_heard % self.faults.lose_command_every == 0:
+                    self.faults.counts["commands_lost"] = self.faults.counts.get("commands_lost", 0) + 1
+                    return
+            due = self.deadline(c0) if self.rate_Hz else math.inf
+            in_time = now <= due or self.arrived(c0) <= due
             fresh = [c for c in range(c0, c0 + len(values))
                      if 0 <= c < self.k and c + self.delay >= self.decided and c not in self.commands]
             if fresh:
@@ -350,7 +431,7 @@ class VirtualInverter:
             lsb = self.voltage_lsb
             for c, (u_alpha, u_beta) in zip(range(c0, c0 + len(values)), values):
                 if c in fresh:
-                    self.commands[c] = (u_alpha * lsb, u_beta * lsb, message.flags, in_time)
+                    self.commands[c] = (u_alpha * lsb, u_beta * lsb, message.flags, now)
         elif isinstance(message, Control):
             if message.action == CONTROL_CLEAR_FAULTS:
                 self.latched = 0
@@ -439,7 +520,12 @@ def timing_report(inverter, T_s, written_at=None):
     periods (how many, the longest, the first ones as [time s, periods]) and the periods before the drive
     started (before its first command in time, PWM off: not missing). With ``written_at(k)`` (the host
     bridge's InverterBridge.written_at, on the same machine) also how many of those runs began with a
-    command the host had written to the link in time, and that reached the inverter late."""
+    command the host had written early enough to arrive in time over the real link's wire. ``in_time_by``:
+    whether a command counted as arrived when the host's write and the wire were done ("host write + wire",
+    VirtualInverter.hear_host_writes) or when the inverter's thread read it ("inverter read");
+    ``sent_late_in_time``: periods in time only because the simulation sent their telemetry late (the host's
+    window counts from then); ``read_late_in_time``: periods whose command was read after its deadline
+    but had arrived in time by the host's write time."""
     every = np.concatenate([inverter.latencies_s, inverter.late_latencies_s]) * 1e6
     edges = np.asarray(LATENCY_BINS_PER_PERIOD)
     counts, _ = np.histogram(every, bins=edges * T_s * 1e6)
@@ -454,16 +540,21 @@ def timing_report(inverter, T_s, written_at=None):
               "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],
               "host_silent_trips": inverter.counters["host_silent_trips"],
               "periods_before_start": inverter.before_start,
+              "in_time_by": "host write + wire" if getattr(inverter, "host_written_at", None) else "inverter read",
+              "sent_late_in_time": inverter.counters.get("sent_late", 0),
+              "read_late_in_time": inverter.counters.get("read_late", 0),
               "missing_runs": missing_runs(inverter.missing_runs, T_s),
-              **written_before_due(inverter.missing_runs, written_at)}
+              **written_before_due(inverter.missing_runs, written_at, getattr(inverter, "command_wire_s", 0.0))}
 
 
-def written_before_due(runs, written_at):
-    """Of the runs of missing periods, how long before its due time the host wrote each one's first command
-    [µs] (negative: after; NaN: not known), and how many it wrote in time; None without ``written_at``."""
+def written_before_due(runs, written_at, wire_s=0.0):
+    """Of the runs of missing periods, how long before its due time each one's first command had arrived by
+    the host's write time (kept in the run, else ``written_at``) and ``wire_s`` on the wire [µs]
+    (negative: after; NaN: not known), and how many had so arrived in time; None without ``written_at``."""
     if written_at is None:
         return {"missing_runs_written_in_time": None, "missing_runs_written_before_due_us": None}
-    before = [1e6 * (due - written_at(c)) for _, _, _, due, c in runs if due]
+    before = [1e6 * (run[3] - (run[5] if len(run) > 5 and math.isfinite(run[5]) else written_at(run[4])) - wire_s)
+              for run in runs if run[3]]
     return {"missing_runs_written_in_time": sum(b >= 0.0 for b in before),
             "missing_runs_written_before_due_us": [round(b, 1) if math.isfinite(b) else None for b in before]}
 

@@ -380,6 +380,8 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                                  "missing_runs": t["missing_runs"],
                                  "missing_runs_written_in_time": t["missing_runs_written_in_time"],
                                  "missing_runs_written_before_due_us": t["missing_runs_written_before_due_us"],
+                                 **{key: t[key] for key in ("in_time_by", "sent_late_in_time",
+                                                            "read_late_in_time")},
                                  **{key: t[key] for key in ("hop_us", "latency_p50_us", "latency_p99_us",
                                                             "latency_max_us", "latency_p50_hops",
                                                             "latency_p99_hops", "latency_max_hops")},
@@ -405,6 +407,9 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                     written = ", ".join(f"{r['missing_runs_written_in_time']}/{r['missing_runs']['count']}"
                                         if r["missing_runs_written_in_time"] is not None else "?" for r in runs)
                     progress(f"       late blocks whose command the host wrote in time: {written}")
+                    simulation = ", ".join(f"{r['sent_late_in_time']}/{r['read_late_in_time']}" for r in runs)
+                    progress(f"       periods in time that the simulated inverter sent late / read late "
+                             f"(judged by {runs[0]['in_time_by']}): {simulation}")
                     if watch_machine:
                         explained = ", ".join(machine_line(r["machine"]) for r in runs)
                         progress(f"       late blocks the machine's stalls explain: {explained}")

@@ -321,10 +321,12 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             nodes.append(driver_node)
             listener = Node("drive_recorder", context=context, namespace=spec.namespace)
             listeners.append(listener)
+            host_bridge = made["drive_bridge"].bridge if spec.link and processes == "composed" else None
+            if host_bridge is not None and spec.paced and not spec.inverter_apart:
+                inverter.hear_host_writes(host_bridge.written_at)
             driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
                                     startup_timeout_s, progress if i == 0 else None, recorders[i], inverter,
-                                    listener, intra_process,
-                                    made["drive_bridge"].bridge if spec.link and processes == "composed" else None)
+                                    listener, intra_process, host_bridge)
             driver.done = Future()
             drives.append(drive)
             drivers.append(driver)

@@ -66,6 +66,8 @@ def virtual_inverter_link(scenario, link, **inverter_options):
         endpoint, host_link = make_links(link, workdir)
         inverter = VirtualInverter(scenario, endpoint, **inverter_options)
         bridge = InverterBridge(host_link, block_samples=scenario.block_samples)
+        if inverter.rate_Hz:
+            inverter.hear_host_writes(bridge.written_at)
         try:
             yield inverter, endpoint, bridge
         finally:
@@ -143,7 +145,8 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
                            counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
                            inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
                            latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
-                           host_s=host_s[:done][received[:done]], timing=timing_report(inverter, scenario.T_s))
+                           host_s=host_s[:done][received[:done]],
+                           timing=timing_report(inverter, scenario.T_s, bridge.written_at))
 
 
 class _SampleAnswer:
