@@ -406,7 +406,8 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                              f"(hop {runs[0]['hop_us']:.1f} µs), stolen by the host {stolen_ms} ms")
                     written = ", ".join(f"{r['missing_runs_written_in_time']}/{r['missing_runs']['count']}"
                                         if r["missing_runs_written_in_time"] is not None else "?" for r in runs)
-                    progress(f"       late blocks whose command the host wrote in time: {written}")
+                    progress(f"       late blocks whose command had arrived in time (the host's write and the wire): "
+                             f"{written}")
                     simulation = ", ".join(f"{r['sent_late_in_time']}/{r['read_late_in_time']}" for r in runs)
                     progress(f"       periods in time that the simulated inverter sent late / read late "
                              f"(judged by {runs[0]['in_time_by']}): {simulation}")
