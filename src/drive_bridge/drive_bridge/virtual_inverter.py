@@ -216,7 +216,9 @@ class VirtualInverter:
 
     def take_commands(self, j_last):
         """Decide the voltages of the periods up to j_last: what the host sends is taken until period
-        j_last begins (``rate_Hz``), or until the commands acting in them came (lock-step)."""
+        j_last begins or its command's deadline passed, whichever is later (``rate_Hz``; as a device also
+        the commands the host wrote in time that this thread has not read yet), or until the commands
+        acting in them came (lock-step)."""
         if self.rate_Hz:
             until = self.clock_start + j_last / self.rate_Hz
             c_last = j_last - self.delay
