@@ -262,19 +262,26 @@ class VirtualInverter:
 
     def in_time(self, c, read_at):
         """Whether the command answering sample c, read by this thread at ``read_at`` (inf: never), came in
-        time: paced, by its deadline, when read or when it arrived by the host's write time (judged when its
-        period is decided, after the host has noted its write)."""
+        time (``arrival``), counting the simulation's share; called once per period, when it is decided
+        (after the host has noted its write)."""
+        how = self.arrival(c, read_at)
+        if how in ("sent_late", "read_late"):
+            self.counters[how] += 1
+        return how is not None
+
+    def arrival(self, c, read_at):
+        """How the command answering sample c, read at ``read_at`` (inf: never), came in time: "read" (by
+        its deadline; lock-step: it came), "sent_late" (by its deadline, only because the simulation sent the
+        telemetry late), "read_late" (read after its deadline, but arrived by then by the host's write time);
+        None: late, or never."""
         if not self.rate_Hz:
-            return math.isfinite(read_at)
+            return "read" if math.isfinite(read_at) else None
         due = self.deadline(c)
         if read_at <= due:
-            if 0 <= c < self.k and read_at > due - self.sent_late_s[c]:
-                self.counters["sent_late"] += 1
-            return True
+            return "sent_late" if 0 <= c < self.k and read_at > due - self.sent_late_s[c] else "read"
         if math.isfinite(read_at) and self.arrived(c) <= due:
-            self.counters["read_late"] += 1
-            return True
-        return False
+            return "read_late"
+        return None
 
     def deadline(self, c):
         """When the command answering sample c must have arrived [monotonic s]: the host's window (N + 1
@@ -419,8 +426,7 @@ class VirtualInverter:
                 if self.commands_heard % self.faults.lose_command_every == 0:
                     self.faults.counts["commands_lost"] = self.faults.counts.get("commands_lost", 0) + 1
                     return
-            due = self.deadline(c0) if self.rate_Hz else math.inf
-            in_time = now <= due or self.arrived(c0) <= due
+            in_time = self.arrival(c0, now) is not None
             fresh = [c for c in range(c0, c0 + len(values))
                      if 0 <= c < self.k and c + self.delay >= self.decided and c not in self.commands]
             if fresh:
