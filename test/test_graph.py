@@ -526,10 +526,42 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks, intra
     timing = result.timing
     assert timing["hop_us"] > 0.0
     assert timing["latency_p99_hops"] == pytest.approx(timing["latency_p99_us"] / timing["hop_us"])
-    timing = result.timing
-    assert timing["hop_us"] > 0.0
-    assert timing["latency_p99_hops"] == pytest.approx(timing["latency_p99_us"] / timing["hop_us"])
     assert values["dropped"] == values["safe_state"] == values["faults_cleared"] == "0"
+
+
+def test_with_its_inputs_handed_over_the_estimator_answers_on_the_callers_thread():
+    """An estimator whose inputs are handed over (drive launch --link L --intra-process) subscribes to none
+    of the currents, `zero_voltage` and the commands; currents handed to it on another thread are answered
+    there, through the controller, before the call returns, and the commands reach both the bridge's
+    taker and the estimator's delay line."""
+    h = Harness("/handed")
+    try:
+        parameters = parameter_overrides({**h.parameters, "commissioning": COMMISSIONING})
+        estimator = EstimatorNode(inputs_handed=True, context=h.context, namespace=h.namespace,
+                                  parameter_overrides=parameters)
+        h.nodes.append(estimator)
+        controller = ControllerNode(estimator=estimator, context=h.context, namespace=h.namespace,
+                                    parameter_overrides=parameter_overrides(h.parameters))
+        h.nodes.append(controller)
+        written = []
+        controller.hand_commands_to(lambda k, u_alpha, u_beta: written.append((k, threading.get_ident())))
+        topics = {f"/handed/{topic}" for topic in ("currents", "voltage_command", "zero_voltage")}
+        assert not topics & {s.topic_name for s in estimator.subscriptions}
+        h.spin_until(lambda: controller.voltage_pub is not None, what="the controller's outputs")
+
+        def hand_three():
+            for k in range(3):
+                with estimator.sample_lock:
+                    estimator.take_currents(*stamp_parts(k, 1e-4), 0.0, 0.0, 0.0)
+                assert written[-1][0] == k
+        thread = threading.Thread(target=hand_three)
+        thread.start()
+        thread.join(timeout=10.0)
+        assert [k for k, _ in written] == [0, 1, 2] and {ident for _, ident in written} == {thread.ident}
+        assert estimator.issued == 2 and estimator.k == 3 and controller.k == 3
+        assert not estimator.health.counters and not controller.health.counters
+    finally:
+        h.close()
 
 
 def test_the_bridge_node_reports_link_faults_on_diagnostics(tmp_path):

@@ -4,8 +4,10 @@ It publishes what `pmsm_plant` publishes — `currents` stamped k·T_s from the 
 counter, `rotor_state` and `angle_error` when the encoder is valid, `/clock`, `drive_config`,
 `/diagnostics` — and answers `voltage_command`(k) with COMMAND(k). With an inverter sending blocks of
 N samples (parameter ``block_samples``, which must match its HELLO) it publishes `currents_block` and
-`rotor_state_block` of each whole block and answers `voltage_command_block` with COMMAND_BLOCK (composed
-with the controller, ``drive launch --intra-process``: the controller's commands handed over directly). The
+`rotor_state_block` of each whole block and answers `voltage_command_block` with COMMAND_BLOCK. Composed
+with the estimator and the controller (``drive launch --intra-process``) it hands each sample or block to
+the estimator on its link thread before publishing it, and takes the controller's commands from it there:
+the drive's whole answer runs on that thread, with no delivery or thread switch in it. The
 service `clear_faults`
 (std_srvs/Trigger) clears the inverter's latched faults, an overcurrent included. Frames are read on a
 thread of their own, so the graph never waits on the link; the inverter's clock paces everything. Link
@@ -59,10 +61,11 @@ NO_CHANNEL = np.zeros(0)
 
 
 class InverterBridgeNode(ContractNode):
-    def __init__(self, link=None, controller=None, **kwargs):
+    def __init__(self, link=None, controller=None, estimator=None, **kwargs):
         """``link``: a link object (composed graphs), else the parameters' link; ``controller``: the
         ControllerNode of this process to take the voltage commands from directly (``drive launch
-        --intra-process``), instead of subscribing to them."""
+        --intra-process``), instead of subscribing to them; ``estimator``: the EstimatorNode of this process
+        whose inputs are handed over (EstimatorNode.inputs_handed), on the link thread."""
         super().__init__("drive_bridge", **kwargs)
         QUIET_TIME.hold()
         for name, (default, text) in PARAMETERS.items():
@@ -105,6 +108,7 @@ class InverterBridgeNode(ContractNode):
                                      topic_qos(ROTOR_ESTIMATE))
         if controller is not None:
             controller.hand_commands_to(self.timed(self.take_commands))
+        self.estimator = estimator if estimator is not None and estimator.inputs_handed else None
         self.create_service(Trigger, "clear_faults", self.on_clear_faults)
         wrap(0.0)
         self.T_s = None
@@ -139,19 +143,23 @@ class InverterBridgeNode(ContractNode):
                 self.report_zero_volts(b)
             for s in (s for b in blocks for s in b.samples()):
                 self.k = s.k
+                velocity = None
+                if not math.isnan(s.theta_m):
+                    velocity = (s.theta_m - previous[1]) / ((s.k - previous[0]) * self.T_s) \
+                        if previous and s.k > previous[0] else 0.0
+                    self.history[s.k] = (s.theta_m, velocity)
+                    self.history.pop(s.k - HISTORY_SAMPLES, None)
+                    previous = (s.k, s.theta_m)
+                if self.estimator is not None:
+                    self.hand_sample(s, velocity)
                 t = stamp(s.k, self.T_s)
                 if self.clock_pub:
                     clock.clock = t
                     self.clock_pub.publish(clock)
-                if not math.isnan(s.theta_m):
+                if velocity is not None:
                     rotor.header.stamp = t
-                    velocity = (s.theta_m - previous[1]) / ((s.k - previous[0]) * self.T_s) \
-                        if previous and s.k > previous[0] else 0.0
                     rotor.position, rotor.velocity, rotor.effort = [s.theta_m], [velocity], [math.nan]
                     self.rotor_state_pub.publish(rotor)
-                    self.history[s.k] = (s.theta_m, velocity)
-                    self.history.pop(s.k - HISTORY_SAMPLES, None)
-                    previous = (s.k, s.theta_m)
                 currents.header.stamp = t
                 currents.vector.x, currents.vector.y, currents.vector.z = s.i_a, s.i_b, s.i_c
                 self.currents_pub.publish(currents)
@@ -177,6 +185,8 @@ class InverterBridgeNode(ContractNode):
             self.history[k0] = (theta, velocity)
             self.history.pop(k0 - HISTORY_SAMPLES * N, None)
         i = b.currents_A
+        if self.estimator is not None:
+            self.hand_block(sec, nanosec, i, theta if encoder else None, velocity if encoder else None)
         self.currents_pub.publish(self.currents_wire.encode(sec, nanosec, i[:, 0], i[:, 1], i[:, 2]))
         if self.clock_pub:
             clock.clock = stamp(k0, self.T_s)
@@ -185,13 +195,35 @@ class InverterBridgeNode(ContractNode):
             self.rotor_state_pub.publish(self.rotor_state_wire.encode(sec, nanosec, theta, velocity,
                                                                       np.full(N, np.nan)))
 
+    def hand_block(self, sec, nanosec, currents, theta, velocity):
+        """The block's currents [A, (N, 3)] and, for the sensored estimator, its encoder angles [rad] and
+        speeds [rad/s] (None: not valid throughout) to the estimator, which answers through the controller
+        to take_commands before this returns."""
+        e = self.estimator
+        with e.sample_lock:
+            if theta is not None and e.sensored:
+                e.take_rotor_state(sec, nanosec, theta, velocity, None)
+            e.take_currents(sec, nanosec, currents[:, 0], currents[:, 1], currents[:, 2])
+
+    def hand_sample(self, s, velocity):
+        """The same for one sample (blocks of one; ``velocity``: None where the encoder is not valid)."""
+        e, (sec, nanosec) = self.estimator, stamp_parts(s.k, self.T_s)
+        with e.sample_lock:
+            if velocity is not None and e.sensored:
+                e.take_rotor_state(sec, nanosec, s.theta_m, velocity, None)
+            e.take_currents(sec, nanosec, s.i_a, s.i_b, s.i_c)
+
     def report_zero_volts(self, b):
         """`zero_voltage` for a block whose periods ran at zero volts, before its currents: the estimator
         then pairs them with zero, not with their commands."""
         if b.at_zero_volts and self.T_s is not None:
             self.zero_voltage_periods += len(b)
-            self.zero_voltage_pub.publish(self.zero_voltage_wire.encode(*stamp_parts(b.k0, self.T_s),
-                                                                        np.ones(len(b)), NO_CHANNEL))
+            sec, nanosec = stamp_parts(b.k0, self.T_s)
+            if self.estimator is not None:
+                with self.estimator.sample_lock:
+                    self.estimator.take_zero_voltage(sec, nanosec, np.ones(len(b)), NO_CHANNEL, NO_CHANNEL)
+            self.zero_voltage_pub.publish(self.zero_voltage_wire.encode(sec, nanosec, np.ones(len(b)),
+                                                                        NO_CHANNEL))
 
     def on_voltage_block(self, sec, nanosec, u_alpha, u_beta, _):
         if self.T_s is not None:

@@ -159,6 +159,9 @@ class VirtualInverter:
         """Time from TELEMETRY(_BLOCK) sent to its COMMAND(_BLOCK) received, per command message in time."""
         self.late_latencies_s = []
         """The same for command messages that came after their first period had begun (zero volts)."""
+        self.answers_s = []
+        """As a device (``hear_host_writes``): per command message, the time from its telemetry sent to the
+        host's write of it (the host's answer, the wire not included)."""
         self.sent_at = np.zeros(scenario.n_samples)
         self.sent_late_s = np.zeros(scenario.n_samples)
         """Per sample: how late on its clock the simulation sent its telemetry [s] (under a period; more is
@@ -303,6 +306,10 @@ class VirtualInverter:
         c = j - self.delay
         u_alpha, u_beta, flags, read_at = self.commands.pop(c, (0.0, 0.0, 0, math.inf))
         in_time = self.in_time(c, read_at)
+        if self.host_written_at is not None and 0 <= c < self.k and c % self.block_samples == 0:
+            answer = self.host_written_at(c) - self.sent_at[c]
+            if math.isfinite(answer):
+                self.answers_s.append(answer)
         if not in_time and not self.started and j < self.delay + self.watchdog_periods:
             self.before_start += 1
             return 0.0, 0.0
@@ -524,7 +531,8 @@ MISSING_RUNS_SHOWN = 20
 def timing_report(inverter, T_s, written_at=None):
     """How the host kept pace with a virtual inverter: periods run, commands missing (late or never
     sent: zero volts), their fraction, latency percentiles [µs] over every command that came (late ones
-    included), the histogram of those latencies (edges in sampling periods and µs), the runs of missing
+    included), as a device also the host's answer percentiles [µs] (telemetry sent to the host's write of its
+    command; None otherwise), the histogram of those latencies (edges in sampling periods and µs), the runs of missing
     periods (how many, the longest, the first ones as [time s, periods]) and the periods before the drive
     started (before its first command in time, PWM off: not missing). With ``written_at(k)`` (the host
     bridge's InverterBridge.written_at, on the same machine) also how many of those runs began with a
@@ -535,6 +543,7 @@ def timing_report(inverter, T_s, written_at=None):
     window counts from then); ``read_late_in_time``: periods whose command was read after its deadline
     but had arrived in time by the host's write time."""
     every = np.concatenate([inverter.latencies_s, inverter.late_latencies_s]) * 1e6
+    answers = np.asarray(getattr(inverter, "answers_s", ())) * 1e6
     edges = np.asarray(LATENCY_BINS_PER_PERIOD)
     counts, _ = np.histogram(every, bins=edges * T_s * 1e6)
     return {"paced": bool(inverter.rate_Hz), "periods": inverter.k, "missing": inverter.counters["missing"],
@@ -543,6 +552,9 @@ def timing_report(inverter, T_s, written_at=None):
               "latency_p50_us": float(np.percentile(every, 50)) if every.size else None,
               "latency_p99_us": float(np.percentile(every, 99)) if every.size else None,
               "latency_max_us": float(every.max()) if every.size else None,
+              "answer_p50_us": float(np.percentile(answers, 50)) if answers.size else None,
+              "answer_p99_us": float(np.percentile(answers, 99)) if answers.size else None,
+              "answer_max_us": float(answers.max()) if answers.size else None,
               "latency_histogram": {"edges_periods": [float(e) if math.isfinite(e) else None for e in edges],
                                     "counts": [int(c) for c in counts]},
               "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],

@@ -382,7 +382,9 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                                                             "sent_late_in_time", "read_late_in_time", "hop_us",
                                                             "latency_p50_us", "latency_p99_us",
                                                             "latency_max_us", "latency_p50_hops",
-                                                            "latency_p99_hops", "latency_max_hops")},
+                                                            "latency_p99_hops", "latency_max_hops",
+                                                            "answer_p50_us", "answer_p99_us", "answer_max_us",
+                                                            "answer_p50_hops", "answer_p99_hops")},
                                  "scheduling": result.scheduling,
                                  "stolen_ms": {cpu: round(1e3 * (after - stolen_before[cpu]))
                                                for cpu, after in stolen_s().items() if cpu in stolen_before},

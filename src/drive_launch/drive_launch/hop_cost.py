@@ -62,10 +62,11 @@ def hop_latency(round_trips=20000):
 
 def in_hops(timing, hop):
     """A timing report (drive_bridge.virtual_inverter.timing_report) with the hop cost beside it: ``hop_us``
-    and each latency figure also in hops (``latency_p50_hops`` ...)."""
+    and each latency and answer figure also in hops (``latency_p50_hops``, ``answer_p50_hops`` ...)."""
     us = hop["us_per_hop"]
     extra = {"hop_us": us}
-    for key in ("latency_p50_us", "latency_p99_us", "latency_max_us"):
+    for key in ("latency_p50_us", "latency_p99_us", "latency_max_us", "answer_p50_us", "answer_p99_us",
+                "answer_max_us"):
         value = timing.get(key)
         extra[key.replace("_us", "_hops")] = value / us if value is not None and us > 0 else None
     return {**timing, **extra}

@@ -122,11 +122,14 @@ def refuse_occupied(context, namespaces, discovery_s=DISCOVERY_S):
         probe.destroy_node()
 
 
-def make_node(name, context=None, namespace=None, parameters=None, link=None, estimator=None, controller=None):
+def make_node(name, context=None, namespace=None, parameters=None, link=None, estimator=None, controller=None,
+              inputs_handed=False):
     """One of the drive's nodes (``drive_interface.graph.NODES``) with ``parameters`` as overrides; the
     drive_bridge node on ``link`` when given (a link object, for composed graphs). Intra-process partners,
     made before: the controller takes the answers of ``estimator`` (the EstimatorNode of this process)
-    directly, the bridge the commands of ``controller``."""
+    directly, the bridge the commands of ``controller``; with ``inputs_handed`` the estimator takes its
+    inputs from the bridge and the controller made after it, which hand them over (the bridge's link thread
+    runs the drive's whole answer)."""
     from drive_interface.node import parameter_overrides
     kwargs = {"context": context, "namespace": namespace,
               "parameter_overrides": parameter_overrides(parameters or {})}
@@ -135,7 +138,7 @@ def make_node(name, context=None, namespace=None, parameters=None, link=None, es
         return PlantNode(**kwargs)
     if name == "hf_estimator":
         from hf_estimator.node import EstimatorNode
-        return EstimatorNode(**kwargs)
+        return EstimatorNode(inputs_handed=inputs_handed, **kwargs)
     if name == "foc_controller":
         from foc_controller.node import ControllerNode
         return ControllerNode(estimator=estimator, **kwargs)
@@ -144,7 +147,7 @@ def make_node(name, context=None, namespace=None, parameters=None, link=None, es
         return CommissioningNode(**kwargs)
     if name == "drive_bridge":
         from drive_bridge.bridge_node import InverterBridgeNode
-        return InverterBridgeNode(link=link, controller=controller, **kwargs)
+        return InverterBridgeNode(link=link, controller=controller, estimator=estimator, **kwargs)
     raise GraphError(f"unknown node '{name}' (known: {', '.join(NODES)})")
 
 
@@ -312,6 +315,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                     partners = {"estimator": made.get("hf_estimator"), "controller": made.get("foc_controller")}
                     made[role] = make_node(role, context, spec.namespace, role_parameters,
                                            link=host_link if spec.link else None,
+                                           inputs_handed=intra_process and bool(spec.link),
                                            **(partners if intra_process else {}))
                     nodes.append(made[role])
                 else:

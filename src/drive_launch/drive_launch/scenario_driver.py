@@ -175,14 +175,14 @@ class ScenarioDriver:
     def expected_endpoints(self):
         """(topic, publishers, subscribers) that must exist before sample 0, this node included (with
         an inverter, which keeps its own load and clock, no plant subscribes to load_torque; intra-process,
-        the controller subscribes to none of the estimator's answers nor to the currents, the bridge not to
-        the commands)."""
+        the controller subscribes to none of the estimator's answers nor to the currents; with an inverter
+        too, the estimator neither to the currents nor to the commands, the bridge not to the commands)."""
         r = 1 if self.record or self.recorder else 0
         c = 0 if self.intra_process else 1
         sensored = self.scenario.estimator == "sensored"
         b = 0 if self.intra_process and self.inverter is not None else 1
-        endpoints = [(CURRENTS, 1, 1 + c + r), (ROTOR_ESTIMATE, 1, 1 + c + r), (INJECTION, 1, c + r),
-                     (VOLTAGE_COMMAND, 1, 1 + b + r), (ESTIMATOR_STATE, 1, c + r), (ESTIMATOR_BLEND, 1, r)]
+        endpoints = [(CURRENTS, 1, b + c + r), (ROTOR_ESTIMATE, 1, 1 + c + r), (INJECTION, 1, c + r),
+                     (VOLTAGE_COMMAND, 1, 2 * b + r), (ESTIMATOR_STATE, 1, c + r), (ESTIMATOR_BLEND, 1, r)]
         if self.inverter is None:
             endpoints += [(ROTOR_STATE, 1, r + sensored)]
         endpoints = [(self.carried[topic], pubs, subs) for topic, pubs, subs in endpoints]

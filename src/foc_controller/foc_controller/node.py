@@ -11,7 +11,8 @@ estimates, or a rejected speed limit, give zero voltage and a reported fault; th
 With blocks (``block_samples`` N > 1) it joins the four block twins of a block, runs ``controller_block``
 once and answers `voltage_command_block`. Composed in one process with the estimator
 (``drive launch --intra-process``) it takes the currents and the estimator's answers from the estimator
-node directly, at once, instead of four deliveries; the estimator still publishes them.
+node directly, at once, instead of four deliveries; the estimator still publishes them. With the
+inverter's bridge there too, it hands its commands to the bridge, then to the estimator.
 
 The core is built once the estimator's drive_config tells what the controller needs of it: its
 injection frequency (the notch), its tracking bandwidth (the speed loop stays below it) and the current
@@ -23,6 +24,7 @@ import dataclasses
 import json
 import math
 import sys
+import threading
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -84,9 +86,18 @@ class ControllerNode(ScenarioNode):
         def ready():
             return (self.params or not self.configured) and (estimator is None or estimator.answering)
 
+        self.sample_lock = threading.Lock() if estimator is None else estimator.sample_lock
+        """Held while a sample or block is stepped, and by the executor's callbacks that rebuild what it
+        steps: one with the estimator's where the answers are handed over (the bridge's link thread may step
+        both)."""
+        self.commands_to_estimator = None
+        """Where the estimator's inputs are handed over (EstimatorNode.inputs_handed), its
+        ``take_handed_commands``: the commands go there after the bridge."""
         if estimator is not None:
             inputs = []
             estimator.hand_answers_to(self.timed(self.take_answers))
+            if estimator.inputs_handed:
+                self.commands_to_estimator = estimator.take_handed_commands
         elif self.block_samples > 1:
             inputs = [self.sample_subscription(block(CURRENTS), self.timed(self.on_currents_block)),
                       self.sample_subscription(block(ROTOR_ESTIMATE), self.on_estimate_block),
@@ -134,7 +145,11 @@ class ControllerNode(ScenarioNode):
         self.calibration = self.commissioning.calibration()
 
     def on_drive_config(self, msg):
-        """Build the core from the estimator's facts, once."""
+        with self.sample_lock:
+            self.build_core(msg)
+
+    def build_core(self, msg):
+        """Build the core from the estimator's facts (its drive_config), once."""
         if self.params is not None or not self.configured:
             return
         try:
@@ -173,6 +188,11 @@ class ControllerNode(ScenarioNode):
         self.voltage_pub = self.sample_publisher(self.contract_topics(VOLTAGE_COMMAND)[0])
 
     def on_set_parameters(self, parameters):
+        with self.sample_lock:
+            return self.set_speed_limit(parameters)
+
+    def set_speed_limit(self, parameters):
+        """The parameter ``controller.speed_limit_rad_s`` among ``parameters``, checked and applied."""
         for p in parameters:
             if p.name != SPEED_LIMIT:
                 continue
@@ -330,6 +350,8 @@ class ControllerNode(ScenarioNode):
             self.fault("bad_input", f"block {k0}: inputs of unequal length; zero voltage")
         if self.hand_commands:
             self.hand_commands(k0, out[:, 0], out[:, 1])
+        if self.commands_to_estimator:
+            self.commands_to_estimator(k0, out[:, 0], out[:, 1])
         sec, nanosec = stamp_parts(k0, self.T_s)
         self.voltage_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 0], out[:, 1]))
         self.sample_handled(k0 + n - 1)
@@ -372,6 +394,8 @@ class ControllerNode(ScenarioNode):
                 self.joint_pub.publish(j)
         if self.hand_commands:
             self.hand_commands(k, u_alpha, u_beta)
+        if self.commands_to_estimator:
+            self.commands_to_estimator(k, u_alpha, u_beta)
         sec, nanosec = stamp_parts(k, self.T_s)
         self.voltage_pub.publish(self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0))
         self.sample_handled(k)

@@ -8,8 +8,10 @@ the plant then applied) and, for `sensored` only, `rotor_state`(k). It answers
 code, hf_estimator.startup) and `estimator_blend`(k) (x = injection amplitude, y = observer weight, z =
 leader; on /diagnostics too). With blocks (``block_samples`` N > 1) it takes `currents_block` and
 `voltage_command_block`, runs ``estimator_block`` once per block and answers the block twins, plus
-`estimator_state` of each block's first sample. A lost lock or a refused start is a fault (ERROR on
-/diagnostics, counted).
+`estimator_state` of each block's first sample. In one process with the inverter's bridge (``drive launch
+--link ... --intra-process``) these inputs are handed over on the bridge's link thread, not subscribed to:
+the whole block, from its telemetry to its command, runs there (docs/ros-graph.md, "Real time"). A lost
+lock or a refused start is a fault (ERROR on /diagnostics, counted).
 Non-finite or absurd currents are not fed to the core: the node answers with its last estimate and
 no injection, and reports the fault.
 
@@ -19,6 +21,7 @@ calibration. Its drive_config carries what the controller needs of it (``Estimat
 motor value it uses with its source (``motor_knowledge``).
 """
 import sys
+import threading
 import time
 
 import numpy as np
@@ -55,8 +58,15 @@ class EstimatorNode(ScenarioNode):
     def needs_experiment(self):
         return False
 
-    def __init__(self, **kwargs):
+    def __init__(self, inputs_handed=False, **kwargs):
+        """``inputs_handed``: the currents, `zero_voltage`, `rotor_state` and the commands come from the
+        drive_bridge node and the controller of this process (``take_currents``, ``take_zero_voltage``,
+        ``take_rotor_state``, ``take_handed_commands``, called holding ``sample_lock``), not over topics."""
         super().__init__("hf_estimator", **kwargs)
+        self.inputs_handed = inputs_handed
+        self.sample_lock = threading.Lock()
+        """Held while a sample or block is stepped: by the bridge's link thread where the inputs are handed
+        over, and by the executor's callbacks that step or rebuild what it steps (the watchdog's)."""
         self.currents = {}
         self.issued = -1
         """The last sample whose voltage_command is in the delay line."""
@@ -93,17 +103,21 @@ class EstimatorNode(ScenarioNode):
         self.zero_volts = set()
         """Samples whose commands the inverter reported not applied (`zero_voltage`), not yet in the line."""
         self.zero_voltage_periods = 0
-        self.sample_subscription(ZERO_VOLTAGE, self.on_zero_voltage)
-        if self.block_samples > 1:
-            inputs = [self.sample_subscription(block(CURRENTS), self.timed(self.on_currents_block))]
-            self.sample_subscription(block(VOLTAGE_COMMAND), self.on_voltage_block)
+        blocks = self.block_samples > 1
+        self.take_currents = self.timed(self.on_currents_block if blocks else self.on_currents)
+        self.take_rotor_state = self.on_rotor_state_block if blocks else self.on_rotor_state
+        self.take_zero_voltage = self.on_zero_voltage
+        inputs = []
+        if not inputs_handed:
+            self.sample_subscription(ZERO_VOLTAGE, self.on_zero_voltage)
+            inputs.append(self.sample_subscription(block(CURRENTS) if blocks else CURRENTS, self.take_currents))
+            if blocks:
+                self.sample_subscription(block(VOLTAGE_COMMAND), self.on_voltage_block)
+            else:
+                self.sample_subscription(VOLTAGE_COMMAND, self.on_voltage_command)
             if self.sensored:
-                inputs.append(self.sample_subscription(block(ROTOR_STATE), self.on_rotor_state_block))
-        else:
-            inputs = [self.sample_subscription(CURRENTS, self.timed(self.on_currents))]
-            self.sample_subscription(VOLTAGE_COMMAND, self.on_voltage_command)
-            if self.sensored:
-                inputs.append(self.sample_subscription(ROTOR_STATE, self.on_rotor_state))
+                inputs.append(self.sample_subscription(block(ROTOR_STATE) if blocks else ROTOR_STATE,
+                                                       self.take_rotor_state))
         self.open_when_matched(inputs, self.open_outputs)
         self.create_timer(min(self.timeout_s / 8.0, 0.05), self.watchdog)
         currents, voltages = self.contract_topics(CURRENTS, VOLTAGE_COMMAND)
@@ -180,6 +194,14 @@ class EstimatorNode(ScenarioNode):
         if k is not None and k > self.issued:
             self.take_commands(k, [u_alpha], [u_beta])
             self.try_step()
+
+    def take_handed_commands(self, k, u_alpha, u_beta):
+        """The controller's commands of sample k (floats) or of the block from k (arrays), handed over in
+        one process (inputs_handed): into the delay line, as `voltage_command` would bring them."""
+        if self.block_samples > 1:
+            self.on_voltage_block(*stamp_parts(k, self.T_s), u_alpha, u_beta, None)
+        else:
+            self.on_voltage_command(*stamp_parts(k, self.T_s), u_alpha, u_beta, None)
 
     def take_commands(self, k0, u_alpha, u_beta):
         """Commands of samples k0 … into the delay line (zero for samples skipped before k0, which the
@@ -353,6 +375,10 @@ class EstimatorNode(ScenarioNode):
         self.sample_handled(k0 + n - 1)
 
     def watchdog(self):
+        with self.sample_lock:
+            self.force_when_silent()
+
+    def force_when_silent(self):
         if self.waiting_since and time.monotonic() - self.waiting_since > self.timeout_s / 2.0:
             topic = self.resolve_topic_name(self.contract_topics(VOLTAGE_COMMAND)[0])
             self.fault("timeout", f"sample {self.k}: no {topic} for the commands acting in its period(s); "
