@@ -824,9 +824,12 @@ def test_the_paced_graph_with_its_inverter_apart_and_its_recorder_on_a_thread_re
     assert len(result.scheduling["applied"]) + len(result.scheduling["refused"]) == 2
 
 
-def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_feels_a_lost_block(tmp_path):
+@pytest.mark.parametrize("intra_process", [False, True])
+def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_feels_a_lost_block(tmp_path,
+                                                                                                 intra_process):
     """Behind the paced inverter every 37th command block is lost (zero volts for its periods, as for a late
-    one). The bridge publishes `zero_voltage` for each block the inverter reports so, before its currents;
+    one). The bridge publishes `zero_voltage` for each block the inverter reports so, before its currents
+    (intra-process: hands it to the estimator so, on its link thread);
     the estimator pairs those periods with zero volts, not their commands: ours stays near its targets
     (0.023 / 0.09 rad RMS / peak measured; 0.12 / 0.5 when the estimator is not told). The bag records it,
     and its replay pairs them likewise (measured: 0.023 / 0.10 told, 0.137 / 0.53 not told)."""
@@ -837,7 +840,8 @@ def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_fe
     from drive_evaluation.replay import replay
     bag = tmp_path / "lossy"
     result = launch("wang_100rpm", namespace="/lossy", link="can", paced=True, lose_command_every=37,
-                    extra_parameters={"block_samples": 10}, rt_priority=50, cpus={1}, bag=str(bag))
+                    extra_parameters={"block_samples": 10}, rt_priority=50, cpus={1}, bag=str(bag),
+                    intra_process=intra_process)
     recording = read_recording(bag)
     assert recording.timing["zero_voltage_periods"] >= result.timing["missing"]
     told = replay(recording, ["injection_frame"])[0][0]
@@ -847,6 +851,7 @@ def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_fe
     assert blind["angle_error_rms"] > 2.0 * told["angle_error_rms"]
     metrics = compute_metrics(result)
     assert 0.025 <= result.timing["late_fraction"] <= 0.1 and result.timing["in_time_by"] == "host write + wire"
+    assert 0.0 < result.timing["answer_p50_us"] <= result.timing["answer_p99_us"] <= result.timing["answer_max_us"]
     told = result.diagnostics["/lossy/hf_estimator"]["values"]["zero_voltage_periods"]
     assert int(told) >= result.timing["missing"]
     assert not metrics["lock_lost"] and metrics["angle_error_rms"] < 0.04 and metrics["angle_error_peak"] < 0.2

@@ -11,6 +11,7 @@ late by when this thread read it or, as a device, by when the host wrote it: ``h
 and the clock restarts there); without it the inverter waits up to ``command_wait_s`` for each command
 (lock-step over the link, for simulations faster or slower than real time; a missing command is one
 that did not come within that wait, and host silence is left to the watchdog)."""
+import collections
 import math
 import threading
 import time
@@ -160,8 +161,13 @@ class VirtualInverter:
         self.late_latencies_s = []
         """The same for command messages that came after their first period had begun (zero volts)."""
         self.answers_s = []
-        """As a device (``hear_host_writes``): per command message, the time from its telemetry sent to the
-        host's write of it (the host's answer, the wire not included)."""
+        """As a device (``hear_host_writes``), once the drive started: per command message the host wrote,
+        the time from its telemetry sent to the host's write of it (the host's answer, the wire not
+        included)."""
+        self.unanswered = collections.deque()
+        """Samples starting a command message whose answer time is not known yet (not written when decided)."""
+        self.never_answered = 0
+        """Command messages after the start the host had not written HOST_SILENCE_S after their telemetry."""
         self.sent_at = np.zeros(scenario.n_samples)
         self.sent_late_s = np.zeros(scenario.n_samples)
         """Per sample: how late on its clock the simulation sent its telemetry [s] (under a period; more is
@@ -306,10 +312,9 @@ class VirtualInverter:
         c = j - self.delay
         u_alpha, u_beta, flags, read_at = self.commands.pop(c, (0.0, 0.0, 0, math.inf))
         in_time = self.in_time(c, read_at)
-        if self.host_written_at is not None and 0 <= c < self.k and c % self.block_samples == 0:
-            answer = self.host_written_at(c) - self.sent_at[c]
-            if math.isfinite(answer):
-                self.answers_s.append(answer)
+        if self.host_written_at is not None and self.started and 0 <= c < self.k and c % self.block_samples == 0:
+            self.unanswered.append(c)
+            self.note_answers()
         if not in_time and not self.started and j < self.delay + self.watchdog_periods:
             self.before_start += 1
             return 0.0, 0.0
@@ -332,6 +337,21 @@ class VirtualInverter:
                 self.counters["watchdog_trips"] += 1
             u_alpha = u_beta = 0.0
         return (u_alpha, u_beta) if self.switching() else (0.0, 0.0)
+
+    def note_answers(self, final=False):
+        """The answer times of the command messages waiting in ``unanswered`` that the host has written, in
+        order; one not written HOST_SILENCE_S after its telemetry (or at the run's end, ``final``) counts as
+        never answered."""
+        while self.unanswered:
+            c = self.unanswered[0]
+            written = self.host_written_at(c)
+            if math.isfinite(written):
+                self.answers_s.append(written - self.sent_at[c])
+            elif final or time.monotonic() - self.sent_at[c] > HOST_SILENCE_S:
+                self.never_answered += 1
+            else:
+                return
+            self.unanswered.popleft()
 
     def simulate(self, k0, n, out):
         """Samples k0 … k0 + n − 1 into ``out``, each period before them under its decided voltage; an
@@ -532,7 +552,8 @@ def timing_report(inverter, T_s, written_at=None):
     """How the host kept pace with a virtual inverter: periods run, commands missing (late or never
     sent: zero volts), their fraction, latency percentiles [µs] over every command that came (late ones
     included), as a device also the host's answer percentiles [µs] (telemetry sent to the host's write of its
-    command; None otherwise), the histogram of those latencies (edges in sampling periods and µs), the runs of missing
+    command, over the commands written after the drive started; None otherwise) and how many it never wrote
+    (``never_answered``), the histogram of those latencies (edges in sampling periods and µs), the runs of missing
     periods (how many, the longest, the first ones as [time s, periods]) and the periods before the drive
     started (before its first command in time, PWM off: not missing). With ``written_at(k)`` (the host
     bridge's InverterBridge.written_at, on the same machine) also how many of those runs began with a
@@ -543,6 +564,8 @@ def timing_report(inverter, T_s, written_at=None):
     window counts from then); ``read_late_in_time``: periods whose command was read after its deadline
     but had arrived in time by the host's write time."""
     every = np.concatenate([inverter.latencies_s, inverter.late_latencies_s]) * 1e6
+    if getattr(inverter, "host_written_at", None) is not None:
+        inverter.note_answers(final=True)
     answers = np.asarray(getattr(inverter, "answers_s", ())) * 1e6
     edges = np.asarray(LATENCY_BINS_PER_PERIOD)
     counts, _ = np.histogram(every, bins=edges * T_s * 1e6)
@@ -555,6 +578,7 @@ def timing_report(inverter, T_s, written_at=None):
               "answer_p50_us": float(np.percentile(answers, 50)) if answers.size else None,
               "answer_p99_us": float(np.percentile(answers, 99)) if answers.size else None,
               "answer_max_us": float(answers.max()) if answers.size else None,
+              "never_answered": getattr(inverter, "never_answered", 0),
               "latency_histogram": {"edges_periods": [float(e) if math.isfinite(e) else None for e in edges],
                                     "counts": [int(c) for c in counts]},
               "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],

@@ -384,7 +384,7 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                                                             "latency_max_us", "latency_p50_hops",
                                                             "latency_p99_hops", "latency_max_hops",
                                                             "answer_p50_us", "answer_p99_us", "answer_max_us",
-                                                            "answer_p50_hops", "answer_p99_hops")},
+                                                            "answer_p50_hops", "answer_p99_hops", "never_answered")},
                                  "scheduling": result.scheduling,
                                  "stolen_ms": {cpu: round(1e3 * (after - stolen_before[cpu]))
                                                for cpu, after in stolen_s().items() if cpu in stolen_before},
@@ -404,6 +404,9 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                              f"lock held in {row['runs_lock_held']} of {len(runs)}, ours within its targets in "
                              f"{row['runs_meeting_targets']}, latency p99 {p99} hops "
                              f"(hop {runs[0]['hop_us']:.1f} µs), stolen by the host {stolen_ms} ms")
+                    if runs[0]["answer_p99_us"] is not None:
+                        answers = ", ".join(f"{r['answer_p99_us']:.0f}" for r in runs)
+                        progress(f"       the drive's answer (telemetry sent to command written) p99 {answers} µs")
                     written = ", ".join(f"{r['missing_runs_written_in_time']}/{r['missing_runs']['count']}"
                                         if r["missing_runs_written_in_time"] is not None else "?" for r in runs)
                     progress(f"       late blocks whose command had arrived in time (the host's write and the wire): "
