@@ -158,7 +158,8 @@ class PlantNode(ScenarioNode):
     def ready(self):
         """Every lock-step partner is matched: `currents` reaches every subscriber the graph shows (at
         least ``currents_readers``; a graph entry is not yet a match), so do `rotor_state` and
-        `angle_error` (a watcher already in the graph, `drive echo`, gets the run from its first sample), a
+        `angle_error` (a watcher the graph shows, `drive echo`, is matched before the first sample; it hears
+        the samples once its own side has matched too, which Fast DDS may finish later), a
         `voltage_command` publisher is matched, `estimator_state` too while a brake holds, and the
         launcher's go has come when the scenario is the schedule. With the shaft held (commissioning) one
         partner answers currents with voltages and no estimator runs."""
