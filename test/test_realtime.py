@@ -195,3 +195,36 @@ def test_status_work_waits_for_the_quiet_part_of_a_block_and_never_more_than_a_p
     assert not quiet.pending and len(done) == 3
     quiet.later(publish)
     assert done[-1] == "publish"
+
+
+def test_status_work_taken_by_two_threads_runs_each_piece_once():
+    """The bridge's link thread (a command written) and the executor's (a node's next period) may take
+    queued pieces at the same time, thread switches forced often: each runs once, none is lost, neither
+    thread fails."""
+    import threading
+    quiet, done, failed = realtime.QuietTime(), [], []
+    jobs = [lambda i=i: done.append(i) for i in range(600)]
+    quiet.hold()
+    quiet.later(*jobs)
+
+    def taking(step, times=None):
+        def take():
+            try:
+                n = 0
+                while quiet.pending and (times is None or n < times):
+                    step()
+                    n += 1
+            except Exception as error:
+                failed.append(error)
+        return threading.Thread(target=take)
+    threads = [taking(quiet.quiet), taking(lambda: quiet.overdue(jobs[::7]), times=100)]
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)
+    try:
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(timeout=30.0)
+    finally:
+        sys.setswitchinterval(interval)
+    assert not failed and sorted(done) == list(range(600))

@@ -8,6 +8,7 @@ import gc
 import math
 import os
 import sys
+import threading
 import time
 
 GIL_SWITCH_S = 2e-4
@@ -51,11 +52,13 @@ class QuietTime:
     0.5 ms, measured) would otherwise land between a block's telemetry and its command; held, each piece
     waits for a command to have been written (``quiet``, called by the bridge node) and one piece runs
     there. A piece still waiting when its node's next period comes runs then (the link is down: no command
-    is written), so /diagnostics is at most one period late."""
+    is written), so /diagnostics is at most one period late. The bridge's link thread and the executor's
+    may both take pieces: each is taken once, under a lock, and run outside it."""
 
     def __init__(self):
         self.holders = 0
         self.pending = []
+        self.lock = threading.Lock()
 
     def hold(self):
         """A bridge node runs the loop in this process."""
@@ -66,7 +69,8 @@ class QuietTime:
         are being torn down with it; their last status went out with ``complete_run``)."""
         self.holders -= 1
         if not self.holders:
-            self.pending.clear()
+            with self.lock:
+                self.pending.clear()
 
     def later(self, *jobs):
         """Run ``jobs`` now, or queue them while held."""
@@ -74,18 +78,24 @@ class QuietTime:
             for job in jobs:
                 job()
             return
-        self.pending.extend(jobs)
+        with self.lock:
+            self.pending.extend(jobs)
 
     def overdue(self, jobs):
         """Run those of ``jobs`` still queued, now."""
-        for job in [j for j in self.pending if j in jobs]:
-            self.pending.remove(job)
+        with self.lock:
+            due = [j for j in self.pending if j in jobs]
+            for job in due:
+                self.pending.remove(job)
+        for job in due:
             job()
 
     def quiet(self):
         """A command was just written: run one queued piece."""
-        if self.pending:
-            self.pending.pop(0)()
+        with self.lock:
+            job = self.pending.pop(0) if self.pending else None
+        if job is not None:
+            job()
 
 
 QUIET_TIME = QuietTime()
