@@ -6,8 +6,8 @@ counter, `rotor_state` and `angle_error` when the encoder is valid, `/clock`, `d
 N samples (parameter ``block_samples``, which must match its HELLO) it publishes `currents_block` and
 `rotor_state_block` of each whole block and answers `voltage_command_block` with COMMAND_BLOCK. Composed
 with the estimator and the controller (``drive launch --intra-process``) it hands each sample or block to
-the estimator on its link thread before publishing it, and takes the controller's commands from it there:
-the drive's whole answer runs on that thread, with no delivery or thread switch in it. The
+the estimator on its link thread before publishing it, and the controller's commands come back to it
+there: the drive's whole answer runs on that thread, with no delivery or thread switch in it. The
 service `clear_faults`
 (std_srvs/Trigger) clears the inverter's latched faults, an overcurrent included. Frames are read on a
 thread of their own, so the graph never waits on the link; the inverter's clock paces everything. Link
