@@ -91,6 +91,8 @@ class ScenarioDriver:
         self.last_recorded = {}
         self.received = dict.fromkeys((topic for topic in handlers if topic in self.carried.values()), 0)
         """Samples received per recorded topic."""
+        self.listening = {}
+        """Topic → this driver's subscription (what it logs and records)."""
         self.subscribe(handlers)
         self.created = time.monotonic()
         self.ready_since = None
@@ -121,7 +123,7 @@ class ScenarioDriver:
                 handler = self.deserializing(cls, handler)
             if self.recorder:
                 handler = self.recording(topic, handler, TOPICS[topic].stamped)
-            self.listener.create_subscription(cls, topic, handler, qos, raw=True)
+            self.listening[topic] = self.listener.create_subscription(cls, topic, handler, qos, raw=True)
         if self.recorder:
             for topic in sorted(self.bag_topics() | set(self.recorded_commands)):
                 name = self.node.resolve_topic_name(topic)
@@ -189,12 +191,17 @@ class ScenarioDriver:
         return endpoints + ([(LOAD_TORQUE, 1, 1)] if self.inverter is None else [])
 
     def missing_endpoints(self):
+        """The expected endpoints the graph does not show yet, and the topics this driver takes whose
+        publishers its own subscription has not matched yet (a graph entry is not a match: the first
+        samples would be lost to the log and the bag)."""
         missing = []
         for topic, pubs, subs in self.expected_endpoints():
             name = self.node.resolve_topic_name(topic)
             have_pubs, have_subs = self.node.count_publishers(name), self.node.count_subscribers(name)
             if have_pubs < pubs or have_subs < subs:
                 missing.append(f"{name} ({have_pubs}/{pubs} publishers, {have_subs}/{subs} subscribers)")
+            elif topic in self.listening and self.listening[topic].get_publisher_count() < pubs:
+                missing.append(f"{name} (its publisher not yet matched by the launcher's subscription)")
         return missing
 
     def foreign_publishers(self):
