@@ -221,7 +221,7 @@ class InverterBridgeNode(ContractNode):
             sec, nanosec = stamp_parts(b.k0, self.T_s)
             if self.estimator is not None:
                 with self.estimator.sample_lock:
-                    self.estimator.take_zero_voltage(sec, nanosec, np.ones(len(b)), NO_CHANNEL, NO_CHANNEL)
+                    self.estimator.on_zero_voltage(sec, nanosec, np.ones(len(b)), NO_CHANNEL, NO_CHANNEL)
             self.zero_voltage_pub.publish(self.zero_voltage_wire.encode(sec, nanosec, np.ones(len(b)),
                                                                         NO_CHANNEL))
 

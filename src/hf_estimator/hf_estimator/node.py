@@ -60,7 +60,7 @@ class EstimatorNode(ScenarioNode):
 
     def __init__(self, inputs_handed=False, **kwargs):
         """``inputs_handed``: the currents, `zero_voltage`, `rotor_state` and the commands come from the
-        drive_bridge node and the controller of this process (``take_currents``, ``take_zero_voltage``,
+        drive_bridge node and the controller of this process (``take_currents``, ``on_zero_voltage``,
         ``take_rotor_state``, ``take_handed_commands``, called holding ``sample_lock``), not over topics."""
         super().__init__("hf_estimator", **kwargs)
         self.inputs_handed = inputs_handed
@@ -106,7 +106,6 @@ class EstimatorNode(ScenarioNode):
         blocks = self.block_samples > 1
         self.take_currents = self.timed(self.on_currents_block if blocks else self.on_currents)
         self.take_rotor_state = self.on_rotor_state_block if blocks else self.on_rotor_state
-        self.take_zero_voltage = self.on_zero_voltage
         inputs = []
         if not inputs_handed:
             self.sample_subscription(ZERO_VOLTAGE, self.on_zero_voltage)
