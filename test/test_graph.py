@@ -66,6 +66,7 @@ def scenario_file(tmp_path, name="equivalence", estimator="injection_frame", rpm
 def assert_same_samples(graph_result, path):
     reference = run_scenario(load_scenario(path)).log
     log = graph_result.log
+    assert graph_result.missing_samples == {}
     assert log.shape == reference.shape
     for name in COMPARED:
         a, b = log[:, COLUMN[name]], reference[:, COLUMN[name]]
@@ -521,6 +522,7 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks, intra
     result = launch(path, processes=processes, link=link, intra_process=intra_process,
                     extra_parameters={"diagnostics_period_s": 0.05, "block_samples": blocks})
     reference = run_through_bridge(dataclasses.replace(load_scenario(path), block_samples=blocks), link)
+    assert result.missing_samples == {}
     for name in ("i_a_meas", "theta_e_hat", "omega_e_hat", "u_alpha", "u_beta"):
         np.testing.assert_allclose(result.log[:, COLUMN[name]], reference.log[:, COLUMN[name]], atol=1e-9,
                                    err_msg=name)
@@ -530,6 +532,23 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks, intra
     assert timing["hop_us"] > 0.0
     assert timing["latency_p99_hops"] == pytest.approx(timing["latency_p99_us"] / timing["hop_us"])
     assert values["dropped"] == values["safe_state"] == values["faults_cleared"] == "0"
+
+
+def test_samples_the_launcher_never_received_are_counted_per_topic_and_named_in_one_line():
+    """A run's log short of samples (a message lost on the way and not resent within the final wait)
+    counts them per topic, over the span the run reached; `drive launch` names them in one line."""
+    from types import SimpleNamespace
+
+    from drive_cli.run import missing_samples_line
+    from drive_launch.scenario_driver import FINAL_WAIT_S, ScenarioDriver
+    driver = SimpleNamespace(last_sample=599, received={"currents": 597, "rotor_estimate": 600},
+                             node=SimpleNamespace(resolve_topic_name=lambda topic: f"/drive/{topic}"))
+    missing = ScenarioDriver.missing_samples(driver)
+    assert missing == {"/drive/currents": 3}
+    assert missing_samples_line({}) is None
+    line = missing_samples_line(missing)
+    assert "\n" not in line and "/drive/currents 3" in line and f"{FINAL_WAIT_S:g} s" in line
+    assert FINAL_WAIT_S > 3.0, "shorter than Fast DDS's default heartbeat period: a resent message is missed"
 
 
 def test_with_its_inputs_handed_over_the_estimator_answers_on_the_callers_thread():

@@ -137,11 +137,26 @@ def cmd_launch(args):
         extra["bag"] = args.record
     if result.recording_error:
         extra["recording_error"] = result.recording_error
+    lost = missing_samples_line(result.missing_samples)
+    if lost:
+        extra["missing_samples"] = result.missing_samples
     plot_error, metrics = _report(result, args, extra)
     if result.recording_error:
         output_failed(result.recording_error)
-    return exit_code(result.interrupted, faults, result.recording_error or plot_error,
+    output_failed(lost)
+    return exit_code(result.interrupted, faults, result.recording_error or lost or plot_error,
                       not_following=bool(metrics["supervision"]))
+
+
+def missing_samples_line(missing):
+    """One line naming the topics whose samples never reached the launcher (its log and recording lack
+    them), or None."""
+    from drive_launch.scenario_driver import FINAL_WAIT_S
+    if not missing:
+        return None
+    topics = ", ".join(f"{topic} {count}" for topic, count in missing.items())
+    return (f"samples never received within {FINAL_WAIT_S:g} s of the run's end (the log and any recording "
+            f"lack them): {topics}")
 
 
 def cmd_bridge(args):

@@ -377,6 +377,7 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                                  "lock_lost_s": metrics["lock_lost_s"],
                                  "angle_error_rms": metrics["angle_error_rms"],
                                  "angle_error_peak": metrics["angle_error_peak"],
+                                 "missing_samples": sum(result.missing_samples.values()),
                                  **{key: t[key] for key in ("missing_runs", "missing_runs_written_in_time",
                                                             "missing_runs_written_before_due_us", "in_time_by",
                                                             "sent_late_in_time", "read_late_in_time", "hop_us",

@@ -164,6 +164,9 @@ class GraphResult(RunResult):
     """{node: {"faults": {kind: count}, "messages": [...]}} of every node that reported a fault."""
     timing: dict = None
     """Behind a virtual inverter: how the graph kept pace with it (virtual_inverter.timing_report)."""
+    missing_samples: dict = None
+    """{topic: samples never received within the final wait} of a run that ended (its log holds NaN
+    there, a recording lacks them); empty when everything came."""
     scheduling: dict = None
     """{"applied": [...], "refused": [...]}: the real-time scheduling of the run (drive_interface.realtime),
     one line each."""
@@ -450,6 +453,7 @@ def _result(driver, drive, record, processes, executor, interrupted, hop=None):
                        processes=processes, executor=executor,
                        interrupted=interrupted,
                        diagnostics=dict(driver.diagnostics), node_faults=driver.faults(),
+                       missing_samples={} if interrupted else driver.missing_samples(),
                        timing=in_hops(timing_report(driver.inverter, scenario.T_s, written_at), hop)
                        if driver.inverter else None)
 

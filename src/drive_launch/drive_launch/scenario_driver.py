@@ -36,8 +36,10 @@ MAX_FAULT_MESSAGES = 5
 FOREIGN_CHECK_S = 0.5
 """How often a running drive looks for another drive's publishers in its namespace (discovery can show
 one only after the start-up check)."""
-FINAL_WAIT_S = 1.0
-"""After the last sample, how long to wait for the last recorded messages and final /diagnostics."""
+FINAL_WAIT_S = 4.0
+"""After the last sample, how long to wait at most for the last recorded messages and final /diagnostics:
+a reliable writer resends a message lost on the way (e.g. a full shared-memory queue of a starved
+reader) on its next heartbeat, every 3 s by default in Fast DDS; a complete run ends at once."""
 
 
 class ScenarioDriver:
@@ -262,6 +264,13 @@ class ScenarioDriver:
         """Every recorded topic has its last sample and every lock-step node said its run is complete."""
         return (all(count >= self.n for count in self.received.values())
                 and len(self.nodes_complete) >= self.lockstep_nodes)
+
+    def missing_samples(self):
+        """{topic: samples of the run's span (up to the last sample reached) never received}, for every
+        logged topic short of them."""
+        reached = self.last_sample + 1
+        return {self.node.resolve_topic_name(topic): reached - count
+                for topic, count in sorted(self.received.items()) if count < reached}
 
     def nodes_finished(self):
         """Every lock-step node said its run is complete: the run's end, when nothing per sample is
