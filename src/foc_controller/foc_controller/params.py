@@ -32,6 +32,12 @@ the open loop's crossover (≈ 2ζω_n) the delay then costs ≤ 0.4 rad (23°) 
 250 Hz stays; blocks of N samples (d = N) lower it (docs/architecture.md "Block transport")."""
 CURRENT_TO_SPEED_RATIO = 4.0
 """With 'rule' gains the speed loop's ω_n stays this many times below the current loops'."""
+CURRENT_LAG_AT_SPEED_CROSSOVER_RAD = 0.4
+"""With 'rule' gains the speed loop's ω_n is also kept at or below this over 2ζ_s times the current loops'
+lag seen from the speed loop, 2ζ_c/ω_c + (d + ½)·T_s (their closed loop's and the delay's): at the speed
+loop's crossover (≈ 2ζ_s ω_n) the current loops then cost ≤ 0.4 rad (23°) of its phase, beside the
+estimator's lag. Blocks slow the current loops (d = N) while the estimator's cap keeps the speed loop
+where it was: blocks of 10 at 10 kHz made the speed loop ring at 7 Hz (docs/motors-and-control.md)."""
 SPEED_FILTER_PER_TRACKING = 1.25
 """Unless set, the speed estimate's filter sits at least this many times above the estimator's tracking
 bandwidth: a filter below it adds lag inside a speed loop scaled to that bandwidth (a light robot joint
@@ -55,8 +61,8 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     SPEED_FILTER_PER_TRACKING × the estimator's bandwidth), speed_limit_rad_s
     (mechanical, clamps the speed reference; ∞: none). With 'rule' gains the current bandwidth is capped
     for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and the speed bandwidth a cascade step below it
-    (CURRENT_TO_SPEED_RATIO). The notch sits at the
-    estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade step below the
+    (CURRENT_TO_SPEED_RATIO) and within the current loops' lag (CURRENT_LAG_AT_SPEED_CROSSOVER_RAD). The
+    notch sits at the estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade step below the
     angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · estimator_bandwidth_Hz
     (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
     """
@@ -74,8 +80,10 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
                                 DELAY_LAG_AT_BANDWIDTH_RAD / ((inverter.delay_periods + 0.5) * T_s))
         d = current_pi_gains_any_bandwidth(m.L_d_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
         q = current_pi_gains_any_bandwidth(m.L_q_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
+        current_lag_s = 2.0 * s["current_damping"] / current_bandwidth + (inverter.delay_periods + 0.5) * T_s
         speed_bandwidth = min(_capped_speed_bandwidth(s, estimator_bandwidth_Hz),
-                              current_bandwidth / CURRENT_TO_SPEED_RATIO)
+                              current_bandwidth / CURRENT_TO_SPEED_RATIO,
+                              CURRENT_LAG_AT_SPEED_CROSSOVER_RAD / (2.0 * s["speed_damping"] * current_lag_s))
         w = speed_pi_gains(m.J_kgm2, m.B_Nms if math.isfinite(m.B_Nms) else 0.0, k_t, speed_bandwidth,
                            s["speed_damping"])
     i_max = s["current_limit_A"] if s["current_limit_A"] is not None else m.current_limit_A
