@@ -405,6 +405,9 @@ def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REA
                              f"lock held in {row['runs_lock_held']} of {len(runs)}, ours within its targets in "
                              f"{row['runs_meeting_targets']}, latency p99 {p99} hops "
                              f"(hop {runs[0]['hop_us']:.1f} µs), stolen by the host {stolen_ms} ms")
+                    if any(r["missing_samples"] for r in runs):
+                        missing = ", ".join(str(r["missing_samples"]) for r in runs)
+                        progress(f"       samples that never reached the launcher's log: {missing}")
                     if runs[0]["answer_p99_us"] is not None:
                         answers = ", ".join(f"{r['answer_p99_us']:.0f}" for r in runs)
                         progress(f"       the drive's answer (telemetry sent to command written) p99 {answers} µs")
