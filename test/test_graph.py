@@ -658,6 +658,7 @@ def test_a_node_stopped_for_two_seconds_shows_in_node_faults_and_the_exit_code(t
     plant = metrics["node_faults"]["/sigstop_test/pmsm_plant"]
     assert plant["faults"]["timeout"] >= 1 and any("zero voltage" in m for m in plant["messages"])
     assert metrics["samples"] == 10000 and not metrics["interrupted"]
+    assert metrics["missing_samples"]["/sigstop_test/voltage_command"] >= 1, "the command never answered"
 
 
 def test_nodes_started_by_hand_exit_when_the_plant_is_gone(tmp_path):

@@ -120,6 +120,29 @@ def test_the_real_time_bench_and_launch_check_their_options():
     assert run.returncode == 2 and run.stderr.strip().endswith("give --paced --graph")
 
 
+def test_a_paced_link_launches_the_robots_configuration_unless_told_otherwise(monkeypatch):
+    """`drive launch --link L --paced` fills what its command line left unset with the robot's configuration:
+    SCHED_FIFO 50, the last CPU, over a pty the kernel's unbound workqueues there too, intra-process when
+    composed; given values stay; without --paced none of it."""
+    from drive_cli.cli import build_parser
+    from drive_cli.run import robot_real_time
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
+
+    def settings(*words):
+        args = build_parser().parse_args(["launch", "wang_100rpm", *words])
+        robot_real_time(args)
+        return args.rt_priority, args.cpus, args.workqueue_cpus, args.intra_process
+    assert settings("--link", "pty", "--paced") == (50, {1}, {1}, True)
+    assert settings("--link", "can", "--paced") == (50, {1}, None, True)
+    assert settings("--link", "can", "--paced", "--processes", "separate") == (50, {1}, None, False)
+    assert settings("--link", "pty", "--paced", "--rt-priority", "0", "--cpus", "0", "--no-intra-process") == \
+        (0, {0}, {0}, False)
+    assert settings("--link", "pty") == settings() == (0, None, None, False)
+    assert settings("--intra-process") == (0, None, None, True)
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
+    assert settings("--link", "pty", "--paced") == (50, None, None, True)
+
+
 def test_the_platform_probe_wakes_every_period_and_counts_the_late_ones():
     """`drive bench platform`'s probe: one wake-up per period over the time asked, none early, and the
     figures (percentiles, stalls over 0.5 ms) taken from those latencies."""

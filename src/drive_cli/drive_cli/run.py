@@ -1,6 +1,8 @@
 """``drive run``, ``launch``, ``bridge``: a scenario's drive in one process, over the ROS graph, or through
 the inverter bridge; ``drive scenarios`` and ``drive estimators`` list what they run."""
+import argparse
 import dataclasses
+import os
 import sys
 from pathlib import Path
 
@@ -102,6 +104,7 @@ def cmd_launch(args):
     record_arg(args.record)
     if args.paced and not args.link:
         raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
+    robot_real_time(args)
     if args.intra_process and args.processes != "composed":
         raise CommandLineError("--intra-process: needs --processes composed (the estimator hands its answers to "
                                "the controller in one process)")
@@ -144,13 +147,39 @@ def cmd_launch(args):
     if result.recording_error:
         output_failed(result.recording_error)
     output_failed(lost)
-    return exit_code(result.interrupted, faults, result.recording_error or lost or plot_error,
+    lost_on_the_way = lost if not faults else None
+    return exit_code(result.interrupted, faults, result.recording_error or lost_on_the_way or plot_error,
                       not_following=bool(metrics["supervision"]))
+
+
+UNSET = object()
+"""A scheduling option not given on `drive launch`'s command line (robot_real_time fills it)."""
+ROBOT_RT_PRIORITY = 50
+
+
+def robot_real_time(args):
+    """Fill in what `drive launch`'s command line left unset. With --link and --paced, the robot's
+    configuration (docs/ros-graph.md, "Real time"): SCHED_FIFO ROBOT_RT_PRIORITY, the process on the last
+    CPU of two or more and, over a pty, the kernel's unbound workqueues there too (a serial link's bytes pass
+    through one), and composed, the controller taking the estimator's answers directly. Otherwise none of
+    it. Where the system refuses a setting, the run says so in one line and goes on without it."""
+    robot = bool(args.paced and args.link)
+    cpus = sorted(os.sched_getaffinity(0))
+    last = {cpus[-1]} if robot and len(cpus) > 1 else None
+    if args.rt_priority is UNSET:
+        args.rt_priority = ROBOT_RT_PRIORITY if robot else 0
+    if args.cpus is UNSET:
+        args.cpus = last
+    if args.workqueue_cpus is UNSET:
+        args.workqueue_cpus = args.cpus if robot and args.link == "pty" else None
+    if args.intra_process is None:
+        args.intra_process = robot and args.processes == "composed"
 
 
 def missing_samples_line(missing):
     """One line naming the topics whose samples never reached the launcher (its log and recording lack
-    them), or None."""
+    them), or None. With no node fault to explain them (a node that missed a sample never published
+    its answer), they were lost on the way: `drive launch` exits 4, as for a recording cut short."""
     from drive_launch.scenario_driver import FINAL_WAIT_S
     if not missing:
         return None
@@ -243,9 +272,10 @@ def add_commands(sub):
                         help="nodes in this process (default) or one process per node")
     launch.add_argument("--executor", choices=EXECUTORS, default="events",
                         help="events (rclpy.experimental.EventsExecutor, default) or single (fallback)")
-    launch.add_argument("--intra-process", action="store_true",
+    launch.add_argument("--intra-process", action=argparse.BooleanOptionalAction, default=None,
                         help="composed: the controller takes the estimator's answers and the currents directly, "
-                             "not over topics (still published for everyone else; docs/ros-graph.md)")
+                             "not over topics (still published for everyone else; docs/ros-graph.md; default "
+                             "with --link and --paced)")
     launch.add_argument("--namespace", default=DEFAULT_NAMESPACE)
     launch.add_argument("--timeout", type=finite_float, default=1.0, help="lock-step answer timeout [s]")
     launch.add_argument("--record", metavar="BAG",
@@ -257,7 +287,10 @@ def add_commands(sub):
                         help="with --link: the virtual inverter on its own clock at the sampling rate, never "
                              "waiting for the graph: a late command is zero volts, counted")
     add_scheduling_arguments(launch, system_wide=True)
-    launch.set_defaults(func=cmd_launch)
+    launch.set_defaults(func=cmd_launch, rt_priority=UNSET, cpus=UNSET, workqueue_cpus=UNSET)
+    launch.epilog = ("With --link and --paced, the robot's configuration unless given otherwise: --rt-priority "
+                     f"{ROBOT_RT_PRIORITY}, --cpus the last CPU (--workqueue-cpus too over a pty), "
+                     "--intra-process (docs/ros-graph.md, \"Real time\")")
 
     bridge = sub.add_parser("bridge", help="the sensorless loop through the inverter bridge and the virtual "
                                            "inverter, in one process")
