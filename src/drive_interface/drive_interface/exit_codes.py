@@ -10,7 +10,8 @@ EXIT_NODE_FAULTS = 3
 ended because its peer was gone before its run was complete or after faults."""
 EXIT_RECORDING_FAILED = 4
 """The run finished and its metrics are printed, but an output could not be written in full: the
-recording stopped early (closed as far as written), or the plot (an unwritable directory)."""
+recording stopped early (closed as far as written), the plot (an unwritable directory), or samples lost on
+their way to the launcher's log and recording (`missing_samples`, no node fault explaining them)."""
 EXIT_NOT_TRACKING = 5
 """The run finished, but the drive refused to start (no saliency, no polarity, the rotor moved) or ended holding zero
 torque after a lost lock; the metrics say which."""
