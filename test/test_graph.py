@@ -539,7 +539,7 @@ def test_samples_the_launcher_never_received_are_counted_per_topic_and_named_in_
     counts them per topic, over the span the run reached; `drive launch` names them in one line."""
     from types import SimpleNamespace
 
-    from drive_cli.run import missing_samples_line
+    from drive_launch.launcher import missing_samples_line
     from drive_launch.scenario_driver import FINAL_WAIT_S, ScenarioDriver
     driver = SimpleNamespace(last_sample=599, received={"currents": 597, "rotor_estimate": 600},
                              node=SimpleNamespace(resolve_topic_name=lambda topic: f"/drive/{topic}"))

@@ -125,7 +125,7 @@ def test_a_paced_link_launches_the_robots_configuration_unless_told_otherwise(mo
     SCHED_FIFO 50, the last CPU, over a pty the kernel's unbound workqueues there too, intra-process when
     composed; given values stay; without --paced none of it."""
     from drive_cli.cli import build_parser
-    from drive_cli.run import robot_real_time
+    from drive_cli.options import robot_real_time
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
 
     def settings(*words):

@@ -3,6 +3,7 @@ name the option at fault, JSON printing and the exit code."""
 import argparse
 import dataclasses
 import math
+import os
 import sys
 from pathlib import Path
 
@@ -231,3 +232,27 @@ def warn_if_nameplate_only(source, motor, scenario_name):
     if source == NAMEPLATE_ONLY:
         print(f"drive: no {default_commissioning_file(motor)} here and none named: the drive ran on "
               f"its nameplate alone (`drive commission {scenario_name}` measures the motor)", file=sys.stderr)
+
+
+UNSET = object()
+"""A scheduling option not given on `drive launch`'s command line (robot_real_time fills it)."""
+ROBOT_RT_PRIORITY = 50
+
+
+def robot_real_time(args):
+    """Fill in what `drive launch`'s command line left unset. With --link and --paced, the robot's
+    configuration (docs/ros-graph.md, "Real time"): SCHED_FIFO ROBOT_RT_PRIORITY, the process on the last
+    CPU of two or more and, over a pty, the kernel's unbound workqueues there too (a serial link's bytes pass
+    through one), and composed, the controller taking the estimator's answers directly. Otherwise none of
+    it. Where the system refuses a setting, the run says so in one line and goes on without it."""
+    robot = bool(args.paced and args.link)
+    cpus = sorted(os.sched_getaffinity(0))
+    last = {cpus[-1]} if robot and len(cpus) > 1 else None
+    if args.rt_priority is UNSET:
+        args.rt_priority = ROBOT_RT_PRIORITY if robot else 0
+    if args.cpus is UNSET:
+        args.cpus = last
+    if args.workqueue_cpus is UNSET:
+        args.workqueue_cpus = args.cpus if robot and args.link == "pty" else None
+    if args.intra_process is None:
+        args.intra_process = robot and args.processes == "composed"

@@ -2,7 +2,6 @@
 the inverter bridge; ``drive scenarios`` and ``drive estimators`` list what they run."""
 import argparse
 import dataclasses
-import os
 import sys
 from pathlib import Path
 
@@ -21,6 +20,8 @@ from hf_estimator.registry import describe, estimator_names
 from .options import (
     COMMISSIONING_HELP,
     MOTOR_HELP,
+    ROBOT_RT_PRIORITY,
+    UNSET,
     CommandLineError,
     block_sizes,
     duration_arg,
@@ -33,6 +34,7 @@ from .options import (
     output_failed,
     print_json,
     record_arg,
+    robot_real_time,
     scenario_arg,
     warn_if_nameplate_only,
 )
@@ -93,7 +95,7 @@ def _report(result, args, extra):
 
 
 def cmd_launch(args):
-    from drive_launch.launcher import launch
+    from drive_launch.launcher import launch, missing_samples_line
     from drive_runner.runner import terminal_progress
 
     estimator_arg(args)
@@ -150,42 +152,6 @@ def cmd_launch(args):
     lost_on_the_way = lost if not faults else None
     return exit_code(result.interrupted, faults, result.recording_error or lost_on_the_way or plot_error,
                       not_following=bool(metrics["supervision"]))
-
-
-UNSET = object()
-"""A scheduling option not given on `drive launch`'s command line (robot_real_time fills it)."""
-ROBOT_RT_PRIORITY = 50
-
-
-def robot_real_time(args):
-    """Fill in what `drive launch`'s command line left unset. With --link and --paced, the robot's
-    configuration (docs/ros-graph.md, "Real time"): SCHED_FIFO ROBOT_RT_PRIORITY, the process on the last
-    CPU of two or more and, over a pty, the kernel's unbound workqueues there too (a serial link's bytes pass
-    through one), and composed, the controller taking the estimator's answers directly. Otherwise none of
-    it. Where the system refuses a setting, the run says so in one line and goes on without it."""
-    robot = bool(args.paced and args.link)
-    cpus = sorted(os.sched_getaffinity(0))
-    last = {cpus[-1]} if robot and len(cpus) > 1 else None
-    if args.rt_priority is UNSET:
-        args.rt_priority = ROBOT_RT_PRIORITY if robot else 0
-    if args.cpus is UNSET:
-        args.cpus = last
-    if args.workqueue_cpus is UNSET:
-        args.workqueue_cpus = args.cpus if robot and args.link == "pty" else None
-    if args.intra_process is None:
-        args.intra_process = robot and args.processes == "composed"
-
-
-def missing_samples_line(missing):
-    """One line naming the topics whose samples never reached the launcher (its log and recording lack
-    them), or None. With no node fault to explain them (a node that missed a sample never published
-    its answer), they were lost on the way: `drive launch` exits 4, as for a recording cut short."""
-    from drive_launch.scenario_driver import FINAL_WAIT_S
-    if not missing:
-        return None
-    topics = ", ".join(f"{topic} {count}" for topic, count in missing.items())
-    return (f"samples never received within {FINAL_WAIT_S:g} s of the run's end (the log and any recording "
-            f"lack them): {topics}")
 
 
 def cmd_bridge(args):

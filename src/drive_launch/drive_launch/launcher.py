@@ -539,3 +539,15 @@ def _stop_children(children, grace_s=5.0):
         except subprocess.TimeoutExpired:
             child.kill()
             child.wait()
+
+
+def missing_samples_line(missing):
+    """One line naming the topics whose samples never reached the launcher (its log and recording lack
+    them), or None. With no node fault to explain them (a node that missed a sample never published
+    its answer), they were lost on the way: `drive launch` exits 4, as for a recording cut short."""
+    from .scenario_driver import FINAL_WAIT_S
+    if not missing:
+        return None
+    topics = ", ".join(f"{topic} {count}" for topic, count in missing.items())
+    return (f"samples never received within {FINAL_WAIT_S:g} s of the run's end (the log and any recording "
+            f"lack them): {topics}")
