@@ -16,6 +16,7 @@ from drive_interface.exit_codes import (
     EXIT_REFUSED,
     EXIT_SIGNAL_BASE,
 )
+from drive_interface.realtime import ROBOT_RT_PRIORITY
 from drive_interface.strict_json import dumps
 from drive_scenarios.scenario import MAX_BLOCK_SAMPLES, MAX_SAMPLES, SAMPLING_PERIOD_RANGE_S, load_scenario
 from hf_estimator.registry import estimator_names
@@ -236,7 +237,6 @@ def warn_if_nameplate_only(source, motor, scenario_name):
 
 UNSET = object()
 """A scheduling option not given on `drive launch`'s command line (robot_real_time fills it)."""
-ROBOT_RT_PRIORITY = 50
 
 
 def robot_real_time(args):

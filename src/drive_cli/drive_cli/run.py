@@ -7,7 +7,7 @@ from pathlib import Path
 
 from drive_interface.graph import DEFAULT_NAMESPACE, EXECUTORS
 from drive_interface.interrupt import Interrupted
-from drive_interface.realtime import add_scheduling_arguments
+from drive_interface.realtime import ROBOT_RT_PRIORITY, add_scheduling_arguments
 from drive_scenarios.scenario import (
     PACED_BLOCK_SAMPLES,
     behind_an_inverter,
@@ -20,7 +20,6 @@ from hf_estimator.registry import describe, estimator_names
 from .options import (
     COMMISSIONING_HELP,
     MOTOR_HELP,
-    ROBOT_RT_PRIORITY,
     UNSET,
     CommandLineError,
     block_sizes,

@@ -16,7 +16,7 @@ import numpy as np
 
 from drive_interface import interrupt
 from drive_interface.log import LOG_COLUMNS
-from drive_interface.realtime import stolen_s
+from drive_interface.realtime import ROBOT_RT_PRIORITY, stolen_s
 from drive_runner.runner import build_drive
 from drive_scenarios.scenario import PACED_BLOCK_SAMPLES, load_scenario
 
@@ -281,18 +281,16 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
             "sampling_rate_Hz": 1.0 / scenario.T_s, "links": rows}
 
 
+_FIFO_CPU1 = {"rt_priority": ROBOT_RT_PRIORITY, "cpus": {1}}
+_ROBOT = {**_FIFO_CPU1, "workqueue_cpus": {1}, "intra_process": True}
 REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {}, "collector+cpu1": {"cpus": {1}},
-                    "collector+fifo": {"rt_priority": 50}, "collector+fifo+cpu1": {"rt_priority": 50, "cpus": {1}},
-                    "collector+fifo+cpu1+inverter_apart": {"rt_priority": 50, "cpus": {1}, "inverter_apart": True},
-                    "collector+fifo+cpu1+workqueue1": {"rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1}},
-                    "collector+fifo+cpu1+workqueue1+intra": {"rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1},
-                                                             "intra_process": True},
-                    "collector+fifo+cpu1+workqueue1+intra+pmqos": {
-                        "rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1}, "intra_process": True,
-                        "cpu_dma_latency_us": 0},
-                    "collector+fifo+cpu1+workqueue1+intra+inverter_apart": {
-                        "rt_priority": 50, "cpus": {1}, "workqueue_cpus": {1}, "intra_process": True,
-                        "inverter_apart": True}}
+                    "collector+fifo": {"rt_priority": ROBOT_RT_PRIORITY},
+                    "collector+fifo+cpu1": _FIFO_CPU1,
+                    "collector+fifo+cpu1+inverter_apart": {**_FIFO_CPU1, "inverter_apart": True},
+                    "collector+fifo+cpu1+workqueue1": {**_FIFO_CPU1, "workqueue_cpus": {1}},
+                    "collector+fifo+cpu1+workqueue1+intra": _ROBOT,
+                    "collector+fifo+cpu1+workqueue1+intra+pmqos": {**_ROBOT, "cpu_dma_latency_us": 0},
+                    "collector+fifo+cpu1+workqueue1+intra+inverter_apart": {**_ROBOT, "inverter_apart": True}}
 """The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
 "Real time"): none; the garbage collector held out of the sample path (the default); and the process on
 CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1); and the kernel's unbound workqueues (a serial

@@ -101,6 +101,11 @@ class QuietTime:
 QUIET_TIME = QuietTime()
 
 
+ROBOT_RT_PRIORITY = 50
+"""The SCHED_FIFO priority of the robot's configuration: `drive launch --link L --paced`'s default and the
+`drive bench bridge --paced --graph` levers that measure it."""
+
+
 def _threads():
     try:
         return [int(tid) for tid in os.listdir("/proc/self/task")]

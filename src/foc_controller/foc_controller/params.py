@@ -62,8 +62,8 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     (mechanical, clamps the speed reference; ∞: none). With 'rule' gains the current bandwidth is capped
     for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and the speed bandwidth a cascade step below it
     (CURRENT_TO_SPEED_RATIO) and within the current loops' lag (CURRENT_LAG_AT_SPEED_CROSSOVER_RAD). The
-    notch sits at the estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade step below the
-    angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · estimator_bandwidth_Hz
+    notch sits at the estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade
+    step below the angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · estimator_bandwidth_Hz
     (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
     """
     s = check_settings(settings, T_s)
