@@ -3,6 +3,8 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -13,20 +15,24 @@ os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 os.environ["ROS_DOMAIN_ID"] = str(30 + os.getpid() % 100)
 """One domain per test session, set before any module starts rclpy; ROS tests isolate from each other
 by namespace."""
+SUITE_BUDGET_S = 12 * 60
+"""The default run's time budget on the project's 2-core machine (docs/architecture.md#tests): reported at the
+end of every run beside the time taken, never asserted (a slower machine is not a defect of the change)."""
 LEFT_BY_BUILDS = ("__pycache__", ".egg-info", ".pytest_cache", ".venv", ".nbi", ".nbc")
 """Untracked paths a test run may create in the repository: build and cache output, never results."""
 
 
 try:
+    from hypothesis import HealthCheck, settings
     from hypothesis.configuration import set_hypothesis_home_dir
     set_hypothesis_home_dir(tempfile.mkdtemp(prefix="hypothesis_"))
+    # Fuzz that gives the same examples on every run and never fails for a machine's pace (no deadline, no
+    # too-slow check): a red run is a defect in the change.
+    settings.register_profile("any_machine", deadline=None, derandomize=True,
+                              suppress_health_check=[HealthCheck.too_slow])
+    settings.load_profile("any_machine")
 except ImportError:
     pass
-
-
-def pytest_configure(config):
-    config.addinivalue_line("markers", "unit: physics and core tests, no ROS graph and no long runs "
-                                       "(`pytest -m unit`: under a minute; a module says so with pytestmark)")
 
 
 @pytest.fixture(autouse=True)
@@ -44,8 +50,25 @@ def _untracked():
     return {path for path in listed if not any(part in path for part in LEFT_BY_BUILDS)}
 
 
+MODULE_SECONDS = Counter()
+"""Seconds each test module took in this run (setup, call and teardown)."""
+
+
 def pytest_sessionstart(session):
     session.config.untracked_before = _untracked()
+    session.config.started_at = time.monotonic()
+
+
+def pytest_runtest_logreport(report):
+    MODULE_SECONDS[report.nodeid.split("::")[0]] += report.duration
+
+
+def pytest_terminal_summary(terminalreporter, config):
+    """The run's time against the suite's budget, and the modules that took most of it."""
+    elapsed = time.monotonic() - config.started_at
+    slowest = ", ".join(f"{Path(name).name} {seconds:.0f} s" for name, seconds in MODULE_SECONDS.most_common(4))
+    terminalreporter.write_line(f"time budget: {elapsed / 60:.1f} of {SUITE_BUDGET_S / 60:.0f} min "
+                                f"(most: {slowest})")
 
 
 def pytest_sessionfinish(session, exitstatus):

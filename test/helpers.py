@@ -37,3 +37,26 @@ def ideal_commissioning(machine, i_max_A, points=65, d_sweep_A=0.01):
     shift, slope = np.array([saliency_shift_and_slope(machine, i_q, d_sweep_A) for i_q in currents]).T
     return Commissioning(machine.R_s_ohm, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, L_dh, L_qh, currents, shift, slope,
                          source="ideal (test oracle)")
+
+
+class VirtualClock:
+    """A test double for the machine's clock: ``monotonic()`` reads it, ``sleep(s)`` advances it by ``s``, and
+    a sleep that reaches a stall's start ends only at its end (``stalls``: [(start, length)] [s]), as a CPU
+    taken from the sleeper would. ``until(t)``: an event-like stop that is set once the clock reads ``t``."""
+
+    def __init__(self, stalls=()):
+        self.now = 0.0
+        self.stalls = sorted(stalls)
+
+    def monotonic(self):
+        return self.now
+
+    def sleep(self, seconds):
+        before, self.now = self.now, self.now + seconds
+        for start, length in self.stalls:
+            if before < start <= self.now:
+                self.now = max(self.now, start + length)
+
+    def until(self, end_s):
+        from types import SimpleNamespace
+        return SimpleNamespace(is_set=lambda: self.now >= end_s)

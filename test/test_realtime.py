@@ -5,7 +5,6 @@ import argparse
 import gc
 import os
 import sys
-import threading
 import time
 
 import numpy as np
@@ -158,30 +157,17 @@ def test_the_platform_probe_wakes_every_period_and_counts_the_late_ones():
 
 def test_the_machine_watch_notes_a_stall_once_and_says_which_late_blocks_it_explains():
     """The watch wakes every period and notes a stall once (the wake-ups catching up within it are part of
-    it): here the interpreter held by this thread for 40 ms, with a 10 ms switch interval. A late block is
-    the machine's when the stalls take at least its window less the run's median latency."""
-    from drive_interface.machine_watch import missing_runs_explained, stalled_within, watch
+    it): on a virtual clock, 40 ms taken from it at 0.1 s of 0.24 s. A late block is the machine's when the
+    stalls take at least its window less the run's median latency."""
+    from drive_interface.machine_watch import STALL_NOTED_S, missing_runs_explained, stalled_within, watch
+    from helpers import VirtualClock
 
-    stop = threading.Event()
-    seen = {}
-    thread = threading.Thread(target=lambda: seen.update(zip(("count", "stalls"), watch(5e-4, stop))))
-    switch = sys.getswitchinterval()
-    sys.setswitchinterval(0.01)
-    try:
-        thread.start()
-        time.sleep(0.1)
-        busy_until = time.monotonic() + 0.04
-        while time.monotonic() < busy_until:
-            pass
-        time.sleep(0.1)
-    finally:
-        sys.setswitchinterval(switch)
-        stop.set()
-        thread.join()
-    assert 300 <= seen["count"] <= 482
-    stalls = seen["stalls"]
-    assert any(late >= 5e-3 for _, late in stalls)
-    assert all(later[0] >= due + late for (due, late), later in zip(stalls, stalls[1:]))
+    clock = VirtualClock(stalls=[(0.1, 0.04)])
+    count, stalls = watch(5e-4, clock.until(0.24), clock.monotonic, clock.sleep)
+    assert count == pytest.approx(0.24 / 5e-4, abs=1)
+    assert len(stalls) == 1
+    due, late = stalls[0]
+    assert due == pytest.approx(0.1, abs=5e-4) and late == pytest.approx(0.04, abs=5e-4) and late > STALL_NOTED_S
 
     stalls = [[1.0e-4, 1.0e-3], [5.0005, 3e-4]]
     assert stalled_within(stalls, 0.0, 1.1e-3) == pytest.approx(1.0e-3)
@@ -196,7 +182,7 @@ def test_the_machine_watch_runs_beside_as_a_process_of_its_own():
         time.sleep(0.3)
     report = watch.report
     assert report["scheduling"] == {"applied": [], "refused": []}
-    assert 300 <= report["wakeups"] <= 800 and watch.process.returncode == 0
+    assert report["wakeups"] >= 300 and watch.process.returncode == 0
 
 
 def test_status_work_waits_for_the_quiet_part_of_a_block_and_never_more_than_a_period():

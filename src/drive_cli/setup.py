@@ -10,7 +10,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
     ],
-    entry_points={"console_scripts": ["drive = drive_cli.cli:main"]},
+    entry_points={"console_scripts": ["drive = drive_cli.entry:main"]},
     install_requires=["setuptools"],
     zip_safe=False,
     description='The `drive` command line.',

@@ -70,6 +70,9 @@ class FaultPlan:
     """Insert random bytes before the frame (resynchronisation; serial only)."""
     lose_command_every: int = 0
     """Lose every Nth command message the host sends (to the inverter, an answer that came too late)."""
+    lose_commands: tuple = ()
+    """Also lose these command messages, by their number in the order heard (1 the first): a run of
+    consecutive ones is a run of late blocks."""
     seed: int = 1
     counts: dict = field(default_factory=dict)
 
@@ -146,6 +149,9 @@ class VirtualInverter:
         """A full command message's time on the wire of the real link this one stands for [s]."""
         self.heard_up_to = -1
         """The last sample answered by a command message heard (in time or not, lost or kept)."""
+        self.lost_on_the_way = set()
+        """First samples of the telemetry frames the fault plan lost (dropped, corrupted) or held back: in
+        lock-step their answers are not waited for, since the host cannot send them in time."""
         self.started = False
         """A command came in time: the drive runs, and the watchdog counts."""
         self.before_start = 0
@@ -400,7 +406,7 @@ class VirtualInverter:
             i_a, i_b, i_c, encoder = samples[0]
             message = Telemetry(k0 % 2 ** 32, i_a, i_b, i_c, u_dc, encoder, status)
         self.sent_at[k0:k0 + n] = time.monotonic()
-        self.transmit(message)
+        self.transmit(message, k0)
 
     def receive_until(self, until):
         """Take what the host sends until ``until`` (monotonic)."""
@@ -425,11 +431,18 @@ class VirtualInverter:
                     self.handle(message)
 
     def await_commands(self, first, last):
-        """Lock-step: wait until the commands answering samples first … last − 1 came, each at most
-        ``command_wait_s`` after its telemetry was sent."""
+        """Lock-step: wait until the commands answering samples first … last − 1 came, or a command message
+        answering that sample or a later one was heard (the link keeps order: one lost on the way, by the
+        fault plan, is not waited for), each at most ``command_wait_s`` after its telemetry was sent; nor is
+        the answer to telemetry the fault plan lost. The outcome then does not depend on the machine's pace,
+        only on what the host sent."""
+        N = self.block_samples
         for c in range(max(0, first), min(last, self.k)):
+            if c - c % N in self.lost_on_the_way:
+                continue
             until = self.sent_at[c] + self.command_wait_s
-            while c not in self.commands and time.monotonic() < until and not self.stopped.is_set():
+            while (c not in self.commands and self.heard_up_to < c and time.monotonic() < until
+                   and not self.stopped.is_set()):
                 for message in self.receive(min(until - time.monotonic(), 0.05)):
                     self.handle(message)
 
@@ -448,9 +461,10 @@ class VirtualInverter:
                 c0 -= 2 ** 32
             if 0 <= c0 <= self.k:
                 self.heard_up_to = max(self.heard_up_to, c0 + len(values) - 1)
-            if self.faults.lose_command_every:
+            if self.faults.lose_command_every or self.faults.lose_commands:
                 self.commands_heard += 1
-                if self.commands_heard % self.faults.lose_command_every == 0:
+                every = self.faults.lose_command_every
+                if (every and self.commands_heard % every == 0) or self.commands_heard in self.faults.lose_commands:
                     self.faults.counts["commands_lost"] = self.faults.counts.get("commands_lost", 0) + 1
                     return
             in_time = self.arrival(c0, now) is not None
@@ -490,10 +504,11 @@ class VirtualInverter:
             time.sleep(timeout_s)
             return []
 
-    def transmit(self, telemetry):
-        """Send a telemetry frame through the fault plan: on a byte link (pty) the encoded frame, on CAN
-        the message; corruption and garbage exist on byte links only (CAN's own CRC would turn them
-        into error frames, which never arrive)."""
+    def transmit(self, telemetry, k0):
+        """Send the telemetry frame of samples k0 … through the fault plan: on a byte link (pty) the encoded
+        frame, on CAN the message; corruption and garbage exist on byte links only (CAN's own CRC would turn
+        them into error frames, which never arrive). A frame dropped, corrupted or held back is noted in
+        ``lost_on_the_way``."""
         f = self.faults
         self.sent_frames += 1
         n = self.sent_frames
@@ -511,13 +526,16 @@ class VirtualInverter:
             return False
 
         if due(f.drop_every, "dropped"):
+            self.lost_on_the_way.add(k0)
             return
         if byte_link and due(f.corrupt_every, "corrupted"):
             frame[int(self.random.integers(0, len(frame) - 1))] ^= 0x5A
+            self.lost_on_the_way.add(k0)
         if byte_link and due(f.garbage_every, "garbage"):
             self.endpoint.send_bytes(bytes(self.random.integers(1, 256, 7, dtype=np.uint8)) + b"\x00")
         if self.held_back is None and due(f.reorder_every, "reordered"):
             self.held_back = bytes(frame) if byte_link else telemetry
+            self.lost_on_the_way.add(k0)
             return
         emit(item)
         if self.held_back is not None:

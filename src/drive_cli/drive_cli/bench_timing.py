@@ -6,7 +6,16 @@ import sys
 from drive_interface.realtime import add_scheduling_arguments
 from drive_scenarios.scenario import PACED_BLOCK_SAMPLES, link_block_samples, load_scenario
 
-from .options import CommandLineError, block_sizes, duration_arg, estimator_list, exit_code, finite_float, print_json
+from .options import (
+    CommandLineError,
+    block_sizes,
+    duration_arg,
+    estimator_list,
+    exit_code,
+    finite_float,
+    print_json,
+    progress_lines,
+)
 
 
 def _at_least_one(*options):
@@ -53,7 +62,7 @@ def cmd_bench_graph(args):
     duration_arg(args.duration, load_scenario(args.scenario).T_s)
     _at_least_one(("--repeats", args.repeats))
     report = graph_throughput(args.scenario, args.duration, record=args.record, repeats=args.repeats,
-                              progress=None if args.json else print,
+                              progress=progress_lines(args),
                               block_sizes=block_sizes(args.block_samples),
                               configurations=GRAPH_CONFIGURATIONS + ((INTRA_PROCESS,) if args.intra_process else ()))
     if args.json:
@@ -68,7 +77,7 @@ def cmd_bench_blocks(args):
     duration_arg(args.duration, min(load_scenario(name).T_s for name in BLOCK_SCENARIOS))
     _at_least_one(("--repeats", args.repeats))
     report = block_size_table(block_sizes(args.block_samples), duration_s=args.duration, repeats=args.repeats,
-                              progress=None if args.json else print)
+                              progress=progress_lines(args))
     if args.json:
         print_json(report)
     return exit_code(report["interrupted"])

@@ -43,10 +43,14 @@ def _remedy(error, args):
     return ""
 
 
-def main(argv=None):
+def main(argv=None, early_signals=()):
+    """Run the command ``argv``; ``early_signals``: SIGINT/SIGTERM noted before this was called (by
+    drive_cli.entry), so that the command stops at once as interrupted."""
     args = build_parser().parse_args(argv)
     try:
         with interrupt.handled():
+            if early_signals:
+                raise Interrupted(early_signals[0])
             code = args.func(args)
             if interrupt.requested() and code < EXIT_SIGNAL_BASE:
                 raise Interrupted(interrupt.requested())

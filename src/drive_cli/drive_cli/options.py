@@ -54,6 +54,16 @@ def print_json(data):
     print(dumps(data, indent=2, ensure_ascii=False))
 
 
+def progress_lines(args):
+    """Where a bench's progress lines go: standard output as text; with --json (standard output is the
+    report's) standard error when it is a terminal, else nowhere."""
+    if not args.json:
+        return print
+    if sys.stderr.isatty():
+        return lambda line: print(line, file=sys.stderr, flush=True)
+    return None
+
+
 def print_report(report, args, lines):
     """Print ``report`` as JSON with --json, else as its text ``lines(report)``."""
     if args.json:

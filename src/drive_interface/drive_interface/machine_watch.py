@@ -13,6 +13,7 @@ import json
 import subprocess
 import sys
 import threading
+import time
 
 from .realtime import cpu_set, fifo_priority, real_time_scheduled, wakeups
 
@@ -68,11 +69,11 @@ def missing_runs_explained(windows, stalls, latency_s):
     return sum(stalled_within(stalls, start, end) >= (end - start) - latency_s for start, end in windows)
 
 
-def watch(period_s, stop):
+def watch(period_s, stop, clock=time.monotonic, sleep=time.sleep):
     """Wake every ``period_s`` until ``stop`` is set: the number of wake-ups and the stalls as [due, late]
-    [s] (the wake-ups catching up within a stall are part of it)."""
+    [s] (the wake-ups catching up within a stall are part of it). ``clock``, ``sleep``: as ``wakeups``."""
     stalls, count, stalled_until = [], 0, 0.0
-    for due, late in wakeups(period_s, lambda: not stop.is_set()):
+    for due, late in wakeups(period_s, lambda: not stop.is_set(), clock, sleep):
         count += 1
         if late > STALL_NOTED_S and due >= stalled_until:
             stalls.append([due, late])

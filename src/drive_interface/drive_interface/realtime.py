@@ -302,16 +302,16 @@ STALL_S = 5e-4
 """A wake-up later than this is a stall: half of a block of 10 at 10 kHz."""
 
 
-def wakeups(period_s, go_on):
+def wakeups(period_s, go_on, clock=time.monotonic, sleep=time.sleep):
     """Sleep to each multiple of ``period_s`` from now while ``go_on()``; yield each wake-up's (due,
-    late) [monotonic s, s]."""
-    due = time.monotonic()
+    late) [s on ``clock``, s]. ``clock`` and ``sleep``: the machine's by default, a virtual clock in tests."""
+    due = clock()
     while go_on():
         due += period_s
-        remaining = due - time.monotonic()
+        remaining = due - clock()
         if remaining > 0:
-            time.sleep(remaining)
-        yield due, time.monotonic() - due
+            sleep(remaining)
+        yield due, clock() - due
 
 
 def wakeup_latencies(seconds, period_s=1e-3, priority=0, cpus=None):

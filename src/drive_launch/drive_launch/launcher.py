@@ -200,9 +200,9 @@ class DriveSpec:
     paced: bool = False
     """With a link: the virtual inverter on its own clock at the sampling rate, never waiting."""
     inverter_apart: bool = False
-    """Paced: the virtual inverter in a process of its own (as a real one is a device of its own) instead of
-    a thread of the launcher's: on this 2-core machine it makes the graph later, not earlier (docs/results.md,
-    2026-11-26), so it is a lever to measure, not the default."""
+    """With a link: the virtual inverter in a process of its own (as a real one is a device of its own) instead
+    of a thread of the launcher's, paced or in lock-step: paced on this 2-core machine it makes the graph later,
+    not earlier (docs/results.md, 2026-11-26), so it is a lever to measure, not the default."""
     lose_command_every: int = 0
     """With a link, the inverter on a thread of the launcher: it loses every Nth command message the graph
     sends, as if it came too late (zero volts; the graceful degradation measured, 0: never)."""
@@ -259,7 +259,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
     for spec in specs:
         if spec.link not in (None,) + LINKS:
             raise GraphError(f"unknown virtual link {spec.link!r} (known: {', '.join(LINKS)})")
-        if spec.link == "can" and processes == "separate" and not (spec.paced and spec.inverter_apart):
+        if spec.link == "can" and processes == "separate" and not spec.inverter_apart:
             raise GraphError("a virtual CAN bus (python-can's) lives in one process: it needs the nodes "
                              "composed, or a pty link")
     locks = []
@@ -461,16 +461,17 @@ def _result(driver, drive, record, processes, executor, interrupted, hop=None):
 def _virtual_inverter(scenario, parameters, link, workdir, drive_id, paced, timeout_s, rt_priority=0, cpus=None,
                       apart=True, lose_command_every=0):
     """A virtual inverter for ``scenario`` (not yet running) and the host's end of its link. Paced, it runs
-    on its own clock, ``apart`` in a process of its own, as a real inverter is a device of its own (on the
-    CPUs the host's ``cpus`` leave, if any; CAN then on a cable between processes, drive_bridge.can_cable);
-    else it waits for each of the graph's commands as long as a plant node would (``timeout_s``). Not apart,
-    it runs on a thread of the host's process and loses every ``lose_command_every``th command (0: none)."""
+    on its own clock, else it waits for each of the graph's commands as long as a plant node would
+    (``timeout_s``). ``apart``: in a process of its own, as a real inverter is a device of its own (on the
+    CPUs the host's ``cpus`` leave, if any; CAN then on a cable between processes, drive_bridge.can_cable).
+    Not apart, it runs on a thread of the host's process and loses every ``lose_command_every``th command
+    (0: none)."""
     import os
 
     from drive_bridge.inverter_link import CanLink, SerialLink
     from drive_bridge.inverter_process import InverterProcess, InverterProcessError
     from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
-    if not (paced and apart):
+    if not apart:
         endpoint, host_link = make_links(link, workdir, drive_id)
         rate = 1.0 / scenario.T_s if paced else None
         return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id,
@@ -481,8 +482,8 @@ def _virtual_inverter(scenario, parameters, link, workdir, drive_id, paced, time
     path = Path(workdir) / (f"inverter{drive_id}" if link == "pty" else f"can_cable{drive_id}")
     others = set(os.sched_getaffinity(0)) - set(cpus) if cpus else None
     try:
-        inverter = InverterProcess(parameters, link, path, 1.0 / scenario.T_s, timeout_s, drive_id, rt_priority,
-                                   others or None)
+        inverter = InverterProcess(parameters, link, path, 1.0 / scenario.T_s if paced else None, timeout_s,
+                                   drive_id, rt_priority, others or None)
     except InverterProcessError as error:
         raise GraphError(str(error)) from None
     host_link = SerialLink(str(path)) if link == "pty" else CanLink(str(path), drive_id, "cable")

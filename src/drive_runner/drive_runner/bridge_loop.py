@@ -11,7 +11,7 @@ import numpy as np
 
 from control_math.command_delay import command_line, issue_command
 from control_math.current_sensing import corrected_currents
-from drive_bridge.inverter_bridge import InverterBridge
+from drive_bridge.inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from drive_bridge.inverter_protocol import MAX_BLOCK
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_interface.estimator_records import estimates
@@ -60,12 +60,15 @@ def run_through_bridge(scenario, link="pty", faults=None, rate_Hz=None, command_
 def virtual_inverter_link(scenario, link, **inverter_options):
     """(virtual inverter, its link endpoint, the host's bridge core) for ``scenario`` on ``link`` ('pty',
     'can') in a temporary directory; the inverter is not started. All three are stopped and closed on
-    exit."""
+    exit. In lock-step the inverter is silent while it waits for the host (up to its ``command_wait_s``), so
+    the bridge's link and command timeouts count from then: a host slowed by its machine is not a lost link."""
     scenario = behind_an_inverter(scenario, MAX_BLOCK)
     with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
         endpoint, host_link = make_links(link, workdir)
         inverter = VirtualInverter(scenario, endpoint, **inverter_options)
-        bridge = InverterBridge(host_link, block_samples=scenario.block_samples)
+        timeouts = {} if inverter.rate_Hz else {"link_timeout_s": inverter.command_wait_s + LINK_TIMEOUT_S,
+                                                "command_timeout_s": inverter.command_wait_s + COMMAND_TIMEOUT_S}
+        bridge = InverterBridge(host_link, block_samples=scenario.block_samples, **timeouts)
         if inverter.rate_Hz:
             inverter.hear_host_writes(bridge.written_at)
         try:
