@@ -362,3 +362,19 @@ def test_a_bag_with_an_unknown_message_type_is_named(tmp_path):
     assert out.returncode == 2
     assert out.stderr.strip() == (f"drive: {path}: /drive/currents is my_msgs/msg/PhaseCurrents, the contract "
                                   f"says geometry_msgs/msg/Vector3Stamped")
+
+
+def test_a_metadata_duration_that_ends_before_it_starts_is_not_reported_as_fact(tmp_path):
+    """metadata.yaml edited to a negative duration: `drive bag info` says the duration is not known and warns,
+    rather than printing a negative one."""
+    import re
+
+    from drive_bags.reader import bag_info_lines
+    bag = write_run_bag(run_scenario(dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.05)),
+                        tmp_path / "negative")
+    metadata = bag / "metadata.yaml"
+    metadata.write_text(re.sub(r"(duration:\s*\n\s*nanoseconds:\s*)(\d+)", r"\g<1>-\2", metadata.read_text(), count=1))
+    info = bag_info(bag)
+    assert info["duration_s"] is None
+    assert any("ends before it starts" in warning for warning in info["warnings"])
+    assert "  duration not known (start " in "\n".join(bag_info_lines(info))

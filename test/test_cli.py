@@ -86,10 +86,18 @@ def test_bench_rejects_zero_repeats():
     (["launch", "wang_100rpm", "--timeout", "nan"], "argument --timeout: must be a finite number"),
     (["run", "wang_100rpm", "--duration", "1e9"], "--duration: 1e+09 s at 0.0001 s per sample is more than 10000000"),
     (["bench", "graph", "--duration", "1e9"], "--duration: 1e+09 s at 0.0001 s per sample is more than 10000000"),
+    (["run", "wang_100rpm", "--duration", "1e-12"], "--duration: 1e-12 s is less than one sample (0.0001 s)"),
+    (["launch", "wang_100rpm", "--duration", "1e-12"], "--duration: 1e-12 s is less than one sample"),
+    (["bridge", "wang_100rpm", "--duration", "1e-12"], "--duration: 1e-12 s is less than one sample"),
+    (["echo", "currents", "--timeout", "0"], "--timeout: must be positive (seconds), not 0"),
+    (["echo", "currents", "--timeout", "-1"], "--timeout: must be positive (seconds), not -1"),
+    (["tune", "pll", "--crossover", "0"], "--crossover: must be positive, not 0"),
+    (["tune", "pll", "--phase-margin", "95"], "--phase-margin: between 0 and 90 degrees, not 95"),
 ])
 def test_numeric_options_are_checked_before_anything_runs(capsys, argv, message):
-    """inf, nan and a duration past the scenario file's sample cap: exit 2 and the option named, never an
-    allocation of terabytes or a traceback."""
+    """inf, nan, a duration past the scenario file's sample cap or under one sample, a wait that would never
+    end or a division by zero: exit 2 and the option named, never an allocation of terabytes, an empty run or a
+    traceback."""
     try:
         code = main(argv)
     except SystemExit as stop:
@@ -97,3 +105,12 @@ def test_numeric_options_are_checked_before_anything_runs(capsys, argv, message)
     assert code == 2
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
+
+
+def test_a_signal_noted_before_the_command_line_loaded_stops_the_command_in_one_line(capsys):
+    """A SIGINT or SIGTERM that came while the command line's modules loaded (drive_cli.entry notes it from
+    the first instruction on) stops the command as one during its job: 128 + N and one line."""
+    import signal
+    assert main(["scenarios"], early_signals=[signal.SIGTERM]) == 128 + signal.SIGTERM
+    assert capsys.readouterr().err.strip() == "drive: scenarios: interrupted by SIGTERM"
+    assert main(["presets"], early_signals=[signal.SIGINT]) == 128 + signal.SIGINT

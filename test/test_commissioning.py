@@ -240,6 +240,38 @@ def test_a_round_rotor_is_reported_without_saliency():
     assert record.R_s_ohm == pytest.approx(0.27, rel=0.03)
 
 
+@pytest.mark.parametrize("stopped_in", ["rotating", "loaded"])
+def test_a_commissioning_stopped_in_a_later_test_writes_nothing_and_can_run_again(capsys, monkeypatch, stopped_in):
+    """SIGINT during the rotating or the loaded test (the run stops after its chunk in progress): exit 130, no
+    commissioning file and no partial one left, so that the next commissioning is not refused; a complete
+    one names the tests it completed."""
+    import signal
+
+    from drive_cli.cli import main
+    from drive_interface.interrupt import Interrupted
+    from drive_runner import commissioning_run
+    from motor_params.commissioning import load_commissioning
+
+    def stopped(*args, **kwargs):
+        raise Interrupted(signal.SIGINT)
+    asked = ["--rotating", "--loaded"] if stopped_in == "loaded" else ["--rotating"]
+    with monkeypatch.context() as patched:
+        patched.setattr(commissioning_run, f"{stopped_in}_test_in_process", stopped)
+        if stopped_in == "loaded":
+            patched.setattr(commissioning_run, "rotating_test_in_process", lambda scenario, path, progress=None: (
+                {"psi_f_Wb": 0.0161, "J_kgm2": 4e-4, "B_Nms": 1e-5, "friction_Nm": 0.0, "speeds_rad_s": [1.0]},
+                {"psi_f_Wb": 0.0161, "J_kgm2": 4e-4}, None))
+        assert main(["commission", "wang_100rpm", "--out", "stopped.yaml", *asked]) == 130
+    assert capsys.readouterr().err.strip() == "drive: commission: interrupted by SIGINT"
+    assert sorted(os.listdir(".")) == ["commissioning"]
+    assert main(["commission", "wang_100rpm", "--out", "stopped.yaml", "--json"]) == 0
+    _, metadata = load_commissioning("stopped.yaml")
+    assert metadata["conditions"]["tests_completed"] == ["standstill"]
+    capsys.readouterr()
+    main(["run", "wang_100rpm", "--duration", "0.05", "--commissioning", "stopped.yaml", "--no-plot", "--json"])
+    assert json.loads(capsys.readouterr().out)["commissioning_tests"] == ["standstill"]
+
+
 def test_commission_keeps_an_existing_file_and_prints_identified_beside_truth(capsys):
     from drive_cli.cli import main
     assert main(["commission", "wang_100rpm"]) == 2

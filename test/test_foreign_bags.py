@@ -147,12 +147,15 @@ def test_a_v2_bag_without_scenario_replays_ours_better_than_its_recorder(convent
 
 
 def test_a_bag_without_drive_config_needs_and_takes_the_motor_and_sample_period(conventional, tmp_path):
-    """No drive_config: each missing piece is a one-line error naming its option; given --sample-period
-    and --motor (a file of the contract's motor keys), it replays with the contract's usual delay."""
+    """No drive_config: each missing piece is a one-line error naming its option, and a sample period the
+    stamps do not show (half of them off its grid) is refused naming it; given --sample-period and --motor (a
+    file of the contract's motor keys), it replays with the contract's usual delay."""
     bag = write_foreign_bag(tmp_path / "bare", conventional)
     for options, says in (((), "give --sample-period S"), (("--sample-period", "1e-4"), "give --motor PRESET|FILE"),
                           (("--sample-period", "1e-4", "--motor", "no_such_motor"), "--motor: 'no_such_motor' is "
-                                                                                   "neither a shipped motor")):
+                                                                                   "neither a shipped motor"),
+                          (("--sample-period", "2e-4", "--motor", "wang_spmsm"), "--sample-period 0.0002 s does not "
+                                                                                 "fit the recording")):
         out = subprocess.run(DRIVE + ["bench", "replay", str(bag), "--no-plot", *options],
                              capture_output=True, text=True)
         assert out.returncode == 2 and out.stderr.count("\n") == 1 and says in out.stderr, out.stderr

@@ -637,21 +637,27 @@ def wait_for_bag_data(bag, process, stderr_path, size=100_000, timeout_s=60.0):
         time.sleep(0.05)
 
 
+def separate_run_and_its_estimator(tmp_path, namespace):
+    """`drive launch wang_100rpm --processes separate --duration 1.0 --json` under ``namespace``, once its bag
+    holds data: (the launcher's process, the estimator node's pid, the launcher's stderr file)."""
+    bag, stderr = tmp_path / "bag", tmp_path / "stderr"
+    launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--processes", "separate", "--namespace",
+                                         namespace, "--duration", "1.0", "--json", "--no-plot", "--record", str(bag)],
+                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=stderr.open("w"), text=True)
+    wait_for_bag_data(bag, launcher, stderr)
+    estimator = subprocess.run(["pgrep", "-f", f"hf_estimator.node .*__ns:={namespace}"], capture_output=True,
+                               text=True).stdout.split()
+    assert len(estimator) == 1
+    return launcher, int(estimator[0]), stderr
+
+
 def test_a_node_stopped_for_two_seconds_shows_in_node_faults_and_the_exit_code(tmp_path):
     """SIGSTOP on the estimator process for 2 s (twice the lock-step timeout): the plant applies zero
     voltage and counts timeouts; the launcher sees the cumulative counters, not only the last status."""
-    bag, stderr = tmp_path / "stopped_node", tmp_path / "stderr"
-    launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--processes", "separate", "--namespace",
-                                         "/sigstop_test", "--duration", "1.0", "--json", "--no-plot",
-                                         "--record", str(bag)],
-                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=stderr.open("w"), text=True)
-    wait_for_bag_data(bag, launcher, stderr)
-    estimator = subprocess.run(["pgrep", "-f", "hf_estimator.node .*__ns:=/sigstop_test"], capture_output=True,
-                               text=True).stdout.split()
-    assert len(estimator) == 1
-    os.kill(int(estimator[0]), signal.SIGSTOP)
+    launcher, estimator, stderr = separate_run_and_its_estimator(tmp_path, "/sigstop_test")
+    os.kill(estimator, signal.SIGSTOP)
     time.sleep(2.0)
-    os.kill(int(estimator[0]), signal.SIGCONT)
+    os.kill(estimator, signal.SIGCONT)
     out, _ = launcher.communicate(timeout=120)
     assert launcher.returncode == 3, stderr.read_text()
     metrics = json.loads(out)
@@ -659,6 +665,19 @@ def test_a_node_stopped_for_two_seconds_shows_in_node_faults_and_the_exit_code(t
     assert plant["faults"]["timeout"] >= 1 and any("zero voltage" in m for m in plant["messages"])
     assert metrics["samples"] == 10000 and not metrics["interrupted"]
     assert metrics["missing_samples"]["/sigstop_test/voltage_command"] >= 1, "the command never answered"
+
+
+def test_a_node_process_killed_mid_run_is_a_node_fault_with_the_json_printed(tmp_path):
+    """kill -9 of the estimator's process: the run ends there as a node fault (exit 3, not 2, "refused"), the
+    --json report printed with what ran and the process named in `node_faults`."""
+    launcher, estimator, stderr = separate_run_and_its_estimator(tmp_path, "/sigkill_test")
+    os.kill(estimator, signal.SIGKILL)
+    out, _ = launcher.communicate(timeout=120)
+    assert launcher.returncode == 3, stderr.read_text()
+    report = json.loads(out)
+    fault = report["node_faults"]["/sigkill_test/hf_estimator"]
+    assert fault["faults"]["process_exited"] == 1 and any("killed by signal 9" in m for m in fault["messages"])
+    assert 0 < report["samples"] < 10000 and "Traceback" not in stderr.read_text()
 
 
 def test_nodes_started_by_hand_exit_when_the_plant_is_gone(tmp_path):

@@ -162,6 +162,9 @@ messages = st.one_of(
     st.builds(Heartbeat, u32))
 
 
+PROTOCOL_MESSAGES = (Telemetry, TelemetryBlock, Command, CommandBlock, Control, Heartbeat, Hello)
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.lists(messages, min_size=1, max_size=8))
 def test_any_messages_round_trip_through_the_stream(batch):
@@ -200,8 +203,13 @@ def test_a_flipped_bit_is_caught(message, data):
 @settings(max_examples=300, deadline=None)
 @given(st.integers(0, 0x7FF), st.binary(max_size=8))
 def test_can_decoder_takes_any_frame(identifier, data):
+    """Any classic frame gives a protocol message, nothing (a frame that completes none, or one of another
+    drive), or a counted framing error with its reason; never a raise."""
     decoder = CanDecoder(0)
-    decoder.feed(identifier, data)
+    message = decoder.feed(identifier, data)
+    assert message is None or isinstance(message, PROTOCOL_MESSAGES)
+    if message is None and decoder.errors:
+        assert sum(decoder.errors.values()) == 1 and decoder.last_error.startswith(f"CAN {identifier:#05x}: ")
 
 
 @settings(max_examples=200, deadline=None)
@@ -219,4 +227,12 @@ def test_any_block_round_trips_through_can_fd(drive, block):
 @settings(max_examples=300, deadline=None)
 @given(st.sampled_from((0x103, 0x10D)), st.binary(max_size=64))
 def test_can_fd_decoder_takes_any_frame(identifier, data):
-    CanDecoder(0).feed(identifier, data)
+    """Any bytes in a CAN FD block frame give a block of the samples the frame says it holds, or one
+    counted framing error; never a raise."""
+    decoder = CanDecoder(0)
+    block = decoder.feed(identifier, data)
+    if block is None:
+        assert sum(decoder.errors.values()) == 1
+    else:
+        assert isinstance(block, (TelemetryBlock, CommandBlock)) and 1 <= len(block.samples) <= MAX_BLOCK
+        assert decoder.errors == {}

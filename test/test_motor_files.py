@@ -173,9 +173,20 @@ def test_the_template_is_a_motor_file_and_show_scales_its_loops(tmp_path, capsys
     (("  U_dc_V: 24.0\n", "  U_dc_V: 24.0\n  delay_periods: 7\n"), "inverter.delay_periods"),
     (("plant:\n", "plant:\n  L_dh_H_typo: 1.0\n"), "plant.L_dh_H_typo"),
     (("name: test_joint\n", "name: test_joint\nvoltage: 24\n"), "voltage"),
+    (("n_p: 12", "n_p: 1.0e+20"), "nameplate.n_p"),
+    (("rated_current_A: 8.0", "rated_current_A: 1.0e+300"), "nameplate.rated_current_A"),
+    (("current_limit_A: 12.0", "current_limit_A: 6000.0"), "nameplate.current_limit_A"),
+    (("current_limit_A: 12.0", "current_limit_A: 25.0"), "nameplate.current_limit_A"),
+    (("U_dc_V: 24.0", "U_dc_V: 1.0e+6"), "inverter.U_dc_V"),
+    (("U_dc_V: 24.0", "U_dc_V: 1.0e+300"), "inverter.U_dc_V"),
+    (("name: test_joint", 'name: "a\\0b"'), "name"),
+    (("name: test_joint", 'name: "a\\nb"'), "name"),
 ])
 def test_a_bad_motor_file_is_named_with_its_key(tmp_path, capsys, change, key):
-    """One line naming the file and the key, from the library and from `drive run --motor` (exit 2)."""
+    """One line naming the file and the key, from the library and from `drive run --motor` (exit 2): a key
+    missing, unknown or out of its declared range (motor_params.nameplate.NAMEPLATE_RANGES), a current limit
+    beyond 3 × the rated current, a bus beyond 20 × what the rated speed needs, a name that cannot name a
+    file."""
     path = tmp_path / "bad.yaml"
     path.write_text(JOINT.replace(*change))
     with pytest.raises(MotorFileError) as raised:

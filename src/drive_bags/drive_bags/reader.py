@@ -75,6 +75,10 @@ def bag_info(path):
     finally:
         reader.close()
     info["warnings"] = _disagreements(path, stored, info["messages"])
+    if info["duration_s"] < 0.0 or info["end_s"] < info["start_s"]:
+        info["warnings"].append(f"metadata says the recording ends before it starts (start {info['start_s']:.6f} s, "
+                                f"end {info['end_s']:.6f} s); duration not known")
+        info["duration_s"] = None
     return info
 
 
@@ -83,7 +87,8 @@ def bag_info_lines(info):
     """bag_info as text lines, like `ros2 bag info`."""
     lines = [f"bag {info['bag']}: storage {info['storage']}, compression {info['compression']}"]
     lines += [f"  file {f['path']} ({f['bytes']:,} bytes)" for f in info["files"]]
-    lines.append(f"  duration {info['duration_s']:.6f} s (start {info['start_s']:.6f} s, "
+    duration = "not known" if info["duration_s"] is None else f"{info['duration_s']:.6f} s"
+    lines.append(f"  duration {duration} (start {info['start_s']:.6f} s, "
                  f"end {info['end_s']:.6f} s), {info['messages']:,} messages")
     width = max((len(t["topic"]) for t in info["topics"]), default=0)
     for t in info["topics"]:
@@ -211,12 +216,15 @@ SIM_CLOCK_START_MAX_S = 60.0
 GRID_TOLERANCE = 0.25
 """A stamp within this share of T_s of a sample instant is placed on it (its jitter measured); one further
 off is not a sample of this grid and is dropped (counted)."""
+OFF_GRID_SHARE_MAX = 0.05
+"""More of the currents' stamps than this share off the grid: the sample period given is not the recording's
+(a robot's jitter and lost messages leave the rest on it)."""
 MAX_RECORDING_SAMPLES = 200_000_000
 """A recording longer than this many samples (5.6 h at 10 kHz; 13 GiB of log) is refused, not allocated (a
 recording may be longer than a simulation, drive_scenarios.scenario.MAX_SAMPLES)."""
 
 
-def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
+def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None, T_s_source="the sample period"):
     """(log, T_s, timing, zero_volts) from bag_topics' messages (bag_log); ``zero_volts``: per sample, True where
     the period from it ran at zero volts (the bridge's `zero_voltage`: the inverter's report of a command missing
     or PWM off, docs/drive-interface.md); ``n_p`` turns mechanical angles electrical
@@ -225,7 +233,8 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
     offsets from it (one jittered stamp does not set it); a simulation's bag (its drive_config names a
     scenario, its stamps sim time from near 0) keeps its clock's zero, the run's sample 0. ``timing``: the
     epoch [s], the stamps' jitter about the grid (RMS and largest [s]) and how many were off it
-    (docs/recordings.md)."""
+    (docs/recordings.md). BagError, naming ``T_s_source``, when more than OFF_GRID_SHARE_MAX of the currents'
+    stamps lie off the grid of ``T_s``: the sample period is not the recording's."""
     n_p = n_p or _pole_pairs(configs)
     blocks = not topics.get(CURRENTS) and bool(topics.get(block(CURRENTS)))
     currents = block(CURRENTS) if blocks else CURRENTS
@@ -250,6 +259,13 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None):
         offsets = (stamps - first).astype(float)
         epoch_ns = first + int(round(float(np.median(offsets - np.round(offsets / T_ns) * T_ns))))
         log_epoch_ns = int(topics[currents][0][0]) + (epoch_ns - int(stamps[0]))
+    offsets = (stamps - epoch_ns).astype(float)
+    off = np.abs(offsets - np.round(offsets / T_ns) * T_ns) > GRID_TOLERANCE * T_ns
+    if off.mean() > OFF_GRID_SHARE_MAX:
+        steps = np.diff(np.sort(stamps)) / width
+        shown = f"; they show {float(np.median(steps)) * 1e-9:g} s" if steps.size and np.median(steps) > 0 else ""
+        raise BagError(f"{path}: {T_s_source} {T_s:g} s does not fit the recording: {off.mean():.0%} of its "
+                       f"{full_name(namespace, currents)} stamps lie off that grid{shown}")
     if (stamps.max() - epoch_ns) / T_ns > MAX_RECORDING_SAMPLES:
         raise BagError(f"{path}: {full_name(namespace, currents)} stamps span {(stamps.max() - epoch_ns) * 1e-9:.3g} s "
                        f"from {epoch_ns * 1e-9:.3f} s, more than {MAX_RECORDING_SAMPLES} samples of {T_s:g} s")

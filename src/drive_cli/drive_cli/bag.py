@@ -9,6 +9,8 @@ def cmd_echo(args):
     for flag, value in (("--count", args.count), ("--every", args.every)):
         if value is not None and value < 1:
             raise CommandLineError(f"{flag}: must be at least 1, not {value}")
+    if args.timeout is not None and args.timeout <= 0.0:
+        raise CommandLineError(f"--timeout: must be positive (seconds), not {args.timeout:g}")
     return echo(args.topic, args.namespace, args.count, args.every, args.json, args.timeout)
 
 

@@ -55,26 +55,32 @@ def cmd_commission(args):
         procedure, wall, host, truth, true_currents = run.procedure, run.wall_time_s, run.host, run.truth, \
             run.true_currents
     record = procedure.result()
-    conditions = {"scenario": scenario.name, "host": host, **procedure.conditions()}
-    save_commissioning(out, record, scenario.motor.name, METHOD, conditions)
-    rotating = None
-    if args.rotating:
-        from drive_runner.commissioning_run import rotating_test_in_process
-        estimates, rotating_truth, _ = rotating_test_in_process(scenario, out, progress=progress)
-        record = record._replace(psi_f_Wb=estimates["psi_f_Wb"], J_kgm2=estimates["J_kgm2"])
-        rotating = {key: estimates[key] for key in ("B_Nms", "friction_Nm", "speeds_rad_s")}
-        conditions["rotating_test"] = {"speeds_rad_s": estimates["speeds_rad_s"], "load": "none, shaft free"}
+    conditions = {"scenario": scenario.name, "host": host, **procedure.conditions(), "tests_completed": ["standstill"]}
+    work = out.with_name(f".{out.name}.partial")  # what the later tests read; out: only once all are done
+    try:
+        save_commissioning(work, record, scenario.motor.name, METHOD, conditions)
+        rotating = None
+        if args.rotating:
+            from drive_runner.commissioning_run import rotating_test_in_process
+            estimates, rotating_truth, _ = rotating_test_in_process(scenario, work, progress=progress)
+            record = record._replace(psi_f_Wb=estimates["psi_f_Wb"], J_kgm2=estimates["J_kgm2"])
+            rotating = {key: estimates[key] for key in ("B_Nms", "friction_Nm", "speeds_rad_s")}
+            conditions["rotating_test"] = {"speeds_rad_s": estimates["speeds_rad_s"], "load": "none, shaft free"}
+            conditions["tests_completed"].append("rotating")
+            save_commissioning(work, record, scenario.motor.name, METHOD, conditions)
+            truth = {**(truth or {}), **{key: rotating_truth[key] for key in ("psi_f_Wb", "J_kgm2")}}
+        loaded = None
+        if args.loaded:
+            from drive_runner.commissioning_run import loaded_test_in_process, with_loaded_test
+            loaded, _ = loaded_test_in_process(scenario, work, progress=progress)
+            record = with_loaded_test(record, loaded)
+            conditions["loaded_test"] = {"shaft": "held (brake)", "top_current_A": loaded["top_current_A"],
+                                         "injection_frequency_Hz": loaded["injection_frequency_Hz"],
+                                         "injection_amplitude_V": loaded["injection_amplitude_V"]}
+            conditions["tests_completed"].append("loaded")
         save_commissioning(out, record, scenario.motor.name, METHOD, conditions)
-        truth = {**(truth or {}), **{key: rotating_truth[key] for key in ("psi_f_Wb", "J_kgm2")}}
-    loaded = None
-    if args.loaded:
-        from drive_runner.commissioning_run import loaded_test_in_process, with_loaded_test
-        loaded, _ = loaded_test_in_process(scenario, out, progress=progress)
-        record = with_loaded_test(record, loaded)
-        conditions["loaded_test"] = {"shaft": "held (brake)", "top_current_A": loaded["top_current_A"],
-                                     "injection_frequency_Hz": loaded["injection_frequency_Hz"],
-                                     "injection_amplitude_V": loaded["injection_amplitude_V"]}
-        save_commissioning(out, record, scenario.motor.name, METHOD, conditions)
+    finally:
+        work.unlink(missing_ok=True)
     report = commissioning_report(out, scenario.motor.name, METHOD, host, conditions, wall, procedure, record, rated,
                                   truth, true_currents, rotating, loaded)
     print_report(report, args, commissioning_lines)

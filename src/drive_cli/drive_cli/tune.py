@@ -61,6 +61,12 @@ def _pll_settings(args):
     --T-f auto)."""
     from drive_evaluation.pll_check import largest_loop_filter_for_motor
 
+    for flag, value in (("--crossover", args.crossover), ("--frequency", args.frequency),
+                        ("--amplitude", args.amplitude), ("--u-star", args.u_star)):
+        if value is not None and value <= 0.0:
+            raise CommandLineError(f"{flag}: must be positive, not {value:g}")
+    if not 0.0 < args.phase_margin < 90.0:
+        raise CommandLineError(f"--phase-margin: between 0 and 90 degrees, not {args.phase_margin:g}")
     given = (("frequency_Hz", args.frequency), ("amplitude_V", args.amplitude), ("u_star", args.u_star),
              ("demodulation", args.demodulation))
     settings = {key: value for key, value in given if value is not None}

@@ -107,7 +107,8 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
     recorded_n_p = next((c["n_p"] for c in configs if "n_p" in c), None)
     if recorded_n_p is not None and recorded_n_p != plate.n_p:
         raise BagError(f"{path}: drive_config says n_p {recorded_n_p}, the motor ({sources['motor']}) {plate.n_p}")
-    log, T_s, timing, zero_volts = log_from_topics(path, namespace, topics, configs, T_s, plate.n_p)
+    log, T_s, timing, zero_volts = log_from_topics(path, namespace, topics, configs, T_s, plate.n_p,
+                                                   sources["sample_period"])
     log, gaps = whole_span(path, log, topics)
     zero_volts = zero_volts[:log.shape[0]]
     delay = _delay(scenario, configs, sources)

@@ -27,6 +27,7 @@ def run_report(result):
     metrics = compute_metrics(result)
     if result.commissioning is not None:
         metrics["commissioning"] = result.commissioning.source
+        metrics["commissioning_tests"] = result.commissioning.tests()
         metrics["motor_knowledge"] = motor_knowledge(result.scenario.motor.nameplate, result.commissioning)
     facts = result.estimator_facts or {}
     if facts.get("injection_amplitude_V") is not None:
@@ -44,6 +45,9 @@ def run_lines(metrics, extra):
              f"{metrics['duration_s']:g} s, {metrics['samples']} samples in {metrics['wall_time_s']:.2f} s"]
     if "motor_knowledge" in metrics:
         lines.append(f"  {'motor known from':36s} {knowledge_line(metrics['motor_knowledge'])}")
+    if "commissioning_tests" in metrics:
+        tests = ", ".join(metrics["commissioning_tests"]) or "none (the nameplate alone)"
+        lines.append(f"  {'commissioning tests used':36s} {tests}")
     lines += [f"  {'WARNING':36s} {line}" for line in metrics["warnings"]]
     if metrics.get("injection", {}).get("note"):
         injection = metrics["injection"]

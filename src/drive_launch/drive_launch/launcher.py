@@ -502,12 +502,14 @@ def _watch(drivers, children, all_done):
     for driver in drivers:
         if requested():
             driver.finish("interrupted")
-        for role, child in children:
-            if child.poll() is not None:
-                driver.finish(f"node process {role} exited with code {child.returncode}")
+        processes = list(children)
         inverter_process = getattr(driver.inverter, "process", None)
-        if inverter_process is not None and inverter_process.poll() is not None:
-            driver.finish(f"the virtual inverter's process exited with code {inverter_process.returncode}")
+        if inverter_process is not None:
+            processes.append(("virtual_inverter", inverter_process))
+        for role, child in processes:
+            if child.poll() is not None and role not in driver.exited and not driver.done.done():
+                driver.exited[role] = child.returncode
+                driver.finish()
     if all(driver.done.done() for driver in drivers) and not all_done.done():
         all_done.set_result(True)
 

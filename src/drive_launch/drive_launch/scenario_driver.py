@@ -102,6 +102,9 @@ class ScenarioDriver:
         self.started_at = self.finished_at = None
         self.last_sample = -1
         self.error = None
+        self.exited = {}
+        """Processes of the drive that exited during the run: name → exit code (a negative one: the signal
+        that killed it). Each is a node fault of the run, which ends there."""
         self.diagnostics = {}
         self.nodes_complete = set()
         self.lockstep_nodes = 2 if inverter is not None else 3
@@ -341,6 +344,14 @@ class ScenarioDriver:
 
     def faults(self):
         """{node: {"faults": {kind: count}, "messages": [...]}} for every node that reported a fault
-        during the run (counters are cumulative, so a fault between two statuses is not missed)."""
-        return {name: {"faults": d["faults"], "messages": d["messages"]}
-                for name, d in sorted(self.diagnostics.items()) if d["faults"] or d["worst_level"] >= ERROR}
+        during the run (counters are cumulative, so a fault between two statuses is not missed), and for
+        every process of the drive that exited during it (``process_exited``)."""
+        faults = {name: {"faults": d["faults"], "messages": d["messages"]}
+                  for name, d in sorted(self.diagnostics.items()) if d["faults"] or d["worst_level"] >= ERROR}
+        for name, code in self.exited.items():
+            full = f"{self.node.get_namespace().rstrip('/')}/{name}"
+            how = f"killed by signal {-code}" if code < 0 else f"exited with code {code}"
+            entry = faults.setdefault(full, {"faults": {}, "messages": []})
+            entry["faults"] = {**entry["faults"], "process_exited": 1}
+            entry["messages"] = [*entry["messages"], f"its process {how} during the run"]
+        return faults

@@ -11,6 +11,7 @@ from drive_commissioning.procedure import procedure_for_scenario
 
 from control_math.command_delay import applied_voltage, issue_command
 from drive_interface.errors import DriveError
+from drive_interface.interrupt import Interrupted
 from drive_scenarios.scenario import shaft_held
 from pmsm_plant.build import plant_for_scenario
 from pmsm_plant.commissioning import commissioning_truth
@@ -31,6 +32,11 @@ class CommissioningRun:
     """Per sample: the true phase currents (a, b, c) [A]."""
     wall_time_s: float
     host: str
+
+
+TEST_CHUNK_SAMPLES = 1000
+"""The rotating and loaded tests run in chunks of this many samples: a signal stops them after the chunk in
+progress (0.1 s of the test at 10 kHz), never only at the test's end."""
 
 
 def commission_in_process(scenario, settings=None, progress=None):
@@ -93,7 +99,8 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
 def rotating_test_in_process(scenario, commissioning_file, progress=None):
     """The rotating test (drive_commissioning.rotating) on the scenario's simulated plant, shaft free and
     unloaded: the drive, commissioned at standstill (``commissioning_file``), spins it through the test's
-    speed profile. Returns (estimates, the plant's true ψ_f, J and B, the RunResult)."""
+    speed profile. Returns (estimates, the plant's true ψ_f, J and B, the RunResult); Interrupted when a
+    signal stopped it (after the chunk in progress)."""
     from drive_commissioning.rotating import (
         ASSUMED_SPEED_BANDWIDTH_RAD_S,
         DURATION_S,
@@ -119,7 +126,9 @@ def rotating_test_in_process(scenario, commissioning_file, progress=None):
         speed=Table(tuple(t for t, _ in profile), tuple(RPM * v for _, v in profile), "linear"), load=still,
         torque_feedforward=None, brake=False, initial_omega_m_rad_s=0.0, commissioning=str(commissioning_file),
         controller=controller, block_samples=1, answer_periods=0)
-    result = run_scenario(test, progress)
+    result = run_scenario(test, progress, chunk_samples=TEST_CHUNK_SAMPLES)
+    if result.interrupted:
+        raise Interrupted(result.interrupted)
     record = resolve_commissioning(plate, str(commissioning_file), "the standstill commissioning")
     estimates = rotating_estimates(result.log, plate, record, test.T_s, test.answer_delay_periods())
     plant = plant_for_scenario(test)
@@ -133,7 +142,7 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
     torque feed-forward. Returns (the loaded_shift result with ``injection_frequency_Hz`` and
     ``injection_amplitude_V`` ours ran at, and each hold's true angle error θ − θ̂ [rad] as
     ``true_error_rad``, for scoring; the RunResult). A correction the file already holds, where ours ran
-    with it, stays in the one returned."""
+    with it, stays in the one returned. Interrupted when a signal stopped it (after the chunk in progress)."""
     from drive_commissioning.loaded import (
         DURATION_S,
         LEVELS,
@@ -161,7 +170,9 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
         estimator_settings=scenario.estimator_settings if ours else {}, commissioning=str(commissioning_file),
         controller={**scenario.controller, "speed_bandwidth_rad_s": SPEED_BANDWIDTH_RAD_S},
         torque_feedforward=Table(tuple(t for t, _ in profile), tuple(v for _, v in profile), "linear"))
-    result = run_scenario(test, progress)
+    result = run_scenario(test, progress, chunk_samples=TEST_CHUNK_SAMPLES)
+    if result.interrupted:
+        raise Interrupted(result.interrupted)
     measured = loaded_shift(result.log, record)
     facts = result.estimator_facts
     frequency_Hz, amplitude_V = float(facts["injection_frequency_Hz"]), float(facts["injection_amplitude_V"])

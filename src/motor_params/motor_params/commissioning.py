@@ -6,6 +6,7 @@ the motor, the conditions and the date. Every error names the file and the key a
 """
 import datetime
 import math
+import os
 from pathlib import Path
 from typing import NamedTuple
 
@@ -87,6 +88,15 @@ class Commissioning(NamedTuple):
     def loaded_test_values(self):
         """{key: value} of the loaded test's conditions (empty where it did not run)."""
         return {key: float(getattr(self, key)) for key in LOADED if math.isfinite(getattr(self, key))}
+
+    def tests(self):
+        """The commissioning tests this record holds the results of, in order ("standstill", "rotating",
+        "loaded"); none for the nameplate alone. A test not held leaves its values to the nameplate or the
+        defaults (``sources``, motor_params.knowledge), which a run states."""
+        if self.source == NAMEPLATE_ONLY:
+            return []
+        return ["standstill"] + (["rotating"] if self.rotating_values() else []) + \
+            (["loaded"] if self.loaded_test_values() else [])
 
     def rotating_values(self):
         """{key: value} of what the rotating test measured (ROTATING keys it ran for; empty if it did not)."""
@@ -238,11 +248,17 @@ def commissioning_values(commissioning):
 
 
 def save_commissioning(path, commissioning, motor, method, conditions=None):
-    """Write ``commissioning`` to a new YAML file at ``path`` (floats written exactly); returns the path."""
+    """Write ``commissioning`` to the YAML file at ``path`` (floats written exactly), whole or not at all: a
+    temporary file beside it, renamed over it once written; returns the path."""
     document = {"motor": motor, "method": method, "date": datetime.date.today().isoformat(),
                 "conditions": dict(conditions or {}), "values": commissioning_values(commissioning)}
     path = Path(path)
-    path.write_text(yaml.safe_dump(document, sort_keys=False, width=100))
+    writing = path.with_name(f".{path.name}.writing")
+    try:
+        writing.write_text(yaml.safe_dump(document, sort_keys=False, width=100))
+        os.replace(writing, path)
+    finally:
+        writing.unlink(missing_ok=True)
     return path
 
 

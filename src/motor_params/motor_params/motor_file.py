@@ -21,6 +21,17 @@ TOP_KEYS = ("name", "description", "nameplate", "inverter", "plant")
 INVERTER_KEYS = ("U_dc_V", "delay_periods")
 
 
+BUS_PER_RATED_SPEED_NEED = 20.0
+"""A motor file's DC-link voltage may be at most this many times what the motor's back-EMF at rated speed
+needs (``rated_speed_bus_V``): more is another motor's bus, or a unit slip, and would drive this one far
+beyond its rating at the first fault of the current loop."""
+
+
+def rated_speed_bus_V(plate):
+    """The DC-link voltage [V] the back-EMF at rated speed needs with space-vector modulation: √3·ω_e·ψ_f."""
+    return math.sqrt(3.0) * plate.rated_speed_rpm * math.pi / 30.0 * plate.n_p * plate.psi_f_Wb
+
+
 class MotorFileError(DriveError):
     """A motor file is unusable; the message names its source (option, parameter, scenario key), the file
     and the key."""
@@ -99,7 +110,7 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
         if not isinstance(data.get(key), dict):
             fail(key, "missing, or not a mapping of keys (`drive motor template` shows one)")
     name = data.get("name", default_name)
-    if not isinstance(name, str) or not name or "/" in name:
+    if not isinstance(name, str) or not name or "/" in name or not name.isprintable() or len(name) > 100:
         fail("name", f"must be a word (it names the default commissioning file), not {name!r}")
     plate_data = dict(data["nameplate"])
     for key in sorted(set(plate_data) - set(Nameplate._fields[1:]), key=str):
@@ -114,6 +125,10 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
     U_dc = inverter.get("U_dc_V")
     if isinstance(U_dc, bool) or not isinstance(U_dc, (int, float)) or not math.isfinite(U_dc) or U_dc <= 0.0:
         fail("inverter.U_dc_V", f"the DC-link voltage must be a positive number [V], not {U_dc!r}")
+    needed = rated_speed_bus_V(plate)
+    if U_dc > BUS_PER_RATED_SPEED_NEED * needed:
+        fail("inverter.U_dc_V", f"{U_dc:g} V is more than {BUS_PER_RATED_SPEED_NEED:g} × the {needed:.3g} V the "
+                                f"rated speed needs (√3·ω_e·ψ_f): not this motor's bus")
     delay = inverter.get("delay_periods", 1)
     if isinstance(delay, bool) or not isinstance(delay, int) or not 0 <= delay <= 2:
         fail("inverter.delay_periods", f"must be 0, 1 or 2 (periods from sample to applied command), not {delay!r}")

@@ -52,6 +52,29 @@ ASSUMED_RATED_SPEED_RPM = 3000.0
 lock monitor's 2 % back-EMF margin)."""
 
 
+NAMEPLATE_RANGES = {
+    "n_p": (1, 100, "pole pairs"),
+    "R_s_ohm": (0.0, 1e3, "Ω"),
+    "L_d_H": (1e-8, 10.0, "H"),
+    "L_q_H": (1e-8, 10.0, "H"),
+    "psi_f_Wb": (1e-6, 100.0, "Wb"),
+    "rated_power_W": (1e-3, 1e7, "W"),
+    "rated_current_A": (1e-3, 1e4, "A"),
+    "rated_speed_rpm": (1.0, 1e6, "rpm"),
+    "rated_torque_Nm": (1e-7, 1e6, "N·m"),
+    "current_limit_A": (1e-3, 1e4, "A"),
+    "J_kgm2": (1e-10, 1e5, "kg·m²"),
+    "B_Nms": (0.0, 1e4, "N·m·s"),
+}
+"""Each nameplate key's physical range (low, high, unit), declared once: a value outside it is a typo or a
+unit slip, refused naming the key and the range, wherever a nameplate is read (motor files, drive
+configuration files, a bag's drive_config)."""
+
+CURRENT_LIMIT_PER_RATED = 3.0
+"""The current limit may be at most this many times the rated current (a drive's peak rating; beyond it
+the windings and the inverter are out of their rating)."""
+
+
 class NameplateError(ValueError):
     """A motor description is unusable; the message names its source and the key."""
 
@@ -80,18 +103,34 @@ def nameplate_from_mapping(data, source, defaults=None, key_prefix=""):
         if not low_ok or (key == "n_p" and value != int(value)):
             raise NameplateError(f"{source}: {key_prefix}{key}: {value!r} is not a {'whole ' if key == 'n_p' else ''}"
                                  f"{'non-negative' if key in ('R_s_ohm', 'B_Nms') else 'positive'} number")
+        low, high, unit = NAMEPLATE_RANGES[key]
+        if not low <= value <= high:
+            raise NameplateError(f"{source}: {key_prefix}{key}: {value!r} lies outside {low:g} … {high:g} {unit} "
+                                 f"(a typo or a unit slip?)")
         values[key] = int(value) if key == "n_p" else float(value)
     name = str(data.get("name", "motor"))
     if defaults is not None:
-        return defaults._replace(**values)
+        plate = defaults._replace(**values)
+        _check_current_limit(plate, source, key_prefix)
+        return plate
     current = values["rated_current_A"]
     values.setdefault("current_limit_A", 1.5 * current)
+    _check_current_limit(values, source, key_prefix)
     values.setdefault("rated_torque_Nm", 1.5 * values["n_p"] * values["psi_f_Wb"] * current)
     values.setdefault("rated_speed_rpm", ASSUMED_RATED_SPEED_RPM)
     values.setdefault("rated_power_W", values["rated_torque_Nm"] * values["rated_speed_rpm"] * math.pi / 30.0)
     values.setdefault("J_kgm2", math.nan)
     values.setdefault("B_Nms", math.nan)
     return Nameplate(name=name, **values)
+
+
+def _check_current_limit(plate, source, key_prefix):
+    """NameplateError unless the current limit is within CURRENT_LIMIT_PER_RATED × the rated current."""
+    fields = plate if isinstance(plate, dict) else plate._asdict()
+    limit, rated = fields["current_limit_A"], fields["rated_current_A"]
+    if limit > CURRENT_LIMIT_PER_RATED * rated:
+        raise NameplateError(f"{source}: {key_prefix}current_limit_A: {limit:g} A is more than "
+                             f"{CURRENT_LIMIT_PER_RATED:g} × the rated current {rated:g} A: out of the motor's rating")
 
 
 def contract_motor(plate):
