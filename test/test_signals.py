@@ -4,6 +4,7 @@ reader that goes away ends the output quietly (exit 141). Isolated: localhost di
 domain (conftest)."""
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -23,6 +24,8 @@ COMMANDS = {
 """Each command's arguments, and whether the signal waits for its first progress on a terminal (its job has
 begun, on a machine of any pace); else it comes 0.5 s after the start, wherever the command then is."""
 PROGRESS_WAIT_S = 300.0
+PROGRESS = re.compile(r"\r[^\r\n]*%[ \t]*|[^\r\n]*real-time factor[^\r\n]*")
+"""A command's progress on a terminal: a line it rewrites ending in a percentage, or a bench's result line."""
 
 
 def stop(tmp_path, args, at_progress, signum):
@@ -30,7 +33,6 @@ def stop(tmp_path, args, at_progress, signum):
     ``signum`` once it shows progress (``at_progress``) or after 0.5 s; (code, stdout, stderr without the
     progress), once every process of the session is gone."""
     import pty
-    import re
     import threading
     master, slave = pty.openpty()
     process = subprocess.Popen(DRIVE + args, cwd=tmp_path, stdout=subprocess.PIPE, stderr=slave, text=True,
@@ -47,7 +49,7 @@ def stop(tmp_path, args, at_progress, signum):
             if not chunk:
                 return
             err.append(chunk.decode(errors="replace"))
-            if "%" in chunk.decode(errors="replace") or "real-time factor" in "".join(err):
+            if PROGRESS.search("".join(err)):
                 progressed.set()
     reader = threading.Thread(target=read_terminal, daemon=True)
     reader.start()
@@ -69,8 +71,7 @@ def stop(tmp_path, args, at_progress, signum):
         pytest.fail(f"drive {' '.join(args)}: processes left behind in its session")
     reader.join(5.0)
     os.close(master)
-    text = re.sub(r"\r[^\r\n]*(?=\r)|\r[^\r\n]*%[ \t]*", "", "".join(err).replace("\r\n", "\n"))
-    lines = [line for line in text.splitlines() if line.strip() and "real-time factor" not in line]
+    lines = [line for line in PROGRESS.sub("", "".join(err).replace("\r\n", "\n")).splitlines() if line.strip()]
     return process.returncode, out, "\n".join(lines)
 
 

@@ -244,8 +244,8 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None, T_s_so
     width = len(topics[currents][0][1].position) if blocks else 1
     if T_s is None:
         T_s = next((float(c["T_s_s"]) for c in configs if "T_s_s" in c), None)
+    steps = np.diff(stamps) / width  # per sample [ns]: their median is the sample period the stamps show
     if T_s is None:
-        steps = np.diff(stamps) / width
         if steps.size == 0 or steps.min() <= 0:
             raise BagError(f"{path}: {full_name(namespace, currents)} stamps are not increasing sample "
                            f"instants")
@@ -262,7 +262,6 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None, T_s_so
     offsets = (stamps - epoch_ns).astype(float)
     off = np.abs(offsets - np.round(offsets / T_ns) * T_ns) > GRID_TOLERANCE * T_ns
     if off.mean() > OFF_GRID_SHARE_MAX:
-        steps = np.diff(np.sort(stamps)) / width
         shown = f"; they show {float(np.median(steps)) * 1e-9:g} s" if steps.size and np.median(steps) > 0 else ""
         raise BagError(f"{path}: {T_s_source} {T_s:g} s does not fit the recording: {off.mean():.0%} of its "
                        f"{full_name(namespace, currents)} stamps lie off that grid{shown}")

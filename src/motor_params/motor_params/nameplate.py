@@ -111,26 +111,20 @@ def nameplate_from_mapping(data, source, defaults=None, key_prefix=""):
     name = str(data.get("name", "motor"))
     if defaults is not None:
         plate = defaults._replace(**values)
-        _check_current_limit(plate, source, key_prefix)
-        return plate
-    current = values["rated_current_A"]
-    values.setdefault("current_limit_A", 1.5 * current)
-    _check_current_limit(values, source, key_prefix)
-    values.setdefault("rated_torque_Nm", 1.5 * values["n_p"] * values["psi_f_Wb"] * current)
-    values.setdefault("rated_speed_rpm", ASSUMED_RATED_SPEED_RPM)
-    values.setdefault("rated_power_W", values["rated_torque_Nm"] * values["rated_speed_rpm"] * math.pi / 30.0)
-    values.setdefault("J_kgm2", math.nan)
-    values.setdefault("B_Nms", math.nan)
-    return Nameplate(name=name, **values)
-
-
-def _check_current_limit(plate, source, key_prefix):
-    """NameplateError unless the current limit is within CURRENT_LIMIT_PER_RATED × the rated current."""
-    fields = plate if isinstance(plate, dict) else plate._asdict()
-    limit, rated = fields["current_limit_A"], fields["rated_current_A"]
-    if limit > CURRENT_LIMIT_PER_RATED * rated:
-        raise NameplateError(f"{source}: {key_prefix}current_limit_A: {limit:g} A is more than "
-                             f"{CURRENT_LIMIT_PER_RATED:g} × the rated current {rated:g} A: out of the motor's rating")
+    else:
+        current = values["rated_current_A"]
+        values.setdefault("current_limit_A", 1.5 * current)
+        values.setdefault("rated_torque_Nm", 1.5 * values["n_p"] * values["psi_f_Wb"] * current)
+        values.setdefault("rated_speed_rpm", ASSUMED_RATED_SPEED_RPM)
+        values.setdefault("rated_power_W", values["rated_torque_Nm"] * values["rated_speed_rpm"] * math.pi / 30.0)
+        values.setdefault("J_kgm2", math.nan)
+        values.setdefault("B_Nms", math.nan)
+        plate = Nameplate(name=name, **values)
+    if plate.current_limit_A > CURRENT_LIMIT_PER_RATED * plate.rated_current_A:
+        raise NameplateError(f"{source}: {key_prefix}current_limit_A: {plate.current_limit_A:g} A is more than "
+                             f"{CURRENT_LIMIT_PER_RATED:g} × the rated current {plate.rated_current_A:g} A: out of "
+                             f"the motor's rating")
+    return plate
 
 
 def contract_motor(plate):
