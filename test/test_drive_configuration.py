@@ -16,6 +16,7 @@ from drive_scenarios.scenario import ScenarioError, load_drive_configuration, lo
 
 COMMISSIONING = str(Path(__file__).resolve().parent.parent / "commissioning" / "wang_spmsm.yaml")
 DRIVE = f"""\
+format_version: 1
 description: the Wang drive, as a robot runs it
 motor: wang_spmsm
 estimator: injection_frame
@@ -44,7 +45,7 @@ def test_a_scenario_naming_a_drive_file_is_the_scenario_with_the_drive_inline(tm
     """Same samples, to the bit, as the scenario written in one file."""
     drive, experiment = files(tmp_path)
     inline = tmp_path / "inline.yaml"
-    inline.write_text(EXPERIMENT.format(duration_s=0.06).replace("drive: drive.yaml\n", DRIVE.split("\n", 1)[1]))
+    inline.write_text(EXPERIMENT.format(duration_s=0.06).replace("drive: drive.yaml\n", DRIVE.split("\n", 2)[2]))
     a, b = load_scenario(str(experiment)), load_scenario(str(inline))
     assert a.drive_file == str(drive.resolve()) and b.drive_file == ""
     assert (a.motor.nameplate, a.motor.inverter, a.motor.plant) == (b.motor.nameplate, b.motor.inverter, b.motor.plant)

@@ -28,6 +28,7 @@ from pmsm_plant.presets import plant_truth
 
 DRIVE = [sys.executable, "-m", "drive_cli.cli"]
 JOINT = """\
+format_version: 1
 name: test_joint
 description: "a 12 pole-pair, 24 V robot joint of the tests"
 nameplate:
@@ -52,6 +53,7 @@ plant:
   sensor: {noise_std_A: 0.015, adc_bits: 12, adc_range_A: 24.0}
 """
 GIMBAL = """\
+format_version: 1
 name: test_gimbal
 nameplate: {n_p: 7, R_s_ohm: 2.5, L_d_H: 1.2e-3, L_q_H: 1.2e-3, psi_f_Wb: 0.0036, rated_current_A: 1.5,
             current_limit_A: 2.2, J_kgm2: 2.0e-5, B_Nms: 2.0e-6}
@@ -315,6 +317,7 @@ def test_polarity_on_a_resistive_winding(tmp_path):
 
 
 NO_INERTIA = """\
+format_version: 1
 name: test_unknown_inertia
 description: "a robot-joint motor whose datasheet gives neither J nor B, and a flux 20 % high"
 nameplate: {n_p: 7, R_s_ohm: 0.5, L_d_H: 4.0e-4, L_q_H: 4.6e-4, psi_f_Wb: 0.0066, rated_current_A: 6.0}
@@ -376,6 +379,7 @@ def test_ours_takes_a_type_3_loop_where_acceleration_sets_its_bandwidth_and_the_
 
 
 WEAK = """\
+format_version: 1
 name: test_weak
 nameplate: {n_p: 4, R_s_ohm: 0.25, L_d_H: 0.85e-3, L_q_H: 0.9e-3, psi_f_Wb: 0.028, rated_current_A: 8.0,
             rated_speed_rpm: 3000.0, J_kgm2: 3.0e-4, B_Nms: 5.0e-5}

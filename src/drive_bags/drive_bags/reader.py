@@ -4,13 +4,16 @@ is."""
 import dataclasses
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from drive_interface.log import COLUMN, LOG_COLUMNS, fill_block, fill_sample
+from drive_interface.settings import FormatMigrated
 from drive_interface.topics import (
     BLOCK_LOGGED,
+    CONTRACT_VERSION,
     CURRENTS,
     DRIVE_CONFIG,
     HELD_LOGGED,
@@ -208,6 +211,16 @@ def bag_topics(path, namespace=None):
             raise BagError(f"{path}: {full_name(namespace, DRIVE_CONFIG)}: a message is not JSON") from None
         if isinstance(config, dict):
             configs.append(config)
+    versions = {config.get("contract_version") for config in configs}
+    newer = [v for v in versions if isinstance(v, int) and not isinstance(v, bool) and v > CONTRACT_VERSION]
+    if newer:
+        raise BagError(f"{path}: {full_name(namespace, DRIVE_CONFIG)}: contract_version {max(newer)}: a recording of "
+                       f"a newer contract than this drive reads (up to {CONTRACT_VERSION}); update the drive")
+    older = sorted("unstated" if v is None else str(v) for v in versions if v != CONTRACT_VERSION)
+    if older:
+        warnings.warn(f"{path}: {full_name(namespace, DRIVE_CONFIG)}: contract_version {', '.join(older)}, read as "
+                      f"version {CONTRACT_VERSION} (its motor a name, its missing keys from the command line)",
+                      FormatMigrated, stacklevel=2)
     return namespace, topics, configs
 
 

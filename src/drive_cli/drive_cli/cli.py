@@ -9,6 +9,7 @@ from drive_interface import interrupt
 from drive_interface.errors import DriveError
 from drive_interface.exit_codes import EXIT_READER_GONE, EXIT_REFUSED, EXIT_SIGNAL_BASE
 from drive_interface.interrupt import Interrupted
+from drive_interface.settings import show_warnings_in_one_line
 
 from . import bag, bench_drive, bench_timing, motor, replay, run, tune
 from .options import OneLineParser, os_error_line
@@ -47,6 +48,7 @@ def main(argv=None, early_signals=()):
     """Run the command ``argv``; ``early_signals``: SIGINT/SIGTERM noted before this was called (by
     drive_cli.entry), so that the command stops at once as interrupted."""
     args = build_parser().parse_args(argv)
+    show_warnings_in_one_line("drive")
     try:
         with interrupt.handled():
             if early_signals:

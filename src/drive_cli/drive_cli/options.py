@@ -18,7 +18,7 @@ from drive_interface.exit_codes import (
 )
 from drive_interface.realtime import ROBOT_RT_PRIORITY
 from drive_interface.strict_json import dumps
-from drive_scenarios.scenario import MAX_BLOCK_SAMPLES, MAX_SAMPLES, SAMPLING_PERIOD_RANGE_S, load_scenario
+from drive_scenarios.scenario import MAX_BLOCK_SAMPLES, MAX_SAMPLES, SAMPLING_PERIOD, load_scenario
 from hf_estimator.registry import estimator_names
 
 MOTOR_HELP = ("the motor in place of the scenario's: a shipped motor's name or a motor file "
@@ -153,10 +153,10 @@ def estimator_list(text):
 
 def sample_period_arg(T_s):
     """--sample-period checked against the range a scenario file's sampling_period_s has."""
-    low, high = SAMPLING_PERIOD_RANGE_S
-    if not low <= T_s <= high:
-        raise CommandLineError(f"--sample-period: must lie in [{low:g}, {high:g}] s, not {T_s!r}")
-    return T_s
+    try:
+        return SAMPLING_PERIOD.read(T_s)
+    except ValueError as error:
+        raise CommandLineError(f"--sample-period: {str(error).split(': ', 1)[1]}") from None
 
 
 def duration_arg(duration, T_s):

@@ -25,6 +25,7 @@ from .exit_codes import EXIT_NODE_FAULTS, EXIT_REFUSED
 from .graph import EXECUTORS
 from .parameter_sources import ROS_ARGS, ParameterSourceError, command_line_sources, label, unknown_parameters
 from .realtime import QUIET_TIME, add_scheduling_arguments, collect_young, collector_held, real_time_scheduled
+from .settings import show_warnings_in_one_line
 from .stamps import stamp_parts
 from .strict_json import dumps
 from .topics import TOPICS
@@ -340,6 +341,7 @@ def run_node(make_node, program, argv=None):
     from rclpy.signals import SignalHandlerOptions
     from rclpy.task import Future
 
+    show_warnings_in_one_line(program)
     argv = sys.argv[1:] if argv is None else argv
     ros_args = argv[argv.index("--ros-args"):] if "--ros-args" in argv else []
     parser = argparse.ArgumentParser(prog=program)

@@ -1,6 +1,12 @@
 """Checks of configuration values: each returns the value in its Python type or raises ValueError
-saying, in one line, what the key must be and what it was. The caller adds where it came from."""
+saying, in one line, what the key must be and what it was. The caller adds where it came from. Keys
+are declared once (Key: unit, bounds, default) and read through ``read_keys``; files carry a format
+version (``read_format_version``)."""
+import difflib
 import math
+import sys
+import warnings
+from dataclasses import dataclass
 
 
 def number(key, value, low=None, high=None, low_inclusive=False, high_inclusive=True, allow_infinite=False,
@@ -37,3 +43,113 @@ def choice(key, value, choices):
     if value not in choices:
         raise ValueError(f"{key}: must be one of {', '.join(map(str, choices))}, not {value!r}")
     return value
+
+
+REQUIRED = object()
+"""A Key's default when a file must give it."""
+
+
+@dataclass(frozen=True)
+class Key:
+    """One configuration key, declared once (docs/architecture.md "Declared keys"): its unit, its bounds,
+    whether it is whole, and its default (REQUIRED: none). Every file and node that reads the key reads it
+    through ``read``."""
+
+    name: str
+    unit: str
+    low: float = None
+    high: float = None
+    low_inclusive: bool = False
+    high_inclusive: bool = True
+    integer: bool = False
+    default: object = REQUIRED
+    doc: str = ""
+    choices: tuple = ()
+    """A key that is one of these (words, true/false) rather than a number."""
+    infinite: bool = False
+    """∞ is a value (e.g. "no limit")."""
+
+    def read(self, value):
+        """The value as its Python type (an int when ``integer``; a whole float is taken); ValueError in one
+        line naming the key, the value and the bound."""
+        if self.choices:
+            if not any(value is c or (type(value) is type(c) and value == c) for c in self.choices):
+                raise ValueError(f"{self.name}: must be one of {', '.join(map(str, self.choices))}, not {value!r}")
+            return value
+        if self.integer and isinstance(value, float) and value.is_integer():
+            value = int(value)
+        try:
+            return number(self.name, value, self.low, self.high, self.low_inclusive, self.high_inclusive,
+                          allow_infinite=self.infinite, integer=self.integer)
+        except ValueError as error:
+            raise ValueError(f"{error}{f' [{self.unit}]' if self.unit else ''}") from None
+
+    def bounds(self):
+        """The key's interval as text, e.g. "(0, 1e+04] A"."""
+        left, right = "[" if self.low_inclusive else "(", "]" if self.high_inclusive else ")"
+        low = "−∞" if self.low is None else f"{self.low:g}"
+        high = "∞" if self.high is None else f"{self.high:g}"
+        return f"{left}{low}, {high}{right}{f' {self.unit}' if self.unit else ''}"
+
+
+def read_keys(data, keys, prefix="", known_extra=()):
+    """{name: value} of the mapping ``data`` read through the declared ``keys`` (a tuple of Key), defaults
+    filled (a key whose default is None stays None when absent). ValueError in one line naming the key
+    (after ``prefix``): an unknown key (a typo: the nearest known key suggested), a missing required one,
+    or a value out of its declaration. ``known_extra``: other keys the caller reads itself."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{prefix.rstrip('.') or 'top level'}: must be a mapping of keys, not {data!r}")
+    names = [key.name for key in keys]
+    for name in sorted(set(data) - set(names) - set(known_extra), key=str):
+        near = difflib.get_close_matches(str(name), names + list(known_extra), n=1)
+        hint = f"did you mean {near[0]}?" if near else f"known: {', '.join(names + list(known_extra))}"
+        raise ValueError(f"{prefix}{name}: unknown key ({hint})")
+    values = {}
+    for key in keys:
+        if key.name not in data:
+            if key.default is REQUIRED:
+                raise ValueError(f"{prefix}{key.name}: missing ({key.doc or key.bounds()})")
+            values[key.name] = key.default
+            continue
+        if data[key.name] is None and key.default is None:
+            values[key.name] = None
+            continue
+        try:
+            values[key.name] = key.read(data[key.name])
+        except ValueError as error:
+            raise ValueError(f"{prefix}{error}") from None
+    return values
+
+
+FORMAT_VERSION_KEY = "format_version"
+"""The key of a file's format version (motor, drive configuration, scenario and commissioning files)."""
+
+
+class FormatMigrated(UserWarning):
+    """A file of an older format was read as the current one (one line: the file, its version, what was
+    done)."""
+
+
+def read_format_version(data, current, what, source):
+    """The format version of the document ``data`` (a mapping) of a file of kind ``what``, whose current
+    format is ``current``: one without the key is format 0 (written before formats were versioned) and,
+    like any older one, is read as the current with a FormatMigrated warning; ValueError in one line for
+    a version not a whole number, or newer than ``current``. ``source`` names the file in the warning."""
+    version = data.get(FORMAT_VERSION_KEY, 0)
+    if isinstance(version, bool) or not isinstance(version, int) or version < 0:
+        raise ValueError(f"{FORMAT_VERSION_KEY}: must be a whole number (this drive writes {current}), not {version!r}")
+    if version > current:
+        raise ValueError(f"{FORMAT_VERSION_KEY}: {version}: a {what} of a newer format than this drive reads "
+                         f"(up to {current}); update the drive")
+    if version < current:
+        written = "without format_version" if version == 0 else f"of format {version}"
+        warnings.warn(f"{source}: a {what} {written}, read as format {current} (nothing in it changed meaning; add "
+                      f"`{FORMAT_VERSION_KEY}: {current}`)", FormatMigrated, stacklevel=2)
+    return version
+
+
+def show_warnings_in_one_line(program):
+    """Print FormatMigrated and other warnings of the drive as one line on stderr, "PROGRAM: warning: …"."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        print(f"{program}: warning: {message}", file=sys.stderr if file is None else file)
+    warnings.showwarning = show

@@ -16,6 +16,7 @@ import numpy as np
 import yaml
 
 from drive_interface.errors import DriveError
+from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys
 from motor_params.commissioning import NAMEPLATE_ONLY
 from motor_params.motor_file import Motor, MotorFileError, load_motor, motor_from_mapping
 
@@ -27,7 +28,10 @@ TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sam
             "drive"}
 DRIVE_KEYS = ("motor", "estimator", "injection", "commissioning", "controller", "sampling_period_s", "block_samples",
               "answer_periods")
-"""The drive's part of a scenario, and all a drive configuration file holds (with ``description``)."""
+"""The drive's part of a scenario, and all a drive configuration file holds (with ``description`` and
+``format_version``)."""
+DRIVE_FORMAT_VERSION = 1
+"""The drive configuration file format this drive writes and reads (docs/ros-graph.md)."""
 NO_DEVIATION = {"R_s": 1.0, "L_d": 1.0, "L_q": 1.0, "psi_f": 1.0, "J": 1.0, "friction": 1.0,
                 "sensor_gain_a": 1.0, "sensor_gain_b": 1.0, "sensor_gain_c": 1.0,
                 "sensor_offset_a": 0.0, "sensor_offset_b": 0.0, "sensor_offset_c": 0.0, "dead_time": 1.0}
@@ -41,10 +45,22 @@ take 10-60 ms)."""
 MAX_FILE_BYTES = 1 << 20
 MAX_SAMPLES = 10_000_000
 """A run's log holds 200 bytes per sample: 10 M samples are 2 GB."""
-SAMPLING_PERIOD_RANGE_S = (1e-6, 1e-2)
 MAX_TABLE_POINTS = 10_000
 MAX_SUBSTEPS = 100
 MAX_BLOCK_SAMPLES = 100
+DRIVE_VALUE_KEYS = (
+    Key("sampling_period_s", "s", 1e-6, 1e-2, low_inclusive=True),
+    Key("block_samples", "samples", 1, MAX_BLOCK_SAMPLES, low_inclusive=True, integer=True, default=1),
+    Key("answer_periods", "periods", 0, MAX_BLOCK_SAMPLES + 1, low_inclusive=True, integer=True, default=0,
+        doc="0: the inverter's own delay"),
+)
+"""The drive's numbers in a scenario or drive configuration, declared once (drive_interface.settings.Key)."""
+SAMPLING_PERIOD = DRIVE_VALUE_KEYS[0]
+INJECTION_KEYS = (
+    Key("frequency_Hz", "Hz", 0.0, default=None),
+    Key("amplitude_V", "V", 0.0, default=None),
+)
+"""``injection:`` of a scenario or drive configuration (unset: the estimator's own)."""
 
 
 class ScenarioError(DriveError):
@@ -270,9 +286,14 @@ def with_drive(scenario, drive):
         answer_periods=drive.answer_periods, drive_file=drive.drive_file)
 
 
-def _refuse_experiment_keys(data, fail):
-    """``fail`` on the first key of a drive configuration's document that is not a drive key."""
-    for key in sorted(set(data) - set(DRIVE_KEYS) - {"description"}, key=str):
+def _refuse_experiment_keys(data, fail, source):
+    """``fail`` on the first key of a drive configuration's document that is not a drive key, or on its
+    format version (read_format_version)."""
+    try:
+        read_format_version(data, DRIVE_FORMAT_VERSION, "drive configuration", source)
+    except ValueError as error:
+        raise ScenarioError(f"{source}: {error}") from None
+    for key in sorted(set(data) - set(DRIVE_KEYS) - {"description", FORMAT_VERSION_KEY}, key=str):
         fail(key, f"not a drive key (a drive configuration holds {', '.join(DRIVE_KEYS)}; the experiment "
                   f"belongs to a scenario)")
 
@@ -294,35 +315,40 @@ def _drive_part(data, source, fail):
 
     def fail_in_drive(key, problem):
         raise ScenarioError(f"{file}: {key}: {problem}")
-    _refuse_experiment_keys(drive, fail_in_drive)
-    for key in sorted(set(drive) & set(data) - {"description"}, key=str):
+    _refuse_experiment_keys(drive, fail_in_drive, str(file))
+    for key in sorted(set(drive) & set(data) - {"description", FORMAT_VERSION_KEY}, key=str):
         fail(key, f"given here and in the drive configuration {file}: one place only")
     for key in ("motor", "commissioning"):
         value = drive.get(key)
         if isinstance(value, str) and not Path(value).is_absolute() and (file.parent / value).is_file():
             drive[key] = str(file.parent / value)
-    merged = {**{k: v for k, v in drive.items() if k != "description"}, **data}
+    given = {k: v for k, v in drive.items() if k not in ("description", FORMAT_VERSION_KEY)}
+    merged = {**given, **data}
     del merged["drive"]
-    return merged, str(file.resolve())
+    return merged, str(file.resolve()), set(given)
 
 
 def parse_scenario(data, name, source, estimator_override=None, override_source="estimator override",
                    motor_override=None, motor_source="motor override", drive_only=False):
     """A Scenario from a scenario file's document (or, ``drive_only``, a drive configuration's: DRIVE_KEYS
-    and no experiment); ScenarioError names ``source`` and the key."""
+    and no experiment); ScenarioError names ``source`` and the key, or the drive configuration file
+    (``drive: FILE``) a drive key came from."""
+    origin = {}
+
     def fail(key, problem):
-        raise ScenarioError(f"{source}: {key}: {problem}")
+        raise ScenarioError(f"{origin.get(key.split('.')[0], source)}: {key}: {problem}")
 
     if not isinstance(data, dict):
         raise ScenarioError(f"{source}: top level must be a mapping of keys")
     drive_file = source if drive_only else ""
     if drive_only:
-        _refuse_experiment_keys(data, fail)
+        _refuse_experiment_keys(data, fail, source)
     else:
         for key in sorted(set(data) - TOP_KEYS, key=str):
             fail(key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
         if "drive" in data:
-            data, drive_file = _drive_part(data, source, fail)
+            data, drive_file, from_drive = _drive_part(data, source, fail)
+            origin.update({key: drive_file for key in from_drive})
     required = ("motor", "estimator", "sampling_period_s") if drive_only else \
         ("motor", "estimator", "duration_s", "sampling_period_s", "speed")
     for key in required:
@@ -332,8 +358,8 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     for key in ("initial", "metrics", "controller", "injection", "non_idealities"):
         if data.get(key) is not None and not isinstance(data[key], dict):
             fail(key, "must be a mapping of keys")
-    motor = _motor(motor_override or data["motor"], motor_source if motor_override else f"{source}: motor", source,
-                   from_file=not motor_override)
+    motor = _motor(motor_override or data["motor"], motor_source if motor_override else
+                   f"{origin.get('motor', source)}: motor", origin.get("motor", source), from_file=not motor_override)
 
     estimator_spec = data["estimator"]
     if isinstance(estimator_spec, str):
@@ -347,7 +373,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
             fail(f"estimator.{key}", "unknown key (known: type, settings)")
     else:
         fail("estimator", "must be a name or a mapping with 'type' (and optional 'settings')")
-    estimator_source = f"{source}: estimator"
+    estimator_source = f"{origin.get('estimator', source)}: estimator"
     if estimator_override:
         estimator, settings = estimator_override, (settings if estimator_override == estimator else {})
         estimator_source = override_source
@@ -355,15 +381,11 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     injection = data.get("injection", {}) or {}
     if not isinstance(injection, dict):
         fail("injection", "must be a mapping with frequency_Hz and amplitude_V")
-    for key in sorted(set(injection) - {"frequency_Hz", "amplitude_V"}, key=str):
-        fail(f"injection.{key}", "unknown key (known: frequency_Hz, amplitude_V)")
-    injection = {key: _positive(value, f"injection.{key}", fail) for key, value in injection.items()}
+    drive_values = _drive_values(data, injection, fail)
+    injection = {key: drive_values[f"injection.{key}"] for key in injection}
 
     duration = math.inf if drive_only else _positive(data["duration_s"], "duration_s", fail)
-    T_s = _positive(data["sampling_period_s"], "sampling_period_s", fail)
-    low, high = SAMPLING_PERIOD_RANGE_S
-    if not low <= T_s <= high:
-        fail("sampling_period_s", f"must lie in [{low:g}, {high:g}] s, not {T_s!r}")
+    T_s = drive_values["sampling_period_s"]
     if not drive_only and T_s > duration:
         fail("sampling_period_s", f"{T_s} s is longer than duration_s {duration} s")
     if not drive_only and duration / T_s > MAX_SAMPLES:
@@ -416,15 +438,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     substeps = data.get("substeps", 1)
     if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= MAX_SUBSTEPS:
         fail("substeps", f"must be a whole number from 1 to {MAX_SUBSTEPS}, not {substeps!r}")
-    block_samples = data.get("block_samples", 1)
-    if isinstance(block_samples, bool) or not isinstance(block_samples, int) or \
-            not 1 <= block_samples <= MAX_BLOCK_SAMPLES:
-        fail("block_samples", f"must be a whole number from 1 to {MAX_BLOCK_SAMPLES}, not {block_samples!r}")
-    answer_periods = data.get("answer_periods", 0)
-    if isinstance(answer_periods, bool) or not isinstance(answer_periods, int) or \
-            not 0 <= answer_periods <= MAX_BLOCK_SAMPLES + 1:
-        fail("answer_periods", f"must be a whole number from 0 (the inverter's own) to {MAX_BLOCK_SAMPLES + 1}, "
-                               f"not {answer_periods!r}")
+    block_samples, answer_periods = drive_values["block_samples"], drive_values["answer_periods"]
     seed = data.get("seed", 1)
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 63:
         fail("seed", f"must be a whole number from 0 to 2⁶³ − 1, not {seed!r}")
@@ -444,8 +458,9 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     commissioning = data.get("commissioning", "")
     if not isinstance(commissioning, str):
         fail("commissioning", f"must be a file path or '{NAMEPLATE_ONLY}', not {commissioning!r}")
-    if commissioning and commissioning != NAMEPLATE_ONLY and source.endswith((".yaml", ".yml")):
-        commissioning = str(Path(source).parent / commissioning)
+    commissioning_source = origin.get("commissioning", source)
+    if commissioning and commissioning != NAMEPLATE_ONLY and commissioning_source.endswith((".yaml", ".yml")):
+        commissioning = str(Path(commissioning_source).parent / commissioning)
 
     return Scenario(
         name=name, source=source, description=description, motor=motor,
@@ -458,6 +473,20 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         commissioning=commissioning, estimator_source=estimator_source, brake=brake, brake_release_s=brake_release,
         torque_feedforward=feedforward, block_samples=block_samples, answer_periods=answer_periods,
         drive_file=drive_file)
+
+
+def _drive_values(data, injection, fail):
+    """The drive's numbers of a scenario or drive configuration, read through DRIVE_VALUE_KEYS: {key:
+    value}, the injection's as ``injection.KEY`` (None where not given)."""
+    try:
+        values = read_keys({key: data[key] for key in ("sampling_period_s", "block_samples", "answer_periods")
+                            if key in data}, DRIVE_VALUE_KEYS)
+        values.update({f"injection.{key}": value
+                       for key, value in read_keys(injection, INJECTION_KEYS, "injection.").items()})
+    except ValueError as error:
+        key, problem = str(error).split(": ", 1)
+        fail(key, problem)
+    return values
 
 
 def _motor(spec, label, scenario_source, from_file):

@@ -5,25 +5,28 @@ import math
 import numpy as np
 
 from control_math.filters import notch
-from drive_interface.settings import choice, flag, number, positive
+from drive_interface.settings import Key, read_keys
 
 from .control import ControllerParams
 from .tuning import SZABO_TABLE2, current_pi_gains_any_bandwidth, speed_pi_gains
 
-DEFAULTS = {
-    "gains": "rule",
-    "current_bandwidth_rad_s": 2.0 * math.pi * 250.0,
-    "current_damping": 0.8,
-    "speed_bandwidth_rad_s": 40.0,
-    "speed_to_estimator_ratio": 0.25,
-    "speed_damping": 1.0,
-    "current_limit_A": None,
-    "decoupling": True,
-    "delay_compensation": True,
-    "hf_notch_quality": 1.0,
-    "speed_filter_Hz": 100.0,
-    "speed_limit_rad_s": math.inf,
-}
+SETTINGS = (
+    Key("gains", "", choices=("rule", "szabo_table2"), default="rule"),
+    Key("current_bandwidth_rad_s", "rad/s", 0.0, default=2.0 * math.pi * 250.0),
+    Key("current_damping", "", 0.0, default=0.8),
+    Key("speed_bandwidth_rad_s", "rad/s", 0.0, default=40.0),
+    Key("speed_to_estimator_ratio", "", 0.0, 1.0, default=0.25),
+    Key("speed_damping", "", 0.0, default=1.0),
+    Key("current_limit_A", "A", 0.0, default=None, doc="at most the nameplate's current limit"),
+    Key("decoupling", "", choices=(True, False), default=True),
+    Key("delay_compensation", "", choices=(True, False), default=True),
+    Key("hf_notch_quality", "", 0.0, default=1.0),
+    Key("speed_filter_Hz", "Hz", 0.0, low_inclusive=True, default=100.0, doc="below Nyquist; 0: none"),
+    Key("speed_limit_rad_s", "rad/s", 0.0, infinite=True, default=math.inf),
+)
+"""The controller's settings (a scenario's or drive configuration's ``controller:``, the node's
+``controller.*`` parameters), each declared once (drive_interface.settings.Key)."""
+DEFAULTS = {key.name: key.default for key in SETTINGS}
 
 
 DELAY_LAG_AT_BANDWIDTH_RAD = 0.25
@@ -113,21 +116,10 @@ def check_settings(settings, T_s=None):
     if unknown:
         raise KeyError(f"controller: unknown setting(s) {', '.join(sorted(unknown))} "
                        f"(known: {', '.join(sorted(DEFAULTS))})")
-    s = {**DEFAULTS, **(settings or {})}
-    nyquist_Hz = 0.5 / T_s if T_s else None
     try:
-        choice("gains", s["gains"], ("rule", "szabo_table2"))
-        for key in ("current_bandwidth_rad_s", "current_damping", "speed_bandwidth_rad_s", "speed_damping",
-                    "hf_notch_quality"):
-            s[key] = positive(key, s[key])
-        s["speed_to_estimator_ratio"] = positive("speed_to_estimator_ratio", s["speed_to_estimator_ratio"], 1.0)
-        if s["current_limit_A"] is not None:
-            s["current_limit_A"] = positive("current_limit_A", s["current_limit_A"])
-        flag("decoupling", s["decoupling"])
-        flag("delay_compensation", s["delay_compensation"])
-        s["speed_filter_Hz"] = number("speed_filter_Hz", s["speed_filter_Hz"], 0.0, nyquist_Hz, low_inclusive=True,
-                                      high_inclusive=False)
-        s["speed_limit_rad_s"] = check_speed_limit(s["speed_limit_rad_s"])
+        s = read_keys(settings or {}, SETTINGS)
+        if T_s and s["speed_filter_Hz"] >= 0.5 / T_s:
+            raise ValueError(f"speed_filter_Hz: must lie below Nyquist, {0.5 / T_s:g} Hz, not {s['speed_filter_Hz']!r}")
     except ValueError as error:
         raise ValueError(f"controller: {error}") from None
     return s
@@ -135,7 +127,7 @@ def check_settings(settings, T_s=None):
 
 def check_speed_limit(value):
     """A speed limit must be a positive number of rad/s (∞ allowed); otherwise ValueError naming it."""
-    return positive("speed_limit_rad_s", value, allow_infinite=True)
+    return next(key for key in SETTINGS if key.name == "speed_limit_rad_s").read(value)
 
 
 def _capped_speed_bandwidth(s, estimator_bandwidth_Hz):

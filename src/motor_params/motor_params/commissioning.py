@@ -15,7 +15,7 @@ import yaml
 
 from control_math.current_sensing import CurrentCalibration
 from drive_interface.errors import DriveError
-from drive_interface.settings import number
+from drive_interface.settings import REQUIRED, Key, read_format_version, read_keys
 
 MIN_CONVERGENCE_SLOPE = 0.75
 """Sensorless operation keeps the current where a saliency tracker keeps three quarters of its loop gain
@@ -178,8 +178,23 @@ def _held_up_to(currents, values, threshold):
     return limit
 
 
-SCALARS = ("R_s_ohm", "dead_time_voltage_V", "sensor_gain_a", "sensor_gain_b", "sensor_gain_c",
-           "sensor_offset_a_A", "sensor_offset_b_A", "sensor_offset_c_A", "sensor_noise_A", "L_dh_H", "L_qh_H")
+VALUE_KEYS = (
+    Key("R_s_ohm", "Ω", 0.0),
+    Key("dead_time_voltage_V", "V", 0.0, low_inclusive=True),
+    *(Key(f"sensor_gain_{x}", "", 0.5, 2.0, low_inclusive=True) for x in "abc"),
+    *(Key(f"sensor_offset_{x}_A", "A") for x in "abc"),
+    Key("sensor_noise_A", "A", 0.0, low_inclusive=True),
+    Key("L_dh_H", "H", 0.0),
+    Key("L_qh_H", "H", 0.0),
+    Key("psi_f_Wb", "Wb", 0.0, default=math.nan, doc="the rotating test's"),
+    Key("J_kgm2", "kg·m²", 0.0, default=math.nan, doc="the rotating test's"),
+    Key("loaded_test_frequency_Hz", "Hz", 0.0, default=math.nan, doc="the loaded test's"),
+    Key("loaded_test_amplitude_V", "V", 0.0, default=math.nan, doc="the loaded test's"),
+)
+"""A commissioning file's scalar values, declared once (drive_interface.settings.Key); the tables
+(TABLES, OPTIONAL_TABLES) are lists of finite numbers of one length."""
+SCALARS = tuple(key.name for key in VALUE_KEYS if key.default is REQUIRED)
+"""The values every commissioning file holds (the standstill test's)."""
 TABLES = ("saliency_shift_i_q_A", "saliency_shift_rad", "convergence_slope")
 ROTATING = ("psi_f_Wb", "J_kgm2")
 """Values only the rotating test measures: optional in a file (a shaft that cannot turn)."""
@@ -189,11 +204,13 @@ OPTIONAL_TABLES = ("saliency_ratio", "estimator_shift_rad")
 """Tables a file written before they were measured lacks (estimator_shift_rad: the loaded test's)."""
 
 
-SCALAR_RANGES = {"R_s_ohm": (0.0, None, False), "dead_time_voltage_V": (0.0, None, True),
-                 "L_dh_H": (0.0, None, False), "L_qh_H": (0.0, None, False), "sensor_noise_A": (0.0, None, True),
-                 **{f"sensor_gain_{x}": (0.5, 2.0, True) for x in "abc"},
-                 **{f"sensor_offset_{x}_A": (None, None, False) for x in "abc"}}
-"""(low, high, low inclusive) of each scalar (drive_interface.settings.number); None: open."""
+DOCUMENT_KEYS = ("format_version", "motor", "method", "date", "conditions", "values", "source")
+"""A commissioning file's top-level keys (``source``: a recording's record of one)."""
+FORMAT_VERSION = 1
+"""The commissioning file format this drive writes and reads (docs/commissioning.md)."""
+SALIENCY_SIGN_RATIO = 0.05
+"""A nameplate whose |L_q − L_d|/(L_q + L_d) reaches this states which axis has the larger inductance: a
+commissioning file saying the other (L_dh and L_qh swapped) contradicts it and is refused."""
 
 
 def nameplate_commissioning(plate):
@@ -225,6 +242,14 @@ def resolve_commissioning(plate, given="", label="commissioning"):
         raise CommissioningError(f"{label}: {error}") from None
     if metadata.get("motor") not in (None, plate.name):
         raise CommissioningError(f"{label}: {path} is for motor {metadata['motor']}, this drive's is {plate.name}")
+    told_saliency = (plate.L_q_H - plate.L_d_H) / (plate.L_q_H + plate.L_d_H)
+    measured_saliency = commissioning.L_qh_H - commissioning.L_dh_H
+    if abs(told_saliency) >= SALIENCY_SIGN_RATIO and told_saliency * measured_saliency < 0.0:
+        larger = "d" if measured_saliency < 0 else "q"
+        raise CommissioningError(f"{label}: {path}: values.L_dh_H, values.L_qh_H: {commissioning.L_dh_H:.4g} H and "
+                                 f"{commissioning.L_qh_H:.4g} H say the {larger} axis has the larger inductance; "
+                                 f"the nameplate's L_d_H {plate.L_d_H:.4g} H and L_q_H "
+                                 f"{plate.L_q_H:.4g} H say the other: swapped? Commission again (`drive commission`)")
     for key, told, tolerance in (("L_dh_H", plate.L_d_H, INDUCTANCE_TOLERANCE),
                                  ("L_qh_H", plate.L_q_H, INDUCTANCE_TOLERANCE),
                                  ("R_s_ohm", plate.R_s_ohm, RESISTANCE_TOLERANCE)):
@@ -250,8 +275,9 @@ def commissioning_values(commissioning):
 def save_commissioning(path, commissioning, motor, method, conditions=None):
     """Write ``commissioning`` to the YAML file at ``path`` (floats written exactly), whole or not at all: a
     temporary file beside it, renamed over it once written; returns the path."""
-    document = {"motor": motor, "method": method, "date": datetime.date.today().isoformat(),
-                "conditions": dict(conditions or {}), "values": commissioning_values(commissioning)}
+    document = {"format_version": FORMAT_VERSION, "motor": motor, "method": method,
+                "date": datetime.date.today().isoformat(), "conditions": dict(conditions or {}),
+                "values": commissioning_values(commissioning)}
     path = Path(path)
     writing = path.with_name(f".{path.name}.writing")
     try:
@@ -299,18 +325,17 @@ def commissioning_from_document(document, path):
     if not isinstance(document, dict) or not isinstance(document.get("values"), dict):
         raise CommissioningError(f"{path}: values: missing (a mapping of the measured quantities)")
     values = document["values"]
-    parsed = {}
-    for key in SCALARS:
-        value = values.get(key)
-        if value is None:
-            raise CommissioningError(f"{path}: values.{key}: missing (a file written before the drive measured "
-                                     f"it: run `drive commission` again)")
-        low, high, low_inclusive = SCALAR_RANGES[key]
-        try:
-            number(key, value, low, high, low_inclusive=low_inclusive)
-        except ValueError as error:
-            raise CommissioningError(f"{path}: values.{error}") from None
-        parsed[key] = float(value)
+    missing = [key for key in SCALARS if key not in values]
+    if missing:
+        raise CommissioningError(f"{path}: values.{missing[0]}: missing (a file written before the drive measured "
+                                 f"it: run `drive commission` again)")
+    try:
+        read_keys(document, (), known_extra=DOCUMENT_KEYS)
+        if "source" not in document:
+            read_format_version(document, FORMAT_VERSION, "commissioning file", path)
+        parsed = read_keys(values, VALUE_KEYS, "values.", known_extra=TABLES + OPTIONAL_TABLES)
+    except ValueError as error:
+        raise CommissioningError(f"{path}: {error}") from None
     lengths = set()
     for key in TABLES + OPTIONAL_TABLES:
         table = values.get(key)
@@ -326,13 +351,7 @@ def commissioning_from_document(document, path):
                                  f"equal, non-zero length")
     if np.any(np.diff(parsed["saliency_shift_i_q_A"]) <= 0.0):
         raise CommissioningError(f"{path}: values.saliency_shift_i_q_A: must be ascending")
-    for key in ROTATING + LOADED:
-        if values.get(key) is not None:
-            try:
-                parsed[key] = float(number(key, values[key], 0.0))
-            except ValueError as error:
-                raise CommissioningError(f"{path}: values.{error}") from None
-    if ("estimator_shift_rad" in parsed) != all(key in parsed for key in LOADED):
+    if ("estimator_shift_rad" in parsed) != all(math.isfinite(parsed[key]) for key in LOADED):
         raise CommissioningError(f"{path}: values: estimator_shift_rad, {', '.join(LOADED)}: the loaded test's "
                                  f"result and its conditions go together (give all or none)")
     metadata = {key: value for key, value in document.items() if key != "values"}

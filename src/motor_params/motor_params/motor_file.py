@@ -12,13 +12,22 @@ from pathlib import Path
 import yaml
 
 from drive_interface.errors import DriveError
+from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys
 
 from .nameplate import InverterRating, Nameplate, NameplateError, nameplate_from_mapping
 
 MOTOR_DIR = Path(__file__).parent / "motors"
 MAX_FILE_BYTES = 1 << 20
-TOP_KEYS = ("name", "description", "nameplate", "inverter", "plant")
-INVERTER_KEYS = ("U_dc_V", "delay_periods")
+TOP_KEYS = ("format_version", "name", "description", "nameplate", "inverter", "plant")
+FORMAT_VERSION = 1
+"""The motor file format this drive writes and reads (docs/motors-and-control.md "Motor files")."""
+INVERTER_KEYS = (
+    Key("U_dc_V", "V", 0.0, 1e5, doc="the DC-link voltage"),
+    Key("delay_periods", "periods", 0, 2, low_inclusive=True, integer=True, default=1),
+    Key("current_rating_A", "A", 0.0, 1e4, default=math.inf,
+        doc="the inverter's peak phase current; the current limit stays within it"),
+)
+"""The inverter section's keys, declared once (drive_interface.settings.Key)."""
 
 
 BUS_PER_RATED_SPEED_NEED = 20.0
@@ -93,19 +102,25 @@ def load_motor(name_or_path, source="motor"):
         raise MotorFileError(f"{source}: {path}: cannot be read ({error.strerror})") from None
     except (UnicodeDecodeError, yaml.YAMLError, RecursionError) as error:
         raise MotorFileError(f"{source}: {path}: not a YAML motor file ({str(error).splitlines()[0]})") from None
-    return motor_from_mapping(data, f"{source}: {path}", default_name=path.stem, path=str(path), given_by=source)
+    return motor_from_mapping(data, f"{source}: {path}", default_name=path.stem, path=str(path), given_by=source,
+                              whole_file=True)
 
 
-def motor_from_mapping(data, source, default_name="motor", path="", given_by=None):
+def motor_from_mapping(data, source, default_name="motor", path="", given_by=None, whole_file=False):
     """A Motor from a motor file's document (TOP_KEYS); MotorFileError names ``source`` and the key.
-    ``given_by``: where the drive was told of it (default: ``source``)."""
+    ``given_by``: where the drive was told of it (default: ``source``). A ``whole_file`` says its format
+    version (read_format_version); a mapping inside a scenario is of the scenario's format."""
     def fail(key, problem):
         raise MotorFileError(f"{source}: {key}: {problem}")
 
     if not isinstance(data, dict):
         raise MotorFileError(f"{source}: a motor file is a mapping of keys ({', '.join(TOP_KEYS)})")
-    for key in sorted(set(data) - set(TOP_KEYS), key=str):
-        fail(key, f"unknown key (known: {', '.join(TOP_KEYS)})")
+    try:
+        read_keys(data, (), known_extra=TOP_KEYS)
+        if whole_file or FORMAT_VERSION_KEY in data:
+            read_format_version(data, FORMAT_VERSION, "motor file", source)
+    except ValueError as error:
+        raise MotorFileError(f"{source}: {error}") from None
     for key in ("nameplate", "inverter"):
         if not isinstance(data.get(key), dict):
             fail(key, "missing, or not a mapping of keys (`drive motor template` shows one)")
@@ -113,32 +128,28 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
     if not isinstance(name, str) or not name or "/" in name or not name.isprintable() or len(name) > 100:
         fail("name", f"must be a word (it names the default commissioning file), not {name!r}")
     plate_data = dict(data["nameplate"])
-    for key in sorted(set(plate_data) - set(Nameplate._fields[1:]), key=str):
-        fail(f"nameplate.{key}", f"unknown key (known: {', '.join(Nameplate._fields[1:])})")
     try:
+        read_keys(plate_data, (), "nameplate.", known_extra=Nameplate._fields[1:])
         plate = nameplate_from_mapping({**plate_data, "name": name}, source, key_prefix="nameplate.")
+        inverter = InverterRating(**read_keys(data["inverter"], INVERTER_KEYS, "inverter."))
     except NameplateError as error:
         raise MotorFileError(str(error)) from None
-    inverter = data["inverter"]
-    for key in sorted(set(inverter) - set(INVERTER_KEYS), key=str):
-        fail(f"inverter.{key}", f"unknown key (known: {', '.join(INVERTER_KEYS)})")
-    U_dc = inverter.get("U_dc_V")
-    if isinstance(U_dc, bool) or not isinstance(U_dc, (int, float)) or not math.isfinite(U_dc) or U_dc <= 0.0:
-        fail("inverter.U_dc_V", f"the DC-link voltage must be a positive number [V], not {U_dc!r}")
+    except ValueError as error:
+        raise MotorFileError(f"{source}: {error}") from None
     needed = rated_speed_bus_V(plate)
-    if U_dc > BUS_PER_RATED_SPEED_NEED * needed:
-        fail("inverter.U_dc_V", f"{U_dc:g} V is more than {BUS_PER_RATED_SPEED_NEED:g} × the {needed:.3g} V the "
-                                f"rated speed needs (√3·ω_e·ψ_f): not this motor's bus")
-    delay = inverter.get("delay_periods", 1)
-    if isinstance(delay, bool) or not isinstance(delay, int) or not 0 <= delay <= 2:
-        fail("inverter.delay_periods", f"must be 0, 1 or 2 (periods from sample to applied command), not {delay!r}")
+    if inverter.U_dc_V > BUS_PER_RATED_SPEED_NEED * needed:
+        fail("inverter.U_dc_V", f"{inverter.U_dc_V:g} V is more than {BUS_PER_RATED_SPEED_NEED:g} × the {needed:.3g} V "
+                                f"the rated speed needs (√3·ω_e·ψ_f): not this motor's bus")
+    if plate.current_limit_A > inverter.current_rating_A:
+        fail("nameplate.current_limit_A", f"{plate.current_limit_A:g} A is more than the inverter's rating "
+                                          f"(inverter.current_rating_A {inverter.current_rating_A:g} A)")
     plant = data.get("plant") or {}
     if not isinstance(plant, dict):
         fail("plant", "must be a mapping of the simulated motor's truth")
     description = data.get("description", "")
     if not isinstance(description, str):
         fail("description", f"must be text, not {description!r}")
-    return Motor(name, plate, InverterRating(float(U_dc), delay), plant, path or source, description,
+    return Motor(name, plate, inverter, plant, path or source, description,
                  source if given_by is None else given_by)
 
 
@@ -179,6 +190,7 @@ TEMPLATE = """\
 # A motor file (docs/motors-and-control.md "Motor files"). SI units in every key.
 # Use it wherever a motor is named: `drive run SCENARIO --motor my_motor.yaml`, `drive commission`,
 # `drive bench startup --motor`, `drive tune`, replay's --motor, and the nodes' `motor_file` parameter.
+format_version: 1         # the motor file format this file is written in
 name: my_motor            # names the default commissioning file, commissioning/my_motor.yaml
 description: "A 24 V robot-joint PMSM"
 
@@ -199,6 +211,7 @@ nameplate:                # what the datasheet says (the drive is told these, no
 inverter:
   U_dc_V: 24.0            # DC-link voltage
   delay_periods: 1        # [1] periods from sampling to the command acting
+  current_rating_A: 20.0  # [not stated] the inverter's peak phase current: the current limit stays within it
 
 # Optional, simulation only: the simulated motor's truth (the drive never reads it).
 # plant:

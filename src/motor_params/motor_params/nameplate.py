@@ -3,6 +3,8 @@ and the drive's own inverter rating. Estimators and the controller read these, n
 import math
 from typing import NamedTuple
 
+from drive_interface.settings import REQUIRED, Key, read_keys
+
 
 class Nameplate(NamedTuple):
     """Motor data from the datasheet, linear model, SI units."""
@@ -33,6 +35,8 @@ class InverterRating(NamedTuple):
     U_dc_V: float
     delay_periods: int
     """1: a command computed from sample k is applied during period k+1."""
+    current_rating_A: float = math.inf
+    """The inverter's peak phase current (∞: not stated); a motor's current limit stays within it."""
 
 
 TRIP_PER_CURRENT_LIMIT = 3.0
@@ -44,31 +48,32 @@ def trip_current_A(plate):
     return TRIP_PER_CURRENT_LIMIT * plate.current_limit_A
 
 
-NAMEPLATE_REQUIRED = ("n_p", "R_s_ohm", "L_d_H", "L_q_H", "psi_f_Wb", "rated_current_A")
-"""What a motor description must give (the contract's drive_config ``motor``); the rest of a Nameplate
-defaults as ASSUMED says."""
 ASSUMED_RATED_SPEED_RPM = 3000.0
 """A motor description without ``rated_speed_rpm`` is taken to be rated at this speed (it only sets the
 lock monitor's 2 % back-EMF margin)."""
 
 
-NAMEPLATE_RANGES = {
-    "n_p": (1, 100, "pole pairs"),
-    "R_s_ohm": (0.0, 1e3, "Ω"),
-    "L_d_H": (1e-8, 10.0, "H"),
-    "L_q_H": (1e-8, 10.0, "H"),
-    "psi_f_Wb": (1e-6, 100.0, "Wb"),
-    "rated_power_W": (1e-3, 1e7, "W"),
-    "rated_current_A": (1e-3, 1e4, "A"),
-    "rated_speed_rpm": (1.0, 1e6, "rpm"),
-    "rated_torque_Nm": (1e-7, 1e6, "N·m"),
-    "current_limit_A": (1e-3, 1e4, "A"),
-    "J_kgm2": (1e-10, 1e5, "kg·m²"),
-    "B_Nms": (0.0, 1e4, "N·m·s"),
-}
-"""Each nameplate key's physical range (low, high, unit), declared once: a value outside it is a typo or a
-unit slip, refused naming the key and the range, wherever a nameplate is read (motor files, drive
-configuration files, a bag's drive_config)."""
+NAMEPLATE_KEYS = (
+    Key("n_p", "pole pairs", 1, 100, low_inclusive=True, integer=True),
+    Key("R_s_ohm", "Ω", 0.0, 1e3, low_inclusive=True, doc="phase resistance"),
+    Key("L_d_H", "H", 1e-8, 10.0, low_inclusive=True),
+    Key("L_q_H", "H", 1e-8, 10.0, low_inclusive=True),
+    Key("psi_f_Wb", "Wb", 1e-6, 100.0, low_inclusive=True),
+    Key("rated_power_W", "W", 1e-3, 1e7, low_inclusive=True, default=None),
+    Key("rated_current_A", "A", 1e-3, 1e4, low_inclusive=True),
+    Key("rated_speed_rpm", "rpm", 1.0, 1e6, low_inclusive=True, default=None),
+    Key("rated_torque_Nm", "N·m", 1e-7, 1e6, low_inclusive=True, default=None),
+    Key("current_limit_A", "A", 1e-3, 1e4, low_inclusive=True, default=None),
+    Key("J_kgm2", "kg·m²", 1e-10, 1e5, low_inclusive=True, default=None),
+    Key("B_Nms", "N·m·s", 0.0, 1e4, low_inclusive=True, default=None),
+)
+"""Each nameplate key declared once (drive_interface.settings.Key): unit and physical range (a value
+outside it is a typo or a unit slip), required or optional (None: nameplate_from_mapping's default).
+Every reader of a nameplate reads it through these: motor files, drive configuration files, a bag's
+drive_config."""
+NAMEPLATE_REQUIRED = tuple(key.name for key in NAMEPLATE_KEYS if key.default is REQUIRED)
+"""What a motor description must give (the contract's drive_config ``motor``); the rest of a Nameplate
+defaults as nameplate_from_mapping says."""
 
 CURRENT_LIMIT_PER_RATED = 3.0
 """The current limit may be at most this many times the rated current (a drive's peak rating; beyond it
@@ -92,22 +97,13 @@ def nameplate_from_mapping(data, source, defaults=None, key_prefix=""):
     if missing:
         raise NameplateError(f"{source}: {', '.join(key_prefix + key for key in missing)}: missing (a motor needs "
                              f"{', '.join(NAMEPLATE_REQUIRED)})")
-    values = {}
-    for key in Nameplate._fields[1:]:
-        if key not in data:
-            continue
-        value = data[key]
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise NameplateError(f"{source}: {key_prefix}{key}: {value!r} is not a finite number")
-        low_ok = value >= 0.0 if key in ("R_s_ohm", "B_Nms") else value > 0.0
-        if not low_ok or (key == "n_p" and value != int(value)):
-            raise NameplateError(f"{source}: {key_prefix}{key}: {value!r} is not a {'whole ' if key == 'n_p' else ''}"
-                                 f"{'non-negative' if key in ('R_s_ohm', 'B_Nms') else 'positive'} number")
-        low, high, unit = NAMEPLATE_RANGES[key]
-        if not low <= value <= high:
-            raise NameplateError(f"{source}: {key_prefix}{key}: {value!r} lies outside {low:g} … {high:g} {unit} "
-                                 f"(a typo or a unit slip?)")
-        values[key] = int(value) if key == "n_p" else float(value)
+    known = {key.name for key in NAMEPLATE_KEYS}
+    given = {key: value for key, value in data.items() if key in known}
+    try:
+        values = {key: value for key, value in read_keys(given, NAMEPLATE_KEYS, key_prefix).items()
+                  if value is not None}
+    except ValueError as error:
+        raise NameplateError(f"{source}: {error}") from None
     name = str(data.get("name", "motor"))
     if defaults is not None:
         plate = defaults._replace(**values)
