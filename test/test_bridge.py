@@ -643,3 +643,24 @@ def test_the_drive_starts_with_its_first_command_in_time(tmp_path, first_answer,
         thread.join(2.0)
         bridge.close()
         endpoint.close()
+
+
+def test_a_can_cable_in_a_directory_too_deep_for_a_socket_path_carries_frames(tmp_path):
+    """A UNIX socket's path holds 107 bytes; a bus in a directory 300 bytes deep still carries a frame both
+    ways and leaves its directory empty when its members close."""
+    import can
+
+    from drive_bridge.can_cable import CableBus
+
+    channel = tmp_path / ("d" * 200) / "can_cable0"
+    a, b = CableBus(channel), CableBus(channel)
+    try:
+        for sender, receiver, data in ((a, b, b"\x01\x02"), (b, a, b"\x03")):
+            sender.members_at = 0.0
+            sender.send(can.Message(arbitration_id=0x123, data=data, is_extended_id=False))
+            received = receiver.recv(2.0)
+            assert received is not None and bytes(received.data) == data and received.arbitration_id == 0x123
+    finally:
+        a.shutdown()
+        b.shutdown()
+    assert list(channel.iterdir()) == []

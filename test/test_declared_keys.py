@@ -189,3 +189,17 @@ def test_a_recording_of_a_newer_contract_is_refused_and_an_older_one_read(tmp_pa
     assert configs[0]["contract_version"] == 1
     assert [str(w.message).split(": ")[-1] for w in caught if w.category is FormatMigrated] == [
         "contract_version 1, read as version 2 (its motor a name, its missing keys from the command line)"]
+
+
+def test_a_typo_in_a_scenario_or_its_drive_file_names_the_key_meant(tmp_path):
+    drive = tmp_path / "d.yaml"
+    drive.write_text("format_version: 1\nmotor: wang_spmsm\nestimator: injection_frame\nsampling_period_s: 1.0e-4\n"
+                     "comissioning: nameplate\n")
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("drive: d.yaml\nduration_s: 0.1\nspeed: {unit: rpm, points: [[0.0, 0.0]]}\n")
+    with pytest.raises(ScenarioError, match=rf"^{drive}: comissioning: unknown key \(did you mean commissioning\?\)"):
+        load_scenario(str(scenario))
+    drive.write_text(drive.read_text().replace("comissioning", "commissioning"))
+    scenario.write_text(scenario.read_text() + "duraton_s: 3\n")
+    with pytest.raises(ScenarioError, match=rf"^{scenario}: duraton_s: unknown key \(did you mean duration_s\?\)"):
+        load_scenario(str(scenario))

@@ -18,6 +18,9 @@ EXTENDED, FD, BRS = 1, 2, 4
 MEMBERS_REFRESH_S = 0.05
 """How often a member looks for members that joined or left the bus."""
 SOCKET_BUFFER_BYTES = 1 << 20
+SOCKET_PATH_MAX = 100
+"""A UNIX socket's path holds at most 107 bytes (sun_path); a member of a bus in a directory deeper than
+this is bound and reached through the directory's descriptor, /proc/self/fd/N/NAME."""
 
 
 class CableBus(can.BusABC):
@@ -29,10 +32,12 @@ class CableBus(can.BusABC):
         self.directory = str(channel)
         self.channel_info = f"cable {self.directory}"
         os.makedirs(self.directory, exist_ok=True)
-        self.path = os.path.join(self.directory, f"member-{os.getpid()}-{id(self):x}.sock")
+        self.directory_fd = os.open(self.directory, os.O_RDONLY | os.O_DIRECTORY)
+        self.name = f"member-{os.getpid()}-{id(self):x}.sock"
+        self.path = os.path.join(self.directory, self.name)
         self.socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
         self.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, SOCKET_BUFFER_BYTES)
-        self.socket.bind(self.path)
+        self.socket.bind(self._address(self.name))
         self.socket.setblocking(False)
         self.members, self.members_at = [], 0.0
         self.connected = None
@@ -41,12 +46,18 @@ class CableBus(can.BusABC):
     def fileno(self):
         return self.socket.fileno()
 
+    def _address(self, name):
+        """The address of the member socket ``name`` of this bus: its path, or one through the directory's
+        descriptor where the path is too long for a UNIX socket."""
+        path = os.path.join(self.directory, name)
+        return path if len(os.fsencode(path)) <= SOCKET_PATH_MAX else f"/proc/self/fd/{self.directory_fd}/{name}"
+
     def _peers(self):
         now = time.monotonic()
         if now - self.members_at > MEMBERS_REFRESH_S:
             self.members_at = now
-            self.members = [os.path.join(self.directory, name) for name in sorted(os.listdir(self.directory))
-                            if name.endswith(".sock") and os.path.join(self.directory, name) != self.path]
+            self.members = [self._address(name) for name in sorted(os.listdir(self.directory_fd))
+                            if name.endswith(".sock") and name != self.name]
         return self.members
 
     def send(self, msg, timeout=None):
@@ -93,6 +104,7 @@ class CableBus(can.BusABC):
             self._open = False
             self.socket.close()
             try:
-                os.unlink(self.path)
+                os.unlink(self.name, dir_fd=self.directory_fd)
             except FileNotFoundError:
                 pass
+            os.close(self.directory_fd)

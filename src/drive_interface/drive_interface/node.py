@@ -19,7 +19,7 @@ from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPo
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
 
-from drive_interface.topics import CLOCK, DIAGNOSTICS, DRIVE_CONFIG
+from drive_interface.topics import CLOCK, CONTRACT_VERSION, DIAGNOSTICS, DRIVE_CONFIG
 
 from .exit_codes import EXIT_NODE_FAULTS, EXIT_REFUSED
 from .graph import EXECUTORS
@@ -155,9 +155,10 @@ class ContractNode(Node):
         self.create_timer(float(self.get_parameter(name).value), self.periodic_status)
 
     def publish_config(self, config):
-        """drive_config: this node, its parameters (``self.parameters``), a latched error, and ``config``."""
-        config = {"node": self.get_fully_qualified_name(), "parameters": self.parameters,
-                  "error": self.health.latched, **config}
+        """drive_config: the contract's version, this node, its parameters (``self.parameters``), a latched
+        error, and ``config``."""
+        config = {"contract_version": CONTRACT_VERSION, "node": self.get_fully_qualified_name(),
+                  "parameters": self.parameters, "error": self.health.latched, **config}
         self.config_pub.publish(String(data=dumps(config)))
 
     def fault(self, kind, message):

@@ -2,7 +2,7 @@
 override parameters (``parameters.NODE_PARAMETERS``)."""
 from drive_interface.node import ContractNode, describe, stamp
 from drive_interface.parameter_sources import label
-from drive_interface.topics import BLOCK_TOPIC, CONTRACT_VERSION
+from drive_interface.topics import BLOCK_TOPIC
 from motor_params.commissioning import resolve_commissioning
 from motor_params.nameplate import contract_motor, trip_current_A
 
@@ -114,7 +114,7 @@ class ScenarioNode(ContractNode):
 
     def publish_config(self, config):
         if self.scenario:
-            config = {"contract_version": CONTRACT_VERSION, "motor": contract_motor(self.nameplate()),
+            config = {"motor": contract_motor(self.nameplate()),
                       "scenario": self.scenario.name, "n_p": self.nameplate().n_p, "T_s_s": self.T_s,
                       "block_samples": self.block_samples,
                       "command_delay_periods": self.scenario.drive_delay_periods(), **config}

@@ -293,9 +293,19 @@ def _refuse_experiment_keys(data, fail, source):
         read_format_version(data, DRIVE_FORMAT_VERSION, "drive configuration", source)
     except ValueError as error:
         raise ScenarioError(f"{source}: {error}") from None
-    for key in sorted(set(data) - set(DRIVE_KEYS) - {"description", FORMAT_VERSION_KEY}, key=str):
+    for key in sorted(set(data) & TOP_KEYS - set(DRIVE_KEYS) - {"description"}, key=str):
         fail(key, f"not a drive key (a drive configuration holds {', '.join(DRIVE_KEYS)}; the experiment "
                   f"belongs to a scenario)")
+    _refuse_unknown_keys(data, DRIVE_KEYS + ("description", FORMAT_VERSION_KEY), fail)
+
+
+def _refuse_unknown_keys(data, known, fail):
+    """``fail`` on the first key of ``data`` not in ``known``, naming the nearest known one (a typo)."""
+    try:
+        read_keys(data, (), known_extra=known)
+    except ValueError as error:
+        key, problem = str(error).split(": ", 1)
+        fail(key, problem)
 
 
 def _drive_part(data, source, fail):
@@ -344,8 +354,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     if drive_only:
         _refuse_experiment_keys(data, fail, source)
     else:
-        for key in sorted(set(data) - TOP_KEYS, key=str):
-            fail(key, f"unknown key (known: {', '.join(sorted(TOP_KEYS))})")
+        _refuse_unknown_keys(data, tuple(sorted(TOP_KEYS)), fail)
         if "drive" in data:
             data, drive_file, from_drive = _drive_part(data, source, fail)
             origin.update({key: drive_file for key in from_drive})
