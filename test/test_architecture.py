@@ -263,3 +263,29 @@ def test_ruff_is_clean():
     out = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "."], cwd=ROOT, capture_output=True,
                          text=True)
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+def _commands(parser, words):
+    """Every leaf command of the `drive` parser, as its words."""
+    import argparse
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _commands(sub, words + [name])
+            return
+    yield words
+
+
+def test_every_command_is_on_the_commands_page_and_the_readme_stays_short():
+    """docs/commands.md lists every subcommand the parser has (in a row of its group); README.md, the front
+    door, stays within 10,000 bytes and links to the page."""
+    from drive_cli.cli import build_parser
+    rows = [line for line in (ROOT / "docs" / "commands.md").read_text().splitlines() if line.startswith("| `drive")]
+    commands = list(_commands(build_parser(), []))
+    assert len(commands) >= 20
+    for words in commands:
+        leaf = re.escape(words[-1])
+        assert any(f"`drive {words[0]}" in row and re.search(rf"[\s`/|]{leaf}([\s`\[\]\\|]|$)", row)
+                   for row in rows), f"drive {' '.join(words)} is not on docs/commands.md"
+    readme = (ROOT / "README.md").read_bytes()
+    assert len(readme) <= 10_000 and b"docs/commands.md" in readme
