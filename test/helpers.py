@@ -60,3 +60,70 @@ class VirtualClock:
     def until(self, end_s):
         from types import SimpleNamespace
         return SimpleNamespace(is_set=lambda: self.now >= end_s)
+
+
+class HostOnAVirtualClock:
+    """A test double for a paced inverter's link and the host behind it, on a VirtualClock ``clock``: every
+    TELEMETRY or TELEMETRY_BLOCK the inverter sends is answered by ``answer(k0, n)`` → (write_s, wire_s):
+    the host writes the command (block) answering samples k0 … k0 + n − 1 write_s after the telemetry left
+    (None: never), and it reaches the inverter's thread wire_s after that (a slow link's kernel).
+    ``receive(timeout)`` hands over what has arrived by the clock plus ``timeout``, moving the clock to its
+    arrival, or moves the clock by ``timeout``: the inverter then paces itself on the virtual clock, and its
+    verdicts depend on the times the test states, never on the machine's pace. ``written_at(k)``: when the
+    host wrote the command answering sample k (NaN: not written), for VirtualInverter.hear_host_writes."""
+
+    def __init__(self, clock, answer, u_alpha_V=1.0):
+        self.clock, self.answer, self.u_alpha_V = clock, answer, u_alpha_V
+        self.pending, self.written, self.errors, self.status = [], {}, {}, {}
+        self.voltage_lsb_V = None
+
+    def send(self, message):
+        import heapq
+
+        from drive_bridge.inverter_protocol import ENABLE, Command, CommandBlock, Hello, Telemetry, TelemetryBlock
+        if isinstance(message, Hello):
+            self.voltage_lsb_V = message.voltage_lsb_V
+            return
+        if not isinstance(message, (Telemetry, TelemetryBlock)):
+            return
+        n = len(message.samples) if isinstance(message, TelemetryBlock) else 1
+        self.status.update({k: message.status for k in range(message.seq, message.seq + n)})
+        write_s, wire_s = self.answer(message.seq, n)
+        if write_s is None:
+            return
+        code = round(self.u_alpha_V / self.voltage_lsb_V)
+        written = self.clock.now + write_s
+        command = (CommandBlock(message.seq, ENABLE, ((code, 0),) * n) if isinstance(message, TelemetryBlock)
+                   else Command(message.seq, code, 0, ENABLE))
+        for k in range(message.seq, message.seq + n):
+            self.written[k] = written
+        heapq.heappush(self.pending, (written + wire_s, message.seq, command))
+
+    def receive(self, timeout_s):
+        import heapq
+        if self.pending and self.pending[0][0] <= self.clock.now + timeout_s:
+            self.clock.now = max(self.clock.now, self.pending[0][0])
+            arrived = []
+            while self.pending and self.pending[0][0] <= self.clock.now:
+                arrived.append(heapq.heappop(self.pending)[2])
+            return arrived
+        self.clock.now += timeout_s
+        return []
+
+    def written_at(self, k):
+        written = self.written.get(k, float("nan"))
+        return written if written <= self.clock.now else float("nan")
+
+
+def paced_on_a_virtual_clock(scenario, answer, rate_Hz, by_host_writes=False, **options):
+    """A VirtualInverter of ``scenario`` paced at ``rate_Hz`` on a VirtualClock behind a
+    HostOnAVirtualClock answering as ``answer`` says (``by_host_writes``: the inverter judges commands by
+    the host's write time), run to its end: (inverter, host)."""
+    from drive_bridge.virtual_inverter import VirtualInverter
+    clock = VirtualClock()
+    host = HostOnAVirtualClock(clock, answer)
+    inverter = VirtualInverter(scenario, host, rate_Hz=rate_Hz, clock=clock.monotonic, **options)
+    if by_host_writes:
+        inverter.hear_host_writes(host.written_at)
+    inverter.run()
+    return inverter, host

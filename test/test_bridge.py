@@ -15,7 +15,6 @@ from drive_bridge.inverter_protocol import (
     OVERCURRENT,
     PWM_OFF,
     WATCHDOG,
-    Command,
     CommandBlock,
     Hello,
     TelemetryBlock,
@@ -25,6 +24,7 @@ from drive_evaluation.metrics import angle_error, compute_metrics
 from drive_runner.bridge_loop import run_through_bridge
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import Table, load_scenario
+from helpers import paced_on_a_virtual_clock
 
 SCENARIO = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.6)
 CLEAN = ("dropped", "duplicated", "reordered", "link_lost", "bus_off", "safe_state", "command_errors",
@@ -205,107 +205,59 @@ def test_a_can_inverter_off_the_bus_and_back():
     assert np.abs(angle_error(result.log, result.n_p)[4000:]).max() < 0.2
 
 
-def test_a_paced_inverter_counts_late_commands_as_zero_volts(tmp_path):
-    """On its own 50 Hz clock (20 ms periods, far above a loaded machine's scheduling jitter) the
-    inverter never waits: every 4th command is sent 1.25 periods after its telemetry and counts as
-    missing (zero volts that period; the last, answering sample 39, would act after the run), with its
-    latency in the histogram's bins beyond one period; the others arrive within their period. The
-    watchdog (10 missing in a row) does not trip on isolated late commands."""
+def test_a_paced_inverter_counts_late_commands_as_zero_volts():
+    """On its own 50 Hz clock (a virtual one: HostOnAVirtualClock) the inverter never waits: every 4th
+    command is written 1.25 periods after its telemetry and counts as missing (zero volts that period; the
+    last, answering sample 39, would act after the run), with its latency in the histogram's bins beyond
+    one period; the others (written a tenth of a period after) arrive within their period. The watchdog
+    (10 missing in a row) does not trip on isolated late commands."""
     from drive_bridge.virtual_inverter import timing_report
 
     forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
-    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, forty, rate_Hz=50.0)
-    try:
-        late = []
-        while thread.is_alive():
-            for s in bridge.poll(0.01):
-                if s.k % 4 == 3:
-                    late.append(s.k)
-                    time.sleep(0.025)
-                bridge.command(s.k, 1.0, 0.0)
-        timing = timing_report(inverter, 1.0 / 50.0)
-        assert timing["periods"] == 40 and len(late) == 10
-        edges, counts = timing["latency_histogram"]["edges_periods"], timing["latency_histogram"]["counts"]
-        assert timing["missing"] == 9 and timing["late_fraction"] == 9 / 40
-        assert sum(c for e, c in zip(edges, counts) if e < 1.0) == 30
-        assert sum(c for e, c in zip(edges, counts) if e >= 1.0) == timing["late_arrivals"] >= 9
-        assert inverter.counters["watchdog_trips"] == 0
-        windows = timing["missing_runs"]["windows_monotonic_s"]
-        assert len(windows) == 9 and all(0.01 < due - sent <= 0.02 + 1e-9 for sent, due in windows)
-        assert timing_report(inverter, 1.0 / 50.0, bridge.written_at)["missing_runs_written_in_time"] == 0
-    finally:
-        inverter.stop()
-        thread.join(2.0)
-        bridge.close()
-        endpoint.close()
-
-
-class HeldBackLink:
-    """The inverter's end of a link whose kernel hands every 4th command message over ``hold_s`` late."""
-
-    def __init__(self, endpoint, hold_s):
-        self.endpoint, self.hold_s = endpoint, hold_s
-        self.pending, self.commands = [], 0
-
-    def __getattr__(self, name):
-        return getattr(self.endpoint, name)
-
-    def receive(self, timeout_s):
-        until = time.monotonic() + timeout_s
-        while True:
-            for message in self.endpoint.receive(max(0.0, min(0.001, until - time.monotonic()))):
-                held = isinstance(message, Command) and self.commands % 4 == 3
-                self.commands += isinstance(message, Command)
-                self.pending.append((time.monotonic() + (self.hold_s if held else 0.0), message))
-            ready = [m for at, m in self.pending if at <= time.monotonic()]
-            if ready or time.monotonic() >= until:
-                self.pending = [(at, m) for at, m in self.pending if at > time.monotonic()]
-                return ready
+    period = 1.0 / 50.0
+    inverter, host = paced_on_a_virtual_clock(
+        forty, lambda k0, n: (1.25 * period if k0 % 4 == 3 else 0.1 * period, 0.0), 50.0)
+    timing = timing_report(inverter, period)
+    assert timing["periods"] == 40
+    edges, counts = timing["latency_histogram"]["edges_periods"], timing["latency_histogram"]["counts"]
+    assert timing["missing"] == 9 and timing["late_fraction"] == 9 / 40
+    assert sum(c for e, c in zip(edges, counts) if e < 1.0) == 30
+    assert sum(c for e, c in zip(edges, counts) if e >= 1.0) == timing["late_arrivals"] >= 9
+    assert inverter.counters["watchdog_trips"] == 0
+    windows = timing["missing_runs"]["windows_monotonic_s"]
+    assert len(windows) == 9 and all(due - sent == pytest.approx(period) for sent, due in windows)
+    assert timing_report(inverter, period, host.written_at)["missing_runs_written_in_time"] == 0
 
 
 @pytest.mark.parametrize("by_host_writes", [False, True])
-def test_a_command_written_in_time_but_read_late_is_the_links_not_the_hosts(tmp_path, by_host_writes):
-    """On a 50 Hz clock the link hands every 4th command to the inverter 25 ms late (a slow kernel worker or
-    inverter thread; the host wrote it at once), and the host itself writes every command answering a
-    sample k ≡ 1 (mod 4) 25 ms late (not yet written when their periods are decided: the runs keep NaN
-    for the write). Judged by when its thread read them, the inverter misses both kinds
+def test_a_command_written_in_time_but_read_late_is_the_links_not_the_hosts(by_host_writes):
+    """On a 50 Hz clock (a virtual one) the link hands every 4th command to the inverter 25 ms late (a slow
+    kernel worker or inverter thread; the host wrote it at once), and the host itself writes every command
+    answering a sample k ≡ 1 (mod 4) 25 ms late (not yet written when their periods are decided: the runs
+    keep NaN for the write). Judged by when its thread read them, the inverter misses both kinds
     (10 and 9: the last held-back one would act after the run). Judged as a device, by the host's write
     time plus the wire's 50 µs (``hear_host_writes``), it misses only the host's 10 and applies the
     held-back ones in their periods (``read_late``: 9)."""
     from drive_bridge.virtual_inverter import timing_report
 
     forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
-    endpoint, host_link = make_links("pty", tmp_path)
-    inverter = VirtualInverter(forty, HeldBackLink(endpoint, 0.025), rate_Hz=50.0)
-    bridge = InverterBridge(host_link, block_samples=forty.block_samples)
+    period = 1.0 / 50.0
+
+    def answer(k0, n):
+        return (0.025 if k0 % 4 == 1 else 0.1 * period), (0.025 if k0 % 4 == 3 else 0.0)
+    inverter, host = paced_on_a_virtual_clock(forty, answer, 50.0, by_host_writes=by_host_writes)
+    timing = timing_report(inverter, period, host.written_at)
+    assert timing["periods"] == 40 and inverter.counters["watchdog_trips"] == 0
     if by_host_writes:
-        inverter.hear_host_writes(bridge.written_at)
-    bridge.poll(0.0)
-    thread = threading.Thread(target=inverter.run, daemon=True)
-    thread.start()
-    try:
-        while thread.is_alive():
-            for s in bridge.poll(0.01):
-                if s.k % 4 == 1:
-                    time.sleep(0.025)
-                bridge.command(s.k, 1.0, 0.0)
-        timing = timing_report(inverter, 1.0 / 50.0, bridge.written_at)
-        assert timing["periods"] == 40 and inverter.counters["watchdog_trips"] == 0
-        if by_host_writes:
-            assert timing["in_time_by"] == "host write + wire"
-            assert timing["missing"] == 10 and timing["read_late_in_time"] == 9
-            assert timing["missing_runs_written_in_time"] == 0
-            assert all(np.isnan(run[5]) for run in inverter.missing_runs)
-            assert timing["answer_p50_us"] < 25e3 <= timing["answer_max_us"]
-        else:
-            assert timing["in_time_by"] == "inverter read" and timing["answer_p50_us"] is None
-            assert timing["missing"] == 19 and timing["read_late_in_time"] == 0
-            assert timing["missing_runs_written_in_time"] == 9
-    finally:
-        inverter.stop()
-        thread.join(2.0)
-        bridge.close()
-        endpoint.close()
+        assert timing["in_time_by"] == "host write + wire"
+        assert timing["missing"] == 10 and timing["read_late_in_time"] == 9
+        assert timing["missing_runs_written_in_time"] == 0
+        assert all(np.isnan(run[5]) for run in inverter.missing_runs)
+        assert timing["answer_p50_us"] < 25e3 <= timing["answer_max_us"]
+    else:
+        assert timing["in_time_by"] == "inverter read" and timing["answer_p50_us"] is None
+        assert timing["missing"] == 19 and timing["read_late_in_time"] == 0
+        assert timing["missing_runs_written_in_time"] == 9
 
 
 class ScriptedLink:
@@ -516,65 +468,51 @@ def test_a_block_the_simulation_sent_late_leaves_the_host_its_whole_window_and_n
     assert inverter.deadline(12) == pytest.approx(100.0 + 25e-4, abs=1e-9)
 
 
-def test_a_paced_inverter_applies_a_block_during_the_block_after_next(tmp_path):
-    """Blocks of 4 on a 50 Hz clock (a block every 80 ms; the host has 5 periods, 100 ms, from a block's
-    telemetry to the first period of its commands). The answer to block 2 comes 130 ms late: its 4
-    periods (16-19) run at zero volts, counted missing, and the telemetry of block 4, whose periods they
+def test_a_paced_inverter_applies_a_block_during_the_block_after_next():
+    """Blocks of 4 on a 50 Hz clock (a virtual one; a block every 80 ms; the host has 5 periods, 100 ms, from
+    a block's telemetry to the first period of its commands). The answer to block 2 comes 130 ms late: its
+    4 periods (16-19) run at zero volts, counted missing, and the telemetry of block 4, whose periods they
     are, says COMMAND_MISSING; every other block's commands act on time. The answers to the last two
     blocks would act after the run."""
     from drive_bridge.inverter_protocol import COMMAND_MISSING
     from drive_bridge.virtual_inverter import timing_report
 
     forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s, block_samples=4)
-    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, forty, rate_Hz=50.0)
-    try:
-        status = {}
-        while thread.is_alive():
-            for s in bridge.poll(0.01):
-                status[s.k] = s.status
-                if s.k % 4 == 3:
-                    if s.k == 11:
-                        time.sleep(0.13)
-                    bridge.command_block(s.k - 3, np.full(4, 0.5), np.zeros(4))
-        timing = timing_report(inverter, 1.0 / 50.0)
-        assert inverter.delay == 8 and timing["periods"] == 40
-        assert timing["missing"] == 4 and timing["late_arrivals"] == 1
-        assert [k for k in range(40) if status[k] & COMMAND_MISSING] == [16, 17, 18, 19]
-        assert inverter.counters["commands"] == 28 and inverter.counters["watchdog_trips"] == 0
-    finally:
-        inverter.stop()
-        thread.join(2.0)
-        bridge.close()
-        endpoint.close()
+    inverter, host = paced_on_a_virtual_clock(forty, lambda k0, n: (0.13 if k0 == 8 else 0.002, 0.0), 50.0)
+    timing = timing_report(inverter, 1.0 / 50.0)
+    assert inverter.delay == 8 and timing["periods"] == 40
+    assert timing["missing"] == 4 and timing["late_arrivals"] == 1
+    assert [k for k in range(40) if host.status[k] & COMMAND_MISSING] == [16, 17, 18, 19]
+    assert inverter.counters["commands"] == 28 and inverter.counters["watchdog_trips"] == 0
 
 
 @pytest.mark.parametrize("link", ["pty", "can"])
-def test_a_paced_inverter_in_its_own_process_keeps_its_duties(tmp_path, link):
-    """The virtual inverter as `drive launch --paced` runs it, in a process of its own (over a pty, or
-    the CAN cable between processes): the same 40 periods as above, every 4th command 1.25 periods late,
-    give the same count of missing commands in its report, with the runs of missing periods."""
+def test_the_inverter_in_its_own_process_keeps_its_duties(tmp_path, link):
+    """The virtual inverter as `drive launch --link` runs it, in a process of its own (over a pty, or the
+    CAN cable between processes), in lock-step: a host that never answers every 4th sample has those
+    periods counted missing in the process's report (9: the last would act after the run), with the runs
+    of missing periods, whatever the machine's pace (each wait ends 0.2 s after its telemetry, or at once
+    when a later command is heard)."""
     from drive_bridge.inverter_link import CanLink, SerialLink
     from drive_bridge.inverter_process import InverterProcess
     from drive_bridge.virtual_inverter import timing_report
 
     T_s = SCENARIO.T_s
     path = tmp_path / ("inverter0" if link == "pty" else "can_cable0")
-    inverter = InverterProcess({"scenario": "wang_100rpm", "duration_s": 40 * T_s}, link, path, 50.0, 1.0)
+    inverter = InverterProcess({"scenario": "wang_100rpm", "duration_s": 40 * T_s}, link, path, None, 0.2)
     host_link = SerialLink(str(path)) if link == "pty" else CanLink(str(path), 0, "cable")
     bridge = InverterBridge(host_link)
     try:
         bridge.poll(0.0)
         inverter.start()
-        seen, deadline = 0, time.monotonic() + 10.0
+        seen, deadline = 0, time.monotonic() + 60.0
         while seen < 40 and time.monotonic() < deadline:
             for s in bridge.poll(0.01):
                 seen += 1
-                if s.k % 4 == 3:
-                    time.sleep(0.025)
-                bridge.command(s.k, 1.0, 0.0)
-        time.sleep(0.05)
+                if s.k % 4 != 3:
+                    bridge.command(s.k, 1.0, 0.0)
         inverter.join(5.0)
-        timing = timing_report(inverter, 1.0 / 50.0)
+        timing = timing_report(inverter, T_s)
         assert seen == 40 and timing["periods"] == 40
         assert timing["missing"] == 9 and inverter.counters["watchdog_trips"] == 0
         assert timing["missing_runs"]["count"] == 9 and timing["missing_runs"]["longest_periods"] == 1
@@ -622,27 +560,20 @@ def test_the_can_cable_is_a_bus_between_processes_that_loses_nothing_queued(tmp_
 
 
 @pytest.mark.parametrize("first_answer, before_start, missing", [(3, 3, 0), (None, 10, 29)])
-def test_the_drive_starts_with_its_first_command_in_time(tmp_path, first_answer, before_start, missing):
-    """On its own 50 Hz clock, 40 periods: a host that answers from sample 3 on starts the drive there (the
-    3 periods before have PWM off and are not missing, no watchdog); one that never answers has the
-    watchdog's 10 periods of grace, then every period is missing and the watchdog trips."""
+def test_the_drive_starts_with_its_first_command_in_time(first_answer, before_start, missing):
+    """On its own 50 Hz clock (a virtual one), 40 periods: a host that answers from sample 3 on starts the
+    drive there (the 3 periods before have PWM off and are not missing, no watchdog); one that never answers
+    has the watchdog's 10 periods of grace, then every period is missing and the watchdog trips."""
     from drive_bridge.virtual_inverter import timing_report
 
     forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
-    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, forty, rate_Hz=50.0)
-    try:
-        while thread.is_alive():
-            for s in bridge.poll(0.01):
-                if first_answer is not None and s.k >= first_answer:
-                    bridge.command(s.k, 1.0, 0.0)
-        timing = timing_report(inverter, 1.0 / 50.0)
-        assert timing["periods_before_start"] == before_start and timing["missing"] == missing
-        assert inverter.counters["watchdog_trips"] == (missing >= inverter.watchdog_periods)
-    finally:
-        inverter.stop()
-        thread.join(2.0)
-        bridge.close()
-        endpoint.close()
+
+    def answer(k0, n):
+        return (0.002, 0.0) if first_answer is not None and k0 >= first_answer else (None, 0.0)
+    inverter, _ = paced_on_a_virtual_clock(forty, answer, 50.0)
+    timing = timing_report(inverter, 1.0 / 50.0)
+    assert timing["periods_before_start"] == before_start and timing["missing"] == missing
+    assert inverter.counters["watchdog_trips"] == (missing >= inverter.watchdog_periods)
 
 
 def test_a_can_cable_in_a_directory_too_deep_for_a_socket_path_carries_frames(tmp_path):

@@ -90,7 +90,9 @@ class VirtualInverter:
     ω_m, τ_e, τ_load and the true currents per sample for scoring."""
 
     def __init__(self, scenario, endpoint, rate_Hz=None, command_wait_s=0.5, watchdog_periods=None,
-                 trip_current_A=None, drive_id=0, faults=None, encoder=True):
+                 trip_current_A=None, drive_id=0, faults=None, encoder=True, clock=time.monotonic):
+        self.clock = clock
+        """The inverter's clock [s] (a test double's virtual clock paces it without the machine's pace)."""
         scenario = behind_an_inverter(scenario, MAX_BLOCK)
         self.plant = plant_for_scenario(scenario)
         self.speed_ref, self.tau_load = scenario.schedule()
@@ -120,7 +122,7 @@ class VirtualInverter:
         time: COMMAND_MISSING in its status."""
         self.decided = 0
         """Periods before this one have their voltage in the plant's delay line."""
-        self.last_heard = time.monotonic()
+        self.last_heard = self.clock()
         self.held_back = None
         self.commands_heard = 0
         self.commands = {}
@@ -205,7 +207,7 @@ class VirtualInverter:
         out = np.zeros((N, 10))
         self.warm_up(out)
         self.send(self.hello)
-        self.clock_start = self.last_heard = time.monotonic()
+        self.clock_start = self.last_heard = self.clock()
         hello_at = self.clock_start + 1.0
         while not self.stopped.is_set() and self.k < s.n_samples:
             k0 = self.k
@@ -217,14 +219,14 @@ class VirtualInverter:
             self.take_commands(k_last)
             if self.stopped.is_set():
                 break
-            late = time.monotonic() - (self.clock_start + k_last * period) if self.rate_Hz else 0.0
+            late = self.clock() - (self.clock_start + k_last * period) if self.rate_Hz else 0.0
             if late > period:
                 self.clock_start += late
                 self.counters["overruns"] += 1
                 late = 0.0
             self.sent_late_s[k0:k0 + n] = max(late, 0.0)
             self.send_samples(k0, n, out)
-            if time.monotonic() >= hello_at:
+            if self.clock() >= hello_at:
                 self.send(self.hello)
                 hello_at += 1.0
             self.k = k0 + n
@@ -353,7 +355,7 @@ class VirtualInverter:
             written = self.host_written_at(c)
             if math.isfinite(written):
                 self.answers_s.append(written - self.sent_at[c])
-            elif final or time.monotonic() - self.sent_at[c] > HOST_SILENCE_S:
+            elif final or self.clock() - self.sent_at[c] > HOST_SILENCE_S:
                 self.never_answered += 1
             else:
                 return
@@ -365,7 +367,7 @@ class VirtualInverter:
         simulated again from its start with zero volts there)."""
         p = self.plant
         x0 = p.x.copy()
-        if self.rate_Hz and time.monotonic() - self.last_heard > HOST_SILENCE_S and not self.latched & HEARTBEAT_LOST:
+        if self.rate_Hz and self.clock() - self.last_heard > HOST_SILENCE_S and not self.latched & HEARTBEAT_LOST:
             self.latched |= HEARTBEAT_LOST
             self.counters["host_silent_trips"] += 1
         while True:
@@ -405,13 +407,13 @@ class VirtualInverter:
         else:
             i_a, i_b, i_c, encoder = samples[0]
             message = Telemetry(k0 % 2 ** 32, i_a, i_b, i_c, u_dc, encoder, status)
-        self.sent_at[k0:k0 + n] = time.monotonic()
+        self.sent_at[k0:k0 + n] = self.clock()
         self.transmit(message, k0)
 
     def receive_until(self, until):
         """Take what the host sends until ``until`` (monotonic)."""
         while not self.stopped.is_set():
-            remaining = until - time.monotonic()
+            remaining = until - self.clock()
             if remaining <= 0.0:
                 return
             for message in self.receive(min(remaining, 0.05)):
@@ -424,10 +426,10 @@ class VirtualInverter:
         for c in samples:
             if c in self.commands or self.heard_up_to >= c or not self.arrived(c) <= self.deadline(c):
                 continue
-            until = time.monotonic() + HOST_SILENCE_S
-            while (c not in self.commands and self.heard_up_to < c and time.monotonic() < until
+            until = self.clock() + HOST_SILENCE_S
+            while (c not in self.commands and self.heard_up_to < c and self.clock() < until
                    and not self.stopped.is_set()):
-                for message in self.receive(min(until - time.monotonic(), 0.05)):
+                for message in self.receive(min(until - self.clock(), 0.05)):
                     self.handle(message)
 
     def await_commands(self, first, last):
@@ -441,16 +443,16 @@ class VirtualInverter:
             if c - c % N in self.lost_on_the_way:
                 continue
             until = self.sent_at[c] + self.command_wait_s
-            while (c not in self.commands and self.heard_up_to < c and time.monotonic() < until
+            while (c not in self.commands and self.heard_up_to < c and self.clock() < until
                    and not self.stopped.is_set()):
-                for message in self.receive(min(until - time.monotonic(), 0.05)):
+                for message in self.receive(min(until - self.clock(), 0.05)):
                     self.handle(message)
 
     def handle(self, message):
         """A message from the host: a command stored for its period with when it was read (whether in
         time is judged when its period is decided: ``in_time``; once per sample: a repeat or one for a
         period already decided is discarded), a CONTROL carried out."""
-        now = self.last_heard = time.monotonic()
+        now = self.last_heard = self.clock()
         if isinstance(message, (Command, CommandBlock)):
             if isinstance(message, Command):
                 seq, values = message.seq, ((message.u_alpha, message.u_beta),)
