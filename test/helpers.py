@@ -127,3 +127,23 @@ def paced_on_a_virtual_clock(scenario, answer, rate_Hz, by_host_writes=False, **
         inverter.hear_host_writes(host.written_at)
     inverter.run()
     return inverter, host
+
+
+def drive_in_process(argv, cwd=None):
+    """`drive ARGV` run in this process (no interpreter to start, the kernels already loaded), in ``cwd``
+    when given: an object with returncode, stdout and stderr, as subprocess.run's."""
+    import contextlib
+    import io
+    import os
+    from types import SimpleNamespace
+
+    from drive_cli.cli import main
+    out, err, before = io.StringIO(), io.StringIO(), os.getcwd()
+    try:
+        if cwd is not None:
+            os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            code = main([str(arg) for arg in argv])
+    finally:
+        os.chdir(before)
+    return SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())

@@ -2,8 +2,6 @@
 recorder on a robot would (contract v2 drive_config without a scenario, no drive_config, no ground
 truth, an unknown drive_config key, another sample period), and a corpus of them."""
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -12,9 +10,9 @@ import pytest
 from drive_interface.log import COLUMN
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario
+from helpers import drive_in_process
 from motor_params.commissioning import commissioning_record
 
-DRIVE = [sys.executable, "-m", "drive_cli.cli"]
 SCENARIO = """\
 motor: wang_spmsm
 estimator: {estimator}
@@ -100,8 +98,7 @@ def v2_config(result, estimator, **extra):
 
 
 def replay(bag, *options, cwd=None):
-    out = subprocess.run(DRIVE + ["bench", "replay", str(bag), "--json", "--no-plot", *options],
-                         capture_output=True, text=True, cwd=cwd)
+    out = drive_in_process(["bench", "replay", str(bag), "--json", "--no-plot", *options], cwd)
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     return report, {e["estimator"]: e for e in report["results"]}
@@ -138,8 +135,7 @@ def test_a_v2_bag_without_scenario_replays_ours_better_than_its_recorder(convent
     assert not results["conventional_aligned"]["applicable"]
     assert "recording estimator's axis" in results["conventional_aligned"]["reason"]
     assert results["sensored"]["applicable"] and results["sensored"]["angle_error_rms"] < 1e-9
-    out = subprocess.run(DRIVE + ["bench", "compare", str(bag), str(bag), "--json", "--no-plot"],
-                         capture_output=True, text=True)
+    out = drive_in_process(["bench", "compare", str(bag), str(bag), "--json", "--no-plot"])
     assert out.returncode == 0, out.stderr
     compared = json.loads(out.stdout)["runs"][0]
     assert compared["estimator"] == "conventional" and compared["windows"] == report["windows"]
@@ -156,8 +152,7 @@ def test_a_bag_without_drive_config_needs_and_takes_the_motor_and_sample_period(
                                                                                    "neither a shipped motor"),
                           (("--sample-period", "2e-4", "--motor", "wang_spmsm"), "--sample-period 0.0002 s does not "
                                                                                  "fit the recording")):
-        out = subprocess.run(DRIVE + ["bench", "replay", str(bag), "--no-plot", *options],
-                             capture_output=True, text=True)
+        out = drive_in_process(["bench", "replay", str(bag), "--no-plot", *options])
         assert out.returncode == 2 and out.stderr.count("\n") == 1 and says in out.stderr, out.stderr
     motor = tmp_path / "motor.yaml"
     motor.write_text(json.dumps(WANG_MOTOR))
@@ -198,9 +193,9 @@ def test_a_corpus_gives_one_summary_row_per_estimator(conventional, tmp_path):
     write_foreign_bag(corpus / "a", conventional, v2_config(conventional, "conventional"))
     write_foreign_bag(corpus / "b", conventional, v2_config(conventional, "conventional"), truth=False)
     write_foreign_bag(corpus / "c", conventional)
-    out = subprocess.run(DRIVE + ["bench", "replay", str(corpus), "--estimators",
+    out = drive_in_process(["bench", "replay", str(corpus), "--estimators",
                                   "injection_frame,conventional_aligned", "--motor", "wang_spmsm",
-                                  "--sample-period", "1e-4", "--json"], capture_output=True, text=True)
+                                  "--sample-period", "1e-4", "--json"])
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     a, b, c = report["per_bag"]
@@ -211,7 +206,7 @@ def test_a_corpus_gives_one_summary_row_per_estimator(conventional, tmp_path):
     scored = sorted(bag["results"][0]["angle_error_rms"] for bag in (a, c))
     assert ours["rms_median"] == pytest.approx(np.median(scored)) and ours["rms_worst"] == scored[-1]
     assert aligned["scored"] == 0 and aligned["not_applicable"] == 3 and aligned["rms_median"] is None
-    out = subprocess.run(DRIVE + ["bench", "replay", str(corpus / "[ab]")], capture_output=True, text=True)
+    out = drive_in_process(["bench", "replay", str(corpus / "[ab]")])
     assert out.returncode == 0 and "replay of 2 bags" in out.stdout, out.stderr
 
 
@@ -222,15 +217,14 @@ def test_a_corpus_skips_what_is_not_a_bag_and_scores_the_rest(conventional, tmp_
     write_foreign_bag(shelf / "a", conventional, v2_config(conventional, "conventional"))
     (shelf / "README.md").write_text("recordings of the left wheel\n")
     (shelf / "empty").mkdir()
-    out = subprocess.run(DRIVE + ["bench", "replay", str(shelf / "*"), "--estimators", "injection_frame", "--json"],
-                         capture_output=True, text=True)
+    out = drive_in_process(["bench", "replay", str(shelf / "*"), "--estimators", "injection_frame", "--json"])
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     assert report["bags"] == 1 and report["summary"][0]["scored"] == 1
     assert sorted(Path(s["path"]).name for s in report["skipped"]) == ["README.md", "empty"]
     lines = [line for line in out.stderr.splitlines() if line.startswith("drive: skipped")]
     assert len(lines) == 2 and any("README.md" in line for line in lines)
-    out = subprocess.run(DRIVE + ["bench", "replay", str(shelf / "[Re]*")], capture_output=True, text=True)
+    out = drive_in_process(["bench", "replay", str(shelf / "[Re]*")])
     assert out.returncode == 2 and "none of its 2 paths could be replayed" in out.stderr
 
 
@@ -304,9 +298,9 @@ def test_a_robots_recording_replays_wall_clock_jitter_lost_messages_and_a_cut(tm
     data = mcap.read_bytes()
     mcap.write_bytes(data[:int(0.7 * len(data))])
     (robot / "metadata.yaml").unlink()
-    out = subprocess.run(DRIVE + ["bench", "replay", str(robot), "--no-plot"], capture_output=True, text=True)
+    out = drive_in_process(["bench", "replay", str(robot), "--no-plot"])
     assert out.returncode == 2 and "drive bag reindex" in out.stderr and out.stderr.count("\n") == 1
-    mended = subprocess.run(DRIVE + ["bag", "reindex", str(robot)], capture_output=True, text=True)
+    mended = drive_in_process(["bag", "reindex", str(robot)])
     assert mended.returncode == 0, mended.stderr
     cut, results = replay(robot, "--estimators", "injection_frame", "--windows", "0.3:0.5")
     assert 0.5 * n < cut["samples"] < 0.75 * n
