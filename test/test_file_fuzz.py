@@ -1,0 +1,187 @@
+"""Fixed-seed fuzz of the files a user writes: motor files (mutations of the shipped ones) and drive
+configuration files (alone and named by a scenario's ``drive:``). Each case is accepted with every value in
+its declared range and as written, or refused naming the file and the key; through the command line as
+one line, exit 2, no traceback."""
+import json
+import math
+import random
+import re
+import subprocess
+import sys
+
+import pytest
+import yaml
+
+from drive_cli.cli import main
+from motor_params.motor_file import (
+    BUS_PER_RATED_SPEED_NEED,
+    MOTOR_DIR,
+    MotorFileError,
+    load_motor,
+    rated_speed_bus_V,
+)
+from motor_params.nameplate import CURRENT_LIMIT_PER_RATED, NAMEPLATE_RANGES
+from pmsm_plant.presets import plant_truth
+
+DRIVE = [sys.executable, "-m", "drive_cli"]
+NESTED = [[[[[[[[[[1.0]]]]]]]]]]
+HOSTILE = [math.nan, math.inf, -math.inf, -1.0, 0, 0.0, 1e308, 5e-324, 2 ** 70, -2 ** 70, "abc", "5", True, None,
+           [], {}, [1.0, 2.0], "a\0b", "a\nb", NESTED]
+UNKNOWN = ["R_s_Ohm", "voltage", "a\nb", "x\0y", "nameplate", 7]
+RELATED = {
+    "rated_current_A": ("nameplate.current_limit_A",),
+    "current_limit_A": ("nameplate.current_limit_A",),
+    "psi_f_Wb": ("inverter.U_dc_V",),
+    "rated_speed_rpm": ("inverter.U_dc_V",),
+    "n_p": ("inverter.U_dc_V",),
+    "L_d_H": ("plant.L_dh_H",),
+    "L_q_H": ("plant.L_qh_H",),
+    "J_kgm2": ("plant.J_kgm2",),
+}
+"""A nameplate or plant key whose change another key's rule may refuse (current limit ≤ 3 × rated, a bus ≤ 20 × what
+rated speed needs, saturation lowering the plant's inductances, a simulated shaft needing an inertia)."""
+
+
+def trails(node, trail=()):
+    """Every mapping key's path in a document (list items left alone)."""
+    for key, value in node.items():
+        yield trail + (key,)
+        if isinstance(value, dict):
+            yield from trails(value, trail + (key,))
+
+
+def at(document, trail):
+    for key in trail:
+        document = document[key]
+    return document
+
+
+def dotted(trail):
+    return ".".join(map(str, trail))
+
+
+def mutate(rng, document):
+    """One mutation of ``document`` in place: (kind, its trail, the value written or None, keys that may be
+    blamed for a refusal)."""
+    paths = list(trails(document))
+    kind = rng.choice(["hostile", "hostile", "slip", "delete", "unknown"])
+    if kind == "slip":
+        numeric = [t for t in paths if isinstance(at(document, t), (int, float)) and not isinstance(at(document, t),
+                                                                                                     bool)]
+        trail = rng.choice(numeric)
+        value = at(document, trail) * rng.choice([1000, 1e-3])
+    elif kind == "unknown":
+        parent = rng.choice([()] + [t for t in paths if isinstance(at(document, t), dict)])
+        trail, value = parent + (rng.choice(UNKNOWN),), 1.0
+    else:
+        trail = rng.choice(paths)
+        value = rng.choice(HOSTILE)
+    parent = at(document, trail[:-1])
+    if kind == "delete":
+        del parent[trail[-1]]
+        value = None
+    else:
+        parent[trail[-1]] = value
+    blamed = (dotted(trail),) + RELATED.get(trail[-1], ())
+    return kind, trail, value, blamed
+
+
+def names(message, key):
+    """``message`` names ``key`` as a whole key (not a part of a longer one)."""
+    return re.search(rf"(?<![\w.]){re.escape(key)}(?![\w])", message) is not None
+
+
+def motor_cases(seed, count):
+    """(name, motor file text, kind, trail, value, blamed) from mutations of the shipped motor files."""
+    rng = random.Random(seed)
+    shipped = {path.stem: yaml.safe_load(path.read_text()) for path in sorted(MOTOR_DIR.glob("*.yaml"))}
+    for i in range(count):
+        motor = rng.choice(sorted(shipped))
+        document = yaml.safe_load(yaml.safe_dump(shipped[motor]))
+        kind, trail, value, blamed = mutate(rng, document)
+        yield (f"{i:03d}_{motor}_{kind}", yaml.safe_dump(document, allow_unicode=True), kind, trail, value, blamed)
+
+
+def assert_accepted_as_declared(motor, kind, trail, value):
+    """Every nameplate value finite (J, B: or not known) and in its declared range, the current-limit and
+    bus rules kept, a value changed in the nameplate or inverter taken as written, the plant's truth finite."""
+    plate = motor.nameplate
+    for key, (low, high, _) in NAMEPLATE_RANGES.items():
+        v = getattr(plate, key)
+        assert (key in ("J_kgm2", "B_Nms") and math.isnan(v)) or low <= v <= high, (key, v)
+    assert isinstance(plate.n_p, int)
+    assert plate.current_limit_A <= CURRENT_LIMIT_PER_RATED * plate.rated_current_A
+    assert 0.0 < motor.inverter.U_dc_V <= BUS_PER_RATED_SPEED_NEED * rated_speed_bus_V(plate)
+    assert motor.inverter.delay_periods in (0, 1, 2)
+    if kind in ("hostile", "slip") and len(trail) == 2 and trail[0] in ("nameplate", "inverter"):
+        taken = getattr(plate if trail[0] == "nameplate" else motor.inverter, trail[1])
+        assert taken == value and type(value) is not bool, (trail, value, taken)
+    truth = plant_truth(motor)
+    for part in (truth.machine, truth.mechanics, truth.inverter, truth.sensor):
+        assert all(math.isfinite(v) for v in part), part
+
+
+def test_mutated_motor_files_are_taken_as_declared_or_refused_naming_file_and_key(tmp_path):
+    outcomes = {"accepted": 0, "refused": 0}
+    for name, text, kind, trail, value, blamed in motor_cases(20261127, 250):
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(text, encoding="utf-8")
+        try:
+            motor = load_motor(path, "--motor")
+            assert_accepted_as_declared(motor, kind, trail, value)
+            outcomes["accepted"] += 1
+        except MotorFileError as error:
+            message = str(error)
+            assert str(path) in message and "--motor" in message, (name, message)
+            assert any(names(message, key) for key in blamed), (name, blamed, message)
+            outcomes["refused"] += 1
+    assert outcomes["accepted"] > 25 and outcomes["refused"] > 125, outcomes
+
+
+BROKEN = {
+    "non_utf8": b"name: \xff\xfe joint\n",
+    "empty": b"",
+    "list": b"- 1\n- 2\n",
+    "syntax": b"nameplate: {n_p: [\n",
+    "deep": b"nameplate: " + b"[" * 1200 + b"]" * 1200 + b"\n",
+    "huge": b"# " + b"x" * (1 << 20) + b"\n",
+    "tab": b"name:\tjoint\n\tnameplate: {}\n",
+}
+
+
+@pytest.mark.parametrize("case", BROKEN)
+def test_a_broken_motor_file_is_refused_in_one_line_naming_it(tmp_path, capsys, case):
+    path = tmp_path / f"{case}.yaml"
+    path.write_bytes(BROKEN[case])
+    with pytest.raises(MotorFileError, match=re.escape(str(path))):
+        load_motor(path, "--motor")
+    assert main(["motor", "show", str(path)]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and err.count("\n") == 1 and str(path) in err, err
+
+
+def test_mutated_motor_files_through_the_command_line(tmp_path):
+    """A few cases refused by their nameplate or inverter through `drive motor show` and `drive run --motor`
+    as a user runs them: exit 2, one line naming the file and the key, no traceback; an accepted one shows
+    its nameplate as taken."""
+    refused, accepted = [], []
+    for case in motor_cases(20261128, 60):
+        name, text, kind, trail, value, blamed = case
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(text, encoding="utf-8")
+        try:
+            load_motor(path)
+            accepted.append(path)
+        except MotorFileError:
+            refused.append((path, blamed))
+    for path, blamed in refused[:2]:
+        for argv in (["motor", "show", str(path)],
+                     ["run", "wang_100rpm", "--motor", str(path), "--duration", "0.01", "--no-plot"]):
+            done = subprocess.run(DRIVE + argv, cwd=tmp_path, capture_output=True, text=True)
+            assert done.returncode == 2 and done.stdout == "", (argv, done.stderr)
+            assert done.stderr.count("\n") == 1 and str(path) in done.stderr, done.stderr
+            assert "Traceback" not in done.stderr and any(names(done.stderr, key) for key in blamed), done.stderr
+    path = accepted[0]
+    shown = subprocess.run(DRIVE + ["motor", "show", str(path), "--json"], cwd=tmp_path, capture_output=True, text=True)
+    assert shown.returncode == 0 and shown.stderr == "", shown.stderr
+    assert json.loads(shown.stdout)["nameplate"] == load_motor(path).nameplate._asdict()
