@@ -13,6 +13,7 @@ import pytest
 import yaml
 
 from drive_cli.cli import main
+from drive_scenarios.scenario import ScenarioError, load_drive_configuration
 from motor_params.motor_file import (
     BUS_PER_RATED_SPEED_NEED,
     MOTOR_DIR,
@@ -61,8 +62,8 @@ def dotted(trail):
 
 
 def mutate(rng, document):
-    """One mutation of ``document`` in place: (kind, its trail, the value written or None, keys that may be
-    blamed for a refusal)."""
+    """One mutation of ``document`` in place: (kind, its trail, the value written or None, the keys a refusal
+    may name: the key, an enclosing one, or one whose rule the change breaks)."""
     paths = list(trails(document))
     kind = rng.choice(["hostile", "hostile", "slip", "delete", "unknown"])
     if kind == "slip":
@@ -82,13 +83,13 @@ def mutate(rng, document):
         value = None
     else:
         parent[trail[-1]] = value
-    blamed = (dotted(trail),) + RELATED.get(trail[-1], ())
+    blamed = tuple(dotted(trail[:n]) for n in range(len(trail), 0, -1)) + RELATED.get(trail[-1], ())
     return kind, trail, value, blamed
 
 
 def names(message, key):
     """``message`` names ``key`` as a whole key (not a part of a longer one)."""
-    return re.search(rf"(?<![\w.]){re.escape(key)}(?![\w])", message) is not None
+    return re.search(rf"(?<![\w.]){re.escape(key)}(?![\w.])", message) is not None
 
 
 def motor_cases(seed, count):
@@ -160,6 +161,22 @@ def test_a_broken_motor_file_is_refused_in_one_line_naming_it(tmp_path, capsys, 
     assert out == "" and err.count("\n") == 1 and str(path) in err, err
 
 
+LAUGHS = "".join(f"    - &{a} [{', '.join([item] * 9)}]\n"
+                 for a, item in zip("abcde", ["x", "*a", "*b", "*c", "*d"]))
+"""Five anchors, each nine of the one before: 59049 strings where the last is named."""
+
+
+@pytest.mark.xfail(strict=True, reason="known defect: a refused value is quoted in full, however large its "
+                                       "YAML aliases make it (motor_params, drive_scenarios: {value!r})")
+def test_a_value_made_huge_by_yaml_aliases_is_refused_in_a_short_line(tmp_path, capsys):
+    path = tmp_path / "laughs.yaml"
+    path.write_text(f"plant:\n  assumptions:\n{LAUGHS}name: joint\nnameplate: {{n_p: *e, R_s_ohm: 0.3, L_d_H: 0.001, "
+                    f"L_q_H: 0.001, psi_f_Wb: 0.01, rated_current_A: 5.0}}\ninverter: {{U_dc_V: 24.0}}\n")
+    assert main(["motor", "show", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "nameplate.n_p" in err and len(err) < 1000 + len(str(path)), len(err)
+
+
 def test_mutated_motor_files_through_the_command_line(tmp_path):
     """A few cases refused by their nameplate or inverter through `drive motor show` and `drive run --motor`
     as a user runs them: exit 2, one line naming the file and the key, no traceback; an accepted one shows
@@ -185,3 +202,80 @@ def test_mutated_motor_files_through_the_command_line(tmp_path):
     shown = subprocess.run(DRIVE + ["motor", "show", str(path), "--json"], cwd=tmp_path, capture_output=True, text=True)
     assert shown.returncode == 0 and shown.stderr == "", shown.stderr
     assert json.loads(shown.stdout)["nameplate"] == load_motor(path).nameplate._asdict()
+
+
+DRIVE_FILE = {"description": "the Wang drive", "motor": "wang_spmsm",
+              "estimator": {"type": "injection_frame", "settings": {"pll_bandwidth_Hz": 18.0}},
+              "commissioning": "nameplate", "injection": {"frequency_Hz": 900.0, "amplitude_V": 5.0},
+              "sampling_period_s": 1.0e-4, "controller": {"current_limit_A": 5.0, "speed_limit_rad_s": 100.0},
+              "block_samples": 1, "answer_periods": 0}
+EXPERIMENT = {"drive": "drive.yaml", "duration_s": 0.02, "speed": {"unit": "rpm", "points": [[0.0, 0.0], [0.01, 60.0]]}}
+DRIVE_RELATED = {"sampling_period_s": ("injection.frequency_Hz",), "frequency_Hz": ("sampling_period_s",)}
+"""A drive key whose change another key's rule may refuse (the carrier below the Nyquist frequency)."""
+
+
+def drive_cases(seed, count):
+    """(name, drive configuration document, kind, trail, value, blamed) from mutations of DRIVE_FILE."""
+    rng = random.Random(seed)
+    for i in range(count):
+        document = json.loads(json.dumps(DRIVE_FILE))
+        kind, trail, value, blamed = mutate(rng, document)
+        yield f"{i:03d}_{kind}", document, kind, trail, value, blamed + DRIVE_RELATED.get(trail[-1], ())
+
+
+def as_written(scenario, document):
+    """What the scenario took of a drive configuration's keys, in the document's terms."""
+    estimator = document.get("estimator")
+    settings = estimator.get("settings") or {} if isinstance(estimator, dict) else {}
+    return {"estimator": scenario.estimator if isinstance(estimator, str) else
+            {"type": scenario.estimator, "settings": scenario.estimator_settings},
+            "injection": scenario.injection, "sampling_period_s": scenario.T_s, "controller": scenario.controller,
+            "block_samples": scenario.block_samples, "answer_periods": scenario.answer_periods}, \
+        {"estimator": estimator if isinstance(estimator, str) else {"type": estimator["type"], "settings": settings},
+         "injection": document.get("injection") or {}, "sampling_period_s": document["sampling_period_s"],
+         "controller": document.get("controller") or {}, "block_samples": document.get("block_samples", 1),
+         "answer_periods": document.get("answer_periods", 0)}
+
+
+def test_mutated_drive_configurations_are_taken_as_written_or_refused_naming_file_and_key(tmp_path):
+    outcomes = {"accepted": 0, "refused": 0}
+    for name, document, *_, blamed in drive_cases(20261127, 250):
+        path = tmp_path / f"{name}.yaml"
+        path.write_text(yaml.safe_dump(document, allow_unicode=True), encoding="utf-8")
+        try:
+            drive = load_drive_configuration(str(path), "parameter drive_configuration")
+        except ScenarioError as error:
+            message = str(error)
+            assert message.startswith("parameter drive_configuration: ") and str(path) in message, (name, message)
+            assert any(names(message, key) for key in blamed), (name, blamed, message)
+            outcomes["refused"] += 1
+            continue
+        taken, written = as_written(drive, document)
+        assert taken == written, name
+        assert drive.open_ended and drive.motor.name == "wang_spmsm"
+        outcomes["accepted"] += 1
+    assert outcomes["accepted"] > 25 and outcomes["refused"] > 125, outcomes
+
+
+@pytest.mark.xfail(strict=True, reason="known defect (issue 49): a bad value in a scenario's `drive: FILE` is "
+                                       "blamed on the scenario file, not the drive file; being fixed in main")
+def test_a_bad_value_in_a_scenarios_drive_file_is_blamed_on_the_drive_file(tmp_path):
+    """The scenario naming the mutated drive file, read and its drive built (controller and estimator
+    settings): a refusal names the drive file and the key."""
+    from drive_interface.errors import DriveError
+    from drive_runner.runner import build_drive
+    from drive_scenarios.scenario import load_scenario
+
+    blamed_elsewhere = []
+    for name, document, *_, blamed in drive_cases(20261129, 120):
+        case = tmp_path / name
+        case.mkdir()
+        (case / "drive.yaml").write_text(yaml.safe_dump(document, allow_unicode=True), encoding="utf-8")
+        (case / "experiment.yaml").write_text(yaml.safe_dump(EXPERIMENT), encoding="utf-8")
+        try:
+            build_drive(load_scenario(str(case / "experiment.yaml")))
+        except DriveError as error:
+            message = str(error)
+            if not (str(case / "drive.yaml") in message and any(names(message, key) for key in blamed)):
+                blamed_elsewhere.append((name, message))
+    assert blamed_elsewhere == []

@@ -111,7 +111,7 @@ def check_settings(settings, T_s=None):
     bounds the filter frequencies by Nyquist."""
     unknown = set(settings or {}) - set(DEFAULTS)
     if unknown:
-        raise KeyError(f"controller: unknown setting(s) {', '.join(sorted(unknown))} "
+        raise KeyError(f"controller: unknown setting(s) {', '.join(sorted(map(str, unknown)))} "
                        f"(known: {', '.join(sorted(DEFAULTS))})")
     s = {**DEFAULTS, **(settings or {})}
     nyquist_Hz = 0.5 / T_s if T_s else None

@@ -238,7 +238,7 @@ def check_settings(name, settings, defaults, T_s):
     ValueError for an unusable value, each naming the estimator and the key."""
     unknown = set(settings) - set(defaults)
     if unknown:
-        raise KeyError(f"estimator '{name}': unknown setting(s) {', '.join(sorted(unknown))} "
+        raise KeyError(f"estimator '{name}': unknown setting(s) {', '.join(sorted(map(str, unknown)))} "
                        f"(known: {', '.join(sorted(defaults))})")
     merged = dict(defaults)
     merged.update(settings)
