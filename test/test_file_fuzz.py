@@ -14,6 +14,7 @@ import yaml
 
 from drive_cli.cli import main
 from drive_scenarios.scenario import ScenarioError, load_drive_configuration
+from helpers import mutate, names
 from motor_params.motor_file import (
     BUS_PER_RATED_SPEED_NEED,
     MOTOR_DIR,
@@ -25,10 +26,6 @@ from motor_params.nameplate import CURRENT_LIMIT_PER_RATED, NAMEPLATE_RANGES
 from pmsm_plant.presets import plant_truth
 
 DRIVE = [sys.executable, "-m", "drive_cli"]
-NESTED = [[[[[[[[[[1.0]]]]]]]]]]
-HOSTILE = [math.nan, math.inf, -math.inf, -1.0, 0, 0.0, 1e308, 5e-324, 2 ** 70, -2 ** 70, "abc", "5", True, None,
-           [], {}, [1.0, 2.0], "a\0b", "a\nb", NESTED]
-UNKNOWN = ["R_s_Ohm", "voltage", "a\nb", "x\0y", "nameplate", 7]
 RELATED = {
     "rated_current_A": ("nameplate.current_limit_A",),
     "current_limit_A": ("nameplate.current_limit_A",),
@@ -43,55 +40,6 @@ RELATED = {
 rated speed needs, saturation lowering the plant's inductances, a simulated shaft needing an inertia)."""
 
 
-def trails(node, trail=()):
-    """Every mapping key's path in a document (list items left alone)."""
-    for key, value in node.items():
-        yield trail + (key,)
-        if isinstance(value, dict):
-            yield from trails(value, trail + (key,))
-
-
-def at(document, trail):
-    for key in trail:
-        document = document[key]
-    return document
-
-
-def dotted(trail):
-    return ".".join(map(str, trail))
-
-
-def mutate(rng, document):
-    """One mutation of ``document`` in place: (kind, its trail, the value written or None, the keys a refusal
-    may name: the key, an enclosing one, or one whose rule the change breaks)."""
-    paths = list(trails(document))
-    kind = rng.choice(["hostile", "hostile", "slip", "delete", "unknown"])
-    if kind == "slip":
-        numeric = [t for t in paths if isinstance(at(document, t), (int, float)) and not isinstance(at(document, t),
-                                                                                                     bool)]
-        trail = rng.choice(numeric)
-        value = at(document, trail) * rng.choice([1000, 1e-3])
-    elif kind == "unknown":
-        parent = rng.choice([()] + [t for t in paths if isinstance(at(document, t), dict)])
-        trail, value = parent + (rng.choice(UNKNOWN),), 1.0
-    else:
-        trail = rng.choice(paths)
-        value = rng.choice(HOSTILE)
-    parent = at(document, trail[:-1])
-    if kind == "delete":
-        del parent[trail[-1]]
-        value = None
-    else:
-        parent[trail[-1]] = value
-    blamed = tuple(dotted(trail[:n]) for n in range(len(trail), 0, -1)) + RELATED.get(trail[-1], ())
-    return kind, trail, value, blamed
-
-
-def names(message, key):
-    """``message`` names ``key`` as a whole key (not a part of a longer one)."""
-    return re.search(rf"(?<![\w.]){re.escape(key)}(?![\w.])", message) is not None
-
-
 def motor_cases(seed, count):
     """(name, motor file text, kind, trail, value, blamed) from mutations of the shipped motor files."""
     rng = random.Random(seed)
@@ -100,6 +48,7 @@ def motor_cases(seed, count):
         motor = rng.choice(sorted(shipped))
         document = yaml.safe_load(yaml.safe_dump(shipped[motor]))
         kind, trail, value, blamed = mutate(rng, document)
+        blamed += RELATED.get(trail[-1], ())
         yield (f"{i:03d}_{motor}_{kind}", yaml.safe_dump(document, allow_unicode=True), kind, trail, value, blamed)
 
 
