@@ -119,3 +119,8 @@ def mutate(rng, document):
 def names(message, key):
     """``message`` names ``key`` as a whole key (not a part of a longer one)."""
     return re.search(rf"(?<![\w.]){re.escape(key)}(?![\w.])", message) is not None
+
+
+def blames(message, blamed):
+    """``message`` names one of the keys ``blamed`` (mutate's), or a key inside the first of them."""
+    return any(names(message, key) for key in blamed) or f"{blamed[0]}." in message

@@ -1,8 +1,8 @@
-"""Corrupted bags (60: flipped bits, zeroed ranges, truncations, duplicated chunks, inserted garbage,
-broken or missing metadata, extra files) through `bag info`, `bench replay`, `bench compare` and `bag
-reindex`: no traceback, the bag untouched by all but reindex, and reindex keeps every message that survived
-the corruption. Bags whose metadata.yaml or drive_config is mutated key by key: read, or refused naming
-the bag and the key.
+"""Corrupted bags (60; 220 under the `heavy` marker: flipped bits, zeroed ranges, truncations, duplicated
+chunks, inserted garbage, broken or missing metadata, extra files) through `bag info`, `bench replay`,
+`bench compare` and `bag reindex`: no traceback, the bag untouched by all but reindex, and reindex keeps
+every message that survived the corruption. Bags whose metadata.yaml or drive_config is mutated key by
+key: read, or refused naming the bag and the key.
 
 What survived is decided here with the mcap library, not with the code under test: every message of a
 chunk whose bytes the corruption did not touch, provided its channel's definition survived too (in the
@@ -23,7 +23,8 @@ from drive_cli.cli import main
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario
 
-CASES = 60
+SAMPLE_CASES, FULL_CASES = 60, 220
+"""Corrupted bags in the default run, and under the `heavy` marker."""
 
 
 @dataclasses.dataclass
@@ -93,11 +94,11 @@ def original(tmp_path_factory):
     return root, bag, data, lay
 
 
-def corruptions(rng, data, lay):
+def corruptions(rng, data, lay, cases):
     """(kind, new .mcap bytes, touched ranges, cut, metadata action, extra file) per case."""
     kinds = ["flip", "flips", "zero", "truncate", "duplicate", "garbage", "no_metadata", "bad_metadata",
              "extra_copy", "empty_extra"]
-    for i in range(CASES):
+    for i in range(cases):
         kind = kinds[i % len(kinds)]
         d, touched, cut, metadata, extra = bytearray(data), [], None, "keep", None
         if kind in ("flip", "flips"):
@@ -131,11 +132,12 @@ def corruptions(rng, data, lay):
         yield f"{i:03d}_{kind}", bytes(d), touched, cut, metadata, extra
 
 
-def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survived(original, tmp_path, capsys):
+@pytest.mark.parametrize("cases", [SAMPLE_CASES, pytest.param(FULL_CASES, marks=pytest.mark.heavy)])
+def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survived(original, tmp_path, capsys, cases):
     root, bag, data, lay = original
     rng = random.Random(20261122)
     rebuilt = 0
-    for name, content, touched, cut, metadata, extra in corruptions(rng, data, lay):
+    for name, content, touched, cut, metadata, extra in corruptions(rng, data, lay, cases):
         case = tmp_path / name
         shutil.copytree(bag, case)
         (mcap,) = case.glob("*.mcap")
@@ -166,7 +168,7 @@ def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survive
         else:
             assert not expected, name
             assert mcap.read_bytes() == content, name
-    assert rebuilt > CASES // 2
+    assert rebuilt > cases // 2
 
 
 def test_a_corrupt_index_length_that_lands_on_the_summary_hides_no_chunk(original, tmp_path):

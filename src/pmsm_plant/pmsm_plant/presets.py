@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 from drive_scenarios.scenario import NO_DEVIATION
 from motor_params.motor_file import MotorFileError, load_motor, shipped_motor_names
-from motor_params.nameplate import Nameplate
+from motor_params.nameplate import NAMEPLATE_RANGES, Nameplate
 
 from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
 
@@ -85,6 +85,10 @@ def plant_truth(motor, source="motor"):
             fail(key, f"must be a finite number, not {v!r}")
         if (v < low if low_inclusive else v <= low) or v >= high:
             fail(key, f"must lie in {'[' if low_inclusive else '('}{low:g}, {high:g}), not {v!r}")
+        declared = NAMEPLATE_RANGES.get(key.replace("h_H", "_H"))
+        if declared and key in plant and not declared[0] <= v <= declared[1]:
+            fail(key, f"{v!r} lies outside {declared[0]:g} … {declared[1]:g} {declared[2]}, the nameplate's range "
+                      f"(a typo or a unit slip?)")
         return float(v)
 
     R_s, psi_f = value("R_s_ohm", plate.R_s_ohm), value("psi_f_Wb", plate.psi_f_Wb)
