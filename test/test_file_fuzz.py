@@ -1,5 +1,5 @@
-"""Fixed-seed fuzz of the files a user writes: motor files (mutations of the shipped ones) and drive
-configuration files (alone and named by a scenario's ``drive:``). Each case is accepted with every value in
+"""Fixed-seed fuzz of the files a user writes: motor files and scenarios (mutations of the shipped ones)
+and drive configuration files (alone and named by a scenario's ``drive:``). Each case is accepted with every value in
 its declared range and as written, or refused naming the file and the key; through the command line as
 one line, exit 2, no traceback."""
 import json
@@ -239,3 +239,41 @@ def test_a_bad_value_in_a_scenarios_drive_file_is_blamed_on_the_drive_file(tmp_p
             if not (str(case / "drive.yaml") in message and any(names(message, key) for key in blamed)):
                 blamed_elsewhere.append((name, message))
     assert blamed_elsewhere == []
+
+
+SCENARIO_RELATED = {
+    "duration_s": ("speed.points", "load.points", "torque_feedforward.points", "metrics.start_s", "sampling_period_s"),
+    "sampling_period_s": ("duration_s",),
+    "settle_s": ("metrics.start_s",),
+}
+"""A scenario key whose change another key's rule may refuse (table times within the run, the metrics'
+start before its end, a sample within the run and the sample cap)."""
+
+
+@pytest.mark.parametrize("cases", [SAMPLE_CASES, pytest.param(FULL_CASES, marks=pytest.mark.heavy)])
+def test_mutated_shipped_scenarios_are_taken_as_written_or_refused_naming_file_and_key(tmp_path, cases):
+    from drive_scenarios.scenario import SCENARIO_DIR, load_scenario
+
+    rng = random.Random(20261127)
+    shipped = {path.stem: yaml.safe_load(path.read_text()) for path in sorted(SCENARIO_DIR.glob("*.yaml"))}
+    outcomes = {"accepted": 0, "refused": 0}
+    for i in range(cases):
+        name = rng.choice(sorted(shipped))
+        document = json.loads(json.dumps(shipped[name]))
+        kind, trail, _, blamed = mutate(rng, document)
+        path = tmp_path / f"{i:04d}_{name}_{kind}.yaml"
+        path.write_text(yaml.safe_dump(document, allow_unicode=True), encoding="utf-8")
+        try:
+            scenario = load_scenario(str(path))
+        except ScenarioError as error:
+            message = str(error)
+            assert str(path) in message, (path.name, message)
+            assert blames(message, blamed + SCENARIO_RELATED.get(trail[-1], ())), (path.name, trail, message)
+            outcomes["refused"] += 1
+            continue
+        taken = {"duration_s": scenario.duration_s, "sampling_period_s": scenario.T_s, "seed": scenario.seed,
+                 "block_samples": scenario.block_samples, "description": scenario.description}
+        assert same(taken, {key: document.get(key, taken[key]) for key in taken}), (path.name, trail)
+        assert scenario.n_samples >= 1 and scenario.speed.times_s == tuple(t for t, _ in document["speed"]["points"])
+        outcomes["accepted"] += 1
+    assert outcomes["accepted"] > cases // 10 and outcomes["refused"] > cases // 3, outcomes
