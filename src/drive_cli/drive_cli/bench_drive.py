@@ -1,6 +1,8 @@
 """``drive bench startup|motor|full-speed|injection-cost|stop``: how well the drive runs: start-up over angles
 and loads, motors nobody tuned for, the whole speed range, what the injection costs, and how soon a signal
 stops it."""
+import sys
+
 from drive_interface.interrupt import Interrupted
 from drive_scenarios.scenario import load_scenario
 from hf_estimator.interface import injects
@@ -108,8 +110,6 @@ def cmd_bench_startup(args):
 
 
 def cmd_bench_stop(args):
-    import sys
-
     from drive_evaluation.stop_bench import STOP_CASES, stop_bench, stop_lines
 
     cases = args.cases.split(",") if args.cases else list(STOP_CASES)

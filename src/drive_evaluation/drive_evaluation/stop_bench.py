@@ -1,9 +1,10 @@
 """`drive bench stop`: how soon a signal stops the drive. `drive commission` (its standstill, rotating and
 loaded tests) and `drive run` run as a user runs them (standard error on a terminal, in a session of their
 own); SIGINT or SIGTERM goes at points of each test (the test's progress past a percentage); measured from
-the signal to the stop reported (its "interrupted" line or its report, whichever comes first: the chunk in
-progress finished, no command after it, the drive at zero current) and to the process's exit; and checked:
-exit 128 + N, one line, no traceback, no file written or left half-written."""
+the signal to the stop reported (the "interrupted" line, printed once the chunk in progress finished and no
+command follows; for `drive run`, its report, which follows the run's metrics, and the samples it ran after
+the signal) and to the process's exit; and checked: exit 128 + N, one line, no traceback, no file written
+or left half-written."""
 import json
 import os
 import re
