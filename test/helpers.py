@@ -122,5 +122,7 @@ def names(message, key):
 
 
 def blames(message, blamed):
-    """``message`` names one of the keys ``blamed`` (mutate's), or a key inside the first of them."""
-    return any(names(message, key) for key in blamed) or f"{blamed[0]}." in message
+    """``message`` names one of the keys ``blamed`` (mutate's; a line break in one as the command line prints
+    it, a space), or a key inside the first of them."""
+    keys = set(blamed) | {" ".join(key.split()) for key in blamed}
+    return any(names(message, key) for key in keys) or f"{blamed[0]}." in message

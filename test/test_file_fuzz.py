@@ -277,3 +277,25 @@ def test_mutated_shipped_scenarios_are_taken_as_written_or_refused_naming_file_a
         assert scenario.n_samples >= 1 and scenario.speed.times_s == tuple(t for t, _ in document["speed"]["points"])
         outcomes["accepted"] += 1
     assert outcomes["accepted"] > cases // 10 and outcomes["refused"] > cases // 3, outcomes
+
+
+def test_mutated_drive_configurations_through_drive_run(tmp_path, capsys):
+    """A scenario naming a mutated drive file, run by `drive run`: metrics in strict JSON, or exit 2 with one
+    line naming the key (its drive built too: controller and estimator settings), never a traceback. (The
+    injection's values are checked by the estimator, named as its settings: `injection.frequency_Hz` as
+    "estimator 'injection_frame': frequency_Hz".)"""
+    outcomes = {0: 0, 2: 0}
+    for name, document, _, trail, _, blamed in drive_cases(20261130, 24):
+        case = tmp_path / name
+        case.mkdir()
+        (case / "drive.yaml").write_text(yaml.safe_dump(document, allow_unicode=True), encoding="utf-8")
+        (case / "experiment.yaml").write_text(yaml.safe_dump(EXPERIMENT), encoding="utf-8")
+        code = main(["run", str(case / "experiment.yaml"), "--duration", "0.005", "--no-plot", "--json"])
+        out, err = capsys.readouterr()
+        assert code in outcomes, (name, trail, code, err)
+        outcomes[code] += 1
+        if code == 2:
+            assert out == "" and err.count("\n") == 1 and blames(err, blamed + (str(trail[-1]),)), (name, trail, err)
+        else:
+            assert json.loads(out, parse_constant=lambda constant: pytest.fail(constant))["samples"] == 50, name
+    assert outcomes[0] > 3 and outcomes[2] > 6, outcomes
