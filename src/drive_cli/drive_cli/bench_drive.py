@@ -122,7 +122,7 @@ def cmd_bench_stop(args):
     report = stop_bench(args.scenario, cases, args.repeats, progress=lambda line: print(line, file=sys.stderr))
     for result in report["results"]:
         for problem in result["problems"]:
-            print(f"drive: warning: {result['case']}, {result['signal']}: {problem}", file=sys.stderr)
+            print(f"drive: warning: {result['case']} at {result['point']}: {problem}", file=sys.stderr)
     print_report(report, args, stop_lines)
     return 0
 
@@ -171,6 +171,6 @@ def add_bench_commands(bench_sub):
     stop.add_argument("--scenario", default="wang_100rpm")
     stop.add_argument("--cases", metavar="C[,C...]", help="comma-separated: commission standstill, commission "
                                                          "rotating, commission loaded, run (default: all)")
-    stop.add_argument("--repeats", type=int, default=3, help="runs per case, signal and point")
+    stop.add_argument("--repeats", type=int, default=3, help="runs per case, point and signal")
     stop.add_argument("--json", action="store_true")
     stop.set_defaults(func=cmd_bench_stop)

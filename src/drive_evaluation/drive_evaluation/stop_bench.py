@@ -1,6 +1,7 @@
 """`drive bench stop`: how soon a signal stops the drive. `drive commission` (its standstill, rotating and
 loaded tests) and `drive run` run as a user runs them (standard error on a terminal, in a session of their
-own); SIGINT or SIGTERM goes at points of each test (the test's progress past a percentage); measured from
+own); SIGINT or SIGTERM goes at points of each test (its start, or its progress past a percentage); measured
+from
 the signal to the stop reported (the "interrupted" line, printed once the chunk in progress finished and no
 command follows; for `drive run`, its report, which follows the run's metrics, and the samples it ran after
 the signal) and to the process's exit; and checked: exit 128 + N, one line, no traceback, no file written
@@ -28,8 +29,10 @@ STOP_CASES = {
 100 %, its next test starts over) the signal lands in."""
 RUN_DURATION_S = 20.0
 """The run's simulated length: ten chunks of the runner's (a progress line after each)."""
-POINTS_PERCENT = (0.0, 50.0)
-"""Where in the test the signal goes: once its progress shows at least this percentage."""
+POINTS_PERCENT = (None, 0.0, 50.0)
+"""Where in the test the signal goes: once its progress shows at least this percentage; None: as soon as the
+test before it showed 100 % (the test setting up: its drive built, its kernels compiled), for a second test
+only."""
 PERCENT = re.compile(r"\r[^\r\n]*?(\d+\.\d) %")
 WAIT_S = 300.0
 """The longest a command may take to reach a point or to stop (a bound on the bench, not a figure)."""
@@ -74,12 +77,13 @@ class Terminal:
         return len(parts) - 1, float(shown[-1]) if shown else None
 
     def wait_for(self, part, percent):
-        """Wait until test ``part`` shows at least ``percent``; False when the command ended first."""
+        """Wait until test ``part`` shows at least ``percent`` (None: has begun); False when the command ended
+        or went past it first."""
         deadline = time.monotonic() + WAIT_S
         with self.changed:
             while time.monotonic() < deadline and self.process.poll() is None:
                 now, shown = self.progress()
-                if now > part or (now == part and shown is not None and shown >= percent):
+                if now > part or (now == part and (percent is None or shown is not None and shown >= percent)):
                     return now == part
                 self.changed.wait(0.5)
         return False
@@ -117,7 +121,8 @@ def stop_once(argv, part, percent, signum, workdir, samples=None):
     terminal = Terminal([sys.executable, "-m", "drive_cli", *argv], workdir)
     try:
         if not terminal.wait_for(part, percent):
-            return {"percent": percent, "problems": [f"ended or moved on before {percent:g} % of test {part}"]}
+            return {"percent": percent, "problems": [f"ended or moved on before {point_name(percent)} of test "
+                                                     f"{part}"]}
         _, shown = terminal.progress()
         signalled = time.monotonic()
         terminal.process.send_signal(signum)
@@ -158,6 +163,10 @@ def machine_facts(seconds=2.0):
             "wakeup_p99_us": round(floor["latency_p99_us"]), "wakeup_max_us": round(floor["latency_max_us"])}
 
 
+def point_name(percent):
+    return "start" if percent is None else f"{percent:g} %"
+
+
 def _figures(values):
     values = [v for v in values if v is not None]
     if not values:
@@ -167,7 +176,7 @@ def _figures(values):
 
 def stop_bench(scenario="wang_100rpm", cases=tuple(STOP_CASES), repeats=3, points=POINTS_PERCENT, progress=None):
     """Each case stopped by SIGINT and by SIGTERM at each point, ``repeats`` times, in a fresh directory
-    each time; per case and signal the latencies' best/median/max [ms] and every problem seen."""
+    each time; per case and point the latencies' best/median/max [ms] and every problem seen."""
     from drive_interface.realtime import stolen_s
     from drive_scenarios.scenario import load_scenario
     T_s = load_scenario(scenario).T_s
@@ -180,18 +189,19 @@ def stop_bench(scenario="wang_100rpm", cases=tuple(STOP_CASES), repeats=3, point
     for case in cases:
         template, part = STOP_CASES[case]
         argv = [arg.format(scenario=scenario, duration=RUN_DURATION_S) for arg in template]
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            name = signal.Signals(signum).name
+        for percent in (p for p in points if p is not None or part > 0):
             runs = []
-            for percent in points:
+            for signum in (signal.SIGINT, signal.SIGTERM):
                 for repeat in range(repeats):
                     if progress:
-                        progress(f"{case}, {name} at {percent:g} %: {repeat + 1} of {repeats}")
+                        progress(f"{case}, {signal.Signals(signum).name} at {point_name(percent)}: {repeat + 1} of "
+                                 f"{repeats}")
                     with tempfile.TemporaryDirectory() as workdir:
-                        runs.append(stop_once(argv, part, percent, signum, workdir,
-                                              round(RUN_DURATION_S / T_s) if case == "run" else None))
-            results.append({"case": case, "signal": name, "command": "drive " + " ".join(argv), "runs": runs,
-                            "reported_ms": _figures(r.get("reported_ms") for r in runs),
+                        runs.append({"signal": signal.Signals(signum).name,
+                                     **stop_once(argv, part, percent, signum, workdir,
+                                                 round(RUN_DURATION_S / T_s) if case == "run" else None)})
+            results.append({"case": case, "point": point_name(percent), "command": "drive " + " ".join(argv),
+                            "runs": runs, "reported_ms": _figures(r.get("reported_ms") for r in runs),
                             "exit_ms": _figures(r.get("exit_ms") for r in runs),
                             "samples_after_signal_max": max((r["samples_after_signal"] for r in runs
                                                              if r.get("samples_after_signal") is not None),
@@ -199,26 +209,25 @@ def stop_bench(scenario="wang_100rpm", cases=tuple(STOP_CASES), repeats=3, point
                             "clean": sum(not r["problems"] for r in runs),
                             "problems": sorted({p for r in runs for p in r["problems"]})})
     machine["stolen_ms"] = round(1e3 * sum(after - stolen.get(cpu, after) for cpu, after in stolen_s().items()))
-    return {"benchmark": "stop", "scenario": scenario, "repeats": repeats, "points_percent": list(points),
+    return {"benchmark": "stop", "scenario": scenario, "repeats": repeats,
             "machine": machine, "results": results}
 
 
 def stop_lines(report):
     """The bench's table as text lines."""
     m = report["machine"]
-    points = ", ".join(f"{p:g}" for p in report["points_percent"])
-    lines = [f"drive bench stop: {report['scenario']}, signal at {points} % of each test, {report['repeats']} runs "
-             f"each; {m['cpus']} CPUs, load "
-             f"{' '.join(map(str, m['load_average']))}, rclpy hop {m['hop_us']} µs, wake-up p99 {m['wakeup_p99_us']} "
-             f"µs (max {m['wakeup_max_us']}), stolen by the host {m['stolen_ms']} ms",
-             f"{'case':22s} {'signal':7s} {'stop reported [ms]':>26s} {'exit [ms]':>26s}  clean",
-             f"{'':30s} {'best / median / max':>26s} {'best / median / max':>26s}"]
+    lines = [f"drive bench stop: {report['scenario']}, SIGINT and SIGTERM {report['repeats']} times each per case "
+             f"and point; {m['cpus']} CPUs, load {' '.join(map(str, m['load_average']))}, rclpy hop {m['hop_us']} "
+             f"µs, wake-up p99 {m['wakeup_p99_us']} µs (max {m['wakeup_max_us']}), stolen by the host "
+             f"{m['stolen_ms']} ms",
+             f"{'case':22s} {'point':6s} {'stop reported [ms]':>22s} {'exit [ms]':>22s}  clean",
+             f"{'':29s} {'best / median / max':>22s} {'best / median / max':>22s}"]
     for r in report["results"]:
         cells = ["n/a" if f is None else f"{f['best']:.0f} / {f['median']:.0f} / {f['max']:.0f}"
                  for f in (r["reported_ms"], r["exit_ms"])]
         after = f"  ({r['samples_after_signal_max']} samples after the signal, at most)" \
             if r["samples_after_signal_max"] is not None else ""
-        lines.append(f"{r['case']:22s} {r['signal']:7s} {cells[0]:>26s} {cells[1]:>26s}  {r['clean']}/"
+        lines.append(f"{r['case']:22s} {r['point']:6s} {cells[0]:>22s} {cells[1]:>22s}  {r['clean']}/"
                      f"{len(r['runs'])}{after}")
         lines += [f"  problem: {p}" for p in r["problems"]]
     return lines
