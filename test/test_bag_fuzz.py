@@ -9,19 +9,24 @@ chunk whose bytes the corruption did not touch, provided its channel's definitio
 first chunk or in the file's summary)."""
 import dataclasses
 import io
+import json
 import random
 import shutil
 
 import pytest
+import yaml
 from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
-from drive_bags.writer import write_run_bag
+from drive_bags.common import typestore
+from drive_bags.writer import BagWriter, write_run_bag
 from drive_cli.cli import main
+from drive_interface.strict_json import dumps
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario
+from helpers import blames, mutate
 
 SAMPLE_CASES, FULL_CASES = 60, 220
 """Corrupted bags in the default run, and under the `heavy` marker."""
@@ -191,10 +196,6 @@ def test_a_corrupt_index_length_that_lands_on_the_summary_hides_no_chunk(origina
 def rewritten(bag, target, drive_config):
     """A copy of ``bag`` at ``target``: its messages as recorded but drive_config's JSON replaced by
     ``drive_config``."""
-    import yaml
-
-    from drive_bags.writer import BagWriter
-    from drive_interface.strict_json import dumps
     (mcap,) = bag.glob("*.mcap")
     writer = BagWriter(target)
     with mcap.open("rb") as stream:
@@ -211,9 +212,6 @@ def rewritten(bag, target, drive_config):
 
 
 def recorded_config(bag):
-    import json
-
-    from drive_bags.common import typestore
     (mcap,) = bag.glob("*.mcap")
     with mcap.open("rb") as stream:
         for *_, message in make_reader(stream).iter_messages(topics=["/drive/drive_config"]):
@@ -227,9 +225,6 @@ def not_strict(constant):
 def test_a_mutated_drive_config_is_replayed_or_refused_naming_the_bag_and_key(original, tmp_path, capsys):
     """Each key of the recorded drive_config given a hostile value, a unit slip, deleted, or an unknown key
     added: `bench replay` scores it (strict JSON) or refuses in one line naming the bag and the key."""
-    import json
-
-    from helpers import mutate, names
     _, bag, _, _ = original
     config = recorded_config(bag)
     rng = random.Random(20261127)
@@ -244,7 +239,7 @@ def test_a_mutated_drive_config_is_replayed_or_refused_naming_the_bag_and_key(or
         outcomes[code] += 1
         if code == 2:
             assert err.count("\n") == 1 and str(case) in err and "drive_config" in err, (case.name, err)
-            assert any(names(err, key) for key in blamed + (str(trail[-1]),)), (case.name, trail, err)
+            assert blames(err, blamed + (str(trail[-1]),)), (case.name, trail, err)
         else:
             assert json.loads(out, parse_constant=not_strict)["results"], case.name
     assert outcomes[0] > 10 and outcomes[2] > 3, outcomes
@@ -253,9 +248,6 @@ def test_a_mutated_drive_config_is_replayed_or_refused_naming_the_bag_and_key(or
 def test_a_mutated_metadata_yaml_is_read_or_refused_naming_the_bag(original, tmp_path, capsys):
     """metadata.yaml's keys mutated one at a time: `bag info` reads the bag (what the .mcap holds, a warning
     where they disagree) or refuses in one line naming it; the bag is left as it was."""
-    import yaml
-
-    from helpers import mutate
     _, bag, _, lay = original
     metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
     recorded = sum(len(messages) for _, _, messages in lay.chunks)
@@ -275,7 +267,6 @@ def test_a_mutated_metadata_yaml_is_read_or_refused_naming_the_bag(original, tmp
         if code == 2:
             assert err.count("\n") == 1 and str(case) in err and "Traceback" not in err, (case.name, err)
         else:
-            import json
             info = json.loads(out)
             assert info["messages"] == recorded or info["warnings"], (case.name, trail, info["messages"])
     assert outcomes[0] > 5 and outcomes[2] > 5, outcomes

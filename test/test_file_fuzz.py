@@ -13,8 +13,10 @@ import pytest
 import yaml
 
 from drive_cli.cli import main
-from drive_scenarios.scenario import ScenarioError, load_drive_configuration
-from helpers import blames, mutate, names
+from drive_interface.errors import DriveError
+from drive_runner.runner import build_drive
+from drive_scenarios.scenario import SCENARIO_DIR, ScenarioError, load_drive_configuration, load_scenario
+from helpers import blames, mutate
 from motor_params.motor_file import (
     BUS_PER_RATED_SPEED_NEED,
     MOTOR_DIR,
@@ -134,8 +136,7 @@ def test_mutated_motor_files_through_the_command_line(tmp_path):
     as a user runs them: exit 2, one line naming the file and the key, no traceback; an accepted one shows
     its nameplate as taken."""
     refused, accepted = [], []
-    for case in motor_cases(20261128, 60):
-        name, text, kind, trail, value, blamed = case
+    for name, text, *_, blamed in motor_cases(20261128, 60):
         path = tmp_path / f"{name}.yaml"
         path.write_text(text, encoding="utf-8")
         try:
@@ -149,7 +150,7 @@ def test_mutated_motor_files_through_the_command_line(tmp_path):
             done = subprocess.run(DRIVE + argv, cwd=tmp_path, capture_output=True, text=True)
             assert done.returncode == 2 and done.stdout == "", (argv, done.stderr)
             assert done.stderr.count("\n") == 1 and str(path) in done.stderr, done.stderr
-            assert "Traceback" not in done.stderr and any(names(done.stderr, key) for key in blamed), done.stderr
+            assert "Traceback" not in done.stderr and blames(done.stderr, blamed), done.stderr
     path = accepted[0]
     shown = subprocess.run(DRIVE + ["motor", "show", str(path), "--json"], cwd=tmp_path, capture_output=True, text=True)
     assert shown.returncode == 0 and shown.stderr == "", shown.stderr
@@ -207,7 +208,7 @@ def test_mutated_drive_configurations_are_taken_as_written_or_refused_naming_fil
         except ScenarioError as error:
             message = str(error)
             assert message.startswith("parameter drive_configuration: ") and str(path) in message, (name, message)
-            assert any(names(message, key) for key in blamed), (name, blamed, message)
+            assert blames(message, blamed), (name, blamed, message)
             outcomes["refused"] += 1
             continue
         taken, written = as_written(drive, document)
@@ -222,10 +223,6 @@ def test_mutated_drive_configurations_are_taken_as_written_or_refused_naming_fil
 def test_a_bad_value_in_a_scenarios_drive_file_is_blamed_on_the_drive_file(tmp_path):
     """The scenario naming the mutated drive file, read and its drive built (controller and estimator
     settings): a refusal names the drive file and the key."""
-    from drive_interface.errors import DriveError
-    from drive_runner.runner import build_drive
-    from drive_scenarios.scenario import load_scenario
-
     blamed_elsewhere = []
     for name, document, *_, blamed in drive_cases(20261129, 120):
         case = tmp_path / name
@@ -236,7 +233,7 @@ def test_a_bad_value_in_a_scenarios_drive_file_is_blamed_on_the_drive_file(tmp_p
             build_drive(load_scenario(str(case / "experiment.yaml")))
         except DriveError as error:
             message = str(error)
-            if not (str(case / "drive.yaml") in message and any(names(message, key) for key in blamed)):
+            if not (str(case / "drive.yaml") in message and blames(message, blamed)):
                 blamed_elsewhere.append((name, message))
     assert blamed_elsewhere == []
 
@@ -252,8 +249,6 @@ start before its end, a sample within the run and the sample cap)."""
 
 @pytest.mark.parametrize("cases", [SAMPLE_CASES, pytest.param(FULL_CASES, marks=pytest.mark.heavy)])
 def test_mutated_shipped_scenarios_are_taken_as_written_or_refused_naming_file_and_key(tmp_path, cases):
-    from drive_scenarios.scenario import SCENARIO_DIR, load_scenario
-
     rng = random.Random(20261127)
     shipped = {path.stem: yaml.safe_load(path.read_text()) for path in sorted(SCENARIO_DIR.glob("*.yaml"))}
     outcomes = {"accepted": 0, "refused": 0}

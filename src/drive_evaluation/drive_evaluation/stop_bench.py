@@ -9,6 +9,7 @@ or left half-written."""
 import json
 import os
 import re
+import select
 import signal
 import subprocess
 import sys
@@ -124,10 +125,14 @@ def stop_once(argv, part, percent, signum, workdir, samples=None):
             return {"percent": percent, "problems": [f"ended or moved on before {point_name(percent)} of test "
                                                      f"{part}"]}
         _, shown = terminal.progress()
-        signalled = time.monotonic()
-        terminal.process.send_signal(signum)
-        terminal.process.wait(WAIT_S)
-        exited = time.monotonic()
+        ended = os.pidfd_open(terminal.process.pid)  # readable the instant it exits (Popen.wait polls)
+        try:
+            signalled = time.monotonic()
+            terminal.process.send_signal(signum)
+            select.select([ended], [], [], WAIT_S)
+            exited = time.monotonic()
+        finally:
+            os.close(ended)
     finally:
         terminal.close()
     said = (_first(terminal.err, signalled, lambda text: "interrupted by" in text), _first(terminal.out, signalled))
