@@ -1,4 +1,7 @@
-"""Shared test helpers: scenarios from dictionaries, run and score."""
+"""Shared test helpers: scenarios from dictionaries, run and score; fixed-seed mutations of documents."""
+import math
+import re
+
 from drive_evaluation.metrics import compute_metrics
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario, parse_scenario
@@ -147,3 +150,66 @@ def drive_in_process(argv, cwd=None):
     finally:
         os.chdir(before)
     return SimpleNamespace(returncode=code, stdout=out.getvalue(), stderr=err.getvalue())
+
+
+NESTED = [[[[[[[[[[1.0]]]]]]]]]]
+HOSTILE = [math.nan, math.inf, -math.inf, -1.0, 0, 0.0, 1e308, 5e-324, 2 ** 70, -2 ** 70, "abc", "5", True, None,
+           [], {}, [1.0, 2.0], "a\0b", "a\nb", NESTED]
+"""Values a fuzzed key is given: not finite, huge, tiny, negative, zero, of the wrong type, text with NUL or a
+line break, nested deep."""
+UNKNOWN = ["R_s_Ohm", "voltage", "a\nb", "x\0y", "nameplate", 7]
+"""Keys a fuzzed mapping is given: typos, text with a line break or NUL, a known key in the wrong place, a number."""
+
+
+def trails(node, trail=()):
+    """Every mapping key's path in a document (list items left alone)."""
+    for key, value in node.items():
+        yield trail + (key,)
+        if isinstance(value, dict):
+            yield from trails(value, trail + (key,))
+
+
+def at(document, trail):
+    for key in trail:
+        document = document[key]
+    return document
+
+
+def dotted(trail):
+    return ".".join(map(str, trail))
+
+
+def mutate(rng, document):
+    """One mutation of ``document`` in place: a hostile value, a unit slip (× 1000 or ÷ 1000), a key deleted
+    or an unknown one added; (kind, its trail, the value written or None, the keys a refusal may name: the
+    key or one enclosing it)."""
+    paths = list(trails(document))
+    kind = rng.choice(["hostile", "hostile", "slip", "delete", "unknown"])
+    if kind == "slip":
+        trail = rng.choice([t for t in paths if type(at(document, t)) in (int, float)])
+        value = at(document, trail) * rng.choice([1000, 1e-3])
+    elif kind == "unknown":
+        parent = rng.choice([()] + [t for t in paths if isinstance(at(document, t), dict)])
+        trail, value = parent + (rng.choice(UNKNOWN),), 1.0
+    else:
+        trail = rng.choice(paths)
+        value = rng.choice(HOSTILE)
+    parent = at(document, trail[:-1])
+    if kind == "delete":
+        del parent[trail[-1]]
+        value = None
+    else:
+        parent[trail[-1]] = value
+    return kind, trail, value, tuple(dotted(trail[:n]) for n in range(len(trail), 0, -1))
+
+
+def names(message, key):
+    """``message`` names ``key`` as a whole key (not a part of a longer one)."""
+    return re.search(rf"(?<![\w.]){re.escape(key)}(?![\w.])", message) is not None
+
+
+def blames(message, blamed):
+    """``message`` names one of the keys ``blamed`` (mutate's; a line break in one as the command line prints
+    it, a space), or a key inside the first of them."""
+    keys = set(blamed) | {" ".join(key.split()) for key in blamed}
+    return any(names(message, key) for key in keys) or f"{blamed[0]}." in message

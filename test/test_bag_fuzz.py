@@ -1,27 +1,35 @@
-"""Corrupted bags (≥ 100: flipped bits, zeroed ranges, truncations, duplicated chunks, inserted garbage,
-broken or missing metadata, extra files) through `bag info`, `bench replay`, `bench compare` and `bag
-reindex`: no traceback, and reindex keeps every message that survived the corruption.
+"""Corrupted bags (60; 220 under the `heavy` marker: flipped bits, zeroed ranges, truncations, duplicated
+chunks, inserted garbage, broken or missing metadata, extra files) through `bag info`, `bench replay`,
+`bench compare` and `bag reindex`: no traceback, the bag untouched by all but reindex, and reindex keeps
+every message that survived the corruption. Bags whose metadata.yaml or drive_config is mutated key by
+key: read, or refused naming the bag and the key.
 
 What survived is decided here with the mcap library, not with the code under test: every message of a
 chunk whose bytes the corruption did not touch, provided its channel's definition survived too (in the
 first chunk or in the file's summary)."""
 import dataclasses
 import io
+import json
 import random
 import shutil
 
 import pytest
+import yaml
 from mcap.data_stream import ReadDataStream
 from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
-from drive_bags.writer import write_run_bag
+from drive_bags.common import typestore
+from drive_bags.writer import BagWriter, write_run_bag
 from drive_cli.cli import main
+from drive_interface.strict_json import dumps
 from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import load_scenario
+from helpers import blames, mutate
 
-CASES = 110
+SAMPLE_CASES, FULL_CASES = 60, 220
+"""Corrupted bags in the default run, and under the `heavy` marker."""
 
 
 @dataclasses.dataclass
@@ -74,6 +82,11 @@ def messages_of(bag):
     return found
 
 
+def contents(directory):
+    """Every file under ``directory`` and its bytes."""
+    return {path: path.read_bytes() for path in directory.rglob("*") if path.is_file()}
+
+
 @pytest.fixture(scope="module")
 def original(tmp_path_factory):
     root = tmp_path_factory.mktemp("fuzz")
@@ -86,11 +99,11 @@ def original(tmp_path_factory):
     return root, bag, data, lay
 
 
-def corruptions(rng, data, lay):
+def corruptions(rng, data, lay, cases):
     """(kind, new .mcap bytes, touched ranges, cut, metadata action, extra file) per case."""
     kinds = ["flip", "flips", "zero", "truncate", "duplicate", "garbage", "no_metadata", "bad_metadata",
              "extra_copy", "empty_extra"]
-    for i in range(CASES):
+    for i in range(cases):
         kind = kinds[i % len(kinds)]
         d, touched, cut, metadata, extra = bytearray(data), [], None, "keep", None
         if kind in ("flip", "flips"):
@@ -124,11 +137,12 @@ def corruptions(rng, data, lay):
         yield f"{i:03d}_{kind}", bytes(d), touched, cut, metadata, extra
 
 
-def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survived(original, tmp_path, capsys):
+@pytest.mark.parametrize("cases", [SAMPLE_CASES, pytest.param(FULL_CASES, marks=pytest.mark.heavy)])
+def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survived(original, tmp_path, capsys, cases):
     root, bag, data, lay = original
     rng = random.Random(20261122)
     rebuilt = 0
-    for name, content, touched, cut, metadata, extra in corruptions(rng, data, lay):
+    for name, content, touched, cut, metadata, extra in corruptions(rng, data, lay, cases):
         case = tmp_path / name
         shutil.copytree(bag, case)
         (mcap,) = case.glob("*.mcap")
@@ -140,6 +154,7 @@ def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survive
         if extra is not None:
             (case / f"{case.name}_1.mcap").write_bytes(extra)
         out = tmp_path / "out"
+        as_given = contents(case)
         for argv in (["bag", "info", str(case)],
                      ["bench", "replay", str(case), "--estimators", "sensored", "--no-plot", "--out", str(out)],
                      ["bench", "compare", str(case), str(bag), "--no-plot", "--out", str(out)],
@@ -148,6 +163,7 @@ def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survive
             _, err = capsys.readouterr()
             assert code in (0, 2), (name, argv[:2], err)
             assert code == 0 or (err.count("\n") == 1 and "Traceback" not in err), (name, argv[:2], err)
+            assert argv[1] == "reindex" or contents(case) == as_given, (name, argv[:2])
         expected = surviving(lay, touched, cut)
         if code == 0:
             rebuilt += 1
@@ -157,7 +173,7 @@ def test_corrupted_bags_give_one_line_or_a_result_and_reindex_keeps_what_survive
         else:
             assert not expected, name
             assert mcap.read_bytes() == content, name
-    assert rebuilt > CASES // 2
+    assert rebuilt > cases // 2
 
 
 def test_a_corrupt_index_length_that_lands_on_the_summary_hides_no_chunk(original, tmp_path):
@@ -175,3 +191,82 @@ def test_a_corrupt_index_length_that_lands_on_the_summary_hides_no_chunk(origina
     mcap.write_bytes(bytes(corrupt))
     assert main(["bag", "reindex", str(case), "--force"]) == 0
     assert surviving(lay, [(end, end + 9)]) <= messages_of(case)
+
+
+def rewritten(bag, target, drive_config):
+    """A copy of ``bag`` at ``target``: its messages as recorded but drive_config's JSON replaced by
+    ``drive_config``."""
+    (mcap,) = bag.glob("*.mcap")
+    writer = BagWriter(target)
+    with mcap.open("rb") as stream:
+        for schema, channel, message in make_reader(stream).iter_messages():
+            if channel.topic not in writer.channels:
+                writer.add(channel.topic, schema.name, yaml.safe_load(channel.metadata["offered_qos_profiles"]))
+            data = message.data
+            if channel.topic.endswith("/drive_config"):
+                data = writer.store.serialize_cdr(writer.store.types["std_msgs/msg/String"](
+                    data=dumps(drive_config)), "std_msgs/msg/String")
+            writer.write(channel.topic, data, False, message.log_time)
+    writer.close()
+    return target
+
+
+def recorded_config(bag):
+    (mcap,) = bag.glob("*.mcap")
+    with mcap.open("rb") as stream:
+        for *_, message in make_reader(stream).iter_messages(topics=["/drive/drive_config"]):
+            return json.loads(typestore().deserialize_cdr(message.data, "std_msgs/msg/String").data)
+
+
+def not_strict(constant):
+    raise AssertionError(f"non-strict JSON constant {constant}")
+
+
+def test_a_mutated_drive_config_is_replayed_or_refused_naming_the_bag_and_key(original, tmp_path, capsys):
+    """Each key of the recorded drive_config given a hostile value, a unit slip, deleted, or an unknown key
+    added: `bench replay` scores it (strict JSON) or refuses in one line naming the bag and the key."""
+    _, bag, _, _ = original
+    config = recorded_config(bag)
+    rng = random.Random(20261127)
+    outcomes = {0: 0, 2: 0}
+    for i in range(30):
+        document = json.loads(json.dumps(config))
+        kind, trail, _, blamed = mutate(rng, document)
+        case = rewritten(bag, tmp_path / f"{i:02d}_{kind}", document)
+        code = main(["bench", "replay", str(case), "--estimators", "sensored", "--no-plot", "--json"])
+        out, err = capsys.readouterr()
+        assert code in outcomes, (case.name, trail, err)
+        outcomes[code] += 1
+        if code == 2:
+            assert err.count("\n") == 1 and str(case) in err and "drive_config" in err, (case.name, err)
+            assert blames(err, blamed + (str(trail[-1]),)), (case.name, trail, err)
+        else:
+            assert json.loads(out, parse_constant=not_strict)["results"], case.name
+    assert outcomes[0] > 10 and outcomes[2] > 3, outcomes
+
+
+def test_a_mutated_metadata_yaml_is_read_or_refused_naming_the_bag(original, tmp_path, capsys):
+    """metadata.yaml's keys mutated one at a time: `bag info` reads the bag (what the .mcap holds, a warning
+    where they disagree) or refuses in one line naming it; the bag is left as it was."""
+    _, bag, _, lay = original
+    metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
+    recorded = sum(len(messages) for _, _, messages in lay.chunks)
+    rng = random.Random(20261128)
+    outcomes = {0: 0, 2: 0}
+    for i in range(30):
+        document = yaml.safe_load(yaml.safe_dump(metadata))
+        kind, trail, _, _ = mutate(rng, document)
+        case = tmp_path / f"{i:02d}_{kind}"
+        shutil.copytree(bag, case)
+        (case / "metadata.yaml").write_text(yaml.safe_dump(document, allow_unicode=True), encoding="utf-8")
+        as_given = contents(case)
+        code = main(["bag", "info", str(case), "--json"])
+        out, err = capsys.readouterr()
+        assert code in outcomes and contents(case) == as_given, (case.name, trail, err)
+        outcomes[code] += 1
+        if code == 2:
+            assert err.count("\n") == 1 and str(case) in err and "Traceback" not in err, (case.name, err)
+        else:
+            info = json.loads(out)
+            assert info["messages"] == recorded or info["warnings"], (case.name, trail, info["messages"])
+    assert outcomes[0] > 5 and outcomes[2] > 5, outcomes

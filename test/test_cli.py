@@ -93,6 +93,8 @@ def test_bench_rejects_zero_repeats():
     (["echo", "currents", "--timeout", "-1"], "--timeout: must be positive (seconds), not -1"),
     (["tune", "pll", "--crossover", "0"], "--crossover: must be positive, not 0"),
     (["tune", "pll", "--phase-margin", "95"], "--phase-margin: between 0 and 90 degrees, not 95"),
+    (["bench", "stop", "--repeats", "0"], "--repeats: must be at least 1, not 0"),
+    (["bench", "stop", "--cases", "run,walk"], "--cases: 'walk' is not one of commission standstill"),
 ])
 def test_numeric_options_are_checked_before_anything_runs(capsys, argv, message):
     """inf, nan, a duration past the scenario file's sample cap or under one sample, a wait that would never

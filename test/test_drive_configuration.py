@@ -49,8 +49,8 @@ def test_a_scenario_naming_a_drive_file_is_the_scenario_with_the_drive_inline(tm
     a, b = load_scenario(str(experiment)), load_scenario(str(inline))
     assert a.drive_file == str(drive.resolve()) and b.drive_file == ""
     assert (a.motor.nameplate, a.motor.inverter, a.motor.plant) == (b.motor.nameplate, b.motor.inverter, b.motor.plant)
-    assert dataclasses.replace(a, drive_file="", name="inline", source=b.source, estimator_source=b.estimator_source,
-                               motor=b.motor) == b
+    assert dataclasses.replace(a, drive_file="", from_drive_file=(), name="inline", source=b.source,
+                               estimator_source=b.estimator_source, motor=b.motor) == b
     np.testing.assert_array_equal(run_scenario(a).log, run_scenario(b).log)
 
 

@@ -1,9 +1,10 @@
 """Misuse of the command line and scenario files: unsafe or non-finite settings are refused with one
 line naming the key and the file, and no generated scenario file (≥ 200, mutated with hostile values)
-gives a traceback, a hang past the bound or NaN/Infinity in the JSON output."""
+gives a traceback or NaN/Infinity in the JSON output: a refusal names the file and the key mutated (or
+one enclosing it)."""
 import json
 import random
-import time
+import re
 
 import pytest
 
@@ -18,8 +19,6 @@ BASE = {"motor": "wang_spmsm", "estimator": {"type": "injection_frame", "setting
         "answer_periods": 0}
 HOSTILE = [float("nan"), float("inf"), -float("inf"), -1, 0, 0.0, 1e308, 5e-324, 1e12, 1e-12, "abc", "5", True,
            None, [], {}, [[1, 2]], 2 ** 70, -2 ** 70, "", [1.0, 2.0, 3.0], {"a": 1}]
-RUN_BOUND_S = 30.0
-"""The longest a single mutated run may take (the largest valid run here is a few thousand samples)."""
 
 
 def write(tmp_path, name, document):
@@ -105,10 +104,10 @@ def mutations(rng, count):
             if isinstance(value, dict):
                 walk(value, trail + (key,))
     walk(BASE, ())
-    yield "non_utf8", b"motor: \xff\xfe wang\n"
-    yield "deep", ("a: " + "[" * 5000 + "]" * 5000 + "\n").encode()
-    yield "list_top", b"- 1\n- 2\n"
-    yield "aliases", b"a: &a [1, 2]\nb: *a\n"
+    yield "non_utf8", b"motor: \xff\xfe wang\n", ()
+    yield "deep", ("a: " + "[" * 5000 + "]" * 5000 + "\n").encode(), ()
+    yield "list_top", b"- 1\n- 2\n", ()
+    yield "aliases", b"a: &a [1, 2]\nb: *a\n", ("a",)
     for i in range(count):
         document = json.loads(json.dumps(BASE))
         trail = rng.choice(paths)
@@ -120,22 +119,22 @@ def mutations(rng, count):
         else:
             parent[trail[-1]] = rng.choice(HOSTILE)
         text = json.dumps(document, allow_nan=True).replace("NaN", ".nan").replace("-Infinity", "-.inf")
-        yield f"m{i}_{'_'.join(map(str, trail))}", text.replace("Infinity", ".inf").encode()
+        yield f"m{i}_{'_'.join(map(str, trail))}", text.replace("Infinity", ".inf").encode(), trail
 
 
 def test_generated_scenario_files_give_one_line_or_a_strict_result(tmp_path, capsys):
     rng = random.Random(20261122)
     outcomes = {0: 0, 2: 0}
-    for name, content in mutations(rng, 220):
+    for name, content, trail in mutations(rng, 220):
         path = tmp_path / f"{name}.yaml"
         path.write_bytes(content)
-        start = time.monotonic()
         code, out, err = run_cli(capsys, ["run", str(path), "--no-plot", "--json"])
-        assert time.monotonic() - start < RUN_BOUND_S, name
         assert code in outcomes, (name, code, err)
         outcomes[code] += 1
         if code == 2:
             assert err.count("\n") == 1 and str(path) in err and "Traceback" not in err, (name, err)
+            named = [re.escape(".".join(map(str, trail[:n]))) for n in range(1, len(trail) + 1)]
+            assert not trail or re.search(rf"(?<![\w.])({'|'.join(named)})(?![\w.])", err), (name, err)
         else:
             metrics = strict(out)
             assert metrics["samples"] > 0, name

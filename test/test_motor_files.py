@@ -186,7 +186,7 @@ def test_the_template_is_a_motor_file_and_show_scales_its_loops(tmp_path, capsys
 ])
 def test_a_bad_motor_file_is_named_with_its_key(tmp_path, capsys, change, key):
     """One line naming the file and the key, from the library and from `drive run --motor` (exit 2): a key
-    missing, unknown or out of its declared range (motor_params.nameplate.NAMEPLATE_RANGES), a current limit
+    missing, unknown or out of its declared range (motor_params.nameplate.NAMEPLATE_KEYS), a current limit
     beyond 3 × the rated current, a bus beyond 20 × what the rated speed needs, a name that cannot name a
     file."""
     path = tmp_path / "bad.yaml"

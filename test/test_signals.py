@@ -28,10 +28,10 @@ PROGRESS = re.compile(r"\r[^\r\n]*%[ \t]*|[^\r\n]*real-time factor[^\r\n]*")
 """A command's progress on a terminal: a line it rewrites ending in a percentage, or a bench's result line."""
 
 
-def stop(tmp_path, args, at_progress, signum):
+def stop(tmp_path, args, at_progress, signum, ready=PROGRESS):
     """Run ``drive ARGS`` in its own session with standard error on a terminal (as a user runs it), send
-    ``signum`` once it shows progress (``at_progress``) or after 0.5 s; (code, stdout, stderr without the
-    progress), once every process of the session is gone."""
+    ``signum`` once its terminal shows ``ready`` (``at_progress``) or after 0.5 s; (code, stdout, stderr
+    without the progress), once every process of the session is gone."""
     import pty
     import threading
     master, slave = pty.openpty()
@@ -49,7 +49,7 @@ def stop(tmp_path, args, at_progress, signum):
             if not chunk:
                 return
             err.append(chunk.decode(errors="replace"))
-            if PROGRESS.search("".join(err)):
+            if ready.search("".join(err)):
                 progressed.set()
     reader = threading.Thread(target=read_terminal, daemon=True)
     reader.start()
@@ -98,6 +98,48 @@ def test_the_first_signal_stops_a_command_cleanly(tmp_path, command, signum):
         assert 0 < report["samples"] and report["duration_s"] < asked_s
     if command == "bench_graph":
         assert len(report["results"]) < 3 and "ping_pong" not in report
+
+
+STANDSTILL_DONE = re.compile(r"100\.0 %")
+"""A commissioning's standstill part done: the next test sets up (seconds: its drive built and compiled), then
+runs its chunks (tens of ms here), then the file is written."""
+COMMISSIONING_PARTS = {"standstill": ([], PROGRESS), "rotating": (["--rotating"], STANDSTILL_DONE),
+                       "loaded": (["--loaded"], STANDSTILL_DONE)}
+
+
+@pytest.mark.parametrize("part, signum", [("standstill", signal.SIGINT), ("standstill", signal.SIGTERM),
+                                          ("rotating", signal.SIGINT), ("loaded", signal.SIGTERM)])
+def test_a_signal_during_commissioning_writes_nothing(tmp_path, part, signum):
+    """At standstill, or once it is done, in the rotating or loaded test (held until the chunk in progress
+    ends): exit 128 + N, one line, neither the commissioning file nor its working file left, nothing else
+    written."""
+    extra, ready = COMMISSIONING_PARTS[part]
+    before = sorted(tmp_path.rglob("*"))
+    code, out, err = stop(tmp_path, ["commission", "wang_100rpm", "--out", "joint.yaml", "--json", *extra], True,
+                          signum, ready)
+    assert (code, out, err) == (128 + signum, "", f"drive: commission: interrupted by {signal.Signals(signum).name}")
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+@pytest.mark.parametrize("during, signum", [("run", signal.SIGINT), ("writing", signal.SIGTERM)])
+def test_a_signal_during_a_recorded_run_leaves_a_closed_readable_bag(tmp_path, during, signum):
+    """During the run: the samples run, recorded whole; during the bag's writing: the bag closed as far as
+    written and said so, whole samples only. Either way `drive bag info` reads it with no warning."""
+    from drive_bags.reader import bag_info
+    duration, ready = ("600", PROGRESS) if during == "run" else ("2", re.compile(r"writing [^\r\n]*%"))
+    code, out, err = stop(tmp_path, ["run", "wang_100rpm", "--duration", duration, "--no-plot", "--json", "--record",
+                                     "bag"], True, signum, ready)
+    report = json.loads(out)
+    assert code == 128 + signum and report["interrupted"] and "Traceback" not in err, err
+    info = bag_info(tmp_path / "bag")
+    counts = {t["topic"]: t["count"] for t in info["topics"]}
+    currents = counts["/drive/currents"]
+    assert info["warnings"] == [], info["warnings"]
+    assert {counts[f"/drive/{topic}"] for topic in ("rotor_state", "angle_error", "voltage_command")} == {currents}
+    if during == "run":
+        assert "recording_error" not in report and currents == report["samples"] > 0
+    else:
+        assert "bag" in report["recording_error"] and currents < report["samples"] == 20000
 
 
 def test_a_reader_that_goes_away_ends_the_output_quietly(tmp_path):

@@ -1,5 +1,8 @@
-"""``drive bench startup|motor|full-speed|injection-cost``: how well the drive runs: start-up over angles and
-loads, motors nobody tuned for, the whole speed range, and what the injection costs."""
+"""``drive bench startup|motor|full-speed|injection-cost|stop``: how well the drive runs: start-up over angles
+and loads, motors nobody tuned for, the whole speed range, what the injection costs, and how soon a signal
+stops it."""
+import sys
+
 from drive_interface.interrupt import Interrupted
 from drive_scenarios.scenario import load_scenario
 from hf_estimator.interface import injects
@@ -13,6 +16,7 @@ from .options import (
     exit_code,
     finite_float,
     print_json,
+    print_report,
     sample_period_arg,
     warn_if_nameplate_only,
 )
@@ -105,8 +109,26 @@ def cmd_bench_startup(args):
                   startup_lines, angles=args.angles, seeds=args.seeds)
 
 
+def cmd_bench_stop(args):
+    from drive_evaluation.stop_bench import STOP_CASES, stop_bench, stop_lines
+
+    cases = args.cases.split(",") if args.cases else list(STOP_CASES)
+    for case in cases:
+        if case not in STOP_CASES:
+            raise CommandLineError(f"--cases: {case!r} is not one of {', '.join(STOP_CASES)}")
+    if args.repeats < 1:
+        raise CommandLineError(f"--repeats: must be at least 1, not {args.repeats}")
+    load_scenario(args.scenario)
+    report = stop_bench(args.scenario, cases, args.repeats, progress=lambda line: print(line, file=sys.stderr))
+    for result in report["results"]:
+        for problem in result["problems"]:
+            print(f"drive: warning: {result['case']} at {result['point']}: {problem}", file=sys.stderr)
+    print_report(report, args, stop_lines)
+    return 0
+
+
 def add_bench_commands(bench_sub):
-    """bench startup, motor, full-speed, injection-cost."""
+    """bench startup, motor, full-speed, injection-cost, stop."""
     startup = bench_sub.add_parser("startup", help="start-up from rotor angles over the electrical circle, noise "
                                                    "seeds and loads: polarity, error at first torque, roll-back")
     startup.add_argument("--motor", metavar="NAME|FILE", help="one motor: shipped or a motor file (default: both "
@@ -143,3 +165,12 @@ def add_bench_commands(bench_sub):
     cost.add_argument("--estimators", help="comma-separated (default: every injecting estimator)")
     cost.add_argument("--json", action="store_true")
     cost.set_defaults(func=cmd_bench_injection_cost)
+    stop = bench_sub.add_parser("stop", help="SIGINT and SIGTERM during `drive commission` (standstill, --rotating, "
+                                             "--loaded) and `drive run`: time to the stop reported and to the exit, "
+                                             "and nothing left written")
+    stop.add_argument("--scenario", default="wang_100rpm")
+    stop.add_argument("--cases", metavar="C[,C...]", help="comma-separated: commission standstill, commission "
+                                                         "rotating, commission loaded, run (default: all)")
+    stop.add_argument("--repeats", type=int, default=3, help="runs per case, point and signal")
+    stop.add_argument("--json", action="store_true")
+    stop.set_defaults(func=cmd_bench_stop)

@@ -71,7 +71,7 @@ def check_settings(settings, T_s):
     s = {**DEFAULTS, **(settings or {})}
     unknown = set(s) - set(DEFAULTS)
     if unknown:
-        raise KeyError(f"commissioning: unknown setting(s) {', '.join(sorted(unknown))} "
+        raise KeyError(f"commissioning: unknown setting(s) {', '.join(sorted(map(str, unknown)))} "
                        f"(known: {', '.join(sorted(DEFAULTS))})")
     try:
         number("hf_frequency_Hz", s["hf_frequency_Hz"], 0.0, 0.25 / T_s)

@@ -12,6 +12,7 @@ from drive_bags.common import BagError
 from drive_bags.reader import bag_scenario, bag_topics, has_ground_truth, log_from_topics, recorded_estimator
 from drive_interface.estimator_states import TRACKING
 from drive_interface.log import COLUMN
+from drive_interface.settings import shown
 from drive_interface.topics import BLOCK_TOPIC, SAMPLE_LOGGED, TOPICS
 from motor_params.commissioning import (
     NAMEPLATE_ONLY,
@@ -165,7 +166,7 @@ def _sample_period(path, given, configs, sources):
     recorded = next((c["T_s_s"] for c in configs if "T_s_s" in c), None)
     if recorded is not None:
         if isinstance(recorded, bool) or not isinstance(recorded, (int, float)) or not 0.0 < recorded < 1.0:
-            raise BagError(f"{path}: drive_config T_s_s {recorded!r} is not a sample period in seconds")
+            raise BagError(f"{path}: drive_config T_s_s {shown(recorded)} is not a sample period in seconds")
         sources["sample_period"] = "drive_config T_s_s" + (" (--sample-period not used)" if given else "")
         return float(recorded)
     if not given:

@@ -4,6 +4,7 @@ are declared once (Key: unit, bounds, default) and read through ``read_keys``; f
 version (``read_format_version``)."""
 import difflib
 import math
+import reprlib
 import sys
 import warnings
 from dataclasses import dataclass
@@ -13,16 +14,16 @@ def number(key, value, low=None, high=None, low_inclusive=False, high_inclusive=
            integer=False):
     """A real number (an int when ``integer``) in the interval given by ``low``/``high`` (None: open)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)) or (integer and not isinstance(value, int)):
-        raise ValueError(f"{key}: must be {'a whole' if integer else 'a'} number, not {value!r}")
+        raise ValueError(f"{key}: must be {'a whole' if integer else 'a'} number, not {shown(value)}")
     if math.isnan(value) or (math.isinf(value) and not allow_infinite):
-        raise ValueError(f"{key}: must be a finite number, not {value!r}")
+        raise ValueError(f"{key}: must be a finite number, not {shown(value)}")
     below = low is not None and (value < low if low_inclusive else value <= low)
     above = high is not None and (value > high if high_inclusive else value >= high)
     if below or above:
         left = "[" if low_inclusive else "("
         right = "]" if high_inclusive else ")"
         interval = f"{left}{'−∞' if low is None else f'{low:g}'}, {'∞' if high is None else f'{high:g}'}{right}"
-        raise ValueError(f"{key}: must lie in {interval}, not {value!r}")
+        raise ValueError(f"{key}: must lie in {interval}, not {shown(value)}")
     return int(value) if integer else float(value)
 
 
@@ -34,14 +35,14 @@ def positive(key, value, high=None, allow_infinite=False):
 def flag(key, value):
     """true or false."""
     if not isinstance(value, bool):
-        raise ValueError(f"{key}: must be true or false, not {value!r}")
+        raise ValueError(f"{key}: must be true or false, not {shown(value)}")
     return value
 
 
 def choice(key, value, choices):
     """One of ``choices``."""
     if value not in choices:
-        raise ValueError(f"{key}: must be one of {', '.join(map(str, choices))}, not {value!r}")
+        raise ValueError(f"{key}: must be one of {', '.join(map(str, choices))}, not {shown(value)}")
     return value
 
 
@@ -68,13 +69,15 @@ class Key:
     """A key that is one of these (words, true/false) rather than a number."""
     infinite: bool = False
     """∞ is a value (e.g. "no limit")."""
+    nullable: bool = False
+    """null is a value (e.g. "the nameplate's"); otherwise a key is given a value or left out."""
 
     def read(self, value):
         """The value as its Python type (an int when ``integer``; a whole float is taken); ValueError in one
         line naming the key, the value and the bound."""
         if self.choices:
             if not any(value is c or (type(value) is type(c) and value == c) for c in self.choices):
-                raise ValueError(f"{self.name}: must be one of {', '.join(map(str, self.choices))}, not {value!r}")
+                raise ValueError(f"{self.name}: must be one of {', '.join(map(str, self.choices))}, not {shown(value)}")
             return value
         if self.integer and isinstance(value, float) and value.is_integer():
             value = int(value)
@@ -98,7 +101,7 @@ def read_keys(data, keys, prefix="", known_extra=()):
     (after ``prefix``): an unknown key (a typo: the nearest known key suggested), a missing required one,
     or a value out of its declaration. ``known_extra``: other keys the caller reads itself."""
     if not isinstance(data, dict):
-        raise ValueError(f"{prefix.rstrip('.') or 'top level'}: must be a mapping of keys, not {data!r}")
+        raise ValueError(f"{prefix.rstrip('.') or 'top level'}: must be a mapping of keys, not {shown(data)}")
     names = [key.name for key in keys]
     for name in sorted(set(data) - set(names) - set(known_extra), key=str):
         near = difflib.get_close_matches(str(name), names + list(known_extra), n=1)
@@ -111,7 +114,7 @@ def read_keys(data, keys, prefix="", known_extra=()):
                 raise ValueError(f"{prefix}{key.name}: missing ({key.doc or key.bounds()})")
             values[key.name] = key.default
             continue
-        if data[key.name] is None and key.default is None:
+        if data[key.name] is None and key.nullable:
             values[key.name] = None
             continue
         try:
@@ -137,7 +140,8 @@ def read_format_version(data, current, what, source):
     a version not a whole number, or newer than ``current``. ``source`` names the file in the warning."""
     version = data.get(FORMAT_VERSION_KEY, 0)
     if isinstance(version, bool) or not isinstance(version, int) or version < 0:
-        raise ValueError(f"{FORMAT_VERSION_KEY}: must be a whole number (this drive writes {current}), not {version!r}")
+        raise ValueError(f"{FORMAT_VERSION_KEY}: must be a whole number (this drive writes {current}), "
+                         f"not {shown(version)}")
     if version > current:
         raise ValueError(f"{FORMAT_VERSION_KEY}: {version}: a {what} of a newer format than this drive reads "
                          f"(up to {current}); update the drive")
@@ -153,3 +157,14 @@ def show_warnings_in_one_line(program):
     def show(message, category, filename, lineno, file=None, line=None):
         print(f"{program}: warning: {message}", file=sys.stderr if file is None else file)
     warnings.showwarning = show
+
+
+_SHORT = reprlib.Repr()
+_SHORT.maxlevel, _SHORT.maxlist, _SHORT.maxdict, _SHORT.maxtuple = 2, 4, 4, 4
+_SHORT.maxstring = _SHORT.maxother = _SHORT.maxlong = 60
+
+
+def shown(value):
+    """A value as an error line quotes it: its repr, shortened past 60 characters and two levels of nesting
+    (a YAML alias can make a value of gigabytes)."""
+    return _SHORT.repr(value)

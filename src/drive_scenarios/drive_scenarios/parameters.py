@@ -3,7 +3,7 @@ reads) and the overrides applied on top of it."""
 import dataclasses
 import math
 
-from drive_interface.settings import number
+from drive_interface.settings import number, shown
 
 from .scenario import (
     MAX_BLOCK_SAMPLES,
@@ -79,7 +79,7 @@ def check_parameters(parameters, label=lambda name: f"parameter {name}"):
             number(name, value, low=low, high=None if math.isinf(high) else high, low_inclusive=True)
         except ValueError:
             raise ScenarioError(f"{label(name)}: must be a finite number in [{low:g}, {high:g}], "
-                                f"not {value!r}") from None
+                                f"not {shown(value)}") from None
 
 
 def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}", experiment=True):

@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from drive_interface.errors import DriveError
-from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys
+from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys, shown
 from motor_params.commissioning import NAMEPLATE_ONLY
 from motor_params.motor_file import Motor, MotorFileError, load_motor, motor_from_mapping
 
@@ -136,6 +136,12 @@ class Scenario:
     `torque_feedforward`; None: none."""
     drive_file: str = ""
     """The drive configuration file the drive's part came from ("": the scenario file itself)."""
+    from_drive_file: tuple = ()
+    """The keys the drive configuration file (``drive: FILE``) gave."""
+
+    def source_of(self, key):
+        """The file that gave the top-level ``key``: the drive configuration file, or the scenario's source."""
+        return self.drive_file if key in self.from_drive_file else self.source
 
     @property
     def open_ended(self):
@@ -283,7 +289,8 @@ def with_drive(scenario, drive):
         scenario, motor=drive.motor, estimator=drive.estimator, estimator_settings=drive.estimator_settings,
         estimator_source=drive.estimator_source, injection=drive.injection, commissioning=drive.commissioning,
         controller=drive.controller, T_s=drive.T_s, block_samples=drive.block_samples,
-        answer_periods=drive.answer_periods, drive_file=drive.drive_file)
+        answer_periods=drive.answer_periods, drive_file=drive.drive_file,
+        from_drive_file=DRIVE_KEYS if drive.drive_file else ())
 
 
 def _refuse_experiment_keys(data, fail, source):
@@ -313,7 +320,7 @@ def _drive_part(data, source, fail):
     taken from its own folder), and the file's path."""
     spec = data["drive"]
     if not isinstance(spec, str) or not spec:
-        fail("drive", f"must be the path of a drive configuration file, not {spec!r}")
+        fail("drive", f"must be the path of a drive configuration file, not {shown(spec)}")
     file = Path(spec)
     if not file.is_absolute() and source.endswith((".yaml", ".yml")):
         file = Path(source).parent / file
@@ -362,6 +369,8 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         ("motor", "estimator", "duration_s", "sampling_period_s", "speed")
     for key in required:
         if key not in data:
+            if drive_file and key in DRIVE_KEYS:
+                origin[key] = drive_file
             fail(key, "missing")
 
     for key in ("initial", "metrics", "controller", "injection", "non_idealities"):
@@ -398,7 +407,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     if not drive_only and T_s > duration:
         fail("sampling_period_s", f"{T_s} s is longer than duration_s {duration} s")
     if not drive_only and duration / T_s > MAX_SAMPLES:
-        fail("duration_s", f"{duration!r} s at {T_s:g} s per sample is more than {MAX_SAMPLES} samples")
+        fail("duration_s", f"{shown(duration)} s at {T_s:g} s per sample is more than {MAX_SAMPLES} samples")
     mode = data.get("mode", "speed_control")
     if not isinstance(mode, str) or mode not in ("speed_control", "imposed_speed"):
         fail("mode", f"must be 'speed_control' or 'imposed_speed', not '{mode}'")
@@ -419,7 +428,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         if key not in NON_IDEALITIES:
             fail(f"non_idealities.{key}", f"unknown (known: {', '.join(NON_IDEALITIES)})")
         if not isinstance(value, bool):
-            fail(f"non_idealities.{key}", f"must be true or false, not {value!r}")
+            fail(f"non_idealities.{key}", f"must be true or false, not {shown(value)}")
         non_idealities[key] = value
 
     initial = data.get("initial", {}) or {}
@@ -436,24 +445,24 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         brake_release = _nonnegative(brake.get("release_s", BRAKE_RELEASE_S), "brake.release_s", fail)
         brake = True
     if not isinstance(brake, bool):
-        fail("brake", f"must be true, false or {{release_s: SECONDS}}, not {brake!r}")
+        fail("brake", f"must be true, false or {{release_s: SECONDS}}, not {shown(brake)}")
     metrics = data.get("metrics", {}) or {}
     for key in sorted(set(metrics) - {"settle_s", "start_s"}, key=str):
         fail(f"metrics.{key}", "unknown key (known: settle_s, start_s)")
     settle = _nonnegative(metrics.get("settle_s", 0.3), "metrics.settle_s", fail)
     start = _nonnegative(metrics.get("start_s", settle if settle < duration else 0.0), "metrics.start_s", fail)
     if start >= duration:
-        fail("metrics.start_s", f"{start!r} s is not before the end of the run ({duration!r} s)")
+        fail("metrics.start_s", f"{shown(start)} s is not before the end of the run ({shown(duration)} s)")
     substeps = data.get("substeps", 1)
     if isinstance(substeps, bool) or not isinstance(substeps, int) or not 1 <= substeps <= MAX_SUBSTEPS:
-        fail("substeps", f"must be a whole number from 1 to {MAX_SUBSTEPS}, not {substeps!r}")
+        fail("substeps", f"must be a whole number from 1 to {MAX_SUBSTEPS}, not {shown(substeps)}")
     block_samples, answer_periods = drive_values["block_samples"], drive_values["answer_periods"]
     seed = data.get("seed", 1)
     if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed < 2 ** 63:
-        fail("seed", f"must be a whole number from 0 to 2⁶³ − 1, not {seed!r}")
+        fail("seed", f"must be a whole number from 0 to 2⁶³ − 1, not {shown(seed)}")
     description = data.get("description", "")
     if not isinstance(description, str):
-        fail("description", f"must be text, not {description!r}")
+        fail("description", f"must be text, not {shown(description)}")
     controller = data.get("controller", {}) or {}
     if not isinstance(controller, dict):
         fail("controller", "must be a mapping of controller settings")
@@ -466,7 +475,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
                        else _factor(value, f"plant_deviation.{key}", fail)) for key, value in deviation.items()}
     commissioning = data.get("commissioning", "")
     if not isinstance(commissioning, str):
-        fail("commissioning", f"must be a file path or '{NAMEPLATE_ONLY}', not {commissioning!r}")
+        fail("commissioning", f"must be a file path or '{NAMEPLATE_ONLY}', not {shown(commissioning)}")
     commissioning_source = origin.get("commissioning", source)
     if commissioning and commissioning != NAMEPLATE_ONLY and commissioning_source.endswith((".yaml", ".yml")):
         commissioning = str(Path(commissioning_source).parent / commissioning)
@@ -481,7 +490,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         seed=seed, substeps=substeps, plant_deviation={**NO_DEVIATION, **deviation},
         commissioning=commissioning, estimator_source=estimator_source, brake=brake, brake_release_s=brake_release,
         torque_feedforward=feedforward, block_samples=block_samples, answer_periods=answer_periods,
-        drive_file=drive_file)
+        drive_file=drive_file, from_drive_file=tuple(sorted(origin)))
 
 
 def _drive_values(data, injection, fail):
@@ -505,7 +514,8 @@ def _motor(spec, label, scenario_source, from_file):
         if isinstance(spec, dict) and from_file:
             return motor_from_mapping(spec, label, default_name="motor")
         if not isinstance(spec, str):
-            raise ScenarioError(f"{label}: must be a shipped motor's name, a motor file or its mapping, not {spec!r}")
+            raise ScenarioError(f"{label}: must be a shipped motor's name, a motor file or its mapping, "
+                                f"not {shown(spec)}")
         if from_file and scenario_source.endswith((".yaml", ".yml")) and not Path(spec).is_absolute():
             beside = Path(scenario_source).parent / spec
             if beside.is_file():
@@ -517,7 +527,7 @@ def _motor(spec, label, scenario_source, from_file):
 
 def _number(value, key, fail):
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        fail(key, f"must be a finite number, not {value!r}")
+        fail(key, f"must be a finite number, not {shown(value)}")
     return float(value)
 
 
@@ -531,7 +541,7 @@ def _positive(value, key, fail):
 def _factor(value, key, fail):
     value = _positive(value, key, fail)
     if not 0.1 <= value <= 10.0:
-        fail(key, f"a factor must lie in [0.1, 10], not {value!r}")
+        fail(key, f"a factor must lie in [0.1, 10], not {shown(value)}")
     return value
 
 
@@ -549,10 +559,10 @@ def _table(spec, key, units, fail, duration):
         fail(f"{key}.{extra}", "unknown key (known: unit, points, interpolation)")
     unit = spec.get("unit")
     if not isinstance(unit, str) or unit not in units:
-        fail(f"{key}.unit", f"must be one of {', '.join(units)}, not {unit!r}")
+        fail(f"{key}.unit", f"must be one of {', '.join(units)}, not {shown(unit)}")
     interpolation = spec.get("interpolation", "step")
     if not isinstance(interpolation, str) or interpolation not in ("step", "linear"):
-        fail(f"{key}.interpolation", f"must be 'step' or 'linear', not {interpolation!r}")
+        fail(f"{key}.interpolation", f"must be 'step' or 'linear', not {shown(interpolation)}")
     points = spec.get("points")
     if not isinstance(points, list) or not points:
         fail(f"{key}.points", "missing or empty: give [[time_s, value], ...]")
@@ -561,7 +571,7 @@ def _table(spec, key, units, fail, duration):
     times, values = [], []
     for i, point in enumerate(points):
         if not isinstance(point, (list, tuple)) or len(point) != 2:
-            fail(f"{key}.points[{i}]", f"must be [time_s, value], not {point!r}")
+            fail(f"{key}.points[{i}]", f"must be [time_s, value], not {shown(point)}")
         t = _nonnegative(point[0], f"{key}.points[{i}] time", fail)
         if times and t < times[-1]:
             fail(f"{key}.points[{i}]", f"time {t} s goes backwards")

@@ -13,7 +13,7 @@ def check_controller_settings(scenario):
     try:
         check_settings(scenario.controller, scenario.T_s)
     except (KeyError, ValueError) as error:
-        raise ScenarioError(f"{scenario.source}: controller: {error.args[0]}") from None
+        raise ScenarioError(f"{scenario.source_of('controller')}: {error.args[0]}") from None
 
 
 def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth_Hz, tracking_current_limit_A,
@@ -40,4 +40,4 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
         return make_controller_params(plate, inverter, scenario.T_s,
                                       settings, injection_frequency_Hz, tracking_bandwidth_Hz, commissioning)
     except (KeyError, ValueError) as error:
-        raise ScenarioError(f"{scenario.source}: controller: {error.args[0]}") from None
+        raise ScenarioError(f"{scenario.source_of('controller')}: {error.args[0]}") from None

@@ -5,7 +5,7 @@ import math
 import numpy as np
 
 from control_math.filters import notch
-from drive_interface.settings import Key, read_keys
+from drive_interface.settings import Key, read_keys, shown
 
 from .control import ControllerParams
 from .tuning import SZABO_TABLE2, current_pi_gains_any_bandwidth, speed_pi_gains
@@ -17,7 +17,7 @@ SETTINGS = (
     Key("speed_bandwidth_rad_s", "rad/s", 0.0, default=40.0),
     Key("speed_to_estimator_ratio", "", 0.0, 1.0, default=0.25),
     Key("speed_damping", "", 0.0, default=1.0),
-    Key("current_limit_A", "A", 0.0, default=None, doc="at most the nameplate's current limit"),
+    Key("current_limit_A", "A", 0.0, default=None, nullable=True, doc="at most the nameplate's current limit"),
     Key("decoupling", "", choices=(True, False), default=True),
     Key("delay_compensation", "", choices=(True, False), default=True),
     Key("hf_notch_quality", "", 0.0, default=1.0),
@@ -114,12 +114,13 @@ def check_settings(settings, T_s=None):
     bounds the filter frequencies by Nyquist."""
     unknown = set(settings or {}) - set(DEFAULTS)
     if unknown:
-        raise KeyError(f"controller: unknown setting(s) {', '.join(sorted(unknown))} "
+        raise KeyError(f"controller: unknown setting(s) {', '.join(sorted(map(str, unknown)))} "
                        f"(known: {', '.join(sorted(DEFAULTS))})")
     try:
         s = read_keys(settings or {}, SETTINGS)
         if T_s and s["speed_filter_Hz"] >= 0.5 / T_s:
-            raise ValueError(f"speed_filter_Hz: must lie below Nyquist, {0.5 / T_s:g} Hz, not {s['speed_filter_Hz']!r}")
+            raise ValueError(f"speed_filter_Hz: must lie below Nyquist, {0.5 / T_s:g} Hz, "
+                             f"not {shown(s['speed_filter_Hz'])}")
     except ValueError as error:
         raise ValueError(f"controller: {error}") from None
     return s

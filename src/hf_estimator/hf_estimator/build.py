@@ -38,6 +38,15 @@ def scaled_injection(scenario, plate):
     return settings, notes
 
 
+def _blamed(scenario, message):
+    """An estimator's refusal (``estimator 'NAME': KEY: …``) as the scenario's key that set the value: its
+    ``injection.KEY`` where the injection gave it, else its ``estimator``, in the file that gave the key."""
+    parts = message.split(": ", 2)
+    if len(parts) == 3 and parts[1] in scenario.injection and parts[1] not in scenario.estimator_settings:
+        return f"{scenario.source_of('injection')}: injection.{parts[1]}: {parts[2]}"
+    return f"{scenario.source_of('estimator')}: estimator: {message}"
+
+
 def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
@@ -53,7 +62,7 @@ def estimator_for_scenario(scenario, commissioning):
     except KeyError as error:
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
     except ValueError as error:
-        raise ScenarioError(f"{scenario.source}: estimator: {error.args[0]}") from None
+        raise ScenarioError(_blamed(scenario, error.args[0])) from None
     if injects(scenario.estimator):
         notes += [n for n in (commissioning.weak_saliency_note(),) if n]
     note = "; ".join(n for n in (estimator.injection_note, *notes) if n)

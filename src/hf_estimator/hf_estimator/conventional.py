@@ -23,6 +23,7 @@ from numba import njit
 
 from control_math.filters import butterworth_bandpass, butterworth_lowpass
 from control_math.frames import clarke_contract
+from drive_interface.settings import shown
 
 from .admittance_monitor import MonitorParams, make_monitor
 from .interface import Estimator, check_settings, register
@@ -92,7 +93,7 @@ def demodulation_phase(name, demodulation, commissioning, T_s, delay_periods, f_
     """The demodulation carrier's phase [rad] for the setting ``demodulation`` (DEMODULATIONS) of
     estimator ``name``; ValueError naming the setting for another value."""
     if demodulation not in DEMODULATIONS:
-        raise ValueError(f"estimator {name}: setting demodulation: {demodulation!r} is not one of "
+        raise ValueError(f"estimator {name}: setting demodulation: {shown(demodulation)} is not one of "
                          f"{', '.join(DEMODULATIONS)}")
     if demodulation == "paper":
         return 0.0

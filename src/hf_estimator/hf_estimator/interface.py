@@ -31,7 +31,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from drive_interface.settings import choice, flag, number, positive
+from drive_interface.settings import choice, flag, number, positive, shown
 
 
 @dataclass(frozen=True)
@@ -176,10 +176,10 @@ def _optional_positive(key, value, T_s):
 
 def _band(key, value, T_s):
     if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ValueError(f"{key}: must be [low_Hz, high_Hz], not {value!r}")
+        raise ValueError(f"{key}: must be [low_Hz, high_Hz], not {shown(value)}")
     low, high = (_frequency(key, v, T_s) for v in value)
     if low >= high:
-        raise ValueError(f"{key}: the low edge must lie below the high one, not {value!r}")
+        raise ValueError(f"{key}: the low edge must lie below the high one, not {shown(value)}")
     return [low, high]
 
 
@@ -238,7 +238,7 @@ def check_settings(name, settings, defaults, T_s):
     ValueError for an unusable value, each naming the estimator and the key."""
     unknown = set(settings) - set(defaults)
     if unknown:
-        raise KeyError(f"estimator '{name}': unknown setting(s) {', '.join(sorted(unknown))} "
+        raise KeyError(f"estimator '{name}': unknown setting(s) {', '.join(sorted(map(str, unknown)))} "
                        f"(known: {', '.join(sorted(defaults))})")
     merged = dict(defaults)
     merged.update(settings)

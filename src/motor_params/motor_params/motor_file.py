@@ -12,7 +12,7 @@ from pathlib import Path
 import yaml
 
 from drive_interface.errors import DriveError
-from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys
+from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys, shown
 
 from .nameplate import InverterRating, Nameplate, NameplateError, nameplate_from_mapping
 
@@ -92,7 +92,7 @@ def load_motor(name_or_path, source="motor"):
         return name_or_path
     path = motor_path(name_or_path)
     if path is None:
-        raise MotorFileError(f"{source}: {name_or_path!r} is neither a shipped motor "
+        raise MotorFileError(f"{source}: {shown(name_or_path)} is neither a shipped motor "
                              f"({', '.join(shipped_motor_names())}) nor a motor file")
     try:
         if path.stat().st_size > MAX_FILE_BYTES:
@@ -126,7 +126,7 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
             fail(key, "missing, or not a mapping of keys (`drive motor template` shows one)")
     name = data.get("name", default_name)
     if not isinstance(name, str) or not name or "/" in name or not name.isprintable() or len(name) > 100:
-        fail("name", f"must be a word (it names the default commissioning file), not {name!r}")
+        fail("name", f"must be a word (it names the default commissioning file), not {shown(name)}")
     plate_data = dict(data["nameplate"])
     try:
         read_keys(plate_data, (), "nameplate.", known_extra=Nameplate._fields[1:])
@@ -148,7 +148,7 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
         fail("plant", "must be a mapping of the simulated motor's truth")
     description = data.get("description", "")
     if not isinstance(description, str):
-        fail("description", f"must be text, not {description!r}")
+        fail("description", f"must be text, not {shown(description)}")
     return Motor(name, plate, inverter, plant, path or source, description,
                  source if given_by is None else given_by)
 
@@ -172,7 +172,7 @@ def load_nameplate(preset_or_file, source):
     (e.g. "--motor") and the file or key."""
     path = motor_path(preset_or_file)
     if path is None:
-        raise NameplateError(f"{source}: {preset_or_file!r} is neither a shipped motor "
+        raise NameplateError(f"{source}: {shown(preset_or_file)} is neither a shipped motor "
                              f"({', '.join(shipped_motor_names())}) nor a file")
     try:
         data = yaml.safe_load(path.read_text(encoding="utf-8"))

@@ -9,11 +9,15 @@ papers' machines with their assumptions.
 import math
 from dataclasses import dataclass, field
 
+from drive_interface.settings import shown
 from drive_scenarios.scenario import NO_DEVIATION
 from motor_params.motor_file import MotorFileError, load_motor, shipped_motor_names
-from motor_params.nameplate import Nameplate
+from motor_params.nameplate import NAMEPLATE_KEYS, Nameplate
 
 from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
+
+NAMEPLATE_DECLARED = {key.name: key for key in NAMEPLATE_KEYS}
+"""The nameplate's declarations by key: the plant's truth of the same quantity stays within them."""
 
 
 @dataclass(frozen=True)
@@ -82,9 +86,15 @@ def plant_truth(motor, source="motor"):
     def value(key, default, low=0.0, low_inclusive=False, high=math.inf):
         v = plant.get(key, default)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            fail(key, f"must be a finite number, not {v!r}")
+            fail(key, f"must be a finite number, not {shown(v)}")
         if (v < low if low_inclusive else v <= low) or v >= high:
-            fail(key, f"must lie in {'[' if low_inclusive else '('}{low:g}, {high:g}), not {v!r}")
+            fail(key, f"must lie in {'[' if low_inclusive else '('}{low:g}, {high:g}), not {shown(v)}")
+        declared = NAMEPLATE_DECLARED.get(key.replace("h_H", "_H"))
+        if declared and key in plant:
+            try:
+                declared.read(v)
+            except ValueError as error:
+                fail(key, f"{str(error).split(': ', 1)[1]}, the nameplate's range (a typo or a unit slip?)")
         return float(v)
 
     R_s, psi_f = value("R_s_ohm", plate.R_s_ohm), value("psi_f_Wb", plate.psi_f_Wb)
@@ -112,6 +122,12 @@ def plant_truth(motor, source="motor"):
             fail("L_dh_H", f"{L_dh:g} H exceeds the unsaturated L_d_H {L_d:g} H: saturation lowers the incremental "
                            f"inductance (or give L_dh_drop_at_rated)")
         a_d, a_q, a_dq = _spmsm_saturation(L_d, L_q, L_dh, L_qh, psi_f, L_qh * plate.rated_current_A, q_drop)
+    source = plant.get("source", motor.description or motor.source)
+    if not isinstance(source, str):
+        fail("source", "must be text (where the simulated motor's values come from)")
+    assumptions = plant.get("assumptions") or []
+    if not isinstance(assumptions, list) or not all(isinstance(a, str) for a in assumptions):
+        fail("assumptions", "must be a list of sentences")
     machine = MachineParams(n_p=plate.n_p, R_s_ohm=R_s, L_d_H=L_d, L_q_H=L_q, psi_f_Wb=psi_f,
                             a_d=a_d, a_q=a_q, a_dq=a_dq)
     inverter = InverterParams(U_dc_V=motor.inverter.U_dc_V, t_dead_s=value("t_dead_s", DEFAULT_DEAD_TIME_S, 0.0, True),
@@ -120,8 +136,7 @@ def plant_truth(motor, source="motor"):
     return MotorPreset(name=motor.name, machine=machine, nameplate=plate,
                        mechanics=MechanicsParams(J_kgm2=J, B_Nms=B), inverter=inverter,
                        sensor=_sensor(plant.get("sensor") or {}, plate, fail),
-                       source=str(plant.get("source", motor.description or motor.source)),
-                       assumptions=tuple(str(a) for a in plant.get("assumptions") or ()))
+                       source=source, assumptions=tuple(assumptions))
 
 
 def _sensor(given, plate, fail):
@@ -130,15 +145,19 @@ def _sensor(given, plate, fail):
         fail("sensor", f"must be a mapping ({', '.join(SENSOR_KEYS)})")
     for key in sorted(set(given) - set(SENSOR_KEYS), key=str):
         fail(f"sensor.{key}", f"unknown key (known: {', '.join(SENSOR_KEYS)})")
-    adc_range = given.get("adc_range_A", ADC_RANGE_PER_CURRENT_LIMIT * plate.current_limit_A)
-    values = {"noise_std_A": NOISE_PER_ADC_RANGE * adc_range, "adc_bits": DEFAULT_ADC_BITS, "adc_range_A": adc_range,
-              **{f"offset_{x}_A": 0.0 for x in "abc"}, **{f"gain_{x}": 1.0 for x in "abc"}, **given}
-    for key, v in values.items():
+
+    def checked(key, v):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-            fail(f"sensor.{key}", f"must be a finite number, not {v!r}")
+            fail(f"sensor.{key}", f"must be a finite number, not {shown(v)}")
         if (key == "adc_bits" and (v != int(v) or not 0 <= v <= 24)) or \
                 (key.startswith(("gain", "adc_range")) and v <= 0.0) or (key == "noise_std_A" and v < 0.0):
-            fail(f"sensor.{key}", f"out of range: {v!r}")
+            fail(f"sensor.{key}", f"out of range: {shown(v)}")
+        return v
+
+    adc_range = checked("adc_range_A", given.get("adc_range_A", ADC_RANGE_PER_CURRENT_LIMIT * plate.current_limit_A))
+    defaults = {"noise_std_A": NOISE_PER_ADC_RANGE * adc_range, "adc_bits": DEFAULT_ADC_BITS, "adc_range_A": adc_range,
+                **{f"offset_{x}_A": 0.0 for x in "abc"}, **{f"gain_{x}": 1.0 for x in "abc"}}
+    values = {key: checked(key, given.get(key, default)) for key, default in defaults.items()}
     return SensorParams(**{key: (int(values[key]) if key == "adc_bits" else float(values[key])) for key in SENSOR_KEYS})
 
 
