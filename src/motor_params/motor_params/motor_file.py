@@ -18,7 +18,7 @@ from .nameplate import InverterRating, Nameplate, NameplateError, nameplate_from
 MOTOR_DIR = Path(__file__).parent / "motors"
 MAX_FILE_BYTES = 1 << 20
 TOP_KEYS = ("name", "description", "nameplate", "inverter", "plant")
-INVERTER_KEYS = ("U_dc_V", "delay_periods")
+INVERTER_KEYS = ("U_dc_V", "delay_periods") + InverterRating._fields[2:]
 
 
 BUS_PER_RATED_SPEED_NEED = 20.0
@@ -132,14 +132,20 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
     delay = inverter.get("delay_periods", 1)
     if isinstance(delay, bool) or not isinstance(delay, int) or not 0 <= delay <= 2:
         fail("inverter.delay_periods", f"must be 0, 1 or 2 (periods from sample to applied command), not {delay!r}")
+    link = {key: inverter[key] for key in InverterRating._fields[2:] if key in inverter}
+    for key, v in link.items():
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0.0:
+            fail(f"inverter.{key}", f"must be a positive number (.inf: none), not {v!r}")
+    if link.get("U_brake_off_V", 0.0) > link.get("U_brake_on_V", math.inf):
+        fail("inverter.U_brake_off_V", "must not exceed U_brake_on_V (the chopper's hysteresis)")
     plant = data.get("plant") or {}
     if not isinstance(plant, dict):
         fail("plant", "must be a mapping of the simulated motor's truth")
     description = data.get("description", "")
     if not isinstance(description, str):
         fail("description", f"must be text, not {description!r}")
-    return Motor(name, plate, InverterRating(float(U_dc), delay), plant, path or source, description,
-                 source if given_by is None else given_by)
+    rating = InverterRating(float(U_dc), delay, **{key: float(v) for key, v in link.items()})
+    return Motor(name, plate, rating, plant, path or source, description, source if given_by is None else given_by)
 
 
 def nameplate(name_or_path):
