@@ -1,17 +1,30 @@
 """Protections (docs/protections.md): the DC link as a capacitor fed by a supply that cannot absorb, with
 a brake chopper; the winding's temperature and R_s(T); the inverter's safe states at speed (freewheel,
 active short circuit) in the plant."""
+import dataclasses
 import math
+from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from control_math.copper import COPPER_ALPHA_PER_K
 from control_math.frames import clarke, rotate
+from control_math.safe_state import ASC, FREEWHEEL, safe_state_for
+from drive_bridge.inverter_protocol import FREEWHEELING, OVERVOLTAGE, PWM_OFF, SAFE_AUTO, SHORT_CIRCUIT
+from drive_bridge.virtual_inverter import VirtualInverter
+from drive_interface.estimator_states import TRACKING
+from drive_scenarios.scenario import NON_IDEALITIES, Table, load_scenario
+from foc_controller.control import REGEN_CUT, controller_state, controller_step
+from foc_controller.params import make_controller_params
+from foc_controller.protection import make_protection_params, protection_state, protection_step, winding_estimate
+from motor_params.motor_file import MotorFileError, load_motor, motor_path
+from motor_params.nameplate import InverterRating
 from pmsm_plant.model import (
-    ASC,
-    FREEWHEEL,
     INVERTER_MODE,
     N_STATE,
+    OMEGA_M,
     THETA_M,
     WINDING_RISE,
     bus_voltage,
@@ -20,8 +33,8 @@ from pmsm_plant.model import (
     plant_reset,
     winding_resistance,
 )
-from pmsm_plant.params import COPPER_ALPHA_PER_K, InverterParams
-from pmsm_plant.presets import PRESETS
+from pmsm_plant.params import InverterParams
+from pmsm_plant.presets import PRESETS, plant_truth
 
 pytestmark = pytest.mark.unit
 
@@ -121,3 +134,187 @@ def test_winding_heats_by_its_first_order_model_and_its_resistance_follows():
     assert rise > 5.0
     T = machine.T_ambient_degC + x[WINDING_RISE]
     assert winding_resistance(x, machine) == pytest.approx(machine.R_s_ohm * (1 + 0.00393 * (T - 20.0)), rel=1e-12)
+
+
+def _drive_loop(plant_machine, inv, omega_m0, omega_ref, seconds, T_s, protection=None, obey_cut=True,
+                imposed=False):
+    """The plant under the cascade controller (foc_controller.control) fed the true angle and speed (an
+    encoder: the protections, not the estimator, are under test), with the drive's protections
+    (``protection``: ProtectionParams) stepped before it each sample; a trip switches the inverter to the
+    safe state the drive chose. ``obey_cut`` False: a drive without the over-voltage controller. Returns
+    the per-sample arrays bus [V], winding temperature [°C], R_s true and estimated [Ω], T̂ [°C], ω_m
+    [rad/s], |i| [A], and the trip's safe state (0: none)."""
+    plate = WANG.nameplate
+    c = make_controller_params(plate, InverterRating(inv.U_dc_V, 1), T_s)
+    cx, cz = controller_state(c)
+    ps = protection_state()
+    x = np.zeros(N_STATE)
+    plant_reset(x, 0.0, omega_m0, plant_machine)
+    n = round(seconds / T_s)
+    rows = np.zeros((n, 7))
+    u = (0.0, 0.0)
+    tripped = 0
+    for k in range(n):
+        plant_advance(x, u[0], u[1], 0.0, imposed, omega_m0, plant_machine, WANG.mechanics, inv, T_s, 1)
+        i_a, i_b, i_c, _ = plant_outputs(x, plant_machine)
+        theta_e, omega_e = plate.n_p * x[THETA_M], plate.n_p * x[OMEGA_M]
+        U_dc = bus_voltage(x, inv)
+        T_hat, R_hat = math.nan, math.nan
+        if protection is not None:
+            safe = protection_step(ps, protection, *clarke(i_a, i_b, i_c), U_dc, omega_e, cx)
+            if not obey_cut:
+                cx[REGEN_CUT] = 0.0
+            if safe:
+                tripped = safe
+                x[INVERTER_MODE] = safe
+            T_hat, R_hat = winding_estimate(ps, protection)
+        u = controller_step(cx, cz, c, i_a, i_b, i_c, theta_e, omega_e, omega_ref, 0.0, 0.0, TRACKING, 0.0)[:2]
+        rows[k] = (U_dc, plant_machine.T_ambient_degC + x[WINDING_RISE], winding_resistance(x, plant_machine),
+                   R_hat, T_hat, x[OMEGA_M], math.hypot(*clarke(i_a, i_b, i_c)))
+    return rows, tripped
+
+
+HOT = MACHINE._replace(C_th_J_K=1.0, R_th_K_W=10.0, T_ambient_degC=25.0)
+"""The Wang winding with a thermal time constant shortened to τ = R_th·C_th = 10 s (a test of minutes in
+seconds), in a 25 °C ambient."""
+
+
+def _steady_rise(machine, current_A):
+    """The steady temperature rise [K] of the plant's winding at a current amplitude: ΔT = R_th·1.5 R(T) I²
+    with R(T) linear in T, solved for ΔT."""
+    g = machine.R_th_K_W * 1.5 * current_A ** 2 * machine.R_s_ohm
+    return g * (1 + COPPER_ALPHA_PER_K * (machine.T_ambient_degC - 20.0)) / (1.0 - g * COPPER_ALPHA_PER_K)
+
+
+def test_i2t_foldback_holds_the_winding_under_its_limit_and_tracks_r_s():
+    """A locked rotor asked for full torque (the current limit, 6.9 A, would settle the winding at 265 °C):
+    over 40 s (4 τ) the I²t foldback holds the plant's winding under the drive's 130 °C limit (it settles
+    between the 120 °C warning and the limit), the drive's estimate T̂ stays within 2 K of the plant's
+    temperature and R̂_s(T̂) within 1 % of the plant's R_s(T), which rises 30 %. The drive is told the
+    winding as a datasheet would: τ = 10 s, the rise at rated current, the ambient; R_s at ambient."""
+    plate = WANG.nameplate
+    assert HOT.T_ambient_degC + _steady_rise(HOT, plate.current_limit_A) > 250.0
+    T_s = 1e-3
+    protection = make_protection_params(
+        plate, InverterRating(24.0, 1), T_s,
+        {"thermal_time_constant_s": HOT.R_th_K_W * HOT.C_th_J_K, "ambient_degC": HOT.T_ambient_degC,
+         "rise_at_rated_K": _steady_rise(HOT, plate.rated_current_A), "warning_degC": 120.0, "limit_degC": 130.0})
+    protection = protection._replace(R_s_ohm=winding_resistance(np.zeros(N_STATE), HOT))
+    inv = InverterParams(U_dc_V=24.0, t_dead_s=0.0, i_dead_A=0.05, delay_periods=0)
+    rows, tripped = _drive_loop(HOT, inv, 0.0, 100.0, 40.0, T_s, protection, imposed=True)
+    T, R, R_hat, T_hat = rows[:, 1], rows[:, 2], rows[:, 3], rows[:, 4]
+    assert tripped == 0
+    assert T.max() < 130.0
+    assert 120.0 < T[-1] < 130.0
+    assert np.max(np.abs(T_hat - T)) < 2.0
+    assert np.max(np.abs(R_hat / R - 1.0)) < 0.01
+    assert R[-1] / R[0] > 1.3
+
+
+def test_braking_is_limited_by_the_bus_and_an_over_voltage_trips_to_the_safe_state():
+    """A stop from 2000 rpm (8.7 J in the shaft) on a 24 V, 1 mF link with no brake resistor (it can take
+    0.13 J up to 28.8 V). With the over-voltage controller (braking current cut from 26.4 V, none left at
+    28.8 V) the bus peaks under the 30 V trip (29.5 V: the current loops' lag), the drive does not trip
+    and the shaft's lost energy is what the link took, the copper and the friction (within 5 %): without a
+    brake resistor braking is as slow as that. A drive without it regenerates
+    past the 30 V trip; the trip, at a back-EMF under the bus, chooses freewheel and the bus stays within
+    6 % of the trip level (the diodes take the winding's magnetic energy, 1.5·½L_d i² = 35 mJ at 6.9 A, into
+    the link: 31.6 V), then no further."""
+    T_s = 1e-4
+    inv = InverterParams(U_dc_V=24.0, t_dead_s=0.0, i_dead_A=0.05, delay_periods=0, C_dc_F=1e-3)
+    protection = make_protection_params(WANG.nameplate, InverterRating(24.0, 1), T_s)
+    omega0 = 2000.0 * math.pi / 30.0
+    rows, tripped = _drive_loop(MACHINE, inv, omega0, 0.0, 0.3, T_s, protection)
+    assert tripped == 0
+    assert protection.U_ovc_full_V < rows[:, 0].max() < protection.U_overvoltage_V
+    bus, omega, current = rows[:, 0], rows[:, 5], rows[:, 6]
+    shaft = 0.5 * WANG.mechanics.J_kgm2 * (omega0 ** 2 - omega[-1] ** 2)
+    taken = 0.5 * inv.C_dc_F * (bus[-1] ** 2 - inv.U_dc_V ** 2) + T_s * np.sum(
+        1.5 * MACHINE.R_s_ohm * current ** 2 + WANG.mechanics.B_Nms * omega ** 2)
+    assert taken == pytest.approx(shaft, rel=0.05)
+    rows, tripped = _drive_loop(MACHINE, inv, omega0, 0.0, 0.3, T_s, protection, obey_cut=False)
+    assert tripped == FREEWHEEL
+    assert protection.U_overvoltage_V < rows[:, 0].max() < 1.06 * protection.U_overvoltage_V
+    assert rows[-1, 0] - rows[-1000, 0] < 1e-3
+
+
+def test_safe_state_is_chosen_by_speed_and_bus():
+    """ASC from 90 % of the bus in back-EMF (√3·ω_e·ψ_f) on, freewheel below: the Wang motor at rated speed
+    (17.6 V) on 12 V is shorted, on 24 V freewheels; at standstill it freewheels."""
+    w = MACHINE.n_p * RATED_OMEGA_M
+    assert safe_state_for(w, 12.0, MACHINE.psi_f_Wb) == ASC
+    assert safe_state_for(-w, 12.0, MACHINE.psi_f_Wb) == ASC
+    assert safe_state_for(w, 24.0, MACHINE.psi_f_Wb) == FREEWHEEL
+    assert safe_state_for(0.0, 12.0, MACHINE.psi_f_Wb) == FREEWHEEL
+
+
+def test_motor_file_states_the_link_and_the_plant_section_the_winding(tmp_path):
+    """A motor file's inverter keys reach the drive's rating and the plant's inverter, the plant section's
+    thermal keys the plant's machine; a brake that switches off above its on-threshold is refused by name."""
+    text = Path(motor_path("wang_spmsm")).read_text()
+    text = text.replace("  delay_periods: 1\n", "  delay_periods: 1\n  C_dc_F: 1.0e-3\n  R_brake_ohm: 10.0\n"
+                        "  U_brake_on_V: 28.0\n  U_brake_off_V: 27.0\n  U_overvoltage_V: 32.0\n", 1)
+    text = text.replace("plant:\n", "plant:\n  C_th_J_K: 50.0\n  R_th_K_W: 2.0\n", 1)
+    path = tmp_path / "wang_link.yaml"
+    path.write_text(text)
+    motor = load_motor(str(path))
+    assert (motor.inverter.C_dc_F, motor.inverter.U_overvoltage_V) == (1e-3, 32.0)
+    preset = plant_truth(motor)
+    assert (preset.inverter.C_dc_F, preset.inverter.R_brake_ohm, preset.inverter.U_brake_off_V) == (1e-3, 10.0, 27.0)
+    assert (preset.machine.C_th_J_K, preset.machine.R_th_K_W) == (50.0, 2.0)
+    assert make_protection_params(motor.nameplate, motor.inverter, 1e-4).U_overvoltage_V == 32.0
+    path.write_text(text.replace("U_brake_off_V: 27.0", "U_brake_off_V: 29.0"))
+    with pytest.raises(MotorFileError, match="inverter.U_brake_off_V"):
+        load_motor(str(path))
+
+
+def _low_bus_motor(tmp_path):
+    """The Wang motor on a 12 V, 1 mF link (trip at 15 V by default): its rated-speed back-EMF exceeds the bus."""
+    text = Path(motor_path("wang_spmsm")).read_text()
+    text = text.replace("U_dc_V: 24.0", "U_dc_V: 12.0", 1).replace("  delay_periods: 1\n",
+                                                                   "  delay_periods: 1\n  C_dc_F: 1.0e-3\n", 1)
+    path = tmp_path / "wang_12V.yaml"
+    path.write_text(text)
+    return load_motor(str(path))
+
+
+def _stopped_inverter(motor, speed_rad_s, safe_request, periods):
+    """A virtual inverter whose drive started and then stopped switching (disabled), its shaft driven at
+    ``speed_rad_s``, the host asking for ``safe_request``: per period its status, bus [V] and |i| [A]."""
+    scenario = dataclasses.replace(load_scenario("wang_100rpm"), motor=motor, mode="imposed_speed",
+                                   speed=Table((0.0,), (speed_rad_s,), "step"), initial_omega_m_rad_s=speed_rad_s,
+                                   duration_s=periods * 1e-4, non_idealities=dict.fromkeys(NON_IDEALITIES, False))
+    inverter = VirtualInverter(scenario, endpoint=SimpleNamespace(errors={}))
+    inverter.started, inverter.safe_request = True, safe_request
+    out = np.zeros((1, 10))
+    rows = []
+    for k in range(periods):
+        inverter.simulate(k, 1, out)
+        rows.append((inverter.status(), bus_voltage(inverter.plant.x, inverter.plant.inverter),
+                     math.hypot(*clarke(*out[0, :3]))))
+    return rows
+
+
+def test_the_virtual_inverter_stops_into_the_safe_state_for_its_speed_and_bus(tmp_path):
+    """A virtual inverter stopped at rated speed on a 12 V link (back-EMF 17.6 V). Left to choose
+    (SAFE_AUTO) it freewheels, the diodes charge the link past its 15 V trip, it latches OVERVOLTAGE and
+    shorts the winding: the bus stays under 16.5 V (a period's rise past the trip) and the current settles
+    at the short circuit's 15.2 A (ψ_f/L_d = 16.6 A; within 3 %). Asked for freewheel it obeys and the bus
+    rises to the back-EMF's 17.6 V (within 5 %). Asked for ASC it shorts at once: the bus stays at 12 V.
+    Stopped at a tenth of rated speed it freewheels with no current (< 1 mA) and no trip."""
+    motor = _low_bus_motor(tmp_path)
+    rated = RATED_OMEGA_M
+    rows = _stopped_inverter(motor, rated, SAFE_AUTO, 600)
+    status = [r[0] for r in rows]
+    assert status[0] & FREEWHEELING and status[0] & PWM_OFF and not status[0] & OVERVOLTAGE
+    tripped = next(k for k, s in enumerate(status) if s & OVERVOLTAGE)
+    assert all(s & OVERVOLTAGE and s & SHORT_CIRCUIT for s in status[tripped + 1:])
+    assert 15.0 < max(r[1] for r in rows) < 16.5
+    assert rows[-1][2] == pytest.approx(15.2, rel=0.03)
+    rows = _stopped_inverter(motor, rated, FREEWHEEL, 400)
+    assert rows[-1][0] & FREEWHEELING and rows[-1][0] & OVERVOLTAGE
+    assert rows[-1][1] == pytest.approx(math.sqrt(3.0) * MACHINE.n_p * rated * MACHINE.psi_f_Wb, rel=0.05)
+    rows = _stopped_inverter(motor, rated, ASC, 100)
+    assert max(r[1] for r in rows) == 12.0 and rows[-1][0] & SHORT_CIRCUIT
+    rows = _stopped_inverter(motor, 0.1 * rated, SAFE_AUTO, 300)
+    assert rows[-1][2] < 1e-3 and not any(r[0] & OVERVOLTAGE for r in rows) and rows[-1][0] & FREEWHEELING

@@ -17,16 +17,15 @@ import numpy as np
 from numba import njit
 
 from control_math.command_delay import applied_voltage
+from control_math.copper import copper_resistance
 from control_math.frames import clarke, inverse_clarke, rotate
-
-from .params import COPPER_ALPHA_PER_K
+from control_math.safe_state import ASC, FREEWHEEL
 
 # Plant state vector layout: flux [Wb], shaft [rad/s, rad], DC-link voltage above the supply's [V] (0
-# reads as the supply's: bus_voltage), winding temperature rise [K], inverter mode, brake chopper on (1).
+# reads as the supply's: bus_voltage), winding temperature rise [K], inverter mode (control_math.safe_state:
+# PWM, FREEWHEEL, ASC), brake chopper on (1).
 PSI_ALPHA, PSI_BETA, OMEGA_M, THETA_M, U_DC_BUS, WINDING_RISE, INVERTER_MODE, BRAKE_ON = range(8)
 N_STATE = 8
-PWM, FREEWHEEL, ASC = 0, 1, 2
-"""Values of x[INVERTER_MODE]: switching the commanded voltage, all switches off, low-side switches on."""
 NOT_RELEASED = 2 ** 62
 """plant_block's ``release_k`` of a brake that holds until further notice."""
 
@@ -108,10 +107,10 @@ def bus_voltage(x, inv):
 @njit(cache=True)
 def winding_resistance(x, m):
     """R_s(T) = R_s,20 (1 + α (T − 20 °C)) [Ω] at the winding temperature T = T_ambient + x[WINDING_RISE]
-    (copper, α = COPPER_ALPHA_PER_K); R_s_ohm itself when the winding is isothermal (C_th_J_K = 0)."""
+    (control_math.copper); R_s_ohm itself when the winding is isothermal (C_th_J_K = 0)."""
     if m.C_th_J_K <= 0.0:
         return m.R_s_ohm
-    return m.R_s_ohm * (1.0 + COPPER_ALPHA_PER_K * (m.T_ambient_degC + x[WINDING_RISE] - 20.0))
+    return copper_resistance(m.R_s_ohm, 20.0, m.T_ambient_degC + x[WINDING_RISE])
 
 
 @njit(cache=True)

@@ -8,9 +8,6 @@ read these.
 import math
 from typing import NamedTuple
 
-COPPER_ALPHA_PER_K = 0.00393
-"""Temperature coefficient of copper's resistance at 20 °C [1/K]: R(T) = R_20 (1 + α (T − 20 °C))."""
-
 
 class MachineParams(NamedTuple):
     """Electrical dq model of a PMSM with flux linkage as state (Szabó Eq. 1-3, Wang Eq. 1).
