@@ -1,6 +1,6 @@
 """The drive's protections (docs/protections.md), from what it knows (nameplate, inverter rating, its
 thermal figures or their defaults) and measures (phase currents, the DC-link voltage, its speed
-estimate); never the plant's truth. One kernel per sample, ``protection_step``:
+estimate); never the plant's truth. One kernel per block of samples, ``protection_block``:
 
 - DC-link over-voltage controller: above U_ovc_start_V the braking (regenerative) q-current is cut,
   linearly to none at U_ovc_full_V; above U_overvoltage_V the drive trips, latched, into its safe state.
@@ -22,7 +22,8 @@ import numpy as np
 from numba import njit
 
 from control_math.copper import copper_resistance
-from control_math.safe_state import overvoltage_trip_V, safe_state_for
+from control_math.frames import clarke
+from control_math.safe_state import ASC, FREEWHEEL, overvoltage_trip_V, safe_state_for
 
 from .control import FOLDBACK_A, REGEN_CUT
 
@@ -39,11 +40,13 @@ DEFAULTS = {
 a 40 °C ambient, τ = 5 min, and cuts braking current from 1.1 × the rated bus, none left at 1.2 × (below the
 over-voltage trip: the inverter rating's U_overvoltage_V, else control_math.safe_state.OVERVOLTAGE_PER_BUS)."""
 
-# Protection state layout.
-RISE_HAT, TRIPPED, SAFE_STATE, CAUSE = range(4)
-N_STATE = 4
+# Protection state layout: ΔT̂ [K], tripped (1), the safe state chosen, the cause, the sample it tripped at,
+# the highest T̂ [°C] and bus [V] seen.
+RISE_HAT, TRIPPED, SAFE_STATE, CAUSE, TRIP_K, PEAK_DEGC, PEAK_BUS_V = range(7)
+N_STATE = 7
 NO_TRIP, OVERVOLTAGE = 0, 1
 CAUSES = {OVERVOLTAGE: "DC-link over-voltage"}
+SAFE_STATE_NAMES = {FREEWHEEL: "freewheel", ASC: "active short circuit"}
 
 
 class ProtectionParams(NamedTuple):
@@ -104,20 +107,27 @@ def winding_estimate(s, p):
 
 
 @njit(cache=True)
-def protection_step(s, p, i_alpha, i_beta, U_dc, omega_e_hat, cx):
-    """One sample: currents (i_α, i_β) [A], the measured bus U_dc [V], the speed estimate ω̂_e [rad/s];
-    updates the state s (RISE_HAT … CAUSE) and the controller state cx's limits (FOLDBACK_A, REGEN_CUT).
-    Returns the safe state to switch to (FREEWHEEL, ASC) at the sample the drive trips, else 0."""
-    T, R = winding_estimate(s, p)
+def protection_block(s, p, currents, n, k_last, U_dc, omega_e_hat, cx):
+    """n samples, the last sample k_last: the phase currents (n × 3, measured [A]) heat the winding estimate
+    sample by sample; the bus U_dc [V] measured at the last of them and the speed estimate ω̂_e [rad/s] there
+    set the controller state cx's limits (FOLDBACK_A, REGEN_CUT) and trip. Returns the safe state to switch
+    to (FREEWHEEL, ASC) when the drive trips in this block, else 0."""
     R_rated = resistance_at(p, p.ambient_degC + p.rise_at_rated_K)
-    heat = p.rise_at_rated_K * (R / R_rated) * (i_alpha * i_alpha + i_beta * i_beta) / p.rated_current_A ** 2
-    s[RISE_HAT] += p.T_s_s / p.thermal_time_constant_s * (heat - s[RISE_HAT])
+    for i in range(n):
+        i_alpha, i_beta = clarke(currents[i, 0], currents[i, 1], currents[i, 2])
+        R = winding_estimate(s, p)[1]
+        heat = p.rise_at_rated_K * (R / R_rated) * (i_alpha * i_alpha + i_beta * i_beta) / p.rated_current_A ** 2
+        s[RISE_HAT] += p.T_s_s / p.thermal_time_constant_s * (heat - s[RISE_HAT])
+    T = p.ambient_degC + s[RISE_HAT]
+    s[PEAK_DEGC] = max(s[PEAK_DEGC], T)
+    s[PEAK_BUS_V] = max(s[PEAK_BUS_V], U_dc)
     share = min(max((T - p.warning_degC) / (p.limit_degC - p.warning_degC), 0.0), 1.0)
     continuous = p.rated_current_A * math.sqrt((p.warning_degC - p.ambient_degC) / p.rise_at_rated_K)
     cx[FOLDBACK_A] = share * max(p.current_limit_A - continuous, 0.0)
     cx[REGEN_CUT] = min(max((U_dc - p.U_ovc_start_V) / (p.U_ovc_full_V - p.U_ovc_start_V), 0.0), 1.0)
     if s[TRIPPED] == 0.0 and U_dc > p.U_overvoltage_V:
         s[TRIPPED] = 1.0
+        s[TRIP_K] = k_last
         s[CAUSE] = OVERVOLTAGE
         s[SAFE_STATE] = safe_state_for(omega_e_hat, U_dc, p.psi_f_Wb)
         return int(s[SAFE_STATE])
@@ -126,4 +136,17 @@ def protection_step(s, p, i_alpha, i_beta, U_dc, omega_e_hat, cx):
 
 def protection_state():
     """A fresh protection state: the winding at ambient, no trip."""
-    return np.zeros(N_STATE)
+    s = np.zeros(N_STATE)
+    s[TRIP_K] = -1.0
+    s[PEAK_DEGC] = -273.15
+    return s
+
+
+def protection_summary(s, p):
+    """What the protections did, for a run's report: the trip (its cause, the sample it came at, the safe
+    state chosen) or None, the highest winding temperature estimate [°C] and bus voltage [V] seen."""
+    trip = None
+    if s[TRIPPED]:
+        trip = {"cause": CAUSES[int(s[CAUSE])], "at_s": s[TRIP_K] * p.T_s_s,
+                "safe_state": SAFE_STATE_NAMES[int(s[SAFE_STATE])]}
+    return {"trip": trip, "winding_peak_degC": float(s[PEAK_DEGC]), "bus_peak_V": float(s[PEAK_BUS_V])}
