@@ -21,7 +21,7 @@ from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.realtime import collector_held
 from drive_scenarios.scenario import behind_an_inverter
 from foc_controller.control import controller_block, controller_step
-from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block, protection_summary
+from foc_controller.protection import R_S_IN_USE, SAFE_STATE, TRIPPED, protection_block, protection_summary
 from hf_estimator.block import estimator_block, sample_inputs
 from motor_params.nameplate import trip_current_A
 
@@ -209,6 +209,7 @@ class _SampleAnswer:
         e, cx, cz, cp = host.estimator, host.controller_x, host.controller_z, host.controller
         self.currents[0] = s.i_a, s.i_b, s.i_c
         self.encoder[0, 0] = cp.n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+        self.inputs[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
         estimator_block(e.step, e.state, e.params, k, 1, self.currents, line, self.encoder, self.calibration,
                         self.trip_A, self.estimate, self.inputs)
         est = self.estimate[0]
@@ -264,6 +265,7 @@ class _BlockAnswer:
         self.currents[:n] = b.currents_A[:n]
         theta = b.theta_m[:n]
         self.encoder[:n, 0] = np.where(np.isnan(theta), 0.0, n_p * theta)
+        self.inputs[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
         estimator_block(e.step, e.state, e.params, k0, n, self.currents, line, self.encoder, self.calibration,
                         self.trip_A, self.est_out, self.inputs)
         enable, safe = protect(host, self.currents, n, k0 + n - 1, b.u_dc_V, self.est_out[n - 1]["omega_e_hat"],

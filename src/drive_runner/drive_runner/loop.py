@@ -11,7 +11,7 @@ from control_math.current_sensing import corrected_currents
 from drive_interface.estimator_records import ESTIMATE, SAMPLE
 from drive_interface.estimator_states import TRACKING
 from foc_controller.control import controller_block
-from foc_controller.protection import protection_block
+from foc_controller.protection import R_S_IN_USE, protection_block
 from hf_estimator.block import estimator_block
 from pmsm_plant.model import INVERTER_MODE, NOT_RELEASED, bus_voltage, plant_block
 
@@ -71,7 +71,8 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
     input (hf_estimator.block, foc_controller.control.controller_block); the log keeps them as measured.
     Before the controller answers a block the drive's protections (ps, pp: foc_controller.protection's state
     and parameters) take its measured currents, the bus at its last sample and the speed estimate there;
-    a trip switches the inverter to the safe state they chose from the next period on.
+    a trip switches the inverter to the safe state they chose from the next period on; the estimator's
+    resistive drop takes their R̂_s (R_S_IN_USE) from the next block on.
     Not cached on disk: numba cannot re-save a cache index whose entries are specialised on other
     processes' step functions ("underlying object has vanished"); the kernels it calls are cached.
     """
@@ -91,6 +92,7 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
         for i in range(n):
             encoder[i, 0] = n_p * plant_out[i, 6]
             encoder[i, 1] = n_p * plant_out[i, 7]
+        inputs[0].R_s_ohm = ps[R_S_IN_USE]
         estimator_block(est_step, est_state, ep, k0, n, plant_out[:, 3:6], line, encoder, calibration, trip_A,
                         est_out, inputs)
         safe = protection_block(ps, pp, plant_out[:, 3:6], n, k0 + n - 1, bus_voltage(px, inverter),

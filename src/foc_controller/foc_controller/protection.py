@@ -9,7 +9,8 @@ estimate); never the plant's truth. One kernel per block of samples, ``protectio
   rise at rated current). Above T_warning_degC the current limit folds back linearly to the current
   whose steady rise ends at the warning, reached at T_limit_degC: the temperature settles between them.
 - R̂_s(T̂) = R_s (1 + α(T̂ − 20 °C))/(1 + α(T_a − 20 °C)) (control_math.copper), R_s measured at ambient
-  (the commissioning).
+  (the commissioning), handed to the estimators' resistive drop in steps of R_S_STEP (``R_S_IN_USE``, the
+  caller puts it in their SAMPLE's R_s_ohm).
 - The safe state at speed (control_math.safe_state): active short circuit where the back-EMF √3 |ω̂_e| ψ_f
   reaches SAFE_STATE_MARGIN of the bus (freewheeling would rectify it into the link), freewheel below.
 
@@ -41,9 +42,12 @@ a 40 °C ambient, τ = 5 min, and cuts braking current from 1.1 × the rated bus
 over-voltage trip: the inverter rating's U_overvoltage_V, else control_math.safe_state.OVERVOLTAGE_PER_BUS)."""
 
 # Protection state layout: ΔT̂ [K], tripped (1), the safe state chosen, the cause, the sample it tripped at,
-# the highest T̂ [°C] and bus [V] seen.
-RISE_HAT, TRIPPED, SAFE_STATE, CAUSE, TRIP_K, PEAK_DEGC, PEAK_BUS_V = range(7)
-N_STATE = 7
+# the highest T̂ [°C] and bus [V] seen, the R̂_s [Ω] handed to the estimators (0: the commissioned one).
+RISE_HAT, TRIPPED, SAFE_STATE, CAUSE, TRIP_K, PEAK_DEGC, PEAK_BUS_V, R_S_IN_USE = range(8)
+N_STATE = 8
+R_S_STEP = 0.01
+"""The estimators' resistive drop follows R̂_s(T̂) in steps of this share (a winding warmed by 2.5 K): a run
+too short to warm it keeps the commissioned R_s, as the ROS graph (no protections yet) does."""
 NO_TRIP, OVERVOLTAGE = 0, 1
 CAUSES = {OVERVOLTAGE: "DC-link over-voltage"}
 SAFE_STATE_NAMES = {FREEWHEEL: "freewheel", ASC: "active short circuit"}
@@ -110,7 +114,8 @@ def winding_estimate(s, p):
 def protection_block(s, p, currents, n, k_last, U_dc, omega_e_hat, cx):
     """n samples, the last sample k_last: the phase currents (n × 3, measured [A]) heat the winding estimate
     sample by sample; the bus U_dc [V] measured at the last of them and the speed estimate ω̂_e [rad/s] there
-    set the controller state cx's limits (FOLDBACK_A, REGEN_CUT) and trip. Returns the safe state to switch
+    set the controller state cx's limits (FOLDBACK_A, REGEN_CUT) and trip; R̂_s moves R_S_IN_USE by steps.
+    Returns the safe state to switch
     to (FREEWHEEL, ASC) when the drive trips in this block, else 0."""
     R_rated = resistance_at(p, p.ambient_degC + p.rise_at_rated_K)
     for i in range(n):
@@ -118,7 +123,10 @@ def protection_block(s, p, currents, n, k_last, U_dc, omega_e_hat, cx):
         R = winding_estimate(s, p)[1]
         heat = p.rise_at_rated_K * (R / R_rated) * (i_alpha * i_alpha + i_beta * i_beta) / p.rated_current_A ** 2
         s[RISE_HAT] += p.T_s_s / p.thermal_time_constant_s * (heat - s[RISE_HAT])
-    T = p.ambient_degC + s[RISE_HAT]
+    T, R = winding_estimate(s, p)
+    R_used = s[R_S_IN_USE] if s[R_S_IN_USE] > 0.0 else p.R_s_ohm
+    if abs(R - R_used) > R_S_STEP * R_used:
+        s[R_S_IN_USE] = R
     s[PEAK_DEGC] = max(s[PEAK_DEGC], T)
     s[PEAK_BUS_V] = max(s[PEAK_BUS_V], U_dc)
     share = min(max((T - p.warning_degC) / (p.limit_degC - p.warning_degC), 0.0), 1.0)

@@ -77,7 +77,15 @@ from control_math.frames import clarke_contract, inverse_clarke, rotate
 from control_math.tables import table_value
 from drive_interface.estimator_states import ALIGNING, TRACKING
 
-from .interface import MAX_CARRIER_SAMPLES, MAX_DELAY_PERIODS, Estimator, check_settings, register, ring_capacity
+from .interface import (
+    MAX_CARRIER_SAMPLES,
+    MAX_DELAY_PERIODS,
+    Estimator,
+    check_settings,
+    register,
+    ring_capacity,
+    stator_resistance,
+)
 from .outputs import write_injecting_estimate
 from .startup import DEFAULTS as STARTUP_DEFAULTS
 from .startup import fresh_startup, make_startup, startup_code, startup_step
@@ -295,8 +303,9 @@ def injection_frame_step(x, p, k, sample, out):
     axis_then = x.issued[(k - 1 - p.delay_periods) % depth]
     d_alpha = i_alpha - x.prev_ia
     d_beta = i_beta - x.prev_ib
-    drive_alpha = sample.u_applied_alpha - p.R_s_ohm * 0.5 * (i_alpha + x.prev_ia)
-    drive_beta = sample.u_applied_beta - p.R_s_ohm * 0.5 * (i_beta + x.prev_ib)
+    R_s = stator_resistance(p.R_s_ohm, sample)
+    drive_alpha = sample.u_applied_alpha - R_s * 0.5 * (i_alpha + x.prev_ia)
+    drive_beta = sample.u_applied_beta - R_s * 0.5 * (i_beta + x.prev_ib)
     if p.dead_time_voltage_V != 0.0:
         start_a, start_b, start_c = inverse_clarke(x.prev_ia, x.prev_ib)
         loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
