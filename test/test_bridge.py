@@ -651,7 +651,7 @@ def test_the_drive_starts_with_its_first_command_in_time(tmp_path, first_answer,
 
 def test_through_the_bridge_the_host_trips_on_the_inverters_bus_into_the_safe_state(tmp_path):
     """The host's protections read the bus from the telemetry: a stop from 2000 rpm on a 1 mF link tripping
-    at 27 V (just above the over-voltage controller's 26.4 … 27 V) trips the host, which disables the
+    at 27 V (the over-voltage controller's band then 25.2 … 26.4 V) trips the host, which disables the
     inverter asking for freewheel (the back-EMF, 11.7 V, is under the bus): the inverter freewheels from
     then on and the report names the trip."""
     text = Path(motor_path("wang_spmsm")).read_text().replace(

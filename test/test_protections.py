@@ -355,8 +355,8 @@ def _stop_from_2000_rpm(tmp_path, link_keys):
 
 def test_drive_run_limits_braking_by_the_bus_or_reports_the_trip(tmp_path):
     """The one-process loop composes the protections: on a 1 mF link the over-voltage controller holds a
-    stop from 2000 rpm under the 30 V trip (exit 0, the bus peak in the report); with the trip at 27 V,
-    just above the controller's 26.4 … 27 V range, the current loops' overshoot trips it (exit 7, the report
+    stop from 2000 rpm under the 30 V trip (exit 0, the bus peak in the report); with the trip at 27 V (the
+    controller's band then 25.2 … 26.4 V) the current loops' overshoot trips it (exit 7, the report
     names the cause, the time and the safe state: freewheel, the back-EMF being under the bus)."""
     metrics, code = _stop_from_2000_rpm(tmp_path, "  C_dc_F: 1.0e-3\n")
     assert code == 0 and metrics["protection"]["trip"] is None
@@ -413,3 +413,16 @@ def test_the_back_emf_observer_takes_the_warm_winding_resistance():
     told = _observer_angle_error(1.4 * R, 1.4 * R)
     assert abs(unaware) > 0.25
     assert abs(told - cold_winding) < 1e-3
+
+
+@pytest.mark.parametrize("keys, key", [("  U_overvoltage_V: 24.0\n", "inverter.U_overvoltage_V"),
+                                       ("  R_brake_ohm: 10.0\n  U_brake_on_V: 26.0\n  U_brake_off_V: 20.0\n",
+                                        "inverter.U_brake_off_V"),
+                                       ("  C_dc_F: -1.0e-3\n", "inverter.C_dc_F")])
+def test_a_link_that_would_trip_at_rest_or_drain_its_supply_is_refused(tmp_path, keys, key):
+    """A trip level at the supply's voltage trips at rest, a chopper on at it drains the supply, a
+    capacitance is positive: refused, the key named."""
+    text = Path(motor_path("wang_spmsm")).read_text().replace("  delay_periods: 1\n", "  delay_periods: 1\n" + keys, 1)
+    (tmp_path / "bad.yaml").write_text(text)
+    with pytest.raises(MotorFileError, match=key):
+        load_motor(str(tmp_path / "bad.yaml"))

@@ -3,7 +3,8 @@ thermal figures or their defaults) and measures (phase currents, the DC-link vol
 estimate); never the plant's truth. One kernel per block of samples, ``protection_block``:
 
 - DC-link over-voltage controller: above U_ovc_start_V the braking (regenerative) q-current is cut,
-  linearly to none at U_ovc_full_V; above U_overvoltage_V the drive trips, latched, into its safe state.
+  linearly to none at U_ovc_full_V (40 % and 80 % of the way from the rated bus to the trip); above
+  U_overvoltage_V the drive trips, latched, into its safe state.
 - I²t: a first-order winding temperature estimate, τ dΔT̂/dt = ΔT_rated (R̂_s(T̂)/R̂_s(T_a + ΔT_rated))
   (|i|/I_rated)² − ΔT̂ (the plant's model, pmsm_plant.model, with R_th, C_th told as τ = R_th C_th and the
   rise at rated current). Above T_warning_degC the current limit folds back linearly to the current
@@ -29,8 +30,8 @@ from control_math.safe_state import ASC, FREEWHEEL, overvoltage_trip_V, safe_sta
 from .control import FOLDBACK_A, REGEN_CUT
 
 DEFAULTS = {
-    "ovc_start_per_bus": 1.1,
-    "ovc_full_per_bus": 1.2,
+    "ovc_start_share": 0.4,
+    "ovc_full_share": 0.8,
     "thermal_time_constant_s": 300.0,
     "rise_at_rated_K": 80.0,
     "ambient_degC": 40.0,
@@ -38,8 +39,9 @@ DEFAULTS = {
     "limit_degC": 130.0,
 }
 """Without figures of its own the drive assumes a class-B winding (130 °C) rising 80 K at rated current in
-a 40 °C ambient, τ = 5 min, and cuts braking current from 1.1 × the rated bus, none left at 1.2 × (below the
-over-voltage trip: the inverter rating's U_overvoltage_V, else control_math.safe_state.OVERVOLTAGE_PER_BUS)."""
+a 40 °C ambient, τ = 5 min, and cuts braking current from 40 % of the way from the rated bus to the
+over-voltage trip (the inverter rating's U_overvoltage_V, else control_math.safe_state.OVERVOLTAGE_PER_BUS ×
+the rated bus), none left at 80 %: from 1.1 × to 1.2 × the rated bus with the default trip."""
 
 # Protection state layout: ΔT̂ [K], tripped (1), the safe state chosen, the cause, the sample it tripped at,
 # the highest T̂ [°C] and bus [V] seen, the R̂_s [Ω] handed to the estimators (0: the commissioned one).
@@ -83,8 +85,8 @@ def make_protection_params(nameplate, inverter, T_s, settings=None, commissionin
         raise ValueError(f"protection: unknown setting(s) {', '.join(sorted(unknown))}")
     U = inverter.U_dc_V
     trip = overvoltage_trip_V(inverter)
-    start, full = min(s["ovc_start_per_bus"] * U, trip), min(s["ovc_full_per_bus"] * U, trip)
-    if not U < start < full <= trip:
+    start, full = U + s["ovc_start_share"] * (trip - U), U + s["ovc_full_share"] * (trip - U)
+    if not U < start < full < trip:
         raise ValueError(f"protection: the over-voltage controller's {start:g} V … {full:g} V must lie between "
                          f"the bus {U:g} V and the trip {trip:g} V, in that order")
     if not s["ambient_degC"] < s["warning_degC"] < s["limit_degC"]:
@@ -155,6 +157,6 @@ def protection_summary(s, p):
     state chosen) or None, the highest winding temperature estimate [°C] and bus voltage [V] seen."""
     trip = None
     if s[TRIPPED]:
-        trip = {"cause": CAUSES[int(s[CAUSE])], "at_s": s[TRIP_K] * p.T_s_s,
+        trip = {"cause": CAUSES[int(s[CAUSE])], "at_s": float(s[TRIP_K] * p.T_s_s),
                 "safe_state": SAFE_STATE_NAMES[int(s[SAFE_STATE])]}
     return {"trip": trip, "winding_peak_degC": float(s[PEAK_DEGC]), "bus_peak_V": float(s[PEAK_BUS_V])}

@@ -138,6 +138,10 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
             fail(f"inverter.{key}", f"must be a positive number (.inf: none), not {v!r}")
     if link.get("U_brake_off_V", 0.0) > link.get("U_brake_on_V", math.inf):
         fail("inverter.U_brake_off_V", "must not exceed U_brake_on_V (the chopper's hysteresis)")
+    for key in ("U_brake_off_V", "U_overvoltage_V"):
+        if link.get(key, math.inf) <= U_dc:
+            fail(f"inverter.{key}", f"{link[key]:g} V must exceed the supply's U_dc_V {U_dc:g} V (a chopper below it "
+                                    f"drains the supply; a trip below it trips at rest)")
     plant = data.get("plant") or {}
     if not isinstance(plant, dict):
         fail("plant", "must be a mapping of the simulated motor's truth")
