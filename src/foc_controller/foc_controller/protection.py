@@ -50,7 +50,8 @@ N_STATE = 8
 R_S_STEP = 0.01
 """The estimators' resistive drop follows R̂_s(T̂) in steps of this share (a winding warmed by 2.5 K): a run
 too short to warm it keeps the commissioned R_s, as the ROS graph (no protections yet) does."""
-NO_TRIP, OVERVOLTAGE = 0, 1
+OVERVOLTAGE = 1
+"""The cause of a trip (state CAUSE; 0 while none)."""
 CAUSES = {OVERVOLTAGE: "DC-link over-voltage"}
 SAFE_STATE_NAMES = {FREEWHEEL: "freewheel", ASC: "active short circuit"}
 
@@ -117,8 +118,7 @@ def protection_block(s, p, currents, n, k_last, U_dc, omega_e_hat, cx):
     """n samples, the last sample k_last: the phase currents (n × 3, measured [A]) heat the winding estimate
     sample by sample; the bus U_dc [V] measured at the last of them and the speed estimate ω̂_e [rad/s] there
     set the controller state cx's limits (FOLDBACK_A, REGEN_CUT) and trip; R̂_s moves R_S_IN_USE by steps.
-    Returns the safe state to switch
-    to (FREEWHEEL, ASC) when the drive trips in this block, else 0."""
+    Returns the safe state to switch to (FREEWHEEL, ASC) when the drive trips in this block, else 0."""
     R_rated = resistance_at(p, p.ambient_degC + p.rise_at_rated_K)
     for i in range(n):
         i_alpha, i_beta = clarke(currents[i, 0], currents[i, 1], currents[i, 2])
