@@ -153,10 +153,10 @@ layout per estimator, compiled once (docs/architecture.md "Estimator records")."
 
 
 @njit(cache=True)
-def stator_resistance(R_commissioned_ohm, sample):
-    """The stator resistance [Ω] for a sample's resistive drop: the drive's tracked one (SAMPLE.R_s_ohm)
-    when it gives one, else the commissioned one."""
-    return sample.R_s_ohm if sample.R_s_ohm > 0.0 else R_commissioned_ohm
+def stator_resistance(R_commissioned_ohm, R_tracked_ohm):
+    """The stator resistance [Ω] for a sample's resistive drop: the one the drive tracks as its winding
+    warms (SAMPLE.R_s_ohm) when it gives one (> 0), else the commissioned one."""
+    return R_tracked_ohm if R_tracked_ohm > 0.0 else R_commissioned_ohm
 
 
 def ring_capacity(carrier_samples, delay_periods):
