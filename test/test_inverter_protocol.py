@@ -22,9 +22,11 @@ from drive_bridge.inverter_protocol import (
     TelemetryBlock,
     cobs_decode,
     cobs_encode,
+    command_flags,
     crc16,
     decode_frame,
     encode_frame,
+    requested_safe_state,
     to_can,
     to_canfd,
     unwrap16,
@@ -119,6 +121,15 @@ def test_bad_frames_are_named(line):
     assert error.value.kind == kind
 
 
+@pytest.mark.parametrize("line", list(vectors("safe")))
+def test_safe_state_flags(line):
+    """The safe state a command's flags ask for (bits 1-2), and the flags of an asked one (bits 0-2)."""
+    flags, state = map(int, line.split(" = "))
+    assert requested_safe_state(flags) == state
+    if (flags & 0x06) >> 1 == state:
+        assert command_flags(flags & 1, state) == flags & 0x07
+
+
 def test_a_version_1_peer_is_named_not_misread():
     """A version 1 frame (here a v1 TELEMETRY, valid CRC) is a version error naming both versions."""
     with pytest.raises(FrameError, match="protocol version 1, this host speaks 2") as error:
@@ -142,7 +153,7 @@ def test_c_codec_passes_the_same_vectors(tmp_path):
     done = subprocess.run(["make", "-s", "-C", str(FIRMWARE), "test", f"BUILD={tmp_path}"],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
-    count = sum(1 for kind in ("serial", "can", "canfd", "bad") for _ in vectors(kind))
+    count = sum(1 for kind in ("serial", "can", "canfd", "bad", "safe") for _ in vectors(kind))
     assert f"{count} vectors, 0 failures" in done.stdout
 
 

@@ -213,18 +213,18 @@ def test_inverter_linear_range_and_limit():
         u_alpha, u_beta = rotate(0.999 * limit, 0.0, angle)
         d = duty_cycles(u_alpha, u_beta, inv.U_dc_V)
         assert all(0.0 <= di <= 1.0 for di in d)
-        realised = inverter_voltage(*d, 0.0, 0.0, inv, T_S)
+        realised = inverter_voltage(*d, 0.0, 0.0, inv, T_S, inv.U_dc_V)
         assert realised == pytest.approx((u_alpha, u_beta), abs=1e-12)
         d = duty_cycles(*rotate(3.0 * limit, 0.0, angle), inv.U_dc_V)
         assert all(0.0 <= di <= 1.0 for di in d)
-        assert math.hypot(*inverter_voltage(*d, 0.0, 0.0, inv, T_S)) <= 2.0 / 3.0 * 24.0 + 1e-12
+        assert math.hypot(*inverter_voltage(*d, 0.0, 0.0, inv, T_S, inv.U_dc_V)) <= 2.0 / 3.0 * 24.0 + 1e-12
 
 
 def test_dead_time_error_opposes_current():
     """Dead time lowers the voltage along a large current by (4/3)(t_d/T_s) U_dc·(phase geometry)."""
     inv = InverterParams(U_dc_V=24.0, t_dead_s=1e-6, i_dead_A=0.05, delay_periods=0)
     d = duty_cycles(0.0, 0.0, inv.U_dc_V)
-    u_alpha, u_beta = inverter_voltage(*d, 10.0, 0.0, inv, T_S)
+    u_alpha, u_beta = inverter_voltage(*d, 10.0, 0.0, inv, T_S, inv.U_dc_V)
     i_a, i_b, i_c = inverse_clarke(10.0, 0.0)
     signs = np.tanh(np.array([i_a, i_b, i_c]) / inv.i_dead_A)
     expected = clarke(*(-1e-6 / T_S * 24.0 * signs))

@@ -19,6 +19,15 @@ uint16_t ip_crc16(const uint8_t *data, size_t len) {
     return crc;
 }
 
+uint8_t ip_command_flags(int enable, enum ip_safe_state safe) {
+    return (uint8_t)((enable ? IP_ENABLE : 0u) | (((unsigned)safe << IP_SAFE_STATE_SHIFT) & IP_SAFE_STATE_MASK));
+}
+
+enum ip_safe_state ip_requested_safe_state(uint8_t flags) {
+    unsigned state = (flags & IP_SAFE_STATE_MASK) >> IP_SAFE_STATE_SHIFT;
+    return state == IP_SAFE_FREEWHEEL ? IP_SAFE_FREEWHEEL : state == IP_SAFE_ASC ? IP_SAFE_ASC : IP_SAFE_AUTO;
+}
+
 size_t ip_cobs_encode(const uint8_t *in, size_t len, uint8_t *out, size_t cap) {
     size_t code_at = 0, o = 1;
     uint8_t code = 1;

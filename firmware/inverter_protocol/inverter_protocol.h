@@ -17,10 +17,15 @@ enum ip_type { IP_TELEMETRY = 0x01, IP_HELLO = 0x02, IP_TELEMETRY_BLOCK = 0x03, 
 enum ip_control_action { IP_CONTROL_DISABLE = 1, IP_CONTROL_CLEAR_FAULTS = 2, IP_CONTROL_SEND_HELLO = 3 };
 enum ip_status {
     IP_OVERCURRENT = 1u << 0, IP_WATCHDOG = 1u << 1, IP_PWM_OFF = 1u << 2, IP_COMMAND_MISSING = 1u << 3,
-    IP_HEARTBEAT_LOST = 1u << 4, IP_BAD_FRAME = 1u << 5, IP_UNDERVOLTAGE = 1u << 6, IP_ENCODER_VALID = 1u << 7
+    IP_HEARTBEAT_LOST = 1u << 4, IP_BAD_FRAME = 1u << 5, IP_UNDERVOLTAGE = 1u << 6, IP_ENCODER_VALID = 1u << 7,
+    IP_OVERVOLTAGE = 1u << 8, IP_FREEWHEELING = 1u << 9, IP_SHORT_CIRCUIT = 1u << 10
 };
 #define IP_ENABLE 0x01u
+#define IP_SAFE_STATE_SHIFT 1u
+#define IP_SAFE_STATE_MASK 0x06u /* COMMAND flags bits 1-2: the safe state asked for whenever PWM stops */
+enum ip_safe_state { IP_SAFE_AUTO = 0, IP_SAFE_FREEWHEEL = 1, IP_SAFE_ASC = 2 };
 #define IP_HELLO_ENCODER_PRESENT 0x01u
+#define IP_HELLO_SAFE_STATES 0x02u /* the inverter takes the safe state of the flags, reports bits 8-10 */
 
 enum ip_result { IP_OK = 0, IP_ERR_FRAMING = -1, IP_ERR_CRC = -2, IP_ERR_VERSION = -3, IP_ERR_TYPE = -4,
                  IP_ERR_SPACE = -5 };
@@ -52,6 +57,10 @@ typedef struct {
 } ip_message_t;
 
 uint16_t ip_crc16(const uint8_t *data, size_t len);
+/* The flags byte of a COMMAND or COMMAND_BLOCK: ENABLE and the safe state asked for. */
+uint8_t ip_command_flags(int enable, enum ip_safe_state safe);
+/* The safe state a command's flags ask for; the reserved value 3 reads as IP_SAFE_AUTO. */
+enum ip_safe_state ip_requested_safe_state(uint8_t flags);
 /* COBS: returns the encoded length (no delimiter), 0 if it does not fit in cap. */
 size_t ip_cobs_encode(const uint8_t *in, size_t len, uint8_t *out, size_t cap);
 /* Returns IP_OK with *out_len set, or IP_ERR_FRAMING / IP_ERR_SPACE. */

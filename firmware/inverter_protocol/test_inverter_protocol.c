@@ -231,6 +231,17 @@ static void bad_vector(const char *s) {
     CHECK(r == expected, "bad frame %s: got %d, expected %d (%s)", hex, r, expected, kind);
 }
 
+static void safe_vector(const char *s) {
+    unsigned flags, state;
+    CHECK(sscanf(s, "%u = %u", &flags, &state) == 2, "unparsable safe vector");
+    CHECK((unsigned)ip_requested_safe_state((uint8_t)flags) == state, "safe %u: got %d, expected %u", flags,
+          (int)ip_requested_safe_state((uint8_t)flags), state);
+    unsigned asked = (flags & IP_SAFE_STATE_MASK) >> IP_SAFE_STATE_SHIFT;
+    if (asked == state)
+        CHECK(ip_command_flags((int)(flags & IP_ENABLE), (enum ip_safe_state)state) == (flags & 0x07u),
+              "command flags of %u", flags);
+}
+
 static void stream_resynchronises(void) {
     ip_message_t m = {.type = IP_COMMAND, .u.command = {42, -5, 6, IP_ENABLE}}, back;
     uint8_t wire[IP_MAX_WIRE], noise[] = {0x13, 0x37, 0xFF, 0x00, 0x05, 0x00};
@@ -266,6 +277,7 @@ int main(int argc, char **argv) {
         else if (!strncmp(text, "can ", 4)) can_vector(text + 4), vectors++;
         else if (!strncmp(text, "canfd ", 6)) canfd_vector(text + 6), vectors++;
         else if (!strncmp(text, "bad ", 4)) bad_vector(text + 4), vectors++;
+        else if (!strncmp(text, "safe ", 5)) safe_vector(text + 5), vectors++;
     }
     fclose(f);
     line_no = 0;

@@ -15,10 +15,11 @@ from .inverter_protocol import (
     CONTROL_CLEAR_FAULTS,
     CONTROL_DISABLE,
     CONTROL_SEND_HELLO,
-    ENABLE,
     ENCODER_VALID,
     OVERCURRENT,
+    OVERVOLTAGE,
     PWM_OFF,
+    SAFE_AUTO,
     STATUS_NAMES,
     Command,
     CommandBlock,
@@ -26,6 +27,7 @@ from .inverter_protocol import (
     Hello,
     Telemetry,
     TelemetryBlock,
+    command_flags,
 )
 
 LINK_TIMEOUT_S = 0.05
@@ -235,7 +237,7 @@ class InverterBridge:
         if self.lost:
             self.lost = False
             self.last_command_at = None
-        new_faults = status & ~self.status & (OVERCURRENT | CLEARED_BY_HOST)
+        new_faults = status & ~self.status & (OVERCURRENT | OVERVOLTAGE | CLEARED_BY_HOST)
         self.counters["inverter_faults"] += bin(new_faults).count("1")
         self.status = status
         if not status & CLEARED_BY_HOST:
@@ -263,38 +265,42 @@ class InverterBridge:
                 and now - self.last_command_at > self.command_timeout_s):
             self.safe_state(f"no voltage_command for {self.command_timeout_s * 1e3:g} ms")
 
-    def command(self, k, u_alpha_V, u_beta_V, enable=True):
-        """COMMAND(k) with the voltage rounded to the inverter's resolution (clipped to int16). An enabling
-        command first clears the latches a link loss causes (watchdog, host silence), once, never an
-        overcurrent."""
+    def command(self, k, u_alpha_V, u_beta_V, enable=True, safe_state=SAFE_AUTO):
+        """COMMAND(k) with the voltage rounded to the inverter's resolution (clipped to int16) and the safe
+        state asked for (``safe_state``: SAFE_AUTO, FREEWHEEL, ASC; control_math.safe_state.safe_state_for
+        chooses by speed and bus). An enabling command first clears the latches a link loss causes
+        (watchdog, host silence), once, never an overcurrent or an over-voltage."""
         if self.hello is None:
             self.counters["command_errors"] += 1
             return
         lsb = self.hello.voltage_lsb_V
         message = Command(k % 2 ** 32, _int16(u_alpha_V / lsb), _int16(u_beta_V / lsb),
-                          ENABLE if enable else 0)
+                          command_flags(enable, safe_state))
         self._enabling(enable)
         if self._send(message):
             self.note_written(k)
             self.counters["commands"] += 1
 
-    def command_block(self, k0, u_alpha_V, u_beta_V, enable=True):
+    def command_block(self, k0, u_alpha_V, u_beta_V, enable=True, safe_state=SAFE_AUTO):
         """COMMAND_BLOCK answering samples k0 … k0 + n − 1 (``u_alpha_V``, ``u_beta_V``: n voltages [V]),
-        rounded as ``command`` rounds; the same latch clearing."""
+        rounded as ``command`` rounds; the same safe state and latch clearing."""
         if self.hello is None:
             self.counters["command_errors"] += 1
             return
         counts = np.column_stack((u_alpha_V, u_beta_V)) / self.hello.voltage_lsb_V
         counts = np.clip(np.rint(np.nan_to_num(counts, nan=0.0, posinf=0.0, neginf=0.0)), -32768, 32767)
-        message = CommandBlock(k0 % 2 ** 32, ENABLE if enable else 0, tuple(map(tuple, counts.astype(int).tolist())))
+        message = CommandBlock(k0 % 2 ** 32, command_flags(enable, safe_state),
+                               tuple(map(tuple, counts.astype(int).tolist())))
         self._enabling(enable)
         if self._send(message):
             self.note_written(k0)
             self.counters["commands"] += 1
 
     def _enabling(self, enable):
-        """Before an enabling command: clear the latches a link loss causes, once, never an overcurrent."""
-        if enable and self.status & CLEARED_BY_HOST and not self.status & OVERCURRENT and not self.clear_sent:
+        """Before an enabling command: clear the latches a link loss causes, once, never an overcurrent or an
+        over-voltage."""
+        if enable and self.status & CLEARED_BY_HOST and not self.status & (OVERCURRENT | OVERVOLTAGE) \
+                and not self.clear_sent:
             self.clear_sent = True
             self.counters["faults_cleared"] += 1
             self._send(Control(CONTROL_CLEAR_FAULTS))

@@ -17,16 +17,37 @@ TELEMETRY, HELLO, TELEMETRY_BLOCK = 0x01, 0x02, 0x03
 COMMAND, CONTROL, HEARTBEAT, COMMAND_BLOCK = 0x10, 0x11, 0x12, 0x13
 CONTROL_DISABLE, CONTROL_CLEAR_FAULTS, CONTROL_SEND_HELLO = 1, 2, 3
 ENABLE = 0x01
+SAFE_STATE_SHIFT, SAFE_STATE_MASK = 1, 0x06
+"""COMMAND and COMMAND_BLOCK flags bits 1-2: the safe state the host asks for whenever the bridge stops
+switching (SAFE_AUTO: the inverter's own choice; control_math.safe_state's FREEWHEEL 1, ASC 2)."""
+SAFE_AUTO = 0
 HELLO_ENCODER_PRESENT = 0x01
+HELLO_SAFE_STATES = 0x02
+"""The inverter takes the safe state of the flags and reports OVERVOLTAGE, FREEWHEELING, SHORT_CIRCUIT."""
 
 OVERCURRENT, WATCHDOG, PWM_OFF, COMMAND_MISSING = 1 << 0, 1 << 1, 1 << 2, 1 << 3
 HEARTBEAT_LOST, BAD_FRAME, UNDERVOLTAGE, ENCODER_VALID = 1 << 4, 1 << 5, 1 << 6, 1 << 7
+OVERVOLTAGE, FREEWHEELING, SHORT_CIRCUIT = 1 << 8, 1 << 9, 1 << 10
 CLEARED_BY_HOST = WATCHDOG | HEARTBEAT_LOST
 """Latched faults a link loss or a silent host causes; the host clears them when the link is back,
-never an overcurrent."""
+never an overcurrent or an over-voltage."""
 STATUS_NAMES = {OVERCURRENT: "overcurrent", WATCHDOG: "watchdog", PWM_OFF: "pwm_off",
                 COMMAND_MISSING: "command_missing", HEARTBEAT_LOST: "heartbeat_lost", BAD_FRAME: "bad_frame",
-                UNDERVOLTAGE: "undervoltage", ENCODER_VALID: "encoder_valid"}
+                UNDERVOLTAGE: "undervoltage", ENCODER_VALID: "encoder_valid", OVERVOLTAGE: "overvoltage",
+                FREEWHEELING: "freewheeling", SHORT_CIRCUIT: "short_circuit"}
+
+
+def command_flags(enable, safe_state=SAFE_AUTO):
+    """The flags byte of a COMMAND or COMMAND_BLOCK: ENABLE and the safe state asked for (SAFE_AUTO, FREEWHEEL,
+    ASC)."""
+    return (ENABLE if enable else 0) | (safe_state << SAFE_STATE_SHIFT) & SAFE_STATE_MASK
+
+
+def requested_safe_state(flags):
+    """The safe state a command's flags ask for (SAFE_AUTO, FREEWHEEL, ASC); the reserved value 3 reads as
+    SAFE_AUTO."""
+    state = (flags & SAFE_STATE_MASK) >> SAFE_STATE_SHIFT
+    return state if state in (1, 2) else SAFE_AUTO
 
 
 @dataclass(frozen=True)

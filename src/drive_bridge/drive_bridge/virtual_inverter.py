@@ -21,10 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from control_math.command_delay import issue_command
+from control_math.safe_state import ASC, FREEWHEEL, PWM, overvoltage_trip_V
 from drive_scenarios.scenario import behind_an_inverter
 from motor_params.nameplate import trip_current_A as default_trip_current_A
 from pmsm_plant.build import plant_for_scenario
-from pmsm_plant.model import plant_block
+from pmsm_plant.model import INVERTER_MODE, bus_voltage, plant_block
 
 from .inverter_link import CanLink, LinkDown, PtyEndpoint, SerialLink
 from .inverter_protocol import (
@@ -35,11 +36,16 @@ from .inverter_protocol import (
     CONTROL_SEND_HELLO,
     ENABLE,
     ENCODER_VALID,
+    FREEWHEELING,
     HEARTBEAT_LOST,
     HELLO_ENCODER_PRESENT,
+    HELLO_SAFE_STATES,
     MAX_BLOCK,
     OVERCURRENT,
+    OVERVOLTAGE,
     PWM_OFF,
+    SAFE_AUTO,
+    SHORT_CIRCUIT,
     WATCHDOG,
     Command,
     CommandBlock,
@@ -48,6 +54,7 @@ from .inverter_protocol import (
     Telemetry,
     TelemetryBlock,
     encode_frame,
+    requested_safe_state,
 )
 
 LINKS = ("pty", "can")
@@ -109,13 +116,19 @@ class VirtualInverter:
         self.random = np.random.default_rng(self.faults.seed)
         self.current_lsb = float(np.float32(2.0 * self.trip_current_A / 32767.0))
         self.voltage_lsb = float(np.float32(2.0 * self.plant.inverter.U_dc_V / 32767.0))
-        self.hello = Hello(drive_id, HELLO_ENCODER_PRESENT if encoder else 0, self.plant.machine.n_p,
-                           self.block_samples, round(scenario.T_s * 1e9), self.current_lsb, self.voltage_lsb,
-                           float(np.float32(self.trip_current_A)), self.watchdog_periods)
+        self.hello = Hello(drive_id, (HELLO_ENCODER_PRESENT if encoder else 0) | HELLO_SAFE_STATES,
+                           self.plant.machine.n_p, self.block_samples, round(scenario.T_s * 1e9), self.current_lsb,
+                           self.voltage_lsb, float(np.float32(self.trip_current_A)), self.watchdog_periods)
         self.k = 0
         self.clock_start = 0.0
         self.enabled = False
         self.latched = 0
+        self.overvoltage_V = overvoltage_trip_V(scenario.motor.inverter)
+        self.safe_request = SAFE_AUTO
+        """The safe state the host's last command asked for (its flags)."""
+        self.shorting = False
+        """In SAFE_AUTO: the link rose past the trip level while freewheeling (the diodes rectifying a
+        back-EMF above it): short the winding instead, until the faults are cleared."""
         self.missing = 0
         self.missing_in_block = False
         """A period of the block being sent (from its first sample's to its last's) had no command in
@@ -133,7 +146,8 @@ class VirtualInverter:
         self.stopped = threading.Event()
         self.worker = None
         self.counters = {"commands": 0, "missing": 0, "discarded": 0, "trips": 0, "watchdog_trips": 0,
-                         "host_silent_trips": 0, "link_down": 0, "overruns": 0, "sent_late": 0, "read_late": 0}
+                         "host_silent_trips": 0, "overvoltage_trips": 0, "link_down": 0, "overruns": 0,
+                         "sent_late": 0, "read_late": 0}
         """commands: samples whose command came in time. overruns: blocks the simulated inverter itself
         sent more than a period behind its clock (its Python simulation, not the host, was slow); its
         clock then restarts from that moment, as the host cannot be blamed for periods a real inverter's
@@ -330,6 +344,7 @@ class VirtualInverter:
             self.started = True
             self.missing = 0
             self.enabled = bool(flags & ENABLE)
+            self.safe_request = requested_safe_state(flags)
             self.counters["commands"] += 1
         else:
             if self.missing == 0:
@@ -361,15 +376,28 @@ class VirtualInverter:
                 return
             self.unanswered.popleft()
 
+    def bridge_mode(self):
+        """The bridge's mode for the next block (control_math.safe_state): PWM while it switches, and before
+        the drive's start (the plant's zero volts, as ever); once stopped, the safe state the host asked
+        for, or its own choice: freewheel, and the short circuit once the link rose past its trip level
+        freewheeling."""
+        if self.switching() or not self.started:
+            return PWM
+        if self.safe_request != SAFE_AUTO:
+            return self.safe_request
+        return ASC if self.shorting else FREEWHEEL
+
     def simulate(self, k0, n, out):
-        """Samples k0 … k0 + n − 1 into ``out``, each period before them under its decided voltage; an
-        overcurrent sensed at a sample switches PWM off from that sample's period on (the block is
-        simulated again from its start with zero volts there)."""
+        """Samples k0 … k0 + n − 1 into ``out``, each period before them under its decided voltage (or in
+        the safe state, ``bridge_mode``); an overcurrent sensed at a sample switches PWM off from that
+        sample's period on (the block is simulated again from its start with zero volts there); a bus above
+        the trip level at the block's end latches OVERVOLTAGE, the safe state from the next block on."""
         p = self.plant
-        x0 = p.x.copy()
         if self.rate_Hz and self.clock() - self.last_heard > HOST_SILENCE_S and not self.latched & HEARTBEAT_LOST:
             self.latched |= HEARTBEAT_LOST
             self.counters["host_silent_trips"] += 1
+        p.x[INVERTER_MODE] = self.bridge_mode()
+        x0 = p.x.copy()
         while True:
             plant_block(p.x, p.line, k0, n, self.tau_load, self.speed_ref, p.imposed_speed, -1, p.machine,
                         p.mechanics, p.inverter, p.sensor, p.seed, p.T_s, p.substeps, out)
@@ -381,10 +409,17 @@ class VirtualInverter:
             for j in range(max(self.delay, k0 + int(over[0])), k0 + n - 1):
                 issue_command(p.line, j - self.delay, 0.0, 0.0)
             p.x[:] = x0
+        if bus_voltage(p.x, p.inverter) > self.overvoltage_V:
+            if not self.latched & OVERVOLTAGE:
+                self.latched |= OVERVOLTAGE
+                self.counters["overvoltage_trips"] += 1
+            self.shorting = self.shorting or p.x[INVERTER_MODE] == FREEWHEEL
 
     def status(self):
         """The status word of the block being sent."""
+        mode = self.plant.x[INVERTER_MODE]
         status = self.latched | (0 if self.switching() else PWM_OFF)
+        status |= FREEWHEELING if mode == FREEWHEEL else SHORT_CIRCUIT if mode == ASC else 0
         status |= COMMAND_MISSING if self.missing_in_block else 0
         bad_frames = sum(self.endpoint.errors.values())
         status |= BAD_FRAME if bad_frames > self.bad_frames else 0
@@ -400,7 +435,7 @@ class VirtualInverter:
             encoder = round((row[6] % (2.0 * math.pi)) / (2.0 * math.pi) * 65536.0) % 65536 if self.encoder else 0
             samples.append((_clip16(row[3] / lsb), _clip16(row[4] / lsb), _clip16(row[5] / lsb), encoder))
             self.truth[k0 + i] = (row[6], row[7], row[8], row[9], row[0], row[1], row[2])
-        u_dc = min(65535, round(self.plant.inverter.U_dc_V / self.voltage_lsb))
+        u_dc = min(65535, round(bus_voltage(self.plant.x, self.plant.inverter) / self.voltage_lsb))
         status = self.status()
         if self.block_samples > 1:
             message = TelemetryBlock(k0 % 2 ** 32, u_dc, status, tuple(samples))
@@ -487,6 +522,7 @@ class VirtualInverter:
             if message.action == CONTROL_CLEAR_FAULTS:
                 self.latched = 0
                 self.missing = 0
+                self.shorting = False
             elif message.action == CONTROL_DISABLE:
                 self.enabled = False
             elif message.action == CONTROL_SEND_HELLO:

@@ -15,6 +15,7 @@ from drive_interface.exit_codes import (
     EXIT_RECORDING_FAILED,
     EXIT_REFUSED,
     EXIT_SIGNAL_BASE,
+    EXIT_TRIPPED,
 )
 from drive_interface.realtime import ROBOT_RT_PRIORITY
 from drive_interface.strict_json import dumps
@@ -72,19 +73,27 @@ def print_report(report, args, lines):
         print("\n".join(lines(report)))
 
 
-def exit_code(interrupted=0, node_faults=None, output_error=None, not_tracking=False, not_following=False):
+def exit_code(interrupted=0, node_faults=None, output_error=None, not_tracking=False, not_following=False,
+              tripped=False):
     """128 + the signal that stopped the run, else the worst of drive_interface.exit_codes (an output, bag
-    or plot, not written in full; the drive not tracking at the end; the shaft not following its command;
-    a node fault), else 0."""
+    or plot, not written in full; the drive tripped by its protections; the drive not tracking at the end;
+    the shaft not following its command; a node fault), else 0."""
     if interrupted:
         return EXIT_SIGNAL_BASE + interrupted
     if output_error:
         return EXIT_RECORDING_FAILED
+    if tripped:
+        return EXIT_TRIPPED
     if not_tracking:
         return EXIT_NOT_TRACKING
     if not_following:
         return EXIT_NOT_FOLLOWING
     return EXIT_NODE_FAULTS if node_faults else 0
+
+
+def tripped(metrics):
+    """Whether the drive's protections tripped it during the run (its report's ``protection``)."""
+    return bool((metrics.get("protection") or {}).get("trip"))
 
 
 def not_tracking(result):

@@ -35,6 +35,7 @@ from .options import (
     record_arg,
     robot_real_time,
     scenario_arg,
+    tripped,
     warn_if_nameplate_only,
 )
 
@@ -65,7 +66,7 @@ def cmd_run(args):
     if recording_error:
         output_failed(recording_error)
     return exit_code(interrupted, output_error=recording_error or plot_error, not_tracking=not_tracking(result),
-                      not_following=bool(metrics["supervision"]))
+                      not_following=bool(metrics["supervision"]), tripped=tripped(metrics))
 
 
 def _report(result, args, extra):
@@ -167,7 +168,8 @@ def cmd_bridge(args):
              "bridge": result.counters, "frame_errors": result.frame_errors,
              "inverter": result.inverter_counters, "timing": result.timing, "interrupted": bool(result.interrupted)}
     plot_error, metrics = _report(result, args, extra)
-    return exit_code(result.interrupted, output_error=plot_error, not_following=bool(metrics["supervision"]))
+    return exit_code(result.interrupted, output_error=plot_error, not_following=bool(metrics["supervision"]),
+                     tripped=tripped(metrics))
 
 
 def cmd_scenarios(args):

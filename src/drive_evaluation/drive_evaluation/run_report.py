@@ -21,7 +21,8 @@ RUN_ROWS = (("angle error RMS (steady)", "angle_error_rms", "rad"),
 def run_report(result):
     """The metrics of a run (drive_runner.runner.RunResult or one like it) with ``commissioning`` (its
     source), ``motor_knowledge``, ``injection`` (when the estimator injects), ``warnings`` and
-    ``supervision`` (the speed supervisor's faults)."""
+    ``supervision`` (the speed supervisor's faults) and ``protection`` (what the drive's protections did,
+    where the run composed them: foc_controller.protection.protection_summary)."""
     from motor_params.knowledge import motor_knowledge
 
     metrics = compute_metrics(result)
@@ -35,6 +36,8 @@ def run_report(result):
                                 "amplitude_V": facts["injection_amplitude_V"], "note": facts["injection_note"]}
     metrics["warnings"] = configuration_warnings(result)
     metrics["supervision"] = supervision_faults(result)
+    if getattr(result, "protection", None) is not None:
+        metrics["protection"] = result.protection
     return metrics
 
 
@@ -77,8 +80,20 @@ def run_lines(metrics, extra):
     lines.append(f"  {'lock':36s} {lock}")
     lines.append(f"  {'speed supervision':36s} "
                  f"{'; '.join(fault_line(f) for f in metrics['supervision']) or 'the shaft followed its command'}")
+    if "protection" in metrics:
+        lines.append(f"  {'protections':36s} {protection_line(metrics['protection'])}")
     lines += [f"  plot: {path}" for path in metrics.get("plots", [])]
     return lines
+
+
+def protection_line(protection):
+    """What the drive's protections did, in one line."""
+    seen = (f"winding estimate up to {protection['winding_peak_degC']:.1f} °C, bus up to "
+            f"{protection['bus_peak_V']:.4g} V")
+    trip = protection["trip"]
+    if trip is None:
+        return f"no trip; {seen}"
+    return f"TRIPPED at {trip['at_s']:.4f} s: {trip['cause']}, into {trip['safe_state']}; {seen}"
 
 
 def startup_line(startup):

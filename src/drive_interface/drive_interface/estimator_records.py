@@ -7,11 +7,12 @@ from . import numba_records  # noqa: F401  (record kernels cached safely: numba_
 
 SAMPLE = np.dtype([("i_a", np.float64), ("i_b", np.float64), ("i_c", np.float64),
                    ("u_applied_alpha", np.float64), ("u_applied_beta", np.float64),
-                   ("theta_e_encoder", np.float64), ("omega_e_encoder", np.float64)])
+                   ("theta_e_encoder", np.float64), ("omega_e_encoder", np.float64), ("R_s_ohm", np.float64)])
 """An estimator's inputs at sample k: the measured phase currents i_a, i_b, i_c [A] (corrected by the
-commissioned calibration), the voltage that acted in the period before sample k (αβ) [V], and the
+commissioned calibration), the voltage that acted in the period before sample k (αβ) [V], the
 encoder's electrical angle [rad] and speed [rad/s] (read only by ``sensored``, and in replay by an
-estimator taking the recording's polarity)."""
+estimator taking the recording's polarity), and the stator resistance [Ω] the drive tracks as its winding
+warms (foc_controller.protection; 0: the commissioned one, hf_estimator.interface.stator_resistance)."""
 
 ESTIMATE = np.dtype([("theta_e_hat", np.float64), ("omega_e_hat", np.float64), ("u_inj_alpha", np.float64),
                      ("u_inj_beta", np.float64), ("eps", np.float64), ("signal", np.float64), ("state", np.float64),

@@ -18,6 +18,9 @@ torque after a lost lock; the metrics say which."""
 EXIT_NOT_FOLLOWING = 6
 """The run finished, but the shaft did not follow its command: dragged backwards, stalled, not following,
 or at the current limit for longer than the supervision allows (foc_controller.supervision)."""
+EXIT_TRIPPED = 7
+"""The run finished and its metrics are printed, but the drive's protections tripped it into its safe state
+(a DC-link over-voltage; foc_controller.protection): ``protection`` in the report says when and which."""
 EXIT_SIGNAL_BASE = 128
 """128 + N: stopped by signal N (130 SIGINT, 143 SIGTERM), with what was done printed, marked
 interrupted."""

@@ -17,6 +17,8 @@ def number(key, value, low=None, high=None, low_inclusive=False, high_inclusive=
         raise ValueError(f"{key}: must be {'a whole' if integer else 'a'} number, not {shown(value)}")
     if math.isnan(value) or (math.isinf(value) and not allow_infinite):
         raise ValueError(f"{key}: must be a finite number, not {shown(value)}")
+    if math.isinf(value) and value > 0.0 and allow_infinite:
+        return float(value)
     below = low is not None and (value < low if low_inclusive else value <= low)
     above = high is not None and (value > high if high_inclusive else value >= high)
     if below or above:

@@ -11,6 +11,7 @@ import numpy as np
 
 from control_math.command_delay import command_line, issue_command
 from control_math.current_sensing import corrected_currents
+from control_math.safe_state import safe_state_for
 from drive_bridge.inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from drive_bridge.inverter_protocol import MAX_BLOCK
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
@@ -20,6 +21,7 @@ from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.realtime import collector_held
 from drive_scenarios.scenario import behind_an_inverter
 from foc_controller.control import controller_block, controller_step
+from foc_controller.protection import R_S_IN_USE, SAFE_STATE, TRIPPED, protection_block, protection_summary
 from hf_estimator.block import estimator_block, sample_inputs
 from motor_params.nameplate import trip_current_A
 
@@ -143,13 +145,24 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
     e, cp = host.estimator, host.controller
     return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
-                           e.facts(),
+                           e.facts(), protection=protection_summary(host.protection_x, host.protection),
                            link=link,
                            counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
                            inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
                            latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
                            host_s=host_s[:done][received[:done]],
                            timing=timing_report(inverter, scenario.T_s, bridge.written_at))
+
+
+def protect(host, currents, n, k_last, u_dc_V, omega_e_hat, cx, px):
+    """The drive's protections over n samples of measured ``currents`` with the inverter's bus ``u_dc_V``
+    (foc_controller.protection.protection_block on the controller state cx and protection state px):
+    (enable, the safe state the command asks for). Tripped, the command disables the bridge into the safe
+    state chosen at the trip; otherwise it enables it and asks for the safe state by speed and bus."""
+    protection_block(px, host.protection, currents, n, k_last, u_dc_V, omega_e_hat, cx)
+    if px[TRIPPED]:
+        return False, int(px[SAFE_STATE])
+    return True, safe_state_for(omega_e_hat, u_dc_V, host.protection.psi_f_Wb)
 
 
 class _SampleAnswer:
@@ -175,6 +188,7 @@ class _SampleAnswer:
                         est["theta_e_hat"], est["omega_e_hat"], host.speed_ref[0], est["u_inj_alpha"],
                         est["u_inj_beta"], est["state"], host.tau_feedforward[0])
         issue_command(self.line.copy(), 0, 0.0, 0.0)
+        protect(host, self.currents, 1, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
         write_row(np.zeros(len(LOG_COLUMNS)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
                   est["theta_e_hat"], est["omega_e_hat"], 0.0, 0.0, est["u_inj_alpha"], est["u_inj_beta"],
                   host.speed_ref[0], 0.0, 0.0, 0.0, 0.0, est["eps"], est["signal"], est["state"],
@@ -195,15 +209,17 @@ class _SampleAnswer:
         e, cx, cz, cp = host.estimator, host.controller_x, host.controller_z, host.controller
         self.currents[0] = s.i_a, s.i_b, s.i_c
         self.encoder[0, 0] = cp.n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+        self.inputs[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
         estimator_block(e.step, e.state, e.params, k, 1, self.currents, line, self.encoder, self.calibration,
                         self.trip_A, self.estimate, self.inputs)
         est = self.estimate[0]
+        enable, safe = protect(host, self.currents, 1, k, s.u_dc_V, est["omega_e_hat"], cx, host.protection_x)
         c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, self.calibration)
         u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
             cx, cz, cp, c_a, c_b, c_c, est["theta_e_hat"], est["omega_e_hat"], host.speed_ref[k], est["u_inj_alpha"],
             est["u_inj_beta"], est["state"], host.tau_feedforward[k])
         issue_command(line, k, u_a, u_b)
-        bridge.command(k, u_a, u_b)
+        bridge.command(k, u_a, u_b, enable, safe)
         write_row(self.log[k], k * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c,
                   est["theta_e_hat"], est["omega_e_hat"], u_a, u_b, est["u_inj_alpha"], est["u_inj_beta"],
                   host.speed_ref[k], i_d, i_q, i_d_ref, i_q_ref, est["eps"], est["signal"], est["state"],
@@ -234,6 +250,7 @@ class _BlockAnswer:
         controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.currents,
                          self.est_out, host.speed_ref[:N], host.tau_feedforward[:N], self.calibration, self.trip_A,
                          self.ctrl_out)
+        protect(host, self.currents, N, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
         self.issue_and_log(self.line.copy(), np.zeros((1, len(LOG_COLUMNS))), 0, 1)
 
     def block(self, b, bridge):
@@ -248,13 +265,16 @@ class _BlockAnswer:
         self.currents[:n] = b.currents_A[:n]
         theta = b.theta_m[:n]
         self.encoder[:n, 0] = np.where(np.isnan(theta), 0.0, n_p * theta)
+        self.inputs[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
         estimator_block(e.step, e.state, e.params, k0, n, self.currents, line, self.encoder, self.calibration,
                         self.trip_A, self.est_out, self.inputs)
+        enable, safe = protect(host, self.currents, n, k0 + n - 1, b.u_dc_V, self.est_out[n - 1]["omega_e_hat"],
+                               host.controller_x, host.protection_x)
         controller_block(host.controller_x, host.controller_z, host.controller, n, self.currents, self.est_out,
                          host.speed_ref[k0:k0 + n], host.tau_feedforward[k0:k0 + n], self.calibration, self.trip_A,
                          self.ctrl_out)
         self.issue_and_log(line, self.log[k0:k0 + n], k0, n)
-        bridge.command_block(k0, self.ctrl_out[:n, 0], self.ctrl_out[:n, 1])
+        bridge.command_block(k0, self.ctrl_out[:n, 0], self.ctrl_out[:n, 1], enable, safe)
         return range(k0, k0 + n)
 
     def issue_and_log(self, line, rows, k0, n):

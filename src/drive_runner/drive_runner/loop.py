@@ -11,8 +11,9 @@ from control_math.current_sensing import corrected_currents
 from drive_interface.estimator_records import ESTIMATE, SAMPLE
 from drive_interface.estimator_states import TRACKING
 from foc_controller.control import controller_block
+from foc_controller.protection import R_S_IN_USE, protection_block
 from hf_estimator.block import estimator_block
-from pmsm_plant.model import NOT_RELEASED, plant_block
+from pmsm_plant.model import INVERTER_MODE, NOT_RELEASED, bus_voltage, plant_block
 
 
 @njit(cache=True)
@@ -54,7 +55,7 @@ def write_row(row, t, theta_m, omega_m, tau_e, tau_load, i_a, i_b, i_c, i_a_meas
 @njit
 def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor, seed, T_s, substeps,
                est_step, est_state, ep, cx, cz, cp, speed_ref, tau_load, tau_ff, imposed, brake, calibration, trip_A,
-               log):
+               ps, pp, log):
     """Run samples k_start..k_end−1 (k_start a multiple of ``block``) in blocks of ``block`` samples;
     row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
 
@@ -68,6 +69,10 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
     it (the plant of a graph learns it with that block). Estimator and controller read the measured
     currents corrected by the commissioned ``calibration`` and treat currents beyond ``trip_A`` [A] as bad
     input (hf_estimator.block, foc_controller.control.controller_block); the log keeps them as measured.
+    Before the controller answers a block the drive's protections (ps, pp: foc_controller.protection's state
+    and parameters) take its measured currents, the bus at its last sample and the speed estimate there;
+    a trip switches the inverter to the safe state they chose from the next period on; the estimator's
+    resistive drop takes their R̂_s (R_S_IN_USE) from the next block on.
     Not cached on disk: numba cannot re-save a cache index whose entries are specialised on other
     processes' step functions ("underlying object has vanished"); the kernels it calls are cached.
     """
@@ -87,8 +92,13 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
         for i in range(n):
             encoder[i, 0] = n_p * plant_out[i, 6]
             encoder[i, 1] = n_p * plant_out[i, 7]
+        inputs[0].R_s_ohm = ps[R_S_IN_USE]
         estimator_block(est_step, est_state, ep, k0, n, plant_out[:, 3:6], line, encoder, calibration, trip_A,
                         est_out, inputs)
+        safe = protection_block(ps, pp, plant_out[:, 3:6], n, k0 + n - 1, bus_voltage(px, inverter),
+                                est_out[n - 1].omega_e_hat, cx)
+        if safe:
+            px[INVERTER_MODE] = safe
         controller_block(cx, cz, cp, n, plant_out[:, 3:6], est_out, speed_ref[k0:k0 + n], tau_ff[k0:k0 + n],
                          calibration, trip_A, ctrl_out)
         for i in range(n):

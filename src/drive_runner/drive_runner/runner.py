@@ -9,8 +9,9 @@ import numpy as np
 
 from drive_interface.interrupt import Interrupted, checkpoint, deferred
 from drive_interface.log import LOG_COLUMNS
-from foc_controller.build import controller_for_scenario
+from foc_controller.build import controller_for_scenario, protection_for_scenario
 from foc_controller.control import controller_state
+from foc_controller.protection import protection_state, protection_summary
 from hf_estimator.build import estimator_for_scenario
 from hf_estimator.startup import estimator_startup
 from motor_params.commissioning import resolve_commissioning
@@ -42,6 +43,8 @@ class RunResult:
 
     pole_pairs: int = None
     """Pole pairs of a recording's motor when it has no scenario (None: the scenario's motor's)."""
+    protection: dict = None
+    """What the drive's protections did (foc_controller.protection.protection_summary), when known."""
 
     @property
     def n_p(self):
@@ -69,6 +72,10 @@ class Drive:
     (drive_runner.loop.run_blocks)."""
     commissioning: object
     """motor_params.commissioning.Commissioning: what the drive knows beyond its nameplate."""
+    protection: object
+    """foc_controller.protection.ProtectionParams."""
+    protection_x: np.ndarray
+    """The protections' state (foc_controller.protection.protection_state)."""
 
     def run(self, k_start, k_end, log):
         """Run samples k_start..k_end−1 of the compiled loop (k_start a multiple of the scenario's
@@ -78,7 +85,7 @@ class Drive:
                    p.sensor, p.seed, p.T_s, p.substeps, e.step, e.state, e.params, self.controller_x,
                    self.controller_z, self.controller, self.speed_ref, self.tau_load, self.tau_feedforward,
                    p.imposed_speed, self.brake, self.commissioning.calibration(),
-                   trip_current_A(self.scenario.motor.nameplate), log)
+                   trip_current_A(self.scenario.motor.nameplate), self.protection_x, self.protection, log)
 
 
 def brake_state(scenario):
@@ -105,7 +112,8 @@ def build_drive(scenario):
     controller_x, controller_z = controller_state(controller)
     speed_ref, tau_load = scenario.schedule()
     return Drive(scenario, plant, estimator, controller, controller_x, controller_z, speed_ref, tau_load,
-                 scenario.feedforward(), brake_state(scenario), commissioning)
+                 scenario.feedforward(), brake_state(scenario), commissioning,
+                 protection_for_scenario(scenario, controller, commissioning), protection_state())
 
 
 def run_scenario(scenario, progress=None, chunk_samples=20000):
@@ -131,7 +139,8 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
         interrupted = stop.signum
     wall = time.perf_counter() - start
     return RunResult(cut(scenario, done), drive.estimator.name, log[:done], wall, drive.controller.i_max_A,
-                     interrupted, drive.commissioning, drive.estimator.facts(), estimator_startup(drive.estimator))
+                     interrupted, drive.commissioning, drive.estimator.facts(), estimator_startup(drive.estimator),
+                     protection=protection_summary(drive.protection_x, drive.protection))
 
 
 def cut(scenario, samples):

@@ -5,6 +5,7 @@ from drive_scenarios.scenario import ScenarioError
 from motor_params.scaled_loops import scaled_loops
 
 from .params import check_settings, make_controller_params
+from .protection import make_protection_params
 
 
 def check_controller_settings(scenario):
@@ -41,3 +42,12 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
                                       settings, injection_frequency_Hz, tracking_bandwidth_Hz, commissioning)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source_of('controller')}: {error.args[0]}") from None
+
+
+def protection_for_scenario(scenario, controller, commissioning):
+    """ProtectionParams of ``scenario``'s drive (foc_controller.protection: its defaults, the motor's
+    inverter rating, the ``commissioning`` record's R_s), folding back from the ``controller``'s current
+    limit (ControllerParams)."""
+    protection = make_protection_params(scenario.motor.nameplate, scenario.motor.inverter, scenario.T_s,
+                                        commissioning=commissioning)
+    return protection._replace(current_limit_A=controller.i_max_A)

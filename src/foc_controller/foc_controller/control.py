@@ -26,10 +26,11 @@ from control_math.pi import pi_limited
 from drive_interface import numba_records  # noqa: F401  (controller_block takes records: cached safely)
 from drive_interface.estimator_states import ALIGNING, LOCK_LOST, POLARITY, TRACKING
 
-# Controller state layout (integrators, filtered speed, torque gate, last θ̂); the notch states (d, q)
-# live in a separate array.
-INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, TORQUE_ALLOWED, LAST_THETA, STARTED = range(7)
-N_STATE = 7
+# Controller state layout (integrators, filtered speed, torque gate, last θ̂, and the limits the drive's
+# protections set: the current limit's foldback [A], the share of braking current cut, foc_controller.protection;
+# 0: none); the notch states (d, q) live in a separate array.
+INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, TORQUE_ALLOWED, LAST_THETA, STARTED, FOLDBACK_A, REGEN_CUT = range(9)
+N_STATE = 9
 JUMP_RAD = 0.25
 """A change of θ̂ beyond ω̂·T_s by more than this in one sample is a jump, not tracking."""
 
@@ -71,8 +72,10 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     state code and the robot's torque feed-forward [N·m] (added to the speed loop's output as
     τ_ff/k̂_t, k̂_t = 1.5 p ψ_f from the nameplate, once torque is allowed) → the stator voltage command
     (u_α, u_β) [V] for the next period, the (HF-rejected) feedback currents i_d, i_q and the references
-    i_d*, i_q* [A]. State x: INT_D .. STARTED (the speed filter and the jump detector start from the first
-    sample's estimate); z_notch: the notch sections of d (z_notch[0]) and q (z_notch[1]).
+    i_d*, i_q* [A]. State x: INT_D .. REGEN_CUT (the speed filter and the jump detector start from the first
+    sample's estimate); z_notch: the notch sections of d (z_notch[0]) and q (z_notch[1]). The speed loop's
+    current limit is i_max less the protections' foldback x[FOLDBACK_A]; a braking current (i_q* against
+    ω̂_e, regenerating) at most (1 − x[REGEN_CUT]) of it (the DC-link over-voltage controller).
 
     The estimated speed is low-pass filtered once and that value feeds the speed loop, the back-EMF
     decoupling and the delay compensation: a raw PLL speed in the feed-forward closes a fast loop
@@ -106,8 +109,14 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     omega_m_ref = min(max(omega_m_ref, -c.speed_limit_rad_s), c.speed_limit_rad_s)
     torque = x[TORQUE_ALLOWED] > 0.5
     if torque:
+        i_limit = max(c.i_max_A - x[FOLDBACK_A], 0.0)
         i_q_ref = pi_limited(x, INT_SPEED, c.kp_speed, c.ki_speed, c.T_s_s, omega_m_ref - omega_m_hat,
-                             c.i_max_A, tau_feedforward / (1.5 * c.n_p * c.psi_f_Wb))
+                             i_limit, tau_feedforward / (1.5 * c.n_p * c.psi_f_Wb))
+        braking = (1.0 - x[REGEN_CUT]) * i_limit
+        if i_q_ref * omega_e_hat < 0.0 and abs(i_q_ref) > braking:
+            held = math.copysign(braking, i_q_ref)
+            x[INT_SPEED] += held - i_q_ref
+            i_q_ref = held
     else:
         x[INT_SPEED] = 0.0
         i_q_ref = 0.0

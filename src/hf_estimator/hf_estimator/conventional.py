@@ -85,7 +85,7 @@ def wang_answer(x, p, k, sample, out, i_alpha, i_beta, eps):
         eps)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, sample.u_applied_alpha,
                                           sample.u_applied_beta, u_alpha, u_beta, eps, observable,
-                                          sample.theta_e_encoder)
+                                          sample.theta_e_encoder, sample.R_s_ohm)
     write_injecting_estimate(out, x.theta, x.omega, u_alpha, u_beta, eps, signal, state, p.injection_amplitude_V)
 
 

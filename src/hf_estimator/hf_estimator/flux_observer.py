@@ -30,7 +30,7 @@ from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direct
 from control_math.frames import clarke_contract, inverse_clarke, rotate
 from drive_interface.estimator_states import HOLD, LEADER_BACKEMF, TRACKING
 
-from .interface import Estimator, check_settings, register
+from .interface import Estimator, check_settings, register, stator_resistance
 
 FLUX_OBSERVER = np.dtype([(name, np.float64) for name in ("theta", "omega", "psi_d", "psi_q", "prev_id", "prev_iq",
                                                             "e_d", "omega_s", "started")])
@@ -74,8 +74,9 @@ def flux_observer_step(x, p, k, sample, out):
         u_d, u_q = rotate(u_applied_alpha, u_applied_beta, -(x.theta + 0.5 * p.T_s_s * w_s))
         k_1 = p.sigma_0 + 0.2 * abs(x.omega)
         # ψ_a is real here, so k_2 = k_1 and k_1 e + k_2 e* = 2 k_1 Re(e).
-        d_psi_d = u_d - p.R_s_ohm * x.prev_id + w_s * x.psi_q + 2.0 * k_1 * e_d
-        d_psi_q = u_q - p.R_s_ohm * x.prev_iq - w_s * x.psi_d
+        R_s = stator_resistance(p.R_s_ohm, sample.R_s_ohm)
+        d_psi_d = u_d - R_s * x.prev_id + w_s * x.psi_q + 2.0 * k_1 * e_d
+        d_psi_q = u_q - R_s * x.prev_iq - w_s * x.psi_d
         x.psi_d += p.T_s_s * d_psi_d
         x.psi_q += p.T_s_s * d_psi_q
         x.theta += p.T_s_s * w_s

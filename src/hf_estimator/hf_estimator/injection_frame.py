@@ -77,7 +77,15 @@ from control_math.frames import clarke_contract, inverse_clarke, rotate
 from control_math.tables import table_value
 from drive_interface.estimator_states import ALIGNING, TRACKING
 
-from .interface import MAX_CARRIER_SAMPLES, MAX_DELAY_PERIODS, Estimator, check_settings, register, ring_capacity
+from .interface import (
+    MAX_CARRIER_SAMPLES,
+    MAX_DELAY_PERIODS,
+    Estimator,
+    check_settings,
+    register,
+    ring_capacity,
+    stator_resistance,
+)
 from .outputs import write_injecting_estimate
 from .startup import DEFAULTS as STARTUP_DEFAULTS
 from .startup import fresh_startup, make_startup, startup_code, startup_step
@@ -295,8 +303,9 @@ def injection_frame_step(x, p, k, sample, out):
     axis_then = x.issued[(k - 1 - p.delay_periods) % depth]
     d_alpha = i_alpha - x.prev_ia
     d_beta = i_beta - x.prev_ib
-    drive_alpha = sample.u_applied_alpha - p.R_s_ohm * 0.5 * (i_alpha + x.prev_ia)
-    drive_beta = sample.u_applied_beta - p.R_s_ohm * 0.5 * (i_beta + x.prev_ib)
+    R_s = stator_resistance(p.R_s_ohm, sample.R_s_ohm)
+    drive_alpha = sample.u_applied_alpha - R_s * 0.5 * (i_alpha + x.prev_ia)
+    drive_beta = sample.u_applied_beta - R_s * 0.5 * (i_beta + x.prev_ib)
     if p.dead_time_voltage_V != 0.0:
         start_a, start_b, start_c = inverse_clarke(x.prev_ia, x.prev_ib)
         loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
@@ -352,7 +361,7 @@ def injection_frame_step(x, p, k, sample, out):
     u_alpha, u_beta = rotate(p.injection_amplitude_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, sample.u_applied_alpha,
                                           sample.u_applied_beta, u_alpha, u_beta, eps, observable,
-                                          sample.theta_e_encoder)
+                                          sample.theta_e_encoder, sample.R_s_ohm)
     if state != TRACKING:
         x.acceleration = 0.0
     write_injecting_estimate(out, x.theta, x.omega, u_alpha, u_beta, eps, x.delta_smooth, state,

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
+from numba import njit
 
 from drive_interface.settings import choice, flag, number, positive, shown
 
@@ -149,6 +150,13 @@ MAX_DELAY_PERIODS = 200
 """The rings in an estimator's state hold up to this many samples of one carrier period and of the drive's
 delay (blocks of 100 samples answered 101 periods late: 200), whatever the motor and sampling: one state
 layout per estimator, compiled once (docs/architecture.md "Estimator records")."""
+
+
+@njit(cache=True)
+def stator_resistance(R_commissioned_ohm, R_tracked_ohm):
+    """The stator resistance [Ω] for a sample's resistive drop: the one the drive tracks as its winding
+    warms (SAMPLE.R_s_ohm) when it gives one (> 0), else the commissioned one."""
+    return R_tracked_ohm if R_tracked_ohm > 0.0 else R_commissioned_ohm
 
 
 def ring_capacity(carrier_samples, delay_periods):

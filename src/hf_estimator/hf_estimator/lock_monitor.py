@@ -9,6 +9,7 @@ from control_math.dead_time import dead_time_direction
 from control_math.frames import inverse_clarke, rotate
 from drive_interface.estimator_states import ALIGNING, HOLD, LOCK_LOST, TRACKING
 
+from .interface import stator_resistance
 from .startup_state import (
     TOO_MANY_LOSSES,
     backemf_clear,
@@ -18,11 +19,12 @@ from .startup_state import (
 
 
 @njit(cache=True)
-def backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta):
+def backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta, R_s_tracked_ohm):
     """Update the low-passed back-EMF residual (θ̂ frame) with sample k's currents (α, β) [A] and the
     voltage (u_α, u_β) [V] applied in the period before it → its magnitude [V]. e = u − R̂ī − L̂·Δi/T_s per
-    axis (the HF cancelling), the commissioned dead-time loss removed (the voltage net of it kept as
-    ``u_net_alpha``, ``u_net_beta`` for the polarity test); residual = e − (ω̂ΔL i_q, ω̂(ψ_f + ΔL i_d))."""
+    axis (the HF cancelling; R̂ the drive's tracked R_s_tracked_ohm [Ω], else the commissioned one), the
+    commissioned dead-time loss removed (the voltage net of it kept as ``u_net_alpha``, ``u_net_beta`` for the
+    polarity test); residual = e − (ω̂ΔL i_q, ω̂(ψ_f + ΔL i_d))."""
     s = x.startup
     prev_a, prev_b = s.prev_ia, s.prev_ib
     s.prev_ia = i_alpha
@@ -41,8 +43,9 @@ def backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta):
     u_d, u_q = rotate(u_alpha, u_beta, -angle)
     i_d, i_q = rotate(0.5 * (i_alpha + prev_a), 0.5 * (i_beta + prev_b), -angle)
     step_d, step_q = rotate(i_alpha - prev_a, i_beta - prev_b, -angle)
-    e_d = u_d - p.R_s_ohm * i_d - p.L_dh_H * step_d / p.T_s_s
-    e_q = u_q - p.R_s_ohm * i_q - p.L_qh_H * step_q / p.T_s_s
+    R_s = stator_resistance(p.R_s_ohm, R_s_tracked_ohm)
+    e_d = u_d - R_s * i_d - p.L_dh_H * step_d / p.T_s_s
+    e_q = u_q - R_s * i_q - p.L_qh_H * step_q / p.T_s_s
     r_d = e_d - omega * p.delta_L_H * i_q
     r_q = e_q - omega * (p.psi_f_Wb + p.delta_L_H * i_d)
     s.residual_d += p.lock_smoothing * (r_d - s.residual_d)

@@ -170,15 +170,16 @@ def startup_follow(x, p, theta, omega):
 
 @njit(cache=True)
 def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_inj_alpha, u_inj_beta, eps,
-                 observable, theta_e_recorded):
+                 observable, theta_e_recorded, R_s_tracked_ohm):
     """Supervise sample k after the estimator's own step: the measured currents (α, β) [A], the voltage
     applied in the period before sample k [V], the estimator's injection for the coming period [V], its ε
     and observable flag; ``theta_e_recorded``: in replay, the recording drive's own estimate θ̂_e [rad] (NaN
-    where the bag has none), read only with ``polarity_from_recording``. Hands the sample to the job of the
+    where the bag has none), read only with ``polarity_from_recording``; ``R_s_tracked_ohm``: the winding's
+    resistance the drive tracks (SAMPLE.R_s_ohm; 0: the commissioned one). Hands the sample to the job of the
     state it is in; may turn or hold θ̂ (x.theta) and ω̂ (x.omega). Returns (u_inj_α, u_inj_β, state
     code)."""
     s = x.startup
-    residual = backemf_residual(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta)
+    residual = backemf_residual(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, R_s_tracked_ohm)
     code = int(s.code)
     since = k - int(s.entered)
     if s.refused != NOT_REFUSED:

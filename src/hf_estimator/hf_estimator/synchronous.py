@@ -67,7 +67,7 @@ def synchronous_step(x, p, k, sample, out):
         -i_qhf)
     u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, sample.u_applied_alpha,
                                           sample.u_applied_beta, u_alpha, u_beta, -i_qhf, observable,
-                                          sample.theta_e_encoder)
+                                          sample.theta_e_encoder, sample.R_s_ohm)
     write_injecting_estimate(out, x.theta, omega, u_alpha, u_beta, -i_qhf, signal_strength, state,
                              p.injection_amplitude_V)
 

@@ -24,10 +24,16 @@ FORMAT_VERSION = 1
 INVERTER_KEYS = (
     Key("U_dc_V", "V", 0.0, 1e5, doc="the DC-link voltage"),
     Key("delay_periods", "periods", 0, 2, low_inclusive=True, integer=True, default=1),
-    Key("current_rating_A", "A", 0.0, 1e4, default=math.inf,
+    Key("current_rating_A", "A", 0.0, 1e4, default=math.inf, infinite=True,
         doc="the inverter's peak phase current; the current limit stays within it"),
+    Key("C_dc_F", "F", 0.0, 10.0, default=math.inf, infinite=True, doc="the DC-link capacitance (∞: a stiff bus)"),
+    Key("R_brake_ohm", "Ω", 0.0, 1e6, default=math.inf, infinite=True, doc="the brake chopper's resistor (∞: none)"),
+    Key("U_brake_on_V", "V", 0.0, 1e5, default=math.inf, infinite=True),
+    Key("U_brake_off_V", "V", 0.0, 1e5, default=math.inf, infinite=True),
+    Key("U_overvoltage_V", "V", 0.0, 1e5, default=math.inf, infinite=True,
+        doc="the bus at which the drive trips (∞: foc_controller.protection's default)"),
 )
-"""The inverter section's keys, declared once (drive_interface.settings.Key)."""
+"""The inverter section's keys, declared once (drive_interface.settings.Key; docs/protections.md)."""
 
 
 BUS_PER_RATED_SPEED_NEED = 20.0
@@ -143,6 +149,13 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
     if plate.current_limit_A > inverter.current_rating_A:
         fail("nameplate.current_limit_A", f"{plate.current_limit_A:g} A is more than the inverter's rating "
                                           f"(inverter.current_rating_A {inverter.current_rating_A:g} A)")
+    if inverter.U_brake_off_V > inverter.U_brake_on_V:
+        fail("inverter.U_brake_off_V", "must not exceed U_brake_on_V (the chopper's hysteresis)")
+    for key in ("U_brake_off_V", "U_overvoltage_V"):
+        level = getattr(inverter, key)
+        if level <= inverter.U_dc_V:
+            fail(f"inverter.{key}", f"{level:g} V must exceed the supply's U_dc_V {inverter.U_dc_V:g} V (a chopper "
+                                    f"below it drains the supply; a trip below it trips at rest)")
     plant = data.get("plant") or {}
     if not isinstance(plant, dict):
         fail("plant", "must be a mapping of the simulated motor's truth")

@@ -37,6 +37,17 @@ class InverterRating(NamedTuple):
     """1: a command computed from sample k is applied during period k+1."""
     current_rating_A: float = math.inf
     """The inverter's peak phase current (∞: not stated); a motor's current limit stays within it."""
+    C_dc_F: float = math.inf
+    """DC-link capacitance (∞: a stiff bus, a supply that also absorbs; docs/protections.md)."""
+    R_brake_ohm: float = math.inf
+    """Brake-chopper resistor (∞: none)."""
+    U_brake_on_V: float = math.inf
+    """The chopper switches on above this bus voltage ..."""
+    U_brake_off_V: float = math.inf
+    """... and off below this one."""
+    U_overvoltage_V: float = math.inf
+    """The bus voltage at which the drive trips to its safe state (∞: OVERVOLTAGE_PER_BUS × U_dc_V,
+    foc_controller.protection)."""
 
 
 TRIP_PER_CURRENT_LIMIT = 3.0

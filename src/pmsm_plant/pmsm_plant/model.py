@@ -5,6 +5,11 @@ inverter voltage is integrated without approximation and only the slow resistive
 go through the Runge-Kutta step; HF injection at any frequency below Nyquist is integrated accurately
 (see test/test_plant.py). One control period is: apply the voltage the delay line holds for it
 (control_math.command_delay) → integrate → sample.
+
+Beside the machine the state holds the DC link (a capacitor above a supply that only sources, with an
+optional brake chopper), the winding's temperature rise (R_s follows it) and the inverter's switching
+mode: PWM, or one of its two safe states, freewheel (all switches off: the diodes rectify whatever
+back-EMF exceeds the bus) and active short circuit (all low-side switches on: u = 0). docs/protections.md.
 """
 import math
 
@@ -12,11 +17,15 @@ import numpy as np
 from numba import njit
 
 from control_math.command_delay import applied_voltage
+from control_math.copper import copper_resistance
 from control_math.frames import clarke, inverse_clarke, rotate
+from control_math.safe_state import ASC, FREEWHEEL
 
-# Plant state vector layout.
-PSI_ALPHA, PSI_BETA, OMEGA_M, THETA_M = range(4)
-N_STATE = 4
+# Plant state vector layout: flux [Wb], shaft [rad/s, rad], DC-link voltage above the supply's [V] (0
+# reads as the supply's: bus_voltage), winding temperature rise [K], inverter mode (control_math.safe_state:
+# PWM, FREEWHEEL, ASC), brake chopper on (1).
+PSI_ALPHA, PSI_BETA, OMEGA_M, THETA_M, U_DC_BUS, WINDING_RISE, INVERTER_MODE, BRAKE_ON = range(8)
+N_STATE = 8
 NOT_RELEASED = 2 ** 62
 """plant_block's ``release_k`` of a brake that holds until further notice."""
 
@@ -74,14 +83,15 @@ def duty_cycles(u_alpha, u_beta, U_dc):
 
 
 @njit(cache=True)
-def inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s):
-    """Average stator voltage (u_α, u_β) realised by the duties, with the dead-time voltage error."""
-    u_a = d_a * inv.U_dc_V
-    u_b = d_b * inv.U_dc_V
-    u_c = d_c * inv.U_dc_V
+def inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s, U_dc):
+    """Average stator voltage (u_α, u_β) realised by the duties on the bus U_dc [V], with the dead-time
+    voltage error of InverterParams inv."""
+    u_a = d_a * U_dc
+    u_b = d_b * U_dc
+    u_c = d_c * U_dc
     if inv.t_dead_s > 0.0:
         i_a, i_b, i_c = inverse_clarke(i_alpha, i_beta)
-        u_err = inv.t_dead_s / T_s * inv.U_dc_V
+        u_err = inv.t_dead_s / T_s * U_dc
         u_a -= u_err * math.tanh(i_a / inv.i_dead_A)
         u_b -= u_err * math.tanh(i_b / inv.i_dead_A)
         u_c -= u_err * math.tanh(i_c / inv.i_dead_A)
@@ -89,10 +99,25 @@ def inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s):
 
 
 @njit(cache=True)
-def _derivatives(psi_a, psi_b, omega_m, theta_m, u_a, u_b, tau_load, imposed, omega_imposed, m, mech):
+def bus_voltage(x, inv):
+    """The DC-link voltage [V] of state x: the capacitor's, never below the supply's U_dc_V."""
+    return max(x[U_DC_BUS], inv.U_dc_V)
+
+
+@njit(cache=True)
+def winding_resistance(x, m):
+    """R_s(T) = R_s,20 (1 + α (T − 20 °C)) [Ω] at the winding temperature T = T_ambient + x[WINDING_RISE]
+    (control_math.copper); R_s_ohm itself when the winding is isothermal (C_th_J_K = 0)."""
+    if m.C_th_J_K <= 0.0:
+        return m.R_s_ohm
+    return copper_resistance(m.R_s_ohm, 20.0, m.T_ambient_degC + x[WINDING_RISE])
+
+
+@njit(cache=True)
+def _derivatives(psi_a, psi_b, omega_m, theta_m, u_a, u_b, tau_load, imposed, omega_imposed, m, mech, R_s):
     """Time derivatives of the state (ψ_α, ψ_β [Wb], ω_m [rad/s], θ_m [rad]) under the stator voltage
-    (u_a, u_b) [V, αβ] and the load torque [N·m]: dψ/dt = u − R i, the shaft's torque balance (or the
-    imposed speed)."""
+    (u_a, u_b) [V, αβ] and the load torque [N·m]: dψ/dt = u − R_s i (R_s [Ω]), the shaft's torque balance
+    (or the imposed speed)."""
     i_a, i_b = stator_current(psi_a, psi_b, theta_m, m)
     tau_e = electromagnetic_torque(psi_a, psi_b, i_a, i_b, m.n_p)
     if imposed:
@@ -101,39 +126,86 @@ def _derivatives(psi_a, psi_b, omega_m, theta_m, u_a, u_b, tau_load, imposed, om
     else:
         d_omega = (tau_e - tau_load - mech.B_Nms * omega_m) / mech.J_kgm2
         d_theta = omega_m
-    return u_a - m.R_s_ohm * i_a, u_b - m.R_s_ohm * i_b, d_omega, d_theta
+    return u_a - R_s * i_a, u_b - R_s * i_b, d_omega, d_theta
+
+
+@njit(cache=True)
+def _bridge_voltage(x, u_a, u_b, i_alpha, i_beta, m, inv, T_s, U_dc, R_s):
+    """Duties (d_a, d_b, d_c) and the average stator voltage (u_α, u_β) [V] the bridge applies in the
+    period, by its mode x[INVERTER_MODE]: PWM realises the command (u_a, u_b) [V] on the bus U_dc with
+    its dead time; ASC applies 0; in freewheel the diodes oppose the current as hard as the bus lets
+    them: the voltage that would bring the current to zero within the period, u₀ = (ψ₀(t+T_s) − ψ)/T_s
+    + R_s i/2 (ψ₀ the magnet's flux, i = 0), clipped to the bridge's hexagon. Below the bus the current
+    stays near zero; a back-EMF above it is rectified into the bus."""
+    mode = int(x[INVERTER_MODE])
+    if mode == ASC:
+        return 0.0, 0.0, 0.0, 0.0, 0.0
+    if mode == FREEWHEEL:
+        theta_next = m.n_p * (x[THETA_M] + x[OMEGA_M] * T_s)
+        psi_a0, psi_b0 = rotate(m.psi_f_Wb, 0.0, theta_next)
+        u_0a = (psi_a0 - x[PSI_ALPHA]) / T_s + 0.5 * R_s * i_alpha
+        u_0b = (psi_b0 - x[PSI_BETA]) / T_s + 0.5 * R_s * i_beta
+        d_a, d_b, d_c = duty_cycles(u_0a, u_0b, U_dc)
+        v_a, v_b = clarke(d_a * U_dc, d_b * U_dc, d_c * U_dc)
+        return d_a, d_b, d_c, v_a, v_b
+    d_a, d_b, d_c = duty_cycles(u_a, u_b, U_dc)
+    v_a, v_b = inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s, U_dc)
+    return d_a, d_b, d_c, v_a, v_b
+
+
+@njit(cache=True)
+def _link_and_winding(x, d_a, d_b, d_c, i0_alpha, i0_beta, m, inv, T_s, U_dc, R_s):
+    """The period's DC link and winding heat from the duties and the currents at its start (i0) and end
+    (the state x): i_dc = Σ d_x i_x (period average), C dU/dt = −i_dc − i_brake above the supply, the
+    chopper's hysteresis at the period start; C_th dΔT/dt = 1.5 R_s |i|² − ΔT/R_th (explicit, τ_th ≫ T_s)."""
+    i1_alpha, i1_beta = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
+    if math.isfinite(inv.C_dc_F):
+        p_a, p_b, p_c = inverse_clarke(0.5 * (i0_alpha + i1_alpha), 0.5 * (i0_beta + i1_beta))
+        i_dc = d_a * p_a + d_b * p_b + d_c * p_c
+        if math.isfinite(inv.R_brake_ohm):
+            if U_dc > inv.U_brake_on_V:
+                x[BRAKE_ON] = 1.0
+            elif U_dc < inv.U_brake_off_V:
+                x[BRAKE_ON] = 0.0
+        i_brake = U_dc / inv.R_brake_ohm if x[BRAKE_ON] > 0.5 else 0.0
+        x[U_DC_BUS] = max(U_dc - T_s * (i_dc + i_brake) / inv.C_dc_F, inv.U_dc_V)
+    if m.C_th_J_K > 0.0:
+        i_sq = 0.5 * (i0_alpha ** 2 + i0_beta ** 2 + i1_alpha ** 2 + i1_beta ** 2)
+        x[WINDING_RISE] += T_s / m.C_th_J_K * (1.5 * R_s * i_sq - x[WINDING_RISE] / m.R_th_K_W)
 
 
 @njit(cache=True)
 def plant_advance(x, u_a, u_b, tau_load_Nm, imposed, omega_imposed, m, mech, inv, T_s, n_substeps):
     """Advance the plant state x by one control period T_s [s] under the voltage command acting in it
     (u_a, u_b) [V, αβ] (the delay line's, control_math.command_delay) and the load torque [N·m]. State x
-    (N_STATE): PSI_ALPHA, PSI_BETA [Wb], OMEGA_M [rad/s], THETA_M [rad]; m, mech, inv: MachineParams,
-    MechanicsParams, InverterParams.
+    (N_STATE): PSI_ALPHA … BRAKE_ON; m, mech, inv: MachineParams, MechanicsParams, InverterParams.
 
-    The inverter realises the command as one average voltage over the period, its dead-time error set by
-    the current polarities at the period start (the switching edges). With ``imposed`` the shaft runs at
-    ``omega_imposed`` [rad/s] (dynamometer mode).
+    The inverter realises the command on its bus as one average voltage over the period, its dead-time
+    error set by the current polarities at the period start (the switching edges), unless its mode
+    (x[INVERTER_MODE]) is a safe state (_bridge_voltage). R_s is the winding's at the period start. With
+    ``imposed`` the shaft runs at ``omega_imposed`` [rad/s] (dynamometer mode).
     """
-    d_a, d_b, d_c = duty_cycles(u_a, u_b, inv.U_dc_V)
+    U_dc = bus_voltage(x, inv)
+    R_s = winding_resistance(x, m)
     i_alpha, i_beta = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
-    v_a, v_b = inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s)
     if imposed:
         x[OMEGA_M] = omega_imposed
+    d_a, d_b, d_c, v_a, v_b = _bridge_voltage(x, u_a, u_b, i_alpha, i_beta, m, inv, T_s, U_dc, R_s)
     h = T_s / n_substeps
     for _ in range(n_substeps):
         s0, s1, s2, s3 = x[PSI_ALPHA], x[PSI_BETA], x[OMEGA_M], x[THETA_M]
-        k1 = _derivatives(s0, s1, s2, s3, v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech)
+        k1 = _derivatives(s0, s1, s2, s3, v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech, R_s)
         k2 = _derivatives(s0 + 0.5 * h * k1[0], s1 + 0.5 * h * k1[1], s2 + 0.5 * h * k1[2],
-                          s3 + 0.5 * h * k1[3], v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech)
+                          s3 + 0.5 * h * k1[3], v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech, R_s)
         k3 = _derivatives(s0 + 0.5 * h * k2[0], s1 + 0.5 * h * k2[1], s2 + 0.5 * h * k2[2],
-                          s3 + 0.5 * h * k2[3], v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech)
+                          s3 + 0.5 * h * k2[3], v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech, R_s)
         k4 = _derivatives(s0 + h * k3[0], s1 + h * k3[1], s2 + h * k3[2], s3 + h * k3[3],
-                          v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech)
+                          v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech, R_s)
         x[PSI_ALPHA] = s0 + h / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
         x[PSI_BETA] = s1 + h / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
         x[OMEGA_M] = s2 + h / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
         x[THETA_M] = s3 + h / 6.0 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
+    _link_and_winding(x, d_a, d_b, d_c, i_alpha, i_beta, m, inv, T_s, U_dc, R_s)
 
 
 @njit(cache=True)

@@ -5,6 +5,7 @@ field names, and passable unchanged into the numba kernels. What the drive knows
 nameplate and commissioning record) lives in ``motor_params``; the estimators and the controller never
 read these.
 """
+import math
 from typing import NamedTuple
 
 
@@ -40,6 +41,13 @@ class MachineParams(NamedTuple):
     """q-axis self-saturation coefficient [A/Wb³]."""
     a_dq: float = 0.0
     """Cross-saturation coefficient [A/Wb⁴]."""
+    C_th_J_K: float = 0.0
+    """Thermal capacity of the winding; 0: isothermal (R_s stays R_s_ohm). The first-order model:
+    C_th dΔT/dt = 1.5 R_s(T) |i_αβ|² − ΔT/R_th, ΔT the rise above ambient (state WINDING_RISE)."""
+    R_th_K_W: float = 1.0
+    """Thermal resistance winding → ambient."""
+    T_ambient_degC: float = 20.0
+    """Ambient (and initial winding) temperature; R_s_ohm is the resistance at 20 °C."""
 
 
 class MechanicsParams(NamedTuple):
@@ -63,6 +71,15 @@ class InverterParams(NamedTuple):
     delay_periods: int
     """Delay from sample to applied command [periods]: 1 = a command computed from sample k is applied
     during period k+1; blocks of N samples add N − 1 (pmsm_plant.build)."""
+    C_dc_F: float = math.inf
+    """DC-link capacitance. The supply is U_dc_V behind a diode: it sources but cannot absorb, so the bus
+    is U_dc_V or above, C dU/dt = −i_dc − i_brake while above (∞: a stiff bus, which never rises)."""
+    R_brake_ohm: float = math.inf
+    """Brake-chopper resistor across the link (∞: none)."""
+    U_brake_on_V: float = math.inf
+    """The chopper switches the resistor on above this bus voltage ..."""
+    U_brake_off_V: float = math.inf
+    """... and off again below this one (hysteresis)."""
 
 
 class SensorParams(NamedTuple):

@@ -33,7 +33,8 @@ class MotorPreset:
 
 
 PLANT_KEYS = ("source", "assumptions", "R_s_ohm", "psi_f_Wb", "J_kgm2", "B_Nms", "L_d_H", "L_q_H", "L_dh_H",
-              "L_dh_drop_at_rated", "L_qh_H", "L_qh_drop_at_rated", "t_dead_s", "i_dead_A", "sensor")
+              "L_dh_drop_at_rated", "L_qh_H", "L_qh_drop_at_rated", "t_dead_s", "i_dead_A", "sensor",
+              "C_th_J_K", "R_th_K_W", "T_ambient_degC")
 SENSOR_KEYS = SensorParams._fields
 DEFAULT_DEAD_TIME_S = 0.5e-6
 DEFAULT_DEAD_CURRENT_A = 0.05
@@ -129,10 +130,12 @@ def plant_truth(motor, source="motor"):
     if not isinstance(assumptions, list) or not all(isinstance(a, str) for a in assumptions):
         fail("assumptions", "must be a list of sentences")
     machine = MachineParams(n_p=plate.n_p, R_s_ohm=R_s, L_d_H=L_d, L_q_H=L_q, psi_f_Wb=psi_f,
-                            a_d=a_d, a_q=a_q, a_dq=a_dq)
+                            a_d=a_d, a_q=a_q, a_dq=a_dq, C_th_J_K=value("C_th_J_K", 0.0, low_inclusive=True),
+                            R_th_K_W=value("R_th_K_W", 1.0), T_ambient_degC=value("T_ambient_degC", 20.0, -60.0, True))
+    link = {key: getattr(motor.inverter, key) for key in ("C_dc_F", "R_brake_ohm", "U_brake_on_V", "U_brake_off_V")}
     inverter = InverterParams(U_dc_V=motor.inverter.U_dc_V, t_dead_s=value("t_dead_s", DEFAULT_DEAD_TIME_S, 0.0, True),
                               i_dead_A=value("i_dead_A", DEFAULT_DEAD_CURRENT_A),
-                              delay_periods=motor.inverter.delay_periods)
+                              delay_periods=motor.inverter.delay_periods, **link)
     return MotorPreset(name=motor.name, machine=machine, nameplate=plate,
                        mechanics=MechanicsParams(J_kgm2=J, B_Nms=B), inverter=inverter,
                        sensor=_sensor(plant.get("sensor") or {}, plate, fail),
