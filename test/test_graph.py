@@ -90,6 +90,23 @@ def test_graph_gives_the_runners_samples(tmp_path, processes, block_samples, int
     assert_same_samples(result, path)
 
 
+@pytest.mark.parametrize("block_samples", [1, 7])
+def test_the_graphs_drive_runs_the_protections_the_runner_does(tmp_path, block_samples):
+    """A winding told to heat fast (τ 10 ms, 200 K at rated current, folding back from 60 °C): its estimate
+    passes the warning, the current limit folds back and R̂_s steps in the estimators' resistive drop, in
+    the graph (the controller node's protections, the estimator node's winding estimate on the same
+    currents) as in one process, to the bit; the graph's bus is the rated one (no C_dc_F)."""
+    path = scenario_file(tmp_path, block_samples=block_samples)
+    with open(path, "a") as file:
+        file.write("protection: {thermal_time_constant_s: 0.01, rise_at_rated_K: 200.0, warning_degC: 60.0, "
+                   "limit_degC: 90.0}\n")
+    reference = run_scenario(load_scenario(path))
+    assert reference.protection["winding_peak_degC"] > 70.0 and reference.protection["trip"] is None
+    result = launch(path, namespace=f"/protected_{block_samples}")
+    assert not result.interrupted and not result.node_faults
+    assert_same_samples(result, path)
+
+
 def test_two_drives_side_by_side_do_not_cross_talk(tmp_path):
     left = scenario_file(tmp_path, "left", rpm=60.0)
     right = scenario_file(tmp_path, "right", "improved", -90.0)

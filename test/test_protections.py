@@ -3,6 +3,8 @@ a brake chopper; the winding's temperature and R_s(T); the inverter's safe state
 active short circuit) in the plant."""
 import dataclasses
 import math
+import subprocess
+import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -12,6 +14,7 @@ import pytest
 from control_math.copper import COPPER_ALPHA_PER_K
 from control_math.frames import clarke, rotate
 from control_math.safe_state import ASC, FREEWHEEL, safe_state_for
+from control_math.winding import R_S_IN_USE, R_S_STEP, winding_estimate
 from drive_bridge.inverter_protocol import FREEWHEELING, OVERVOLTAGE, PWM_OFF, SAFE_AUTO, SHORT_CIRCUIT
 from drive_bridge.virtual_inverter import VirtualInverter
 from drive_cli.options import exit_code, tripped
@@ -23,14 +26,7 @@ from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import NON_IDEALITIES, Table, load_scenario
 from foc_controller.control import REGEN_CUT, controller_state, controller_step
 from foc_controller.params import make_controller_params
-from foc_controller.protection import (
-    R_S_IN_USE,
-    R_S_STEP,
-    make_protection_params,
-    protection_block,
-    protection_state,
-    winding_estimate,
-)
+from foc_controller.protection import make_protection_params, protection_block, protection_state
 from hf_estimator.flux_observer import flux_observer_step, make_flux_observer
 from motor_params.commissioning import nameplate_commissioning
 from motor_params.motor_file import MotorFileError, load_motor, motor_path
@@ -426,3 +422,27 @@ def test_a_link_that_would_trip_at_rest_or_drain_its_supply_is_refused(tmp_path,
     (tmp_path / "bad.yaml").write_text(text)
     with pytest.raises(MotorFileError, match=key):
         load_motor(str(tmp_path / "bad.yaml"))
+
+
+def test_protection_figures_are_declared_keys_and_the_graph_refuses_a_link_it_cannot_see(tmp_path):
+    """A scenario's `protection:` figures are read through their declarations (a typo names the key meant,
+    a value out of its interval names it), and `drive launch` refuses a motor whose link can rise (C_dc_F:
+    the graph's topics carry no bus voltage), one line naming the key, before any node starts."""
+    from drive_scenarios.scenario import ScenarioError
+    from foc_controller.build import protection_for_scenario
+    from motor_params.commissioning import nameplate_commissioning
+
+    base = Path(load_scenario("wang_100rpm").source).read_text()
+    for protection, refused in (("{limt_degC: 100.0}", r"protection.limt_degC: unknown key \(did you mean limit_degC"),
+                                ("{thermal_time_constant_s: -1.0}", r"protection.thermal_time_constant_s: must lie"),
+                                ("{warning_degC: 140.0}", r"ambient_degC < warning_degC < limit_degC")):
+        path = tmp_path / "s.yaml"
+        path.write_text(base + f"protection: {protection}\n")
+        scenario = load_scenario(str(path))
+        with pytest.raises(ScenarioError, match=rf"^{path}: .*{refused}"):
+            protection_for_scenario(scenario, nameplate_commissioning(scenario.motor.nameplate))
+    link = Path(__file__).resolve().parent.parent / "docs" / "motors" / "wang_spmsm_link.yaml"
+    done = subprocess.run([sys.executable, "-m", "drive_cli", "launch", "wang_100rpm", "--motor", str(link),
+                           "--duration", "0.01", "--no-plot"], capture_output=True, text=True)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert "inverter.C_dc_F" in done.stderr and str(link) in done.stderr, done.stderr

@@ -155,9 +155,14 @@ def read_format_version(data, current, what, source):
 
 
 def show_warnings_in_one_line(program):
-    """Print FormatMigrated and other warnings of the drive as one line on stderr, "PROGRAM: warning: …"."""
+    """Print FormatMigrated warnings as one line on stderr, "PROGRAM: warning: …" (others as Python does)."""
+    original = warnings.showwarning
+
     def show(message, category, filename, lineno, file=None, line=None):
-        print(f"{program}: warning: {message}", file=sys.stderr if file is None else file)
+        if issubclass(category, FormatMigrated):
+            print(f"{program}: warning: {message}", file=sys.stderr if file is None else file)
+        else:
+            original(message, category, filename, lineno, file, line)
     warnings.showwarning = show
 
 

@@ -25,6 +25,7 @@ from drive_interface.realtime import collector_held, cpu_wakeup_latency_held, re
 from drive_runner.runner import RunResult, build_drive, cut
 from drive_scenarios.parameters import all_parameters, scenario_from_parameters
 from drive_scenarios.scenario import behind_an_inverter, resolve
+from foc_controller.build import protection_for_scenario
 
 from .hop_cost import HOP_ROUND_TRIPS_BESIDE_A_RUN, hop_latency, in_hops
 
@@ -292,6 +293,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                 scenario = behind_an_inverter(scenario, MAX_BLOCK)
                 parameters["answer_periods"] = scenario.answer_periods
             drive = build_drive(scenario)
+            protection_for_scenario(scenario, drive.commissioning, bus_measured=False)
             scheduled = {**parameters, "scenario_schedule": True}
             estimator = parameters
             if scenario.drive_file:

@@ -12,6 +12,7 @@ import numpy as np
 from control_math.command_delay import command_line, issue_command
 from control_math.current_sensing import corrected_currents
 from control_math.safe_state import safe_state_for
+from control_math.winding import R_S_IN_USE
 from drive_bridge.inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from drive_bridge.inverter_protocol import MAX_BLOCK
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
@@ -21,7 +22,7 @@ from drive_interface.log import COLUMN, LOG_COLUMNS
 from drive_interface.realtime import collector_held
 from drive_scenarios.scenario import behind_an_inverter
 from foc_controller.control import controller_block, controller_step
-from foc_controller.protection import R_S_IN_USE, SAFE_STATE, TRIPPED, protection_block, protection_summary
+from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block, protection_summary
 from hf_estimator.block import estimator_block, sample_inputs
 from motor_params.nameplate import trip_current_A
 

@@ -8,10 +8,11 @@ from numba import njit
 
 from control_math.command_delay import issue_command
 from control_math.current_sensing import corrected_currents
+from control_math.winding import R_S_IN_USE
 from drive_interface.estimator_records import ESTIMATE, SAMPLE
 from drive_interface.estimator_states import TRACKING
 from foc_controller.control import controller_block
-from foc_controller.protection import R_S_IN_USE, protection_block
+from foc_controller.protection import protection_block
 from hf_estimator.block import estimator_block
 from pmsm_plant.model import INVERTER_MODE, NOT_RELEASED, bus_voltage, plant_block
 

@@ -113,7 +113,7 @@ def build_drive(scenario):
     speed_ref, tau_load = scenario.schedule()
     return Drive(scenario, plant, estimator, controller, controller_x, controller_z, speed_ref, tau_load,
                  scenario.feedforward(), brake_state(scenario), commissioning,
-                 protection_for_scenario(scenario, controller, commissioning), protection_state())
+                 protection_for_scenario(scenario, commissioning, controller.i_max_A), protection_state())
 
 
 def run_scenario(scenario, progress=None, chunk_samples=20000):

@@ -23,11 +23,11 @@ from motor_params.motor_file import Motor, MotorFileError, load_motor, motor_fro
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")
 TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
-            "speed", "load", "non_idealities", "initial", "controller", "metrics", "seed", "substeps",
+            "speed", "load", "non_idealities", "initial", "controller", "protection", "metrics", "seed", "substeps",
             "plant_deviation", "commissioning", "brake", "torque_feedforward", "block_samples", "answer_periods",
             "drive"}
-DRIVE_KEYS = ("motor", "estimator", "injection", "commissioning", "controller", "sampling_period_s", "block_samples",
-              "answer_periods")
+DRIVE_KEYS = ("motor", "estimator", "injection", "commissioning", "controller", "protection", "sampling_period_s",
+              "block_samples", "answer_periods")
 """The drive's part of a scenario, and all a drive configuration file holds (with ``description`` and
 ``format_version``)."""
 DRIVE_FORMAT_VERSION = 1
@@ -138,6 +138,8 @@ class Scenario:
     """The drive configuration file the drive's part came from ("": the scenario file itself)."""
     from_drive_file: tuple = ()
     """The keys the drive configuration file (``drive: FILE``) gave."""
+    protection: dict = dataclasses.field(default_factory=dict)
+    """The drive's protection figures (foc_controller.protection.SETTINGS; unset: their defaults)."""
 
     def source_of(self, key):
         """The file that gave the top-level ``key``: the drive configuration file, or the scenario's source."""
@@ -288,7 +290,7 @@ def with_drive(scenario, drive):
     return dataclasses.replace(
         scenario, motor=drive.motor, estimator=drive.estimator, estimator_settings=drive.estimator_settings,
         estimator_source=drive.estimator_source, injection=drive.injection, commissioning=drive.commissioning,
-        controller=drive.controller, T_s=drive.T_s, block_samples=drive.block_samples,
+        controller=drive.controller, protection=drive.protection, T_s=drive.T_s, block_samples=drive.block_samples,
         answer_periods=drive.answer_periods, drive_file=drive.drive_file,
         from_drive_file=DRIVE_KEYS if drive.drive_file else ())
 
@@ -373,7 +375,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
                 origin[key] = drive_file
             fail(key, "missing")
 
-    for key in ("initial", "metrics", "controller", "injection", "non_idealities"):
+    for key in ("initial", "metrics", "controller", "protection", "injection", "non_idealities"):
         if data.get(key) is not None and not isinstance(data[key], dict):
             fail(key, "must be a mapping of keys")
     motor = _motor(motor_override or data["motor"], motor_source if motor_override else
@@ -466,6 +468,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     controller = data.get("controller", {}) or {}
     if not isinstance(controller, dict):
         fail("controller", "must be a mapping of controller settings")
+    protection = dict(data.get("protection", {}) or {})
     deviation = data.get("plant_deviation", {}) or {}
     if not isinstance(deviation, dict):
         fail("plant_deviation", "must be a mapping of factors and sensor offsets")
@@ -486,7 +489,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         T_s=T_s, mode=mode, speed=speed, load=load, non_idealities=non_idealities,
         initial_theta_m_rad=_number(initial.get("theta_m_rad", 0.0), "initial.theta_m_rad", fail),
         initial_omega_m_rad_s=RPM * _number(initial.get("omega_m_rpm", 0.0), "initial.omega_m_rpm", fail),
-        controller=controller, settle_s=settle, metrics_start_s=start,
+        controller=controller, protection=protection, settle_s=settle, metrics_start_s=start,
         seed=seed, substeps=substeps, plant_deviation={**NO_DEVIATION, **deviation},
         commissioning=commissioning, estimator_source=estimator_source, brake=brake, brake_release_s=brake_release,
         torque_feedforward=feedforward, block_samples=block_samples, answer_periods=answer_periods,

@@ -44,10 +44,21 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
         raise ScenarioError(f"{scenario.source_of('controller')}: {error.args[0]}") from None
 
 
-def protection_for_scenario(scenario, controller, commissioning):
-    """ProtectionParams of ``scenario``'s drive (foc_controller.protection: its defaults, the motor's
-    inverter rating, the ``commissioning`` record's R_s), folding back from the ``controller``'s current
-    limit (ControllerParams)."""
-    protection = make_protection_params(scenario.motor.nameplate, scenario.motor.inverter, scenario.T_s,
-                                        commissioning=commissioning)
-    return protection._replace(current_limit_A=controller.i_max_A)
+def protection_for_scenario(scenario, commissioning, current_limit_A=None, bus_measured=True):
+    """ProtectionParams of ``scenario``'s drive (foc_controller.protection: its ``protection`` figures or
+    their defaults, the motor's inverter rating, the ``commissioning`` record's R_s; ScenarioError naming
+    the file and the key of a figure refused), folding back from ``current_limit_A`` (the
+    controller's; None: the nameplate's). A drive that does not measure its bus (``bus_measured`` False:
+    the ROS graph's nodes, whose topics carry no DC-link voltage) takes it as the rated one, so a motor
+    whose link can rise (inverter.C_dc_F finite) is refused there, naming the key."""
+    motor = scenario.motor
+    if not bus_measured and math.isfinite(motor.inverter.C_dc_F):
+        raise ScenarioError(f"{motor.given_by}: {motor.source}: inverter.C_dc_F: {motor.inverter.C_dc_F:g} F: the ROS "
+                            f"graph's topics carry no DC-link voltage, so its drive cannot protect a link that rises "
+                            f"(run it with `drive run` or `drive bridge`, docs/protections.md)")
+    try:
+        protection = make_protection_params(motor.nameplate, motor.inverter, scenario.T_s, scenario.protection,
+                                            commissioning)
+    except ValueError as error:
+        raise ScenarioError(f"{scenario.source_of('protection')}: {error}") from None
+    return protection if current_limit_A is None else protection._replace(current_limit_A=current_limit_A)

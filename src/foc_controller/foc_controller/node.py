@@ -53,9 +53,10 @@ from drive_scenarios.node import ScenarioNode
 from drive_scenarios.parameters import SCHEDULE_PARAMETER
 from motor_params.knowledge import motor_knowledge
 
-from .build import check_controller_settings, controller_for_scenario
+from .build import check_controller_settings, controller_for_scenario, protection_for_scenario
 from .control import OMEGA_FILTERED, controller_block, controller_state, controller_step, estimated_torque
 from .params import check_speed_limit
+from .protection import protection_block, protection_state
 from .supervision import SpeedSupervisor, fault_line
 
 SPEED_LIMIT = "controller.speed_limit_rad_s"
@@ -143,6 +144,10 @@ class ControllerNode(ScenarioNode):
             self.schedule = scenario.schedule()[0], scenario.feedforward()
         self.commissioning = self.load_commissioning(scenario)
         self.calibration = self.commissioning.calibration()
+        self.protection = protection_for_scenario(scenario, self.commissioning, bus_measured=False)
+        self.protection_x = protection_state()
+        self.bus_V = scenario.motor.inverter.U_dc_V
+        """The bus the protections take: the rated one (the graph's topics carry none measured)."""
 
     def on_drive_config(self, msg):
         with self.sample_lock:
@@ -177,6 +182,9 @@ class ControllerNode(ScenarioNode):
                                           self.params.i_max_A, self.T_s)
         self.supervisor.warm_up()
         self.x, self.z = controller_state(self.params)
+        self.protection = self.protection._replace(current_limit_A=self.params.i_max_A)
+        protection_block(self.protection_x.copy(), self.protection, np.zeros((1, 3)), 1, 0, self.bus_V, 0.0,
+                         self.x.copy())
         controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
         controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), estimates(1),
                          np.zeros(1), np.zeros(1), self.calibration, self.trip_A, np.zeros((1, 6)))
@@ -331,7 +339,10 @@ class ControllerNode(ScenarioNode):
             estimated["theta_e_hat"], estimated["omega_e_hat"] = self.n_p * estimate[0], self.n_p * estimate[1]
             estimated["u_inj_alpha"], estimated["u_inj_beta"] = injection
             estimated["eps"], estimated["signal"], estimated["state"] = state
-            bad = controller_block(self.x, self.z, self.params, n, np.column_stack(currents), estimated, speed,
+            measured = np.column_stack(currents)
+            protection_block(self.protection_x, self.protection, measured, n, k0 + n - 1, self.bus_V,
+                             estimated["omega_e_hat"][-1], self.x)
+            bad = controller_block(self.x, self.z, self.params, n, measured, estimated, speed,
                                    feedforward, self.calibration, self.trip_A, out)
             if bad:
                 self.fault("bad_input", f"block {k0}: {bad} of {n} samples with currents beyond the "
@@ -379,6 +390,8 @@ class ControllerNode(ScenarioNode):
         else:
             if self.schedule:
                 self.omega_m_ref, self.tau_feedforward = self.schedule[0][k], self.schedule[1][k]
+            protection_block(self.protection_x, self.protection, np.array([currents], dtype=float), 1, k, self.bus_V,
+                             self.n_p * estimate[1], self.x)
             u_alpha, u_beta, i_d, i_q, _, i_q_ref = controller_step(
                 self.x, self.z, self.params, *corrected_currents(*currents, self.calibration),
                 self.n_p * estimate[0], self.n_p * estimate[1], self.omega_m_ref, *injection,

@@ -23,33 +23,33 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.copper import copper_resistance
-from control_math.frames import clarke
 from control_math.safe_state import ASC, FREEWHEEL, overvoltage_trip_V, safe_state_for
+from control_math.winding import R_S_IN_USE, WINDING_KEYS, winding_block
+from drive_interface.settings import Key, read_keys
 
 from .control import FOLDBACK_A, REGEN_CUT
 
-DEFAULTS = {
-    "ovc_start_share": 0.4,
-    "ovc_full_share": 0.8,
-    "thermal_time_constant_s": 300.0,
-    "rise_at_rated_K": 80.0,
-    "ambient_degC": 40.0,
-    "warning_degC": 120.0,
-    "limit_degC": 130.0,
-}
+SETTINGS = (
+    Key("ovc_start_share", "", 0.0, 1.0, default=0.4,
+        doc="where the over-voltage controller starts, of the way from the rated bus to the trip"),
+    Key("ovc_full_share", "", 0.0, 1.0, default=0.8, doc="where it has cut all braking current"),
+    *WINDING_KEYS,
+    Key("warning_degC", "°C", -60.0, 300.0, default=120.0, doc="the current limit folds back from here"),
+    Key("limit_degC", "°C", -60.0, 300.0, default=130.0, doc="the winding's class limit"),
+)
+"""The drive's protection figures (a scenario's or drive configuration's ``protection:``), each declared once
+(drive_interface.settings.Key)."""
+DEFAULTS = {key.name: key.default for key in SETTINGS}
 """Without figures of its own the drive assumes a class-B winding (130 °C) rising 80 K at rated current in
 a 40 °C ambient, τ = 5 min, and cuts braking current from 40 % of the way from the rated bus to the
 over-voltage trip (the inverter rating's U_overvoltage_V, else control_math.safe_state.OVERVOLTAGE_PER_BUS ×
 the rated bus), none left at 80 %: from 1.1 × to 1.2 × the rated bus with the default trip."""
 
-# Protection state layout: ΔT̂ [K], tripped (1), the safe state chosen, the cause, the sample it tripped at,
-# the highest T̂ [°C] and bus [V] seen, the R̂_s [Ω] handed to the estimators (0: the commissioned one).
-RISE_HAT, TRIPPED, SAFE_STATE, CAUSE, TRIP_K, PEAK_DEGC, PEAK_BUS_V, R_S_IN_USE = range(8)
-N_STATE = 8
-R_S_STEP = 0.01
-"""The estimators' resistive drop follows R̂_s(T̂) in steps of this share (a winding warmed by 2.5 K): a run
-too short to warm it keeps the commissioned R_s, as the ROS graph (no protections yet) does."""
+# Protection state layout: the winding's (control_math.winding: ΔT̂ [K], the R̂_s [Ω] handed to the
+# estimators), tripped (1), the safe state chosen, the cause, the sample it tripped at, the highest T̂ [°C]
+# and bus [V] seen.
+TRIPPED, SAFE_STATE, CAUSE, TRIP_K, PEAK_DEGC, PEAK_BUS_V = range(R_S_IN_USE + 1, R_S_IN_USE + 7)
+N_STATE = PEAK_BUS_V + 1
 OVERVOLTAGE = 1
 """The cause of a trip (state CAUSE; 0 while none)."""
 CAUSES = {OVERVOLTAGE: "DC-link over-voltage"}
@@ -80,10 +80,7 @@ def make_protection_params(nameplate, inverter, T_s, settings=None, commissionin
     """ProtectionParams of a motor (Nameplate, InverterRating) at the sample period T_s [s]; ``settings``
     overrides DEFAULTS by key; R_s is the commissioning record's when given. ValueError names a key
     unknown or out of order."""
-    s = {**DEFAULTS, **(settings or {})}
-    unknown = set(s) - set(DEFAULTS)
-    if unknown:
-        raise ValueError(f"protection: unknown setting(s) {', '.join(sorted(unknown))}")
+    s = read_keys(settings or {}, SETTINGS, "protection.")
     U = inverter.U_dc_V
     trip = overvoltage_trip_V(inverter)
     start, full = U + s["ovc_start_share"] * (trip - U), U + s["ovc_full_share"] * (trip - U)
@@ -101,34 +98,12 @@ def make_protection_params(nameplate, inverter, T_s, settings=None, commissionin
 
 
 @njit(cache=True)
-def resistance_at(p, T_degC):
-    """R̂_s [Ω] at the winding temperature T [°C] (copper)."""
-    return copper_resistance(p.R_s_ohm, p.ambient_degC, T_degC)
-
-
-@njit(cache=True)
-def winding_estimate(s, p):
-    """(T̂ [°C], R̂_s [Ω]) of the protection state s."""
-    T = p.ambient_degC + s[RISE_HAT]
-    return T, resistance_at(p, T)
-
-
-@njit(cache=True)
 def protection_block(s, p, currents, n, k_last, U_dc, omega_e_hat, cx):
     """n samples, the last sample k_last: the phase currents (n × 3, measured [A]) heat the winding estimate
-    sample by sample; the bus U_dc [V] measured at the last of them and the speed estimate ω̂_e [rad/s] there
-    set the controller state cx's limits (FOLDBACK_A, REGEN_CUT) and trip; R̂_s moves R_S_IN_USE by steps.
-    Returns the safe state to switch to (FREEWHEEL, ASC) when the drive trips in this block, else 0."""
-    R_rated = resistance_at(p, p.ambient_degC + p.rise_at_rated_K)
-    for i in range(n):
-        i_alpha, i_beta = clarke(currents[i, 0], currents[i, 1], currents[i, 2])
-        R = winding_estimate(s, p)[1]
-        heat = p.rise_at_rated_K * (R / R_rated) * (i_alpha * i_alpha + i_beta * i_beta) / p.rated_current_A ** 2
-        s[RISE_HAT] += p.T_s_s / p.thermal_time_constant_s * (heat - s[RISE_HAT])
-    T, R = winding_estimate(s, p)
-    R_used = s[R_S_IN_USE] if s[R_S_IN_USE] > 0.0 else p.R_s_ohm
-    if abs(R - R_used) > R_S_STEP * R_used:
-        s[R_S_IN_USE] = R
+    (winding_block); the bus U_dc [V] measured at the last of them and the speed estimate ω̂_e [rad/s] there
+    set the controller state cx's limits (FOLDBACK_A, REGEN_CUT) and trip. Returns the safe state to switch
+    to (FREEWHEEL, ASC) when the drive trips in this block, else 0."""
+    T = winding_block(s, p, currents, n)
     s[PEAK_DEGC] = max(s[PEAK_DEGC], T)
     s[PEAK_BUS_V] = max(s[PEAK_BUS_V], U_dc)
     share = min(max((T - p.warning_degC) / (p.limit_degC - p.warning_degC), 0.0), 1.0)

@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 from control_math.command_delay import command_line, issue_command
+from control_math.winding import R_S_IN_USE, winding_block, winding_params, winding_state
 from drive_interface.estimator_records import estimates
 from drive_interface.estimator_states import LEADER_NAMES, LOCK_LOST, STATE_NAMES
 from drive_interface.node import finite, run_node
@@ -132,6 +133,11 @@ class EstimatorNode(ScenarioNode):
         self.calibration = self.commissioning.calibration()
         self.estimator = estimator_for_scenario(scenario, self.commissioning)
         self.inputs = sample_inputs()
+        self.winding = winding_params(scenario.motor.nameplate.rated_current_A, self.commissioning.R_s_ohm,
+                                      scenario.T_s, scenario.protection)
+        self.winding_x = winding_state()
+        """The drive's winding estimate (control_math.winding), run here on the currents the controller node's
+        protections see, for the R̂_s the estimator's resistive drop takes."""
 
     def open_outputs(self):
         """The answer publishers; `voltage_command` is not waited for (the controller opens its own
@@ -161,6 +167,7 @@ class EstimatorNode(ScenarioNode):
         issue_command(command_line(1), 0, 0.0, 0.0)
         estimator_block(e.step, e.state.copy(), e.params, 0, 1, np.zeros((1, 3)), command_line(1),
                         np.zeros((1, 2)), self.calibration, 1.0, estimates(1), self.inputs)
+        winding_block(self.winding_x.copy(), self.winding, np.zeros((1, 3)), 1)
 
     def before_joining(self, k, n):
         """True when the currents of the n samples from k came before the answer publishers are open (a
@@ -261,9 +268,11 @@ class EstimatorNode(ScenarioNode):
             held["observer_weight"], held["leader"] = self.blend[1:]
             self.answer(k, held, (i_a, i_b, i_c))
         else:
-            e, out = self.estimator, estimates(1)
-            estimator_block(e.step, e.state, e.params, k, 1, np.array([[i_a, i_b, i_c]]), self.line,
+            e, out, measured = self.estimator, estimates(1), np.array([[i_a, i_b, i_c]])
+            self.inputs[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
+            estimator_block(e.step, e.state, e.params, k, 1, measured, self.line,
                             np.array([[theta_enc, omega_enc]]), self.calibration, self.trip_A, out, self.inputs)
+            winding_block(self.winding_x, self.winding, measured, 1)
             self.answer(k, out[0], (i_a, i_b, i_c))
         self.try_step()
 
@@ -348,8 +357,10 @@ class EstimatorNode(ScenarioNode):
         if encoder is None or len(encoder) != n:
             encoder = np.zeros((n, 2))
         e, records = self.estimator, estimates(n)
+        self.inputs[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
         bad = estimator_block(e.step, e.state, e.params, k0, n, currents, self.line, encoder, self.calibration,
                               self.trip_A, records, self.inputs)
+        winding_block(self.winding_x, self.winding, currents, n)
         if bad:
             self.fault("bad_input", f"currents of block {k0}: {bad} of {n} samples not finite or beyond the "
                                     f"{self.trip_A:g} A trip; estimate held, no injection there")
