@@ -203,3 +203,15 @@ def test_a_typo_in_a_scenario_or_its_drive_file_names_the_key_meant(tmp_path):
     scenario.write_text(scenario.read_text() + "duraton_s: 3\n")
     with pytest.raises(ScenarioError, match=rf"^{scenario}: duraton_s: unknown key \(did you mean duration_s\?\)"):
         load_scenario(str(scenario))
+
+
+def test_a_scenario_file_may_state_its_drive_parts_format(tmp_path):
+    """A scenario holding its drive part inline may carry that part's format_version: the current one is
+    read, a newer one refused naming the key."""
+    text = Path(load_scenario("wang_100rpm").source).read_text()
+    path = tmp_path / "s.yaml"
+    path.write_text("format_version: 1\n" + text)
+    assert load_scenario(str(path)).motor.name == "wang_spmsm"
+    path.write_text("format_version: 2\n" + text)
+    with pytest.raises(ScenarioError, match=rf"^{path}: format_version: 2: .*newer format"):
+        load_scenario(str(path))

@@ -127,7 +127,8 @@ def read_keys(data, keys, prefix="", known_extra=()):
 
 
 FORMAT_VERSION_KEY = "format_version"
-"""The key of a file's format version (motor, drive configuration, scenario and commissioning files)."""
+"""The key of a file's format version (motor, drive configuration and commissioning files; a scenario file may
+state its drive part's)."""
 
 
 class FormatMigrated(UserWarning):

@@ -25,7 +25,7 @@ NON_IDEALITIES = ("saturation", "dead_time", "delay", "sensor_noise", "sensor_of
 TOP_KEYS = {"description", "motor", "estimator", "injection", "duration_s", "sampling_period_s", "mode",
             "speed", "load", "non_idealities", "initial", "controller", "protection", "metrics", "seed", "substeps",
             "plant_deviation", "commissioning", "brake", "torque_feedforward", "block_samples", "answer_periods",
-            "drive"}
+            "drive", FORMAT_VERSION_KEY}
 DRIVE_KEYS = ("motor", "estimator", "injection", "commissioning", "controller", "protection", "sampling_period_s",
               "block_samples", "answer_periods")
 """The drive's part of a scenario, and all a drive configuration file holds (with ``description`` and
@@ -302,7 +302,7 @@ def _refuse_experiment_keys(data, fail, source):
         read_format_version(data, DRIVE_FORMAT_VERSION, "drive configuration", source)
     except ValueError as error:
         raise ScenarioError(f"{source}: {error}") from None
-    for key in sorted(set(data) & TOP_KEYS - set(DRIVE_KEYS) - {"description"}, key=str):
+    for key in sorted(set(data) & TOP_KEYS - set(DRIVE_KEYS) - {"description", FORMAT_VERSION_KEY}, key=str):
         fail(key, f"not a drive key (a drive configuration holds {', '.join(DRIVE_KEYS)}; the experiment "
                   f"belongs to a scenario)")
     _refuse_unknown_keys(data, DRIVE_KEYS + ("description", FORMAT_VERSION_KEY), fail)
@@ -364,6 +364,9 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
         _refuse_experiment_keys(data, fail, source)
     else:
         _refuse_unknown_keys(data, tuple(sorted(TOP_KEYS)), fail)
+        if FORMAT_VERSION_KEY in data:
+            _refuse_experiment_keys({FORMAT_VERSION_KEY: data[FORMAT_VERSION_KEY]}, fail, source)
+        data = {key: value for key, value in data.items() if key != FORMAT_VERSION_KEY}
         if "drive" in data:
             data, drive_file, from_drive = _drive_part(data, source, fail)
             origin.update({key: drive_file for key in from_drive})
