@@ -97,18 +97,24 @@ class Key:
         return f"{left}{low}, {high}{right}{f' {self.unit}' if self.unit else ''}"
 
 
+def refuse_unknown_keys(data, known, prefix=""):
+    """ValueError in one line naming the first key of the mapping ``data`` not in ``known`` (after
+    ``prefix``) and the nearest known one (a typo), else the known ones."""
+    if not isinstance(data, dict):
+        raise ValueError(f"{prefix.rstrip('.') or 'top level'}: must be a mapping of keys, not {shown(data)}")
+    known = list(known)
+    for name in sorted(set(data) - set(known), key=str):
+        near = difflib.get_close_matches(str(name), known, n=1)
+        hint = f"did you mean {near[0]}?" if near else f"known: {', '.join(known)}"
+        raise ValueError(f"{prefix}{name}: unknown key ({hint})")
+
+
 def read_keys(data, keys, prefix="", known_extra=()):
     """{name: value} of the mapping ``data`` read through the declared ``keys`` (a tuple of Key), defaults
     filled (a key whose default is None stays None when absent). ValueError in one line naming the key
-    (after ``prefix``): an unknown key (a typo: the nearest known key suggested), a missing required one,
-    or a value out of its declaration. ``known_extra``: other keys the caller reads itself."""
-    if not isinstance(data, dict):
-        raise ValueError(f"{prefix.rstrip('.') or 'top level'}: must be a mapping of keys, not {shown(data)}")
-    names = [key.name for key in keys]
-    for name in sorted(set(data) - set(names) - set(known_extra), key=str):
-        near = difflib.get_close_matches(str(name), names + list(known_extra), n=1)
-        hint = f"did you mean {near[0]}?" if near else f"known: {', '.join(names + list(known_extra))}"
-        raise ValueError(f"{prefix}{name}: unknown key ({hint})")
+    (after ``prefix``): an unknown key (refuse_unknown_keys), a missing required one, or a value out of its
+    declaration. ``known_extra``: other keys the caller reads itself."""
+    refuse_unknown_keys(data, [key.name for key in keys] + list(known_extra), prefix)
     values = {}
     for key in keys:
         if key.name not in data:

@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from drive_interface.errors import DriveError
-from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys, shown
+from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys, refuse_unknown_keys, shown
 from motor_params.commissioning import NAMEPLATE_ONLY
 from motor_params.motor_file import Motor, MotorFileError, load_motor, motor_from_mapping
 
@@ -295,13 +295,19 @@ def with_drive(scenario, drive):
         from_drive_file=DRIVE_KEYS if drive.drive_file else ())
 
 
-def _refuse_experiment_keys(data, fail, source):
-    """``fail`` on the first key of a drive configuration's document that is not a drive key, or on its
-    format version (read_format_version)."""
+def _drive_format(data, source):
+    """ScenarioError unless the format version the document of ``source`` states (or leaves out) for its
+    drive part is one this drive reads (read_format_version)."""
     try:
         read_format_version(data, DRIVE_FORMAT_VERSION, "drive configuration", source)
     except ValueError as error:
         raise ScenarioError(f"{source}: {error}") from None
+
+
+def _refuse_experiment_keys(data, fail, source):
+    """``fail`` on the first key of a drive configuration's document that is not a drive key, or on its
+    format version (_drive_format)."""
+    _drive_format(data, source)
     for key in sorted(set(data) & TOP_KEYS - set(DRIVE_KEYS) - {"description", FORMAT_VERSION_KEY}, key=str):
         fail(key, f"not a drive key (a drive configuration holds {', '.join(DRIVE_KEYS)}; the experiment "
                   f"belongs to a scenario)")
@@ -311,7 +317,7 @@ def _refuse_experiment_keys(data, fail, source):
 def _refuse_unknown_keys(data, known, fail):
     """``fail`` on the first key of ``data`` not in ``known``, naming the nearest known one (a typo)."""
     try:
-        read_keys(data, (), known_extra=known)
+        refuse_unknown_keys(data, known)
     except ValueError as error:
         key, problem = str(error).split(": ", 1)
         fail(key, problem)
@@ -365,7 +371,7 @@ def parse_scenario(data, name, source, estimator_override=None, override_source=
     else:
         _refuse_unknown_keys(data, tuple(sorted(TOP_KEYS)), fail)
         if FORMAT_VERSION_KEY in data:
-            _refuse_experiment_keys({FORMAT_VERSION_KEY: data[FORMAT_VERSION_KEY]}, fail, source)
+            _drive_format(data, source)
         data = {key: value for key, value in data.items() if key != FORMAT_VERSION_KEY}
         if "drive" in data:
             data, drive_file, from_drive = _drive_part(data, source, fail)

@@ -26,6 +26,7 @@ SETTINGS = (
 )
 """The controller's settings (a scenario's or drive configuration's ``controller:``, the node's
 ``controller.*`` parameters), each declared once (drive_interface.settings.Key)."""
+SETTING = {key.name: key for key in SETTINGS}
 DEFAULTS = {key.name: key.default for key in SETTINGS}
 
 
@@ -128,7 +129,7 @@ def check_settings(settings, T_s=None):
 
 def check_speed_limit(value):
     """A speed limit must be a positive number of rad/s (∞ allowed); otherwise ValueError naming it."""
-    return next(key for key in SETTINGS if key.name == "speed_limit_rad_s").read(value)
+    return SETTING["speed_limit_rad_s"].read(value)
 
 
 def _capped_speed_bandwidth(s, estimator_bandwidth_Hz):

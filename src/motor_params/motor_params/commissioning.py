@@ -15,7 +15,14 @@ import yaml
 
 from control_math.current_sensing import CurrentCalibration
 from drive_interface.errors import DriveError
-from drive_interface.settings import REQUIRED, Key, read_format_version, read_keys
+from drive_interface.settings import (
+    FORMAT_VERSION_KEY,
+    REQUIRED,
+    Key,
+    read_format_version,
+    read_keys,
+    refuse_unknown_keys,
+)
 
 MIN_CONVERGENCE_SLOPE = 0.75
 """Sensorless operation keeps the current where a saliency tracker keeps three quarters of its loop gain
@@ -204,7 +211,7 @@ OPTIONAL_TABLES = ("saliency_ratio", "estimator_shift_rad")
 """Tables a file written before they were measured lacks (estimator_shift_rad: the loaded test's)."""
 
 
-DOCUMENT_KEYS = ("format_version", "motor", "method", "date", "conditions", "values", "source")
+DOCUMENT_KEYS = (FORMAT_VERSION_KEY, "motor", "method", "date", "conditions", "values", "source")
 """A commissioning file's top-level keys (``source``: a recording's record of one)."""
 FORMAT_VERSION = 1
 """The commissioning file format this drive writes and reads (docs/commissioning.md)."""
@@ -330,7 +337,7 @@ def commissioning_from_document(document, path):
         raise CommissioningError(f"{path}: values.{missing[0]}: missing (a file written before the drive measured "
                                  f"it: run `drive commission` again)")
     try:
-        read_keys(document, (), known_extra=DOCUMENT_KEYS)
+        refuse_unknown_keys(document, DOCUMENT_KEYS)
         if "source" not in document:
             read_format_version(document, FORMAT_VERSION, "commissioning file", path)
         parsed = read_keys(values, VALUE_KEYS, "values.", known_extra=TABLES + OPTIONAL_TABLES)

@@ -12,13 +12,13 @@ from pathlib import Path
 import yaml
 
 from drive_interface.errors import DriveError
-from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys, shown
+from drive_interface.settings import FORMAT_VERSION_KEY, Key, read_format_version, read_keys, refuse_unknown_keys, shown
 
 from .nameplate import InverterRating, Nameplate, NameplateError, nameplate_from_mapping
 
 MOTOR_DIR = Path(__file__).parent / "motors"
 MAX_FILE_BYTES = 1 << 20
-TOP_KEYS = ("format_version", "name", "description", "nameplate", "inverter", "plant")
+TOP_KEYS = (FORMAT_VERSION_KEY, "name", "description", "nameplate", "inverter", "plant")
 FORMAT_VERSION = 1
 """The motor file format this drive writes and reads (docs/motors-and-control.md "Motor files")."""
 INVERTER_KEYS = (
@@ -122,7 +122,7 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
     if not isinstance(data, dict):
         raise MotorFileError(f"{source}: a motor file is a mapping of keys ({', '.join(TOP_KEYS)})")
     try:
-        read_keys(data, (), known_extra=TOP_KEYS)
+        refuse_unknown_keys(data, TOP_KEYS)
         if whole_file or FORMAT_VERSION_KEY in data:
             read_format_version(data, FORMAT_VERSION, "motor file", source)
     except ValueError as error:
@@ -135,7 +135,7 @@ def motor_from_mapping(data, source, default_name="motor", path="", given_by=Non
         fail("name", f"must be a word (it names the default commissioning file), not {shown(name)}")
     plate_data = dict(data["nameplate"])
     try:
-        read_keys(plate_data, (), "nameplate.", known_extra=Nameplate._fields[1:])
+        refuse_unknown_keys(plate_data, Nameplate._fields[1:], "nameplate.")
         plate = nameplate_from_mapping({**plate_data, "name": name}, source, key_prefix="nameplate.")
         inverter = InverterRating(**read_keys(data["inverter"], INVERTER_KEYS, "inverter."))
     except NameplateError as error:
