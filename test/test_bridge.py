@@ -28,7 +28,6 @@ from drive_runner.runner import run_scenario
 from drive_scenarios.scenario import Table, load_scenario
 from helpers import paced_on_a_virtual_clock
 from motor_params.motor_file import load_motor, motor_path
-from pmsm_plant.model import INVERTER_MODE
 
 SCENARIO = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.6)
 CLEAN = ("dropped", "duplicated", "reordered", "link_lost", "bus_off", "safe_state", "command_errors",
@@ -605,7 +604,7 @@ def test_through_the_bridge_the_host_trips_on_the_inverters_bus_into_the_safe_st
     """The host's protections read the bus from the telemetry: a stop from 2000 rpm on a 1 mF link tripping
     at 27 V (the over-voltage controller's band then 25.2 … 26.4 V) trips the host, which disables the
     inverter asking for freewheel (the back-EMF, 11.7 V, is under the bus): the inverter freewheels from
-    then on and the report names the trip."""
+    then on (by its own record of the mode, from within a sample of the trip) and the report names the trip."""
     text = Path(motor_path("wang_spmsm")).read_text().replace(
         "  delay_periods: 1\n", "  delay_periods: 1\n  C_dc_F: 1.0e-3\n  U_overvoltage_V: 27.0\n", 1)
     (tmp_path / "wang_link.yaml").write_text(text)
@@ -613,13 +612,14 @@ def test_through_the_bridge_the_host_trips_on_the_inverters_bus_into_the_safe_st
     scenario = dataclasses.replace(SCENARIO, motor=load_motor(str(tmp_path / "wang_link.yaml")), estimator="sensored",
                                    injection=None, speed=Table((0.0, 0.05), (rpm, 0.0), "step"),
                                    initial_omega_m_rad_s=rpm, duration_s=0.2)
-    modes = []
+    inverters = []
 
-    def watch(inverter, endpoint, k):
-        modes.append(inverter.plant.x[INVERTER_MODE])
+    def keep(inverter, endpoint, k):
+        inverters[:] = [inverter]
 
-    result = run_through_bridge(scenario, "pty", inverter_hook=watch)
+    result = run_through_bridge(scenario, "pty", inverter_hook=keep)
+    modes = inverters[0].modes
     trip = result.protection["trip"]
     assert trip["safe_state"] == "freewheel" and trip["cause"] == "DC-link over-voltage"
     after = round(trip["at_s"] / scenario.T_s) + 3
-    assert 0 < after < len(modes) - 100 and set(modes[after:]) == {FREEWHEEL} and set(modes[:after - 3]) == {PWM}
+    assert 0 < after < len(modes) - 100 and set(modes[after:]) == {FREEWHEEL} and set(modes[:after - 4]) == {PWM}

@@ -94,7 +94,8 @@ class VirtualInverter:
     ``block_samples`` N > 1 it announces N in HELLO, sends TELEMETRY_BLOCK and takes COMMAND_BLOCK (the
     command answering sample k acts in period k + 2N: docs/inverter-protocol.md; ScenarioError for what
     cannot run behind an inverter, drive_scenarios.scenario.behind_an_inverter). ``truth`` holds θ_m,
-    ω_m, τ_e, τ_load and the true currents per sample for scoring."""
+    ω_m, τ_e, τ_load and the true currents per sample for scoring, ``modes`` the bridge's mode in the period
+    before each sample (control_math.safe_state: PWM, FREEWHEEL, ASC)."""
 
     def __init__(self, scenario, endpoint, rate_Hz=None, command_wait_s=0.5, watchdog_periods=None,
                  trip_current_A=None, drive_id=0, faults=None, encoder=True, clock=time.monotonic):
@@ -195,6 +196,7 @@ class VirtualInverter:
         """Per sample: how late on its clock the simulation sent its telemetry [s] (under a period; more is
         an overrun, and the clock restarts)."""
         self.truth = np.full((scenario.n_samples, 7), np.nan)
+        self.modes = np.full(scenario.n_samples, PWM, dtype=np.int8)
 
     def stop(self):
         self.stopped.set()
@@ -435,6 +437,7 @@ class VirtualInverter:
             encoder = round((row[6] % (2.0 * math.pi)) / (2.0 * math.pi) * 65536.0) % 65536 if self.encoder else 0
             samples.append((_clip16(row[3] / lsb), _clip16(row[4] / lsb), _clip16(row[5] / lsb), encoder))
             self.truth[k0 + i] = (row[6], row[7], row[8], row[9], row[0], row[1], row[2])
+        self.modes[k0:k0 + n] = self.plant.x[INVERTER_MODE]
         u_dc = min(65535, round(bus_voltage(self.plant.x, self.plant.inverter) / self.voltage_lsb))
         status = self.status()
         if self.block_samples > 1:
