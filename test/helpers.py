@@ -2,9 +2,9 @@
 import math
 import re
 
-from drive_evaluation.metrics import compute_metrics
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import load_scenario, parse_scenario
+from drive_common.config.scenario import load_scenario, parse_scenario
+from drive_tools.evaluation.metrics import compute_metrics
+from drive_tools.runner.runner import run_scenario
 
 
 def scenario(**fields):
@@ -31,7 +31,7 @@ def ideal_commissioning(machine, i_max_A, points=65, d_sweep_A=0.01):
     of a core in isolation hand it to an estimator; the drive itself measures (drive_commissioning)."""
     import numpy as np
 
-    from motor_params.commissioning import Commissioning
+    from drive_common.motor.commissioning import Commissioning
     from pmsm_plant.commissioning import saliency_shift_and_slope
     from pmsm_plant.model import incremental_inductances
 
@@ -140,7 +140,7 @@ def drive_in_process(argv, cwd=None):
     import os
     from types import SimpleNamespace
 
-    from drive_cli.cli import main
+    from drive_tools.cli.cli import main
     out, err, before = io.StringIO(), io.StringIO(), os.getcwd()
     try:
         if cwd is not None:

@@ -1,6 +1,7 @@
-"""The shape of the code: packages with one job whose dependencies point one way, no import cycle, the
-estimator and controller blind to the plant, every node package with its own executable and a package.xml
-that declares what it uses, one log-row writer, findable estimators, and a clean linter."""
+"""The shape of the code: at most six packages, whose dependencies point one way in at most five layers, no
+import cycle, storage apart from the runner and the estimators, the estimator and controller blind to the
+plant, every node with its own executable and a package.xml that declares what it uses, docs/architecture.md's
+graph as the code has it, one log-row writer, findable estimators, and a clean linter."""
 import ast
 import inspect
 import re
@@ -16,15 +17,19 @@ pytestmark = pytest.mark.unit
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
 PACKAGES = sorted(p.name for p in SRC.iterdir() if (p / p.name / "__init__.py").is_file())
-NODE_EXECUTABLES = {"pmsm_plant": "plant_node", "hf_estimator": "estimator_node",
-                    "foc_controller": "controller_node", "drive_bridge": "bridge_node",
-                    "drive_commissioning": "commissioning_node"}
+NODE_EXECUTABLES = {"plant_node": "pmsm_plant", "estimator_node": "hf_estimator",
+                    "commissioning_node": "hf_estimator.commissioning", "controller_node": "foc_controller",
+                    "bridge_node": "drive_bridge"}
+"""Each node's executable → the package (or subpackage) of its module."""
+LIBRARY, TOOLS = "drive_common", "drive_tools"
+"""What the node packages share, and what composes them: neither has a node."""
+MAX_PACKAGES, MAX_LAYERS = 6, 5
 ROSDEP_KEYS = {"numpy": "python3-numpy", "numba": "python3-numba", "scipy": "python3-scipy",
                "yaml": "python3-yaml", "matplotlib": "python3-matplotlib", "serial": "python3-serial",
                "can": "python3-can", "mcap": "python3-mcap", "rosbags": "python3-rosbags", "rclpy": "rclpy"}
 MESSAGE_PACKAGES = {"geometry_msgs", "sensor_msgs", "std_msgs", "rosgraph_msgs", "diagnostic_msgs",
                     "builtin_interfaces", "rcl_interfaces", "std_srvs"}
-OWN_ENVIRONMENT = {SRC / "drive_evaluation" / "drive_evaluation" / "motulator_reference.py"}
+OWN_ENVIRONMENT = {SRC / TOOLS / TOOLS / "evaluation" / "motulator_reference.py"}
 """Runs in motulator's own environment, importing nothing of this project."""
 
 
@@ -82,35 +87,118 @@ def find_cycle(graph):
     return None
 
 
-def package_graph():
-    graph = {package: set() for package in PACKAGES}
+def unit(name):
+    """The unit a module belongs to in the layer picture: a node package, or a subpackage of the library or
+    the tools (``drive_common.motor``, ``drive_tools.bags``)."""
+    parts = name.split(".")
+    return ".".join(parts[:2]) if parts[0] in (LIBRARY, TOOLS) and len(parts) > 1 else parts[0]
+
+
+def graph_of(key):
+    graph = {}
     for name, successors in module_graph().items():
-        graph[name.split(".")[0]] |= {s.split(".")[0] for s in successors} - {name.split(".")[0]}
+        graph.setdefault(key(name), set()).update({key(s) for s in successors} - {key(name)})
     return graph
 
 
-def test_no_import_cycle_between_modules_or_packages():
+def package_graph():
+    return graph_of(lambda name: name.split(".")[0])
+
+
+def layers(graph):
+    """The number of layers of an acyclic {node: successors} graph: the nodes on its longest path."""
+    depth = {}
+
+    def of(node):
+        if node not in depth:
+            depth[node] = 1 + max((of(s) for s in graph.get(node, ())), default=0)
+        return depth[node]
+
+    return max(of(node) for node in graph)
+
+
+def test_no_import_cycle_between_modules_subpackages_or_packages():
     assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
     assert find_cycle(module_graph()) is None
+    assert find_cycle(graph_of(unit)) is None
     assert find_cycle(package_graph()) is None
 
 
+def test_at_most_six_packages_in_at_most_five_layers():
+    """The design card's four node packages, one library (what they share) and one tools package (what
+    composes them); the package graph at most five layers deep."""
+    assert set(PACKAGES) == {"pmsm_plant", "hf_estimator", "foc_controller", "drive_bridge", LIBRARY, TOOLS}
+    assert len(PACKAGES) <= MAX_PACKAGES and layers({"a": {"b"}, "b": {"c"}, "c": set()}) == 3
+    assert layers(package_graph()) <= MAX_LAYERS
+    assert package_graph()[LIBRARY] == set()
+
+
+def test_the_library_and_the_tools_have_no_node():
+    """Only the node packages install node executables; the tools install the `drive` command."""
+    for package in (LIBRARY, TOOLS):
+        scripts = re.findall(r'"(\w+) = [\w.]+:main"', (SRC / package / "setup.py").read_text())
+        assert scripts == ([] if package == LIBRARY else ["drive"]), package
+        assert not list((SRC / package / package).rglob("*node.py")) or package == LIBRARY, package
+
+
+def test_storage_imports_neither_the_runner_nor_the_estimators():
+    """A recording is read and written by drive_tools.bags with the contract alone: no runner, launcher,
+    evaluation, estimator, controller or plant behind it."""
+    bags = graph_of(unit)[f"{TOOLS}.bags"]
+    assert bags <= {f"{LIBRARY}.{sub}" for sub in ("contract", "config", "motor", "math", "runtime")}, bags
+
+
 def test_the_drive_knows_the_motor_only_by_its_nameplate_and_what_it_measures():
-    """Estimator, controller and commissioning import nothing of the plant, nor of what composes the
-    drive; the commissioning core imports no rclpy."""
-    forbidden = {"pmsm_plant", "drive_runner", "drive_launch", "drive_bags", "drive_evaluation", "drive_cli",
-                 "drive_bridge"}
+    """Estimator (commissioning included) and controller import nothing of the plant, nor of what composes
+    the drive; the commissioning core imports no rclpy; the plant imports only the library."""
+    forbidden = {"pmsm_plant", TOOLS, "drive_bridge"}
     graph = package_graph()
-    for package in ("hf_estimator", "foc_controller", "drive_commissioning"):
+    for package in ("hf_estimator", "foc_controller"):
         assert graph[package] & forbidden == set(), package
-    core = SRC / "drive_commissioning" / "drive_commissioning"
+    core = SRC / "hf_estimator" / "hf_estimator" / "commissioning"
     for path in (core / "procedure.py", core / "identification.py"):
-        assert not {name.split(".")[0] for name in imports(f"drive_commissioning.{path.stem}", path)} & {
+        assert not {name.split(".")[0] for name in imports(f"hf_estimator.commissioning.{path.stem}", path)} & {
             "rclpy", "geometry_msgs"}, path
-    shared = {"control_math", "motor_params", "drive_interface", "drive_scenarios"}
-    assert graph["pmsm_plant"] <= shared
-    for package in shared:
-        assert graph[package] <= shared, package
+    assert graph["pmsm_plant"] == {LIBRARY}
+
+
+def documented_graph():
+    """{unit: imported units} as docs/architecture.md's "who imports whom" table states it."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    table = text[text.index("| unit | imports |"):].split("\n\n")[0].splitlines()[2:]
+    graph = {}
+    for row in table:
+        units, imported = row.strip("|").split("|")
+        for name in re.findall(r"`([\w.]+)`", units):
+            graph[name] = set(re.findall(r"[\w.]+", imported.replace("—", "")))
+    return graph
+
+
+def documented_layers():
+    """{package: layer} as docs/architecture.md's picture states it (a line ``layer N   package …``)."""
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    return {name: int(number) for number, line in re.findall(r"(?m)^ layer (\d)\s+(.*)$", text)
+            for name in re.findall(r"\w+", line) if name in PACKAGES}
+
+
+def test_the_architecture_page_states_the_graph_the_code_has():
+    """docs/architecture.md's picture puts each package in its layer (one above the highest it imports) and
+    its table of who imports whom is the code's, unit by unit (a node package, or a subpackage of the library
+    or the tools); its package count is the code's."""
+    graph = package_graph()
+    layer = {}
+
+    def of(package):
+        if package not in layer:
+            layer[package] = 1 + max((of(s) for s in graph[package]), default=0)
+        return layer[package]
+
+    assert documented_layers() == {package: of(package) for package in PACKAGES}
+    units = {name: imported for name, imported in graph_of(unit).items() if name not in (LIBRARY, TOOLS)}
+    assert documented_graph() == units
+    text = (ROOT / "docs" / "architecture.md").read_text()
+    words = {4: "Four", 5: "Five", 6: "Six"}
+    assert text.startswith(f"# Architecture\n\n{words[len(PACKAGES)]} packages under `src/`")
 
 
 def test_the_bridge_package_holds_only_the_inverter_link():
@@ -119,6 +207,14 @@ def test_the_bridge_package_holds_only_the_inverter_link():
     names = {p.stem for p in (SRC / "drive_bridge" / "drive_bridge").glob("*.py")}
     assert names == {"__init__", "inverter_protocol", "inverter_link", "can_cable", "inverter_bridge", "bridge_node",
                      "virtual_inverter", "inverter_process"}
+
+
+def test_every_path_the_docs_cite_exists():
+    """A `src/…` path named in README.md or docs/ is a file or folder of the repository."""
+    cited = set()
+    for page in [ROOT / "README.md", *(ROOT / "docs").rglob("*.md")]:
+        cited |= {(page.name, p.rstrip(".")) for p in re.findall(r"src/[\w/.]+", page.read_text())}
+    assert [f"{page}: {path}" for page, path in sorted(cited) if not (ROOT / path).exists()] == []
 
 
 def declared(package):
@@ -144,10 +240,10 @@ def test_package_xml_declares_every_dependency_it_uses(package):
     assert used <= declared(package), f"{package}/package.xml lacks {sorted(used - declared(package))}"
 
 
-@pytest.mark.parametrize("package, executable", sorted(NODE_EXECUTABLES.items()))
-def test_each_node_package_has_its_own_executable(package, executable):
-    setup = (SRC / package / "setup.py").read_text()
-    assert re.search(rf'"{executable} = {package}\.[a-z_]+:main"', setup)
+@pytest.mark.parametrize("executable, package", sorted(NODE_EXECUTABLES.items()))
+def test_each_node_has_its_own_executable(executable, package):
+    setup = (SRC / package.split(".")[0] / "setup.py").read_text()
+    assert re.search(rf'"{executable} = {re.escape(package)}\.[a-z_]+:main"', setup)
     script = Path(sys.executable).with_name(executable)
     assert script.is_file(), f"{executable} not installed (./setup.sh)"
     out = subprocess.run([str(script), "--help"], capture_output=True, text=True, timeout=60)
@@ -155,14 +251,14 @@ def test_each_node_package_has_its_own_executable(package, executable):
 
 
 def test_one_writer_fills_a_log_row_in_the_log_layout():
-    from drive_interface.log import LOG_COLUMNS
-    from drive_runner.loop import write_row
+    from drive_common.contract.log import LOG_COLUMNS
+    from drive_tools.runner.loop import write_row
     assert tuple(inspect.signature(write_row.py_func).parameters)[1:] == LOG_COLUMNS
 
 
 def test_the_topic_table_serves_qos_types_and_log_columns():
-    from drive_interface.log import COLUMN
-    from drive_interface.topics import SAMPLE_LOGGED, TOPICS
+    from drive_common.contract.log import COLUMN
+    from drive_common.contract.topics import SAMPLE_LOGGED, TOPICS
     assert {t.name for t in TOPICS.values() if t.per_sample} == {"currents", "rotor_state", "rotor_estimate",
                                                                   "injection", "voltage_command",
                                                                   "estimator_state", "estimator_blend", "/clock"}
@@ -195,11 +291,11 @@ def test_every_estimator_steps_on_named_records():
     whose first fields are θ̂ and ω̂; the ESTIMATE fields are the log's columns of the same names."""
     import inspect
 
-    from drive_interface.estimator_records import ESTIMATE_FIELDS
-    from drive_interface.log import COLUMN
+    from drive_common.contract.estimator_records import ESTIMATE_FIELDS
+    from drive_common.contract.log import COLUMN
+    from drive_common.motor.commissioning import nameplate_commissioning
+    from drive_common.motor.motor_file import load_motor
     from hf_estimator.registry import estimator_names, make_estimator
-    from motor_params.commissioning import nameplate_commissioning
-    from motor_params.motor_file import load_motor
 
     assert set(ESTIMATE_FIELDS) <= set(COLUMN)
     motor = load_motor("wang_spmsm", "test")
@@ -212,9 +308,9 @@ def test_every_estimator_steps_on_named_records():
 
 def test_record_types_are_mangled_alike_in_every_process():
     """Kernels cached on disk by one process are linked by name in another: a record type's mangled name
-    must not depend on what else the process typed first (numba issue #7654, drive_interface.numba_records),
+    must not depend on what else the process typed first (numba issue #7654, drive_common.contract.numba_records),
     and two layouts must never share one."""
-    program = ("import sys, numpy as np, numba; from drive_interface import numba_records; "
+    program = ("import sys, numpy as np, numba; from drive_common.contract import numba_records; "
                "from numba.core.itanium_mangler import mangle_type; "
                "[numba.typeof(np.zeros(1, [(n, 'f8')])[0]) for n in sys.argv[1:]]; "
                "print(*(mangle_type(numba.typeof(np.zeros(1, [('theta', 'f8'), ('ring', 'f8', (n,))])[0])) "
@@ -225,13 +321,13 @@ def test_record_types_are_mangled_alike_in_every_process():
 
 
 def test_topic_names_come_only_from_the_topic_table():
-    """Nodes, the launcher and the bags name a contract topic by drive_interface.topics' constants, never
+    """Nodes, the launcher and the bags name a contract topic by drive_common.contract.topics' constants, never
     by a string of their own (a JSON key of drive_config that happens to share a topic's name is not one)."""
-    from drive_interface.topics import TOPICS
+    from drive_common.contract.topics import TOPICS
     names = "|".join(re.escape(name) for name in TOPICS)
     quoted = re.compile(rf"""(["'])({names})\1(?!\s*:)""")
-    places = [*SRC.glob("*/*/node.py"), *SRC.glob("*/*/*_node.py"), *SRC.glob("drive_launch/drive_launch/*.py"),
-              *SRC.glob("drive_bags/drive_bags/*.py")]
+    places = [*SRC.rglob("node.py"), *SRC.rglob("*_node.py"), *(SRC / TOOLS / TOOLS / "launch").glob("*.py"),
+              *(SRC / TOOLS / TOOLS / "bags").glob("*.py")]
     offending = [f"{path.relative_to(SRC)}:{number}" for path in places
                  for number, line in enumerate(path.read_text().splitlines(), 1)
                  if quoted.search(line) and ".get(" not in line]
@@ -242,9 +338,9 @@ CLI_MODULE_MAX_LINES = 300
 
 
 def test_the_command_line_is_one_module_per_family():
-    """Each drive_cli module stays under CLI_MODULE_MAX_LINES (a report's text lines live with the report:
-    drive_evaluation.*_report, drive_bags)."""
-    for path in (SRC / "drive_cli" / "drive_cli").glob("*.py"):
+    """Each drive_tools.cli module stays under CLI_MODULE_MAX_LINES (a report's text lines live with the
+    report: drive_tools.evaluation.*_report, drive_tools.bags)."""
+    for path in (SRC / TOOLS / TOOLS / "cli").glob("*.py"):
         assert len(path.read_text().splitlines()) < CLI_MODULE_MAX_LINES, path.name
 
 
@@ -279,7 +375,7 @@ def _commands(parser, words):
 def test_every_command_is_on_the_commands_page_and_the_readme_stays_short():
     """docs/commands.md lists every subcommand the parser has (in a row of its group); README.md, the front
     door, stays within 10,000 bytes and links to the page."""
-    from drive_cli.cli import build_parser
+    from drive_tools.cli.cli import build_parser
     rows = [line for line in (ROOT / "docs" / "commands.md").read_text().splitlines() if line.startswith("| `drive")]
     commands = list(_commands(build_parser(), []))
     assert len(commands) >= 20

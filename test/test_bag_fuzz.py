@@ -20,12 +20,12 @@ from mcap.reader import make_reader
 from mcap.records import Channel, Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
-from drive_bags.common import typestore
-from drive_bags.writer import BagWriter, write_run_bag
-from drive_cli.cli import main
-from drive_interface.strict_json import dumps
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import load_scenario
+from drive_common.config.scenario import load_scenario
+from drive_common.contract.strict_json import dumps
+from drive_tools.bags.common import typestore
+from drive_tools.bags.writer import BagWriter, write_run_bag
+from drive_tools.cli.cli import main
+from drive_tools.runner.runner import run_scenario
 from helpers import blames, mutate
 
 SAMPLE_CASES, FULL_CASES = 60, 220

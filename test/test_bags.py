@@ -9,16 +9,16 @@ import sys
 import numpy as np
 import pytest
 
-from drive_bags.common import BagCutError, BagError
-from drive_bags.reader import bag_info, bag_log
-from drive_bags.writer import write_run_bag
-from drive_evaluation.metrics import compute_metrics
-from drive_interface.log import COLUMN
-from drive_interface.topics import TOPICS
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import load_scenario
+from drive_common.config.scenario import load_scenario
+from drive_common.contract.log import COLUMN
+from drive_common.contract.topics import TOPICS
+from drive_tools.bags.common import BagCutError, BagError
+from drive_tools.bags.reader import bag_info, bag_log
+from drive_tools.bags.writer import write_run_bag
+from drive_tools.evaluation.metrics import compute_metrics
+from drive_tools.runner.runner import run_scenario
 
-DRIVE = [sys.executable, "-m", "drive_cli.cli"]
+DRIVE = [sys.executable, "-m", "drive_tools.cli.cli"]
 PER_SAMPLE = ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state",
               "angle_error", "/clock", "load_torque")
 SCENARIO = """\
@@ -47,7 +47,7 @@ def mcap_stamps(bag, topic):
 @pytest.fixture(scope="module")
 def bags(tmp_path_factory):
     pytest.importorskip("rclpy")
-    from drive_launch.launcher import launch
+    from drive_tools.launch.launcher import launch
     root = tmp_path_factory.mktemp("bags")
     path = root / "scenario.yaml"
     path.write_text(SCENARIO)
@@ -75,7 +75,7 @@ def test_graph_and_runner_bags_have_the_contract_layout(bags):
 def test_every_drive_config_follows_the_v2_schema(bags):
     """Both bags' drive_config entries carry the contract-v2 keys: version, sample period, delay, the
     nameplate as `motor`, the scenario; the estimator's and the runner's its injection by kind."""
-    from motor_params.nameplate import NAMEPLATE_REQUIRED
+    from drive_common.motor.nameplate import NAMEPLATE_REQUIRED
     for bag in bags[:2]:
         _, _, configs = bag_log(bag)
         for config in configs:
@@ -155,8 +155,8 @@ def test_replay_and_compare_score_the_windows_they_are_given(bags, tmp_path):
     estimator scores exactly the recording's angle error over those intervals, and compare too; the
     report says where its windows came from. A window past the recording or not a T0 < T1 pair is
     refused in one line naming the option."""
-    from drive_bags.reader import bag_result
-    from drive_evaluation.metrics import angle_error
+    from drive_tools.bags.reader import bag_result
+    from drive_tools.evaluation.metrics import angle_error
     graph, run, _ = bags
     recorded = bag_result(graph)
     t, error = recorded.log[:, COLUMN["t"]], angle_error(recorded.log, recorded.n_p)
@@ -183,8 +183,8 @@ def test_replay_and_compare_score_the_windows_they_are_given(bags, tmp_path):
 
 def foreign_bag(path, topics):
     """A bag written by someone else: {topic: (msgtype, [serialized messages])}."""
-    from drive_bags.common import rosbags_qos
-    from drive_bags.writer import BagWriter
+    from drive_tools.bags.common import rosbags_qos
+    from drive_tools.bags.writer import BagWriter
     writer = BagWriter(path)
     for topic, (msgtype, messages) in topics.items():
         writer.add(topic, msgtype, rosbags_qos())
@@ -195,7 +195,7 @@ def foreign_bag(path, topics):
 
 
 def test_foreign_bags_with_missing_or_mistyped_topics_are_named(tmp_path):
-    from drive_bags.common import typestore
+    from drive_tools.bags.common import typestore
     store = typestore()
     Float64 = store.types["std_msgs/msg/Float64"]
     data = [store.serialize_cdr(Float64(data=1.0), "std_msgs/msg/Float64")] * 3
@@ -218,7 +218,7 @@ def test_replay_reproduces_the_recorded_estimator_and_says_who_it_measures(bags,
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     own, other = report["results"]
-    from drive_bags.reader import bag_result
+    from drive_tools.bags.reader import bag_result
     recorded = compute_metrics(bag_result(graph))
     assert report["ground_truth"] and report["recorded_estimator"] == "injection_frame"
     assert own["applicable"] and "any injection whose voltage is known" in own["reason"]
@@ -235,8 +235,8 @@ def test_a_block_recording_reads_back_sample_by_sample_and_replays_exactly(tmp_p
     samples); read back it holds the samples of the runner with the same N, and replaying its own
     estimator (the applied voltage lagging by d + 1 = 11 samples) gives the recorded estimate exactly."""
     pytest.importorskip("rclpy")
-    from drive_bags.reader import bag_result
-    from drive_launch.launcher import launch
+    from drive_tools.bags.reader import bag_result
+    from drive_tools.launch.launcher import launch
     path = tmp_path / "blocks.yaml"
     path.write_text(SCENARIO + "block_samples: 10\n")
     bag = tmp_path / "graph"
@@ -263,8 +263,8 @@ def copy_without(source, target, dropped):
     """A copy of a bag without some topics (as a bag recorded without ground truth would be)."""
     from rosbags.rosbag2 import Reader
 
-    from drive_bags.common import rosbags_qos
-    from drive_bags.writer import BagWriter
+    from drive_tools.bags.common import rosbags_qos
+    from drive_tools.bags.writer import BagWriter
     writer = BagWriter(target)
     with Reader(source) as reader:
         kept = [c for c in reader.connections if c.topic not in dropped]
@@ -324,7 +324,13 @@ def test_a_truncated_mcap_under_a_complete_metadata_is_named(tmp_path):
 
 
 def test_bulk_cdr_records_equal_the_rosbags_serialiser():
-    from drive_bags.writer import CDR_LITTLE_ENDIAN, _cdr_joint_state, _cdr_scalars, _cdr_vector3_stamped, typestore
+    from drive_tools.bags.writer import (
+        CDR_LITTLE_ENDIAN,
+        _cdr_joint_state,
+        _cdr_scalars,
+        _cdr_vector3_stamped,
+        typestore,
+    )
     store = typestore()
     T = store.types
     stamp = T["builtin_interfaces/msg/Time"](sec=3, nanosec=700)
@@ -369,7 +375,7 @@ def test_a_metadata_duration_that_ends_before_it_starts_is_not_reported_as_fact(
     rather than printing a negative one."""
     import re
 
-    from drive_bags.reader import bag_info_lines
+    from drive_tools.bags.reader import bag_info_lines
     bag = write_run_bag(run_scenario(dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.05)),
                         tmp_path / "negative")
     metadata = bag / "metadata.yaml"

@@ -5,8 +5,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import load_scenario
+from drive_common.config.scenario import load_scenario
+from drive_tools.runner.runner import run_scenario
 
 pytestmark = pytest.mark.unit
 

@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from control_math.safe_state import FREEWHEEL, PWM
 from drive_bridge.inverter_bridge import InverterBridge
 from drive_bridge.inverter_protocol import (
     COMMAND_MISSING,
@@ -22,12 +21,13 @@ from drive_bridge.inverter_protocol import (
     TelemetryBlock,
 )
 from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
-from drive_evaluation.metrics import angle_error, compute_metrics
-from drive_runner.bridge_loop import run_through_bridge
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import Table, load_scenario
+from drive_common.config.scenario import Table, load_scenario
+from drive_common.math.safe_state import FREEWHEEL, PWM
+from drive_common.motor.motor_file import load_motor, motor_path
+from drive_tools.evaluation.metrics import angle_error, compute_metrics
+from drive_tools.runner.bridge_loop import run_through_bridge
+from drive_tools.runner.runner import run_scenario
 from helpers import paced_on_a_virtual_clock
-from motor_params.motor_file import load_motor, motor_path
 
 SCENARIO = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.6)
 CLEAN = ("dropped", "duplicated", "reordered", "link_lost", "bus_off", "safe_state", "command_errors",

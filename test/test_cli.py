@@ -5,7 +5,7 @@ import sys
 
 import pytest
 
-from drive_cli.cli import main
+from drive_tools.cli.cli import main
 
 RUN_KEYS = {"angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms"}
 
@@ -46,7 +46,7 @@ def test_bad_scenario_is_one_line_naming_the_key(tmp_path, capsys, text, key):
 
 def test_bad_scenario_from_shell_has_no_traceback(tmp_path):
     path = _write(tmp_path, GOOD.replace("duration_s: 0.3", "duration_s: -1"))
-    proc = subprocess.run([sys.executable, "-m", "drive_cli.cli", "run", path],
+    proc = subprocess.run([sys.executable, "-m", "drive_tools.cli.cli", "run", path],
                           capture_output=True, text=True)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr and "duration_s" in proc.stderr
@@ -54,7 +54,7 @@ def test_bad_scenario_from_shell_has_no_traceback(tmp_path):
 
 def test_run_json_has_metric_keys(tmp_path):
     path = _write(tmp_path, GOOD)
-    proc = subprocess.run([sys.executable, "-m", "drive_cli.cli", "run", path, "--json",
+    proc = subprocess.run([sys.executable, "-m", "drive_tools.cli.cli", "run", path, "--json",
                            "--out", str(tmp_path)], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     metrics = json.loads(proc.stdout)
@@ -64,7 +64,7 @@ def test_run_json_has_metric_keys(tmp_path):
 
 
 def test_bench_json_reports_samples_per_second_per_estimator():
-    proc = subprocess.run([sys.executable, "-m", "drive_cli.cli", "bench", "throughput", "--json",
+    proc = subprocess.run([sys.executable, "-m", "drive_tools.cli.cli", "bench", "throughput", "--json",
                            "--samples", "20000", "--repeats", "2", "--estimators",
                            "sensored,injection_frame", "--no-motulator"], capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
@@ -75,7 +75,7 @@ def test_bench_json_reports_samples_per_second_per_estimator():
 
 
 def test_bench_rejects_zero_repeats():
-    proc = subprocess.run([sys.executable, "-m", "drive_cli.cli", "bench", "throughput",
+    proc = subprocess.run([sys.executable, "-m", "drive_tools.cli.cli", "bench", "throughput",
                            "--repeats", "0"], capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stderr.strip() == "drive: --repeats: must be at least 1, not 0"
 
@@ -110,7 +110,7 @@ def test_numeric_options_are_checked_before_anything_runs(capsys, argv, message)
 
 
 def test_a_signal_noted_before_the_command_line_loaded_stops_the_command_in_one_line(capsys):
-    """A SIGINT or SIGTERM that came while the command line's modules loaded (drive_cli.entry notes it from
+    """A SIGINT or SIGTERM that came while the command line's modules loaded (drive_tools.cli.entry notes it from
     the first instruction on) stops the command as one during its job: 128 + N and one line."""
     import signal
     assert main(["scenarios"], early_signals=[signal.SIGTERM]) == 128 + signal.SIGTERM

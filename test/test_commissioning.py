@@ -10,29 +10,29 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from drive_commissioning.loaded import DURATION_S, HOLD_S, LEVELS, START_S, LoadedTestError, loaded_shift
-from drive_commissioning.procedure import procedure_for_scenario
 
-from control_math.tables import table_value
-from drive_evaluation.metrics import compute_metrics
-from drive_interface.estimator_states import TRACKING
-from drive_interface.log import COLUMN, LOG_COLUMNS
-from drive_runner.commissioning_run import commission_in_process, commission_through_bridge
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import ScenarioError, load_scenario, parse_scenario
-from hf_estimator.injection_frame import loaded_correction
-from motor_params.commissioning import (
+from drive_common.config.scenario import ScenarioError, load_scenario, parse_scenario
+from drive_common.contract.estimator_states import TRACKING
+from drive_common.contract.log import COLUMN, LOG_COLUMNS
+from drive_common.math.tables import table_value
+from drive_common.motor.commissioning import (
     CommissioningError,
     load_commissioning,
     nameplate_commissioning,
     resolve_commissioning,
     save_commissioning,
 )
-from motor_params.motor_file import nameplate
+from drive_common.motor.motor_file import nameplate
+from drive_tools.evaluation.metrics import compute_metrics
+from drive_tools.runner.commissioning_run import commission_in_process, commission_through_bridge
+from drive_tools.runner.runner import run_scenario
+from hf_estimator.commissioning.loaded import DURATION_S, HOLD_S, LEVELS, START_S, LoadedTestError, loaded_shift
+from hf_estimator.commissioning.procedure import procedure_for_scenario
+from hf_estimator.injection_frame import loaded_correction
 from pmsm_plant.model import incremental_inductances
 from pmsm_plant.presets import PRESETS, plant_parameters
 
-DRIVE = [sys.executable, "-m", "drive_cli.cli"]
+DRIVE = [sys.executable, "-m", "drive_tools.cli.cli"]
 DEVIATION = {"R_s": 1.4, "L_d": 0.9, "L_q": 1.1, "psi_f": 0.92, "sensor_gain_b": 1.01, "dead_time": 1.5}
 INVERTED = {key: 1.0 / value for key, value in DEVIATION.items()}
 ALL_ON = {key: True for key in ("saturation", "dead_time", "delay", "sensor_noise", "sensor_offset_gain", "adc")}
@@ -134,7 +134,7 @@ def test_the_graph_host_gives_the_one_process_record(tmp_path):
 def test_the_graph_host_behind_the_virtual_inverter_gives_the_bridge_loops_record(tmp_path):
     """`drive commission --graph --link pty`: the virtual inverter and the drive_bridge node in the plant
     node's place write the record the one-process loop through the same bridge writes, to the last digit."""
-    from drive_runner.commissioning_run import commission_through_bridge
+    from drive_tools.runner.commissioning_run import commission_through_bridge
 
     out = tmp_path / "graph_pty.yaml"
     done = subprocess.run(DRIVE + ["commission", "wang_100rpm", "--graph", "--link", "pty", "--out", str(out),
@@ -169,7 +169,7 @@ def test_the_file_round_trips_and_a_bad_one_names_its_key(tmp_path):
 def test_every_value_says_where_it_came_from(capsys):
     """`drive run --json`: the commissioning file's values name it, the nameplate's say nameplate; with
     --commissioning nameplate the rest is default."""
-    from drive_cli.cli import main
+    from drive_tools.cli.cli import main
     for given, source in (("", "commissioning file commissioning/wang_spmsm.yaml"), ("nameplate", "nameplate")):
         args = ["run", "wang_100rpm", "--duration", "0.05", "--no-plot", "--json"]
         assert main(args + (["--commissioning", given] if given else [])) == 0
@@ -247,10 +247,10 @@ def test_a_commissioning_stopped_in_a_later_test_writes_nothing_and_can_run_agai
     one names the tests it completed."""
     import signal
 
-    from drive_cli.cli import main
-    from drive_interface.interrupt import Interrupted
-    from drive_runner import commissioning_run
-    from motor_params.commissioning import load_commissioning
+    from drive_common.motor.commissioning import load_commissioning
+    from drive_common.runtime.interrupt import Interrupted
+    from drive_tools.cli.cli import main
+    from drive_tools.runner import commissioning_run
 
     def stopped(*args, **kwargs):
         raise Interrupted(signal.SIGINT)
@@ -273,7 +273,7 @@ def test_a_commissioning_stopped_in_a_later_test_writes_nothing_and_can_run_agai
 
 
 def test_commission_keeps_an_existing_file_and_prints_identified_beside_truth(capsys):
-    from drive_cli.cli import main
+    from drive_tools.cli.cli import main
     assert main(["commission", "wang_100rpm"]) == 2
     assert "--out: commissioning/wang_spmsm.yaml already exists (--force replaces it)" in capsys.readouterr().err
     assert main(["commission", "szabo_profile", "--out", "new.yaml", "--json"]) == 0
@@ -303,7 +303,7 @@ def test_the_current_limit_keeps_half_the_saliency_and_a_weak_one_is_named():
     """Where the measured |Δ|/Σ falls to half its no-load value under load, the sensorless current limit
     stops there (a linear fall from 0.06 at 0 A to 0.02 at 6 A: 4.5 A); a file without the table keeps the
     slope's limit. A saliency below 5 % is named; 6.6 % (wang_spmsm) is not."""
-    from motor_params.commissioning import Commissioning, nameplate_commissioning
+    from drive_common.motor.commissioning import Commissioning, nameplate_commissioning
     currents = np.linspace(-6.0, 6.0, 13)
     base = Commissioning(0.27, 0.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.01, 0.84e-3, 0.96e-3, currents, np.zeros(13),
                          np.ones(13), source="test")

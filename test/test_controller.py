@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from drive_interface.log import COLUMN
+from drive_common.contract.log import COLUMN
 from foc_controller.tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
 from helpers import run, scenario
 
@@ -85,8 +85,8 @@ def test_back_emf_amplitude_at_no_load():
 def test_the_speed_filter_stays_above_a_wide_tracking_loop():
     """Unless set, the speed estimate's filter sits at 1.25 × the estimator's tracking bandwidth where that
     exceeds the 100 Hz default (a 116 Hz loop: 145 Hz), else stays at 100 Hz; a set value is kept."""
+    from drive_common.motor.motor_file import load_motor
     from foc_controller.params import make_controller_params
-    from motor_params.motor_file import load_motor
     m = load_motor("wang_spmsm")
 
     def filter_Hz(bandwidth_Hz, settings=None):
@@ -101,9 +101,9 @@ def test_blocks_slow_the_speed_loop_with_the_current_loops():
     """With 'rule' gains the speed loop keeps the current loops' lag 2ζ_c/ω_c + (d + ½)·T_s to ≤ 0.4 rad at
     its crossover 2ζ_s·ω_n: per sample (d = 1) it stays at the estimator's cap (28.3 rad/s for an 18 Hz
     tracking loop), with blocks of 10 (d = 10, current loops at 238 rad/s) it drops to 25.8 rad/s."""
+    from drive_common.motor.motor_file import load_motor
     from foc_controller.params import make_controller_params
     from foc_controller.tuning import PIGains, current_bandwidth_damping, speed_bandwidth_damping
-    from motor_params.motor_file import load_motor
     m, T_s = load_motor("wang_spmsm"), 1e-4
     plate, k_t = m.nameplate, 1.5 * m.nameplate.n_p * m.nameplate.psi_f_Wb
 
@@ -126,9 +126,9 @@ def test_with_blocks_of_ten_the_speed_loop_does_not_ring():
     ours' angle error RMS within 0.016 rad (0.0162 then; 0.0101 per sample)."""
     import dataclasses
 
-    from drive_evaluation.metrics import compute_metrics
-    from drive_runner.runner import run_scenario
-    from drive_scenarios.scenario import load_scenario
+    from drive_common.config.scenario import load_scenario
+    from drive_tools.evaluation.metrics import compute_metrics
+    from drive_tools.runner.runner import run_scenario
     result = run_scenario(dataclasses.replace(load_scenario("wang_100rpm"), block_samples=10))
     omega_m = result.log[:, COLUMN["omega_m"]]
     assert omega_m[len(omega_m) // 2:].std() <= 0.5

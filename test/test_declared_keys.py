@@ -10,19 +10,19 @@ from pathlib import Path
 import pytest
 import yaml
 
-from drive_bags import writer
-from drive_bags.common import BagError
-from drive_bags.reader import bag_topics
-from drive_bags.writer import write_run_bag
-from drive_interface.settings import FormatMigrated
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import ScenarioError, load_scenario
+from drive_common.config.scenario import ScenarioError, load_scenario
+from drive_common.contract.settings import FormatMigrated
+from drive_common.motor.commissioning import VALUE_KEYS, CommissioningError, load_commissioning, resolve_commissioning
+from drive_common.motor.motor_file import INVERTER_KEYS, MotorFileError, load_motor
+from drive_common.motor.nameplate import NAMEPLATE_KEYS
+from drive_tools.bags import writer
+from drive_tools.bags.common import BagError
+from drive_tools.bags.reader import bag_topics
+from drive_tools.bags.writer import write_run_bag
+from drive_tools.runner.runner import run_scenario
 from foc_controller.params import SETTINGS, check_settings
-from motor_params.commissioning import VALUE_KEYS, CommissioningError, load_commissioning, resolve_commissioning
-from motor_params.motor_file import INVERTER_KEYS, MotorFileError, load_motor
-from motor_params.nameplate import NAMEPLATE_KEYS
 
-DRIVE = [sys.executable, "-m", "drive_cli.cli"]
+DRIVE = [sys.executable, "-m", "drive_tools.cli.cli"]
 SHIPPED_MOTOR = Path(load_motor("wang_spmsm").source)
 
 

@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drive_interface.estimator_states import TRACKING
-from drive_interface.log import COLUMN
-from drive_runner.runner import run_scenario
-from drive_scenarios.parameters import all_parameters, scenario_from_parameters
-from drive_scenarios.scenario import ScenarioError, load_drive_configuration, load_scenario
+from drive_common.config.parameters import all_parameters, scenario_from_parameters
+from drive_common.config.scenario import ScenarioError, load_drive_configuration, load_scenario
+from drive_common.contract.estimator_states import TRACKING
+from drive_common.contract.log import COLUMN
+from drive_tools.runner.runner import run_scenario
 
 COMMISSIONING = str(Path(__file__).resolve().parent.parent / "commissioning" / "wang_spmsm.yaml")
 DRIVE = f"""\
@@ -110,7 +110,7 @@ def test_the_drive_nodes_run_with_no_scenario(tmp_path):
     from rclpy.signals import SignalHandlerOptions
     from std_msgs.msg import Float64
 
-    from drive_interface.node import parameter_overrides, topic_qos
+    from drive_common.ros.node import parameter_overrides, topic_qos
     from foc_controller.node import ControllerNode
     from hf_estimator.node import EstimatorNode
     from pmsm_plant.node import PlantNode
@@ -157,7 +157,7 @@ def test_the_launcher_gives_the_estimator_the_drive_configuration_alone(tmp_path
     """A scenario naming its drive file over the graph: the estimator runs from the drive configuration
     with no scenario, and the samples are the runner's, to 1e-9."""
     pytest.importorskip("rclpy")
-    from drive_launch.launcher import launch
+    from drive_tools.launch.launcher import launch
     _, experiment = files(tmp_path)
     result = launch(str(experiment), namespace="/drive_file")
     assert not result.interrupted and not result.node_faults

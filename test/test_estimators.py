@@ -5,16 +5,16 @@ import math
 import numpy as np
 import pytest
 
-from control_math.command_delay import applied_voltage, command_line, issue_command
-from drive_interface.estimator_records import SAMPLE, estimates
-from drive_interface.log import COLUMN
-from drive_runner.runner import run_scenario
+from drive_common.contract.estimator_records import SAMPLE, estimates
+from drive_common.contract.log import COLUMN
+from drive_common.math.command_delay import applied_voltage, command_line, issue_command
+from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE, nameplate_commissioning
+from drive_common.motor.motor_file import load_motor
+from drive_tools.runner.runner import run_scenario
 from helpers import ideal_commissioning as commission
 from helpers import run, scenario, shipped
 from hf_estimator.injection_frame import raised_injection_amplitude
 from hf_estimator.registry import make_estimator
-from motor_params.commissioning import MIN_CONVERGENCE_SLOPE, nameplate_commissioning
-from motor_params.motor_file import load_motor
 from pmsm_plant.model import N_STATE, plant_advance, plant_outputs, plant_reset, saturation_saliency_angle
 from pmsm_plant.presets import PRESETS, plant_parameters
 

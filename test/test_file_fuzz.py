@@ -12,22 +12,22 @@ import sys
 import pytest
 import yaml
 
-from drive_cli.cli import main
-from drive_interface.errors import DriveError
-from drive_runner.runner import build_drive
-from drive_scenarios.scenario import SCENARIO_DIR, ScenarioError, load_drive_configuration, load_scenario
-from helpers import blames, mutate
-from motor_params.motor_file import (
+from drive_common.config.scenario import SCENARIO_DIR, ScenarioError, load_drive_configuration, load_scenario
+from drive_common.contract.errors import DriveError
+from drive_common.motor.motor_file import (
     BUS_PER_RATED_SPEED_NEED,
     MOTOR_DIR,
     MotorFileError,
     load_motor,
     rated_speed_bus_V,
 )
-from motor_params.nameplate import CURRENT_LIMIT_PER_RATED, NAMEPLATE_KEYS
+from drive_common.motor.nameplate import CURRENT_LIMIT_PER_RATED, NAMEPLATE_KEYS
+from drive_tools.cli.cli import main
+from drive_tools.runner.runner import build_drive
+from helpers import blames, mutate
 from pmsm_plant.presets import plant_truth
 
-DRIVE = [sys.executable, "-m", "drive_cli"]
+DRIVE = [sys.executable, "-m", "drive_tools.cli"]
 SAMPLE_CASES, FULL_CASES = 250, 2500
 """Mutated files per family in the default run, and under the `heavy` marker."""
 RELATED = {

@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drive_interface.log import COLUMN
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import load_scenario
+from drive_common.config.scenario import load_scenario
+from drive_common.contract.log import COLUMN
+from drive_common.motor.commissioning import commissioning_record
+from drive_tools.runner.runner import run_scenario
 from helpers import drive_in_process
-from motor_params.commissioning import commissioning_record
 
 SCENARIO = """\
 motor: wang_spmsm
@@ -125,7 +125,7 @@ def test_a_v2_bag_without_scenario_replays_ours_better_than_its_recorder(convent
     assert report["excitation"]["kind"] == "pulsating_sine"
     assert report["excitation"]["frequency_Hz"] == pytest.approx(900.0, abs=2.0)
     own, ours = results["conventional"], results["injection_frame"]
-    from drive_evaluation.metrics import _mask, angle_error
+    from drive_tools.evaluation.metrics import _mask, angle_error
     t = conventional.log[:, COLUMN["t"]]
     recorded = angle_error(conventional.log, 2)[_mask(t, report["windows"]["steady_s"])]
     assert own["applicable"] and own["angle_error_rms"] == pytest.approx(np.sqrt(np.mean(recorded ** 2)), rel=1e-9)
@@ -232,7 +232,7 @@ def test_ours_on_a_recording_of_synchronous_beats_it(tmp_path):
     """`szabo_profile_aligned` (IPMSM, 1500 Hz / 40 V on d̂, Szabó's synchronous demodulation aligned; the
     first 1.2 s: ramp to 300 rpm, a rated load step and its release) recorded by `drive run --record`:
     ours replayed on that excitation is applicable, holds its lock and beats `synchronous`' own error."""
-    from drive_bags.writer import write_run_bag
+    from drive_tools.bags.writer import write_run_bag
     from helpers import shipped
     bag = write_run_bag(run_scenario(shipped("szabo_profile_aligned", duration_s=1.2)), tmp_path / "szabo")
     report, results = replay(bag, "--estimators", "injection_frame,synchronous")
@@ -247,7 +247,7 @@ def test_a_replay_takes_the_recorded_commissioning_wherever_it_runs(conventional
     the values in drive_config, so a replay from another directory scores the same to the last digit and
     says where they came from; a bag that records none replays on the nameplate and says so, wherever it runs;
     --commissioning replaces the recorded one."""
-    from drive_bags.writer import write_run_bag
+    from drive_tools.bags.writer import write_run_bag
     assert conventional.commissioning.source == "commissioning/wang_spmsm.yaml"
     bag = write_run_bag(conventional, tmp_path / "runner")
     elsewhere = tmp_path / "elsewhere"

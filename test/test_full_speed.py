@@ -6,12 +6,12 @@ import dataclasses
 import numpy as np
 import pytest
 
-from drive_evaluation.metrics import compute_metrics
-from drive_evaluation.speed_range import band_scores, carrier_samples, hf_current, observer_led
-from drive_interface.estimator_states import LEADER_BACKEMF, LEADER_INJECTION
-from drive_interface.log import COLUMN
-from drive_runner.runner import run_scenario, scenario_commissioning
-from drive_scenarios.scenario import ScenarioError
+from drive_common.config.scenario import ScenarioError
+from drive_common.contract.estimator_states import LEADER_BACKEMF, LEADER_INJECTION
+from drive_common.contract.log import COLUMN
+from drive_tools.evaluation.metrics import compute_metrics
+from drive_tools.evaluation.speed_range import band_scores, carrier_samples, hf_current, observer_led
+from drive_tools.runner.runner import run_scenario, scenario_commissioning
 from helpers import scenario, shipped
 from hf_estimator.build import estimator_for_scenario
 
@@ -125,8 +125,8 @@ def test_the_graph_gives_the_runners_samples_through_both_handovers(tmp_path, mo
     sample; with 3 the mechanical `rotor_estimate` carries ω̂_e/3, which × 3 is not ω̂_e to the last bit,
     and the current sensors' quantisation amplifies that: the same scores and handovers within 5 ms."""
     pytest.importorskip("rclpy")
-    from drive_launch.launcher import launch
-    from drive_scenarios.scenario import load_scenario
+    from drive_common.config.scenario import load_scenario
+    from drive_tools.launch.launcher import launch
     path = up_and_down_file(tmp_path, motor)
     result = launch(path, processes="composed", namespace=f"/full_{motor}")
     assert not result.interrupted and not result.node_faults
@@ -152,7 +152,7 @@ def test_the_graph_gives_the_runners_samples_through_both_handovers(tmp_path, mo
 def test_through_the_bridge_as_in_one_process():
     """The one-process loop through the virtual inverter over a pty: only the protocol's quantisation
     differs from `drive run` (within 10 % of its RMS, 0.01 rad of its peak)."""
-    from drive_runner.bridge_loop import run_through_bridge
+    from drive_tools.runner.bridge_loop import run_through_bridge
     s = up_and_down("wang_spmsm")
     direct = compute_metrics(run_scenario(s))
     result = run_through_bridge(s, "pty")
@@ -168,9 +168,9 @@ def test_replay_scores_it_and_the_observer_alone(tmp_path):
     through the handover, up to rated speed): `estimator_blend` is in the bag; the blended estimator
     replays to its recorded estimate; the observer alone is applicable (it needs no injection) and scores
     worse over the run (it has no angle at standstill)."""
-    from drive_bags.writer import write_run_bag
-    from drive_evaluation.recording import read_recording
-    from drive_evaluation.replay import replay
+    from drive_tools.bags.writer import write_run_bag
+    from drive_tools.evaluation.recording import read_recording
+    from drive_tools.evaluation.replay import replay
     run = run_scenario(shipped("wang_full_speed", duration_s=2.6))
     recording = read_recording(write_run_bag(run, tmp_path / "full"))
     for name in ("injection_amplitude", "observer_weight", "leader"):

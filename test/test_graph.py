@@ -24,18 +24,18 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
-from drive_interface.estimator_states import TRACKING
-from drive_interface.log import COLUMN
-from drive_interface.node import Health, parameter_overrides, stamp, topic_qos
-from drive_interface.stamps import sample_of, stamp_parts
-from drive_launch.launcher import DriveSpec, launch, launch_many
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import load_scenario
+from drive_common.config.scenario import load_scenario
+from drive_common.contract.estimator_states import TRACKING
+from drive_common.contract.log import COLUMN
+from drive_common.contract.stamps import sample_of, stamp_parts
+from drive_common.ros.node import Health, parameter_overrides, stamp, topic_qos
+from drive_tools.launch.launcher import DriveSpec, launch, launch_many
+from drive_tools.runner.runner import run_scenario
 from foc_controller.node import SPEED_LIMIT, ControllerNode
 from hf_estimator.node import EstimatorNode
 from pmsm_plant.node import PlantNode
 
-DRIVE = [sys.executable, "-m", "drive_cli.cli"]
+DRIVE = [sys.executable, "-m", "drive_tools.cli.cli"]
 PER_SAMPLE_QOS = topic_qos("currents")
 COMMAND_QOS = topic_qos("speed_command")
 COMMISSIONING = os.path.join(os.path.dirname(__file__), os.pardir, "commissioning", "wang_spmsm.yaml")
@@ -122,7 +122,7 @@ def test_two_drives_share_one_clock_and_name_their_own_joints(tmp_path):
     """One /clock publisher in a graph of two drives; joint_states carries each wheel's name."""
     from rosbags.highlevel import AnyReader
 
-    from drive_bags.common import typestore
+    from drive_tools.bags.common import typestore
     left = scenario_file(tmp_path, "left", rpm=60.0)
     launch_many([DriveSpec(left, "/left_wheel", bag=str(tmp_path / "left")),
                  DriveSpec(left, "/right_wheel", bag=str(tmp_path / "right"))])
@@ -477,7 +477,7 @@ def test_launch_json_and_echo_from_a_second_process(tmp_path):
 
 
 def test_sigterm_stops_the_launcher_and_its_node_processes_leaving_a_complete_bag(tmp_path):
-    from drive_bags.reader import bag_info
+    from drive_tools.bags.reader import bag_info
     bag = tmp_path / "stopped"
     launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--processes", "separate", "--namespace",
                                          "/sigterm_test", "--json", "--no-plot", "--record", str(bag)],
@@ -534,7 +534,7 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks, intra
     the commands handed to the bridge directly (intra-process). The speed is constant: nothing gates the
     inverter's clock on the launcher's speed commands (as on a robot), so a changing speed would land on
     whichever sample the graph's timing gives it."""
-    from drive_runner.bridge_loop import run_through_bridge
+    from drive_tools.runner.bridge_loop import run_through_bridge
     path = scenario_file(tmp_path, rpm=0.0)
     result = launch(path, processes=processes, link=link, intra_process=intra_process,
                     extra_parameters={"diagnostics_period_s": 0.05, "block_samples": blocks})
@@ -556,8 +556,8 @@ def test_samples_the_launcher_never_received_are_counted_per_topic_and_named_in_
     counts them per topic, over the span the run reached; `drive launch` names them in one line."""
     from types import SimpleNamespace
 
-    from drive_launch.launcher import missing_samples_line
-    from drive_launch.scenario_driver import FINAL_WAIT_S, ScenarioDriver
+    from drive_tools.launch.launcher import missing_samples_line
+    from drive_tools.launch.scenario_driver import FINAL_WAIT_S, ScenarioDriver
     driver = SimpleNamespace(last_sample=599, received={"currents": 597, "rotor_estimate": 600},
                              node=SimpleNamespace(resolve_topic_name=lambda topic: f"/drive/{topic}"))
     missing = ScenarioDriver.missing_samples(driver)
@@ -609,7 +609,7 @@ def test_the_bridge_node_reports_link_faults_on_diagnostics(tmp_path):
     frames counted and the inverter's watchdog (left latched: nobody asked to drive); when the inverter
     stops, the link is reported lost."""
     from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
-    from drive_launch.launcher import make_node
+    from drive_tools.launch.launcher import make_node
 
     endpoint, host_link = make_links("pty", tmp_path)
     inverter = VirtualInverter(load_scenario(scenario_file(tmp_path)), endpoint, rate_Hz=2000.0,
@@ -784,7 +784,7 @@ def test_a_node_executable_names_the_params_file_at_fault(tmp_path, content, mes
 
 def test_a_params_file_value_out_of_range_is_latched_naming_the_file(tmp_path):
     """The node stays up in its safe state; its configuration error names the params file."""
-    from drive_interface import parameter_sources
+    from drive_common.config import parameter_sources
     path = tmp_path / "params.yaml"
     path.write_text("/**:\n  ros__parameters:\n    duration_s: -1.0\n")
     parameter_sources.ROS_ARGS[:] = ["--ros-args", "--params-file", str(path)]
@@ -831,7 +831,7 @@ def test_diagnostics_are_stamped_on_the_datas_clock(tmp_path):
     status of each lock-step node says its run is complete."""
     from rosbags.highlevel import AnyReader
 
-    from drive_bags.common import typestore
+    from drive_tools.bags.common import typestore
     path = scenario_file(tmp_path)
     result = launch(path, namespace="/stamped", bag=str(tmp_path / "bag"),
                     extra_parameters={"diagnostics_period_s": 0.05})
@@ -882,7 +882,7 @@ def test_the_graph_with_its_inverter_apart_and_its_recorder_on_a_thread_records_
     refused in one line), the recorder on a thread of its own: in lock-step (the outcome is the same on any
     machine; paced, the same configuration is `drive bench bridge --paced --graph --levers
     collector+fifo+cpu1+inverter_apart`'s), every sample is recorded and is the one-process loop's."""
-    from drive_runner.bridge_loop import run_through_bridge
+    from drive_tools.runner.bridge_loop import run_through_bridge
     path = scenario_file(tmp_path, rpm=0.0, block_samples=10)
     spec = DriveSpec(str(path), "/apart", duration_s=0.3, link="can", inverter_apart=True)
     result, = launch_many([spec], rt_priority=50, cpus={1})
@@ -908,11 +908,11 @@ def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_fe
     same on any machine; the paced figures are `drive bench bridge --paced --graph --lose-command-every 37`'s."""
     from drive_bridge.inverter_protocol import MAX_BLOCK
     from drive_bridge.virtual_inverter import FaultPlan
-    from drive_evaluation.metrics import compute_metrics
-    from drive_evaluation.recording import read_recording
-    from drive_evaluation.replay import replay
-    from drive_runner.bridge_loop import run_through_bridge
-    from drive_scenarios.scenario import behind_an_inverter
+    from drive_common.config.scenario import behind_an_inverter
+    from drive_tools.evaluation.metrics import compute_metrics
+    from drive_tools.evaluation.recording import read_recording
+    from drive_tools.evaluation.replay import replay
+    from drive_tools.runner.bridge_loop import run_through_bridge
     bag = tmp_path / "lossy"
     sc = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.6, block_samples=10)
     result = launch("wang_100rpm", namespace="/lossy", duration_s=sc.duration_s, link="can", lose_command_every=37,

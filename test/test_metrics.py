@@ -3,9 +3,9 @@ settled and no step are told apart, and a lost lock is reported plainly. Synthet
 import numpy as np
 import pytest
 
-from drive_evaluation.metrics import LOCK_LOST_RAD, lock_loss, settling_summary, settling_times
-from drive_interface.log import COLUMN, LOG_COLUMNS
-from drive_scenarios.scenario import parse_scenario
+from drive_common.config.scenario import parse_scenario
+from drive_common.contract.log import COLUMN, LOG_COLUMNS
+from drive_tools.evaluation.metrics import LOCK_LOST_RAD, lock_loss, settling_summary, settling_times
 
 pytestmark = pytest.mark.unit
 
@@ -78,9 +78,9 @@ def test_a_lost_lock_is_measured_from_ground_truth():
 def test_run_plots_of_run_launch_and_bridge_do_not_overwrite_one_another(tmp_path):
     import dataclasses
 
-    from drive_evaluation.plots import plot_run
-    from drive_runner.runner import run_scenario
-    from drive_scenarios.scenario import load_scenario
+    from drive_common.config.scenario import load_scenario
+    from drive_tools.evaluation.plots import plot_run
+    from drive_tools.runner.runner import run_scenario
     result = run_scenario(dataclasses.replace(load_scenario("wang_load_step"), duration_s=0.05))
     paths = {plot_run(result, tmp_path, command) for command in ("run", "launch", "bridge")}
     assert len(paths) == 3 and all(p.is_file() and p.stat().st_size > 10_000 for p in paths)

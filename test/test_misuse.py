@@ -8,7 +8,7 @@ import re
 
 import pytest
 
-from drive_cli.cli import main
+from drive_tools.cli.cli import main
 
 BASE = {"motor": "wang_spmsm", "estimator": {"type": "injection_frame", "settings": {"pll_bandwidth_Hz": 18.0}},
         "injection": {"frequency_Hz": 900.0, "amplitude_V": 5.0}, "duration_s": 0.02,
@@ -64,8 +64,8 @@ def test_unsafe_settings_are_refused_naming_key_and_file(tmp_path, capsys, secti
                                          ("lockstep_timeout_s", float("inf")), ("seed", -5),
                                          ("injection.frequency_Hz", float("-inf"))])
 def test_an_unsafe_node_parameter_is_refused_naming_it(name, value):
-    from drive_scenarios.parameters import all_parameters, scenario_from_parameters
-    from drive_scenarios.scenario import ScenarioError
+    from drive_common.config.parameters import all_parameters, scenario_from_parameters
+    from drive_common.config.scenario import ScenarioError
     with pytest.raises(ScenarioError, match=f"^parameter {name}: must be a finite number"):
         scenario_from_parameters(all_parameters({name: value}))
 

@@ -11,22 +11,22 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drive_cli.cli import main
-from drive_evaluation.metrics import compute_metrics, configuration_warnings
-from drive_interface.log import COLUMN
-from drive_runner.commissioning_run import commission_in_process
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import load_scenario, parse_scenario
+from drive_common.config.scenario import load_scenario, parse_scenario
+from drive_common.contract.log import COLUMN
+from drive_common.motor.commissioning import CommissioningError, resolve_commissioning, save_commissioning
+from drive_common.motor.motor_file import MotorFileError, load_motor
+from drive_common.motor.scaled_loops import scaled_loops
+from drive_tools.cli.cli import main
+from drive_tools.evaluation.metrics import compute_metrics, configuration_warnings
+from drive_tools.runner.commissioning_run import commission_in_process
+from drive_tools.runner.runner import run_scenario
 from foc_controller.supervision import SpeedSupervisor, speed_supervision, supervision_block
 from hf_estimator.polarity_test import linear_polarity_ratio
 from hf_estimator.startup import REFUSALS, ROTOR_MOVED
-from motor_params.commissioning import CommissioningError, resolve_commissioning, save_commissioning
-from motor_params.motor_file import MotorFileError, load_motor
-from motor_params.scaled_loops import scaled_loops
 from pmsm_plant.model import incremental_inductances
 from pmsm_plant.presets import plant_truth
 
-DRIVE = [sys.executable, "-m", "drive_cli.cli"]
+DRIVE = [sys.executable, "-m", "drive_tools.cli.cli"]
 JOINT = """\
 format_version: 1
 name: test_joint
@@ -127,7 +127,7 @@ def test_the_graph_runs_a_motor_file_given_as_the_motor_file_parameter(joint, tm
     """A shipped scenario with the nodes' ``motor_file`` and ``commissioning`` parameters: the graph's
     samples are the runner's with the same motor override, sample for sample."""
     pytest.importorskip("rclpy")
-    from drive_launch.launcher import launch
+    from drive_tools.launch.launcher import launch
     motor, commissioning = joint
     path = tmp_path / "short.yaml"
     path.write_text("motor: wang_spmsm\nestimator: injection_frame\nduration_s: 0.05\nsampling_period_s: 1.0e-4\n"
@@ -145,7 +145,7 @@ def test_the_graph_runs_a_motor_file_given_as_the_motor_file_parameter(joint, tm
 def test_the_bridge_runs_a_motor_file(joint):
     """The joint behind the virtual inverter on a pty (its 24 V bus scales the protocol's voltages): the
     protocol's quantisation is all that differs from the runner."""
-    from drive_runner.bridge_loop import run_through_bridge
+    from drive_tools.runner.bridge_loop import run_through_bridge
     motor, commissioning = joint
     s = experiment(motor, commissioning, duration_s=0.5)
     direct, bridged = compute_metrics(run_scenario(s)), run_through_bridge(s, "pty")
@@ -186,7 +186,7 @@ def test_the_template_is_a_motor_file_and_show_scales_its_loops(tmp_path, capsys
 ])
 def test_a_bad_motor_file_is_named_with_its_key(tmp_path, capsys, change, key):
     """One line naming the file and the key, from the library and from `drive run --motor` (exit 2): a key
-    missing, unknown or out of its declared range (motor_params.nameplate.NAMEPLATE_KEYS), a current limit
+    missing, unknown or out of its declared range (drive_common.motor.nameplate.NAMEPLATE_KEYS), a current limit
     beyond 3 × the rated current, a bus beyond 20 × what the rated speed needs, a name that cannot name a
     file."""
     path = tmp_path / "bad.yaml"
@@ -283,7 +283,7 @@ def test_the_controller_node_reports_the_shaft_dragged_backwards_on_diagnostics(
     """Over the graph the controller node supervises as it controls: the overload is a `not_following`
     fault on /diagnostics naming what the shaft did, as the log's supervision (`drive launch`'s exit 6)."""
     pytest.importorskip("rclpy")
-    from drive_launch.launcher import launch
+    from drive_tools.launch.launcher import launch
     result = launch(str(overload(joint, tmp_path)), namespace="/overload")
     controller = result.node_faults["/overload/foc_controller"]
     assert controller["faults"]["not_following"] >= 1
@@ -307,7 +307,7 @@ def test_an_active_load_at_start_is_a_moving_rotor_not_a_round_one(joint):
 def test_polarity_on_a_resistive_winding(tmp_path):
     """Pulses of n·T_s = 0.5 ms on a winding with L/R = 0.43 ms: a linear R–L alone gives S/T = −0.031, as
     large as the magnet's asymmetry; taken off, a 20 W gimbal motor finds its polarity from 12 angles."""
-    from drive_evaluation.startup_bench import STANDARD_CASES, startup_sweep
+    from drive_tools.evaluation.startup_bench import STANDARD_CASES, startup_sweep
     assert linear_polarity_ratio(2.5, 1.08e-3, 1e-4, 5, 2, 1) == pytest.approx(-0.0308, abs=5e-4)
     assert abs(linear_polarity_ratio(0.27, 0.84e-3, 1e-4, 5, 2, 1)) < 5e-4
     path = tmp_path / "test_gimbal.yaml"
@@ -350,9 +350,8 @@ def test_the_rotating_test_measures_what_the_nameplate_leaves_out_or_gets_wrong(
 def test_the_rotating_test_refuses_where_the_drive_did_not_follow(joint, tmp_path):
     """A shaft coupled to 50× the inertia its nameplate says: the speed loop tuned for the nameplate cannot
     hold the test's speeds, and the test says so instead of measuring."""
-    from drive_commissioning.rotating import RotatingTestError
-
-    from drive_runner.commissioning_run import rotating_test_in_process
+    from drive_tools.runner.commissioning_run import rotating_test_in_process
+    from hf_estimator.commissioning.rotating import RotatingTestError
     motor, commissioning = joint
     heavy = dataclasses.replace(experiment(motor, commissioning), plant_deviation={
         **experiment(motor, commissioning).plant_deviation, "J": 50.0})
@@ -443,9 +442,9 @@ def test_sampled_faster_as_the_drive_advises_the_joint_holds_a_rated_load_step(j
     rated torque may outrun it); at 20 kHz, commissioned and loaded-tested there, it starts from 8 angles with the
     polarity right every time (the polarity test takes off the current the voltage beside its pulses drives,
     docs/startup.md) and a rated load step stays within ours' targets (measured 0.0194 / 0.126 rad)."""
-    from drive_evaluation.startup_bench import STANDARD_CASES, startup_sweep
-    from drive_runner.commissioning_run import loaded_test_in_process, with_loaded_test
-    from drive_scenarios.scenario import Table
+    from drive_common.config.scenario import Table
+    from drive_tools.evaluation.startup_bench import STANDARD_CASES, startup_sweep
+    from drive_tools.runner.commissioning_run import loaded_test_in_process, with_loaded_test
     motor, _ = joint
     slow = run_scenario(experiment(motor, duration_s=0.01, speed=[[0.0, 0.0]]))
     assert "load steps above" in slow.estimator_facts["injection_note"]

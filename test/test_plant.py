@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from control_math.command_delay import command_line, issue_command
-from control_math.frames import clarke, inverse_clarke, rotate, wrap
+from drive_common.math.command_delay import command_line, issue_command
+from drive_common.math.frames import clarke, inverse_clarke, rotate, wrap
 from pmsm_plant.model import (
     N_STATE,
     OMEGA_M,

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from drive_evaluation.pll_check import (
+from drive_tools.evaluation.pll_check import (
     check_scenario,
     closed_loop_figures,
     design_for_motor,

@@ -11,26 +11,26 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from control_math.copper import COPPER_ALPHA_PER_K
-from control_math.frames import clarke, rotate
-from control_math.safe_state import ASC, FREEWHEEL, safe_state_for
-from control_math.winding import R_S_IN_USE, R_S_STEP, winding_estimate
 from drive_bridge.inverter_protocol import FREEWHEELING, OVERVOLTAGE, PWM_OFF, SAFE_AUTO, SHORT_CIRCUIT
 from drive_bridge.virtual_inverter import VirtualInverter
-from drive_cli.options import exit_code, tripped
-from drive_evaluation.run_report import protection_line, run_report
-from drive_interface.estimator_records import ESTIMATE, SAMPLE
-from drive_interface.estimator_states import TRACKING
-from drive_interface.exit_codes import EXIT_TRIPPED
-from drive_runner.runner import run_scenario
-from drive_scenarios.scenario import NON_IDEALITIES, Table, load_scenario
+from drive_common.config.scenario import NON_IDEALITIES, Table, load_scenario
+from drive_common.contract.estimator_records import ESTIMATE, SAMPLE
+from drive_common.contract.estimator_states import TRACKING
+from drive_common.contract.exit_codes import EXIT_TRIPPED
+from drive_common.math.copper import COPPER_ALPHA_PER_K
+from drive_common.math.frames import clarke, rotate
+from drive_common.math.safe_state import ASC, FREEWHEEL, safe_state_for
+from drive_common.math.winding import R_S_IN_USE, R_S_STEP, winding_estimate
+from drive_common.motor.commissioning import nameplate_commissioning
+from drive_common.motor.motor_file import MotorFileError, load_motor, motor_path
+from drive_common.motor.nameplate import InverterRating
+from drive_tools.cli.options import exit_code, tripped
+from drive_tools.evaluation.run_report import protection_line, run_report
+from drive_tools.runner.runner import run_scenario
 from foc_controller.control import REGEN_CUT, controller_state, controller_step
 from foc_controller.params import make_controller_params
 from foc_controller.protection import make_protection_params, protection_block, protection_state
 from hf_estimator.flux_observer import flux_observer_step, make_flux_observer
-from motor_params.commissioning import nameplate_commissioning
-from motor_params.motor_file import MotorFileError, load_motor, motor_path
-from motor_params.nameplate import InverterRating
 from pmsm_plant.model import (
     INVERTER_MODE,
     N_STATE,
@@ -335,7 +335,7 @@ def test_the_virtual_inverter_stops_into_the_safe_state_for_its_speed_and_bus(tm
 
 
 def _stop_from_2000_rpm(tmp_path, link_keys):
-    """``drive run``'s loop (drive_runner.runner.run_scenario) stopping the Wang motor from 2000 rpm at
+    """``drive run``'s loop (drive_tools.runner.runner.run_scenario) stopping the Wang motor from 2000 rpm at
     0.05 s on the encoder, its inverter section with ``link_keys`` added: (report metrics, exit code)."""
     text = Path(motor_path("wang_spmsm")).read_text()
     text = text.replace("  delay_periods: 1\n", "  delay_periods: 1\n" + link_keys, 1)
@@ -428,9 +428,9 @@ def test_protection_figures_are_declared_keys_and_the_graph_refuses_a_link_it_ca
     """A scenario's `protection:` figures are read through their declarations (a typo names the key meant,
     a value out of its interval names it), and `drive launch` refuses a motor whose link can rise (C_dc_F:
     the graph's topics carry no bus voltage), one line naming the key, before any node starts."""
-    from drive_scenarios.scenario import ScenarioError
+    from drive_common.config.scenario import ScenarioError
+    from drive_common.motor.commissioning import nameplate_commissioning
     from foc_controller.build import protection_for_scenario
-    from motor_params.commissioning import nameplate_commissioning
 
     base = Path(load_scenario("wang_100rpm").source).read_text()
     for protection, refused in (("{limt_degC: 100.0}", r"protection.limt_degC: unknown key \(did you mean limit_degC"),
@@ -442,7 +442,7 @@ def test_protection_figures_are_declared_keys_and_the_graph_refuses_a_link_it_ca
         with pytest.raises(ScenarioError, match=rf"^{path}: .*{refused}"):
             protection_for_scenario(scenario, nameplate_commissioning(scenario.motor.nameplate))
     link = Path(__file__).resolve().parent.parent / "docs" / "motors" / "wang_spmsm_link.yaml"
-    done = subprocess.run([sys.executable, "-m", "drive_cli", "launch", "wang_100rpm", "--motor", str(link),
+    done = subprocess.run([sys.executable, "-m", "drive_tools.cli", "launch", "wang_100rpm", "--motor", str(link),
                            "--duration", "0.01", "--no-plot"], capture_output=True, text=True)
     assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
     assert "inverter.C_dc_F" in done.stderr and str(link) in done.stderr, done.stderr

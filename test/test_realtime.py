@@ -1,4 +1,4 @@
-"""Soft real time of a drive's process (drive_interface.realtime): the garbage collector held out of the
+"""Soft real time of a drive's process (drive_common.runtime.realtime): the garbage collector held out of the
 sample path and given back, scheduling that the system refuses said in one line, CPU lists checked, the
 kernel's unbound workqueues moved for a run and put back."""
 import argparse
@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from drive_interface import realtime
+from drive_common.runtime import realtime
 
 pytestmark = pytest.mark.unit
 
@@ -97,7 +97,7 @@ def test_the_time_the_hypervisor_took_is_read_per_cpu():
 
 def test_the_real_time_bench_and_launch_check_their_options():
     import subprocess
-    drive = [sys.executable, "-m", "drive_cli.cli"]
+    drive = [sys.executable, "-m", "drive_tools.cli.cli"]
     run = subprocess.run(drive + ["bench", "bridge", "--graph"], capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and run.stderr.strip().endswith("give --paced --graph")
     run = subprocess.run(drive + ["bench", "bridge", "--paced", "--graph", "--levers", "turbo"], capture_output=True,
@@ -123,8 +123,8 @@ def test_a_paced_link_launches_the_robots_configuration_unless_told_otherwise(mo
     """`drive launch --link L --paced` fills what its command line left unset with the robot's configuration:
     SCHED_FIFO 50, the last CPU, over a pty the kernel's unbound workqueues there too, intra-process when
     composed; given values stay; without --paced none of it."""
-    from drive_cli.cli import build_parser
-    from drive_cli.options import robot_real_time
+    from drive_tools.cli.cli import build_parser
+    from drive_tools.cli.options import robot_real_time
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
 
     def settings(*words):
@@ -159,7 +159,7 @@ def test_the_machine_watch_notes_a_stall_once_and_says_which_late_blocks_it_expl
     """The watch wakes every period and notes a stall once (the wake-ups catching up within it are part of
     it): on a virtual clock, 40 ms taken from it at 0.1 s of 0.24 s. A late block is the machine's when the
     stalls take at least its window less the run's median latency."""
-    from drive_interface.machine_watch import STALL_NOTED_S, missing_runs_explained, stalled_within, watch
+    from drive_common.runtime.machine_watch import STALL_NOTED_S, missing_runs_explained, stalled_within, watch
     from helpers import VirtualClock
 
     clock = VirtualClock(stalls=[(0.1, 0.04)])
@@ -176,7 +176,7 @@ def test_the_machine_watch_notes_a_stall_once_and_says_which_late_blocks_it_expl
 
 
 def test_the_machine_watch_runs_beside_as_a_process_of_its_own():
-    from drive_interface.machine_watch import MachineWatch
+    from drive_common.runtime.machine_watch import MachineWatch
 
     with MachineWatch(0) as watch:
         time.sleep(0.3)

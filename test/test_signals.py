@@ -12,7 +12,7 @@ import time
 
 import pytest
 
-DRIVE = [sys.executable, "-m", "drive_cli"]
+DRIVE = [sys.executable, "-m", "drive_tools.cli"]
 
 COMMANDS = {
     "run": (["run", "wang_100rpm", "--duration", "600", "--no-plot", "--json"], True),
@@ -125,7 +125,7 @@ def test_a_signal_during_commissioning_writes_nothing(tmp_path, part, signum):
 def test_a_signal_during_a_recorded_run_leaves_a_closed_readable_bag(tmp_path, during, signum):
     """During the run: the samples run, recorded whole; during the bag's writing: the bag closed as far as
     written and said so, whole samples only. Either way `drive bag info` reads it with no warning."""
-    from drive_bags.reader import bag_info
+    from drive_tools.bags.reader import bag_info
     duration, ready = ("600", PROGRESS) if during == "run" else ("2", re.compile(r"writing [^\r\n]*%"))
     code, out, err = stop(tmp_path, ["run", "wang_100rpm", "--duration", duration, "--no-plot", "--json", "--record",
                                      "bag"], True, signum, ready)
@@ -153,7 +153,7 @@ def test_a_reader_that_goes_away_ends_the_output_quietly(tmp_path):
 
 def test_a_signal_inside_a_deferred_block_is_raised_when_it_ends():
     """A bag's close or a file swap is never cut half-way: the signal waits for the block's end."""
-    from drive_interface import interrupt
+    from drive_common.runtime import interrupt
     finished = []
     with pytest.raises(interrupt.Interrupted) as stopped, interrupt.handled():
         with interrupt.deferred():
@@ -169,8 +169,8 @@ def test_a_signal_swallowed_by_a_c_callback_still_stops_the_command(monkeypatch,
     traceback."""
     import ctypes
 
-    from drive_cli import cli, run
-    from drive_interface import interrupt
+    from drive_common.runtime import interrupt
+    from drive_tools.cli import cli, run
 
     def job(args):
         callback = ctypes.CFUNCTYPE(None)(lambda: interrupt._handler(signal.SIGTERM, None))
@@ -188,7 +188,7 @@ def swallowed_sigterm():
     it: recorded, not raised."""
     import ctypes
 
-    from drive_interface import interrupt
+    from drive_common.runtime import interrupt
     ctypes.CFUNCTYPE(None)(lambda: interrupt._handler(signal.SIGTERM, None))()
 
 
@@ -197,10 +197,10 @@ def test_a_long_loop_stops_at_its_next_pass_after_a_swallowed_signal(loop):
     """A swallowed raise must not let a 60 s job run to its end: the loop's checkpoint raises it."""
     import dataclasses
 
-    from drive_interface import interrupt
-    from drive_runner.bridge_loop import run_through_bridge
-    from drive_runner.runner import run_scenario
-    from drive_scenarios.scenario import load_scenario
+    from drive_common.config.scenario import load_scenario
+    from drive_common.runtime import interrupt
+    from drive_tools.runner.bridge_loop import run_through_bridge
+    from drive_tools.runner.runner import run_scenario
 
     scenario = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=60.0)
     with interrupt.handled():

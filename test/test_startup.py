@@ -8,14 +8,15 @@ import sys
 import numpy as np
 import pytest
 
-from drive_evaluation.metrics import compute_metrics
-from drive_evaluation.startup_bench import STANDARD_CASES, startup_sweep
-from drive_interface.exit_codes import EXIT_NOT_TRACKING
-from drive_interface.log import COLUMN, LOG_COLUMNS
-from drive_runner.runner import RunResult, build_drive, run_scenario
-from drive_scenarios.scenario import ScenarioError, load_scenario, parse_scenario, scenario_names
+from drive_common.config.scenario import ScenarioError, load_scenario, parse_scenario, scenario_names
+from drive_common.contract.exit_codes import EXIT_NOT_TRACKING
+from drive_common.contract.log import COLUMN, LOG_COLUMNS
+from drive_common.contract.run_result import RunResult
+from drive_common.motor.motor_file import nameplate
+from drive_tools.evaluation.metrics import compute_metrics
+from drive_tools.evaluation.startup_bench import STANDARD_CASES, startup_sweep
+from drive_tools.runner.runner import build_drive, run_scenario
 from hf_estimator.startup import NO_SALIENCY, REFUSALS, estimator_startup, startup_follow
-from motor_params.motor_file import nameplate
 
 pytestmark = pytest.mark.unit
 
@@ -98,8 +99,8 @@ def test_improved_under_rated_load_reports_its_lost_lock_and_ends_at_zero_torque
     state = result.log[:, COLUMN["state"]]
     assert compute_metrics(result)["lock_lost"] >= 1
     assert state[-1] == 3 or (state[-1] == 4 and np.all(result.log[-100:, COLUMN["i_q_ref"]] == 0.0))
-    run = subprocess.run([sys.executable, "-m", "drive_cli.cli", "run", "wang_load_step", "--estimator", "improved",
-                          "--no-plot"], capture_output=True, text=True)
+    run = subprocess.run([sys.executable, "-m", "drive_tools.cli.cli", "run", "wang_load_step", "--estimator",
+                          "improved", "--no-plot"], capture_output=True, text=True)
     assert run.returncode == (EXIT_NOT_TRACKING if state[-1] == 4 else 0)
     assert "the estimator reported" in run.stdout and "lost lock" in run.stdout
 

@@ -6,15 +6,15 @@ import math
 import numpy as np
 import pytest
 
-from drive_interface.estimator_states import ALIGNING, HOLD, LOCK_LOST, POLARITY, TRACKING
+from drive_common.contract.estimator_states import ALIGNING, HOLD, LOCK_LOST, POLARITY, TRACKING
+from drive_common.motor.commissioning import nameplate_commissioning
+from drive_common.motor.motor_file import load_motor
 from hf_estimator.alignment import alignment_step
 from hf_estimator.interface import check_settings
 from hf_estimator.lock_monitor import backemf_residual, fit_backemf_angle, lock_step, seed_from_backemf
 from hf_estimator.polarity_test import polarity_begin, polarity_step
 from hf_estimator.startup import DEFAULTS, fresh_startup, make_startup
 from hf_estimator.startup_state import NO_SALIENCY, ROTOR_MOVED, STARTUP
-from motor_params.commissioning import nameplate_commissioning
-from motor_params.motor_file import load_motor
 
 pytestmark = pytest.mark.unit
 

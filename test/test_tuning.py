@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from drive_cli.cli import main
+from drive_tools.cli.cli import main
 from foc_controller.params import make_controller_params
 from foc_controller.tuning import SZABO_TABLE2
 
@@ -70,7 +70,7 @@ def test_current_loops_stay_damped_with_the_delay_of_blocks(delay_periods):
     of N samples: d = N), answers a current step without growing: overshoot ≤ 25 %, within 2 % of the step
     after 40 loop delays. Without the delay cap the default 250 Hz overshoots 70 % at d = 3 and diverges
     at d = 5."""
-    from motor_params.motor_file import load_motor
+    from drive_common.motor.motor_file import load_motor
 
     motor, T_s = load_motor("wang_spmsm", "test"), 1e-4
     plate, rating = motor.nameplate, motor.inverter._replace(delay_periods=delay_periods)

@@ -1,4 +1,4 @@
-"""The serialized per-sample messages (drive_interface.wire) against rclpy's own CDR serialization: what
+"""The serialized per-sample messages (drive_common.contract.wire) against rclpy's own CDR serialization: what
 the nodes publish, any ROS 2 tool reads as the contract's types; what any publisher sends, they decode."""
 import math
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drive_interface.wire import (
+from drive_common.contract.wire import (
     BlockWire,
     JointWire,
     Vector3Wire,

@@ -25,11 +25,8 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from control_math.frames import wrap
-from drive_interface.node import ContractNode, finite, log_line, run_node, stamp, topic_qos
-from drive_interface.realtime import QUIET_TIME
-from drive_interface.stamps import sample_at, sample_of, stamp_parts
-from drive_interface.topics import (
+from drive_common.contract.stamps import sample_at, sample_of, stamp_parts
+from drive_common.contract.topics import (
     ANGLE_ERROR,
     CURRENTS,
     ROTOR_ESTIMATE,
@@ -39,7 +36,10 @@ from drive_interface.topics import (
     ZERO_VOLTAGE,
     block,
 )
-from drive_interface.wire import BlockWire
+from drive_common.contract.wire import BlockWire
+from drive_common.math.frames import wrap
+from drive_common.ros.node import ContractNode, finite, log_line, run_node, stamp, topic_qos
+from drive_common.runtime.realtime import QUIET_TIME
 
 from .inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from .inverter_link import CanLink, SerialLink

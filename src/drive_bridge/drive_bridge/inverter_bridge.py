@@ -267,7 +267,7 @@ class InverterBridge:
 
     def command(self, k, u_alpha_V, u_beta_V, enable=True, safe_state=SAFE_AUTO):
         """COMMAND(k) with the voltage rounded to the inverter's resolution (clipped to int16) and the safe
-        state asked for (``safe_state``: SAFE_AUTO, FREEWHEEL, ASC; control_math.safe_state.safe_state_for
+        state asked for (``safe_state``: SAFE_AUTO, FREEWHEEL, ASC; drive_common.math.safe_state.safe_state_for
         chooses by speed and bus). An enabling command first clears the latches a link loss causes
         (watchdog, host silence), once, never an overcurrent or an over-voltage."""
         if self.hello is None:

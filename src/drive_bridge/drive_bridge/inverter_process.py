@@ -126,9 +126,9 @@ def _arguments(argv):
 
 
 def main(argv=None):
-    from drive_interface.errors import DriveError
-    from drive_interface.realtime import collector_held, real_time_scheduling
-    from drive_scenarios.parameters import all_parameters, scenario_from_parameters
+    from drive_common.config.parameters import all_parameters, scenario_from_parameters
+    from drive_common.contract.errors import DriveError
+    from drive_common.runtime.realtime import collector_held, real_time_scheduling
 
     from .inverter_link import CanLink, PtyEndpoint
     from .virtual_inverter import VirtualInverter

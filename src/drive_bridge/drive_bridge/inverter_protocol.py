@@ -19,7 +19,7 @@ CONTROL_DISABLE, CONTROL_CLEAR_FAULTS, CONTROL_SEND_HELLO = 1, 2, 3
 ENABLE = 0x01
 SAFE_STATE_SHIFT, SAFE_STATE_MASK = 1, 0x06
 """COMMAND and COMMAND_BLOCK flags bits 1-2: the safe state the host asks for whenever the bridge stops
-switching (SAFE_AUTO: the inverter's own choice; control_math.safe_state's FREEWHEEL 1, ASC 2)."""
+switching (SAFE_AUTO: the inverter's own choice; drive_common.math.safe_state's FREEWHEEL 1, ASC 2)."""
 SAFE_AUTO = 0
 HELLO_ENCODER_PRESENT = 0x01
 HELLO_SAFE_STATES = 0x02

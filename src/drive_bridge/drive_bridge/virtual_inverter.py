@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from control_math.command_delay import issue_command
-from control_math.safe_state import ASC, FREEWHEEL, PWM, overvoltage_trip_V
-from drive_scenarios.scenario import behind_an_inverter
-from motor_params.nameplate import trip_current_A as default_trip_current_A
+from drive_common.config.scenario import behind_an_inverter
+from drive_common.math.command_delay import issue_command
+from drive_common.math.safe_state import ASC, FREEWHEEL, PWM, overvoltage_trip_V
+from drive_common.motor.nameplate import trip_current_A as default_trip_current_A
 from pmsm_plant.build import plant_for_scenario
 from pmsm_plant.model import INVERTER_MODE, bus_voltage, plant_block
 
@@ -93,9 +93,9 @@ class VirtualInverter:
     CanLink); ``start`` (a thread), ``stop`` to end, ``join``. With the scenario's
     ``block_samples`` N > 1 it announces N in HELLO, sends TELEMETRY_BLOCK and takes COMMAND_BLOCK (the
     command answering sample k acts in period k + 2N: docs/inverter-protocol.md; ScenarioError for what
-    cannot run behind an inverter, drive_scenarios.scenario.behind_an_inverter). ``truth`` holds θ_m,
+    cannot run behind an inverter, drive_common.config.scenario.behind_an_inverter). ``truth`` holds θ_m,
     ω_m, τ_e, τ_load and the true currents per sample for scoring, ``modes`` the bridge's mode in the period
-    before each sample (control_math.safe_state: PWM, FREEWHEEL, ASC)."""
+    before each sample (drive_common.math.safe_state: PWM, FREEWHEEL, ASC)."""
 
     def __init__(self, scenario, endpoint, rate_Hz=None, command_wait_s=0.5, watchdog_periods=None,
                  trip_current_A=None, drive_id=0, faults=None, encoder=True, clock=time.monotonic):
@@ -379,7 +379,7 @@ class VirtualInverter:
             self.unanswered.popleft()
 
     def bridge_mode(self):
-        """The bridge's mode for the next block (control_math.safe_state): PWM while it switches, and before
+        """The bridge's mode for the next block (drive_common.math.safe_state): PWM while it switches, and before
         the drive's start (the plant's zero volts, as ever); once stopped, the safe state the host asked
         for, or its own choice: freewheel, and the short circuit once the link rose past its trip level
         freewheeling."""
@@ -665,7 +665,7 @@ def written_before_due(runs, written_at, wire_s=0.0):
 def missing_runs(runs, T_s):
     """How many runs of periods without a command in time, the longest [periods], the first ones as
     [time s, periods], and each one's window [telemetry sent, command due] on the machine's monotonic clock
-    (paced; to set beside what else watched the machine then, drive_interface.machine_watch)."""
+    (paced; to set beside what else watched the machine then, drive_common.runtime.machine_watch)."""
     return {"count": len(runs), "longest_periods": max((run[1] for run in runs), default=0),
             "first": [[round(run[0] * T_s, 4), run[1]] for run in runs[:MISSING_RUNS_SHOWN]],
             "windows_monotonic_s": [run[2:4] for run in runs if run[3]]}

@@ -1,8 +1,8 @@
 """The controller a scenario configures, for its motor's nameplate and the estimator it runs with."""
 import math
 
-from drive_scenarios.scenario import ScenarioError
-from motor_params.scaled_loops import scaled_loops
+from drive_common.config.scenario import ScenarioError
+from drive_common.motor.scaled_loops import scaled_loops
 
 from .params import check_settings, make_controller_params
 from .protection import make_protection_params
@@ -24,7 +24,7 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
     (None: no limit of its own); the scenario's current_limit_A overrides that limit. The current loops
     use the ``commissioning`` record's R_s; ψ_f and J are the rotating test's where it ran; its delay is the
     answer delay plus the blocks' N − 1; the speed loop's bandwidth is scaled to the motor
-    (motor_params.scaled_loops) unless the scenario sets it."""
+    (drive_common.motor.scaled_loops) unless the scenario sets it."""
     plate = commissioning.refined(scenario.motor.nameplate)
     if not math.isfinite(plate.J_kgm2):
         raise ScenarioError(f"{scenario.motor.given_by}: {scenario.motor.source}: nameplate.J_kgm2: unknown, and the "

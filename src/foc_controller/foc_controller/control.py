@@ -19,12 +19,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.current_sensing import corrected_currents
-from control_math.filters import sos_step
-from control_math.frames import SQRT3, clarke_contract, rotate
-from control_math.pi import pi_limited
-from drive_interface import numba_records  # noqa: F401  (controller_block takes records: cached safely)
-from drive_interface.estimator_states import ALIGNING, LOCK_LOST, POLARITY, TRACKING
+from drive_common.contract import numba_records  # noqa: F401  (controller_block takes records: cached safely)
+from drive_common.contract.estimator_states import ALIGNING, LOCK_LOST, POLARITY, TRACKING
+from drive_common.math.current_sensing import corrected_currents
+from drive_common.math.filters import sos_step
+from drive_common.math.frames import SQRT3, clarke_contract, rotate
+from drive_common.math.pi import pi_limited
 
 # Controller state layout (integrators, filtered speed, torque gate, last θ̂, and the limits the drive's
 # protections set: the current limit's foldback [A], the share of braking current cut, foc_controller.protection;
@@ -157,7 +157,7 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
 @njit(cache=True)
 def controller_block(x, z_notch, c, n, currents, estimates, speed_ref, tau_feedforward, calibration, trip_A, out):
     """n consecutive samples of ``controller_step``: currents (n × 3, measured [A], corrected here by the
-    commissioned ``calibration``), estimates (n ESTIMATE records, drive_interface.estimator_records), the speed
+    commissioned ``calibration``), estimates (n ESTIMATE records, drive_common.contract.estimator_records), the speed
     reference [rad/s] and torque feed-forward [N·m] of each sample (n). Rows of ``out`` (n × 6): u_α, u_β
     [V], i_d, i_q, i_d*, i_q* [A]. A sample with currents not finite or beyond ``trip_A``, or a non-finite
     estimate or injection, gets zero voltage and leaves the state untouched. Returns the number of such

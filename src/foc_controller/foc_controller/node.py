@@ -31,11 +31,10 @@ from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
-from control_math.current_sensing import corrected_currents
-from drive_interface.estimator_records import estimates
-from drive_interface.node import describe, finite, run_node, stamp, topic_qos
-from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
-from drive_interface.topics import (
+from drive_common.config.parameters import SCHEDULE_PARAMETER
+from drive_common.contract.estimator_records import estimates
+from drive_common.contract.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
+from drive_common.contract.topics import (
     CURRENTS,
     DRIVE_CONFIG,
     ESTIMATOR_STATE,
@@ -48,10 +47,11 @@ from drive_interface.topics import (
     VOLTAGE_COMMAND,
     block,
 )
-from drive_interface.wire import BlockWire, Vector3Wire
-from drive_scenarios.node import ScenarioNode
-from drive_scenarios.parameters import SCHEDULE_PARAMETER
-from motor_params.knowledge import motor_knowledge
+from drive_common.contract.wire import BlockWire, Vector3Wire
+from drive_common.math.current_sensing import corrected_currents
+from drive_common.motor.knowledge import motor_knowledge
+from drive_common.ros.node import describe, finite, run_node, stamp, topic_qos
+from drive_common.ros.scenario_node import ScenarioNode
 
 from .build import check_controller_settings, controller_for_scenario, protection_for_scenario
 from .control import OMEGA_FILTERED, controller_block, controller_state, controller_step, estimated_torque

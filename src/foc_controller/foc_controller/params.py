@@ -4,8 +4,8 @@ import math
 
 import numpy as np
 
-from control_math.filters import notch
-from drive_interface.settings import Key, read_keys, shown
+from drive_common.contract.settings import Key, read_keys, shown
+from drive_common.math.filters import notch
 
 from .control import ControllerParams
 from .tuning import SZABO_TABLE2, current_pi_gains_any_bandwidth, speed_pi_gains
@@ -25,7 +25,7 @@ SETTINGS = (
     Key("speed_limit_rad_s", "rad/s", 0.0, infinite=True, default=math.inf),
 )
 """The controller's settings (a scenario's or drive configuration's ``controller:``, the node's
-``controller.*`` parameters), each declared once (drive_interface.settings.Key)."""
+``controller.*`` parameters), each declared once (drive_common.contract.settings.Key)."""
 SETTING = {key.name: key for key in SETTINGS}
 DEFAULTS = {key.name: key.default for key in SETTINGS}
 
@@ -52,7 +52,7 @@ to 80 Hz."""
 
 def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
                            estimator_bandwidth_Hz=math.inf, commissioning=None):
-    """ControllerParams for a motor with this ``nameplate`` (motor_params.nameplate.Nameplate) on an
+    """ControllerParams for a motor with this ``nameplate`` (drive_common.motor.nameplate.Nameplate) on an
     ``inverter`` (InverterRating; its delay_periods the whole delay d from sample to applied command,
     blocks included) at sampling period T_s; R_s of the current loops comes from the
     ``commissioning`` record when given, else the nameplate. Their inductances stay the nameplate's:

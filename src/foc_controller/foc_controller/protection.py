@@ -9,10 +9,10 @@ estimate); never the plant's truth. One kernel per block of samples, ``protectio
   (|i|/I_rated)² − ΔT̂ (the plant's model, pmsm_plant.model, with R_th, C_th told as τ = R_th C_th and the
   rise at rated current). Above T_warning_degC the current limit folds back linearly to the current
   whose steady rise ends at the warning, reached at T_limit_degC: the temperature settles between them.
-- R̂_s(T̂) = R_s (1 + α(T̂ − 20 °C))/(1 + α(T_a − 20 °C)) (control_math.copper), R_s measured at ambient
+- R̂_s(T̂) = R_s (1 + α(T̂ − 20 °C))/(1 + α(T_a − 20 °C)) (drive_common.math.copper), R_s measured at ambient
   (the commissioning), handed to the estimators' resistive drop in steps of R_S_STEP (``R_S_IN_USE``, the
   caller puts it in their SAMPLE's R_s_ohm).
-- The safe state at speed (control_math.safe_state): active short circuit where the back-EMF √3 |ω̂_e| ψ_f
+- The safe state at speed (drive_common.math.safe_state): active short circuit where the back-EMF √3 |ω̂_e| ψ_f
   reaches SAFE_STATE_MARGIN of the bus (freewheeling would rectify it into the link), freewheel below.
 
 The limits reach the controller through its state (foc_controller.control: FOLDBACK_A, REGEN_CUT).
@@ -23,9 +23,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.safe_state import ASC, FREEWHEEL, overvoltage_trip_V, safe_state_for
-from control_math.winding import R_S_IN_USE, WINDING_KEYS, winding_block
-from drive_interface.settings import Key, read_keys
+from drive_common.contract.settings import Key, read_keys
+from drive_common.math.safe_state import ASC, FREEWHEEL, overvoltage_trip_V, safe_state_for
+from drive_common.math.winding import R_S_IN_USE, WINDING_KEYS, winding_block
 
 from .control import FOLDBACK_A, REGEN_CUT
 
@@ -38,14 +38,14 @@ SETTINGS = (
     Key("limit_degC", "°C", -60.0, 300.0, default=130.0, doc="the winding's class limit"),
 )
 """The drive's protection figures (a scenario's or drive configuration's ``protection:``), each declared once
-(drive_interface.settings.Key)."""
+(drive_common.contract.settings.Key)."""
 DEFAULTS = {key.name: key.default for key in SETTINGS}
 """Without figures of its own the drive assumes a class-B winding (130 °C) rising 80 K at rated current in
 a 40 °C ambient, τ = 5 min, and cuts braking current from 40 % of the way from the rated bus to the
-over-voltage trip (the inverter rating's U_overvoltage_V, else control_math.safe_state.OVERVOLTAGE_PER_BUS ×
+over-voltage trip (the inverter rating's U_overvoltage_V, else drive_common.math.safe_state.OVERVOLTAGE_PER_BUS ×
 the rated bus), none left at 80 %: from 1.1 × to 1.2 × the rated bus with the default trip."""
 
-# Protection state layout: the winding's (control_math.winding: ΔT̂ [K], the R̂_s [Ω] handed to the
+# Protection state layout: the winding's (drive_common.math.winding: ΔT̂ [K], the R̂_s [Ω] handed to the
 # estimators), tripped (1), the safe state chosen, the cause, the sample it tripped at, the highest T̂ [°C]
 # and bus [V] seen.
 TRIPPED, SAFE_STATE, CAUSE, TRIP_K, PEAK_DEGC, PEAK_BUS_V = range(R_S_IN_USE + 1, R_S_IN_USE + 7)

@@ -6,7 +6,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.frames import rotate
+from drive_common.math.frames import rotate
 
 from .interface import MAX_CARRIER_SAMPLES, MAX_DELAY_PERIODS, ring_capacity
 

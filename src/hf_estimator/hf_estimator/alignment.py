@@ -7,7 +7,7 @@ import math
 
 from numba import njit
 
-from drive_interface.estimator_states import ALIGNING, HOLD
+from drive_common.contract.estimator_states import ALIGNING, HOLD
 
 from .startup_state import (
     NO_SALIENCY,

@@ -5,9 +5,9 @@ import math
 import numpy as np
 from numba import njit
 
-from control_math.command_delay import applied_voltage
-from control_math.current_sensing import corrected_currents
-from drive_interface.estimator_records import SAMPLE
+from drive_common.contract.estimator_records import SAMPLE
+from drive_common.math.command_delay import applied_voltage
+from drive_common.math.current_sensing import corrected_currents
 
 
 def sample_inputs():
@@ -21,13 +21,13 @@ def estimator_block(step, state, p, k0, n, currents, line, encoder, calibration,
     one-element array of its state record) with parameters p.
 
     currents (n × 3): measured i_a, i_b, i_c [A], corrected here by the commissioned ``calibration``;
-    line: the drive's delay line (control_math.command_delay) holding the commands of earlier samples;
+    line: the drive's delay line (drive_common.math.command_delay) holding the commands of earlier samples;
     encoder (n × 2): θ_e, ω_e read only by `sensored` (zeros otherwise). A sample whose currents are not
     finite or exceed ``trip_A`` is not fed to the core: its record repeats the last estimate, signal, weight
     and leader with no injection and state 0. ``out``: n ESTIMATE records; ``inputs``: a one-element SAMPLE
     array the caller keeps (sample_inputs), filled here sample by sample (no allocation per block).
     Returns the number of such bad samples. Not cached: specialised on each estimator's step function (as
-    drive_runner.loop's kernels)."""
+    drive_tools.runner.loop's kernels)."""
     x = state[0]
     sample = inputs[0]
     bad = 0

@@ -1,10 +1,10 @@
 """The estimator a scenario names, built for its motor's nameplate and a commissioning record, with the
-loops scaled to the motor (motor_params.scaled_loops) where the scenario does not set them."""
+loops scaled to the motor (drive_common.motor.scaled_loops) where the scenario does not set them."""
 import dataclasses
 
-from drive_scenarios.scenario import ScenarioError
-from motor_params.commissioning import MIN_CONVERGENCE_SLOPE
-from motor_params.scaled_loops import scaled_loops
+from drive_common.config.scenario import ScenarioError
+from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE
+from drive_common.motor.scaled_loops import scaled_loops
 
 from .interface import injects
 from .registry import make_estimator

@@ -21,9 +21,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.filters import butterworth_bandpass, butterworth_lowpass
-from control_math.frames import clarke_contract
-from drive_interface.settings import shown
+from drive_common.contract.settings import shown
+from drive_common.math.filters import butterworth_bandpass, butterworth_lowpass
+from drive_common.math.frames import clarke_contract
 
 from .admittance_monitor import MonitorParams, make_monitor
 from .interface import Estimator, check_settings, register

@@ -2,7 +2,7 @@
 rotor coordinates of Hinkkanen et al., "Observers for sensorless synchronous motor drives: framework
 for design and analysis", IEEE Trans. Ind. Appl. 2018 (the design motulator's SpeedFluxObserver
 implements), from the commissioned R_s and dead-time voltage (subtracted from the applied voltage at the
-phase currents of the period's start, control_math.dead_time) and the nameplate's L_d, L_q, ψ_f. It
+phase currents of the period's start, drive_common.math.dead_time) and the nameplate's L_d, L_q, ψ_f. It
 injects nothing.
 
 Per period, in the frame θ̂ turning at ω_s (forward Euler, as the reference):
@@ -26,9 +26,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
-from control_math.frames import clarke_contract, inverse_clarke, rotate
-from drive_interface.estimator_states import HOLD, LEADER_BACKEMF, TRACKING
+from drive_common.contract.estimator_states import HOLD, LEADER_BACKEMF, TRACKING
+from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
+from drive_common.math.frames import clarke_contract, inverse_clarke, rotate
 
 from .interface import Estimator, check_settings, register, stator_resistance
 

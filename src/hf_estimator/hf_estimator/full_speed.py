@@ -39,9 +39,16 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.frames import clarke_contract, wrap
-from drive_interface.estimator_records import ESTIMATE
-from drive_interface.estimator_states import ALIGNING, LEADER_BACKEMF, LEADER_INJECTION, LOCK_LOST, POLARITY, TRACKING
+from drive_common.contract.estimator_records import ESTIMATE
+from drive_common.contract.estimator_states import (
+    ALIGNING,
+    LEADER_BACKEMF,
+    LEADER_INJECTION,
+    LOCK_LOST,
+    POLARITY,
+    TRACKING,
+)
+from drive_common.math.frames import clarke_contract, wrap
 
 from .flux_observer import DEFAULTS as OBSERVER_DEFAULTS
 from .flux_observer import FluxObserverParams, flux_observer_follow, flux_observer_step, make_flux_observer

@@ -11,8 +11,8 @@ import math
 
 from numba import njit
 
-from control_math.filters import sos_step
-from control_math.frames import clarke_contract
+from drive_common.math.filters import sos_step
+from drive_common.math.frames import clarke_contract
 
 from .conventional import DEFAULTS, make_wang, wang_answer
 from .interface import register

@@ -13,7 +13,7 @@ design).
    The resistive drop must be in the regressor: the current loop makes u follow i, so left in r it
    biases Γ̂ (under rated load and fast current-loop action the fit lost the angle without it). With
    the setting ``dead_time_model`` the commissioned dead-time voltage at the phase currents of the
-   period's start (control_math.dead_time) is subtracted too: where a phase current crosses zero the loss
+   period's start (drive_common.math.dead_time) is subtracted too: where a phase current crosses zero the loss
    switches with the HF current and turns the measured axis. It removes that error, but in closed loop
    the drive's own sensor noise then costs more than it gains (docs/results.md, "A plant off its
    nameplate"), so it is off by default.
@@ -40,7 +40,7 @@ design).
    where F ≥ ¾ (Commissioning.tracking_current_limit_A).
 4b. Ours' own error under load, which the standstill tables do not hold (its fit on a flux map that curves
    over the HF ripple: 0.022 rad at rated current on a robot joint at 5 samples per carrier period), is
-   measured by the optional loaded test (shaft held, drive_commissioning.loaded) and added to the shift
+   measured by the optional loaded test (shaft held, hf_estimator.commissioning.loaded) and added to the shift
    table where ours runs the test's carrier and amplitude (loaded_correction).
 5. The amplitude is the scenario's, raised where the commissioned motor needs it: a weak saliency gives a
    weak angle signal, the saliency current I_Δ = U_h·|Δ|/ω_h at no load or at rated current, whichever
@@ -72,10 +72,10 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
-from control_math.frames import clarke_contract, inverse_clarke, rotate
-from control_math.tables import table_value
-from drive_interface.estimator_states import ALIGNING, TRACKING
+from drive_common.contract.estimator_states import ALIGNING, TRACKING
+from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
+from drive_common.math.frames import clarke_contract, inverse_clarke, rotate
+from drive_common.math.tables import table_value
 
 from .interface import (
     MAX_CARRIER_SAMPLES,

@@ -1,13 +1,13 @@
 """What every estimator core provides, and the registry the runner and the nodes build them from.
 
 A core is a numba step function called once per sample k, on named records
-(drive_interface.estimator_records):
+(drive_common.contract.estimator_records):
 
     step(x, p, k, sample, out)
 
 ``sample`` (SAMPLE) holds the measured phase currents (corrected by the commissioned calibration), the
 voltage that acted in the period before sample k, the one that made the current step i[k] − i[k−1]:
-`voltage_command`(k−1−d), d the drive's delay (control_math.command_delay; the caller keeps the delay
+`voltage_command`(k−1−d), d the drive's delay (drive_common.math.command_delay; the caller keeps the delay
 line, so a block of samples needs only commands of earlier blocks), and the encoder's angle and speed,
 read only by the ``sensored`` pass-through (and in replay by an estimator taking the recording's polarity).
 The step writes ``out`` (ESTIMATE): θ̂_e, unwrapped, ω̂_e for the speed loop, the HF voltage u_inj to
@@ -16,13 +16,13 @@ the measured angle-information strength (estimator-specific units, documented pe
 the start-up state code (startup.py: 0 hold, 1 aligning, 2 polarity test, 3 tracking, 4 lock lost; the
 controller applies torque only once it has reached 3), the carrier amplitude it injects with [V] (0:
 none), the weight of the back-EMF observer in θ̂ (0 … 1) and the source θ̂ follows
-(drive_interface.estimator_states). x is the estimator's state, one record of its own dtype whose
+(drive_common.contract.estimator_states). x is the estimator's state, one record of its own dtype whose
 ``theta`` and ``omega`` are θ̂ and ω̂ (filters, rings and the start-up's ``startup`` among its fields); p
 its parameters, the start-up's as ``p.startup``. Every estimator starts at θ̂ = 0, ω̂ = 0: it is told
 nothing of the angle.
 
-What an estimator knows of the motor is its nameplate (``motor_params.nameplate``) and the commissioning
-record measured on it (``motor_params.commissioning``); never the plant.
+What an estimator knows of the motor is its nameplate (``drive_common.motor.nameplate``) and the commissioning
+record measured on it (``drive_common.motor.commissioning``); never the plant.
 """
 import math
 from collections.abc import Callable
@@ -32,7 +32,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from drive_interface.settings import choice, flag, number, positive, shown
+from drive_common.contract.settings import choice, flag, number, positive, shown
 
 
 @dataclass(frozen=True)
@@ -132,9 +132,9 @@ def describe(name):
 
 
 def make_estimator(name, nameplate, T_s, settings, commissioning, inverter):
-    """Build the estimator ``name`` for a motor known by its ``nameplate`` (motor_params.nameplate) and
+    """Build the estimator ``name`` for a motor known by its ``nameplate`` (drive_common.motor.nameplate) and
     ``commissioning`` record (the HF inductances and saliency-shift tables measured at standstill) on
-    ``inverter`` (motor_params.nameplate.InverterRating: its U_dc, ∞ where unknown, and delay_periods the
+    ``inverter`` (drive_common.motor.nameplate.InverterRating: its U_dc, ∞ where unknown, and delay_periods the
     drive's whole delay from sample to applied command). KeyError or ValueError name the setting at fault."""
     return _entry(name).factory(nameplate, T_s, dict(settings or {}), commissioning, inverter)
 

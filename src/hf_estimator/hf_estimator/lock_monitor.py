@@ -5,9 +5,9 @@ import math
 
 from numba import njit
 
-from control_math.dead_time import dead_time_direction
-from control_math.frames import inverse_clarke, rotate
-from drive_interface.estimator_states import ALIGNING, HOLD, LOCK_LOST, TRACKING
+from drive_common.contract.estimator_states import ALIGNING, HOLD, LOCK_LOST, TRACKING
+from drive_common.math.dead_time import dead_time_direction
+from drive_common.math.frames import inverse_clarke, rotate
 
 from .interface import stator_resistance
 from .startup_state import (

@@ -1,7 +1,7 @@
 """The ``hf_estimator`` node: an estimator core over topics.
 
 For sample k it joins `currents`(k) with the voltage applied during the period that produced them,
-`voltage_command`(k−1−d) from its delay line (control_math.command_delay; d the drive's delay; zero
+`voltage_command`(k−1−d) from its delay line (drive_common.math.command_delay; d the drive's delay; zero
 before sample 0, and zero if the controller stays silent past half the lock-step timeout, which is what
 the plant then applied) and, for `sensored` only, `rotor_state`(k). It answers
 `rotor_estimate`(k), `injection`(k), `estimator_state`(k) (x = ε, y = signal, z = the start-up state
@@ -26,13 +26,10 @@ import time
 
 import numpy as np
 
-from control_math.command_delay import command_line, issue_command
-from control_math.winding import R_S_IN_USE, winding_block, winding_params, winding_state
-from drive_interface.estimator_records import estimates
-from drive_interface.estimator_states import LEADER_NAMES, LOCK_LOST, STATE_NAMES
-from drive_interface.node import finite, run_node
-from drive_interface.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
-from drive_interface.topics import (
+from drive_common.contract.estimator_records import estimates
+from drive_common.contract.estimator_states import LEADER_NAMES, LOCK_LOST, STATE_NAMES
+from drive_common.contract.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
+from drive_common.contract.topics import (
     CURRENTS,
     ESTIMATOR_BLEND,
     ESTIMATOR_STATE,
@@ -44,10 +41,13 @@ from drive_interface.topics import (
     ZERO_VOLTAGE,
     block,
 )
-from drive_interface.wire import BlockWire, JointWire, Vector3Wire
-from drive_scenarios.node import ScenarioNode
-from motor_params.commissioning import commissioning_record
-from motor_params.knowledge import motor_knowledge
+from drive_common.contract.wire import BlockWire, JointWire, Vector3Wire
+from drive_common.math.command_delay import command_line, issue_command
+from drive_common.math.winding import R_S_IN_USE, winding_block, winding_params, winding_state
+from drive_common.motor.commissioning import commissioning_record
+from drive_common.motor.knowledge import motor_knowledge
+from drive_common.ros.node import finite, run_node
+from drive_common.ros.scenario_node import ScenarioNode
 
 from .block import estimator_block, sample_inputs
 from .build import estimator_for_scenario
@@ -136,7 +136,7 @@ class EstimatorNode(ScenarioNode):
         self.winding = winding_params(scenario.motor.nameplate.rated_current_A, self.commissioning.R_s_ohm,
                                       scenario.T_s, scenario.protection)
         self.winding_x = winding_state()
-        """The drive's winding estimate (control_math.winding), run here on the currents the controller node's
+        """The drive's winding estimate (drive_common.math.winding), run here on the currents the controller node's
         protections see, for the R̂_s the estimator's resistive drop takes."""
 
     def open_outputs(self):

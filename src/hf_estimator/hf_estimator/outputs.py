@@ -1,7 +1,7 @@
-"""What an injecting estimator's step writes into its ESTIMATE record (drive_interface.estimator_records)."""
+"""What an injecting estimator's step writes into its ESTIMATE record (drive_common.contract.estimator_records)."""
 from numba import njit
 
-from drive_interface.estimator_states import LEADER_INJECTION
+from drive_common.contract.estimator_states import LEADER_INJECTION
 
 
 @njit(cache=True)

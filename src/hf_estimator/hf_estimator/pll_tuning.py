@@ -1,7 +1,7 @@
 """Tuning the tracking PI of the pulsating-injection estimators from the loop models of ``pll_model``:
 each estimator's mapping onto the models, both models of its loop, the PI for a requested margin and
 crossover, and `synchronous`'s largest loop filter for a request. The closed-loop check that measures
-the result runs in the one-process runner (drive_evaluation.pll_check)."""
+the result runs in the one-process runner (drive_tools.evaluation.pll_check)."""
 import dataclasses
 import math
 

@@ -7,8 +7,8 @@ import math
 
 from numba import njit
 
-from control_math.frames import rotate, wrap
-from drive_interface.estimator_states import ALIGNING, HOLD, POLARITY
+from drive_common.contract.estimator_states import ALIGNING, HOLD, POLARITY
+from drive_common.math.frames import rotate, wrap
 
 from .startup_state import (
     NO_POLARITY,

@@ -3,8 +3,8 @@ and the step after demodulation (tracking loop, admittance monitor, next injecti
 import numpy as np
 from numba import njit
 
-from control_math.filters import sos_step
-from control_math.frames import rotate
+from drive_common.math.filters import sos_step
+from drive_common.math.frames import rotate
 
 from .admittance_monitor import MONITOR, monitor_step
 from .startup import fresh_startup

@@ -5,7 +5,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from drive_interface.estimator_states import LEADER_ENCODER, TRACKING
+from drive_common.contract.estimator_states import LEADER_ENCODER, TRACKING
 
 from .interface import Estimator, check_settings, register
 

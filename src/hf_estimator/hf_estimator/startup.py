@@ -55,9 +55,9 @@ import math
 
 from numba import njit
 
-from control_math.dead_time import SMOOTHING_PER_RATED_CURRENT
-from drive_interface.estimator_states import ALIGNING, HOLD, LOCK_LOST, POLARITY, STATE_NAMES, TRACKING
-from motor_params.commissioning import NAMEPLATE_ONLY
+from drive_common.contract.estimator_states import ALIGNING, HOLD, LOCK_LOST, POLARITY, STATE_NAMES, TRACKING
+from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT
+from drive_common.motor.commissioning import NAMEPLATE_ONLY
 
 from .alignment import ALIGN_SMOOTHING_S, alignment_step
 from .lock_monitor import backemf_residual, lock_step, reacquire_step

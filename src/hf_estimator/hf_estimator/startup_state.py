@@ -7,8 +7,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.frames import rotate
-from drive_interface.estimator_states import LOCK_LOST
+from drive_common.contract.estimator_states import LOCK_LOST
+from drive_common.math.frames import rotate
 
 STARTUP = np.dtype([(name, np.float64) for name in (
     "code", "entered", "refused", "restarts", "theta_held", "omega_held", "held_at",

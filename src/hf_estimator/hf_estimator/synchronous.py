@@ -18,8 +18,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from control_math.filters import butterworth_bandpass
-from control_math.frames import clarke_contract
+from drive_common.math.filters import butterworth_bandpass
+from drive_common.math.frames import clarke_contract
 
 from .admittance_monitor import MonitorParams, make_monitor
 from .conventional import demodulation_phase

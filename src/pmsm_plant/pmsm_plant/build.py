@@ -4,7 +4,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from control_math.command_delay import command_line
+from drive_common.math.command_delay import command_line
 
 from .model import N_STATE, plant_reset
 from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
@@ -26,11 +26,11 @@ class Plant:
     imposed_speed: bool
     """The shaft follows the speed table (dynamometer) instead of its torque balance."""
     line: np.ndarray
-    """The inverter's delay line of commands (control_math.command_delay), ``inverter.delay_periods`` long."""
+    """The inverter's delay line of commands (drive_common.math.command_delay), ``inverter.delay_periods`` long."""
 
 
 def plant_for_scenario(scenario):
-    """A fresh Plant for ``scenario`` (drive_scenarios.scenario.Scenario); its inverter's delay line is
+    """A fresh Plant for ``scenario`` (drive_common.config.scenario.Scenario); its inverter's delay line is
     the drive's delay (``Scenario.drive_delay_periods``: answer delay and blocks)."""
     preset = get_preset(scenario.motor)
     machine, mechanics, inverter, sensor = plant_parameters(preset, scenario.non_idealities,

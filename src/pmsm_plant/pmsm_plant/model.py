@@ -4,7 +4,7 @@ The stator flux linkage in the stationary frame is the electrical state, so the 
 inverter voltage is integrated without approximation and only the slow resistive and mechanical terms
 go through the Runge-Kutta step; HF injection at any frequency below Nyquist is integrated accurately
 (see test/test_plant.py). One control period is: apply the voltage the delay line holds for it
-(control_math.command_delay) → integrate → sample.
+(drive_common.math.command_delay) → integrate → sample.
 
 Beside the machine the state holds the DC link (a capacitor above a supply that only sources, with an
 optional brake chopper), the winding's temperature rise (R_s follows it) and the inverter's switching
@@ -16,13 +16,13 @@ import math
 import numpy as np
 from numba import njit
 
-from control_math.command_delay import applied_voltage
-from control_math.copper import copper_resistance
-from control_math.frames import clarke, inverse_clarke, rotate
-from control_math.safe_state import ASC, FREEWHEEL
+from drive_common.math.command_delay import applied_voltage
+from drive_common.math.copper import copper_resistance
+from drive_common.math.frames import clarke, inverse_clarke, rotate
+from drive_common.math.safe_state import ASC, FREEWHEEL
 
 # Plant state vector layout: flux [Wb], shaft [rad/s, rad], DC-link voltage above the supply's [V] (0
-# reads as the supply's: bus_voltage), winding temperature rise [K], inverter mode (control_math.safe_state:
+# reads as the supply's: bus_voltage), winding temperature rise [K], inverter mode (drive_common.math.safe_state:
 # PWM, FREEWHEEL, ASC), brake chopper on (1).
 PSI_ALPHA, PSI_BETA, OMEGA_M, THETA_M, U_DC_BUS, WINDING_RISE, INVERTER_MODE, BRAKE_ON = range(8)
 N_STATE = 8
@@ -107,7 +107,7 @@ def bus_voltage(x, inv):
 @njit(cache=True)
 def winding_resistance(x, m):
     """R_s(T) = R_s,20 (1 + α (T − 20 °C)) [Ω] at the winding temperature T = T_ambient + x[WINDING_RISE]
-    (control_math.copper); R_s_ohm itself when the winding is isothermal (C_th_J_K = 0)."""
+    (drive_common.math.copper); R_s_ohm itself when the winding is isothermal (C_th_J_K = 0)."""
     if m.C_th_J_K <= 0.0:
         return m.R_s_ohm
     return copper_resistance(m.R_s_ohm, 20.0, m.T_ambient_degC + x[WINDING_RISE])
@@ -177,7 +177,7 @@ def _link_and_winding(x, d_a, d_b, d_c, i0_alpha, i0_beta, m, inv, T_s, U_dc, R_
 @njit(cache=True)
 def plant_advance(x, u_a, u_b, tau_load_Nm, imposed, omega_imposed, m, mech, inv, T_s, n_substeps):
     """Advance the plant state x by one control period T_s [s] under the voltage command acting in it
-    (u_a, u_b) [V, αβ] (the delay line's, control_math.command_delay) and the load torque [N·m]. State x
+    (u_a, u_b) [V, αβ] (the delay line's, drive_common.math.command_delay) and the load torque [N·m]. State x
     (N_STATE): PSI_ALPHA … BRAKE_ON; m, mech, inv: MachineParams, MechanicsParams, InverterParams.
 
     The inverter realises the command on its bus as one average voltage over the period, its dead-time

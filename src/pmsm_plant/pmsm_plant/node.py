@@ -1,7 +1,7 @@
 """The ``pmsm_plant`` node: the plant core over topics, in lock-step on sim time.
 
 Publishes sample k (`currents`, `rotor_state`, `/clock` unless another node does), waits for
-`voltage_command` stamped k, takes it into its delay line (control_math.command_delay) and advances to
+`voltage_command` stamped k, takes it into its delay line (drive_common.math.command_delay) and advances to
 k+1 under the command the line holds for period k. A command with another stamp is discarded and
 counted; if no valid command comes within ``lockstep_timeout_s`` the plant applies zero voltage for that
 period and names the silent topic.
@@ -20,7 +20,7 @@ too, so the release falls on the same sample as in one process.
 With blocks (``block_samples`` N > 1) the plant publishes `currents_block` and `rotor_state_block` of N
 samples (simulated by ``plant_block`` from the commands of earlier blocks), waits for
 `voltage_command_block` of the block, and simulates the next; a brake's release is learnt from
-`estimator_state_block` one block later (as drive_runner.loop.run_blocks models it).
+`estimator_state_block` one block later (as drive_tools.runner.loop.run_blocks models it).
 """
 import sys
 import time
@@ -29,11 +29,9 @@ import numpy as np
 from geometry_msgs.msg import Vector3Stamped
 from std_msgs.msg import Float64
 
-from control_math.command_delay import applied_voltage, issue_command
-from control_math.frames import wrap
-from drive_interface.node import SamplePublisher, finite, run_node, topic_qos
-from drive_interface.stamps import sample_at, stamp_ns, stamp_parts
-from drive_interface.topics import (
+from drive_common.config.parameters import SCHEDULE_PARAMETER
+from drive_common.contract.stamps import sample_at, stamp_ns, stamp_parts
+from drive_common.contract.topics import (
     ANGLE_ERROR,
     CURRENTS,
     ESTIMATOR_STATE,
@@ -45,9 +43,11 @@ from drive_interface.topics import (
     VOLTAGE_COMMAND,
     block,
 )
-from drive_interface.wire import BlockWire, JointWire, Vector3Wire, encode_clock
-from drive_scenarios.node import ScenarioNode
-from drive_scenarios.parameters import SCHEDULE_PARAMETER
+from drive_common.contract.wire import BlockWire, JointWire, Vector3Wire, encode_clock
+from drive_common.math.command_delay import applied_voltage, issue_command
+from drive_common.math.frames import wrap
+from drive_common.ros.node import SamplePublisher, finite, run_node, topic_qos
+from drive_common.ros.scenario_node import ScenarioNode
 
 from .build import plant_for_scenario
 from .model import NOT_RELEASED, OMEGA_M, THETA_M, plant_advance, plant_block, plant_outputs, sense_currents

@@ -2,7 +2,7 @@
 
 Parameters are immutable ``NamedTuple``s: frozen like motulator's dataclasses, with SI units in the
 field names, and passable unchanged into the numba kernels. What the drive knows of the motor (its
-nameplate and commissioning record) lives in ``motor_params``; the estimators and the controller never
+nameplate and commissioning record) lives in ``drive_common.motor``; the estimators and the controller never
 read these.
 """
 import math

@@ -1,18 +1,18 @@
-"""The simulated motor of a motor file: its ``plant:`` section (motor_params.motor_file) turned into the
+"""The simulated motor of a motor file: its ``plant:`` section (drive_common.motor.motor_file) turned into the
 true machine, mechanics, inverter and sensors the simulator integrates, with every default written down.
 
 A preset holds the true plant (``machine``: saturation included; mechanics, inverter, sensors) beside the
-``nameplate`` a user would know from the datasheet (``motor_params.nameplate``, what the drive is told).
+``nameplate`` a user would know from the datasheet (``drive_common.motor.nameplate``, what the drive is told).
 The two are kept apart on purpose: only the plant reads the truth. The shipped motors' files carry the
 papers' machines with their assumptions.
 """
 import math
 from dataclasses import dataclass, field
 
-from drive_interface.settings import shown
-from drive_scenarios.scenario import NO_DEVIATION
-from motor_params.motor_file import MotorFileError, load_motor, shipped_motor_names
-from motor_params.nameplate import NAMEPLATE_KEYS, Nameplate
+from drive_common.config.scenario import NO_DEVIATION
+from drive_common.contract.settings import shown
+from drive_common.motor.motor_file import MotorFileError, load_motor, shipped_motor_names
+from drive_common.motor.nameplate import NAMEPLATE_KEYS, Nameplate
 
 from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
 
@@ -177,7 +177,7 @@ def get_preset(motor):
 
 def plant_parameters(preset, non_idealities, deviation=None):
     """(machine, mechanics, inverter, sensor) of a preset with each non-ideality switched on or off and
-    the scenario's ``deviation`` of the plant from the preset (drive_scenarios.scenario.DEVIATION_KEYS:
+    the scenario's ``deviation`` of the plant from the preset (drive_common.config.scenario.DEVIATION_KEYS:
     factors, sensor offsets added in A) applied.
 
     Keys of non_idealities: saturation, dead_time, delay, sensor_noise, sensor_offset_gain, adc. Without

@@ -1,2 +1,0 @@
-"""Recordings: rosbag2 directories with MCAP storage, written from the graph or the runner, read back,
-and rebuilt when cut."""

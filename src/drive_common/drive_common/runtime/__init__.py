@@ -1,0 +1,1 @@
+"""The process's run time: signals that stop a run, real-time scheduling and the machine's load."""

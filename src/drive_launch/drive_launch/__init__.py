@@ -1,2 +1,0 @@
-"""The drive as a ROS 2 graph: the launcher that composes or spawns the nodes, the scenario driver node,
-and `drive echo`."""

@@ -1,0 +1,151 @@
+"""Reports of motors (drive presets, motor show, commission): what the drive is told of a motor beside the
+simulated plant's truth, the loops scaled to it, and what commissioning identified; each as text lines."""
+import numpy as np
+
+from drive_common.math.tables import table_value
+
+from .report_text import cell
+
+
+def side_by_side(preset):
+    """What the drive is told (the nameplate) beside the simulated plant's truth, under the same keys."""
+    from pmsm_plant.model import incremental_inductances
+
+    plate, m, mech, inv, sens = preset.nameplate, preset.machine, preset.mechanics, preset.inverter, preset.sensor
+    L_dh, L_qh, _ = incremental_inductances(m)
+    told = {"n_p": plate.n_p, "R_s_ohm": plate.R_s_ohm, "L_d_H": plate.L_d_H, "L_q_H": plate.L_q_H,
+            "L_dh_H": plate.L_d_H, "L_qh_H": plate.L_q_H, "psi_f_Wb": plate.psi_f_Wb, "J_kgm2": plate.J_kgm2,
+            "B_Nms": plate.B_Nms, "U_dc_V": inv.U_dc_V}
+    truth = {"n_p": m.n_p, "R_s_ohm": m.R_s_ohm, "L_d_H": m.L_d_H, "L_q_H": m.L_q_H, "L_dh_H": L_dh, "L_qh_H": L_qh,
+             "psi_f_Wb": m.psi_f_Wb, "J_kgm2": mech.J_kgm2, "B_Nms": mech.B_Nms, "U_dc_V": inv.U_dc_V,
+             "t_dead_s": inv.t_dead_s, "sensor_gains": [sens.gain_a, sens.gain_b, sens.gain_c],
+             "sensor_offsets_A": [sens.offset_a_A, sens.offset_b_A, sens.offset_c_A],
+             "sensor_noise_A": sens.noise_std_A}
+    return told, truth
+
+
+def presets_report():
+    """Every simulated motor preset: its source, assumptions, nameplate, the plant's parts, told and truth."""
+    from pmsm_plant.presets import PRESETS
+
+    entries = []
+    for p in PRESETS.values():
+        told, truth = side_by_side(p)
+        entries.append({"name": p.name, "source": p.source, "assumptions": list(p.assumptions),
+                        "nameplate": p.nameplate._asdict(), "told": told, "truth": truth,
+                        "machine": p.machine._asdict(), "mechanics": p.mechanics._asdict(),
+                        "inverter": p.inverter._asdict(), "sensor": p.sensor._asdict()})
+    return entries
+
+
+def presets_lines(entries):
+    lines = []
+    for e in entries:
+        lines.append(f"{e['name']}: {e['source']}")
+        lines.append(f"  {'':14s} {'nameplate (the drive)':>22s} {'plant (truth)':>16s}")
+        for key, value in e["truth"].items():
+            lines.append(f"  {key:14s} {cell(e['told'].get(key, '—')):>22s} {cell(value):>16s}")
+        lines += [f"  - {a}" for a in e["assumptions"]]
+    return lines
+
+
+MOTOR_LOOP_ROWS = (("rated-torque acceleration", "acceleration_e_rad_s2", "rad/s² el."),
+                   ("tracking bandwidth (ours)", "tracking_bandwidth_Hz", "Hz"),
+                   ("injection frequency (ours)", "injection_frequency_Hz", "Hz"),
+                   ("injection amplitude (ours)", "injection_amplitude_V", "V"),
+                   ("amplitude cap (bus)", "amplitude_cap_V", "V"),
+                   ("speed loop bandwidth", "speed_bandwidth_rad_s", "rad/s"))
+
+
+def motor_report(motor, T_s):
+    """A motor (drive_common.motor.motor_file.Motor): its nameplate, inverter and the loops scaled to it at the
+    sampling period T_s [s] (drive_common.motor.scaled_loops)."""
+    from drive_common.motor.scaled_loops import scaled_loops
+
+    loops = scaled_loops(motor.nameplate, motor.inverter, T_s)
+    report = {"name": motor.name, "file": motor.source, "description": motor.description,
+              "nameplate": motor.nameplate._asdict(), "inverter": motor.inverter._asdict(),
+              "simulated_plant": bool(motor.plant), "sample_period_s": T_s, "loops": loops._asdict()}
+    report["loops"]["notes"] = list(loops.notes)
+    return report
+
+
+def motor_lines(report):
+    lines = [f"{report['name']}: {report['description'] or report['file']} ({report['file']})"]
+    lines += [f"  {key:34s} {cell(value)}" for key, value in {**report["nameplate"], **report["inverter"]}.items()
+              if key != "name"]
+    lines.append(f"  loops scaled to it at {1.0 / report['sample_period_s']:g} Hz sampling "
+                 f"(docs/motors-and-control.md):")
+    loops = report["loops"]
+    lines += [f"  {label:34s} {loops[key]:.4g} {unit}" for label, key, unit in MOTOR_LOOP_ROWS]
+    lines += [f"  note: {note}" for note in loops["notes"]]
+    plant = "given (plant:)" if report["simulated_plant"] else "none: the nameplate is the plant"
+    lines.append(f"  simulated plant: {plant}")
+    return lines
+
+
+def commissioning_report(out, motor_name, method, host, conditions, wall_time_s, procedure, record, rated_A,
+                         truth=None, true_currents=None, rotating=None, loaded=None):
+    """What ``drive commission`` wrote to ``out`` and identified (procedure: the finished
+    hf_estimator.commissioning.procedure run; record: its Commissioning, with ψ_f and J from ``rotating`` when
+    the rotating test ran and ours' correction from ``loaded`` (hf_estimator.commissioning.loaded.loaded_shift with
+    its conditions and the true error at each hold) when the loaded test ran), beside the plant's ``truth``
+    where a simulation knows it."""
+    from drive_common.motor.commissioning import SCALARS
+
+    identified = {key: float(getattr(record, key)) for key in SCALARS}
+    if rotating:
+        identified.update({key: float(getattr(record, key)) for key in ("psi_f_Wb", "J_kgm2")})
+    identified["saliency_shift_at_rated_rad"] = table_value(rated_A, record.saliency_shift_i_q_A,
+                                                            record.saliency_shift_rad)
+    identified["convergence_slope_at_rated"] = table_value(rated_A, record.saliency_shift_i_q_A,
+                                                           record.convergence_slope)
+    identified["tracking_current_limit_A"] = record.tracking_current_limit_A()
+    report = {"file": str(out), "motor": motor_name, "method": method, "host": host,
+              "duration_s": conditions["duration_s"], "wall_time_s": wall_time_s, "polarity": conditions["polarity"],
+              "saliency": conditions["saliency"], "current_limit_A": procedure.limit_A,
+              "peak_measured_current_A": float(np.max(np.abs(procedure.raw))), "identified": identified}
+    if truth is not None:
+        report["truth"] = truth
+    if true_currents is not None:
+        report["peak_true_current_A"] = float(np.max(np.abs(true_currents)))
+    if rotating:
+        report["rotating_test"] = rotating
+    if loaded:
+        identified["estimator_shift_at_rated_rad"] = table_value(rated_A, record.saliency_shift_i_q_A,
+                                                                 record.estimator_shift_rad)
+        report["loaded_test"] = {key: loaded[key] for key in ("top_current_A", "zero_spread_rad", "significant",
+                                                              "injection_frequency_Hz", "injection_amplitude_V",
+                                                              "holds")}
+    return report
+
+
+def commissioning_lines(report):
+    truth = report.get("truth")
+    lines = [f"{report['file']}: {report['motor']} commissioned at standstill, shaft held ({report['host']}), "
+             f"{report['duration_s']:.2f} s of motor time in {report['wall_time_s']:.2f} s"
+             + (", then turning (the rotating test: ψ_f, J)" if report.get("rotating_test") else ""),
+             f"  polarity: {report['polarity']}"]
+    if report["saliency"] != "measured":
+        lines.append(f"  saliency: {report['saliency']}")
+    lines.append(f"  {'':30s} {'identified':>12s}" + (f" {'truth':>12s} {'error':>9s}" if truth else ""))
+    for key, value in report["identified"].items():
+        line = f"  {key:30s} {value:12.6g}"
+        if truth and key in truth:
+            error = value - truth[key]
+            relative = "offset" not in key and "shift" not in key and truth[key]
+            line += f" {truth[key]:12.6g} " + (f"{100.0 * error / truth[key]:+8.3f}%" if relative else f"{error:+9.2e}")
+        lines.append(line)
+    peak = report.get("peak_true_current_A", report["peak_measured_current_A"])
+    lines.append(f"  peak phase current {peak:.3f} A (limit {report['current_limit_A']:.3f} A)")
+    loaded = report.get("loaded_test")
+    if loaded:
+        outcome = ("ours corrects it from now on" if loaded["significant"] else
+                   f"within 3× its own noise ({loaded['zero_spread_rad']:.3g} rad at zero current): no correction")
+        lines.append(f"  loaded test (shaft held, ours at {loaded['injection_frequency_Hz']:.0f} Hz, "
+                     f"{loaded['injection_amplitude_V']:.3g} V): θ̂ moved under load; {outcome}")
+        lines.append(f"  {'i_q [A]':>12s} {'θ̂ moved [rad]':>15s} {'correction':>11s} {'true θ − θ̂':>11s}")
+        for hold in loaded["holds"]:
+            lines.append(f"  {hold['i_q_A']:12.3f} {hold['moved_rad']:+15.4f} {hold['correction_rad']:+11.4f} "
+                         f"{hold['true_error_rad']:+11.4f}")
+    return lines

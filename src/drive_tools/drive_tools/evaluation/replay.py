@@ -1,0 +1,215 @@
+"""``drive bench replay``: estimators run on a recording's measured currents and applied voltages,
+scored against its ground truth (docs/recordings.md).
+
+Replay cannot steer the recorded voltage: each estimator meets the excitation the recording drive
+applied. Whether that measures it depends on what it needs (hf_estimator EXCITATION_NEEDS): a
+demodulating method needs its own carrier on its own estimated axis, which only the recording's own
+estimator had (another one's q̂ current follows the recorded injection axis through the Σ term, so its
+replay would measure the recording's estimator); ours fits the admittance to any known voltage, the Σ
+term included; ``sensored`` needs the ground truth. Only applicable estimators are scored, and ``lost``
+means a real loss of lock (|θ_e − θ̂_e| > π/2 from the first scored window on, with ground truth; else a
+loss the estimator reported there). An estimator other than the recording's cannot run its own polarity
+test on a recording: it takes the magnet's polarity as the recording drive resolved it once that drive
+tracks (hf_estimator.startup item 5).
+"""
+import math
+import time
+
+import numpy as np
+
+from drive_common.contract.estimator_records import ESTIMATE_FIELDS, estimates
+from drive_common.contract.estimator_states import TRACKING
+from drive_common.contract.log import COLUMN
+from drive_common.contract.run_result import RunResult
+from drive_common.motor.nameplate import InverterRating
+from drive_tools.runner.loop import replay_samples
+from hf_estimator.interface import excitation_need, injects, make_estimator
+
+from .excitation import MAX_CARRIER_PHASE_RAD, MIN_CARRIER_FRACTION, carrier_match
+from .metrics import _mask, angle_error, angle_scores, reported_losses
+from .recording import held
+
+TIMED_RUNS = 3
+"""Each estimator replays the bag this many times from its fresh state; the fastest run is reported."""
+LOCK_BAND_RAD = math.pi / 8
+"""Time to lock: from the start until |angle error| stays within this band to the end. Every saliency
+tracker's error signal goes as sin 2Δθ; within π/8 its slope is still ≥ 0.71 of the small-signal one."""
+SCORED = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms")
+
+
+def replay_inputs(recording):
+    """(currents n × 3, the voltage applied in the period before each sample n × 2, whole: n booleans) of a
+    Recording (the command of d + 1 samples before, d the recording drive's delay; zero where the inverter
+    reported that period at zero volts)."""
+    return logged_inputs(recording.log, recording.delay_periods, recording.zero_volts)
+
+
+def logged_inputs(log, delay_periods, zero_volts=None):
+    """replay_inputs of a run's ``log`` (LOG_COLUMNS) with the drive's delay. A sample is whole where its
+    currents and the voltage that acted before it are known; replay steps the estimators over the others (a
+    lost message: the estimator meets the next sample, as a drive node would), and the first whole sample
+    after a gap carries the voltage of every period since the last whole one, summed (the voltages of lost
+    periods where known): the current step it sees is the one that voltage drove, so a fit or an integrator
+    of voltage stays consistent across the gap (docs/recordings.md). A lost voltage_command whose injection
+    message arrived is rebuilt: that injection plus the fundamental (command less injection) interpolated
+    between its neighbours. ``zero_volts`` (per sample: the period from it ran at zero volts) zeroes the
+    command that would have acted there, as the drive's estimator node does with `zero_voltage`."""
+    currents = log[:, [COLUMN["i_a_meas"], COLUMN["i_b_meas"], COLUMN["i_c_meas"]]]
+    voltage = rebuilt_voltage(log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]],
+                              log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]])
+    if zero_volts is not None and zero_volts.any():
+        commands = np.flatnonzero(zero_volts) - delay_periods
+        voltage[commands[commands >= 0]] = 0.0
+    lag = delay_periods + 1
+    u_applied = np.zeros((len(voltage), 2))
+    u_applied[lag:] = voltage[:-lag]
+    whole = np.isfinite(currents).all(axis=1) & np.isfinite(u_applied).all(axis=1)
+    if not whole.all():
+        summed = np.cumsum(np.nan_to_num(u_applied), axis=0)
+        at = np.nonzero(whole)[0]
+        u_applied[at[1:]] = summed[at[1:]] - summed[at[:-1]]
+    return np.ascontiguousarray(currents), u_applied, whole
+
+
+def rebuilt_voltage(voltage, injection):
+    """``voltage`` (n × 2) with each lost sample (NaN) whose ``injection`` is known rebuilt as that injection
+    plus the fundamental voltage − injection interpolated linearly between the known samples around it."""
+    lost = np.isnan(voltage).any(axis=1) & np.isfinite(injection).all(axis=1)
+    known = np.isfinite(voltage).all(axis=1) & np.isfinite(injection).all(axis=1)
+    if not lost.any() or known.sum() < 2:
+        return voltage
+    voltage = voltage.copy()
+    at, where = np.nonzero(known)[0], np.nonzero(lost)[0]
+    for j in range(2):
+        fundamental = voltage[at, j] - injection[at, j]
+        voltage[where, j] = np.interp(where, at, fundamental) + injection[where, j]
+    return voltage
+
+
+def replayed_estimator(recording, name):
+    """The estimator ``name`` built as the recording drive would have built it (its motor, sample period,
+    delay, commissioning and injection); the recording's own estimator keeps its recorded settings and
+    start-up, any other takes the polarity from the recording."""
+    settings = dict(recording.estimator_settings) if name == recording.estimator else {}
+    if injects(name):
+        settings = {**recording.injection, **settings}
+        if name != recording.estimator:
+            settings["polarity_from_recording"] = True
+    inverter = InverterRating(U_dc_V=math.inf, delay_periods=recording.delay_periods)
+    return make_estimator(name, recording.nameplate, recording.T_s, settings, recording.commissioning, inverter)
+
+
+def applicability(recording, name, frequency, requested, scored):
+    """(applicable, reason) of replaying the estimator ``name`` (its carrier ``frequency`` [Hz]) on the
+    recording; ``requested``: the injection it asked for in the replay (n × 2), ``scored``: the scored
+    samples."""
+    need = excitation_need(name)
+    excitation = recording.excitation
+    if need == "encoder":
+        if recording.ground_truth:
+            return True, "reads the recorded ground truth as its encoder"
+        return False, "needs the ground truth (rotor_state) as its encoder; the bag has none"
+    if need == "backemf":
+        return True, "needs no injection: a back-EMF model of the applied voltage and the currents (at speed only)"
+    if excitation["kind"] == "none":
+        return False, "the recording holds no injection, and this estimator needs one"
+    described = f"{excitation['kind']} injection at {excitation['frequency_Hz']:.0f} Hz"
+    if need == "any":
+        return True, f"fits any injection whose voltage is known; the recording's: {described}"
+    if name == recording.estimator:
+        if recording.scenario is None:
+            return True, ("the recording's own estimator on its own excitation (with its default settings: the "
+                          "bag names no scenario that holds the recorded ones)")
+        return True, "the recording's own estimator on its own excitation (a faithful replay)"
+    share, phase = carrier_match(recording.carrier, requested, frequency, recording.T_s, scored)
+    if share >= MIN_CARRIER_FRACTION and phase is not None and phase <= MAX_CARRIER_PHASE_RAD:
+        return False, (f"its carrier is in the recording ({share:.0%} of the recorded carrier at {frequency:.0f} Hz, "
+                       f"{math.degrees(phase):.0f}° from its carrier phase), but on the recording estimator's "
+                       f"axis: its demodulated q̂ current follows that axis (the Σ·sin(θ̂_rec − θ̂) term), so "
+                       f"replay would measure the recording's estimator, not it")
+    found = f"{share:.0%} at {frequency:.0f} Hz" + (f", {math.degrees(phase):.0f}° from its carrier phase"
+                                                     if phase is not None else "")
+    return False, (f"demodulates its own carrier on its own axis; the recording holds a {described} ({found})")
+
+
+def replay(recording, estimators):
+    """Replay each estimator on a Recording (drive_tools.evaluation.recording) → ([entry dict], [RunResult])."""
+    currents, u_applied, whole = replay_inputs(recording)
+    log0 = recording.log
+    truth = recording.ground_truth
+    n_p = recording.n_p
+    encoder = (np.ascontiguousarray(n_p * log0[:, COLUMN["theta_m"]]),
+               np.ascontiguousarray(n_p * log0[:, COLUMN["omega_m"]]))
+    unresolved = log0[:, COLUMN["state"]] != TRACKING
+    unresolved &= np.isfinite(log0[:, COLUMN["state"]])
+    estimate = (np.ascontiguousarray(held(np.where(unresolved, np.nan, log0[:, COLUMN["theta_e_hat"]]),
+                                          np.isnan(log0[:, COLUMN["state"]]))),
+                np.ascontiguousarray(held(log0[:, COLUMN["omega_e_hat"]])))
+    t = log0[:, COLUMN["t"]]
+    scored = _mask(t, recording.windows)
+    calibration = recording.commissioning.calibration()
+    entries, results = [], []
+    for name in estimators:
+        e = replayed_estimator(recording, name)
+        theta_ref, omega_ref = encoder if excitation_need(name) == "encoder" else estimate
+        out = estimates(len(currents))
+        replay_samples(e.step, e.state.copy(), e.params, currents[:2], u_applied[:2], whole[:2],
+                       theta_ref[:2], omega_ref[:2], calibration, out[:2])
+        wall = math.inf
+        for _ in range(TIMED_RUNS):
+            state = e.state.copy()
+            start = time.perf_counter()
+            replay_samples(e.step, state, e.params, currents, u_applied, whole, theta_ref, omega_ref,
+                           calibration, out)
+            wall = min(wall, time.perf_counter() - start)
+        log = log0.copy()
+        for field in ESTIMATE_FIELDS:
+            log[:, COLUMN[field]] = out[field]
+        injection = np.column_stack((out["u_inj_alpha"], out["u_inj_beta"]))
+        applicable, reason = applicability(recording, name, e.injection_frequency_Hz, injection, scored)
+        scores = angle_scores(log, n_p, recording.windows, recording.start_s)
+        entry = {"estimator": name, "applicable": applicable, "reason": reason, "samples": int(whole.sum()),
+                 "samples_per_second": len(currents) / wall,
+                 "observable_fraction": scores["observable_fraction"] if applicable else None}
+        if applicable:
+            if truth:
+                entry.update({key: scores[key] for key in SCORED})
+                entry["time_to_lock_s"] = time_to_lock(log, n_p)
+                entry["lost"] = bool(scores["lock_lost_s"])
+            else:
+                entry["lost"] = bool(reported_losses(log[t >= recording.start_s, COLUMN["state"]]))
+        entries.append(entry)
+        results.append(RunResult(recording.scenario, name, log, wall, math.nan, pole_pairs=n_p))
+    return entries, results
+
+
+def time_to_lock(log, n_p):
+    """Seconds until |θ_e − θ̂_e| stays within LOCK_BAND_RAD to the end; None if it never does."""
+    outside = np.abs(angle_error(log, n_p)) > LOCK_BAND_RAD
+    if outside[-1]:
+        return None
+    t = log[:, COLUMN["t"]]
+    return float(t[np.nonzero(outside)[0][-1] + 1]) if outside.any() else 0.0
+
+
+def summarise(per_bag, estimators):
+    """One row per estimator over a corpus (``per_bag``: [{..., "results": replay entries}]): bags scored
+    (applicable, with ground truth), not applicable, real lock losses, median and worst RMS, bias (worst:
+    the largest magnitude) and peak, and the slowest replay speed."""
+    rows = []
+    for name in estimators:
+        entries = [e for bag in per_bag for e in bag["results"] if e["estimator"] == name]
+        scored = [e for e in entries if e["applicable"] and e.get("angle_error_rms") is not None]
+        found = {key: [e[key] for e in scored if e.get(key) is not None]
+                 for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak")}
+        median = {key: float(np.median(v)) if v else None for key, v in found.items()}
+        worst = {key: float(max(v, key=abs)) if v else None for key, v in found.items()}
+        speeds = [e["samples_per_second"] for e in entries]
+        rows.append({"estimator": name, "bags": len(entries), "scored": len(scored),
+                     "not_applicable": sum(not e["applicable"] for e in entries),
+                     "lost": sum(bool(e.get("lost")) for e in entries),
+                     "rms_median": median["angle_error_rms"], "rms_worst": worst["angle_error_rms"],
+                     "bias_median": median["angle_error_bias"], "bias_worst": worst["angle_error_bias"],
+                     "peak_median": median["angle_error_peak"], "peak_worst": worst["angle_error_peak"],
+                     "samples_per_second_min": min(speeds) if speeds else None})
+    return rows

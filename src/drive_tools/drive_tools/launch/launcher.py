@@ -1,0 +1,559 @@
+"""The drive as a ROS 2 graph: the launcher (there is no `ros2 launch` here) composes the drive's nodes in
+one process or starts them as separate processes (each node's own executable module), with the scenario
+driver commanding speed and load and recording the per-sample topics into the runner's log layout.
+
+The estimator and controller nodes load the commissioning record the one-process runner would (the
+scenario's ``commissioning``, a --commissioning override, or the default file in the working
+directory, else the nameplate alone)."""
+import contextlib
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from drive_bridge.inverter_protocol import MAX_BLOCK
+from drive_bridge.virtual_inverter import timing_report
+from drive_common.config.parameters import all_parameters, scenario_from_parameters
+from drive_common.config.scenario import behind_an_inverter, resolve
+from drive_common.contract.errors import DriveError
+from drive_common.contract.graph import DEFAULT_NAMESPACE, NODES
+from drive_common.contract.run_result import RunResult
+from drive_common.runtime.interrupt import polled, requested
+from drive_common.runtime.realtime import collector_held, cpu_wakeup_latency_held, real_time_scheduled, unbound_work_on
+from drive_tools.bags.common import BagWriteError
+from drive_tools.bags.writer import BagWriter
+from drive_tools.runner.runner import build_drive, cut
+from foc_controller.build import protection_for_scenario
+
+from .hop_cost import HOP_ROUND_TRIPS_BESIDE_A_RUN, hop_latency, in_hops
+
+PROCESSES = ("composed", "separate")
+LINKS = ("pty", "can")
+DELIVERIES_PER_SAMPLE = 8
+"""Messages delivered per lock-step sample without recording: currents → estimator, controller;
+rotor_estimate → controller, plant; injection, estimator_state → controller; voltage_command → plant,
+estimator. The scenario's schedule costs none (``scenario_schedule``). Composed on one executor thread, a
+sample costs their sum."""
+DELIVERIES_PER_SAMPLE_INTRA_PROCESS = 4
+"""The same with ``intra_process``: the controller's four (currents, rotor_estimate, injection,
+estimator_state) are handed over, not delivered."""
+
+
+class GraphError(DriveError):
+    """The graph could not run as asked."""
+
+
+class NamespaceOccupiedError(GraphError):
+    """Another drive's nodes are in the namespace asked for."""
+
+
+DRIVE_NODE_NAMES = set(NODES) | {"drive_launcher", "drive_recorder"}
+DISCOVERY_S = 1.0
+"""How long the launcher looks at the graph for another drive in its namespaces before it creates its
+nodes. Discovery of a busy process can take longer (2-3 s measured here); a drive found later is refused
+by the scenario driver's start-up check (more publishers than its own), and one that appears during a
+run stops that run (the same check, every 0.5 s) and is counted by the nodes (``foreign_publisher``)."""
+
+
+def check_namespace(namespace):
+    """GraphError unless ``namespace`` is a valid absolute ROS namespace."""
+    from rclpy.exceptions import InvalidNamespaceException
+    from rclpy.validate_namespace import validate_namespace
+    try:
+        validate_namespace(namespace)
+    except InvalidNamespaceException as error:
+        reason = str(error).splitlines()[0].split(": ", 1)[-1]
+        raise GraphError(f"namespace {namespace!r} is not a ROS namespace ({reason})") from None
+
+
+class NamespaceLock:
+    """This host's claim on (ROS_DOMAIN_ID, namespace) for a launcher's lifetime: an exclusive flock on
+    a file in the temporary directory, released when the process ends however it ends. It closes the
+    gap discovery leaves (a busy process can take seconds to show in another's graph)."""
+
+    def __init__(self, namespace):
+        import fcntl
+        import os
+        directory = Path(tempfile.gettempdir()) / f"drive-namespaces-{os.getuid()}"
+        directory.mkdir(exist_ok=True)
+        domain = os.environ.get("ROS_DOMAIN_ID", "0") or "0"
+        self.path = directory / f"domain{domain}{namespace.replace('/', '%')}.lock"
+        self.file = self.path.open("a+")
+        try:
+            fcntl.flock(self.file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            self.file.seek(0)
+            holder = self.file.read().strip() or "?"
+            self.file.close()
+            raise NamespaceOccupiedError(f"namespace {namespace} is in use: another drive runs there (process "
+                                         f"{holder} on this host, domain {domain}); run this one in another "
+                                         f"namespace") from None
+        self.file.truncate(0)
+        self.file.write(str(os.getpid()))
+        self.file.flush()
+
+    def release(self):
+        self.file.close()
+
+
+def refuse_occupied(context, namespaces, discovery_s=DISCOVERY_S):
+    """NamespaceOccupiedError when a drive's node or a publisher is already in one of ``namespaces``
+    (looked for during ``discovery_s``); readers (`drive echo`, a recorder) are welcome."""
+    from rclpy.node import Node
+    probe = Node("drive_namespace_probe", context=context, namespace="/")
+    try:
+        deadline = time.monotonic() + discovery_s
+        while True:
+            for namespace in namespaces:
+                prefix = namespace.rstrip("/") + "/"
+                nodes = sorted(name for name, ns in probe.get_node_names_and_namespaces()
+                               if ns == namespace and name in DRIVE_NODE_NAMES)
+                topics = [t for t, _ in probe.get_topic_names_and_types()
+                          if t.startswith(prefix) and probe.count_publishers(t)]
+                if nodes or topics:
+                    found = f"nodes {', '.join(nodes)}" if nodes else f"publishers on {', '.join(topics[:3])}"
+                    raise NamespaceOccupiedError(f"namespace {namespace} is in use ({found}): another drive "
+                                                 f"runs there; run this one in another namespace")
+            if time.monotonic() >= deadline:
+                return
+            time.sleep(0.05)
+    finally:
+        probe.destroy_node()
+
+
+def make_node(name, context=None, namespace=None, parameters=None, link=None, estimator=None, controller=None,
+              inputs_handed=False):
+    """One of the drive's nodes (``drive_common.contract.graph.NODES``) with ``parameters`` as overrides; the
+    drive_bridge node on ``link`` when given (a link object, for composed graphs). Intra-process partners,
+    made before: the controller takes the answers of ``estimator`` (the EstimatorNode of this process)
+    directly, the bridge the commands of ``controller``; with ``inputs_handed`` the estimator takes its
+    inputs from the bridge and the controller made after it, which hand them over (the bridge's link thread
+    runs the drive's whole answer)."""
+    from drive_common.ros.node import parameter_overrides
+    kwargs = {"context": context, "namespace": namespace,
+              "parameter_overrides": parameter_overrides(parameters or {})}
+    if name == "pmsm_plant":
+        from pmsm_plant.node import PlantNode
+        return PlantNode(**kwargs)
+    if name == "hf_estimator":
+        from hf_estimator.node import EstimatorNode
+        return EstimatorNode(inputs_handed=inputs_handed, **kwargs)
+    if name == "foc_controller":
+        from foc_controller.node import ControllerNode
+        return ControllerNode(estimator=estimator, **kwargs)
+    if name == "drive_commissioning":
+        from hf_estimator.commissioning.node import CommissioningNode
+        return CommissioningNode(**kwargs)
+    if name == "drive_bridge":
+        from drive_bridge.bridge_node import InverterBridgeNode
+        return InverterBridgeNode(link=link, controller=controller, estimator=estimator, **kwargs)
+    raise GraphError(f"unknown node '{name}' (known: {', '.join(NODES)})")
+
+
+@dataclass
+class GraphResult(RunResult):
+    processes: str = "composed"
+    executor: str = "events"
+    recording_error: str = None
+    """Why the recording stopped early (it is closed as far as it was written), or None."""
+    diagnostics: dict = None
+    """Per node: its last /diagnostics status (level, message, values), the worst level of the run, its
+    cumulative fault counters and fault messages."""
+    node_faults: dict = None
+    """{node: {"faults": {kind: count}, "messages": [...]}} of every node that reported a fault."""
+    timing: dict = None
+    """Behind a virtual inverter: how the graph kept pace with it (virtual_inverter.timing_report)."""
+    missing_samples: dict = None
+    """{topic: samples never received within the final wait} of a run that ended (its log holds NaN
+    there, a recording lacks them); empty when everything came."""
+    scheduling: dict = None
+    """{"applied": [...], "refused": [...]}: the real-time scheduling of the run (drive_common.runtime.realtime),
+    one line each."""
+
+
+def node_parameters(scenario_ref, estimator=None, duration_s=None, timeout_s=1.0, extra=None):
+    """The parameter overrides the launcher gives every node."""
+    parameters = {"scenario": str(resolve(scenario_ref)), "lockstep_timeout_s": float(timeout_s)}
+    if estimator:
+        parameters["estimator"] = estimator
+    if duration_s:
+        parameters["duration_s"] = float(duration_s)
+    parameters.update(extra or {})
+    return parameters
+
+
+@dataclass(frozen=True)
+class DriveSpec:
+    """One drive of a graph: its scenario (name or path), namespace and overrides."""
+
+    scenario: str
+    namespace: str = DEFAULT_NAMESPACE
+    estimator: str = None
+    duration_s: float = None
+    extra_parameters: dict = None
+    bag: str = None
+    """Record every contract topic of this drive into this new rosbag2 directory."""
+    link: str = None
+    """None: the simulated plant node. 'pty' or 'can': the virtual inverter behind that link and the
+    drive_bridge node in the plant's place."""
+    paced: bool = False
+    """With a link: the virtual inverter on its own clock at the sampling rate, never waiting."""
+    inverter_apart: bool = False
+    """With a link: the virtual inverter in a process of its own (as a real one is a device of its own) instead
+    of a thread of the launcher's, paced or in lock-step: paced on this 2-core machine it makes the graph later,
+    not earlier (docs/results.md, 2026-11-26), so it is a lever to measure, not the default."""
+    lose_command_every: int = 0
+    """With a link, the inverter on a thread of the launcher: it loses every Nth command message the graph
+    sends, as if it came too late (zero volts; the graceful degradation measured, 0: never)."""
+
+
+def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
+           namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
+           progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None,
+           hold_collector=True, inverter_apart=False, lose_command_every=0, workqueue_cpus=None,
+           cpu_dma_latency_us=None, intra_process=False):
+    """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
+
+    SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
+    ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
+    virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock.
+    ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes; ``workqueue_cpus``: the kernel's
+    unbound workqueues there for the run; ``cpu_dma_latency_us``: the CPUs' wake-up latency limit for the run;
+    ``hold_collector``: the garbage collector out of the sample path
+    (drive_common.runtime.realtime; off only to measure what it gives);
+    ``inverter_apart``: a paced inverter in a process of its own, ``lose_command_every``: its lost commands
+    (DriveSpec); ``intra_process``: the controller takes the estimator's answers directly (composed only)."""
+    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced,
+                     inverter_apart, lose_command_every)
+    return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress, rt_priority,
+                       cpus, hold_collector, workqueue_cpus, intra_process, cpu_dma_latency_us)[0]
+
+
+def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
+                startup_timeout_s=60.0, progress=None, rt_priority=0, cpus=None, hold_collector=True,
+                workqueue_cpus=None, intra_process=False, cpu_dma_latency_us=None):
+    """Run several drives side by side in one graph (one namespace each); one GraphResult per spec. A
+    scenario whose drive is a drive configuration file (``drive: FILE``) gives the estimator that file and
+    no scenario (as on a robot); the plant and the controller's speed schedule take the experiment. With
+    ``intra_process`` each controller takes its estimator's answers and currents directly, not over topics
+    (they are still published for everyone else: the recorder, tools); it needs the nodes composed."""
+    import rclpy
+    from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
+    from rclpy.task import Future
+
+    from drive_common.ros.node import make_executor
+
+    from .scenario_driver import ScenarioDriver
+
+    if processes not in PROCESSES:
+        raise GraphError(f"processes: must be one of {', '.join(PROCESSES)}, not '{processes}'")
+    if intra_process and processes != "composed":
+        raise GraphError("intra-process: the estimator hands its answers to the controller in one process; "
+                         "it needs the nodes composed, not --processes separate")
+    if len({spec.namespace for spec in specs}) < len(specs):
+        raise GraphError("drives side by side need distinct namespaces")
+    for spec in specs:
+        check_namespace(spec.namespace)
+    for spec in specs:
+        if spec.link not in (None,) + LINKS:
+            raise GraphError(f"unknown virtual link {spec.link!r} (known: {', '.join(LINKS)})")
+        if spec.link == "can" and processes == "separate" and not spec.inverter_apart:
+            raise GraphError("a virtual CAN bus (python-can's) lives in one process: it needs the nodes "
+                             "composed, or a pty link")
+    locks = []
+    context = rclpy.Context()
+    rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        for spec in specs:
+            locks.append(NamespaceLock(spec.namespace))
+        refuse_occupied(context, [spec.namespace for spec in specs])
+    except GraphError:
+        context.try_shutdown()
+        for lock in locks:
+            lock.release()
+        raise
+    recorders = [BagWriter(spec.bag) if spec.bag else None for spec in specs]
+    workdir = tempfile.TemporaryDirectory(prefix="drive_bridge_")
+    inverters = []
+    children, nodes, drivers, drives, listeners = [], [], [], [], []
+    polling = polled()
+    polling.__enter__()
+    ex = listening = None
+    try:
+        hop = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN) if any(spec.link for spec in specs) else None
+        ex = make_executor(executor, context)
+        for i, spec in enumerate(specs):
+            parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
+                                         spec.extra_parameters)
+            scenario = scenario_from_parameters(all_parameters(parameters))
+            if spec.link:
+                scenario = behind_an_inverter(scenario, MAX_BLOCK)
+                parameters["answer_periods"] = scenario.answer_periods
+            drive = build_drive(scenario)
+            protection_for_scenario(scenario, drive.commissioning, bus_measured=False)
+            scheduled = {**parameters, "scenario_schedule": True}
+            estimator = parameters
+            if scenario.drive_file:
+                estimator = {**parameters, "drive_configuration": scenario.drive_file, "scenario": "",
+                             "duration_s": scenario.duration_s}
+            plant = {**scheduled, "publish_clock": i == 0, "currents_readers": 1 if intra_process else 2}
+            roles = {"pmsm_plant": plant, "hf_estimator": estimator, "foc_controller": scheduled}
+            inverter = None
+            if spec.link:
+                inverter, host_link = _virtual_inverter(scenario, parameters, spec.link, workdir.name, i, spec.paced,
+                                                        timeout_s, rt_priority, cpus, spec.inverter_apart,
+                                                        spec.lose_command_every)
+                inverters.append(inverter)
+                del roles["pmsm_plant"]
+                period = float(all_parameters(parameters)["diagnostics_period_s"])
+                timeouts = {"link_timeout_s": timeout_s, "command_timeout_s": timeout_s,
+                            "diagnostics_period_s": period, "publish_clock": i == 0,
+                            "block_samples": scenario.block_samples}
+                roles["drive_bridge"] = timeouts if processes == "composed" else {**_link_parameters(host_link),
+                                                                                  **timeouts}
+            made = {}
+            for role, role_parameters in roles.items():
+                if processes == "composed":
+                    partners = {"estimator": made.get("hf_estimator"), "controller": made.get("foc_controller")}
+                    made[role] = make_node(role, context, spec.namespace, role_parameters,
+                                           link=host_link if spec.link else None,
+                                           inputs_handed=intra_process and bool(spec.link),
+                                           **(partners if intra_process else {}))
+                    nodes.append(made[role])
+                else:
+                    children.append((role, _spawn(role, spec.namespace, role_parameters, executor, rt_priority,
+                                                  cpus)))
+            driver_node = Node("drive_launcher", context=context, namespace=spec.namespace)
+            nodes.append(driver_node)
+            listener = Node("drive_recorder", context=context, namespace=spec.namespace)
+            listeners.append(listener)
+            host_bridge = made["drive_bridge"].bridge if spec.link and processes == "composed" else None
+            if host_bridge is not None and spec.paced and not spec.inverter_apart:
+                inverter.hear_host_writes(host_bridge.written_at)
+            driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
+                                    startup_timeout_s, progress if i == 0 else None, recorders[i], inverter,
+                                    listener, intra_process, host_bridge)
+            driver.done = Future()
+            drives.append(drive)
+            drivers.append(driver)
+        for node in nodes:
+            ex.add_node(node)
+        all_done = Future()
+        watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
+        with real_time_scheduled(rt_priority, cpus) as scheduling, unbound_work_on(workqueue_cpus) as work, \
+                cpu_wakeup_latency_held(cpu_dma_latency_us) as idle, \
+                collector_held() if hold_collector else contextlib.nullcontext():
+            scheduling = {key: scheduling[key] + work[key] + idle[key] for key in scheduling}
+            if any(line.startswith("SCHED_FIFO") for line in scheduling["applied"]):
+                listening = Listening(make_executor(executor, context), listeners)
+                listening.start()
+            else:
+                for listener in listeners:
+                    ex.add_node(listener)
+            while not all_done.done():
+                ex.spin_until_future_complete(all_done, timeout_sec=1.0)
+            if listening:
+                listening.stop()
+        nodes[-1].destroy_timer(watcher)
+        results = [_result(driver, drive, record, processes, executor, requested(), hop)
+                   for driver, drive in zip(drivers, drives)]
+    finally:
+        polling.__exit__(None, None, None)
+        _stop_children([child for _, child in children])
+        if listening is not None:
+            listening.stop()
+        tear_down(ex, nodes + listeners, context, inverters, workdir)
+        recording_errors = [_close(recorder) for recorder in recorders]
+        for lock in locks:
+            lock.release()
+    for result, error in zip(results, recording_errors):
+        result.recording_error = error
+        result.scheduling = scheduling
+    return results
+
+
+class Listening:
+    """Where the drive runs SCHED_FIFO, the launcher's listeners (what it records, /diagnostics) spun by their own
+    executor on a thread of their own, below the drive's SCHED_FIFO threads (SCHED_OTHER): what is recorded
+    never waits in, nor delays, the queue of the drive's own callbacks. Without it the listeners share the
+    drive's executor: two threads of one interpreter at the same priority on two CPUs made the graph later
+    (docs/results.md, 2026-11-26)."""
+
+    def __init__(self, executor, nodes):
+        import threading
+        self.executor, self.stopped = executor, threading.Event()
+        for node in nodes:
+            executor.add_node(node)
+        self.thread = threading.Thread(target=self.spin, name="drive_recorder", daemon=True)
+
+    def start(self):
+        self.thread.start()
+
+    def spin(self):
+        import os
+        try:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        except (OSError, AttributeError):
+            pass
+        while not self.stopped.is_set():
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def stop(self):
+        """Stop spinning (every message taken so far handled), then the executor."""
+        if not self.stopped.is_set():
+            self.stopped.set()
+            if self.thread.is_alive():
+                self.thread.join(5.0)
+            self.executor.shutdown()
+
+
+def tear_down(ex, nodes, context, inverters, workdir):
+    """End a graph in order: the virtual inverters stop, the executor shuts down before its nodes are
+    destroyed, the context ends, then the inverters' links close and the working directory goes."""
+    for inverter in inverters:
+        inverter.stop()
+    if ex is not None:
+        ex.shutdown()
+    for node in nodes:
+        node.destroy_node()
+    context.try_shutdown()
+    for inverter in inverters:
+        inverter.endpoint.close()
+    workdir.cleanup()
+
+
+def _close(recorder):
+    """Close a recording; what went wrong with it (a full disk), or None."""
+    if recorder is None:
+        return None
+    try:
+        recorder.close()
+    except BagWriteError as error:
+        return str(error)
+    return None
+
+
+def _result(driver, drive, record, processes, executor, interrupted, hop=None):
+    """The GraphResult of one drive (``drive``: the runner's composition of the same scenario, for its
+    current limit and commissioning record)."""
+    scenario = driver.scenario
+    if driver.inverter is not None:
+        driver.inverter.stop()
+        driver.inverter.join(2.0)
+    if driver.error and not interrupted:
+        raise GraphError(f"{driver.node.get_namespace()} ({scenario.name}): {driver.error}")
+    end = driver.finished_at or time.monotonic()
+    wall = end - driver.started_at if driver.started_at else 0.0
+    written_at = driver.host_bridge.written_at if driver.host_bridge else None
+    log = driver.log[:driver.last_sample + 1] if record else driver.log[:0]
+    scenario = cut(scenario, driver.last_sample + 1)
+    return GraphResult(scenario, scenario.estimator, log, wall, drive.controller.i_max_A,
+                       commissioning=drive.commissioning, estimator_facts=drive.estimator.facts(),
+                       processes=processes, executor=executor,
+                       interrupted=interrupted,
+                       diagnostics=dict(driver.diagnostics), node_faults=driver.faults(),
+                       missing_samples={} if interrupted else driver.missing_samples(),
+                       timing=in_hops(timing_report(driver.inverter, scenario.T_s, written_at), hop)
+                       if driver.inverter else None)
+
+
+def _virtual_inverter(scenario, parameters, link, workdir, drive_id, paced, timeout_s, rt_priority=0, cpus=None,
+                      apart=True, lose_command_every=0):
+    """A virtual inverter for ``scenario`` (not yet running) and the host's end of its link. Paced, it runs
+    on its own clock, else it waits for each of the graph's commands as long as a plant node would
+    (``timeout_s``). ``apart``: in a process of its own, as a real inverter is a device of its own (on the
+    CPUs the host's ``cpus`` leave, if any; CAN then on a cable between processes, drive_bridge.can_cable).
+    Not apart, it runs on a thread of the host's process and loses every ``lose_command_every``th command
+    (0: none)."""
+    import os
+
+    from drive_bridge.inverter_link import CanLink, SerialLink
+    from drive_bridge.inverter_process import InverterProcess, InverterProcessError
+    from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
+    if not apart:
+        endpoint, host_link = make_links(link, workdir, drive_id)
+        rate = 1.0 / scenario.T_s if paced else None
+        return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id,
+                               faults=FaultPlan(lose_command_every=lose_command_every)), host_link
+    if lose_command_every:
+        raise GraphError("lose_command_every: only with the virtual inverter on a thread of the launcher, not "
+                         "apart")
+    path = Path(workdir) / (f"inverter{drive_id}" if link == "pty" else f"can_cable{drive_id}")
+    others = set(os.sched_getaffinity(0)) - set(cpus) if cpus else None
+    try:
+        inverter = InverterProcess(parameters, link, path, 1.0 / scenario.T_s if paced else None, timeout_s,
+                                   drive_id, rt_priority, others or None)
+    except InverterProcessError as error:
+        raise GraphError(str(error)) from None
+    host_link = SerialLink(str(path)) if link == "pty" else CanLink(str(path), drive_id, "cable")
+    return inverter, host_link
+
+
+def _link_parameters(host_link):
+    """The drive_bridge node's link parameters for ``host_link`` (a node in a process of its own)."""
+    if hasattr(host_link, "port"):
+        return {"link": "serial", "port": host_link.port}
+    return {"link": "can", "can_channel": host_link.channel, "can_interface": host_link.interface or "",
+            "drive_id": host_link.drive_id}
+
+
+def _watch(drivers, children, all_done):
+    for driver in drivers:
+        if requested():
+            driver.finish("interrupted")
+        processes = list(children)
+        inverter_process = getattr(driver.inverter, "process", None)
+        if inverter_process is not None:
+            processes.append(("virtual_inverter", inverter_process))
+        for role, child in processes:
+            if child.poll() is not None and role not in driver.exited and not driver.done.done():
+                driver.exited[role] = child.returncode
+                driver.finish()
+    if all(driver.done.done() for driver in drivers) and not all_done.done():
+        all_done.set_result(True)
+
+
+def _spawn(name, namespace, parameters, executor, rt_priority=0, cpus=None):
+    scheduling = ["--rt-priority", str(rt_priority)] + (["--cpus", ",".join(map(str, sorted(cpus)))] if cpus else [])
+    args = [sys.executable, "-m", NODES[name], "--executor", executor, *scheduling, "--ros-args", "-r",
+            f"__ns:={namespace}"]
+    for name, value in parameters.items():
+        args += ["-p", f"{name}:={_ros_value(value)}"]
+    return subprocess.Popen(args)
+
+
+def _ros_value(value):
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f"'{value}'"
+    return repr(value)
+
+
+def _stop_children(children, grace_s=5.0):
+    for child in children:
+        if child.poll() is None:
+            child.send_signal(signal.SIGTERM)
+    deadline = time.monotonic() + grace_s
+    for child in children:
+        try:
+            child.wait(max(deadline - time.monotonic(), 0.0))
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+
+
+def missing_samples_line(missing):
+    """One line naming the topics whose samples never reached the launcher (its log and recording lack
+    them), or None. With no node fault to explain them (a node that missed a sample never published
+    its answer), they were lost on the way: `drive launch` exits 4, as for a recording cut short."""
+    from .scenario_driver import FINAL_WAIT_S
+    if not missing:
+        return None
+    topics = ", ".join(f"{topic} {count}" for topic, count in missing.items())
+    return (f"samples never received within {FINAL_WAIT_S:g} s of the run's end (the log and any recording "
+            f"lack them): {topics}")

@@ -1,0 +1,294 @@
+"""The sensorless loop through the inverter bridge in one process: the virtual inverter on its own
+thread behind a pseudo-terminal or a CAN bus, the bridge core, and the estimator and controller cores
+answering each telemetry frame (with blocks of N samples, each TELEMETRY_BLOCK by the block kernels and
+one COMMAND_BLOCK). For tests, `drive bridge` and `drive bench bridge`."""
+import contextlib
+import tempfile
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from drive_bridge.inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
+from drive_bridge.inverter_protocol import MAX_BLOCK
+from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
+from drive_common.config.scenario import behind_an_inverter
+from drive_common.contract.estimator_records import estimates
+from drive_common.contract.log import COLUMN, LOG_COLUMNS
+from drive_common.contract.run_result import RunResult
+from drive_common.math.command_delay import command_line, issue_command
+from drive_common.math.current_sensing import corrected_currents
+from drive_common.math.safe_state import safe_state_for
+from drive_common.math.winding import R_S_IN_USE
+from drive_common.motor.nameplate import trip_current_A
+from drive_common.runtime.interrupt import Interrupted, checkpoint
+from drive_common.runtime.realtime import collector_held
+from foc_controller.control import controller_block, controller_step
+from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block, protection_summary
+from hf_estimator.block import estimator_block, sample_inputs
+from hf_estimator.interface import contract_injection
+
+from .loop import write_row
+from .runner import build_drive, cut
+
+
+@dataclass
+class BridgeRunResult(RunResult):
+    link: str = ""
+    counters: dict = field(default_factory=dict)
+    frame_errors: dict = field(default_factory=dict)
+    inverter_counters: dict = field(default_factory=dict)
+    injected: dict = field(default_factory=dict)
+    latencies_s: np.ndarray = None
+    """Inverter-side time from sending TELEMETRY(k) to receiving COMMAND(k), per answered sample."""
+    received: np.ndarray = None
+    """Per sample: True when the host received its telemetry."""
+    host_s: np.ndarray = None
+    """Per answered sample: the host's time from the telemetry's arrival to its command written."""
+    timing: dict = None
+    """How the host kept pace with the inverter (drive_bridge.virtual_inverter.timing_report)."""
+
+
+def run_through_bridge(scenario, link="pty", faults=None, rate_Hz=None, command_wait_s=0.5, progress=None,
+                       inverter_hook=None):
+    """Run ``scenario`` with its plant behind the virtual inverter and the bridge (with blocks, at the
+    protocol's answer delay: ``behind_an_inverter``). ``inverter_hook(inverter, endpoint, k)`` is called
+    by the host loop after each sample (tests unplug links with it). The garbage collector is held off
+    during the loop (``collector_held``)."""
+    scenario = behind_an_inverter(scenario, MAX_BLOCK)
+    with virtual_inverter_link(scenario, link, rate_Hz=rate_Hz, command_wait_s=command_wait_s,
+                               faults=faults) as (inverter, endpoint, bridge):
+        return _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook)
+
+
+@contextlib.contextmanager
+def virtual_inverter_link(scenario, link, **inverter_options):
+    """(virtual inverter, its link endpoint, the host's bridge core) for ``scenario`` on ``link`` ('pty',
+    'can') in a temporary directory; the inverter is not started. All three are stopped and closed on
+    exit. In lock-step the inverter is silent while it waits for the host (up to its ``command_wait_s``), so
+    the bridge's link and command timeouts count from then: a host slowed by its machine is not a lost link."""
+    scenario = behind_an_inverter(scenario, MAX_BLOCK)
+    with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
+        endpoint, host_link = make_links(link, workdir)
+        inverter = VirtualInverter(scenario, endpoint, **inverter_options)
+        timeouts = {} if inverter.rate_Hz else {"link_timeout_s": inverter.command_wait_s + LINK_TIMEOUT_S,
+                                                "command_timeout_s": inverter.command_wait_s + COMMAND_TIMEOUT_S}
+        bridge = InverterBridge(host_link, block_samples=scenario.block_samples, **timeouts)
+        if inverter.rate_Hz:
+            inverter.hear_host_writes(bridge.written_at)
+        try:
+            yield inverter, endpoint, bridge
+        finally:
+            inverter.stop()
+            bridge.close()
+            endpoint.close()
+
+
+def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
+    """The host's loop. The estimator pairs each current step with the voltage that acted: the commands of
+    periods the inverter ran at zero volts (``BridgeBlock.at_zero_volts``: period j, the command of sample
+    j − d) and the command of a sample never received are zero in its delay line."""
+    host = build_drive(scenario)
+    n = scenario.n_samples
+    delay = scenario.drive_delay_periods()
+    line = command_line(delay)
+    log = np.zeros((n, len(LOG_COLUMNS)))
+    received = np.zeros(n, dtype=bool)
+    host_s = np.zeros(n)
+    answer = _BlockAnswer(host, scenario, line, log) if scenario.block_samples > 1 else \
+        _SampleAnswer(host, scenario, line, log)
+    bridge.poll(0.0)
+    start = time.perf_counter()
+    last_report = 0
+    interrupted = 0
+    next_k = 0
+    try:
+        with collector_held():
+            inverter.start()
+            while inverter.is_alive() or bridge.open:
+                checkpoint()
+                blocks = bridge.poll_blocks(0.05)
+                arrived = time.perf_counter()
+                if not blocks and not inverter.is_alive() and bridge.part is None:
+                    break
+                for b in blocks:
+                    k0, k_end = b.k0, min(b.k0 + len(b), n)
+                    if k0 >= n:
+                        continue
+                    for missed in range(next_k, k0):
+                        issue_command(line, missed, 0.0, 0.0)
+                    next_k = k_end
+                    if b.at_zero_volts:
+                        for k in range(max(k0, delay), k_end):
+                            issue_command(line, k - delay, 0.0, 0.0)
+                    for answered in answer.block(b, bridge):
+                        host_s[answered] = time.perf_counter() - arrived
+                        received[answered] = True
+                    for k in range(k0, k_end):
+                        if inverter_hook:
+                            inverter_hook(inverter, endpoint, k)
+                        if progress and k - last_report >= n // 100:
+                            last_report = k
+                            progress(k / n)
+                if received[n - 1]:
+                    break
+    except Interrupted as stop:
+        interrupted = stop.signum
+        inverter.stop()
+    inverter.stop()
+    inverter.join(2.0)
+    wall = time.perf_counter() - start
+    if progress and not interrupted:
+        progress(1.0)
+    truth = inverter.truth
+    done = inverter.k
+    log = log[:done]
+    for column, name in enumerate(("theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c")):
+        log[:, COLUMN[name]] = truth[:done, column]
+    log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
+    e, cp = host.estimator, host.controller
+    return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
+                           e.facts(), protection=protection_summary(host.protection_x, host.protection),
+                           injection=contract_injection(e.facts(), scenario.injection), link=link,
+                           counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
+                           inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
+                           latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
+                           host_s=host_s[:done][received[:done]],
+                           timing=timing_report(inverter, scenario.T_s, bridge.written_at))
+
+
+def protect(host, currents, n, k_last, u_dc_V, omega_e_hat, cx, px):
+    """The drive's protections over n samples of measured ``currents`` with the inverter's bus ``u_dc_V``
+    (foc_controller.protection.protection_block on the controller state cx and protection state px):
+    (enable, the safe state the command asks for). Tripped, the command disables the bridge into the safe
+    state chosen at the trip; otherwise it enables it and asks for the safe state by speed and bus."""
+    protection_block(px, host.protection, currents, n, k_last, u_dc_V, omega_e_hat, cx)
+    if px[TRIPPED]:
+        return False, int(px[SAFE_STATE])
+    return True, safe_state_for(omega_e_hat, u_dc_V, host.protection.psi_f_Wb)
+
+
+class _SampleAnswer:
+    """The host's answer to each sample: the estimator's and the controller's step, COMMAND(k)."""
+
+    def __init__(self, host, scenario, line, log):
+        self.host, self.scenario, self.line, self.log = host, scenario, line, log
+        self.calibration = host.commissioning.calibration()
+        self.trip_A = trip_current_A(scenario.motor.nameplate)
+        self.currents, self.encoder, self.estimate = np.zeros((1, 3)), np.zeros((1, 2)), estimates(1)
+        self.inputs = sample_inputs()
+        self.warm_up()
+
+    def warm_up(self):
+        """Load the kernels on copies of the states before the inverter starts: a first call loads a kernel
+        from numba's cache (up to 0.3 s), longer than the bridge's link timeout in lock-step."""
+        host, est = self.host, self.estimate[0]
+        e = host.estimator
+        estimator_block(e.step, e.state.copy(), e.params, 0, 1, self.currents, self.line.copy(), self.encoder,
+                        self.calibration, self.trip_A, self.estimate, self.inputs)
+        corrected_currents(0.0, 0.0, 0.0, self.calibration)
+        controller_step(host.controller_x.copy(), host.controller_z.copy(), host.controller, 0.0, 0.0, 0.0,
+                        est["theta_e_hat"], est["omega_e_hat"], host.speed_ref[0], est["u_inj_alpha"],
+                        est["u_inj_beta"], est["state"], host.tau_feedforward[0])
+        issue_command(self.line.copy(), 0, 0.0, 0.0)
+        protect(host, self.currents, 1, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
+        write_row(np.zeros(len(LOG_COLUMNS)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+                  est["theta_e_hat"], est["omega_e_hat"], 0.0, 0.0, est["u_inj_alpha"], est["u_inj_beta"],
+                  host.speed_ref[0], 0.0, 0.0, 0.0, 0.0, est["eps"], est["signal"], est["state"],
+                  est["injection_amplitude"], est["observer_weight"], est["leader"])
+
+    def block(self, b, bridge):
+        """Answer each sample of ``b``; the samples answered."""
+        answered = []
+        for s in b.samples():
+            if s.k < self.scenario.n_samples:
+                self.sample(s, bridge)
+                answered.append(s.k)
+        return answered
+
+    def sample(self, s, bridge):
+        """Answer sample ``s``: the estimator's and the controller's step, COMMAND(k)."""
+        host, line, k = self.host, self.line, s.k
+        e, cx, cz, cp = host.estimator, host.controller_x, host.controller_z, host.controller
+        self.currents[0] = s.i_a, s.i_b, s.i_c
+        self.encoder[0, 0] = cp.n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
+        self.inputs[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
+        estimator_block(e.step, e.state, e.params, k, 1, self.currents, line, self.encoder, self.calibration,
+                        self.trip_A, self.estimate, self.inputs)
+        est = self.estimate[0]
+        enable, safe = protect(host, self.currents, 1, k, s.u_dc_V, est["omega_e_hat"], cx, host.protection_x)
+        c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, self.calibration)
+        u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
+            cx, cz, cp, c_a, c_b, c_c, est["theta_e_hat"], est["omega_e_hat"], host.speed_ref[k], est["u_inj_alpha"],
+            est["u_inj_beta"], est["state"], host.tau_feedforward[k])
+        issue_command(line, k, u_a, u_b)
+        bridge.command(k, u_a, u_b, enable, safe)
+        write_row(self.log[k], k * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c,
+                  est["theta_e_hat"], est["omega_e_hat"], u_a, u_b, est["u_inj_alpha"], est["u_inj_beta"],
+                  host.speed_ref[k], i_d, i_q, i_d_ref, i_q_ref, est["eps"], est["signal"], est["state"],
+                  est["injection_amplitude"], est["observer_weight"], est["leader"])
+
+
+class _BlockAnswer:
+    """The host's answer to each whole block of N samples: ``estimator_block`` and ``controller_block``
+    (as ``drive run`` composes them), one COMMAND_BLOCK. A block with a sample missing is not answered
+    (the inverter applies zero volts for it)."""
+
+    def __init__(self, host, scenario, line, log):
+        self.host, self.scenario, self.line, self.log = host, scenario, line, log
+        self.calibration = host.commissioning.calibration()
+        self.trip_A = trip_current_A(scenario.motor.nameplate)
+        N = scenario.block_samples
+        self.currents, self.encoder = np.zeros((N, 3)), np.zeros((N, 2))
+        self.est_out, self.ctrl_out, self.inputs = estimates(N), np.zeros((N, 6)), sample_inputs()
+        self.warm_up()
+
+    def warm_up(self):
+        """Load the kernels on copies of the states before the inverter's clock starts (a first call
+        costs up to 0.3 s)."""
+        host, N = self.host, self.scenario.block_samples
+        e = host.estimator
+        estimator_block(e.step, e.state.copy(), e.params, 0, N, self.currents, self.line.copy(),
+                        self.encoder, self.calibration, self.trip_A, self.est_out, self.inputs)
+        controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.currents,
+                         self.est_out, host.speed_ref[:N], host.tau_feedforward[:N], self.calibration, self.trip_A,
+                         self.ctrl_out)
+        protect(host, self.currents, N, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
+        self.issue_and_log(self.line.copy(), np.zeros((1, len(LOG_COLUMNS))), 0, 1)
+
+    def block(self, b, bridge):
+        """Answer block ``b`` when it is a whole one (its first sample a multiple of N; N samples, or the
+        run's last ones): the samples answered."""
+        N, k0 = self.scenario.block_samples, b.k0
+        n = min(N, self.scenario.n_samples - k0)
+        if k0 % N or len(b) < n:
+            return ()
+        host, line = self.host, self.line
+        e, n_p = host.estimator, host.controller.n_p
+        self.currents[:n] = b.currents_A[:n]
+        theta = b.theta_m[:n]
+        self.encoder[:n, 0] = np.where(np.isnan(theta), 0.0, n_p * theta)
+        self.inputs[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
+        estimator_block(e.step, e.state, e.params, k0, n, self.currents, line, self.encoder, self.calibration,
+                        self.trip_A, self.est_out, self.inputs)
+        enable, safe = protect(host, self.currents, n, k0 + n - 1, b.u_dc_V, self.est_out[n - 1]["omega_e_hat"],
+                               host.controller_x, host.protection_x)
+        controller_block(host.controller_x, host.controller_z, host.controller, n, self.currents, self.est_out,
+                         host.speed_ref[k0:k0 + n], host.tau_feedforward[k0:k0 + n], self.calibration, self.trip_A,
+                         self.ctrl_out)
+        self.issue_and_log(line, self.log[k0:k0 + n], k0, n)
+        bridge.command_block(k0, self.ctrl_out[:n, 0], self.ctrl_out[:n, 1], enable, safe)
+        return range(k0, k0 + n)
+
+    def issue_and_log(self, line, rows, k0, n):
+        """The block's commands into ``line`` and its samples k0 … k0 + n − 1 into ``rows`` (LOG_COLUMNS),
+        from the measured currents and the kernels' outputs."""
+        c, est, m = self.ctrl_out, self.est_out, self.currents
+        for i in range(n):
+            j = k0 + i
+            issue_command(line, j, c[i, 0], c[i, 1])
+            e = est[i]
+            write_row(rows[i], j * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, m[i, 0], m[i, 1], m[i, 2],
+                      e["theta_e_hat"], e["omega_e_hat"], c[i, 0], c[i, 1], e["u_inj_alpha"], e["u_inj_beta"],
+                      self.host.speed_ref[j], c[i, 2], c[i, 3], c[i, 4], c[i, 5], e["eps"], e["signal"], e["state"],
+                      e["injection_amplitude"], e["observer_weight"], e["leader"])

@@ -1,0 +1,137 @@
+"""The rotating test (optional, docs/commissioning.md "The rotating test"): the magnet flux ψ_f, the
+inertia J and the viscous friction B, which a nameplate often gets wrong or leaves out and the loops need.
+The shaft must be free to turn and unloaded. After its standstill commissioning, the drive runs itself
+(ours, sensorless) through a speed profile and reads these from its own signals only: its voltage
+command, its measured currents, its angle and speed estimates. Plain numpy, once per test.
+
+- ψ_f: at each steady speed the voltage equation in the estimated rotor frame, averaged over the hold
+  (the HF injection and the current ripple average out): ū_q = R̂·ī_q + ω̂·L_d·ī_d + ω̂·ψ_f, with the
+  command turned back by the angle the controller turned it by and the commissioned dead-time loss
+  taken off; ψ_f is fitted over both holds (one slope through the origin).
+- B and a constant friction torque τ_c: the torque 1.5·n_p·(ψ̂_f·i_q + (L_d − L_q)·i_d·i_q) held at the
+  two speeds.
+- J: over the step from the first speed to the second, the torque less friction, integrated, over the
+  change of speed: J = ∫(τ̂ − τ_c − B·ω̂_m) dt / Δω̂_m (the speed averaged over END_AVERAGE_S at each end;
+  the window ends once the speed has settled).
+"""
+import math
+
+import numpy as np
+
+from drive_common.contract.errors import DriveError
+from drive_common.contract.estimator_states import TRACKING
+from drive_common.contract.log import COLUMN
+from drive_common.math.current_sensing import corrected_currents
+from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
+
+SPEEDS_PER_RATED = (0.05, 0.10)
+"""The two held speeds, per rated speed: where ours tracks (docs/results.md) and the back-EMF stands
+clear of the dead-time voltage."""
+RAMP_END_S, STEP_S, DURATION_S = 0.25, 0.6, 1.0
+HOLD_WINDOWS_S = ((0.35, 0.6), (0.8, 1.0))
+END_AVERAGE_S = 0.02
+SETTLED_SHARE = 0.02
+"""The step ends where the speed stays within this share of the second hold's for END_AVERAGE_S: a short
+window keeps the friction model's error out of J on a light rotor."""
+FOLLOW_TOLERANCE = 0.1
+"""The test counts only where the drive tracked throughout and held each speed within this share."""
+ASSUMED_RAMP_S = 0.1
+"""Where the nameplate gives no J, the test tunes its speed loop for one that takes rated torque this long
+to reach rated speed, at ASSUMED_SPEED_BANDWIDTH_RAD_S (a soft loop; a rotor far heavier than assumed
+leaves it too soft to hold the test's speeds, and the test refuses)."""
+ASSUMED_SPEED_BANDWIDTH_RAD_S = 20.0
+RIPPLE_SHARE = 0.1
+"""The speed, averaged over RIPPLE_AVERAGE_S, may swing by this share of a hold's speed (RMS): beyond, the
+loop hunts and the holds are not steady."""
+RIPPLE_AVERAGE_S = 0.01
+
+
+class RotatingTestError(DriveError):
+    """The drive did not follow the rotating test's profile: nothing is measured."""
+
+
+def speed_profile(rated_speed_rpm):
+    """The test's speed reference: [[t_s, rpm], ...] (linear), from rest."""
+    low, high = (share * rated_speed_rpm for share in SPEEDS_PER_RATED)
+    return [[0.0, 0.0], [0.05, 0.0], [RAMP_END_S, low], [STEP_S, low], [STEP_S, high], [DURATION_S, high]]
+
+
+def assumed_inertia_kgm2(nameplate):
+    """J for tuning the test's speed loop where the nameplate has none (ASSUMED_RAMP_S)."""
+    return nameplate.rated_torque_Nm * ASSUMED_RAMP_S / (nameplate.rated_speed_rpm * math.pi / 30.0)
+
+
+def _check_followed(t, state, omega_m, rated_speed_rad_s):
+    """RotatingTestError unless the estimator tracked from the first hold on and each hold's speed lies
+    within FOLLOW_TOLERANCE of its reference."""
+    tracking = state[t >= HOLD_WINDOWS_S[0][0]] == TRACKING
+    if not tracking.all():
+        lost = 100.0 * (1.0 - tracking.mean())
+        raise RotatingTestError(f"the rotating test: the estimator stopped tracking for {lost:.0f} % of the test "
+                                f"(weak saliency, or a load on the shaft?): ψ_f and J not measured")
+    per = max(1, int(round(RIPPLE_AVERAGE_S / (t[1] - t[0]))))
+    for (a, b), share in zip(HOLD_WINDOWS_S, SPEEDS_PER_RATED):
+        hold = omega_m[(t >= a) & (t < b)]
+        held, wanted = float(np.mean(hold)), share * rated_speed_rad_s
+        if abs(held - wanted) > FOLLOW_TOLERANCE * wanted:
+            raise RotatingTestError(f"the rotating test: the shaft held {held:.3g} rad/s where {wanted:.3g} rad/s "
+                                    f"was asked (a load or a brake on it?): ψ_f and J not measured")
+        ripple = float(np.std(hold[:len(hold) // per * per].reshape(-1, per).mean(axis=1)))
+        if ripple > RIPPLE_SHARE * wanted:
+            raise RotatingTestError(f"the rotating test: the speed swung by {ripple:.3g} rad/s RMS about "
+                                    f"{wanted:.3g} rad/s (the speed loop hunts: J far from the one assumed? give "
+                                    f"J_kgm2 roughly): ψ_f and J not measured")
+
+
+def _settled_s(t, omega_m, target):
+    """The first instant after the step from which ω̂_m, averaged over END_AVERAGE_S (the estimate is
+    noisy sample by sample), stays within SETTLED_SHARE of ``target`` for END_AVERAGE_S (the second
+    hold's start when it never does)."""
+    T_s = t[1] - t[0]
+    need = max(1, int(round(END_AVERAGE_S / T_s)))
+    smooth = np.convolve(omega_m, np.ones(need) / need, mode="same")
+    inside = (t >= STEP_S) & (np.abs(smooth - target) <= SETTLED_SHARE * abs(target))
+    run = 0
+    for k in np.nonzero(t >= STEP_S)[0]:
+        run = run + 1 if inside[k] else 0
+        if run == need:
+            return float(t[k - need + 1])
+    return HOLD_WINDOWS_S[1][0]
+
+
+def rotating_estimates(log, nameplate, commissioning, T_s, delay_periods):
+    """{psi_f_Wb, J_kgm2, B_Nms, friction_Nm, speeds_rad_s} from the test's log (drive_common.contract.log
+    columns), the drive's ``nameplate`` (L_d, L_q, n_p) and ``commissioning`` record (R_s, dead time,
+    sensor calibration), sampled every ``T_s`` with the controller's ``delay_periods``."""
+    t = log[:, COLUMN["t"]]
+    n_p = nameplate.n_p
+    omega_e = log[:, COLUMN["omega_e_hat"]]
+    _check_followed(t, log[:, COLUMN["state"]], omega_e / n_p, nameplate.rated_speed_rpm * math.pi / 30.0)
+    angle = log[:, COLUMN["theta_e_hat"]] + (delay_periods + 0.5) * omega_e * T_s
+    c, s = np.cos(angle), np.sin(angle)
+    u_a, u_b = log[:, COLUMN["u_alpha"]], log[:, COLUMN["u_beta"]]
+    phases = corrected_currents.py_func(*(log[:, COLUMN[f"i_{x}_meas"]] for x in "abc"), commissioning.calibration())
+    loss_a, loss_b = dead_time_direction.py_func(*phases, SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A)
+    u_a = u_a - commissioning.dead_time_voltage_V * loss_a
+    u_b = u_b - commissioning.dead_time_voltage_V * loss_b
+    u_q = -s * u_a + c * u_b
+    i_d, i_q = log[:, COLUMN["i_d"]], log[:, COLUMN["i_q"]]
+    holds = [(t >= a) & (t < b) for a, b in HOLD_WINDOWS_S]
+    emf = np.array([np.mean(u_q[w] - commissioning.R_s_ohm * i_q[w] - omega_e[w] * nameplate.L_d_H * i_d[w])
+                    for w in holds])
+    speeds_e = np.array([np.mean(omega_e[w]) for w in holds])
+    psi_f = float(np.dot(emf, speeds_e) / np.dot(speeds_e, speeds_e))
+    torque = 1.5 * n_p * (psi_f * i_q + (nameplate.L_d_H - nameplate.L_q_H) * i_d * i_q)
+    held = np.array([np.mean(torque[w]) for w in holds])
+    speeds_m = speeds_e / n_p
+    B = float((held[1] - held[0]) / (speeds_m[1] - speeds_m[0]))
+    friction = float(held[0] - B * speeds_m[0])
+    omega_m = omega_e / n_p
+    a, b = STEP_S - END_AVERAGE_S, _settled_s(t, omega_m, speeds_m[1]) + END_AVERAGE_S
+    step = (t >= a) & (t < b)
+    start = (t >= a) & (t < STEP_S)
+    end = (t >= b - END_AVERAGE_S) & (t < b)
+    gained = float(np.mean(omega_m[end]) - np.mean(omega_m[start]))
+    J = float(np.sum(torque[step] - friction - B * omega_m[step]) * T_s / gained)
+    return {"psi_f_Wb": psi_f, "J_kgm2": J, "B_Nms": B, "friction_Nm": friction,
+            "speeds_rad_s": [float(w) for w in speeds_m]}

@@ -1,2 +1,0 @@
-"""What the drive knows of its motor and inverter: the nameplate, the inverter rating and the
-commissioning record (no rclpy, no plant model)."""
