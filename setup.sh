@@ -11,6 +11,13 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -r requirements.txt
+# Packages merged into drive_common and drive_tools (issue 50): an older set-up's editable installs go.
+retired=(control_math drive_bags drive_cli drive_commissioning drive_evaluation drive_interface drive_launch
+         drive_runner drive_scenarios motor_params)
+installed=$(.venv/bin/python -m pip list --format=freeze 2>/dev/null | cut -d= -f1)
+for name in "${retired[@]}"; do
+  if grep -qx "$name" <<<"$installed"; then .venv/bin/python -m pip uninstall --quiet -y "$name"; fi
+done
 packages=()
 for package in src/*/setup.py; do packages+=(-e "$(dirname "$package")"); done
 .venv/bin/python -m pip install --quiet --no-deps "${packages[@]}"
