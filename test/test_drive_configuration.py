@@ -173,3 +173,29 @@ def test_the_launcher_gives_the_estimator_the_drive_configuration_alone(tmp_path
     for name in ("theta_m", "i_a_meas", "theta_e_hat", "u_alpha", "state"):
         np.testing.assert_allclose(result.log[:, COLUMN[name]], reference[:, COLUMN[name]], rtol=0.0, atol=1e-9,
                                    err_msg=name)
+
+
+def test_a_scenario_is_its_drive_and_its_experiment():
+    """A Scenario splits into the DriveConfig a robot's drive reads and the Experiment a simulation adds,
+    and is made of them again unchanged; no field belongs to both."""
+    s = load_scenario("wang_load_step")
+    assert isinstance(s, DriveConfig) and isinstance(s, Experiment)
+    assert type(s.drive) is DriveConfig and type(s.experiment) is Experiment
+    assert Scenario.of(s.drive, s.experiment) == s
+    assert not {f.name for f in dataclasses.fields(DriveConfig)} & {f.name for f in dataclasses.fields(Experiment)}
+
+
+def test_every_node_is_one_class_below_rclpys_node():
+    pytest.importorskip("rclpy")
+    from rclpy.node import Node
+
+    from drive_bridge.bridge_node import InverterBridgeNode
+    from drive_common.ros.node import DriveNode
+    from foc_controller.node import ControllerNode
+    from hf_estimator.commissioning.node import CommissioningNode
+    from hf_estimator.node import EstimatorNode
+    from pmsm_plant.node import PlantNode
+
+    assert DriveNode.__bases__ == (Node,)
+    for node in (PlantNode, EstimatorNode, ControllerNode, CommissioningNode, InverterBridgeNode):
+        assert node.__bases__ == (DriveNode,), node
