@@ -21,7 +21,8 @@ from drive_bridge.inverter_protocol import (
     TelemetryBlock,
 )
 from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
-from drive_common.config.scenario import Table, load_scenario
+from drive_common.config.experiment import Table
+from drive_common.config.scenario import load_scenario
 from drive_common.math.safe_state import FREEWHEEL, PWM
 from drive_common.motor.motor_file import load_motor, motor_path
 from drive_tools.evaluation.metrics import angle_error, compute_metrics

@@ -66,8 +66,8 @@ def test_a_deviation_scales_the_whole_flux_map_and_the_rest_of_the_plant():
 
 @pytest.mark.parametrize("entry, message", [
     ({"L_x": 1.0}, "plant_deviation.L_x: unknown key"),
-    ({"R_s": 0.0}, "plant_deviation.R_s: must be positive"),
-    ({"J": 50.0}, "plant_deviation.J: a factor must lie in [0.1, 10]"),
+    ({"R_s": 0.0}, "plant_deviation.R_s: must lie in [0.1, 10], not 0.0"),
+    ({"J": 50.0}, "plant_deviation.J: must lie in [0.1, 10], not 50.0"),
     ({"sensor_offset_a": float("nan")}, "plant_deviation.sensor_offset_a: must be a finite number"),
 ])
 def test_a_bad_deviation_is_refused_in_one_line(entry, message):

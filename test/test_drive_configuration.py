@@ -8,8 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drive_common.config.drive_config import DRIVE_KEYS, DriveConfig
+from drive_common.config.experiment import Experiment
 from drive_common.config.parameters import all_parameters, scenario_from_parameters
-from drive_common.config.scenario import ScenarioError, load_drive_configuration, load_scenario
+from drive_common.config.scenario import Scenario, ScenarioError, load_drive_configuration, load_scenario
 from drive_common.contract.estimator_states import TRACKING
 from drive_common.contract.log import COLUMN
 from drive_tools.runner.runner import run_scenario
@@ -55,11 +57,13 @@ def test_a_scenario_naming_a_drive_file_is_the_scenario_with_the_drive_inline(tm
 
 
 def test_a_drive_configuration_alone_is_open_ended(tmp_path):
-    """No duration (it runs until stopped), zero speed and load tables; its commissioning file its own."""
+    """A DriveConfig with no experiment (no duration: it runs until stopped; no tables); its commissioning
+    file its own."""
     drive, _ = files(tmp_path)
     d = load_drive_configuration(str(drive), "parameter drive_configuration")
+    assert type(d) is DriveConfig and not isinstance(d, Experiment)
     assert d.open_ended and d.n_samples == sys.maxsize and d.drive_file == str(drive)
-    assert (d.speed.values, d.load.values, d.commissioning, d.T_s) == ((0.0,), (0.0,), COMMISSIONING, 1e-4)
+    assert (d.commissioning, d.T_s, d.drive_delay_periods()) == (COMMISSIONING, 1e-4, 1)
 
 
 @pytest.mark.parametrize("text, key", [
@@ -92,10 +96,14 @@ def test_the_nodes_take_the_drive_alone_or_with_an_experiment(tmp_path):
     drive, experiment = files(tmp_path)
     alone = scenario_from_parameters(all_parameters({"scenario": "", "drive_configuration": str(drive),
                                                      "estimator": "sensored"}), experiment=False)
-    assert alone.open_ended and alone.estimator == "sensored" and alone.motor.name == "wang_spmsm"
-    assert alone.speed.values == (0.0,) and alone.commissioning == COMMISSIONING
+    assert type(alone) is DriveConfig and alone.open_ended and alone.estimator == "sensored"
+    assert alone.motor.name == "wang_spmsm" and alone.commissioning == COMMISSIONING
     both = scenario_from_parameters(all_parameters({"scenario": str(experiment), "drive_configuration": str(drive)}))
-    assert not both.open_ended and both.n_samples == 600 and both.estimator == "injection_frame"
+    assert isinstance(both, Scenario) and not both.open_ended and both.n_samples == 600
+    assert both.estimator == "injection_frame" and both.drive == dataclasses.replace(
+        load_drive_configuration(str(drive)), name="experiment", source=str(experiment),
+        description=both.description, from_drive_file=DRIVE_KEYS)
+    assert both.experiment == load_scenario(str(experiment)).experiment
 
 
 def test_the_drive_nodes_run_with_no_scenario(tmp_path):
@@ -133,7 +141,7 @@ def test_the_drive_nodes_run_with_no_scenario(tmp_path):
     speed = tester.create_publisher(Float64, "speed_command", topic_qos("speed_command"))
     executor = EventsExecutor(context=context)
     try:
-        assert all(n.configured for n in nodes) and nodes[1].scenario.open_ended
+        assert all(n.configured for n in nodes) and nodes[1].scenario is None and nodes[1].config.open_ended
         for node in nodes + [tester]:
             executor.add_node(node)
         end, spins = time.monotonic() + 120.0, 0
@@ -165,3 +173,29 @@ def test_the_launcher_gives_the_estimator_the_drive_configuration_alone(tmp_path
     for name in ("theta_m", "i_a_meas", "theta_e_hat", "u_alpha", "state"):
         np.testing.assert_allclose(result.log[:, COLUMN[name]], reference[:, COLUMN[name]], rtol=0.0, atol=1e-9,
                                    err_msg=name)
+
+
+def test_a_scenario_is_its_drive_and_its_experiment():
+    """A Scenario splits into the DriveConfig a robot's drive reads and the Experiment a simulation adds,
+    and is made of them again unchanged; no field belongs to both."""
+    s = load_scenario("wang_load_step")
+    assert isinstance(s, DriveConfig) and isinstance(s, Experiment)
+    assert type(s.drive) is DriveConfig and type(s.experiment) is Experiment
+    assert Scenario.of(s.drive, s.experiment) == s
+    assert not {f.name for f in dataclasses.fields(DriveConfig)} & {f.name for f in dataclasses.fields(Experiment)}
+
+
+def test_every_node_is_one_class_below_rclpys_node():
+    pytest.importorskip("rclpy")
+    from rclpy.node import Node
+
+    from drive_bridge.bridge_node import InverterBridgeNode
+    from drive_common.ros.node import DriveNode
+    from foc_controller.node import ControllerNode
+    from hf_estimator.commissioning.node import CommissioningNode
+    from hf_estimator.node import EstimatorNode
+    from pmsm_plant.node import PlantNode
+
+    assert DriveNode.__bases__ == (Node,)
+    for node in (PlantNode, EstimatorNode, ControllerNode, CommissioningNode, InverterBridgeNode):
+        assert node.__bases__ == (DriveNode,), node

@@ -442,7 +442,7 @@ def test_sampled_faster_as_the_drive_advises_the_joint_holds_a_rated_load_step(j
     rated torque may outrun it); at 20 kHz, commissioned and loaded-tested there, it starts from 8 angles with the
     polarity right every time (the polarity test takes off the current the voltage beside its pulses drives,
     docs/startup.md) and a rated load step stays within ours' targets (measured 0.0194 / 0.126 rad)."""
-    from drive_common.config.scenario import Table
+    from drive_common.config.experiment import Table
     from drive_tools.evaluation.startup_bench import STANDARD_CASES, startup_sweep
     from drive_tools.runner.commissioning_run import loaded_test_in_process, with_loaded_test
     motor, _ = joint

@@ -13,7 +13,8 @@ import pytest
 
 from drive_bridge.inverter_protocol import FREEWHEELING, OVERVOLTAGE, PWM_OFF, SAFE_AUTO, SHORT_CIRCUIT
 from drive_bridge.virtual_inverter import VirtualInverter
-from drive_common.config.scenario import NON_IDEALITIES, Table, load_scenario
+from drive_common.config.experiment import NON_IDEALITIES, Table
+from drive_common.config.scenario import load_scenario
 from drive_common.contract.estimator_records import ESTIMATE, SAMPLE
 from drive_common.contract.estimator_states import TRACKING
 from drive_common.contract.exit_codes import EXIT_TRIPPED

@@ -38,7 +38,7 @@ from drive_common.contract.topics import (
 )
 from drive_common.contract.wire import BlockWire
 from drive_common.math.frames import wrap
-from drive_common.ros.node import ContractNode, finite, log_line, run_node, stamp, topic_qos
+from drive_common.ros.node import DriveNode, finite, log_line, run_node, stamp, topic_qos
 from drive_common.runtime.realtime import QUIET_TIME
 
 from .inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
@@ -60,7 +60,9 @@ HISTORY_SAMPLES = 64
 NO_CHANNEL = np.zeros(0)
 
 
-class InverterBridgeNode(ContractNode):
+class InverterBridgeNode(DriveNode):
+    reads_configuration = False
+
     def __init__(self, link=None, controller=None, estimator=None, **kwargs):
         """``link``: a link object (composed graphs), else the parameters' link; ``controller``: the
         ControllerNode of this process to take the voltage commands from directly (``drive launch

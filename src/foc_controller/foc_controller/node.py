@@ -18,7 +18,7 @@ The core is built once the estimator's drive_config tells what the controller ne
 injection frequency (the notch), its tracking bandwidth (the speed loop stays below it) and the current
 up to which its angle holds (the current limit). Until then `voltage_command` is not offered, so the
 plant does not start. The current loops use the commissioning record's R_s
-(``ScenarioNode.load_commissioning``) and read the currents corrected by its sensor calibration.
+(``DriveNode.load_commissioning``) and read the currents corrected by its sensor calibration.
 """
 import dataclasses
 import json
@@ -50,8 +50,7 @@ from drive_common.contract.topics import (
 from drive_common.contract.wire import BlockWire, Vector3Wire
 from drive_common.math.current_sensing import corrected_currents
 from drive_common.motor.knowledge import motor_knowledge
-from drive_common.ros.node import describe, finite, run_node, stamp, topic_qos
-from drive_common.ros.scenario_node import ScenarioNode
+from drive_common.ros.node import DriveNode, describe, finite, run_node, stamp, topic_qos
 
 from .build import check_controller_settings, controller_for_scenario, protection_for_scenario
 from .control import OMEGA_FILTERED, controller_block, controller_state, controller_step, estimated_torque
@@ -68,7 +67,7 @@ def default_joint_name(namespace):
     return namespace.rstrip("/").rsplit("/", 1)[-1] or "rotor"
 
 
-class ControllerNode(ScenarioNode):
+class ControllerNode(DriveNode):
     node_parameters = SCHEDULE_PARAMETER
 
     def __init__(self, estimator=None, **kwargs):
@@ -168,7 +167,7 @@ class ControllerNode(ScenarioNode):
                 raise ValueError(f"the estimator's configuration was rejected ({config.get('error')}); "
                                  f"nothing to control with")
             bandwidth = config["tracking_bandwidth_Hz"]
-            self.params = controller_for_scenario(self.scenario, config["injection_frequency_Hz"],
+            self.params = controller_for_scenario(self.config, config["injection_frequency_Hz"],
                                                   math.inf if bandwidth is None else bandwidth,
                                                   config["tracking_current_limit_A"], self.commissioning)
         except ValueError as error:
@@ -213,9 +212,9 @@ class ControllerNode(ScenarioNode):
                 return SetParametersResult(successful=False, reason=str(error))
             if self.params:
                 self.params = self.params._replace(speed_limit_rad_s=float(p.value))
-            elif self.scenario:
-                self.scenario = dataclasses.replace(
-                    self.scenario, controller={**self.scenario.controller, "speed_limit_rad_s": float(p.value)})
+            elif self.config:
+                self.config = dataclasses.replace(
+                    self.config, controller={**self.config.controller, "speed_limit_rad_s": float(p.value)})
             if self.health.latched and SPEED_LIMIT in self.health.latched:
                 self.health.latched = None
         return SetParametersResult(successful=True)

@@ -24,6 +24,7 @@ nothing of the angle.
 What an estimator knows of the motor is its nameplate (``drive_common.motor.nameplate``) and the commissioning
 record measured on it (``drive_common.motor.commissioning``); never the plant.
 """
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -32,7 +33,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numba import njit
 
-from drive_common.contract.settings import choice, flag, number, positive, shown
+from drive_common.contract.settings import Key, shown
 
 
 @dataclass(frozen=True)
@@ -139,10 +140,6 @@ def make_estimator(name, nameplate, T_s, settings, commissioning, inverter):
     return _entry(name).factory(nameplate, T_s, dict(settings or {}), commissioning, inverter)
 
 
-def _frequency(key, value, T_s):
-    return number(key, value, 0.0, 0.5 / T_s, high_inclusive=False)
-
-
 MIN_INJECTION_FREQUENCY_HZ = 10.0
 """An HF carrier lies far above the fundamental; below this it is a mistake (and its period overflows)."""
 MAX_CARRIER_SAMPLES = 1000
@@ -170,79 +167,78 @@ def ring_capacity(carrier_samples, delay_periods):
                          f"estimator's state holds")
 
 
-def _injection_frequency(key, value, T_s):
-    return number(key, value, MIN_INJECTION_FREQUENCY_HZ, 0.5 / T_s, low_inclusive=True, high_inclusive=False)
+SETTING_KEYS = (
+    Key("frequency_Hz", "Hz", MIN_INJECTION_FREQUENCY_HZ, low_inclusive=True),
+    Key("amplitude_V", "V", 0.0),
+    Key("demodulation_amplitude", "", 0.0),
+    Key("lowpass_Hz", "Hz", 0.0),
+    Key("lowpass_order", "", 1, 8, low_inclusive=True, integer=True),
+    Key("bandpass_Hz", "Hz", 0.0, doc="[low_Hz, high_Hz]"),
+    Key("bandpass_order", "", 1, 8, low_inclusive=True, integer=True),
+    Key("bandpass_ratio", "", 1.0),
+    Key("pll_bandwidth_Hz", "Hz", 0.0),
+    Key("speed_bandwidth_Hz", "Hz", 0.0),
+    Key("observable_backemf_per_rated", "", 0.0, 1.0),
+    Key("pll_damping", "", 0.0),
+    Key("pll_type", "", choices=(2, 3, "auto")),
+    Key("A_p", "", 0.0, nullable=True),
+    Key("T_i_s", "s", 0.0, nullable=True),
+    Key("T_f_s", "s", 0.0),
+    Key("u_star", "", 0.0),
+    Key("observable_ratio", "", 0.0, 1.0, low_inclusive=True, high_inclusive=False),
+    Key("demodulation", "", choices=("paper", "aligned")),
+    Key("dither_rad", "rad", 0.0, math.pi / 4.0),
+    Key("signal_smoothing_Hz", "Hz", 0.0),
+    Key("dead_time_model", "", choices=(True, False)),
+    Key("run_on_weak_signal", "", choices=(True, False)),
+    Key("saliency_snr_min", "", 0.0, low_inclusive=True),
+    Key("align_tolerance_rad", "rad", 0.0, 1.0),
+    Key("settle_s", "s", 0.0, 1.0, low_inclusive=True),
+    Key("align_timeout_s", "s", 0.0, 10.0),
+    Key("quiet_s", "s", 0.0, 1.0, low_inclusive=True),
+    Key("pulse_current_per_rated", "", 0.0, 1.0),
+    Key("pulse_s", "s", 0.0, 0.01),
+    Key("pulse_sequences", "", 1, 100, low_inclusive=True, integer=True),
+    Key("polarity_margin", "", 0.0, 0.5),
+    Key("polarity_tries", "", 1, 100, low_inclusive=True, integer=True),
+    Key("flush_s", "s", 0.0, 1.0, low_inclusive=True),
+    Key("lock_filter_Hz", "Hz", 0.0),
+    Key("lock_persist_s", "s", 0.0, 1.0),
+    Key("lost_hold_s", "s", 0.0, 1.0, low_inclusive=True),
+    Key("max_restarts", "", 0, 100, low_inclusive=True, integer=True),
+    Key("backemf_polarity_ratio", "", 0.0),
+    Key("polarity_from_recording", "", choices=(True, False)),
+    *(Key(name, "", 0.0) for name in ("handover_backemf_ratio", "handback_backemf_ratio", "quiet_backemf_ratio",
+                                      "inject_backemf_ratio")),
+    *(Key(name, "rad" if name.endswith("_rad") else "s", 0.0, 1.0)
+      for name in ("agreement_rad", "disagreement_rad", "agreement_s", "blend_s", "fade_s", "ready_s", "lookahead_s")),
+)
+"""Every estimator setting, declared once (drive_common.contract.settings.Key); an estimator's defaults
+name the ones it takes."""
+SETTING = {key.name: key for key in SETTING_KEYS}
+BELOW_NYQUIST = ("frequency_Hz", "lowpass_Hz", "bandpass_Hz", "pll_bandwidth_Hz", "speed_bandwidth_Hz",
+                 "signal_smoothing_Hz", "lock_filter_Hz")
+"""The settings also bounded by the sampling's Nyquist frequency, 0.5/T_s (exclusive)."""
 
 
-def _order(key, value, T_s):
-    return number(key, value, 1, 8, low_inclusive=True, integer=True)
-
-
-def _optional_positive(key, value, T_s):
-    return None if value is None else positive(key, value)
-
-
-def _band(key, value, T_s):
-    if not isinstance(value, (list, tuple)) or len(value) != 2:
-        raise ValueError(f"{key}: must be [low_Hz, high_Hz], not {shown(value)}")
-    low, high = (_frequency(key, v, T_s) for v in value)
-    if low >= high:
-        raise ValueError(f"{key}: the low edge must lie below the high one, not {shown(value)}")
-    return [low, high]
-
-
-SETTING_CHECKS = {
-    "frequency_Hz": _injection_frequency,
-    "amplitude_V": lambda key, value, T_s: positive(key, value),
-    "demodulation_amplitude": lambda key, value, T_s: positive(key, value),
-    "lowpass_Hz": _frequency,
-    "lowpass_order": _order,
-    "bandpass_Hz": _band,
-    "bandpass_order": _order,
-    "bandpass_ratio": lambda key, value, T_s: number(key, value, 1.0, None),
-    "pll_bandwidth_Hz": _frequency,
-    "speed_bandwidth_Hz": _frequency,
-    "observable_backemf_per_rated": lambda key, value, T_s: number(key, value, 0.0, 1.0),
-    "pll_damping": lambda key, value, T_s: positive(key, value),
-    "pll_type": lambda key, value, T_s: choice(key, value, (2, 3, "auto")),
-    "A_p": _optional_positive,
-    "T_i_s": _optional_positive,
-    "T_f_s": lambda key, value, T_s: positive(key, value),
-    "u_star": lambda key, value, T_s: positive(key, value),
-    "observable_ratio": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True,
-                                                       high_inclusive=False),
-    "demodulation": lambda key, value, T_s: choice(key, value, ("paper", "aligned")),
-    "dither_rad": lambda key, value, T_s: number(key, value, 0.0, math.pi / 4.0),
-    "signal_smoothing_Hz": _frequency,
-    "dead_time_model": lambda key, value, T_s: flag(key, value),
-    "run_on_weak_signal": lambda key, value, T_s: flag(key, value),
-    "saliency_snr_min": lambda key, value, T_s: number(key, value, 0.0, None, low_inclusive=True),
-    "align_tolerance_rad": lambda key, value, T_s: positive(key, value, 1.0),
-    "settle_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
-    "align_timeout_s": lambda key, value, T_s: positive(key, value, 10.0),
-    "quiet_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
-    "pulse_current_per_rated": lambda key, value, T_s: positive(key, value, 1.0),
-    "pulse_s": lambda key, value, T_s: positive(key, value, 0.01),
-    "pulse_sequences": lambda key, value, T_s: number(key, value, 1, 100, low_inclusive=True, integer=True),
-    "polarity_margin": lambda key, value, T_s: positive(key, value, 0.5),
-    "polarity_tries": lambda key, value, T_s: number(key, value, 1, 100, low_inclusive=True, integer=True),
-    "flush_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
-    "lock_filter_Hz": _frequency,
-    "lock_persist_s": lambda key, value, T_s: positive(key, value, 1.0),
-    "lost_hold_s": lambda key, value, T_s: number(key, value, 0.0, 1.0, low_inclusive=True),
-    "max_restarts": lambda key, value, T_s: number(key, value, 0, 100, low_inclusive=True, integer=True),
-    "backemf_polarity_ratio": lambda key, value, T_s: positive(key, value),
-    "polarity_from_recording": lambda key, value, T_s: flag(key, value),
-    **{key: lambda key, value, T_s: positive(key, value) for key in (
-        "handover_backemf_ratio", "handback_backemf_ratio", "quiet_backemf_ratio", "inject_backemf_ratio")},
-    **{key: lambda key, value, T_s: positive(key, value, 1.0) for key in (
-        "agreement_rad", "disagreement_rad", "agreement_s", "blend_s", "fade_s", "ready_s", "lookahead_s")},
-}
-"""How each estimator setting is checked: (key, value, T_s) → the value, or ValueError naming the key."""
+def read_setting(name, value, T_s):
+    """The setting ``name``'s ``value`` read through its Key (a frequency below Nyquist at ``T_s`` [s],
+    ``bandpass_Hz`` a pair of edges, low below high); ValueError naming the key."""
+    key = SETTING[name]
+    if name in BELOW_NYQUIST:
+        key = dataclasses.replace(key, high=0.5 / T_s, high_inclusive=False)
+    if name == "bandpass_Hz":
+        if not isinstance(value, (list, tuple)) or len(value) != 2:
+            raise ValueError(f"{name}: must be [low_Hz, high_Hz], not {shown(value)}")
+        low, high = (key.read(v) for v in value)
+        if low >= high:
+            raise ValueError(f"{name}: the low edge must lie below the high one, not {shown(value)}")
+        return [low, high]
+    return None if value is None and key.nullable else key.read(value)
 
 
 def check_settings(name, settings, defaults, T_s):
-    """Defaults overridden by settings, each value checked (SETTING_CHECKS); KeyError for an unknown key,
+    """Defaults overridden by settings, each value read through its Key (read_setting); KeyError for an unknown key,
     ValueError for an unusable value, each naming the estimator and the key."""
     unknown = set(settings) - set(defaults)
     if unknown:
@@ -251,6 +247,6 @@ def check_settings(name, settings, defaults, T_s):
     merged = dict(defaults)
     merged.update(settings)
     try:
-        return {key: SETTING_CHECKS[key](key, value, T_s) for key, value in merged.items()}
+        return {key: read_setting(key, value, T_s) for key, value in merged.items()}
     except ValueError as error:
         raise ValueError(f"estimator '{name}': {error}") from None

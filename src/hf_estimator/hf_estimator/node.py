@@ -16,7 +16,7 @@ Non-finite or absurd currents are not fed to the core: the node answers with its
 no injection, and reports the fault.
 
 What it knows of the motor: the scenario's nameplate and the commissioning record
-(``ScenarioNode.load_commissioning``); it reads the currents corrected by the record's sensor
+(``DriveNode.load_commissioning``); it reads the currents corrected by the record's sensor
 calibration. Its drive_config carries what the controller needs of it (``Estimator.facts``) and every
 motor value it uses with its source (``motor_knowledge``).
 """
@@ -46,8 +46,7 @@ from drive_common.math.command_delay import command_line, issue_command
 from drive_common.math.winding import R_S_IN_USE, winding_block, winding_params, winding_state
 from drive_common.motor.commissioning import commissioning_record
 from drive_common.motor.knowledge import motor_knowledge
-from drive_common.ros.node import finite, run_node
-from drive_common.ros.scenario_node import ScenarioNode
+from drive_common.ros.node import DriveNode, finite, run_node
 
 from .block import estimator_block, sample_inputs
 from .build import estimator_for_scenario
@@ -55,7 +54,7 @@ from .interface import contract_injection
 from .startup import estimator_startup
 
 
-class EstimatorNode(ScenarioNode):
+class EstimatorNode(DriveNode):
     def needs_experiment(self):
         return False
 
@@ -96,7 +95,7 @@ class EstimatorNode(ScenarioNode):
         e = self.estimator
         self.sensored = e.name == "sensored"
         self.n_p = self.nameplate().n_p
-        self.delay = self.scenario.drive_delay_periods()
+        self.delay = self.config.drive_delay_periods()
         self.line = command_line(self.delay)
         self.k = 0
         self.theta_hat = self.omega_hat = 0.0
@@ -123,7 +122,7 @@ class EstimatorNode(ScenarioNode):
         currents, voltages = self.contract_topics(CURRENTS, VOLTAGE_COMMAND)
         self.watch_peer(currents, "the plant")
         self.watch_foreign_publishers((currents, voltages))
-        self.publish_config({**e.facts(), "injection": contract_injection(e.facts(), self.scenario.injection),
+        self.publish_config({**e.facts(), "injection": contract_injection(e.facts(), self.config.injection),
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning),
                              "commissioning": commissioning_record(self.commissioning),
                              "estimator_parameters": e.params})

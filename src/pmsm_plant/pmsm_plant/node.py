@@ -46,8 +46,7 @@ from drive_common.contract.topics import (
 from drive_common.contract.wire import BlockWire, JointWire, Vector3Wire, encode_clock
 from drive_common.math.command_delay import applied_voltage, issue_command
 from drive_common.math.frames import wrap
-from drive_common.ros.node import SamplePublisher, finite, run_node, topic_qos
-from drive_common.ros.scenario_node import ScenarioNode
+from drive_common.ros.node import DriveNode, SamplePublisher, finite, run_node, topic_qos
 
 from .build import plant_for_scenario
 from .model import NOT_RELEASED, OMEGA_M, THETA_M, plant_advance, plant_block, plant_outputs, sense_currents
@@ -55,7 +54,7 @@ from .model import NOT_RELEASED, OMEGA_M, THETA_M, plant_advance, plant_block, p
 HISTORY_SAMPLES = 8
 
 
-class PlantNode(ScenarioNode):
+class PlantNode(DriveNode):
     node_parameters = {**SCHEDULE_PARAMETER, "currents_readers": (
         2, "lock-step readers of currents to wait for before sample 0: the estimator and the controller (2), or "
            "the estimator alone where the controller takes them from it in one process (1: drive launch "

@@ -9,7 +9,7 @@ papers' machines with their assumptions.
 import math
 from dataclasses import dataclass, field
 
-from drive_common.config.scenario import NO_DEVIATION
+from drive_common.config.experiment import NO_DEVIATION
 from drive_common.contract.settings import shown
 from drive_common.motor.motor_file import MotorFileError, load_motor, shipped_motor_names
 from drive_common.motor.nameplate import NAMEPLATE_KEYS, Nameplate
@@ -177,7 +177,7 @@ def get_preset(motor):
 
 def plant_parameters(preset, non_idealities, deviation=None):
     """(machine, mechanics, inverter, sensor) of a preset with each non-ideality switched on or off and
-    the scenario's ``deviation`` of the plant from the preset (drive_common.config.scenario.DEVIATION_KEYS:
+    the scenario's ``deviation`` of the plant from the preset (drive_common.config.experiment.DEVIATION_KEYS:
     factors, sensor offsets added in A) applied.
 
     Keys of non_idealities: saturation, dead_time, delay, sensor_noise, sensor_offset_gain, adc. Without

@@ -5,8 +5,9 @@ import math
 
 from drive_common.contract.settings import number, shown
 
+from .drive_config import MAX_BLOCK_SAMPLES
 from .scenario import (
-    MAX_BLOCK_SAMPLES,
+    Scenario,
     ScenarioError,
     load_drive_configuration,
     load_scenario,
@@ -53,7 +54,7 @@ SCHEDULE_PARAMETER = {"scenario_schedule": (
     False, "take each sample's speed reference and torque feed-forward (controller), load torque and imposed "
            "speed (plant) from the scenario, sample-exact with no message per sample; the launcher sets it, "
            "otherwise the topics apply")}
-"""The plant's and the controller's own parameter (drive_common.ros.scenario_node.ScenarioNode.node_parameters)."""
+"""The plant's and the controller's own parameter (drive_common.ros.node.DriveNode.node_parameters)."""
 PARAMETER_RANGES = {
     "seed": (-1, 2 ** 63 - 1),
     "injection.frequency_Hz": (0.0, math.inf),
@@ -83,37 +84,49 @@ def check_parameters(parameters, label=lambda name: f"parameter {name}"):
 
 
 def scenario_from_parameters(parameters, label=lambda name: f"parameter {name}", experiment=True):
-    """The scenario the nodes run: the file named by ``scenario`` with the override parameters applied;
-    with ``drive_configuration``, its drive run on that scenario's experiment, or with no experiment at all
-    (open-ended) where the node needs none (not ``experiment``: the estimator; the controller taking its
-    speed from `speed_command`). ScenarioError naming the parameter (``label(name)``) or the file's key."""
+    """What the nodes run: the Scenario of the file named by ``scenario`` with the override parameters
+    applied; with ``drive_configuration``, its DriveConfig run on that scenario's experiment, or the
+    DriveConfig alone (no experiment: it runs until stopped) where the node needs none (not ``experiment``:
+    the estimator; the controller taking its speed from `speed_command`). ScenarioError naming the
+    parameter (``label(name)``) or the file's key."""
     check_parameters(parameters, label)
     overrides = {"estimator_override": parameters["estimator"] or None, "override_source": label("estimator"),
                  "motor_override": parameters["motor_file"] or None, "motor_source": label("motor_file")}
     if parameters["drive_configuration"]:
         drive = load_drive_configuration(parameters["drive_configuration"], label("drive_configuration"), **overrides)
-        scenario = with_drive(load_scenario(parameters["scenario"]), drive) if experiment else drive
+        config = with_drive(load_scenario(parameters["scenario"]), drive) if experiment else drive
     else:
-        scenario = load_scenario(parameters["scenario"], **overrides)
+        config = load_scenario(parameters["scenario"], **overrides)
     changes = {}
     if parameters["commissioning"]:
         changes["commissioning"] = str(parameters["commissioning"])
-    if parameters["seed"] >= 0:
-        changes["seed"] = int(parameters["seed"])
-    if parameters["duration_s"] > 0.0:
-        changes["duration_s"] = float(parameters["duration_s"])
     if parameters["block_samples"] > 0:
         changes["block_samples"] = int(parameters["block_samples"])
     if parameters["answer_periods"] > 0:
         changes["answer_periods"] = int(parameters["answer_periods"])
-    injection = dict(scenario.injection)
+    if isinstance(config, Scenario):
+        if parameters["seed"] >= 0:
+            changes["seed"] = int(parameters["seed"])
+        if parameters["duration_s"] > 0.0:
+            changes["duration_s"] = float(parameters["duration_s"])
+    injection = dict(config.injection)
     for key in ("frequency_Hz", "amplitude_V"):
         if parameters[f"injection.{key}"] > 0.0:
             injection[key] = float(parameters[f"injection.{key}"])
-    controller = dict(scenario.controller)
+    controller = dict(config.controller)
     if parameters["controller.current_limit_A"] > 0.0:
         controller["current_limit_A"] = float(parameters["controller.current_limit_A"])
     if parameters["controller.speed_limit_rad_s"] != math.inf:
         controller["speed_limit_rad_s"] = parameters["controller.speed_limit_rad_s"]
-    scenario = dataclasses.replace(scenario, injection=injection, controller=controller, **changes)
-    return shaft_held(scenario, scenario.duration_s) if parameters["shaft_held"] else scenario
+    config = dataclasses.replace(config, injection=injection, controller=controller, **changes)
+    if isinstance(config, Scenario) and parameters["shaft_held"]:
+        return shaft_held(config, config.duration_s)
+    return config
+
+
+def run_samples(config, parameters):
+    """The samples a node runs: its scenario's, else (a DriveConfig alone) the ``duration_s`` parameter's,
+    else until stopped (sys.maxsize)."""
+    if isinstance(config, Scenario) or parameters["duration_s"] <= 0.0:
+        return config.n_samples
+    return int(round(parameters["duration_s"] / config.T_s))

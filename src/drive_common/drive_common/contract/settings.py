@@ -21,6 +21,10 @@ def number(key, value, low=None, high=None, low_inclusive=False, high_inclusive=
         return float(value)
     below = low is not None and (value < low if low_inclusive else value <= low)
     above = high is not None and (value > high if high_inclusive else value >= high)
+    if (below or above) and high is None and low == 0:
+        raise ValueError(f"{key}: must {'not be negative' if low_inclusive else 'be positive'}, not {shown(value)}")
+    if (below or above) and integer and low_inclusive and high_inclusive and None not in (low, high):
+        raise ValueError(f"{key}: must be a whole number from {int(low)} to {int(high)}, not {shown(value)}")
     if below or above:
         left = "[" if low_inclusive else "("
         right = "]" if high_inclusive else ")"
@@ -79,7 +83,7 @@ class Key:
         line naming the key, the value and the bound."""
         if self.choices:
             if not any(value is c or (type(value) is type(c) and value == c) for c in self.choices):
-                raise ValueError(f"{self.name}: must be one of {', '.join(map(str, self.choices))}, not {shown(value)}")
+                raise ValueError(f"{self.name}: must be {self.bounds()}, not {shown(value)}")
             return value
         if self.integer and isinstance(value, float) and value.is_integer():
             value = int(value)
@@ -90,7 +94,12 @@ class Key:
             raise ValueError(f"{error}{f' [{self.unit}]' if self.unit else ''}") from None
 
     def bounds(self):
-        """The key's interval as text, e.g. "(0, 1e+04] A"."""
+        """The key's interval as text, e.g. "(0, 1e+04] A", or its choices ("one of step, linear", "true or
+        false")."""
+        if self.choices == (True, False):
+            return "true or false"
+        if self.choices:
+            return f"one of {', '.join(map(str, self.choices))}"
         left, right = "[" if self.low_inclusive else "(", "]" if self.high_inclusive else ")"
         low = "−∞" if self.low is None else f"{self.low:g}"
         high = "∞" if self.high is None else f"{self.high:g}"
@@ -130,6 +139,16 @@ def read_keys(data, keys, prefix="", known_extra=()):
         except ValueError as error:
             raise ValueError(f"{prefix}{error}") from None
     return values
+
+
+def read_or_fail(fail, read, *args, **kwargs):
+    """``read(*args, **kwargs)`` (read_keys, a Key's read, ``number``...); its ValueError "KEY: problem"
+    goes to ``fail(key, problem)``, which raises the reader's own error naming its file."""
+    try:
+        return read(*args, **kwargs)
+    except ValueError as error:
+        key, problem = str(error).split(": ", 1)
+        fail(key, problem)
 
 
 FORMAT_VERSION_KEY = "format_version"

@@ -1,2 +1,3 @@
-"""The base classes of every node (the only modules of the library that import rclpy): fault counters,
-/diagnostics, peer and foreign-publisher watches, one /clock, and a node configured by a scenario."""
+"""The base class of every node, DriveNode (the library's only module that imports rclpy): its drive
+configuration or scenario from its parameters, fault counters, /diagnostics, peer and foreign-publisher
+watches, one /clock."""

@@ -1,7 +1,8 @@
-"""The ROS side of the contract, shared by every node: QoS profiles from the topic table, stamps of
-sample k, drive_config, /diagnostics with fault counting and callback timing, executors, and the
-``main`` every node executable runs. The only module of this package that imports rclpy; cores never
-import it."""
+"""The ROS side of the contract, shared by every node: the base class of every drive node (``DriveNode``:
+its drive configuration or scenario from the node's parameters, QoS profiles from the topic table, stamps
+of sample k, drive_config, /diagnostics with fault counting and callback timing), executors, and the
+``main`` every node executable runs. The library's only module that imports rclpy; cores never import
+it."""
 import argparse
 import importlib
 import math
@@ -26,13 +27,17 @@ from drive_common.config.parameter_sources import (
     label,
     unknown_parameters,
 )
+from drive_common.config.parameters import NODE_PARAMETERS, run_samples, scenario_from_parameters
+from drive_common.config.scenario import Scenario
 from drive_common.contract.exit_codes import EXIT_NODE_FAULTS, EXIT_REFUSED
 from drive_common.contract.graph import EXECUTORS
 from drive_common.contract.settings import show_warnings_in_one_line
 from drive_common.contract.stamps import stamp_parts
 from drive_common.contract.strict_json import dumps
-from drive_common.contract.topics import CLOCK, CONTRACT_VERSION, DIAGNOSTICS, DRIVE_CONFIG, TOPICS
+from drive_common.contract.topics import BLOCK_TOPIC, CLOCK, CONTRACT_VERSION, DIAGNOSTICS, DRIVE_CONFIG, TOPICS
 from drive_common.contract.wire import WireError, decode_block, decoder_of
+from drive_common.motor.commissioning import resolve_commissioning
+from drive_common.motor.nameplate import contract_motor, trip_current_A
 from drive_common.runtime.realtime import (
     QUIET_TIME,
     add_scheduling_arguments,
@@ -137,12 +142,24 @@ class SamplePublisher:
         return self.publisher.get_subscription_count()
 
 
-class ContractNode(Node):
-    """Base of every drive node: fault counting, callback timing, drive_config (latched) and
-    /diagnostics every ``diagnostics_period_s``."""
+class DriveNode(Node):
+    """Base of every drive node, one class below rclpy's Node: fault counting, callback timing,
+    drive_config (latched) and /diagnostics every ``diagnostics_period_s``.
+
+    A node that ``reads_configuration`` declares NODE_PARAMETERS (and its ``node_parameters``), reads the
+    configuration they name (``self.config``: a DriveConfig, or a Scenario, which is one, where the node
+    reads an experiment: ``needs_experiment``) and calls ``build(config)``, the node's own core (a
+    ValueError there names the key at fault). A configuration error leaves ``self.configured`` False: the
+    node stays up, answers with the safe output and reports the error (``self.health.latched``).
+    Otherwise ``warm_up`` compiles the node's kernels on copies of its state before any per-sample
+    endpoint exists, so no first sample waits for the compiler."""
 
     parameters = {}
     """The node's parameters as published in drive_config."""
+    reads_configuration = True
+    """False for the bridge node: its parameters are its link's, its inverter tells it the sampling period."""
+    node_parameters = {}
+    """The node's own parameters beyond NODE_PARAMETERS: name → (default, description)."""
 
     def __init__(self, node_name, **kwargs):
         super().__init__(node_name, **kwargs)
@@ -163,10 +180,105 @@ class ContractNode(Node):
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, topic_qos(DIAGNOSTICS))
         self.collector_s = 0.0
         self.create_timer(float(self.get_parameter(name).value), self.periodic_status)
+        self.config = None
+        self.configured = False
+        self.block_samples = 1
+        """N: samples per message on the per-sample topics (the configuration's block_samples)."""
+        if self.reads_configuration:
+            self.read_configuration()
+
+    def read_configuration(self):
+        """Declare the parameters, read the configuration they name, build the node's core and warm it up
+        (or latch the error)."""
+        for name, (default, text) in {**NODE_PARAMETERS, **self.node_parameters}.items():
+            if not self.has_parameter(name):
+                self.declare_parameter(name, default, descriptor=describe(text))
+        self.parameters = {name: self.get_parameter(name).value for name in NODE_PARAMETERS}
+        self.n_samples = 0
+        try:
+            config = scenario_from_parameters(self.parameters, self.label, self.needs_experiment())
+            self.build(config)
+        except ValueError as error:
+            self.reject(error)
+        else:
+            self.config = config
+            self.configured = True
+            self.block_samples = config.block_samples
+            self.n_samples = run_samples(config, self.parameters)
+            self.warm_up()
+        self.T_s = self.config.T_s if self.config else 1e-4
+        self.timeout_s = float(self.parameters["lockstep_timeout_s"])
+
+    @property
+    def scenario(self):
+        """The Scenario the node runs (its configuration with an experiment), else None."""
+        return self.config if isinstance(self.config, Scenario) else None
+
+    def needs_experiment(self):
+        """With a ``drive_configuration``: whether the node also reads its scenario's experiment (the
+        plant does; the estimator does not)."""
+        return True
+
+    def contract_topics(self, *topics):
+        """The per-sample topics as this drive carries them: themselves, or their block twins."""
+        return tuple(BLOCK_TOPIC[t] if self.block_samples > 1 else t for t in topics)
+
+    def label(self, name):
+        """How errors name parameter ``name`` (its params file, the command line, or the parameter)."""
+        return label(self.parameter_sources, name)
+
+    def sample_handled(self, k):
+        """Sample k is done; after the run's last one, /diagnostics says the run is complete."""
+        if self.config and k == self.n_samples - 1:
+            self.complete_run()
+
+    def reject(self, error):
+        """Latch a configuration error: the output is held safe and /diagnostics says why."""
+        self.health.latched = str(error)
+        self.health.fault("configuration", str(error))
+        self.get_logger().error(f"configuration rejected, output held safe: {error}")
+
+    def build(self, config):
+        """Build the node's core for ``config`` (a DriveConfig or Scenario)."""
+
+    def warm_up(self):
+        """Call the node's kernels once on copies of its state, with the argument types of a sample."""
+
+    def open_when_matched(self, subscriptions, open_outputs, ready=lambda: True):
+        """Call ``open_outputs`` (creating the node's per-sample answer publishers) once every input
+        subscription is matched to a publisher and ``ready()``. An answer sent before its reader matched
+        is lost, and a graph entry is not yet a match: gated so, the answer publishers' appearance tells
+        the plant, at the end of the chain, that every node before it can hear its inputs."""
+        def check():
+            if ready() and all(s.get_publisher_count() >= 1 for s in subscriptions):
+                timer.cancel()
+                open_outputs()
+        timer = self.create_timer(0.02, check)
+
+    def nameplate(self):
+        """The nameplate of the configuration's motor."""
+        return self.config.motor.nameplate
+
+    def load_commissioning(self, config):
+        """What the drive knows beyond the nameplate (drive_common.motor.commissioning.resolve_commissioning):
+        the file of the parameter ``commissioning`` or the configuration's key, the default file, or the
+        nameplate alone; CommissioningError names the parameter or the file's key at fault."""
+        label = (self.label("commissioning") if self.parameters["commissioning"]
+                 else f"{config.source}: commissioning")
+        return resolve_commissioning(config.motor.nameplate, config.commissioning, label)
+
+    def trip_current_A(self):
+        given = float(self.parameters["trip_current_A"])
+        return given if given > 0.0 else trip_current_A(self.nameplate())
 
     def publish_config(self, config):
         """drive_config: the contract's version, this node, its parameters (``self.parameters``), a latched
-        error, and ``config``."""
+        error, what the node runs (motor, sampling period, blocks, delay) and ``config``."""
+        if self.config:
+            config = {"motor": contract_motor(self.nameplate()),
+                      "scenario": self.config.name, "n_p": self.nameplate().n_p, "T_s_s": self.T_s,
+                      "block_samples": self.block_samples,
+                      "command_delay_periods": self.config.drive_delay_periods(), **config}
         config = {"contract_version": CONTRACT_VERSION, "node": self.get_fully_qualified_name(),
                   "parameters": self.parameters, "error": self.health.latched, **config}
         self.config_pub.publish(String(data=dumps(config)))
@@ -274,11 +386,21 @@ class ContractNode(Node):
 
     def start_line(self):
         """The one line a node logs when it starts: role, namespace and what it runs."""
-        return f"{self.get_name()} started in namespace {self.get_namespace()}"
+        line = f"{self.get_name()} started in namespace {self.get_namespace()}"
+        if not self.reads_configuration:
+            return line
+        if not self.config:
+            return f"{line}: configuration rejected, output held safe"
+        c = self.config
+        run = "no experiment: until stopped" if self.n_samples == sys.maxsize else f"{self.n_samples} samples"
+        what = f"scenario {c.name}" if self.scenario else f"drive configuration {c.drive_file}"
+        return f"{line}: {what}, motor {c.motor}, estimator {c.estimator}, {1.0 / c.T_s:g} Hz, {run}"
 
     def data_time(self):
-        """The time of the data the node handles now (the stamp of /diagnostics): its clock's now; nodes
-        in lock-step on sim time give their sample's stamp."""
+        """The time of the data the node handles now (the stamp of /diagnostics): the stamp of its sample
+        (sim time) where it reads a configuration; else its clock's now."""
+        if self.reads_configuration:
+            return stamp(getattr(self, "k", 0), self.T_s)
         return self.get_clock().now().to_msg()
 
     def status_values(self):

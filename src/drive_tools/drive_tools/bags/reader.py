@@ -234,7 +234,7 @@ OFF_GRID_SHARE_MAX = 0.05
 (a robot's jitter and lost messages leave the rest on it)."""
 MAX_RECORDING_SAMPLES = 200_000_000
 """A recording longer than this many samples (5.6 h at 10 kHz; 13 GiB of log) is refused, not allocated (a
-recording may be longer than a simulation, drive_common.config.scenario.MAX_SAMPLES)."""
+recording may be longer than a simulation, drive_common.config.experiment.MAX_SAMPLES)."""
 
 
 def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None, T_s_source="the sample period"):

@@ -7,7 +7,9 @@ import os
 import sys
 from pathlib import Path
 
-from drive_common.config.scenario import MAX_BLOCK_SAMPLES, MAX_SAMPLES, SAMPLING_PERIOD, load_scenario
+from drive_common.config.drive_config import MAX_BLOCK_SAMPLES, SAMPLING_PERIOD
+from drive_common.config.experiment import MAX_SAMPLES
+from drive_common.config.scenario import load_scenario
 from drive_common.contract.errors import DriveError
 from drive_common.contract.exit_codes import (
     EXIT_NODE_FAULTS,

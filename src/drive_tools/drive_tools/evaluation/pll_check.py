@@ -12,7 +12,8 @@ import math
 
 import numpy as np
 
-from drive_common.config.scenario import NON_IDEALITIES, parse_scenario
+from drive_common.config.experiment import NON_IDEALITIES
+from drive_common.config.scenario import parse_scenario
 from drive_common.contract.log import COLUMN, LOG_COLUMNS
 from drive_common.motor.commissioning import resolve_commissioning
 from drive_common.motor.motor_file import load_motor

@@ -7,7 +7,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-from drive_common.config.scenario import RPM  # noqa: E402
+from drive_common.config.experiment import RPM  # noqa: E402
 from drive_common.contract.estimator_states import TRACKING  # noqa: E402
 from drive_common.contract.log import COLUMN  # noqa: E402
 

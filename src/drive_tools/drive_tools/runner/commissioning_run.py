@@ -101,7 +101,7 @@ def rotating_test_in_process(scenario, commissioning_file, progress=None):
     unloaded: the drive, commissioned at standstill (``commissioning_file``), spins it through the test's
     speed profile. Returns (estimates, the plant's true ψ_f, J and B, the RunResult); Interrupted when a
     signal stopped it (after the chunk in progress)."""
-    from drive_common.config.scenario import RPM, Table
+    from drive_common.config.experiment import RPM, Table
     from drive_common.motor.commissioning import resolve_commissioning
     from drive_tools.runner.runner import run_scenario
     from hf_estimator.commissioning.rotating import (
@@ -142,7 +142,7 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
     ``injection_amplitude_V`` ours ran at, and each hold's true angle error θ − θ̂ [rad] as
     ``true_error_rad``, for scoring; the RunResult). A correction the file already holds, where ours ran
     with it, stays in the one returned. Interrupted when a signal stopped it (after the chunk in progress)."""
-    from drive_common.config.scenario import Table
+    from drive_common.config.experiment import Table
     from drive_common.contract.log import COLUMN
     from drive_common.math.frames import wrap
     from drive_common.motor.commissioning import resolve_commissioning

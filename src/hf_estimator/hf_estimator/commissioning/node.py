@@ -13,13 +13,12 @@ from geometry_msgs.msg import Vector3Stamped
 from drive_common.contract.stamps import sample_of
 from drive_common.contract.topics import CURRENTS, TOPICS, VOLTAGE_COMMAND
 from drive_common.motor.commissioning import save_commissioning
-from drive_common.ros.node import finite, run_node, stamp, topic_qos
-from drive_common.ros.scenario_node import ScenarioNode
+from drive_common.ros.node import DriveNode, finite, run_node, stamp, topic_qos
 
 from .procedure import METHOD, procedure_for_scenario
 
 
-class CommissioningNode(ScenarioNode):
+class CommissioningNode(DriveNode):
     node_parameters = {"out": ("", "commissioning file to write at the end (empty: none)")}
 
     def __init__(self, **kwargs):
@@ -85,7 +84,7 @@ class CommissioningNode(ScenarioNode):
     def finish(self):
         out = self.get_parameter("out").value
         if out:
-            self.written = str(save_commissioning(out, self.procedure.result(), self.scenario.motor.name, METHOD,
+            self.written = str(save_commissioning(out, self.procedure.result(), self.config.motor.name, METHOD,
                                                   self.procedure.conditions()))
         self.complete_run()
 
