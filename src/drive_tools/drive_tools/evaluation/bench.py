@@ -53,18 +53,29 @@ REPOSITORY = Path(__file__).resolve().parents[4]
 """The repository this drive runs from (its git history holds the commits ``throughput_against`` times)."""
 
 
-def _bench_command(tree):
-    """The throughput bench's command in the source tree ``tree``: ``drive_cli.cli`` in a commit of
-    the 14 packages before the merge into six, ``drive_tools.cli.cli`` since."""
-    module = "drive_cli.cli" if (tree / "src" / "drive_cli").is_dir() else "drive_tools.cli.cli"
-    return [sys.executable, "-m", module, "bench", "throughput", "--json", "--no-motulator"]
+def _cli(tree):
+    """The command line of ``drive`` in the source tree ``tree``: ``drive_cli.cli`` in a commit of the 14
+    packages before the merge into six, ``drive_tools.cli.cli`` since."""
+    return [sys.executable, "-m", "drive_cli.cli" if (tree / "src" / "drive_cli").is_dir() else "drive_tools.cli.cli"]
+
+
+def _tree_estimators(tree, environment):
+    """The estimators the drive in source tree ``tree`` knows (``drive estimators --json``)."""
+    proc = subprocess.run(_cli(tree) + ["estimators", "--json"], cwd=tree, env=environment, capture_output=True,
+                          text=True)
+    try:
+        return {row["name"] for row in json.loads(proc.stdout)}
+    except (ValueError, KeyError, TypeError):
+        return set()
 
 
 def _tree_throughput(tree, estimators, samples, environment):
     """One run of the throughput bench of source tree ``tree`` in its own process ({estimator: samples/s}),
     or {"error": ...} with the tail of what it printed."""
-    proc = subprocess.run(_bench_command(tree) + ["--estimators", ",".join(estimators), "--samples", str(samples),
-                                                  "--repeats", "1"],
+    if not estimators:
+        return {"error": "knows none of the estimators"}
+    proc = subprocess.run(_cli(tree) + ["bench", "throughput", "--json", "--no-motulator", "--estimators",
+                                        ",".join(estimators), "--samples", str(samples), "--repeats", "1"],
                           cwd=tree, env=environment, capture_output=True, text=True)
     try:
         return json.loads(proc.stdout)["samples_per_second"]
@@ -76,7 +87,8 @@ def throughput_against(commit, estimators, samples=1_000_000, rounds=3, progress
     """Samples/s of today's closed loop and of commit ``commit``'s, each its own throughput bench in
     its own process (this venv; the commit's package directories first on PYTHONPATH, from a git worktree
     in a temporary directory), alternating ``rounds`` times so that both meet the same machine load.
-    Per estimator: the best and the median of each, and their ratios today / then."""
+    Per estimator: the best and the median of each, and their ratios today / then (an estimator the
+    commit did not have: today's alone)."""
     import tempfile
 
     resolved = subprocess.run(["git", "-C", str(REPOSITORY), "rev-parse", "--verify", f"{commit}^{{commit}}"],
@@ -93,11 +105,14 @@ def throughput_against(commit, estimators, samples=1_000_000, rounds=3, progress
             old_path = os.pathsep.join(str(d) for d in sorted((old / "src").glob("*/")) if d.is_dir())
             old_env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [old_path,
                                                                                  os.environ.get("PYTHONPATH")]))}
+            known = _tree_estimators(old, old_env)
+            trees = (("today", REPOSITORY, dict(os.environ), estimators),
+                     (sha[:7], old, old_env, [name for name in estimators if name in known]))
             for r in range(rounds):
-                for label, tree, environment in (("today", REPOSITORY, dict(os.environ)), (sha[:7], old, old_env)):
-                    runs[label].append(_tree_throughput(tree, estimators, samples, environment))
+                for label, tree, environment, names in trees:
+                    runs[label].append(_tree_throughput(tree, names, samples, environment))
                     if progress:
-                        progress(f"round {r + 1}/{rounds} {label}: {runs[label][-1]}")
+                        progress(f"round {r + 1}/{rounds}: {label} timed")
         finally:
             subprocess.run(["git", "-C", str(REPOSITORY), "worktree", "remove", "--force", str(old)],
                            capture_output=True)
@@ -107,7 +122,7 @@ def throughput_against(commit, estimators, samples=1_000_000, rounds=3, progress
         for label, measured in runs.items():
             rates = [run[name] for run in measured if name in run]
             row[label] = ({"best": max(rates), "median": float(np.median(rates)), "runs": len(rates)} if rates else
-                          {"error": next((run["error"] for run in measured if "error" in run), "not measured")})
+                          {"error": next((run["error"] for run in measured if "error" in run), "not in this commit")})
         if "best" in row["today"] and "best" in row[sha[:7]]:
             row["ratio_best"] = row["today"]["best"] / row[sha[:7]]["best"]
             row["ratio_median"] = row["today"]["median"] / row[sha[:7]]["median"]

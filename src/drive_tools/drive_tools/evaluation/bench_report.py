@@ -19,7 +19,7 @@ def against_lines(report):
                                 else f"not measured ({row[label]['error']})") for label in ("today", then)]
         ratio = (f"  today/{then} {row['ratio_best']:.2f} (median {row['ratio_median']:.2f})"
                  if "ratio_best" in row else "")
-        lines.append(f"  {name:14s} {cells[0]}   {cells[1]}{ratio}")
+        lines.append(f"  {name:20s} {cells[0]}   {cells[1]}{ratio}")
     return lines
 
 
