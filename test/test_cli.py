@@ -80,6 +80,12 @@ def test_bench_rejects_zero_repeats():
     assert proc.returncode == 2 and proc.stderr.strip() == "drive: --repeats: must be at least 1, not 0"
 
 
+def test_bench_against_refuses_what_is_not_a_commit():
+    proc = subprocess.run([sys.executable, "-m", "drive_tools.cli.cli", "bench", "throughput", "--against",
+                           "no-such-commit"], capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr.startswith("drive: --against: 'no-such-commit' is not a commit of")
+
+
 @pytest.mark.parametrize("argv, message", [
     (["run", "wang_100rpm", "--duration", "inf"], "argument --duration: must be a finite number, not 'inf'"),
     (["run", "wang_100rpm", "--duration", "nan"], "argument --duration: must be a finite number, not 'nan'"),

@@ -16,6 +16,7 @@ from helpers import run, scenario, shipped
 from hf_estimator.injection_frame import raised_injection_amplitude
 from hf_estimator.registry import make_estimator
 from pmsm_plant.model import N_STATE, plant_advance, plant_outputs, plant_reset, saturation_saliency_angle
+from pmsm_plant.params import IDEAL_SENSOR, PlantParams
 from pmsm_plant.presets import PRESETS, plant_parameters
 
 pytestmark = pytest.mark.unit
@@ -47,7 +48,8 @@ def held_shaft_response(name, error_e, saturation=True, samples=600, excitation=
         e.step(e.state[0], e.params, k, sample, out)
         eps, signal, observable = out["eps"], out["signal"], out["state"]
         issue_command(line, k, *(excitation(k) if excitation else (out["u_inj_alpha"], out["u_inj_beta"])))
-        plant_advance(x, *applied_voltage(line, k), 0.0, True, 0.0, machine, WANG.mechanics, inverter, 1e-4, 1)
+        plant_advance(x, *applied_voltage(line, k), 0.0, True, 0.0,
+                      PlantParams(machine, WANG.mechanics, inverter, IDEAL_SENSOR, 0, 1e-4, 1))
     return eps, signal, observable, c
 
 

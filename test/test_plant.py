@@ -24,7 +24,7 @@ from pmsm_plant.model import (
     plant_reset,
     sense_currents,
 )
-from pmsm_plant.params import InverterParams, MechanicsParams, SensorParams
+from pmsm_plant.params import IDEAL_SENSOR, InverterParams, MechanicsParams, PlantInputs, PlantParams, SensorParams
 from pmsm_plant.presets import PRESETS, plant_parameters
 
 pytestmark = pytest.mark.unit
@@ -55,7 +55,7 @@ def test_rl_current_step_matches_analytic(axis):
     L = m.L_d_H if axis == "d" else m.L_q_H
     worst = 0.0
     for k in range(1, 400):
-        plant_advance(x, u_alpha, u_beta, 0.0, True, 0.0, m, MECH, IDEAL_INVERTER, T_S, 1)
+        plant_advance(x, u_alpha, u_beta, 0.0, True, 0.0, PlantParams(m, MECH, IDEAL_INVERTER, IDEAL_SENSOR, 0, T_S, 1))
         i_alpha, i_beta = _alpha_beta_current(x, m)
         i = i_alpha if axis == "d" else i_beta
         expected = U / m.R_s_ohm * (1.0 - math.exp(-k * T_S * m.R_s_ohm / L))
@@ -97,7 +97,7 @@ def test_hf_injection_is_integrated_exactly_at_standstill(f_h):
     expected = _exact_zoh_response(m, theta_e, voltages)
     got = []
     for u in voltages:
-        plant_advance(x, u[0], u[1], 0.0, True, 0.0, m, MECH, IDEAL_INVERTER, T_S, 1)
+        plant_advance(x, u[0], u[1], 0.0, True, 0.0, PlantParams(m, MECH, IDEAL_INVERTER, IDEAL_SENSOR, 0, T_S, 1))
         got.append(_alpha_beta_current(x, m))
     amplitude = np.max(np.abs(expected))
     assert np.max(np.abs(np.array(got) - expected)) < 1e-7 * amplitude
@@ -119,8 +119,8 @@ def test_hf_integration_converged_at_speed_with_saturation():
             theta_e = machine.n_p * omega_m * k * T_S
             u_d = 5.0 * math.cos(2.0 * math.pi * 1000.0 * k * T_S)
             u_alpha, u_beta = rotate(u_d + 0.3, omega_m * machine.n_p * machine.psi_f_Wb, theta_e)
-            plant_advance(x, u_alpha, u_beta, 0.0, True, omega_m, machine, WANG.mechanics, inverter,
-                          T_S, substeps)
+            plant_advance(x, u_alpha, u_beta, 0.0, True, omega_m,
+                          PlantParams(machine, WANG.mechanics, inverter, IDEAL_SENSOR, 0, T_S, substeps))
             currents.append(_alpha_beta_current(x, machine))
         runs.append(np.array(currents))
     hf_amplitude = 5.0 / (2.0 * math.pi * 1000.0 * 0.9e-3)
@@ -135,7 +135,7 @@ def test_short_circuit_currents_match_back_emf_model():
     x = np.zeros(N_STATE)
     plant_reset(x, 0.0, omega_m, m)
     for _ in range(3000):
-        plant_advance(x, 0.0, 0.0, 0.0, True, omega_m, m, MECH, IDEAL_INVERTER, T_S, 1)
+        plant_advance(x, 0.0, 0.0, 0.0, True, omega_m, PlantParams(m, MECH, IDEAL_INVERTER, IDEAL_SENSOR, 0, T_S, 1))
     i_alpha, i_beta = _alpha_beta_current(x, m)
     theta_e = m.n_p * (3000 * T_S * omega_m)
     i_d, i_q = rotate(i_alpha, i_beta, -theta_e)
@@ -159,7 +159,7 @@ def test_open_circuit_flux_rotates_with_back_emf_amplitude():
     assert np.hypot(*emf) == pytest.approx(2.0 * m.psi_f_Wb * math.sin(w * T_S / 2) / T_S, rel=1e-12)
     x[PSI_ALPHA], x[PSI_BETA] = psi_before
     x[3] = omega_m * k * T_S
-    plant_advance(x, emf[0], emf[1], 0.0, True, omega_m, m, MECH, IDEAL_INVERTER, T_S, 8)
+    plant_advance(x, emf[0], emf[1], 0.0, True, omega_m, PlantParams(m, MECH, IDEAL_INVERTER, IDEAL_SENSOR, 0, T_S, 8))
     assert np.hypot(*_alpha_beta_current(x, m)) < 2e-3
     assert np.hypot(*emf) == pytest.approx(w * m.psi_f_Wb, rel=1e-3)
     assert theta_mid > 0.0
@@ -179,7 +179,7 @@ def test_torque_formula_and_mechanics():
     assert tau == pytest.approx(expected, rel=1e-12)
     u_alpha, u_beta = rotate(m.R_s_ohm * i_d, m.R_s_ohm * i_q, m.n_p * theta_m)
     dt = 1e-6
-    plant_advance(x, u_alpha, u_beta, 0.0, False, 0.0, m, MECH, IDEAL_INVERTER, dt, 1)
+    plant_advance(x, u_alpha, u_beta, 0.0, False, 0.0, PlantParams(m, MECH, IDEAL_INVERTER, IDEAL_SENSOR, 0, dt, 1))
     assert x[OMEGA_M] * MECH.J_kgm2 / dt == pytest.approx(expected, rel=1e-3)
 
 
@@ -259,17 +259,15 @@ def test_a_block_applies_each_command_n_periods_later(block):
     """With blocks of N samples the delay line holds d = N periods (the inverter's one plus N − 1): a lone
     command answering sample 3 first moves the current at sample 3 + N + 1, and every block is simulated
     from the commands of earlier blocks alone."""
-    sensor = SensorParams(noise_std_A=0.0, offset_a_A=0.0, offset_b_A=0.0, offset_c_A=0.0, gain_a=1.0,
-                          gain_b=1.0, gain_c=1.0, adc_bits=0, adc_range_A=10.0)
     inverter = IDEAL_INVERTER._replace(delay_periods=block)
+    params = PlantParams(WANG.machine, MECH, inverter, IDEAL_SENSOR, 0, T_S, 1)
     x, line = np.zeros(N_STATE), command_line(inverter.delay_periods)
     plant_reset(x, 0.0, 0.0, WANG.machine)
     n = 4 * block + 8
     zeros, out, measured = np.zeros(n), np.zeros((block, 10)), np.zeros(n)
     for k0 in range(0, n, block):
         count = min(block, n - k0)
-        plant_block(x, line, k0, count, zeros, zeros, True, -1, WANG.machine, MECH, inverter, sensor, 0, T_S, 1,
-                    out)
+        plant_block(x, line, k0, count, PlantInputs(zeros, zeros, True, -1), params, out)
         measured[k0:k0 + count] = out[:count, 3]
         for k in range(k0, k0 + count):
             issue_command(line, k, 10.0 if k == 3 else 0.0, 0.0)

@@ -44,7 +44,7 @@ from pmsm_plant.model import (
     plant_reset,
     winding_resistance,
 )
-from pmsm_plant.params import InverterParams
+from pmsm_plant.params import IDEAL_SENSOR, InverterParams, PlantParams
 from pmsm_plant.presets import PRESETS, plant_truth
 
 pytestmark = pytest.mark.unit
@@ -67,7 +67,8 @@ def _spin(inv, mode, omega_m, periods, machine=MACHINE):
     x[INVERTER_MODE] = mode
     peak = 0.0
     for _ in range(periods):
-        plant_advance(x, 0.0, 0.0, 0.0, True, omega_m, machine, WANG.mechanics, inv, T_S, 1)
+        plant_advance(x, 0.0, 0.0, 0.0, True, omega_m,
+                      PlantParams(machine, WANG.mechanics, inv, IDEAL_SENSOR, 0, T_S, 1))
         peak = max(peak, bus_voltage(x, inv))
     return x, peak
 
@@ -138,7 +139,7 @@ def test_winding_heats_by_its_first_order_model_and_its_resistance_follows():
     rise = 0.0
     for _ in range(1000):
         u = winding_resistance(x, machine) * current
-        plant_advance(x, u, 0.0, 0.0, True, 0.0, machine, WANG.mechanics, inv, T_s, 1)
+        plant_advance(x, u, 0.0, 0.0, True, 0.0, PlantParams(machine, WANG.mechanics, inv, IDEAL_SENSOR, 0, T_s, 1))
         R = machine.R_s_ohm * (1.0 + COPPER_ALPHA_PER_K * (machine.T_ambient_degC + rise - 20.0))
         rise += T_s / machine.C_th_J_K * (1.5 * R * current ** 2 - rise / machine.R_th_K_W)
     assert x[WINDING_RISE] == pytest.approx(rise, rel=0.01)
@@ -167,7 +168,8 @@ def _drive_loop(plant_machine, inv, omega_m0, omega_ref, seconds, T_s, protectio
     currents = np.zeros((1, 3))
     tripped = 0
     for k in range(n):
-        plant_advance(x, u[0], u[1], 0.0, imposed, omega_m0, plant_machine, WANG.mechanics, inv, T_s, 1)
+        plant_advance(x, u[0], u[1], 0.0, imposed, omega_m0,
+                      PlantParams(plant_machine, WANG.mechanics, inv, IDEAL_SENSOR, 0, T_s, 1))
         i_a, i_b, i_c, _ = plant_outputs(x, plant_machine)
         theta_e, omega_e = plate.n_p * x[THETA_M], plate.n_p * x[OMEGA_M]
         U_dc = bus_voltage(x, inv)
@@ -387,7 +389,7 @@ def _observer_angle_error(plant_R_ohm, drive_R_ohm):
     plant_reset(x, 0.0, omega_m, hot)
     u, errors = (0.0, 0.0), []
     for k in range(3000):
-        plant_advance(x, u[0], u[1], 0.0, True, omega_m, hot, WANG.mechanics, inv, T_s, 1)
+        plant_advance(x, u[0], u[1], 0.0, True, omega_m, PlantParams(hot, WANG.mechanics, inv, IDEAL_SENSOR, 0, T_s, 1))
         i_a, i_b, i_c, _ = plant_outputs(x, hot)
         sample["i_a"], sample["i_b"], sample["i_c"] = i_a, i_b, i_c
         sample["u_applied_alpha"], sample["u_applied_beta"] = u

@@ -270,8 +270,7 @@ class VirtualInverter:
         p = self.plant
         line = p.line.copy()
         issue_command(line, 0, 0.0, 0.0)
-        plant_block(p.x.copy(), line, 1, 1, self.tau_load, self.speed_ref, p.imposed_speed, -1, p.machine,
-                    p.mechanics, p.inverter, p.sensor, p.seed, p.T_s, p.substeps, out)
+        plant_block(p.x.copy(), line, 1, 1, p.inputs(self.tau_load, self.speed_ref), p.params, out)
         encode_frame(Telemetry(0, 0, 0, 0, 0, 0, 0))
         encode_frame(TelemetryBlock(0, 0, 0, ((0, 0, 0, 0),)))
 
@@ -401,8 +400,7 @@ class VirtualInverter:
         p.x[INVERTER_MODE] = self.bridge_mode()
         x0 = p.x.copy()
         while True:
-            plant_block(p.x, p.line, k0, n, self.tau_load, self.speed_ref, p.imposed_speed, -1, p.machine,
-                        p.mechanics, p.inverter, p.sensor, p.seed, p.T_s, p.substeps, out)
+            plant_block(p.x, p.line, k0, n, p.inputs(self.tau_load, self.speed_ref), p.params, out)
             over = np.flatnonzero(np.abs(out[:n, 3:6]).max(axis=1) > self.trip_current_A)
             if self.latched & OVERCURRENT or not over.size:
                 break

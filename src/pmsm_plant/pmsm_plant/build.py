@@ -7,7 +7,7 @@ import numpy as np
 from drive_common.math.command_delay import command_line
 
 from .model import N_STATE, plant_reset
-from .params import InverterParams, MachineParams, MechanicsParams, SensorParams
+from .params import InverterParams, MachineParams, MechanicsParams, PlantInputs, PlantParams, SensorParams
 from .presets import get_preset, plant_parameters
 
 
@@ -27,6 +27,15 @@ class Plant:
     """The shaft follows the speed table (dynamometer) instead of its torque balance."""
     line: np.ndarray
     """The inverter's delay line of commands (drive_common.math.command_delay), ``inverter.delay_periods`` long."""
+
+    @property
+    def params(self):
+        """The kernels' parameter record (PlantParams)."""
+        return PlantParams(self.machine, self.mechanics, self.inverter, self.sensor, self.seed, self.T_s, self.substeps)
+
+    def inputs(self, load_Nm, speed_rad_s, release_k=-1):
+        """A block's PlantInputs: load and speed per period [N·m, rad/s], the brake's release (−1: none)."""
+        return PlantInputs(load_Nm, speed_rad_s, self.imposed_speed, release_k)
 
 
 def plant_for_scenario(scenario):

@@ -114,10 +114,12 @@ def winding_resistance(x, m):
 
 
 @njit(cache=True)
-def _derivatives(psi_a, psi_b, omega_m, theta_m, u_a, u_b, tau_load, imposed, omega_imposed, m, mech, R_s):
-    """Time derivatives of the state (ψ_α, ψ_β [Wb], ω_m [rad/s], θ_m [rad]) under the stator voltage
-    (u_a, u_b) [V, αβ] and the load torque [N·m]: dψ/dt = u − R_s i (R_s [Ω]), the shaft's torque balance
-    (or the imposed speed)."""
+def _derivatives(s, drive, m, mech, R_s):
+    """Time derivatives of the state s = (ψ_α, ψ_β [Wb], ω_m [rad/s], θ_m [rad]) under drive = (u_α, u_β
+    [V], τ_load [N·m], imposed, ω_imposed [rad/s]): dψ/dt = u − R_s i (R_s [Ω]), the shaft's torque
+    balance (or the imposed speed)."""
+    psi_a, psi_b, omega_m, theta_m = s
+    u_a, u_b, tau_load, imposed, omega_imposed = drive
     i_a, i_b = stator_current(psi_a, psi_b, theta_m, m)
     tau_e = electromagnetic_torque(psi_a, psi_b, i_a, i_b, m.n_p)
     if imposed:
@@ -130,13 +132,16 @@ def _derivatives(psi_a, psi_b, omega_m, theta_m, u_a, u_b, tau_load, imposed, om
 
 
 @njit(cache=True)
-def _bridge_voltage(x, u_a, u_b, i_alpha, i_beta, m, inv, T_s, U_dc, R_s):
+def _bridge_voltage(x, u, i0, p, U_dc, R_s):
     """Duties (d_a, d_b, d_c) and the average stator voltage (u_α, u_β) [V] the bridge applies in the
-    period, by its mode x[INVERTER_MODE]: PWM realises the command (u_a, u_b) [V] on the bus U_dc with
-    its dead time; ASC applies 0; in freewheel the diodes oppose the current as hard as the bus lets
-    them: the voltage that would bring the current to zero within the period, u₀ = (ψ₀(t+T_s) − ψ)/T_s
-    + R_s i/2 (ψ₀ the magnet's flux, i = 0), clipped to the bridge's hexagon. Below the bus the current
-    stays near zero; a back-EMF above it is rectified into the bus."""
+    period, by its mode x[INVERTER_MODE]: PWM realises the command u = (u_α, u_β) [V] on the bus U_dc with
+    its dead time; ASC applies 0; in freewheel the diodes oppose the current i0 = (i_α, i_β) [A] at the
+    period start as hard as the bus lets them: the voltage that would bring the current to zero within
+    the period, u₀ = (ψ₀(t+T_s) − ψ)/T_s + R_s i/2 (ψ₀ the magnet's flux, i = 0), clipped to the bridge's
+    hexagon. Below the bus the current stays near zero; a back-EMF above it is rectified into the bus.
+    p: PlantParams."""
+    m, T_s = p.machine, p.T_s_s
+    i_alpha, i_beta = i0
     mode = int(x[INVERTER_MODE])
     if mode == ASC:
         return 0.0, 0.0, 0.0, 0.0, 0.0
@@ -148,18 +153,22 @@ def _bridge_voltage(x, u_a, u_b, i_alpha, i_beta, m, inv, T_s, U_dc, R_s):
         d_a, d_b, d_c = duty_cycles(u_0a, u_0b, U_dc)
         v_a, v_b = clarke(d_a * U_dc, d_b * U_dc, d_c * U_dc)
         return d_a, d_b, d_c, v_a, v_b
-    d_a, d_b, d_c = duty_cycles(u_a, u_b, U_dc)
-    v_a, v_b = inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, inv, T_s, U_dc)
+    d_a, d_b, d_c = duty_cycles(u[0], u[1], U_dc)
+    v_a, v_b = inverter_voltage(d_a, d_b, d_c, i_alpha, i_beta, p.inverter, T_s, U_dc)
     return d_a, d_b, d_c, v_a, v_b
 
 
 @njit(cache=True)
-def _link_and_winding(x, d_a, d_b, d_c, i0_alpha, i0_beta, m, inv, T_s, U_dc, R_s):
-    """The period's DC link and winding heat from the duties and the currents at its start (i0) and end
-    (the state x): i_dc = Σ d_x i_x (period average), C dU/dt = −i_dc − i_brake above the supply, the
-    chopper's hysteresis at the period start; C_th dΔT/dt = 1.5 R_s |i|² − ΔT/R_th (explicit, τ_th ≫ T_s)."""
-    i1_alpha, i1_beta = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
+def _link_and_winding(x, duties, i0, i1, p, U_dc, R_s):
+    """The period's DC link and winding heat from the duties (d_a, d_b, d_c) and the currents (i_α, i_β)
+    [A] at its start (i0) and end (i1): i_dc = Σ d_x i_x (period average), C dU/dt = −i_dc − i_brake above
+    the supply, the chopper's hysteresis at the period start; C_th dΔT/dt = 1.5 R_s |i|² − ΔT/R_th
+    (explicit, τ_th ≫ T_s). Nothing to do for a stiff link (C_dc_F = ∞) and an isothermal winding."""
+    inv, m, T_s = p.inverter, p.machine, p.T_s_s
+    i0_alpha, i0_beta = i0
+    i1_alpha, i1_beta = i1
     if math.isfinite(inv.C_dc_F):
+        d_a, d_b, d_c = duties
         p_a, p_b, p_c = inverse_clarke(0.5 * (i0_alpha + i1_alpha), 0.5 * (i0_beta + i1_beta))
         i_dc = d_a * p_a + d_b * p_b + d_c * p_c
         if math.isfinite(inv.R_brake_ohm):
@@ -175,71 +184,89 @@ def _link_and_winding(x, d_a, d_b, d_c, i0_alpha, i0_beta, m, inv, T_s, U_dc, R_
 
 
 @njit(cache=True)
-def plant_advance(x, u_a, u_b, tau_load_Nm, imposed, omega_imposed, m, mech, inv, T_s, n_substeps):
-    """Advance the plant state x by one control period T_s [s] under the voltage command acting in it
-    (u_a, u_b) [V, αβ] (the delay line's, drive_common.math.command_delay) and the load torque [N·m]. State x
-    (N_STATE): PSI_ALPHA … BRAKE_ON; m, mech, inv: MachineParams, MechanicsParams, InverterParams.
-
-    The inverter realises the command on its bus as one average voltage over the period, its dead-time
-    error set by the current polarities at the period start (the switching edges), unless its mode
-    (x[INVERTER_MODE]) is a safe state (_bridge_voltage). R_s is the winding's at the period start. With
-    ``imposed`` the shaft runs at ``omega_imposed`` [rad/s] (dynamometer mode).
-    """
-    U_dc = bus_voltage(x, inv)
+def _period(x, u, i0, tau_load_Nm, imposed, omega_imposed, p):
+    """plant_advance with the currents i0 = (i_α, i_β) [A] of the state at the period start given;
+    returns those at its end (the next sample's), which the DC link and the winding need too."""
+    m = p.machine
+    U_dc = bus_voltage(x, p.inverter)
     R_s = winding_resistance(x, m)
-    i_alpha, i_beta = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
     if imposed:
         x[OMEGA_M] = omega_imposed
-    d_a, d_b, d_c, v_a, v_b = _bridge_voltage(x, u_a, u_b, i_alpha, i_beta, m, inv, T_s, U_dc, R_s)
-    h = T_s / n_substeps
-    for _ in range(n_substeps):
+    d_a, d_b, d_c, v_a, v_b = _bridge_voltage(x, u, i0, p, U_dc, R_s)
+    drive = (v_a, v_b, tau_load_Nm, imposed, omega_imposed)
+    h = p.T_s_s / p.substeps
+    for _ in range(p.substeps):
         s0, s1, s2, s3 = x[PSI_ALPHA], x[PSI_BETA], x[OMEGA_M], x[THETA_M]
-        k1 = _derivatives(s0, s1, s2, s3, v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech, R_s)
-        k2 = _derivatives(s0 + 0.5 * h * k1[0], s1 + 0.5 * h * k1[1], s2 + 0.5 * h * k1[2],
-                          s3 + 0.5 * h * k1[3], v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech, R_s)
-        k3 = _derivatives(s0 + 0.5 * h * k2[0], s1 + 0.5 * h * k2[1], s2 + 0.5 * h * k2[2],
-                          s3 + 0.5 * h * k2[3], v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech, R_s)
-        k4 = _derivatives(s0 + h * k3[0], s1 + h * k3[1], s2 + h * k3[2], s3 + h * k3[3],
-                          v_a, v_b, tau_load_Nm, imposed, omega_imposed, m, mech, R_s)
+        k1 = _derivatives((s0, s1, s2, s3), drive, m, p.mechanics, R_s)
+        k2 = _derivatives((s0 + 0.5 * h * k1[0], s1 + 0.5 * h * k1[1], s2 + 0.5 * h * k1[2],
+                           s3 + 0.5 * h * k1[3]), drive, m, p.mechanics, R_s)
+        k3 = _derivatives((s0 + 0.5 * h * k2[0], s1 + 0.5 * h * k2[1], s2 + 0.5 * h * k2[2],
+                           s3 + 0.5 * h * k2[3]), drive, m, p.mechanics, R_s)
+        k4 = _derivatives((s0 + h * k3[0], s1 + h * k3[1], s2 + h * k3[2], s3 + h * k3[3]),
+                          drive, m, p.mechanics, R_s)
         x[PSI_ALPHA] = s0 + h / 6.0 * (k1[0] + 2.0 * k2[0] + 2.0 * k3[0] + k4[0])
         x[PSI_BETA] = s1 + h / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
         x[OMEGA_M] = s2 + h / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
         x[THETA_M] = s3 + h / 6.0 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
-    _link_and_winding(x, d_a, d_b, d_c, i_alpha, i_beta, m, inv, T_s, U_dc, R_s)
+    i1 = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
+    _link_and_winding(x, (d_a, d_b, d_c), i0, i1, p, U_dc, R_s)
+    return i1
+
+
+@njit(cache=True)
+def plant_advance(x, u_alpha_V, u_beta_V, tau_load_Nm, imposed, omega_imposed_rad_s, p):
+    """Advance the plant state x by one control period p.T_s_s [s] under the voltage command acting in it
+    (u_α, u_β) [V] (the delay line's, drive_common.math.command_delay) and the load torque [N·m]. State x
+    (N_STATE): PSI_ALPHA … BRAKE_ON; p: PlantParams.
+
+    The inverter realises the command on its bus as one average voltage over the period, its dead-time
+    error set by the current polarities at the period start (the switching edges), unless its mode
+    (x[INVERTER_MODE]) is a safe state (_bridge_voltage). R_s is the winding's at the period start. With
+    ``imposed`` the shaft runs at ``omega_imposed_rad_s`` (dynamometer mode).
+    """
+    i0 = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], p.machine)
+    _period(x, (u_alpha_V, u_beta_V), i0, tau_load_Nm, imposed, omega_imposed_rad_s, p)
+
+
+@njit(cache=True)
+def _phase_outputs(x, i_alpha, i_beta, n_p):
+    """True phase currents (i_a, i_b, i_c) [A] and torque τ_e [N·m] of the state x whose stationary-frame
+    currents are (i_α, i_β) [A]."""
+    tau_e = electromagnetic_torque(x[PSI_ALPHA], x[PSI_BETA], i_alpha, i_beta, n_p)
+    p_a, p_b, p_c = inverse_clarke(i_alpha, i_beta)
+    return p_a, p_b, p_c, tau_e
 
 
 @njit(cache=True)
 def plant_outputs(x, m):
     """True phase currents (i_a, i_b, i_c) [A] and torque τ_e [N·m] at the state x (MachineParams m)."""
     i_a, i_b = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
-    tau_e = electromagnetic_torque(x[PSI_ALPHA], x[PSI_BETA], i_a, i_b, m.n_p)
-    p_a, p_b, p_c = inverse_clarke(i_a, i_b)
-    return p_a, p_b, p_c, tau_e
+    return _phase_outputs(x, i_a, i_b, m.n_p)
 
 
 @njit(cache=True)
-def plant_block(x, line, k0, n, load_Nm, speed_rad_s, imposed, release_k, m, mech, inv, sensor, seed, T_s,
-                n_substeps, out):
+def plant_block(x, line, k0, n, inputs, p, out):
     """Samples k0 … k0+n−1 of the plant: for each k, the period k−1 under the voltage the delay line
-    ``line`` holds for it (none before sample 0), then the sample. ``load_Nm``, ``speed_rad_s``: per
-    period, indexed by k (the imposed speed with ``imposed``); the shaft is held at rest (a brake) in
-    every period j < ``release_k``. Rows of ``out`` (n × 10): true i_a, i_b, i_c [A], measured m_a, m_b,
-    m_c [A] (sense_currents), θ_m [rad], ω_m [rad/s], τ_e [N·m], the load of the period that follows
-    [N·m]. A block reads only commands of earlier blocks when the line's delay is at least n − 1."""
+    ``line`` holds for it (none before sample 0), then the sample. ``inputs``: PlantInputs (load and
+    speed per period, indexed by k; the brake's release); p: PlantParams. Rows of ``out`` (n × 10): true
+    i_a, i_b, i_c [A], measured m_a, m_b, m_c [A] (sense_currents), θ_m [rad], ω_m [rad/s], τ_e [N·m],
+    the load of the period that follows [N·m]. A block reads only commands of earlier blocks when the
+    line's delay is at least n − 1. A period's end currents are the sample's: computed once."""
+    m = p.machine
+    i_now = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
     for i in range(n):
         k = k0 + i
         if k > 0:
             j = k - 1
-            u_a, u_b = applied_voltage(line, j)
-            held = j < release_k
-            plant_advance(x, u_a, u_b, load_Nm[j], imposed or held, 0.0 if held else speed_rad_s[j], m, mech,
-                          inv, T_s, n_substeps)
-        i_a, i_b, i_c, tau_e = plant_outputs(x, m)
-        m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, sensor, seed, k)
+            held = j < inputs.release_k
+            i_now = _period(x, applied_voltage(line, j), i_now, inputs.load_Nm[j], inputs.imposed or held,
+                            0.0 if held else inputs.speed_rad_s[j], p)
+        i_a, i_b, i_c, tau_e = _phase_outputs(x, i_now[0], i_now[1], m.n_p)
+        m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, p.sensor, p.seed, k)
         row = out[i]
         row[0], row[1], row[2] = i_a, i_b, i_c
         row[3], row[4], row[5] = m_a, m_b, m_c
-        row[6], row[7], row[8], row[9] = x[THETA_M], x[OMEGA_M], tau_e, load_Nm[k]
+        row[6], row[7], row[8], row[9] = x[THETA_M], x[OMEGA_M], tau_e, inputs.load_Nm[k]
 
 
 @njit(cache=True)

@@ -17,10 +17,11 @@ A scenario's holding brake keeps the shaft at rest until its lift time after the
 reports tracking: until that report the plant advances sample k only once it has `estimator_state`(k)
 too, so the release falls on the same sample as in one process.
 
-With blocks (``block_samples`` N > 1) the plant publishes `currents_block` and `rotor_state_block` of N
-samples (simulated by ``plant_block`` from the commands of earlier blocks), waits for
-`voltage_command_block` of the block, and simulates the next; a brake's release is learnt from
-`estimator_state_block` one block later (as drive_tools.runner.loop.run_blocks models it).
+The plant runs in blocks of ``block_samples`` N samples (simulated by ``plant_block`` from the commands
+of earlier blocks), N = 1 the per-sample case: with N > 1 it publishes `currents_block` and
+`rotor_state_block`, waits for `voltage_command_block` of the block, and simulates the next; a brake's
+release is learnt from `estimator_state_block` one block later (as drive_tools.runner.loop.run_blocks
+models it). With N = 1 the same path carries the per-sample topics.
 """
 import sys
 import time
@@ -30,7 +31,7 @@ from geometry_msgs.msg import Vector3Stamped
 from std_msgs.msg import Float64
 
 from drive_common.config.parameters import SCHEDULE_PARAMETER
-from drive_common.contract.stamps import sample_at, stamp_ns, stamp_parts
+from drive_common.contract.stamps import sample_at, stamp_parts
 from drive_common.contract.topics import (
     ANGLE_ERROR,
     CURRENTS,
@@ -41,15 +42,14 @@ from drive_common.contract.topics import (
     SPEED_COMMAND,
     TOPICS,
     VOLTAGE_COMMAND,
-    block,
 )
 from drive_common.contract.wire import BlockWire, JointWire, Vector3Wire, encode_clock
-from drive_common.math.command_delay import applied_voltage, issue_command
+from drive_common.math.command_delay import issue_command
 from drive_common.math.frames import wrap
 from drive_common.ros.node import DriveNode, SamplePublisher, finite, run_node, topic_qos
 
 from .build import plant_for_scenario
-from .model import NOT_RELEASED, OMEGA_M, THETA_M, plant_advance, plant_block, plant_outputs, sense_currents
+from .model import NOT_RELEASED, plant_block
 
 HISTORY_SAMPLES = 8
 
@@ -72,12 +72,9 @@ class PlantNode(DriveNode):
         self.clock_pub = None
         self.angle_error_pub = SamplePublisher(self.create_publisher(Vector3Stamped, ANGLE_ERROR,
                                                                      topic_qos(ANGLE_ERROR)))
-        if self.block_samples > 1:
-            self.voltage_sub = self.sample_subscription(block(VOLTAGE_COMMAND), self.timed(self.on_voltage_block))
-            self.sample_subscription(block(ROTOR_ESTIMATE), self.on_rotor_estimate_block)
-        else:
-            self.voltage_sub = self.sample_subscription(VOLTAGE_COMMAND, self.timed(self.on_voltage_command))
-            self.sample_subscription(ROTOR_ESTIMATE, self.on_rotor_estimate)
+        voltage, estimate, state = self.contract_topics(VOLTAGE_COMMAND, ROTOR_ESTIMATE, ESTIMATOR_STATE)
+        self.voltage_sub = self.sample_subscription(voltage, self.timed(self.per_message(self.on_voltage_block)))
+        self.sample_subscription(estimate, self.per_message(self.on_rotor_estimate_block))
         self.create_subscription(Float64, LOAD_TORQUE, self.on_load_torque, topic_qos(LOAD_TORQUE))
         self.create_subscription(Float64, SPEED_COMMAND, self.on_speed_command, topic_qos(SPEED_COMMAND))
         self.braked = bool(self.configured and self.scenario.brake)
@@ -87,12 +84,9 @@ class PlantNode(DriveNode):
         self.pending_command = None
         self.state_sub = None
         if self.braked:
-            self.state_sub = (self.sample_subscription(block(ESTIMATOR_STATE), self.on_estimator_state_block)
-                              if self.block_samples > 1 else
-                              self.sample_subscription(ESTIMATOR_STATE, self.on_estimator_state))
+            self.state_sub = self.sample_subscription(state, self.per_message(self.on_estimator_state_block))
         self.k = 0
         self.tau_load = 0.0
-        self.omega_imposed = 0.0
         self.latest_speed = 0.0
         self.started = False
         self.finished = False
@@ -111,7 +105,7 @@ class PlantNode(DriveNode):
             self.n_samples = s.n_samples
             if self.scheduled:
                 self.schedule = s.schedule()
-            elif self.block_samples > 1:
+            else:
                 self.commanded = (np.zeros(s.n_samples), np.zeros(s.n_samples))
                 """Speed and load per period, filled from the latest commands as blocks are simulated."""
             self.plant_out = np.zeros((self.block_samples, 10))
@@ -128,18 +122,18 @@ class PlantNode(DriveNode):
 
     def warm_up(self):
         p = self.plant
-        x = p.x.copy()
-        i_a, i_b, i_c, _ = plant_outputs(x, p.machine)
-        sense_currents(i_a, i_b, i_c, p.sensor, p.seed, 0)
-        plant_advance(x, 0.0, 0.0, 0.0, p.imposed_speed, 0.0, p.machine, p.mechanics, p.inverter, p.T_s,
-                      p.substeps)
         line = p.line.copy()
         issue_command(line, 0, 0.0, 0.0)
-        applied_voltage(line, 0)
         wrap(0.0)
+        plant_block(p.x.copy(), line, 1, 1, p.inputs(np.zeros(2), np.zeros(2)), p.params, np.zeros((1, 10)))
+
+    def per_message(self, callback):
+        """``callback`` of a block topic, as the subscription of this drive's topic calls it: unchanged when
+        it carries blocks; with one sample per message, its values as blocks of one (empty where None)."""
         if self.block_samples > 1:
-            plant_block(p.x.copy(), line, 1, 1, np.zeros(2), np.zeros(2), p.imposed_speed, -1, p.machine, p.mechanics,
-                        p.inverter, p.sensor, p.seed, p.T_s, p.substeps, np.zeros((1, 10)))
+            return callback
+        return lambda sec, nanosec, *values: callback(
+            sec, nanosec, *(np.empty(0) if value is None else np.array([value], dtype=float) for value in values))
 
     def on_load_torque(self, msg):
         if not finite(msg.data):
@@ -180,7 +174,7 @@ class PlantNode(DriveNode):
             if self.ready():
                 self.started = True
                 self.clock_pub = self.claim_clock()
-                self.publish_block() if self.block_samples > 1 else self.publish_sample()
+                self.publish_block()
             return
         if time.monotonic() - self.sent_at <= self.timeout_s:
             return
@@ -188,78 +182,7 @@ class PlantNode(DriveNode):
         silent = ROTOR_ESTIMATE if estimating else VOLTAGE_COMMAND
         self.fault("timeout", f"sample {self.k}: no answer within {self.timeout_s:g} s (silent topic: "
                               f"{self.resolve_topic_name(self.contract_topics(silent)[0])}); zero voltage applied")
-        if self.block_samples > 1:
-            self.advance_block(np.zeros(self.block_length()), np.zeros(self.block_length()), safe_state=True)
-        else:
-            self.advance(0.0, 0.0, safe_state=True)
-
-    def publish_sample(self):
-        p, k = self.plant, self.k
-        if self.schedule:
-            speed, load = self.schedule
-            self.omega_imposed, self.tau_load = speed[k], load[k]
-        else:
-            self.omega_imposed = self.latest_speed
-        x = p.x
-        i_a, i_b, i_c, tau_e = plant_outputs(x, p.machine)
-        m_a, m_b, m_c = sense_currents(i_a, i_b, i_c, p.sensor, p.seed, k)
-        self.history[k] = (x[THETA_M], x[OMEGA_M])
-        self.history.pop(k - HISTORY_SAMPLES, None)
-        sec, nanosec = stamp_parts(k, self.T_s)
-        if self.clock_pub:
-            self.clock_pub.publish(encode_clock(sec, nanosec))
-        self.sent_at = time.monotonic()
-        self.rotor_state_pub.publish(self.rotor_state_wire.encode(sec, nanosec, x[THETA_M], x[OMEGA_M], tau_e))
-        self.currents_pub.publish(self.currents_wire.encode(sec, nanosec, m_a, m_b, m_c))
-
-    def on_voltage_command(self, sec, nanosec, u_alpha, u_beta, _):
-        if not self.started or self.finished:
-            return
-        k = sample_at(sec, nanosec, self.T_s)
-        if k != self.k:
-            self.fault("wrong_stamp", f"voltage_command stamped {sec}.{nanosec:09d} while waiting for "
-                                      f"sample {self.k} ({stamp_ns(self.k, self.T_s)} ns); discarded")
-            return
-        limit = self.plant.inverter.U_dc_V
-        if not finite(u_alpha, u_beta) or abs(u_alpha) > limit or abs(u_beta) > limit:
-            self.fault("bad_input", f"voltage_command at sample {k}: ({u_alpha}, {u_beta}) V is not a voltage "
-                                    f"the inverter can apply; zero voltage applied")
-            self.advance(0.0, 0.0, safe_state=True)
-            return
-        if self.braked and k not in self.brake_states:
-            self.pending_command = (u_alpha, u_beta)
-            return
-        self.advance(u_alpha, u_beta)
-
-    def on_estimator_state(self, sec, nanosec, _, __, state):
-        """While the brake holds: the estimator's state of a sample (3 releases it)."""
-        k = sample_at(sec, nanosec, self.T_s)
-        if not self.braked or k is None or k < self.k:
-            return
-        self.brake_states[k] = state
-        if self.pending_command is not None and self.k in self.brake_states:
-            self.advance(*self.pending_command)
-
-    def advance(self, u_alpha, u_beta, safe_state=False):
-        """Take the command of sample k (zero voltage as the safe state after a fault) into the delay line,
-        run period k under the command the line holds for it and go to k+1."""
-        p = self.plant
-        issue_command(p.line, self.k, u_alpha, u_beta)
-        self.zero_voltage_periods += safe_state
-        self.pending_command = None
-        if self.braked and self.brake_states.pop(self.k, None) == 3.0:
-            self.braked = False
-            self.brake_states.clear()
-            self.brake_release_k = self.k + round(self.scenario.brake_release_s / self.T_s)
-        held = self.braked or (self.brake_release_k is not None and self.k < self.brake_release_k)
-        plant_advance(p.x, *applied_voltage(p.line, self.k), self.tau_load, p.imposed_speed or held,
-                      0.0 if held else self.omega_imposed, p.machine, p.mechanics, p.inverter, p.T_s, p.substeps)
-        self.sample_handled(self.k)
-        self.k += 1
-        if self.k >= self.n_samples:
-            self.finished = True
-            return
-        self.publish_sample()
+        self.advance_block(np.zeros(self.block_length()), np.zeros(self.block_length()), safe_state=True)
 
     def block_length(self):
         """Samples in the block that starts at self.k (the last block of a run may be shorter)."""
@@ -279,30 +202,35 @@ class PlantNode(DriveNode):
         if self.scenario.brake:
             release = NOT_RELEASED if self.braked else self.brake_release_k
         out = self.plant_out[:n]
-        plant_block(p.x, p.line, k0, n, load, speed, p.imposed_speed, release, p.machine, p.mechanics, p.inverter,
-                    p.sensor, p.seed, p.T_s, p.substeps, out)
+        plant_block(p.x, p.line, k0, n, p.inputs(load, speed, release), p.params, out)
         self.history[k0] = out[:, 6:8].copy()
         self.history.pop(k0 - HISTORY_SAMPLES * self.block_samples, None)
         sec, nanosec = stamp_parts(k0, self.T_s)
         if self.clock_pub:
             self.clock_pub.publish(encode_clock(sec, nanosec))
         self.sent_at = time.monotonic()
-        self.rotor_state_pub.publish(self.rotor_state_block_wire.encode(sec, nanosec, out[:, 6], out[:, 7], out[:, 8]))
-        self.currents_pub.publish(self.currents_block_wire.encode(sec, nanosec, out[:, 3], out[:, 4], out[:, 5]))
+        if self.block_samples > 1:
+            self.rotor_state_pub.publish(self.rotor_state_block_wire.encode(sec, nanosec, out[:, 6], out[:, 7],
+                                                                            out[:, 8]))
+            self.currents_pub.publish(self.currents_block_wire.encode(sec, nanosec, out[:, 3], out[:, 4], out[:, 5]))
+        else:
+            self.rotor_state_pub.publish(self.rotor_state_wire.encode(sec, nanosec, *out[0, 6:9]))
+            self.currents_pub.publish(self.currents_wire.encode(sec, nanosec, *out[0, 3:6]))
 
     def on_voltage_block(self, sec, nanosec, u_alpha, u_beta, _):
         if not self.started or self.finished:
             return
         k0, n = sample_at(sec, nanosec, self.T_s), self.block_length()
         if k0 != self.k or len(u_alpha) != n or len(u_beta) != n:
-            self.fault("wrong_stamp", f"voltage_command_block stamped {sec}.{nanosec:09d} with {len(u_alpha)} "
-                                      f"samples while waiting for the {n} of sample {self.k}; discarded")
+            self.fault("wrong_stamp", f"{self.contract_topics(VOLTAGE_COMMAND)[0]} stamped "
+                                      f"{sec}.{nanosec:09d} with {len(u_alpha)} samples while waiting for the {n} "
+                                      f"of sample {self.k}; discarded")
             return
         limit = self.plant.inverter.U_dc_V
         if not (np.isfinite(u_alpha).all() and np.isfinite(u_beta).all()) or max(
                 np.abs(u_alpha).max(), np.abs(u_beta).max()) > limit:
-            self.fault("bad_input", f"voltage_command_block of sample {k0}: not voltages the inverter can apply; "
-                                    f"zero voltage applied for the block")
+            self.fault("bad_input", f"{self.contract_topics(VOLTAGE_COMMAND)[0]} of sample {k0}: not voltages the "
+                                    f"inverter can apply; zero voltage applied for the block")
             self.advance_block(np.zeros(n), np.zeros(n), safe_state=True)
             return
         if self.braked and k0 not in self.brake_states:
@@ -354,19 +282,6 @@ class PlantNode(DriveNode):
         n_p = self.plant.machine.n_p
         self.angle_error_pub.publish(self.error_wire.encode(sec, nanosec, wrap(n_p * (theta_m - theta_hat_m[0])),
                                                             omega_m - omega_hat_m[0], 0.0))
-
-    def on_rotor_estimate(self, sec, nanosec, theta_hat_m, omega_hat_m, _):
-        k = sample_at(sec, nanosec, self.T_s)
-        if k is None or k not in self.history:
-            return
-        self.estimate_seen = max(self.estimate_seen, k)
-        if (k % self.angle_error_decimation or theta_hat_m is None or omega_hat_m is None
-                or not finite(theta_hat_m, omega_hat_m)):
-            return
-        theta_m, omega_m = self.history[k]
-        n_p = self.plant.machine.n_p
-        self.angle_error_pub.publish(self.error_wire.encode(sec, nanosec, wrap(n_p * (theta_m - theta_hat_m)),
-                                                            omega_m - omega_hat_m, 0.0))
 
     def status_values(self):
         return {"sample": self.k, "started": self.started, "finished": self.finished,

@@ -1,12 +1,16 @@
 """True (plant-side) parameters of the motor, its mechanics, the inverter and the current sensors.
 
 Parameters are immutable ``NamedTuple``s: frozen like motulator's dataclasses, with SI units in the
-field names, and passable unchanged into the numba kernels. What the drive knows of the motor (its
+field names, and passable unchanged into the numba kernels. ``PlantParams`` gathers what a period's
+integration and sampling read; ``PlantInputs`` what a block of samples is driven by (kept apart from
+the parameters and from the state, as motulator keeps them). What the drive knows of the motor (its
 nameplate and commissioning record) lives in ``drive_common.motor``; the estimators and the controller never
 read these.
 """
 import math
 from typing import NamedTuple
+
+import numpy as np
 
 
 class MachineParams(NamedTuple):
@@ -96,3 +100,38 @@ class SensorParams(NamedTuple):
     """0 disables quantisation."""
     adc_range_A: float
     """Full scale: readings are quantised over [−range, +range) and clip at its ends."""
+
+
+IDEAL_SENSOR = SensorParams(noise_std_A=0.0, offset_a_A=0.0, offset_b_A=0.0, offset_c_A=0.0, gain_a=1.0, gain_b=1.0,
+                            gain_c=1.0, adc_bits=0, adc_range_A=1.0)
+"""Current sensors that read the true currents."""
+
+
+class PlantParams(NamedTuple):
+    """Everything the plant's kernels read that a run does not change (pmsm_plant.model)."""
+
+    machine: MachineParams
+    mechanics: MechanicsParams
+    inverter: InverterParams
+    sensor: SensorParams
+    seed: int
+    """Sensor-noise seed (pmsm_plant.model.gaussian)."""
+    T_s_s: float
+    """Control (sampling) period."""
+    substeps: int
+    """Runge-Kutta steps per period."""
+
+
+class PlantInputs(NamedTuple):
+    """What drives a block of samples (pmsm_plant.model.plant_block), per period indexed by the sample k
+    that starts it."""
+
+    load_Nm: np.ndarray
+    """Load torque."""
+    speed_rad_s: np.ndarray
+    """The shaft's speed where ``imposed`` (dynamometer); otherwise not read."""
+    imposed: bool
+    """The shaft follows ``speed_rad_s`` instead of its torque balance."""
+    release_k: int
+    """A brake holds the shaft at rest in every period j < release_k (−1: no brake; model.NOT_RELEASED:
+    held until further notice)."""

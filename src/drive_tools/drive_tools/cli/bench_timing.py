@@ -30,6 +30,8 @@ def cmd_bench_throughput(args):
 
     _at_least_one(("--samples", args.samples), ("--repeats", args.repeats))
     names = estimator_list(args.estimators)
+    if args.against:
+        return _throughput_against(args, names)
     results = []
     for name in names:
         if not args.json:
@@ -54,6 +56,23 @@ def cmd_bench_throughput(args):
         print("  motulator: not installed (./setup.sh --with-motulator, or DRIVE_MOTULATOR_PYTHON)")
     if args.json:
         print_json(report)
+    return 0
+
+
+def _throughput_against(args, names):
+    """bench throughput --against COMMIT: today's and the commit's bench, alternating in one run."""
+    from drive_tools.evaluation.bench import throughput_against
+    from drive_tools.evaluation.bench_report import against_lines
+
+    try:
+        report = throughput_against(args.against, names, args.samples, args.repeats,
+                                    progress=None if args.json else lambda line: print(f"  {line}", file=sys.stderr))
+    except ValueError as error:
+        raise CommandLineError(f"--against: {error}") from None
+    if args.json:
+        print_json(report)
+    else:
+        print("\n".join(against_lines(report)))
     return 0
 
 
@@ -167,7 +186,11 @@ def add_bench_commands(bench_sub):
     tp = bench_sub.add_parser("throughput", help="closed-loop samples/s in one process, per estimator")
     tp.add_argument("--estimators", help="comma-separated (default: all)")
     tp.add_argument("--samples", type=int, default=1_000_000)
-    tp.add_argument("--repeats", type=int, default=3, help="timed runs per estimator (best reported)")
+    tp.add_argument("--repeats", type=int, default=3, help="timed runs per estimator (best reported; with "
+                                                             "--against: rounds)")
+    tp.add_argument("--against", metavar="COMMIT",
+                    help="also time the bench of this older commit (a git worktree of it, this venv), alternating "
+                         "with today's in separate processes: best, median and the ratio per estimator")
     tp.add_argument("--no-motulator", action="store_true",
                     help="skip timing motulator's signal-injection example")
     tp.add_argument("--json", action="store_true")

@@ -49,6 +49,88 @@ def throughput(estimator, samples=1_000_000, chunk=50_000, repeats=3, scenario_n
             "samples_per_second_median": samples / float(np.median(walls))}
 
 
+REPOSITORY = Path(__file__).resolve().parents[4]
+"""The repository this drive runs from (its git history holds the commits ``throughput_against`` times)."""
+
+
+def _cli(tree):
+    """The command line of ``drive`` in the source tree ``tree``: ``drive_cli.cli`` in a commit of the 14
+    packages before the merge into six, ``drive_tools.cli.cli`` since."""
+    return [sys.executable, "-m", "drive_cli.cli" if (tree / "src" / "drive_cli").is_dir() else "drive_tools.cli.cli"]
+
+
+def _tree_estimators(tree, environment):
+    """The estimators the drive in source tree ``tree`` knows (``drive estimators --json``)."""
+    proc = subprocess.run(_cli(tree) + ["estimators", "--json"], cwd=tree, env=environment, capture_output=True,
+                          text=True)
+    try:
+        return {row["name"] for row in json.loads(proc.stdout)}
+    except (ValueError, KeyError, TypeError):
+        return set()
+
+
+def _tree_throughput(tree, estimators, samples, environment):
+    """One run of the throughput bench of source tree ``tree`` in its own process ({estimator: samples/s}),
+    or {"error": ...} with the tail of what it printed."""
+    if not estimators:
+        return {"error": "knows none of the estimators"}
+    proc = subprocess.run(_cli(tree) + ["bench", "throughput", "--json", "--no-motulator", "--estimators",
+                                        ",".join(estimators), "--samples", str(samples), "--repeats", "1"],
+                          cwd=tree, env=environment, capture_output=True, text=True)
+    try:
+        return json.loads(proc.stdout)["samples_per_second"]
+    except (ValueError, KeyError):
+        return {"error": (proc.stderr or proc.stdout).strip().splitlines()[-1:] or [f"exit {proc.returncode}"]}
+
+
+def throughput_against(commit, estimators, samples=1_000_000, rounds=3, progress=None):
+    """Samples/s of today's closed loop and of commit ``commit``'s, each its own throughput bench in
+    its own process (this venv; the commit's package directories first on PYTHONPATH, from a git worktree
+    in a temporary directory), alternating ``rounds`` times so that both meet the same machine load.
+    Per estimator: the best and the median of each, and their ratios today / then (an estimator the
+    commit did not have: today's alone)."""
+    import tempfile
+
+    resolved = subprocess.run(["git", "-C", str(REPOSITORY), "rev-parse", "--verify", f"{commit}^{{commit}}"],
+                              capture_output=True, text=True)
+    if resolved.returncode:
+        raise ValueError(f"{commit!r} is not a commit of {REPOSITORY}")
+    sha = resolved.stdout.strip()
+    runs = {"today": [], sha[:7]: []}
+    with tempfile.TemporaryDirectory(prefix="drive-bench-") as scratch:
+        old = Path(scratch) / sha[:7]
+        subprocess.run(["git", "-C", str(REPOSITORY), "worktree", "add", "--detach", "--quiet", str(old), sha],
+                       check=True)
+        try:
+            old_path = os.pathsep.join(str(d) for d in sorted((old / "src").glob("*/")) if d.is_dir())
+            old_env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [old_path,
+                                                                                 os.environ.get("PYTHONPATH")]))}
+            known = _tree_estimators(old, old_env)
+            trees = (("today", REPOSITORY, dict(os.environ), estimators),
+                     (sha[:7], old, old_env, [name for name in estimators if name in known]))
+            for r in range(rounds):
+                for label, tree, environment, names in trees:
+                    runs[label].append(_tree_throughput(tree, names, samples, environment))
+                    if progress:
+                        progress(f"round {r + 1}/{rounds}: {label} timed")
+        finally:
+            subprocess.run(["git", "-C", str(REPOSITORY), "worktree", "remove", "--force", str(old)],
+                           capture_output=True)
+    results = {}
+    for name in estimators:
+        row = {}
+        for label, measured in runs.items():
+            rates = [run[name] for run in measured if name in run]
+            row[label] = ({"best": max(rates), "median": float(np.median(rates)), "runs": len(rates)} if rates else
+                          {"error": next((run["error"] for run in measured if "error" in run), "not in this commit")})
+        if "best" in row["today"] and "best" in row[sha[:7]]:
+            row["ratio_best"] = row["today"]["best"] / row[sha[:7]]["best"]
+            row["ratio_median"] = row["today"]["median"] / row[sha[:7]]["median"]
+        results[name] = row
+    return {"benchmark": "throughput_against", "commit": sha, "label": sha[:7], "samples": samples,
+            "rounds": rounds, "results": results}
+
+
 MOTULATOR_VENV = Path(__file__).resolve().parents[4] / ".venv-motulator" / "bin" / "python"
 """Where ``./setup.sh --with-motulator`` puts the side environment (motulator needs Python ≥ 3.12)."""
 

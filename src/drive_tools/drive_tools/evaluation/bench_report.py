@@ -9,6 +9,20 @@ def throughput_line(row):
             f"{row['samples']} samples; median {row['samples_per_second_median']:,.0f})")
 
 
+def against_lines(report):
+    """Today's throughput beside an older commit's (drive_tools.evaluation.bench.throughput_against)."""
+    then = report["label"]
+    lines = [f"  {report['rounds']} alternating runs of {report['samples']} samples each, today and {then} "
+             f"(samples/s, best / median)"]
+    for name, row in report["results"].items():
+        cells = [f"{label} " + (f"{row[label]['best']:11,.0f} / {row[label]['median']:11,.0f}" if "best" in row[label]
+                                else f"not measured ({row[label]['error']})") for label in ("today", then)]
+        ratio = (f"  today/{then} {row['ratio_best']:.2f} (median {row['ratio_median']:.2f})"
+                 if "ratio_best" in row else "")
+        lines.append(f"  {name:20s} {cells[0]}   {cells[1]}{ratio}")
+    return lines
+
+
 def motulator_lines(report, python):
     """motulator's reference throughput beside ours (report: the throughput report with ``motulator``)."""
     reference = report["motulator"]

@@ -46,14 +46,14 @@ def commission_in_process(scenario, settings=None, progress=None):
     plant = plant_for_scenario(shaft_held(scenario, procedure.total_samples * scenario.T_s))
     n = procedure.total_samples
     true_currents = np.zeros((n, 3))
+    params = plant.params
     start = time.perf_counter()
     for k in range(n):
         i_a, i_b, i_c, _ = plant_outputs(plant.x, plant.machine)
         true_currents[k] = (i_a, i_b, i_c)
         m = sense_currents(i_a, i_b, i_c, plant.sensor, plant.seed, k)
         issue_command(plant.line, k, *procedure.step(k, *m))
-        plant_advance(plant.x, *applied_voltage(plant.line, k), 0.0, True, 0.0, plant.machine, plant.mechanics,
-                      plant.inverter, plant.T_s, plant.substeps)
+        plant_advance(plant.x, *applied_voltage(plant.line, k), 0.0, True, 0.0, params)
         if progress and k % 1000 == 0:
             progress(k / n)
     if progress:

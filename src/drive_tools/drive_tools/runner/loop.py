@@ -15,6 +15,7 @@ from foc_controller.control import controller_block
 from foc_controller.protection import protection_block
 from hf_estimator.block import estimator_block
 from pmsm_plant.model import INVERTER_MODE, NOT_RELEASED, bus_voltage, plant_block
+from pmsm_plant.params import PlantInputs, PlantParams
 
 
 @njit(cache=True)
@@ -88,8 +89,8 @@ def run_blocks(k_start, k_end, block, px, line, machine, mech, inverter, sensor,
         release = -1
         if brake[0] > 0.5:
             release = NOT_RELEASED if brake[1] < 0.0 else int(brake[1])
-        plant_block(px, line, k0, n, tau_load, speed_ref, imposed, release, machine, mech, inverter, sensor, seed,
-                    T_s, substeps, plant_out)
+        plant_block(px, line, k0, n, PlantInputs(tau_load, speed_ref, imposed, release),
+                    PlantParams(machine, mech, inverter, sensor, seed, T_s, substeps), plant_out)
         for i in range(n):
             encoder[i, 0] = n_p * plant_out[i, 6]
             encoder[i, 1] = n_p * plant_out[i, 7]
