@@ -26,7 +26,8 @@ from hf_estimator.synchronous import first_order_lowpass
 
 pytestmark = pytest.mark.unit
 
-TABLE1 = dict(R_ohm=6.2, L_d_H=20.025e-3, L_q_H=40.17e-3, f_h_Hz=1500.0, injection_amplitude_V=40.0, u_star=1.0)
+TABLE1 = dict(R_ohm=6.2, L_dh_H=20.025e-3, L_qh_H=40.17e-3, injection_frequency_Hz=1500.0,
+              injection_amplitude_V=40.0, u_star=1.0)
 T_F = 0.53e-3
 
 
@@ -68,7 +69,7 @@ def test_highest_crossover_and_unreachable_requests():
     with pytest.raises(ValueError, match="not reachable with a PI"):
         tune_pi(loop, 60.0, 350.0)
     with pytest.raises(ValueError, match="no saliency"):
-        pll_process(**{**TABLE1, "L_q_H": TABLE1["L_d_H"]})
+        pll_process(**{**TABLE1, "L_qh_H": TABLE1["L_dh_H"]})
 
 
 def ideal_carrier_path(T_s):

@@ -176,13 +176,18 @@ def test_the_machine_watch_notes_a_stall_once_and_says_which_late_blocks_it_expl
 
 
 def test_the_machine_watch_runs_beside_as_a_process_of_its_own():
-    from drive_common.runtime.machine_watch import MachineWatch
+    """The child reports once its input ends: the scheduling it got, its wake-ups and its stalls, each later
+    than STALL_NOTED_S and after the one before it ended. How many wake-ups a wall-clock time holds is the
+    machine's pace, measured by `drive bench platform`, not asserted here."""
+    from drive_common.runtime.machine_watch import STALL_NOTED_S, MachineWatch
 
     with MachineWatch(0) as watch:
-        time.sleep(0.3)
+        time.sleep(0.05)
     report = watch.report
-    assert report["scheduling"] == {"applied": [], "refused": []}
-    assert report["wakeups"] >= 300 and watch.process.returncode == 0
+    assert set(report) == {"scheduling", "wakeups", "stalls"} and watch.process.returncode == 0
+    assert report["scheduling"] == {"applied": [], "refused": []} and report["wakeups"] >= 1
+    assert all(late > STALL_NOTED_S for _, late in report["stalls"])
+    assert all(later[0] >= due + late for (due, late), later in zip(report["stalls"], report["stalls"][1:]))
 
 
 def test_status_work_waits_for_the_quiet_part_of_a_block_and_never_more_than_a_period():
