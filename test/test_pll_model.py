@@ -15,7 +15,6 @@ from drive_tools.evaluation.pll_check import (
 from hf_estimator.pll_model import (
     CarrierPath,
     carrier_loop,
-    first_order_response,
     highest_crossover,
     margins,
     pll_process,
@@ -29,6 +28,11 @@ pytestmark = pytest.mark.unit
 TABLE1 = dict(R_ohm=6.2, L_dh_H=20.025e-3, L_qh_H=40.17e-3, injection_frequency_Hz=1500.0,
               injection_amplitude_V=40.0, u_star=1.0)
 T_F = 0.53e-3
+
+
+def first_order_response(T_f_s):
+    """ω → 1/(jωT_f + 1): Szabó's first-order filter in the loop."""
+    return lambda omega: 1.0 / (1j * np.asarray(omega) * T_f_s + 1.0)
 
 
 def szabo_table1_loop(T_f=T_F):

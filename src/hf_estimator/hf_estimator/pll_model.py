@@ -115,11 +115,6 @@ def szabo_loop(process, filter_response, omega_max_rad_s=1e6):
                         search_max_rad_s=omega_max_rad_s)
 
 
-def first_order_response(T_f_s):
-    """ω → 1/(jωT_f + 1)."""
-    return lambda omega: 1.0 / (1j * np.asarray(omega) * T_f_s + 1.0)
-
-
 def sos_response(sos, omega, T_s):
     """Frequency response of digital second-order sections at ω [rad/s] (negative ω allowed)."""
     zi = np.exp(-1j * np.asarray(omega, dtype=float) * T_s)
