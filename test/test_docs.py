@@ -102,6 +102,16 @@ def test_every_results_section_says_when_and_by_which_command():
     assert not re.search(r"before issue \d+\)", "\n".join(heading for heading, _ in sections(text)))
 
 
+def test_every_measured_section_of_the_other_pages_says_when_and_by_which_command():
+    """A "Measured …" or "Results" section elsewhere in docs/ is dated with its command, or points to the
+    results page."""
+    undated = [f"{page.name}: {heading}" for page in sorted(DOCS.glob("*.md")) if page != RESULTS
+               for heading, body in sections(page.read_text())
+               if re.match(r"#+ (Measured|(\d+\. )?Results)\b", heading)
+               and not (DATE.search(heading + body) and COMMAND.search(heading + body)) and "results.md" not in body]
+    assert undated == []
+
+
 def test_every_link_and_citation_into_the_results_names_one_of_its_sections():
     """`results.md#anchor` links and `results.md, "Title"` citations in docs/, README.md and src/."""
     text = RESULTS.read_text()
