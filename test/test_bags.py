@@ -3,6 +3,7 @@ and by the mcap library, stamp every per-sample message with its sample instant,
 rebuilt by `drive bag reindex`."""
 import dataclasses
 import json
+import math
 import subprocess
 import sys
 
@@ -11,9 +12,10 @@ import pytest
 
 from drive_common.config.scenario import load_scenario
 from drive_common.contract.log import COLUMN
+from drive_common.contract.run_result import RunResult
 from drive_common.contract.topics import TOPICS
 from drive_tools.bags.common import BagCutError, BagError
-from drive_tools.bags.reader import bag_info, bag_log
+from drive_tools.bags.reader import bag_info, bag_log, bag_scenario, recorded_estimator
 from drive_tools.bags.writer import write_run_bag
 from drive_tools.evaluation.metrics import compute_metrics
 from drive_tools.runner.runner import run_scenario
@@ -31,6 +33,20 @@ speed: {unit: rpm, interpolation: linear, points: [[0.0, 0.0], [0.05, 50.0]]}
 load: {unit: rated, points: [[0.0, 0.0], [0.02, 0.3]]}
 metrics: {settle_s: 0.01}
 """
+
+
+def recorded_run(path):
+    """A recorded run as a RunResult, its scenario rebuilt from the bag's drive_config, so that it is scored
+    as `drive run` scores a run: what the replays and comparisons are checked against."""
+    log, T_s, configs = bag_log(path)
+    scenario = bag_scenario(path, configs)
+    if scenario is None:
+        raise BagError(f"{path}: no drive_config names a scenario to score the run against")
+    scenario = dataclasses.replace(scenario, duration_s=log.shape[0] * T_s, T_s=T_s)
+    limit = next((c["current_limit_A"] for c in configs if "current_limit_A" in c),
+                 next((c["controller"]["i_max_A"] for c in configs if isinstance(c.get("controller"), dict)
+                       and "i_max_A" in c["controller"]), math.nan))
+    return RunResult(scenario, recorded_estimator(configs) or scenario.estimator, log, 0.0, limit)
 
 
 def mcap_stamps(bag, topic):
@@ -155,10 +171,9 @@ def test_replay_and_compare_score_the_windows_they_are_given(bags, tmp_path):
     estimator scores exactly the recording's angle error over those intervals, and compare too; the
     report says where its windows came from. A window past the recording or not a T0 < T1 pair is
     refused in one line naming the option."""
-    from drive_tools.bags.reader import bag_result
     from drive_tools.evaluation.metrics import angle_error
     graph, run, _ = bags
-    recorded = bag_result(graph)
+    recorded = recorded_run(graph)
     t, error = recorded.log[:, COLUMN["t"]], angle_error(recorded.log, recorded.n_p)
     inside = ((t >= 0.01) & (t < 0.02)) | ((t >= 0.03) & (t < 0.045))
     expected = float(np.sqrt(np.mean(error[inside] ** 2)))
@@ -218,8 +233,7 @@ def test_replay_reproduces_the_recorded_estimator_and_says_who_it_measures(bags,
     assert out.returncode == 0, out.stderr
     report = json.loads(out.stdout)
     own, other = report["results"]
-    from drive_tools.bags.reader import bag_result
-    recorded = compute_metrics(bag_result(graph))
+    recorded = compute_metrics(recorded_run(graph))
     assert report["ground_truth"] and report["recorded_estimator"] == "injection_frame"
     assert own["applicable"] and "any injection whose voltage is known" in own["reason"]
     for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak"):
@@ -235,7 +249,6 @@ def test_a_block_recording_reads_back_sample_by_sample_and_replays_exactly(tmp_p
     samples); read back it holds the samples of the runner with the same N, and replaying its own
     estimator (the applied voltage lagging by d + 1 = 11 samples) gives the recorded estimate exactly."""
     pytest.importorskip("rclpy")
-    from drive_tools.bags.reader import bag_result
     from drive_tools.launch.launcher import launch
     path = tmp_path / "blocks.yaml"
     path.write_text(SCENARIO + "block_samples: 10\n")
@@ -254,7 +267,7 @@ def test_a_block_recording_reads_back_sample_by_sample_and_replays_exactly(tmp_p
                                   "--out", str(tmp_path)], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     (own,) = json.loads(out.stdout)["results"]
-    recorded = compute_metrics(bag_result(bag))
+    recorded = compute_metrics(recorded_run(bag))
     assert own["applicable"]
     assert own["angle_error_rms"] == pytest.approx(recorded["angle_error_rms"], abs=1e-12)
 

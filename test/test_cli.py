@@ -122,3 +122,28 @@ def test_a_signal_noted_before_the_command_line_loaded_stops_the_command_in_one_
     assert main(["scenarios"], early_signals=[signal.SIGTERM]) == 128 + signal.SIGTERM
     assert capsys.readouterr().err.strip() == "drive: scenarios: interrupted by SIGTERM"
     assert main(["presets"], early_signals=[signal.SIGINT]) == 128 + signal.SIGINT
+
+
+def test_the_real_time_bench_and_launch_check_their_options():
+    """The real-time options are checked before anything runs: one line naming the option (run as a user
+    runs the command, so it is here and not in the unit tier)."""
+    drive = [sys.executable, "-m", "drive_tools.cli.cli"]
+    run = subprocess.run(drive + ["bench", "bridge", "--graph"], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and run.stderr.strip().endswith("give --paced --graph")
+    run = subprocess.run(drive + ["bench", "bridge", "--paced", "--graph", "--levers", "turbo"], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and "--levers: 'turbo' is not one of plain, collector" in run.stderr
+    run = subprocess.run(drive + ["launch", "wang_100rpm", "--rt-priority", "100"], capture_output=True, text=True,
+                         timeout=60)
+    assert run.returncode == 2 and "--rt-priority: a SCHED_FIFO priority 1-99" in run.stderr
+    run = subprocess.run(drive + ["bench", "bridge", "--paced", "--graph", "--lose-command-every", "-1"],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "--lose-command-every: N ≥ 0" in run.stderr
+    run = subprocess.run(drive + ["launch", "wang_100rpm", "--intra-process", "--processes", "separate"],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "--intra-process: needs --processes composed" in run.stderr
+    run = subprocess.run(drive + ["launch", "wang_100rpm", "--cpu-dma-latency-us", "x"], capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 2 and "--cpu-dma-latency-us: a whole number of µs ≥ 0" in run.stderr
+    run = subprocess.run(drive + ["bench", "bridge", "--watch-machine"], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and run.stderr.strip().endswith("give --paced --graph")

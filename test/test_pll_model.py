@@ -15,7 +15,6 @@ from drive_tools.evaluation.pll_check import (
 from hf_estimator.pll_model import (
     CarrierPath,
     carrier_loop,
-    first_order_response,
     highest_crossover,
     margins,
     pll_process,
@@ -26,8 +25,14 @@ from hf_estimator.synchronous import first_order_lowpass
 
 pytestmark = pytest.mark.unit
 
-TABLE1 = dict(R_ohm=6.2, L_d_H=20.025e-3, L_q_H=40.17e-3, f_h_Hz=1500.0, injection_amplitude_V=40.0, u_star=1.0)
+TABLE1 = dict(R_ohm=6.2, L_dh_H=20.025e-3, L_qh_H=40.17e-3, injection_frequency_Hz=1500.0,
+              injection_amplitude_V=40.0, u_star=1.0)
 T_F = 0.53e-3
+
+
+def first_order_response(T_f_s):
+    """ω → 1/(jωT_f + 1): Szabó's first-order filter in the loop."""
+    return lambda omega: 1.0 / (1j * np.asarray(omega) * T_f_s + 1.0)
 
 
 def szabo_table1_loop(T_f=T_F):
@@ -68,7 +73,7 @@ def test_highest_crossover_and_unreachable_requests():
     with pytest.raises(ValueError, match="not reachable with a PI"):
         tune_pi(loop, 60.0, 350.0)
     with pytest.raises(ValueError, match="no saliency"):
-        pll_process(**{**TABLE1, "L_q_H": TABLE1["L_d_H"]})
+        pll_process(**{**TABLE1, "L_qh_H": TABLE1["L_dh_H"]})
 
 
 def ideal_carrier_path(T_s):

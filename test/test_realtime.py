@@ -95,30 +95,6 @@ def test_the_time_the_hypervisor_took_is_read_per_cpu():
     assert set(stolen) == set(range(os.cpu_count())) and all(t >= 0.0 for t in stolen.values())
 
 
-def test_the_real_time_bench_and_launch_check_their_options():
-    import subprocess
-    drive = [sys.executable, "-m", "drive_tools.cli.cli"]
-    run = subprocess.run(drive + ["bench", "bridge", "--graph"], capture_output=True, text=True, timeout=60)
-    assert run.returncode == 2 and run.stderr.strip().endswith("give --paced --graph")
-    run = subprocess.run(drive + ["bench", "bridge", "--paced", "--graph", "--levers", "turbo"], capture_output=True,
-                         text=True, timeout=60)
-    assert run.returncode == 2 and "--levers: 'turbo' is not one of plain, collector" in run.stderr
-    run = subprocess.run(drive + ["launch", "wang_100rpm", "--rt-priority", "100"], capture_output=True, text=True,
-                         timeout=60)
-    assert run.returncode == 2 and "--rt-priority: a SCHED_FIFO priority 1-99" in run.stderr
-    run = subprocess.run(drive + ["bench", "bridge", "--paced", "--graph", "--lose-command-every", "-1"],
-                         capture_output=True, text=True, timeout=60)
-    assert run.returncode == 2 and "--lose-command-every: N ≥ 0" in run.stderr
-    run = subprocess.run(drive + ["launch", "wang_100rpm", "--intra-process", "--processes", "separate"],
-                         capture_output=True, text=True, timeout=60)
-    assert run.returncode == 2 and "--intra-process: needs --processes composed" in run.stderr
-    run = subprocess.run(drive + ["launch", "wang_100rpm", "--cpu-dma-latency-us", "x"], capture_output=True,
-                         text=True, timeout=60)
-    assert run.returncode == 2 and "--cpu-dma-latency-us: a whole number of µs ≥ 0" in run.stderr
-    run = subprocess.run(drive + ["bench", "bridge", "--watch-machine"], capture_output=True, text=True, timeout=60)
-    assert run.returncode == 2 and run.stderr.strip().endswith("give --paced --graph")
-
-
 def test_a_paced_link_launches_the_robots_configuration_unless_told_otherwise(monkeypatch):
     """`drive launch --link L --paced` fills what its command line left unset with the robot's configuration:
     SCHED_FIFO 50, the last CPU, over a pty the kernel's unbound workqueues there too, intra-process when
@@ -176,13 +152,18 @@ def test_the_machine_watch_notes_a_stall_once_and_says_which_late_blocks_it_expl
 
 
 def test_the_machine_watch_runs_beside_as_a_process_of_its_own():
-    from drive_common.runtime.machine_watch import MachineWatch
+    """The child reports once its input ends: the scheduling it got, its wake-ups and its stalls, each later
+    than STALL_NOTED_S and after the one before it ended. How many wake-ups a wall-clock time holds is the
+    machine's pace, measured by `drive bench platform`, not asserted here."""
+    from drive_common.runtime.machine_watch import STALL_NOTED_S, MachineWatch
 
     with MachineWatch(0) as watch:
-        time.sleep(0.3)
+        time.sleep(0.05)
     report = watch.report
-    assert report["scheduling"] == {"applied": [], "refused": []}
-    assert report["wakeups"] >= 300 and watch.process.returncode == 0
+    assert set(report) == {"scheduling", "wakeups", "stalls"} and watch.process.returncode == 0
+    assert report["scheduling"] == {"applied": [], "refused": []} and report["wakeups"] >= 1
+    assert all(late > STALL_NOTED_S for _, late in report["stalls"])
+    assert all(later[0] >= due + late for (due, late), later in zip(report["stalls"], report["stalls"][1:]))
 
 
 def test_status_work_waits_for_the_quiet_part_of_a_block_and_never_more_than_a_period():

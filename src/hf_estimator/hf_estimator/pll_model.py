@@ -41,18 +41,19 @@ class PllProcess:
         return (self.p1 * s * s + self.p2 * s + self.p3) / ((s - self.lambda_d) * (s - self.lambda_q))
 
 
-def pll_process(R_ohm, L_d_H, L_q_H, f_h_Hz, injection_amplitude_V, u_star):
-    """G_p and K from the motor's R, L_d, L_q and the injection (Szabó Eq. 24-38). ValueError for a
-    round rotor (L_d = L_q): the q̂ current then carries no angle information (§2.3, case 2)."""
-    if L_d_H == L_q_H:
-        raise ValueError(f"L_d = L_q = {L_d_H:g} H: no saliency, so the PLL has no angle signal to track")
-    omega_h = 2.0 * math.pi * f_h_Hz
-    y_d, y_q = 1.0 / complex(R_ohm, omega_h * L_d_H), 1.0 / complex(R_ohm, omega_h * L_q_H)
+def pll_process(R_ohm, L_dh_H, L_qh_H, injection_frequency_Hz, injection_amplitude_V, u_star):
+    """G_p and K from the motor's R, its incremental L_dh, L_qh (docs/glossary.md; Szabó writes L_d, L_q) and
+    the injection (Szabó Eq. 24-38). ValueError without HF saliency (L_dh = L_qh): the q̂ current then carries
+    no angle information (§2.3, case 2)."""
+    if L_dh_H == L_qh_H:
+        raise ValueError(f"L_dh = L_qh = {L_dh_H:g} H: no saliency, so the PLL has no angle signal to track")
+    omega_h = 2.0 * math.pi * injection_frequency_Hz
+    y_d, y_q = 1.0 / complex(R_ohm, omega_h * L_dh_H), 1.0 / complex(R_ohm, omega_h * L_qh_H)
     i_d, phi_d = abs(y_d), cmath.phase(y_d)
     i_q, phi_q = abs(y_q), cmath.phase(y_q)
     c = math.sqrt(i_d ** 2 + i_q ** 2 - 2.0 * i_d * i_q * math.cos(phi_q - phi_d))  # Eq. (30)
     phi_star = math.atan(-i_q * math.sin(phi_q - phi_d) / (i_d + i_q * math.cos(phi_q - phi_d)))  # Eq. (31)
-    lambda_d, lambda_q = -R_ohm / L_d_H, -R_ohm / L_q_H  # Eq. (25)
+    lambda_d, lambda_q = -R_ohm / L_dh_H, -R_ohm / L_qh_H  # Eq. (25)
     S = math.sin(phi_d + phi_star)
     a, b = i_d * math.sin(phi_d) / S, i_q * math.sin(phi_q) / S  # Eq. (33)
     p1 = -a + b + c  # Eq. (35)
@@ -112,11 +113,6 @@ def szabo_loop(process, filter_response, omega_max_rad_s=1e6):
         return abs(process.K) * process.G_p(s) * filter_response(omega) / s
     return TrackingLoop("Szabó §2.4 model", rest, continuous_pi, omega_max_rad_s=omega_max_rad_s,
                         search_max_rad_s=omega_max_rad_s)
-
-
-def first_order_response(T_f_s):
-    """ω → 1/(jωT_f + 1)."""
-    return lambda omega: 1.0 / (1j * np.asarray(omega) * T_f_s + 1.0)
 
 
 def sos_response(sos, omega, T_s):

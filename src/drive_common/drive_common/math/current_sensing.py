@@ -17,8 +17,6 @@ class CurrentCalibration(NamedTuple):
     offset_c_A: float
 
 
-UNCALIBRATED = CurrentCalibration(1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
-
 
 @njit(cache=True)
 def corrected_currents(m_a, m_b, m_c, cal):

@@ -4,7 +4,6 @@ Filters are second-order sections (rows b0 b1 b2 1 a1 a2, as scipy's ``sos``) ru
 direct form II by one numba kernel; they are designed once in Python with scipy, imported where a filter
 is designed (scipy.signal takes over a second to import, which every `drive` command would pay).
 """
-import numpy as np
 from numba import njit
 
 
@@ -25,15 +24,6 @@ def notch(frequency_Hz, quality, T_s):
     from scipy import signal
     b, a = signal.iirnotch(frequency_Hz, quality, fs=1.0 / T_s)
     return signal.tf2sos(b, a)
-
-
-def group_delay_s(sos, frequency_Hz, T_s):
-    """Group delay of an SOS filter at one frequency."""
-    from scipy import signal
-    w = 2.0 * np.pi * frequency_Hz * T_s
-    b, a = signal.sos2tf(sos)
-    _, gd = signal.group_delay((b, a), w=[w])
-    return float(gd[0]) * T_s
 
 
 @njit(cache=True)

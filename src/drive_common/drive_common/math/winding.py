@@ -22,7 +22,6 @@ WINDING_KEYS = (
 """The winding's figures as a drive configuration's ``protection:`` gives them, declared once
 (drive_common.contract.settings.Key); without them the drive assumes a winding rising 80 K at rated current in a
 40 °C ambient, τ = 5 min."""
-WINDING_DEFAULTS = {key.name: key.default for key in WINDING_KEYS}
 RISE_HAT, R_S_IN_USE = 0, 1
 """The winding state's layout (the first entries of foc_controller.protection's state): ΔT̂ [K]; the R̂_s
 [Ω] handed to the estimators (0: the commissioned one)."""

@@ -67,9 +67,9 @@ def scaled_loops(nameplate, inverter, T_s):
                      "let `drive commission` measure it")
     wanted_Hz = math.sqrt(a_e / ACCELERATION_LAG_RAD) / (2.0 * math.pi) if math.isfinite(a_e) else 0.0
     tracking_Hz = max(MIN_TRACKING_HZ, wanted_Hz)
-    carrier_Hz = min(max(f_s / SAMPLES_PER_CARRIER, CARRIER_PER_TRACKING * tracking_Hz),
-                     f_s / MIN_SAMPLES_PER_CARRIER)
-    tracking_Hz = min(tracking_Hz, carrier_Hz / CARRIER_PER_TRACKING)
+    injection_frequency_Hz = min(max(f_s / SAMPLES_PER_CARRIER, CARRIER_PER_TRACKING * tracking_Hz),
+                                 f_s / MIN_SAMPLES_PER_CARRIER)
+    tracking_Hz = min(tracking_Hz, injection_frequency_Hz / CARRIER_PER_TRACKING)
     tracked_step = math.inf
     if wanted_Hz > tracking_Hz:
         tracked_step = (2.0 * math.pi * tracking_Hz) ** 2 * ACCELERATION_LAG_RAD / a_e
@@ -81,6 +81,7 @@ def scaled_loops(nameplate, inverter, T_s):
         speed = max(speed, math.sqrt(a_e / EXCURSION_RAD))
     cap = HF_VOLTAGE_PER_LINEAR * inverter.U_dc_V / math.sqrt(3.0)
     sigma = 0.5 * (1.0 / nameplate.L_d_H + 1.0 / nameplate.L_q_H)
-    amplitude = min(HF_RIPPLE_PER_RATED * nameplate.rated_current_A * 2.0 * math.pi * carrier_Hz / sigma, cap)
-    return ScaledLoops(a_e, tracking_Hz, carrier_Hz, amplitude, speed, cap, tracked_step,
+    amplitude = min(HF_RIPPLE_PER_RATED * nameplate.rated_current_A * 2.0 * math.pi * injection_frequency_Hz / sigma,
+                    cap)
+    return ScaledLoops(a_e, tracking_Hz, injection_frequency_Hz, amplitude, speed, cap, tracked_step,
                        wanted_Hz > MIN_TRACKING_HZ, tuple(notes))

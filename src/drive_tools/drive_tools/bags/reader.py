@@ -3,7 +3,6 @@ from its per-sample topics, and a recorded run rebuilt with its scenario so it i
 is."""
 import dataclasses
 import json
-import math
 import warnings
 from pathlib import Path
 
@@ -12,7 +11,6 @@ import numpy as np
 from drive_common.config.parameters import all_parameters, scenario_from_parameters
 from drive_common.config.scenario import ScenarioError, load_scenario
 from drive_common.contract.log import COLUMN, LOG_COLUMNS, fill_block, fill_sample
-from drive_common.contract.run_result import RunResult
 from drive_common.contract.settings import FormatMigrated
 from drive_common.contract.topics import (
     BLOCK_LOGGED,
@@ -344,22 +342,6 @@ def _pole_pairs(configs):
 
 def _stamp_ns(stamp):
     return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-
-def bag_result(path, namespace=None):
-    """A recorded run as drive_common.contract.run_result.RunResult, its scenario rebuilt from the bag's drive_config
-    (the scenario file and overrides the nodes or the runner used), so it is scored as `drive run` is."""
-    log, T_s, configs = bag_log(path, namespace=namespace)
-    scenario = bag_scenario(path, configs)
-    if scenario is None:
-        raise BagError(f"{path}: no drive_config names a scenario to score the run against (its windows and "
-                       f"motor)")
-    scenario = dataclasses.replace(scenario, duration_s=log.shape[0] * T_s, T_s=T_s)
-    estimator = recorded_estimator(configs) or scenario.estimator
-    limit = next((c["current_limit_A"] for c in configs if "current_limit_A" in c),
-                 next((c["controller"]["i_max_A"] for c in configs if isinstance(c.get("controller"), dict)
-                       and "i_max_A" in c["controller"]), math.nan))
-    return RunResult(scenario, estimator, log, 0.0, limit)
 
 
 def recorded_estimator(configs):

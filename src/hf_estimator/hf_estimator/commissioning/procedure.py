@@ -38,10 +38,10 @@ from .identification import (
 
 METHOD = "standstill_tests"
 """How the record was obtained, as written in its file."""
-DEFAULTS = {"hf_frequency_Hz": 1000.0, "hf_current_fraction": 0.15, "dc_levels": (0.5, 1.0),
+DEFAULTS = {"injection_frequency_Hz": 1000.0, "hf_current_fraction": 0.15, "dc_levels": (0.5, 1.0),
             "current_bandwidth_Hz": 100.0, "limit_margin": 0.97, "d_sweep_fraction": 0.2, "q_points": 9,
             "polarity_margin": 0.005}
-"""hf_frequency_Hz: the HF carrier (sample-synchronous); hf_current_fraction: its current amplitude per
+"""injection_frequency_Hz: the HF carrier (sample-synchronous); hf_current_fraction: its current amplitude per
 rated current (by the nameplate inductance); dc_levels: DC points per rated current; limit_margin: the
 peak current stays below this fraction of the current limit; d_sweep_fraction: Δ per rated current;
 q_points: the q-current grid (odd); polarity_margin: the relative L_dh asymmetry that decides polarity."""
@@ -74,7 +74,7 @@ def check_settings(settings, T_s):
         raise KeyError(f"commissioning: unknown setting(s) {', '.join(sorted(map(str, unknown)))} "
                        f"(known: {', '.join(sorted(DEFAULTS))})")
     try:
-        number("hf_frequency_Hz", s["hf_frequency_Hz"], 0.0, 0.25 / T_s)
+        number("injection_frequency_Hz", s["injection_frequency_Hz"], 0.0, 0.25 / T_s)
         number("hf_current_fraction", s["hf_current_fraction"], 0.0, 0.3)
         number("current_bandwidth_Hz", s["current_bandwidth_Hz"], 0.0, 0.05 / T_s)
         number("limit_margin", s["limit_margin"], 0.5, 1.0)
@@ -97,10 +97,10 @@ class CommissioningProcedure:
     def __init__(self, nameplate, rating, T_s, settings=None):
         s = check_settings(settings, T_s)
         self.plate, self.T_s, self.settings = nameplate, T_s, s
-        self.N = int(round(1.0 / (s["hf_frequency_Hz"] * T_s)))
+        self.N = int(round(1.0 / (s["injection_frequency_Hz"] * T_s)))
         L_mean = 0.5 * (nameplate.L_d_H + nameplate.L_q_H)
         omega_h = 2.0 * math.pi / (self.N * T_s)
-        self.U_h = s["hf_current_fraction"] * nameplate.rated_current_A * omega_h * L_mean
+        self.injection_amplitude_V = s["hf_current_fraction"] * nameplate.rated_current_A * omega_h * L_mean
         w = 2.0 * math.pi * s["current_bandwidth_Hz"]
         self.kp, self.ki = w * L_mean, w * nameplate.R_s_ohm * T_s
         self.u_max = rating.U_dc_V / SQRT3
@@ -241,7 +241,7 @@ class CommissioningProcedure:
             u = self.kp * error + self.integral
             if seg.hf:
                 phase = 2.0 * math.pi * (k % self.N) / self.N
-                u = u + self.U_h * np.array([math.cos(phase), math.sin(phase)])
+                u = u + self.injection_amplitude_V * np.array([math.cos(phase), math.sin(phase)])
         magnitude = math.hypot(*u)
         if magnitude > self.u_max:
             u = u * (self.u_max / magnitude)
@@ -274,7 +274,8 @@ class CommissioningProcedure:
         """What the record was measured under: test currents, HF carrier, polarity test, duration."""
         return {"shaft": "held (brake)",
                 "duration_s": self.total_samples * self.T_s, "T_s_s": self.T_s,
-                "hf_frequency_Hz": 1.0 / (self.N * self.T_s), "hf_amplitude_V": self.U_h,
+                "injection_frequency_Hz": 1.0 / (self.N * self.T_s),
+                "injection_amplitude_V": self.injection_amplitude_V,
                 "hf_ripple_A": self.ripple_A, "dc_levels_A": [lv * self.plate.rated_current_A
                                                                for lv in self.settings["dc_levels"]],
                 "current_limit_A": self.limit_A, "peak_planned_A": self.peak_planned_A,
