@@ -32,6 +32,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
 from drive_common.config.parameters import SCHEDULE_PARAMETER
+from drive_common.contract.drive_records import commands, drive_inputs
 from drive_common.contract.estimator_records import estimates
 from drive_common.contract.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_common.contract.topics import (
@@ -48,7 +49,7 @@ from drive_common.contract.topics import (
     block,
 )
 from drive_common.contract.wire import BlockWire, Vector3Wire
-from drive_common.math.current_sensing import corrected_currents
+from drive_common.math.current_sensing import current_sensing
 from drive_common.motor.knowledge import motor_knowledge
 from drive_common.ros.node import describe, finite, run_node, stamp, topic_qos
 from drive_common.ros.scenario_node import ScenarioNode
@@ -178,6 +179,7 @@ class ControllerNode(ScenarioNode):
             return
         self.n_p = self.params.n_p
         self.trip_A = self.trip_current_A()
+        self.sensing = current_sensing(self.calibration, self.trip_A)
         self.supervisor = SpeedSupervisor(self.n_p, self.nameplate().rated_speed_rpm * math.pi / 30.0,
                                           self.params.i_max_A, self.T_s)
         self.supervisor.warm_up()
@@ -185,9 +187,10 @@ class ControllerNode(ScenarioNode):
         self.protection = self.protection._replace(current_limit_A=self.params.i_max_A)
         protection_block(self.protection_x.copy(), self.protection, np.zeros((1, 3)), 1, 0, self.bus_V, 0.0,
                          self.x.copy())
-        controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), estimates(1),
-                         np.zeros(1), np.zeros(1), self.calibration, self.trip_A, np.zeros((1, 6)))
+        controller_step(self.x.copy(), self.z.copy(), self.params, drive_inputs(1)[0], estimates(1)[0],
+                        self.calibration, commands(1)[0])
+        controller_block(self.x.copy(), self.z.copy(), self.params, 1, drive_inputs(1), estimates(1), self.sensing,
+                         commands(1))
         self.publish_config({"controller": self.params, "estimator": config["estimator"],
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
 
@@ -329,7 +332,7 @@ class ControllerNode(ScenarioNode):
         """Answer the block of samples k0 …: its voltage commands on voltage_command_block; returns the
         next block's first sample."""
         n = len(currents[0])
-        out = np.zeros((n, 6))
+        out = commands(n)
         if self.params and not self.health.latched and all(len(c) == n for c in (*estimate, *injection, *state)):
             if self.schedule:
                 speed, feedforward = self.schedule[0][k0:k0 + n], self.schedule[1][k0:k0 + n]
@@ -340,31 +343,34 @@ class ControllerNode(ScenarioNode):
             estimated["u_inj_alpha"], estimated["u_inj_beta"] = injection
             estimated["eps"], estimated["signal"], estimated["state"] = state
             measured = np.column_stack(currents)
+            inputs = drive_inputs(n)
+            inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents
+            inputs["omega_m_ref_rad_s"], inputs["tau_feedforward_Nm"] = speed, feedforward
             protection_block(self.protection_x, self.protection, measured, n, k0 + n - 1, self.bus_V,
                              estimated["omega_e_hat"][-1], self.x)
-            bad = controller_block(self.x, self.z, self.params, n, measured, estimated, speed,
-                                   feedforward, self.calibration, self.trip_A, out)
+            bad = controller_block(self.x, self.z, self.params, n, inputs, estimated, self.sensing, out)
             if bad:
                 self.fault("bad_input", f"block {k0}: {bad} of {n} samples with currents beyond the "
                                         f"{self.trip_A:g} A trip or a non-finite estimate; zero voltage there")
-            self.current_limited = abs(out[-1, 5]) >= self.params.i_max_A
-            self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], out[:, 5], state[2]))
+            self.current_limited = abs(out[-1]["i_q_ref_A"]) >= self.params.i_max_A
+            self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], out["i_q_ref_A"], state[2]))
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
             if joint is not None:
                 j = self.joint_msg
                 j.header.stamp = stamp(k0 + joint, self.T_s)
                 j.position = [float(estimate[0][joint])]
                 j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
-                j.effort = [estimated_torque(self.params, out[joint, 2], out[joint, 3])]
+                j.effort = [estimated_torque(self.params, out[joint]["i_d_A"], out[joint]["i_q_A"])]
                 self.joint_pub.publish(j)
         elif self.params and not self.health.latched:
             self.fault("bad_input", f"block {k0}: inputs of unequal length; zero voltage")
+        u_alpha, u_beta = out["u_alpha_V"], out["u_beta_V"]
         if self.hand_commands:
-            self.hand_commands(k0, out[:, 0], out[:, 1])
+            self.hand_commands(k0, u_alpha, u_beta)
         if self.commands_to_estimator:
-            self.commands_to_estimator(k0, out[:, 0], out[:, 1])
+            self.commands_to_estimator(k0, u_alpha, u_beta)
         sec, nanosec = stamp_parts(k0, self.T_s)
-        self.voltage_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 0], out[:, 1]))
+        self.voltage_pub.publish(self.block_wire.encode(sec, nanosec, u_alpha, u_beta))
         self.sample_handled(k0 + n - 1)
         return k0 + n
 
@@ -392,10 +398,15 @@ class ControllerNode(ScenarioNode):
                 self.omega_m_ref, self.tau_feedforward = self.schedule[0][k], self.schedule[1][k]
             protection_block(self.protection_x, self.protection, np.array([currents], dtype=float), 1, k, self.bus_V,
                              self.n_p * estimate[1], self.x)
-            u_alpha, u_beta, i_d, i_q, _, i_q_ref = controller_step(
-                self.x, self.z, self.params, *corrected_currents(*currents, self.calibration),
-                self.n_p * estimate[0], self.n_p * estimate[1], self.omega_m_ref, *injection,
-                state if finite(state) else 0.0, self.tau_feedforward)
+            inputs, estimated, out = drive_inputs(1)[0], estimates(1)[0], commands(1)[0]
+            inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents
+            inputs["omega_m_ref_rad_s"], inputs["tau_feedforward_Nm"] = self.omega_m_ref, self.tau_feedforward
+            estimated["theta_e_hat"], estimated["omega_e_hat"] = self.n_p * estimate[0], self.n_p * estimate[1]
+            estimated["u_inj_alpha"], estimated["u_inj_beta"] = injection
+            estimated["state"] = state if finite(state) else 0.0
+            controller_step(self.x, self.z, self.params, inputs, estimated, self.calibration, out)
+            u_alpha, u_beta, i_d, i_q, i_q_ref = (float(out[name]) for name in (
+                "u_alpha_V", "u_beta_V", "i_d_A", "i_q_A", "i_q_ref_A"))
             self.current_limited = abs(i_q_ref) >= self.params.i_max_A
             self.supervise(self.supervisor.step(k, self.omega_m_ref, self.n_p * estimate[1], i_q_ref, state))
             if k % self.decimation == 0:

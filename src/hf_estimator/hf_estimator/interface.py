@@ -34,6 +34,8 @@ from numba import njit
 
 from drive_common.contract.settings import choice, flag, number, positive, shown
 
+from .block import EstimatorCore
+
 
 @dataclass(frozen=True)
 class Estimator:
@@ -53,6 +55,11 @@ class Estimator:
     """The HF amplitude it injects when it chooses it itself (None: the scenario's)."""
     injection_note: str = ""
     """Why it raised the scenario's amplitude ("" when it did not)."""
+
+    @property
+    def core(self):
+        """What the block kernels step (block.EstimatorCore), on this estimator's state."""
+        return EstimatorCore(self.step, self.params, self.state)
 
     def facts(self):
         """What the controller needs to know of this estimator and how it injects (its drive_config)."""

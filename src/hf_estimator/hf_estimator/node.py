@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from drive_common.contract.drive_records import drive_inputs
 from drive_common.contract.estimator_records import estimates
 from drive_common.contract.estimator_states import LEADER_NAMES, LOCK_LOST, STATE_NAMES
 from drive_common.contract.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
@@ -43,6 +44,7 @@ from drive_common.contract.topics import (
 )
 from drive_common.contract.wire import BlockWire, JointWire, Vector3Wire
 from drive_common.math.command_delay import command_line, issue_command
+from drive_common.math.current_sensing import current_sensing
 from drive_common.math.winding import R_S_IN_USE, winding_block, winding_params, winding_state
 from drive_common.motor.commissioning import commissioning_record
 from drive_common.motor.knowledge import motor_knowledge
@@ -101,6 +103,7 @@ class EstimatorNode(ScenarioNode):
         self.k = 0
         self.theta_hat = self.omega_hat = 0.0
         self.trip_A = self.trip_current_A()
+        self.sensing = current_sensing(self.calibration, self.trip_A)
         self.zero_volts = set()
         """Samples whose commands the inverter reported not applied (`zero_voltage`), not yet in the line."""
         self.zero_voltage_periods = 0
@@ -132,7 +135,7 @@ class EstimatorNode(ScenarioNode):
         self.commissioning = self.load_commissioning(scenario)
         self.calibration = self.commissioning.calibration()
         self.estimator = estimator_for_scenario(scenario, self.commissioning)
-        self.inputs = sample_inputs()
+        self.sample = sample_inputs()
         self.winding = winding_params(scenario.motor.nameplate.rated_current_A, self.commissioning.R_s_ohm,
                                       scenario.T_s, scenario.protection)
         self.winding_x = winding_state()
@@ -165,8 +168,8 @@ class EstimatorNode(ScenarioNode):
     def warm_up(self):
         e = self.estimator
         issue_command(command_line(1), 0, 0.0, 0.0)
-        estimator_block(e.step, e.state.copy(), e.params, 0, 1, np.zeros((1, 3)), command_line(1),
-                        np.zeros((1, 2)), self.calibration, 1.0, estimates(1), self.inputs)
+        estimator_block(e.core._replace(state=e.state.copy()), 0, 1, drive_inputs(1), command_line(1),
+                        current_sensing(self.calibration, 1.0), estimates(1), self.sample)
         winding_block(self.winding_x.copy(), self.winding, np.zeros((1, 3)), 1)
 
     def before_joining(self, k, n):
@@ -268,10 +271,10 @@ class EstimatorNode(ScenarioNode):
             held["observer_weight"], held["leader"] = self.blend[1:]
             self.answer(k, held, (i_a, i_b, i_c))
         else:
-            e, out, measured = self.estimator, estimates(1), np.array([[i_a, i_b, i_c]])
-            self.inputs[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
-            estimator_block(e.step, e.state, e.params, k, 1, measured, self.line,
-                            np.array([[theta_enc, omega_enc]]), self.calibration, self.trip_A, out, self.inputs)
+            out, measured, inputs = estimates(1), np.array([[i_a, i_b, i_c]]), drive_inputs(1)
+            inputs[0] = i_a, i_b, i_c, theta_enc, omega_enc, 0.0, 0.0
+            self.sample[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
+            estimator_block(self.estimator.core, k, 1, inputs, self.line, self.sensing, out, self.sample)
             winding_block(self.winding_x, self.winding, measured, 1)
             self.answer(k, out[0], (i_a, i_b, i_c))
         self.try_step()
@@ -356,10 +359,11 @@ class EstimatorNode(ScenarioNode):
         encoder = self.encoder.pop(k0, None)
         if encoder is None or len(encoder) != n:
             encoder = np.zeros((n, 2))
-        e, records = self.estimator, estimates(n)
-        self.inputs[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
-        bad = estimator_block(e.step, e.state, e.params, k0, n, currents, self.line, encoder, self.calibration,
-                              self.trip_A, records, self.inputs)
+        records, inputs = estimates(n), drive_inputs(n)
+        inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents.T
+        inputs["theta_e_encoder_rad"], inputs["omega_e_encoder_rad_s"] = encoder.T
+        self.sample[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
+        bad = estimator_block(self.estimator.core, k0, n, inputs, self.line, self.sensing, records, self.sample)
         winding_block(self.winding_x, self.winding, currents, n)
         if bad:
             self.fault("bad_input", f"currents of block {k0}: {bad} of {n} samples not finite or beyond the "

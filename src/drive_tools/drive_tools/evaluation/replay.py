@@ -153,13 +153,13 @@ def replay(recording, estimators):
         e = replayed_estimator(recording, name)
         theta_ref, omega_ref = encoder if excitation_need(name) == "encoder" else estimate
         out = estimates(len(currents))
-        replay_samples(e.step, e.state.copy(), e.params, currents[:2], u_applied[:2], whole[:2],
+        replay_samples(e.core._replace(state=e.state.copy()), currents[:2], u_applied[:2], whole[:2],
                        theta_ref[:2], omega_ref[:2], calibration, out[:2])
         wall = math.inf
         for _ in range(TIMED_RUNS):
-            state = e.state.copy()
+            core = e.core._replace(state=e.state.copy())
             start = time.perf_counter()
-            replay_samples(e.step, state, e.params, currents, u_applied, whole, theta_ref, omega_ref,
+            replay_samples(core, currents, u_applied, whole, theta_ref, omega_ref,
                            calibration, out)
             wall = min(wall, time.perf_counter() - start)
         log = log0.copy()

@@ -103,7 +103,7 @@ def observer_on_run(result, scenario):
     currents, u_applied, whole = logged_inputs(result.log, scenario.drive_delay_periods())
     out = estimates(len(currents))
     zeros = np.zeros(len(currents))
-    replay_samples(e.step, e.state.copy(), e.params, currents, u_applied, whole, zeros, zeros,
+    replay_samples(e.core._replace(state=e.state.copy()), currents, u_applied, whole, zeros, zeros,
                    commissioning.calibration(), out)
     log = result.log.copy()
     for field in ESTIMATE_FIELDS:
