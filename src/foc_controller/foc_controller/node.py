@@ -8,8 +8,8 @@ speed reference and the feed-forward of sample k are its scenario's, sample-exac
 not read. The robot-facing `joint_states` (estimated
 position, speed, torque) is published every ``joint_states_decimation`` samples. Bad currents or
 estimates, or a rejected speed limit, give zero voltage and a reported fault; the node keeps answering.
-With blocks (``block_samples`` N > 1) it joins the four block twins of a block, runs ``controller_block``
-once and answers `voltage_command_block`. Composed in one process with the estimator
+Each sample, or each block of N (``block_samples`` N > 1: it joins the four block twins of a block and
+answers `voltage_command_block`), is one call of ``controller_block``. Composed in one process with the estimator
 (``drive launch --intra-process``) it takes the currents and the estimator's answers from the estimator
 node directly, at once, instead of four deliveries; the estimator still publishes them. With the
 inverter's bridge there too, it hands its commands to the bridge, then to the estimator.
@@ -55,7 +55,7 @@ from drive_common.ros.node import describe, finite, run_node, stamp, topic_qos
 from drive_common.ros.scenario_node import ScenarioNode
 
 from .build import check_controller_settings, controller_for_scenario, protection_for_scenario
-from .control import OMEGA_FILTERED, controller_block, controller_state, controller_step, estimated_torque
+from .control import OMEGA_FILTERED, controller_block, controller_state, estimated_torque
 from .params import check_speed_limit
 from .protection import protection_block, protection_state
 from .supervision import SpeedSupervisor, fault_line
@@ -187,8 +187,6 @@ class ControllerNode(ScenarioNode):
         self.protection = self.protection._replace(current_limit_A=self.params.i_max_A)
         protection_block(self.protection_x.copy(), self.protection, np.zeros((1, 3)), 1, 0, self.bus_V, 0.0,
                          self.x.copy())
-        controller_step(self.x.copy(), self.z.copy(), self.params, drive_inputs(1)[0], estimates(1)[0],
-                        self.calibration, commands(1)[0])
         controller_block(self.x.copy(), self.z.copy(), self.params, 1, drive_inputs(1), estimates(1), self.sensing,
                          commands(1))
         self.publish_config({"controller": self.params, "estimator": config["estimator"],
@@ -329,13 +327,16 @@ class ControllerNode(ScenarioNode):
             k0 = self.k
 
     def step_block(self, k0, currents, estimate, injection, state):
-        """Answer the block of samples k0 …: its voltage commands on voltage_command_block; returns the
-        next block's first sample."""
+        """Answer the samples k0 … k0 + n − 1 (a block; n = 1 with per-sample topics): their inputs as
+        channels of n values (currents: i_a, i_b, i_c; estimate: θ̂_m, ω̂_m; injection: u_α, u_β; state: ε,
+        signal, code), their voltage commands on voltage_command (its block twin with blocks); returns the next
+        sample to answer."""
         n = len(currents[0])
         out = commands(n)
         if self.params and not self.health.latched and all(len(c) == n for c in (*estimate, *injection, *state)):
             if self.schedule:
                 speed, feedforward = self.schedule[0][k0:k0 + n], self.schedule[1][k0:k0 + n]
+                self.omega_m_ref, self.tau_feedforward = speed[-1], feedforward[-1]
             else:
                 speed, feedforward = np.full(n, self.omega_m_ref), np.full(n, self.tau_feedforward)
             estimated = estimates(n)
@@ -350,8 +351,8 @@ class ControllerNode(ScenarioNode):
                              estimated["omega_e_hat"][-1], self.x)
             bad = controller_block(self.x, self.z, self.params, n, inputs, estimated, self.sensing, out)
             if bad:
-                self.fault("bad_input", f"block {k0}: {bad} of {n} samples with currents beyond the "
-                                        f"{self.trip_A:g} A trip or a non-finite estimate; zero voltage there")
+                self.fault("bad_input", f"currents at samples {k0}..{k0 + n - 1}: {bad} of {n} not finite or beyond "
+                                        f"the {self.trip_A:g} A trip, or a non-finite estimate; zero voltage there")
             self.current_limited = abs(out[-1]["i_q_ref_A"]) >= self.params.i_max_A
             self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], out["i_q_ref_A"], state[2]))
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
@@ -365,12 +366,17 @@ class ControllerNode(ScenarioNode):
         elif self.params and not self.health.latched:
             self.fault("bad_input", f"block {k0}: inputs of unequal length; zero voltage")
         u_alpha, u_beta = out["u_alpha_V"], out["u_beta_V"]
+        sec, nanosec = stamp_parts(k0, self.T_s)
+        if self.block_samples > 1:
+            message = self.block_wire.encode(sec, nanosec, u_alpha, u_beta)
+        else:
+            u_alpha, u_beta = float(u_alpha[0]), float(u_beta[0])
+            message = self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0)
         if self.hand_commands:
             self.hand_commands(k0, u_alpha, u_beta)
         if self.commands_to_estimator:
             self.commands_to_estimator(k0, u_alpha, u_beta)
-        sec, nanosec = stamp_parts(k0, self.T_s)
-        self.voltage_pub.publish(self.block_wire.encode(sec, nanosec, u_alpha, u_beta))
+        self.voltage_pub.publish(message)
         self.sample_handled(k0 + n - 1)
         return k0 + n
 
@@ -385,44 +391,10 @@ class ControllerNode(ScenarioNode):
         self.k = k
 
     def step(self, k, currents, estimate, injection, state):
-        u_alpha = u_beta = 0.0
-        if not self.params or self.health.latched:
-            pass
-        elif not finite(*currents) or max(map(abs, currents)) > self.trip_A:
-            self.fault("bad_input", f"currents at sample {k}: {currents} A are not finite or beyond the "
-                                    f"{self.trip_A:g} A trip; zero voltage")
-        elif not finite(*estimate, *injection):
-            self.fault("bad_input", f"rotor_estimate/injection at sample {k} not finite; zero voltage")
-        else:
-            if self.schedule:
-                self.omega_m_ref, self.tau_feedforward = self.schedule[0][k], self.schedule[1][k]
-            protection_block(self.protection_x, self.protection, np.array([currents], dtype=float), 1, k, self.bus_V,
-                             self.n_p * estimate[1], self.x)
-            inputs, estimated, out = drive_inputs(1)[0], estimates(1)[0], commands(1)[0]
-            inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents
-            inputs["omega_m_ref_rad_s"], inputs["tau_feedforward_Nm"] = self.omega_m_ref, self.tau_feedforward
-            estimated["theta_e_hat"], estimated["omega_e_hat"] = self.n_p * estimate[0], self.n_p * estimate[1]
-            estimated["u_inj_alpha"], estimated["u_inj_beta"] = injection
-            estimated["state"] = state if finite(state) else 0.0
-            controller_step(self.x, self.z, self.params, inputs, estimated, self.calibration, out)
-            u_alpha, u_beta, i_d, i_q, i_q_ref = (float(out[name]) for name in (
-                "u_alpha_V", "u_beta_V", "i_d_A", "i_q_A", "i_q_ref_A"))
-            self.current_limited = abs(i_q_ref) >= self.params.i_max_A
-            self.supervise(self.supervisor.step(k, self.omega_m_ref, self.n_p * estimate[1], i_q_ref, state))
-            if k % self.decimation == 0:
-                j = self.joint_msg
-                j.header.stamp = stamp(k, self.T_s)
-                j.position = [estimate[0]]
-                j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
-                j.effort = [estimated_torque(self.params, i_d, i_q)]
-                self.joint_pub.publish(j)
-        if self.hand_commands:
-            self.hand_commands(k, u_alpha, u_beta)
-        if self.commands_to_estimator:
-            self.commands_to_estimator(k, u_alpha, u_beta)
-        sec, nanosec = stamp_parts(k, self.T_s)
-        self.voltage_pub.publish(self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0))
-        self.sample_handled(k)
+        """Answer sample k from its per-sample inputs (scalars; state: the code) as a block of one."""
+        def channels(*values):
+            return tuple(np.array([v], dtype=float) for v in values)
+        self.step_block(k, channels(*currents), channels(*estimate), channels(*injection), channels(0.0, 0.0, state))
 
     def supervise(self, raised):
         """Report the speed supervision's new faults (foc_controller.supervision) on /diagnostics."""

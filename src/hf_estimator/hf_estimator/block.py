@@ -1,6 +1,5 @@
 """An estimator core over a block of consecutive samples, one compiled call: what the runner and the
 estimator node both run (docs/architecture.md "Block transport")."""
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -12,35 +11,34 @@ from drive_common.math.current_sensing import bad_currents, corrected_currents
 
 
 class EstimatorCore(NamedTuple):
-    """What the block kernels step: an estimator's step kernel (interface.py), its parameters and its state
-    (Estimator.state: the one-element array of its state record, stepped in place)."""
+    """What the block kernels step with an estimator's step kernel (interface.py): its parameters, its state
+    (Estimator.state: the one-element array of its state record, stepped in place) and the SAMPLE record the
+    step reads (a one-element array filled sample by sample; the caller sets its R_s_ohm). The step kernel
+    goes beside it, not in it: a tuple holding a function costs numba a millisecond per call to type."""
 
-    step: Callable
     params: Any
     state: np.ndarray
+    sample: np.ndarray
 
 
 def sample_inputs():
-    """The SAMPLE buffer estimator_block fills (one per caller, reused for every block); the caller sets its
-    R_s_ohm."""
+    """A SAMPLE buffer (EstimatorCore.sample), zeroed."""
     return np.zeros(1, SAMPLE)
 
 
 @njit
-def estimator_block(core, k0, n, inputs, line, sensing, out, sample):
-    """Samples k0 … k0+n−1 of the estimator ``core`` (EstimatorCore).
+def estimator_block(step, core, k0, n, inputs, line, sensing, out):
+    """Samples k0 … k0+n−1 of the estimator ``step`` on ``core`` (EstimatorCore).
 
     inputs: n DRIVE_INPUT records (drive_common.contract.drive_records): the measured currents [A], corrected
     here by ``sensing``'s calibration (drive_common.math.current_sensing.CurrentSensing), and the encoder's
     θ_e, ω_e, read only by `sensored`; line: the drive's delay line (drive_common.math.command_delay) holding
     the commands of earlier samples. A sample whose currents are not finite or exceed the trip is not fed to
     the core: its record repeats the last estimate, signal, weight and leader with no injection and state 0.
-    ``out``: n ESTIMATE records; ``sample``: a one-element SAMPLE array the caller keeps (sample_inputs) with
-    the R_s_ohm the step reads, filled here sample by sample (no allocation per block). Returns the number of
-    such bad samples. Not cached: specialised on each estimator's step function (as
-    drive_tools.runner.loop's kernels)."""
-    step, p, x = core.step, core.params, core.state[0]
-    record = sample[0]
+    ``out``: n ESTIMATE records. Returns the number of such bad samples. Not cached: specialised on each
+    estimator's step function (as drive_tools.runner.loop's kernels)."""
+    p, x = core.params, core.state[0]
+    record = core.sample[0]
     bad = 0
     for i in range(n):
         k = k0 + i

@@ -34,7 +34,7 @@ from numba import njit
 
 from drive_common.contract.settings import choice, flag, number, positive, shown
 
-from .block import EstimatorCore
+from .block import EstimatorCore, sample_inputs
 
 
 @dataclass(frozen=True)
@@ -56,10 +56,10 @@ class Estimator:
     injection_note: str = ""
     """Why it raised the scenario's amplitude ("" when it did not)."""
 
-    @property
-    def core(self):
-        """What the block kernels step (block.EstimatorCore), on this estimator's state."""
-        return EstimatorCore(self.step, self.params, self.state)
+    def core(self, state=None):
+        """What the block kernels step with ``step`` (block.EstimatorCore): its parameters, this estimator's
+        state (or ``state``, e.g. a copy) and a SAMPLE buffer of its own."""
+        return EstimatorCore(self.params, self.state if state is None else state, sample_inputs())
 
     def facts(self):
         """What the controller needs to know of this estimator and how it injects (its drive_config)."""

@@ -26,7 +26,7 @@ from drive_common.runtime.interrupt import Interrupted, checkpoint
 from drive_common.runtime.realtime import collector_held
 from foc_controller.control import controller_block
 from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block, protection_summary
-from hf_estimator.block import estimator_block, sample_inputs
+from hf_estimator.block import estimator_block
 from hf_estimator.interface import contract_injection
 
 from .loop import write_row
@@ -194,7 +194,7 @@ class _HostAnswer:
         self.sensing = host.sensing()
         N = scenario.block_samples
         self.currents, self.inputs = np.zeros((N, 3)), drive_inputs(N)
-        self.est_out, self.ctrl_out, self.sample = estimates(N), commands(N), sample_inputs()
+        self.est_out, self.ctrl_out, self.core = estimates(N), commands(N), host.estimator.core()
         self.warm_up()
 
     def warm_up(self):
@@ -203,8 +203,8 @@ class _HostAnswer:
         host, N = self.host, self.scenario.block_samples
         e = host.estimator
         fill_inputs(self.inputs, self.currents, np.zeros(N), 1, host.speed_ref, host.tau_feedforward, 0, N)
-        estimator_block(e.core._replace(state=e.state.copy()), 0, N, self.inputs, self.line.copy(), self.sensing,
-                        self.est_out, self.sample)
+        estimator_block(e.step, e.core(e.state.copy()), 0, N, self.inputs, self.line.copy(), self.sensing,
+                        self.est_out)
         controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.inputs,
                          self.est_out, self.sensing, self.ctrl_out)
         protect(host, self.currents, N, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
@@ -221,8 +221,8 @@ class _HostAnswer:
         self.currents[:n] = b.currents_A[:n]
         fill_inputs(self.inputs, self.currents, b.theta_m, host.controller.n_p, host.speed_ref, host.tau_feedforward,
                     k0, n)
-        self.sample[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
-        estimator_block(host.estimator.core, k0, n, self.inputs, line, self.sensing, self.est_out, self.sample)
+        self.core.sample[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
+        estimator_block(host.estimator.step, self.core, k0, n, self.inputs, line, self.sensing, self.est_out)
         enable, safe = protect(host, self.currents, n, k0 + n - 1, b.u_dc_V, self.est_out[n - 1]["omega_e_hat"],
                                host.controller_x, host.protection_x)
         controller_block(host.controller_x, host.controller_z, host.controller, n, self.inputs, self.est_out,

@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from drive_common.contract.drive_records import COMMAND, DRIVE_INPUT
-from drive_common.contract.estimator_records import ESTIMATE, SAMPLE
+from drive_common.contract.estimator_records import ESTIMATE
 from drive_common.contract.estimator_states import TRACKING
 from drive_common.math.command_delay import issue_command
 from drive_common.math.current_sensing import CurrentSensing, corrected_currents
@@ -96,9 +96,10 @@ def write_row(row, t_s, truth, inputs, estimate, command):
 
 
 @njit
-def run_blocks(loop, k_start, k_end, log):
-    """Run samples k_start..k_end−1 (k_start a multiple of the block size N) of ``loop`` (ClosedLoop) in
-    blocks of N samples; row k − k_start of ``log`` receives sample k (LOG_COLUMNS).
+def run_blocks(step, loop, k_start, k_end, log):
+    """Run samples k_start..k_end−1 (k_start a multiple of the block size N) of ``loop`` (ClosedLoop), its
+    estimator's step kernel ``step``, in blocks of N samples; row k − k_start of ``log`` receives sample k
+    (LOG_COLUMNS).
 
     With ``imposed`` the shaft follows the speed reference. With brake[0] = 1 a holding brake keeps the
     shaft at rest until sample brake[1], set when the estimator first reports tracking at sample k_t: k_t
@@ -120,7 +121,6 @@ def run_blocks(loop, k_start, k_end, log):
     n_p = machine.n_p
     plant_out = np.zeros((block, 10))
     est_out = np.zeros(block, ESTIMATE)
-    sample = np.zeros(1, SAMPLE)
     inputs = np.zeros(block, DRIVE_INPUT)
     ctrl_out = np.zeros(block, COMMAND)
     for k0 in range(k_start, k_end, block):
@@ -135,8 +135,8 @@ def run_blocks(loop, k_start, k_end, log):
             s.i_a_A, s.i_b_A, s.i_c_A = p[3], p[4], p[5]
             s.theta_e_encoder_rad, s.omega_e_encoder_rad_s = n_p * p[6], n_p * p[7]
             s.omega_m_ref_rad_s, s.tau_feedforward_Nm = speed_ref[k0 + i], tau_ff[k0 + i]
-        sample[0].R_s_ohm = ps[R_S_IN_USE]
-        estimator_block(loop.estimator, k0, n, inputs, line, loop.sensing, est_out, sample)
+        loop.estimator.sample[0].R_s_ohm = ps[R_S_IN_USE]
+        estimator_block(step, loop.estimator, k0, n, inputs, line, loop.sensing, est_out)
         safe = protection_block(ps, pp, plant_out[:, 3:6], n, k0 + n - 1, bus_voltage(px, inverter),
                                 est_out[n - 1].omega_e_hat, cx)
         if safe:
@@ -152,18 +152,18 @@ def run_blocks(loop, k_start, k_end, log):
 
 
 @njit
-def replay_samples(core, currents, u_applied, whole, theta_e_reference, omega_e_reference, calibration, out):
-    """Run an estimator ``core`` (hf_estimator.block.EstimatorCore) over recorded samples: ``currents``
-    (n × 3, measured a, b, c; corrected by the commissioned ``calibration`` as in the drive), ``u_applied``
-    (n × 2, the voltage command that acted in the period before each sample: the command of d + 1 samples
-    before, d the recorded drive's delay), and the electrical angle and speed handed to the kernel's encoder
-    inputs (``sensored`` reads the recorded ground truth there; an injecting estimator replayed with
-    ``polarity_from_recording`` reads the recorded drive's estimate, hf_estimator.startup item 5). ``out``:
-    one ESTIMATE record per sample. Where ``whole`` is false (a sample the recording lost) the estimator is
-    not stepped: it meets the next sample, its index k kept, as a drive node meets a lost message; its
-    record is NaN."""
-    step, ep, ex = core.step, core.params, core.state[0]
-    sample = np.zeros(1, SAMPLE)[0]
+def replay_samples(step, core, currents, u_applied, encoder, whole, calibration, out):
+    """Run an estimator's ``step`` on ``core`` (hf_estimator.block.EstimatorCore) over recorded samples:
+    ``currents`` (n × 3, measured a, b, c; corrected by the commissioned ``calibration`` as in the drive),
+    ``u_applied`` (n × 2, the voltage command that acted in the period before each sample: the command of
+    d + 1 samples before, d the recorded drive's delay), and ``encoder`` (n × 2), the electrical angle [rad]
+    and speed [rad/s] handed to the kernel's encoder inputs (``sensored`` reads the recorded ground truth
+    there; an injecting estimator replayed with ``polarity_from_recording`` reads the recorded drive's
+    estimate, hf_estimator.startup item 5). ``out``: one ESTIMATE record per sample. Where ``whole`` is false
+    (a sample the recording lost) the estimator is not stepped: it meets the next sample, its index k kept, as
+    a drive node meets a lost message; its record is NaN."""
+    ep, ex = core.params, core.state[0]
+    sample = core.sample[0]
     for k in range(currents.shape[0]):
         if not whole[k]:
             out[k].theta_e_hat = out[k].omega_e_hat = out[k].u_inj_alpha = out[k].u_inj_beta = np.nan
@@ -173,5 +173,5 @@ def replay_samples(core, currents, u_applied, whole, theta_e_reference, omega_e_
         sample.i_a, sample.i_b, sample.i_c = corrected_currents(currents[k, 0], currents[k, 1], currents[k, 2],
                                                                 calibration)
         sample.u_applied_alpha, sample.u_applied_beta = u_applied[k, 0], u_applied[k, 1]
-        sample.theta_e_encoder, sample.omega_e_encoder = theta_e_reference[k], omega_e_reference[k]
+        sample.theta_e_encoder, sample.omega_e_encoder = encoder[k, 0], encoder[k, 1]
         step(ex, ep, k, sample, out[k])

@@ -52,14 +52,14 @@ class Drive:
     def run(self, k_start, k_end, log):
         """Run samples k_start..k_end−1 of the compiled loop (k_start a multiple of the scenario's
         block_samples); ``log`` receives one row per sample."""
-        run_blocks(self.closed_loop(), k_start, k_end, log)
+        run_blocks(self.estimator.step, self.closed_loop(), k_start, k_end, log)
 
     def closed_loop(self):
         """The loop's cores and states (drive_tools.runner.loop.ClosedLoop); the states are this drive's."""
         p = self.plant
         plant = PlantCore(p.x, p.line, p.machine, p.mechanics, p.inverter, p.sensor, p.seed, p.T_s, p.substeps,
                           p.imposed_speed)
-        return ClosedLoop(plant, self.estimator.core, self.controller, self.controller_x, self.controller_z,
+        return ClosedLoop(plant, self.estimator.core(), self.controller, self.controller_x, self.controller_z,
                           self.protection, self.protection_x, self.sensing(),
                           Schedule(self.speed_ref, self.tau_load, self.tau_feedforward, self.brake),
                           self.scenario.block_samples)
