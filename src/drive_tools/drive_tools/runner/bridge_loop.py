@@ -184,6 +184,15 @@ def fill_inputs(inputs, currents, theta_m, n_p, speed_ref, tau_feedforward, k0, 
         s.omega_m_ref_rad_s, s.tau_feedforward_Nm = speed_ref[k0 + i], tau_feedforward[k0 + i]
 
 
+@njit(cache=True)
+def issue_and_log(line, rows, k0, n, T_s, inputs, estimates, commands):
+    """The commands of samples k0 … k0 + n − 1 into the delay ``line`` and the samples into ``rows``
+    (LOG_COLUMNS) from their records (DRIVE_INPUT, ESTIMATE, COMMAND); T_s [s] the sample period."""
+    for i in range(n):
+        issue_command(line, k0 + i, commands[i].u_alpha_V, commands[i].u_beta_V)
+        write_row(rows[i], (k0 + i) * T_s, NO_TRUTH, inputs[i], estimates[i], commands[i])
+
+
 class _HostAnswer:
     """The host's answer to each whole block of N samples (N = 1: each sample): ``estimator_block`` and
     ``controller_block`` (as ``drive run`` composes them), one COMMAND_BLOCK (N = 1: one COMMAND). A block
@@ -208,7 +217,8 @@ class _HostAnswer:
         controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.inputs,
                          self.est_out, self.sensing, self.ctrl_out)
         protect(host, self.currents, N, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
-        self.issue_and_log(self.line.copy(), np.zeros((1, len(LOG_COLUMNS))), 0, 1)
+        issue_and_log(self.line.copy(), np.zeros((1, len(LOG_COLUMNS))), 0, 1, self.scenario.T_s, self.inputs,
+                      self.est_out, self.ctrl_out)
 
     def block(self, b, bridge):
         """Answer block ``b`` when it is a whole one (its first sample a multiple of N; N samples, or the
@@ -227,18 +237,10 @@ class _HostAnswer:
                                host.controller_x, host.protection_x)
         controller_block(host.controller_x, host.controller_z, host.controller, n, self.inputs, self.est_out,
                          self.sensing, self.ctrl_out)
-        self.issue_and_log(line, self.log[k0:k0 + n], k0, n)
+        issue_and_log(line, self.log[k0:k0 + n], k0, n, self.scenario.T_s, self.inputs, self.est_out, self.ctrl_out)
         c = self.ctrl_out
         if N == 1:
             bridge.command(k0, c[0]["u_alpha_V"], c[0]["u_beta_V"], enable, safe)
         else:
             bridge.command_block(k0, c["u_alpha_V"][:n], c["u_beta_V"][:n], enable, safe)
         return range(k0, k0 + n)
-
-    def issue_and_log(self, line, rows, k0, n):
-        """The block's commands into ``line`` and its samples k0 … k0 + n − 1 into ``rows`` (LOG_COLUMNS),
-        from the measured currents and the kernels' outputs."""
-        c, e, s, T_s = self.ctrl_out, self.est_out, self.inputs, self.scenario.T_s
-        for i in range(n):
-            issue_command(line, k0 + i, c[i]["u_alpha_V"], c[i]["u_beta_V"])
-            write_row(rows[i], (k0 + i) * T_s, NO_TRUTH, s[i], e[i], c[i])
