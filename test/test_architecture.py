@@ -3,7 +3,6 @@ import cycle, storage apart from the runner and the estimators, the estimator an
 plant, every node with its own executable and a package.xml that declares what it uses, docs/architecture.md's
 graph as the code has it, one log-row writer, findable estimators, and a clean linter."""
 import ast
-import inspect
 import re
 import subprocess
 import sys
@@ -251,9 +250,31 @@ def test_each_node_has_its_own_executable(executable, package):
 
 
 def test_one_writer_fills_a_log_row_in_the_log_layout():
+    """write_row puts every value of its records into the log column of the same quantity: the plant's truth,
+    the drive's inputs (DRIVE_INPUT), the estimate (ESTIMATE, columns of its field names) and the command
+    (COMMAND), each given a value of its own, land where LOG_COLUMNS names them, every column once."""
+    import numpy as np
+
+    from drive_common.contract.drive_records import commands, drive_inputs
+    from drive_common.contract.estimator_records import ESTIMATE_FIELDS, estimates
     from drive_common.contract.log import LOG_COLUMNS
     from drive_tools.runner.loop import write_row
-    assert tuple(inspect.signature(write_row.py_func).parameters)[1:] == LOG_COLUMNS
+    truth = ("theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c")
+    from_inputs = {"i_a_meas": "i_a_A", "i_b_meas": "i_b_A", "i_c_meas": "i_c_A", "omega_m_ref": "omega_m_ref_rad_s"}
+    from_command = {"u_alpha": "u_alpha_V", "u_beta": "u_beta_V", "i_d": "i_d_A", "i_q": "i_q_A",
+                    "i_d_ref": "i_d_ref_A", "i_q_ref": "i_q_ref_A"}
+    value = {name: float(i + 1) for i, name in enumerate(LOG_COLUMNS)}
+    inputs, estimate, command = drive_inputs(1), estimates(1), commands(1)
+    for column, field in from_inputs.items():
+        inputs[field] = value[column]
+    for field in ESTIMATE_FIELDS:
+        estimate[field] = value[field]
+    for column, field in from_command.items():
+        command[field] = value[column]
+    assert sorted(("t", *truth, *from_inputs, *ESTIMATE_FIELDS, *from_command)) == sorted(LOG_COLUMNS)
+    row = np.zeros(len(LOG_COLUMNS))
+    write_row(row, value["t"], tuple(value[name] for name in truth), inputs[0], estimate[0], command[0])
+    assert row.tolist() == [value[name] for name in LOG_COLUMNS]
 
 
 def test_the_topic_table_serves_qos_types_and_log_columns():

@@ -15,10 +15,12 @@ from drive_bridge.inverter_protocol import FREEWHEELING, OVERVOLTAGE, PWM_OFF, S
 from drive_bridge.virtual_inverter import VirtualInverter
 from drive_common.config.experiment import NON_IDEALITIES, Table
 from drive_common.config.scenario import load_scenario
-from drive_common.contract.estimator_records import ESTIMATE, SAMPLE
+from drive_common.contract.drive_records import commands, drive_inputs
+from drive_common.contract.estimator_records import ESTIMATE, SAMPLE, estimates
 from drive_common.contract.estimator_states import TRACKING
 from drive_common.contract.exit_codes import EXIT_TRIPPED
 from drive_common.math.copper import COPPER_ALPHA_PER_K
+from drive_common.math.current_sensing import UNCALIBRATED
 from drive_common.math.frames import clarke, rotate
 from drive_common.math.safe_state import ASC, FREEWHEEL, safe_state_for
 from drive_common.math.winding import R_S_IN_USE, R_S_STEP, winding_estimate
@@ -148,6 +150,16 @@ def test_winding_heats_by_its_first_order_model_and_its_resistance_follows():
     assert winding_resistance(x, machine) == pytest.approx(machine.R_s_ohm * (1 + 0.00393 * (T - 20.0)), rel=1e-12)
 
 
+def _command(cx, cz, c, currents, theta_e, omega_e, omega_ref):
+    """The controller's voltage command (u_α, u_β) [V] for exact currents [A] and an exact, tracking estimate."""
+    inputs, estimate, out = drive_inputs(1)[0], estimates(1)[0], commands(1)[0]
+    inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents
+    inputs["omega_m_ref_rad_s"] = omega_ref
+    estimate["theta_e_hat"], estimate["omega_e_hat"], estimate["state"] = theta_e, omega_e, TRACKING
+    controller_step(cx, cz, c, inputs, estimate, UNCALIBRATED, out)
+    return out["u_alpha_V"], out["u_beta_V"]
+
+
 def _drive_loop(plant_machine, inv, omega_m0, omega_ref, seconds, T_s, protection=None, obey_cut=True,
                 imposed=False):
     """The plant under the cascade controller (foc_controller.control) fed the true angle and speed (an
@@ -183,7 +195,7 @@ def _drive_loop(plant_machine, inv, omega_m0, omega_ref, seconds, T_s, protectio
                 tripped = safe
                 x[INVERTER_MODE] = safe
             T_hat, R_hat = winding_estimate(ps, protection)
-        u = controller_step(cx, cz, c, i_a, i_b, i_c, theta_e, omega_e, omega_ref, 0.0, 0.0, TRACKING, 0.0)[:2]
+        u = _command(cx, cz, c, (i_a, i_b, i_c), theta_e, omega_e, omega_ref)
         rows[k] = (U_dc, plant_machine.T_ambient_degC + x[WINDING_RISE], winding_resistance(x, plant_machine),
                    R_hat, T_hat, x[OMEGA_M], math.hypot(*clarke(i_a, i_b, i_c)))
     return rows, tripped, ps
@@ -396,8 +408,7 @@ def _observer_angle_error(plant_R_ohm, drive_R_ohm):
         flux_observer_step(state[0], params, k, sample[0], out[0])
         theta_e = plate.n_p * x[THETA_M]
         errors.append(math.remainder(out["theta_e_hat"][0] - theta_e, 2.0 * math.pi))
-        u = controller_step(cx, cz, c, i_a, i_b, i_c, theta_e, plate.n_p * omega_m, 2.0 * omega_m, 0.0, 0.0,
-                            TRACKING, 0.0)[:2]
+        u = _command(cx, cz, c, (i_a, i_b, i_c), theta_e, plate.n_p * omega_m, 2.0 * omega_m)
     return float(np.mean(errors[-1000:]))
 
 

@@ -21,7 +21,7 @@ from numba import njit
 
 from drive_common.contract import numba_records  # noqa: F401  (controller_block takes records: cached safely)
 from drive_common.contract.estimator_states import ALIGNING, LOCK_LOST, POLARITY, TRACKING
-from drive_common.math.current_sensing import corrected_currents
+from drive_common.math.current_sensing import bad_currents, corrected_currents
 from drive_common.math.filters import sos_step
 from drive_common.math.frames import SQRT3, clarke_contract, rotate
 from drive_common.math.pi import pi_limited
@@ -65,22 +65,26 @@ class ControllerParams(NamedTuple):
 
 
 @njit(cache=True)
-def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omega_m_ref,
-                    u_inj_alpha, u_inj_beta, estimator_state, tau_feedforward):
-    """One control period from sample k: measured phase currents [A], the estimate θ̂_e [rad] and ω̂_e
-    [rad/s] (electrical), the speed reference ω*_m [rad/s], the estimator's injection [V, αβ], its
-    state code and the robot's torque feed-forward [N·m] (added to the speed loop's output as
-    τ_ff/k̂_t, k̂_t = 1.5 p ψ_f from the nameplate, once torque is allowed) → the stator voltage command
-    (u_α, u_β) [V] for the next period, the (HF-rejected) feedback currents i_d, i_q and the references
-    i_d*, i_q* [A]. State x: INT_D .. REGEN_CUT (the speed filter and the jump detector start from the first
-    sample's estimate); z_notch: the notch sections of d (z_notch[0]) and q (z_notch[1]). The speed loop's
-    current limit is i_max less the protections' foldback x[FOLDBACK_A]; a braking current (i_q* against
-    ω̂_e, regenerating) at most (1 − x[REGEN_CUT]) of it (the DC-link over-voltage controller).
+def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
+    """One control period from sample k: ``inputs`` (a DRIVE_INPUT record, drive_common.contract.drive_records:
+    the measured phase currents [A], corrected here by the commissioned ``calibration``, the speed reference
+    ω*_m [rad/s] and the robot's torque feed-forward [N·m], added to the speed loop's output as τ_ff/k̂_t,
+    k̂_t = 1.5 p ψ_f from the nameplate, once torque is allowed) and ``estimate`` (an ESTIMATE record: θ̂_e
+    [rad], ω̂_e [rad/s] electrical, the injection [V, αβ], the state code; a non-finite code reads as hold)
+    → ``out`` (a COMMAND record): the stator voltage command (u_α, u_β) [V] for the next period, the
+    (HF-rejected) feedback currents i_d, i_q and the references i_d*, i_q* [A]. State x: INT_D .. REGEN_CUT
+    (the speed filter and the jump detector start from the first sample's estimate); z_notch: the notch
+    sections of d (z_notch[0]) and q (z_notch[1]). The speed loop's current limit is i_max less the
+    protections' foldback x[FOLDBACK_A]; a braking current (i_q* against ω̂_e, regenerating) at most
+    (1 − x[REGEN_CUT]) of it (the DC-link over-voltage controller).
 
     The estimated speed is low-pass filtered once and that value feeds the speed loop, the back-EMF
     decoupling and the delay compensation: a raw PLL speed in the feed-forward closes a fast loop
     through the estimator (docs/hf-demodulation.md §3)."""
-    state = int(estimator_state)
+    i_a, i_b, i_c = corrected_currents(inputs.i_a_A, inputs.i_b_A, inputs.i_c_A, calibration)
+    theta_e_hat, omega_e_hat = estimate.theta_e_hat, estimate.omega_e_hat
+    u_inj_alpha, u_inj_beta = estimate.u_inj_alpha, estimate.u_inj_beta
+    state = int(estimate.state) if math.isfinite(estimate.state) else 0
     if x[STARTED] == 0.0:
         x[STARTED] = 1.0
         x[OMEGA_FILTERED] = omega_e_hat
@@ -106,12 +110,12 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     x[OMEGA_FILTERED] += c.speed_filter_gain * (omega_e_hat - x[OMEGA_FILTERED])
     omega_e_hat = x[OMEGA_FILTERED]
     omega_m_hat = omega_e_hat / c.n_p
-    omega_m_ref = min(max(omega_m_ref, -c.speed_limit_rad_s), c.speed_limit_rad_s)
+    omega_m_ref = min(max(inputs.omega_m_ref_rad_s, -c.speed_limit_rad_s), c.speed_limit_rad_s)
     torque = x[TORQUE_ALLOWED] > 0.5
     if torque:
         i_limit = max(c.i_max_A - x[FOLDBACK_A], 0.0)
         i_q_ref = pi_limited(x, INT_SPEED, c.kp_speed, c.ki_speed, c.T_s_s, omega_m_ref - omega_m_hat,
-                             i_limit, tau_feedforward / (1.5 * c.n_p * c.psi_f_Wb))
+                             i_limit, inputs.tau_feedforward_Nm / (1.5 * c.n_p * c.psi_f_Wb))
         braking = (1.0 - x[REGEN_CUT]) * i_limit
         if i_q_ref * omega_e_hat < 0.0 and abs(i_q_ref) > braking:
             held = math.copysign(braking, i_q_ref)
@@ -151,35 +155,28 @@ def controller_step(x, z_notch, c, i_a, i_b, i_c, theta_e_hat, omega_e_hat, omeg
     if total > u_max:
         u_alpha *= u_max / total
         u_beta *= u_max / total
-    return u_alpha, u_beta, i_d, i_q, i_d_ref, i_q_ref
+    out.u_alpha_V, out.u_beta_V = u_alpha, u_beta
+    out.i_d_A, out.i_q_A, out.i_d_ref_A, out.i_q_ref_A = i_d, i_q, i_d_ref, i_q_ref
 
 
 @njit(cache=True)
-def controller_block(x, z_notch, c, n, currents, estimates, speed_ref, tau_feedforward, calibration, trip_A, out):
-    """n consecutive samples of ``controller_step``: currents (n × 3, measured [A], corrected here by the
-    commissioned ``calibration``), estimates (n ESTIMATE records, drive_common.contract.estimator_records), the speed
-    reference [rad/s] and torque feed-forward [N·m] of each sample (n). Rows of ``out`` (n × 6): u_α, u_β
-    [V], i_d, i_q, i_d*, i_q* [A]. A sample with currents not finite or beyond ``trip_A``, or a non-finite
-    estimate or injection, gets zero voltage and leaves the state untouched. Returns the number of such
-    bad samples."""
+def controller_block(x, z_notch, c, n, inputs, estimates, sensing, out):
+    """n consecutive samples of ``controller_step``: ``inputs`` (n DRIVE_INPUT records), ``estimates`` (n
+    ESTIMATE records), ``sensing`` (drive_common.math.current_sensing.CurrentSensing) → ``out`` (n COMMAND
+    records). A sample with currents not finite or beyond the trip, or a non-finite estimate or injection,
+    gets zero voltage and leaves the state untouched. Returns the number of such bad samples."""
     bad = 0
     for i in range(n):
-        i_a, i_b, i_c = currents[i, 0], currents[i, 1], currents[i, 2]
+        s = inputs[i]
         e = estimates[i]
-        row = out[i]
-        if not (math.isfinite(i_a) and math.isfinite(i_b) and math.isfinite(i_c)
-                and math.isfinite(e.theta_e_hat) and math.isfinite(e.omega_e_hat) and math.isfinite(e.u_inj_alpha)
-                and math.isfinite(e.u_inj_beta)) \
-                or max(abs(i_a), abs(i_b), abs(i_c)) > trip_A:
+        if bad_currents(s.i_a_A, s.i_b_A, s.i_c_A, sensing.trip_A) or not (
+                math.isfinite(e.theta_e_hat) and math.isfinite(e.omega_e_hat) and math.isfinite(e.u_inj_alpha)
+                and math.isfinite(e.u_inj_beta)):
             bad += 1
-            for j in range(6):
-                row[j] = 0.0
+            o = out[i]
+            o.u_alpha_V = o.u_beta_V = o.i_d_A = o.i_q_A = o.i_d_ref_A = o.i_q_ref_A = 0.0
             continue
-        c_a, c_b, c_c = corrected_currents(i_a, i_b, i_c, calibration)
-        state = e.state if math.isfinite(e.state) else 0.0
-        row[0], row[1], row[2], row[3], row[4], row[5] = controller_step(
-            x, z_notch, c, c_a, c_b, c_c, e.theta_e_hat, e.omega_e_hat, speed_ref[i], e.u_inj_alpha, e.u_inj_beta,
-            state, tau_feedforward[i])
+        controller_step(x, z_notch, c, s, e, sensing.calibration, out[i])
     return bad
 
 

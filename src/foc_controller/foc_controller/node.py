@@ -8,8 +8,8 @@ speed reference and the feed-forward of sample k are its scenario's, sample-exac
 not read. The robot-facing `joint_states` (estimated
 position, speed, torque) is published every ``joint_states_decimation`` samples. Bad currents or
 estimates, or a rejected speed limit, give zero voltage and a reported fault; the node keeps answering.
-With blocks (``block_samples`` N > 1) it joins the four block twins of a block, runs ``controller_block``
-once and answers `voltage_command_block`. Composed in one process with the estimator
+Each sample, or each block of N (``block_samples`` N > 1: it joins the four block twins of a block and
+answers `voltage_command_block`), is one call of ``controller_block``. Composed in one process with the estimator
 (``drive launch --intra-process``) it takes the currents and the estimator's answers from the estimator
 node directly, at once, instead of four deliveries; the estimator still publishes them. With the
 inverter's bridge there too, it hands its commands to the bridge, then to the estimator.
@@ -32,6 +32,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
 
 from drive_common.config.parameters import SCHEDULE_PARAMETER
+from drive_common.contract.drive_records import commands, drive_inputs
 from drive_common.contract.estimator_records import estimates
 from drive_common.contract.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_common.contract.topics import (
@@ -48,12 +49,12 @@ from drive_common.contract.topics import (
     block,
 )
 from drive_common.contract.wire import BlockWire, Vector3Wire
-from drive_common.math.current_sensing import corrected_currents
+from drive_common.math.current_sensing import current_sensing
 from drive_common.motor.knowledge import motor_knowledge
 from drive_common.ros.node import DriveNode, describe, finite, run_node, stamp, topic_qos
 
 from .build import check_controller_settings, controller_for_scenario, protection_for_scenario
-from .control import OMEGA_FILTERED, controller_block, controller_state, controller_step, estimated_torque
+from .control import OMEGA_FILTERED, controller_block, controller_state, estimated_torque
 from .params import check_speed_limit
 from .protection import protection_block, protection_state
 from .supervision import SpeedSupervisor, fault_line
@@ -177,6 +178,7 @@ class ControllerNode(DriveNode):
             return
         self.n_p = self.params.n_p
         self.trip_A = self.trip_current_A()
+        self.sensing = current_sensing(self.calibration, self.trip_A)
         self.supervisor = SpeedSupervisor(self.n_p, self.nameplate().rated_speed_rpm * math.pi / 30.0,
                                           self.params.i_max_A, self.T_s)
         self.supervisor.warm_up()
@@ -184,9 +186,8 @@ class ControllerNode(DriveNode):
         self.protection = self.protection._replace(current_limit_A=self.params.i_max_A)
         protection_block(self.protection_x.copy(), self.protection, np.zeros((1, 3)), 1, 0, self.bus_V, 0.0,
                          self.x.copy())
-        controller_step(self.x.copy(), self.z.copy(), self.params, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-        controller_block(self.x.copy(), self.z.copy(), self.params, 1, np.zeros((1, 3)), estimates(1),
-                         np.zeros(1), np.zeros(1), self.calibration, self.trip_A, np.zeros((1, 6)))
+        controller_block(self.x.copy(), self.z.copy(), self.params, 1, drive_inputs(1), estimates(1), self.sensing,
+                         commands(1))
         self.publish_config({"controller": self.params, "estimator": config["estimator"],
                              "motor_knowledge": motor_knowledge(self.nameplate(), self.commissioning)})
 
@@ -325,13 +326,16 @@ class ControllerNode(DriveNode):
             k0 = self.k
 
     def step_block(self, k0, currents, estimate, injection, state):
-        """Answer the block of samples k0 …: its voltage commands on voltage_command_block; returns the
-        next block's first sample."""
+        """Answer the samples k0 … k0 + n − 1 (a block; n = 1 with per-sample topics): their inputs as
+        channels of n values (currents: i_a, i_b, i_c; estimate: θ̂_m, ω̂_m; injection: u_α, u_β; state: ε,
+        signal, code), their voltage commands on voltage_command (its block twin with blocks); returns the next
+        sample to answer."""
         n = len(currents[0])
-        out = np.zeros((n, 6))
+        out = commands(n)
         if self.params and not self.health.latched and all(len(c) == n for c in (*estimate, *injection, *state)):
             if self.schedule:
                 speed, feedforward = self.schedule[0][k0:k0 + n], self.schedule[1][k0:k0 + n]
+                self.omega_m_ref, self.tau_feedforward = speed[-1], feedforward[-1]
             else:
                 speed, feedforward = np.full(n, self.omega_m_ref), np.full(n, self.tau_feedforward)
             estimated = estimates(n)
@@ -339,31 +343,39 @@ class ControllerNode(DriveNode):
             estimated["u_inj_alpha"], estimated["u_inj_beta"] = injection
             estimated["eps"], estimated["signal"], estimated["state"] = state
             measured = np.column_stack(currents)
+            inputs = drive_inputs(n)
+            inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents
+            inputs["omega_m_ref_rad_s"], inputs["tau_feedforward_Nm"] = speed, feedforward
             protection_block(self.protection_x, self.protection, measured, n, k0 + n - 1, self.bus_V,
                              estimated["omega_e_hat"][-1], self.x)
-            bad = controller_block(self.x, self.z, self.params, n, measured, estimated, speed,
-                                   feedforward, self.calibration, self.trip_A, out)
+            bad = controller_block(self.x, self.z, self.params, n, inputs, estimated, self.sensing, out)
             if bad:
-                self.fault("bad_input", f"block {k0}: {bad} of {n} samples with currents beyond the "
-                                        f"{self.trip_A:g} A trip or a non-finite estimate; zero voltage there")
-            self.current_limited = abs(out[-1, 5]) >= self.params.i_max_A
-            self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], out[:, 5], state[2]))
+                self.fault("bad_input", f"currents at samples {k0}..{k0 + n - 1}: {bad} of {n} not finite or beyond "
+                                        f"the {self.trip_A:g} A trip, or a non-finite estimate; zero voltage there")
+            self.current_limited = abs(out[-1]["i_q_ref_A"]) >= self.params.i_max_A
+            self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], out["i_q_ref_A"], state[2]))
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
             if joint is not None:
                 j = self.joint_msg
                 j.header.stamp = stamp(k0 + joint, self.T_s)
                 j.position = [float(estimate[0][joint])]
                 j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
-                j.effort = [estimated_torque(self.params, out[joint, 2], out[joint, 3])]
+                j.effort = [estimated_torque(self.params, out[joint]["i_d_A"], out[joint]["i_q_A"])]
                 self.joint_pub.publish(j)
         elif self.params and not self.health.latched:
             self.fault("bad_input", f"block {k0}: inputs of unequal length; zero voltage")
-        if self.hand_commands:
-            self.hand_commands(k0, out[:, 0], out[:, 1])
-        if self.commands_to_estimator:
-            self.commands_to_estimator(k0, out[:, 0], out[:, 1])
+        u_alpha, u_beta = out["u_alpha_V"], out["u_beta_V"]
         sec, nanosec = stamp_parts(k0, self.T_s)
-        self.voltage_pub.publish(self.block_wire.encode(sec, nanosec, out[:, 0], out[:, 1]))
+        if self.block_samples > 1:
+            message = self.block_wire.encode(sec, nanosec, u_alpha, u_beta)
+        else:
+            u_alpha, u_beta = float(u_alpha[0]), float(u_beta[0])
+            message = self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0)
+        if self.hand_commands:
+            self.hand_commands(k0, u_alpha, u_beta)
+        if self.commands_to_estimator:
+            self.commands_to_estimator(k0, u_alpha, u_beta)
+        self.voltage_pub.publish(message)
         self.sample_handled(k0 + n - 1)
         return k0 + n
 
@@ -378,39 +390,10 @@ class ControllerNode(DriveNode):
         self.k = k
 
     def step(self, k, currents, estimate, injection, state):
-        u_alpha = u_beta = 0.0
-        if not self.params or self.health.latched:
-            pass
-        elif not finite(*currents) or max(map(abs, currents)) > self.trip_A:
-            self.fault("bad_input", f"currents at sample {k}: {currents} A are not finite or beyond the "
-                                    f"{self.trip_A:g} A trip; zero voltage")
-        elif not finite(*estimate, *injection):
-            self.fault("bad_input", f"rotor_estimate/injection at sample {k} not finite; zero voltage")
-        else:
-            if self.schedule:
-                self.omega_m_ref, self.tau_feedforward = self.schedule[0][k], self.schedule[1][k]
-            protection_block(self.protection_x, self.protection, np.array([currents], dtype=float), 1, k, self.bus_V,
-                             self.n_p * estimate[1], self.x)
-            u_alpha, u_beta, i_d, i_q, _, i_q_ref = controller_step(
-                self.x, self.z, self.params, *corrected_currents(*currents, self.calibration),
-                self.n_p * estimate[0], self.n_p * estimate[1], self.omega_m_ref, *injection,
-                state if finite(state) else 0.0, self.tau_feedforward)
-            self.current_limited = abs(i_q_ref) >= self.params.i_max_A
-            self.supervise(self.supervisor.step(k, self.omega_m_ref, self.n_p * estimate[1], i_q_ref, state))
-            if k % self.decimation == 0:
-                j = self.joint_msg
-                j.header.stamp = stamp(k, self.T_s)
-                j.position = [estimate[0]]
-                j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
-                j.effort = [estimated_torque(self.params, i_d, i_q)]
-                self.joint_pub.publish(j)
-        if self.hand_commands:
-            self.hand_commands(k, u_alpha, u_beta)
-        if self.commands_to_estimator:
-            self.commands_to_estimator(k, u_alpha, u_beta)
-        sec, nanosec = stamp_parts(k, self.T_s)
-        self.voltage_pub.publish(self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0))
-        self.sample_handled(k)
+        """Answer sample k from its per-sample inputs (scalars; state: the code) as a block of one."""
+        def channels(*values):
+            return tuple(np.array([v], dtype=float) for v in values)
+        self.step_block(k, channels(*currents), channels(*estimate), channels(*injection), channels(0.0, 0.0, state))
 
     def supervise(self, raised):
         """Report the speed supervision's new faults (foc_controller.supervision) on /diagnostics."""

@@ -16,6 +16,7 @@ does not assume) there is nothing to lock to: the gains are zero. Settings A_p a
 `drive tune pll`) replace that rule by k_p = A_p, k_i = A_p/T_i.
 """
 import math
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
@@ -81,12 +82,10 @@ def wang_answer(x, p, k, sample, out, i_alpha, i_beta, eps):
     U_h cos ω_h t on the new d̂ (Wang Eq. 7), supervise the start-up, answer θ̂ and the PI integrator."""
     t = k * p.T_s_s
     _, u_alpha, u_beta, signal, observable = pulsating_track_and_inject(
-        x, p.monitor, k, i_alpha, i_beta, math.cos(p.omega_h_rad_s * t), p.injection_amplitude_V, p.kp, p.ki, p.T_s_s,
-        eps)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, sample.u_applied_alpha,
-                                          sample.u_applied_beta, u_alpha, u_beta, eps, observable,
-                                          sample.theta_e_encoder, sample.R_s_ohm)
-    write_injecting_estimate(out, x.theta, x.omega, u_alpha, u_beta, eps, signal, state, p.injection_amplitude_V)
+        x, p, k, (i_alpha, i_beta), math.cos(p.omega_h_rad_s * t), eps)
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, sample, (i_alpha, i_beta), (u_alpha, u_beta),
+                                          eps, observable)
+    write_injecting_estimate(out, x.theta, x.omega, (u_alpha, u_beta), eps, signal, state, p.injection_amplitude_V)
 
 
 def demodulation_phase(name, demodulation, commissioning, T_s, delay_periods, f_h, bandpass):
@@ -101,9 +100,20 @@ def demodulation_phase(name, demodulation, commissioning, T_s, delay_periods, f_
                                       delay_periods, 2.0 * math.pi * f_h, bandpass)
 
 
-def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, inverter, bandpass_used=True):
-    """A Wang estimator (``conventional``, ``improved`` or their aligned variants) with the kernel ``step``
-    and its settings; ``bandpass_used``: the band-pass precedes the demodulation (not in ``improved``)."""
+class WangVariant(NamedTuple):
+    """One of Wang's estimators: its registered name, step kernel and default settings; ``bandpass_used``: the
+    band-pass precedes the demodulation (not in ``improved``)."""
+
+    name: str
+    step: Callable
+    defaults: dict
+    bandpass_used: bool = True
+
+
+def make_wang(variant, nameplate, settings, T_s, commissioning, inverter):
+    """A Wang estimator (``conventional``, ``improved`` or their aligned variants: WangVariant) with its
+    settings."""
+    name, step, defaults, bandpass_used = variant
     s = check_settings(name, settings, defaults, T_s)
     f_h, injection_amplitude_V = float(s["frequency_Hz"]), float(s["amplitude_V"])
     gain = s["demodulation_amplitude"] * injection_amplitude_V * commissioning.delta / (2.0 * math.pi * f_h)
@@ -131,13 +141,13 @@ def make_wang(name, step, defaults, nameplate, settings, T_s, commissioning, inv
 @register("conventional", "d̂ injection, band-pass, q̂ demodulation, low-pass, PI (faithful)",
           "Wang et al. 2019, §II, Fig. 2, Eq. (7)-(11)")
 def make_conventional(nameplate, T_s, settings, commissioning, inverter):
-    return make_wang("conventional", conventional_step, DEFAULTS, nameplate, settings, T_s, commissioning,
-                     inverter)
+    return make_wang(WangVariant("conventional", conventional_step, DEFAULTS), nameplate, settings, T_s,
+                     commissioning, inverter)
 
 
 @register("conventional_aligned", "conventional with its demodulation carrier in phase with the sampled q̂ "
                                  "current (ours: the paper's method as it performs when tuned)",
           "Wang et al. 2019, §II; the carrier alignment is ours (docs/pll-tuning.md)")
 def make_conventional_aligned(nameplate, T_s, settings, commissioning, inverter):
-    return make_wang("conventional_aligned", conventional_step, {**DEFAULTS, "demodulation": "aligned"}, nameplate,
-                     settings, T_s, commissioning, inverter)
+    variant = WangVariant("conventional_aligned", conventional_step, {**DEFAULTS, "demodulation": "aligned"})
+    return make_wang(variant, nameplate, settings, T_s, commissioning, inverter)

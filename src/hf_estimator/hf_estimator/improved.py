@@ -14,7 +14,7 @@ from numba import njit
 from drive_common.math.filters import sos_step
 from drive_common.math.frames import clarke_contract
 
-from .conventional import DEFAULTS, make_wang, wang_answer
+from .conventional import DEFAULTS, WangVariant, make_wang, wang_answer
 from .interface import register
 
 
@@ -37,8 +37,8 @@ def improved_step(x, p, k, sample, out):
           "Wang et al. 2019, §III, Fig. 3, 5(b), 6, Eq. (16)-(24)")
 def make_improved(nameplate, T_s, settings, commissioning, inverter):
     defaults = {**DEFAULTS, "pll_bandwidth_Hz": 10.0}
-    return make_wang("improved", improved_step, defaults, nameplate, settings, T_s, commissioning, inverter,
-                     bandpass_used=False)
+    return make_wang(WangVariant("improved", improved_step, defaults, bandpass_used=False), nameplate, settings, T_s,
+                     commissioning, inverter)
 
 
 @register("improved_aligned", "improved with its demodulation carrier in phase with the sampled HF current "
@@ -46,5 +46,5 @@ def make_improved(nameplate, T_s, settings, commissioning, inverter):
           "Wang et al. 2019, §III; the carrier alignment is ours (docs/pll-tuning.md)")
 def make_improved_aligned(nameplate, T_s, settings, commissioning, inverter):
     defaults = {**DEFAULTS, "pll_bandwidth_Hz": 10.0, "demodulation": "aligned"}
-    return make_wang("improved_aligned", improved_step, defaults, nameplate, settings, T_s, commissioning,
-                     inverter, bandpass_used=False)
+    return make_wang(WangVariant("improved_aligned", improved_step, defaults, bandpass_used=False), nameplate,
+                     settings, T_s, commissioning, inverter)

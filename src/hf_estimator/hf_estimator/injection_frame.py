@@ -359,12 +359,11 @@ def injection_frame_step(x, p, k, sample, out):
     axis_now = x.theta + omega * (p.delay_periods + 0.5) * p.T_s_s
     x.issued[k % depth] = axis_now
     u_alpha, u_beta = rotate(p.injection_amplitude_V * carrier_now, 0.0, axis_now + sign_now * p.dither_rad)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, sample.u_applied_alpha,
-                                          sample.u_applied_beta, u_alpha, u_beta, eps, observable,
-                                          sample.theta_e_encoder, sample.R_s_ohm)
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, sample, (i_alpha, i_beta), (u_alpha, u_beta),
+                                          eps, observable)
     if state != TRACKING:
         x.acceleration = 0.0
-    write_injecting_estimate(out, x.theta, x.omega, u_alpha, u_beta, eps, x.delta_smooth, state,
+    write_injecting_estimate(out, x.theta, x.omega, (u_alpha, u_beta), eps, x.delta_smooth, state,
                              p.injection_amplitude_V)
 
 

@@ -35,6 +35,8 @@ from numba import njit
 
 from drive_common.contract.settings import Key, shown
 
+from .block import EstimatorCore, sample_inputs
+
 
 @dataclass(frozen=True)
 class Estimator:
@@ -54,6 +56,11 @@ class Estimator:
     """The HF amplitude it injects when it chooses it itself (None: the scenario's)."""
     injection_note: str = ""
     """Why it raised the scenario's amplitude ("" when it did not)."""
+
+    def core(self, state=None):
+        """What the block kernels step with ``step`` (block.EstimatorCore): its parameters, this estimator's
+        state (or ``state``, e.g. a copy) and a SAMPLE buffer of its own."""
+        return EstimatorCore(self.params, self.state if state is None else state, sample_inputs())
 
     def facts(self):
         """What the controller needs to know of this estimator and how it injects (its drive_config)."""

@@ -6,9 +6,9 @@ before sample 0, and zero if the controller stays silent past half the lock-step
 the plant then applied) and, for `sensored` only, `rotor_state`(k). It answers
 `rotor_estimate`(k), `injection`(k), `estimator_state`(k) (x = ε, y = signal, z = the start-up state
 code, hf_estimator.startup) and `estimator_blend`(k) (x = injection amplitude, y = observer weight, z =
-leader; on /diagnostics too). With blocks (``block_samples`` N > 1) it takes `currents_block` and
-`voltage_command_block`, runs ``estimator_block`` once per block and answers the block twins, plus
-`estimator_state` of each block's first sample. In one process with the inverter's bridge (``drive launch
+leader; on /diagnostics too). Each sample, or each block of N (``block_samples`` N > 1: it takes
+`currents_block` and `voltage_command_block` and answers the block twins, plus `estimator_state` of each
+block's first sample), is one call of ``estimator_block``. In one process with the inverter's bridge (``drive launch
 --link ... --intra-process``) these inputs are handed over on the bridge's link thread, not subscribed to:
 the whole block, from its telemetry to its command, runs there (docs/ros-graph.md, "Real time"). A lost
 lock or a refused start is a fault (ERROR on /diagnostics, counted).
@@ -26,6 +26,7 @@ import time
 
 import numpy as np
 
+from drive_common.contract.drive_records import drive_inputs
 from drive_common.contract.estimator_records import estimates
 from drive_common.contract.estimator_states import LEADER_NAMES, LOCK_LOST, STATE_NAMES
 from drive_common.contract.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
@@ -43,12 +44,13 @@ from drive_common.contract.topics import (
 )
 from drive_common.contract.wire import BlockWire, JointWire, Vector3Wire
 from drive_common.math.command_delay import command_line, issue_command
+from drive_common.math.current_sensing import current_sensing
 from drive_common.math.winding import R_S_IN_USE, winding_block, winding_params, winding_state
 from drive_common.motor.commissioning import commissioning_record
 from drive_common.motor.knowledge import motor_knowledge
 from drive_common.ros.node import DriveNode, finite, run_node
 
-from .block import estimator_block, sample_inputs
+from .block import estimator_block
 from .build import estimator_for_scenario
 from .interface import contract_injection
 from .startup import estimator_startup
@@ -100,6 +102,7 @@ class EstimatorNode(DriveNode):
         self.k = 0
         self.theta_hat = self.omega_hat = 0.0
         self.trip_A = self.trip_current_A()
+        self.sensing = current_sensing(self.calibration, self.trip_A)
         self.zero_volts = set()
         """Samples whose commands the inverter reported not applied (`zero_voltage`), not yet in the line."""
         self.zero_voltage_periods = 0
@@ -131,7 +134,7 @@ class EstimatorNode(DriveNode):
         self.commissioning = self.load_commissioning(scenario)
         self.calibration = self.commissioning.calibration()
         self.estimator = estimator_for_scenario(scenario, self.commissioning)
-        self.inputs = sample_inputs()
+        self.core = self.estimator.core()
         self.winding = winding_params(scenario.motor.nameplate.rated_current_A, self.commissioning.R_s_ohm,
                                       scenario.T_s, scenario.protection)
         self.winding_x = winding_state()
@@ -164,8 +167,8 @@ class EstimatorNode(DriveNode):
     def warm_up(self):
         e = self.estimator
         issue_command(command_line(1), 0, 0.0, 0.0)
-        estimator_block(e.step, e.state.copy(), e.params, 0, 1, np.zeros((1, 3)), command_line(1),
-                        np.zeros((1, 2)), self.calibration, 1.0, estimates(1), self.inputs)
+        estimator_block(e.step, e.core(e.state.copy()), 0, 1, drive_inputs(1), command_line(1),
+                        current_sensing(self.calibration, 1.0), estimates(1))
         winding_block(self.winding_x.copy(), self.winding, np.zeros((1, 3)), 1)
 
     def before_joining(self, k, n):
@@ -191,14 +194,14 @@ class EstimatorNode(DriveNode):
                                         f"plant to sample {k}")
             self.currents.clear()
             self.k = k
-        self.currents[k] = (i_a, i_b, i_c)
-        self.try_step()
+        self.currents[k] = np.array([[i_a, i_b, i_c]], dtype=float)
+        self.answer_ready()
 
     def on_voltage_command(self, sec, nanosec, u_alpha, u_beta, _):
         k = sample_at(sec, nanosec, self.T_s)
         if k is not None and k > self.issued:
             self.take_commands(k, [u_alpha], [u_beta])
-            self.try_step()
+            self.answer_ready()
 
     def take_handed_commands(self, k, u_alpha, u_beta):
         """The controller's commands of sample k (floats) or of the block from k (arrays), handed over in
@@ -239,41 +242,8 @@ class EstimatorNode(DriveNode):
     def on_rotor_state(self, sec, nanosec, theta_m, omega_m, _):
         k = sample_at(sec, nanosec, self.T_s)
         if k is not None and k >= self.k and theta_m is not None and omega_m is not None:
-            self.encoder[k] = (self.n_p * theta_m, self.n_p * omega_m)
-            self.try_step()
-
-    def try_step(self, force_voltage=False):
-        k = self.k
-        if k not in self.currents:
-            return
-        acted = k - 1 - self.delay
-        if acted > self.issued and not force_voltage:
-            self.waiting_since = self.waiting_since or time.monotonic()
-            return
-        if self.sensored and k not in self.encoder:
-            return
-        self.waiting_since = None
-        i_a, i_b, i_c = self.currents.pop(k)
-        if acted > self.issued:
-            issue_command(self.line, acted, 0.0, 0.0)
-            self.issued = acted
-        theta_enc, omega_enc = self.encoder.pop(k, (0.0, 0.0))
-        self.k = k + 1
-        if not finite(i_a, i_b, i_c) or max(abs(i_a), abs(i_b), abs(i_c)) > self.trip_A:
-            self.fault("bad_input", f"currents at sample {k}: ({i_a}, {i_b}, {i_c}) A are not finite or "
-                                    f"beyond the {self.trip_A:g} A trip; estimate held, no injection")
-            held = estimates(1)[0]
-            held["theta_e_hat"], held["omega_e_hat"], held["signal"] = self.theta_hat, self.omega_hat, self.signal
-            held["observer_weight"], held["leader"] = self.blend[1:]
-            self.answer(k, held, (i_a, i_b, i_c))
-        else:
-            e, out, measured = self.estimator, estimates(1), np.array([[i_a, i_b, i_c]])
-            self.inputs[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
-            estimator_block(e.step, e.state, e.params, k, 1, measured, self.line,
-                            np.array([[theta_enc, omega_enc]]), self.calibration, self.trip_A, out, self.inputs)
-            winding_block(self.winding_x, self.winding, measured, 1)
-            self.answer(k, out[0], (i_a, i_b, i_c))
-        self.try_step()
+            self.encoder[k] = np.array([[self.n_p * theta_m, self.n_p * omega_m]])
+            self.answer_ready()
 
     def note_state(self, k, state):
         """The estimator's state changed to ``state`` at sample k: a lost lock or a refused start is a fault."""
@@ -286,23 +256,6 @@ class EstimatorNode(DriveNode):
             self.refusal_reported = True
             self.fault("start_refused", f"sample {k}: {summary['refused']}")
         self.state = state
-
-    def answer(self, k, estimate, currents):
-        """Publish sample k's ESTIMATE record on the per-sample topics (handed over first, with the sample's
-        ``currents``, where hand_answers_to said so)."""
-        e = estimate
-        self.theta_hat, self.omega_hat, self.signal = e["theta_e_hat"], e["omega_e_hat"], e["signal"]
-        self.note_state(k, e["state"])
-        self.blend = (e["injection_amplitude"], e["observer_weight"], e["leader"])
-        theta_m, omega_m = e["theta_e_hat"] / self.n_p, e["omega_e_hat"] / self.n_p
-        if self.hand_over:
-            self.hand_over(k, currents, (theta_m, omega_m), (e["u_inj_alpha"], e["u_inj_beta"]), e["state"])
-        sec, nanosec = stamp_parts(k, self.T_s)
-        self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, e["u_inj_alpha"], e["u_inj_beta"], 0.0))
-        self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, theta_m, omega_m))
-        self.state_pub.publish(self.state_wire.encode(sec, nanosec, e["eps"], e["signal"], e["state"]))
-        self.blend_pub.publish(self.blend_wire.encode(sec, nanosec, *self.blend))
-        self.sample_handled(k)
 
     def on_currents_block(self, sec, nanosec, i_a, i_b, i_c):
         k0 = sample_at(sec, nanosec, self.T_s)
@@ -318,35 +271,42 @@ class EstimatorNode(DriveNode):
             self.take_commands(k0, [], [])
             self.k = k0
         self.currents[k0] = np.ascontiguousarray(np.column_stack((i_a, i_b, i_c)))
-        self.try_block()
+        self.answer_ready()
 
     def on_voltage_block(self, sec, nanosec, u_alpha, u_beta, _):
         k0 = sample_at(sec, nanosec, self.T_s)
         if k0 is None or k0 <= self.issued or len(u_alpha) != len(u_beta):
             return
         self.take_commands(k0, u_alpha, u_beta)
-        self.try_block()
+        self.answer_ready()
 
     def on_rotor_state_block(self, sec, nanosec, theta_m, omega_m, _):
         k0 = sample_at(sec, nanosec, self.T_s)
         if k0 is not None and k0 >= self.k and len(theta_m) == len(omega_m):
             self.encoder[k0] = np.ascontiguousarray(self.n_p * np.column_stack((theta_m, omega_m)))
-            self.try_block()
+            self.answer_ready()
+
+    def answer_ready(self, force_voltage=False):
+        """Answer every sample (block) whose inputs are in, in order (``force_voltage``: the first one even
+        without the commands acting in its periods: zero volts there)."""
+        answered = self.try_block(force_voltage)
+        while answered:
+            answered = self.try_block()
 
     def try_block(self, force_voltage=False):
-        """Run the block of sample self.k once its currents are in and the delay line holds every command
-        acting in its periods (those of the block before: d ≥ N − 1)."""
+        """Run the samples of self.k (a block of N, or one sample) once its currents are in and the delay line
+        holds every command acting in its periods (those of the block before: d ≥ N − 1); True when it ran."""
         k0 = self.k
         if k0 not in self.currents:
-            return
+            return False
         currents = self.currents[k0]
         n = len(currents)
         acted = k0 + n - 2 - self.delay
         if acted > self.issued and not force_voltage:
             self.waiting_since = self.waiting_since or time.monotonic()
-            return
+            return False
         if self.sensored and k0 not in self.encoder:
-            return
+            return False
         self.waiting_since = None
         del self.currents[k0]
         for k in range(self.issued + 1, acted + 1):
@@ -355,14 +315,15 @@ class EstimatorNode(DriveNode):
         encoder = self.encoder.pop(k0, None)
         if encoder is None or len(encoder) != n:
             encoder = np.zeros((n, 2))
-        e, records = self.estimator, estimates(n)
-        self.inputs[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
-        bad = estimator_block(e.step, e.state, e.params, k0, n, currents, self.line, encoder, self.calibration,
-                              self.trip_A, records, self.inputs)
+        records, inputs = estimates(n), drive_inputs(n)
+        inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents.T
+        inputs["theta_e_encoder_rad"], inputs["omega_e_encoder_rad_s"] = encoder.T
+        self.core.sample[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
+        bad = estimator_block(self.estimator.step, self.core, k0, n, inputs, self.line, self.sensing, records)
         winding_block(self.winding_x, self.winding, currents, n)
         if bad:
-            self.fault("bad_input", f"currents of block {k0}: {bad} of {n} samples not finite or beyond the "
-                                    f"{self.trip_A:g} A trip; estimate held, no injection there")
+            self.fault("bad_input", f"currents at samples {k0}..{k0 + n - 1}: {bad} of {n} not finite or beyond "
+                                    f"the {self.trip_A:g} A trip; estimate held, no injection there")
         self.k = k0 + n
         state = records["state"]
         for i in np.flatnonzero(state != np.concatenate(([self.state], state[:-1]))):
@@ -370,7 +331,18 @@ class EstimatorNode(DriveNode):
         last = records[-1]
         self.theta_hat, self.omega_hat, self.signal = last["theta_e_hat"], last["omega_e_hat"], last["signal"]
         self.blend = (last["injection_amplitude"], last["observer_weight"], last["leader"])
+        if self.block_samples > 1:
+            self.publish_block(k0, records, currents)
+        else:
+            self.publish_sample(k0, records[0], currents[0])
+        self.sample_handled(k0 + n - 1)
+        return True
+
+    def publish_block(self, k0, records, currents):
+        """Publish a block's ESTIMATE records on the block twins, and `estimator_state` of its first sample
+        (handed over first, with the block's ``currents``, where hand_answers_to said so)."""
         r, wire = records, self.block_wire
+        state = r["state"]
         theta_m, omega_m = r["theta_e_hat"] / self.n_p, r["omega_e_hat"] / self.n_p
         if self.hand_over:
             self.hand_over(k0, currents.T, (theta_m, omega_m), (r["u_inj_alpha"], r["u_inj_beta"]),
@@ -381,7 +353,19 @@ class EstimatorNode(DriveNode):
         self.state_block_pub.publish(wire.encode(sec, nanosec, r["eps"], r["signal"], state))
         self.state_pub.publish(self.state_wire.encode(sec, nanosec, r[0]["eps"], r[0]["signal"], r[0]["state"]))
         self.blend_pub.publish(wire.encode(sec, nanosec, r["injection_amplitude"], r["observer_weight"], r["leader"]))
-        self.sample_handled(k0 + n - 1)
+
+    def publish_sample(self, k, e, currents):
+        """Publish sample k's ESTIMATE record on the per-sample topics (handed over first, with the sample's
+        ``currents``, where hand_answers_to said so)."""
+        theta_m, omega_m = e["theta_e_hat"] / self.n_p, e["omega_e_hat"] / self.n_p
+        if self.hand_over:
+            self.hand_over(k, tuple(currents.tolist()), (theta_m, omega_m), (e["u_inj_alpha"], e["u_inj_beta"]),
+                           e["state"])
+        sec, nanosec = stamp_parts(k, self.T_s)
+        self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, e["u_inj_alpha"], e["u_inj_beta"], 0.0))
+        self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, theta_m, omega_m))
+        self.state_pub.publish(self.state_wire.encode(sec, nanosec, e["eps"], e["signal"], e["state"]))
+        self.blend_pub.publish(self.blend_wire.encode(sec, nanosec, *self.blend))
 
     def watchdog(self):
         with self.sample_lock:
@@ -392,10 +376,7 @@ class EstimatorNode(DriveNode):
             topic = self.resolve_topic_name(self.contract_topics(VOLTAGE_COMMAND)[0])
             self.fault("timeout", f"sample {self.k}: no {topic} for the commands acting in its period(s); "
                                   f"estimating with zero voltage (what the plant applied)")
-            if self.block_samples > 1:
-                self.try_block(force_voltage=True)
-            else:
-                self.try_step(force_voltage=True)
+            self.answer_ready(force_voltage=True)
 
     def status_values(self):
         if not self.configured:

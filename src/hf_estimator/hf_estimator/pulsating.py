@@ -36,12 +36,13 @@ def q_axis_demodulation(z, bandpass, lowpass, i_alpha, i_beta, theta, amplitude,
 
 
 @njit(cache=True)
-def pulsating_track_and_inject(x, monitor, k, i_alpha, i_beta, carrier, injection_amplitude_V, kp, ki, T_s,
-                               error):
-    """What the papers' methods do after demodulating ε: the PI tracking loop, the HF admittance
-    monitor, and the next injection U_h·carrier along the new d̂ (Wang Eq. 7, Szabó Eq. 6).
+def pulsating_track_and_inject(x, p, k, i_alpha_beta_A, carrier, error):
+    """What the papers' methods do after demodulating ε: the PI tracking loop (p.kp, p.ki, p.T_s_s), the HF
+    admittance monitor (p.monitor) on the measured currents (α, β) [A], and the next injection
+    p.injection_amplitude_V·carrier along the new d̂ (Wang Eq. 7, Szabó Eq. 6).
     Returns (ω_PI, u_inj_α, u_inj_β, signal, observable)."""
-    omega = pi_tracking_loop(x, kp, ki, T_s, error)
-    signal, observable = monitor_step(x.monitor, monitor, k, i_alpha, i_beta, carrier, x.theta)
-    u_alpha, u_beta = rotate(injection_amplitude_V * carrier, 0.0, x.theta)
+    i_alpha, i_beta = i_alpha_beta_A
+    omega = pi_tracking_loop(x, p.kp, p.ki, p.T_s_s, error)
+    signal, observable = monitor_step(x.monitor, p.monitor, k, i_alpha, i_beta, carrier, x.theta)
+    u_alpha, u_beta = rotate(p.injection_amplitude_V * carrier, 0.0, x.theta)
     return omega, u_alpha, u_beta, signal, observable

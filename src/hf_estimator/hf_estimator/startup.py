@@ -169,17 +169,18 @@ def startup_follow(x, p, theta, omega):
 
 
 @njit(cache=True)
-def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_inj_alpha, u_inj_beta, eps,
-                 observable, theta_e_recorded, R_s_tracked_ohm):
-    """Supervise sample k after the estimator's own step: the measured currents (α, β) [A], the voltage
-    applied in the period before sample k [V], the estimator's injection for the coming period [V], its ε
-    and observable flag; ``theta_e_recorded``: in replay, the recording drive's own estimate θ̂_e [rad] (NaN
-    where the bag has none), read only with ``polarity_from_recording``; ``R_s_tracked_ohm``: the winding's
-    resistance the drive tracks (SAMPLE.R_s_ohm; 0: the commissioned one). Hands the sample to the job of the
-    state it is in; may turn or hold θ̂ (x.theta) and ω̂ (x.omega). Returns (u_inj_α, u_inj_β, state
-    code)."""
+def startup_step(x, p, k, sample, i_alpha_beta_A, u_inj_V, eps, observable):
+    """Supervise sample k after the estimator's own step: its SAMPLE record (the voltage applied in the
+    period before sample k [V]; ``theta_e_encoder``: in replay, the recording drive's own estimate θ̂_e [rad],
+    NaN where the bag has none, read only with ``polarity_from_recording``; R_s_ohm: the winding's resistance
+    the drive tracks, 0: the commissioned one), the measured currents (α, β) [A], the estimator's injection
+    (α, β) for the coming period [V], its ε and observable flag. Hands the sample to the job of the state it
+    is in; may turn or hold θ̂ (x.theta) and ω̂ (x.omega). Returns (u_inj_α, u_inj_β, state code)."""
     s = x.startup
-    residual = backemf_residual(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, R_s_tracked_ohm)
+    i_alpha, i_beta = i_alpha_beta_A
+    u_inj_alpha, u_inj_beta = u_inj_V
+    residual = backemf_residual(x, p, k, i_alpha, i_beta, sample.u_applied_alpha, sample.u_applied_beta,
+                                sample.R_s_ohm)
     code = int(s.code)
     since = k - int(s.entered)
     if s.refused != NOT_REFUSED:
@@ -194,7 +195,7 @@ def startup_step(x, p, k, i_alpha, i_beta, u_applied_alpha, u_applied_beta, u_in
             aligned, u_alpha, u_beta, state = alignment_step(x, p, k, since, u_inj_alpha, u_inj_beta, eps, observable)
             if not aligned:
                 return u_alpha, u_beta, state
-            return polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, theta_e_recorded)
+            return polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, sample.theta_e_encoder)
     if code == POLARITY:
         done, u_alpha, u_beta, state = polarity_step(x, p, k, since, i_alpha, i_beta, u_inj_alpha, u_inj_beta)
         if not done:

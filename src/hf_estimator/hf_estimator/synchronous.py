@@ -63,12 +63,10 @@ def synchronous_step(x, p, k, sample, out):
     i_qhf = q_axis_demodulation(x.filters, p.bandpass, p.lowpass, i_alpha, i_beta, x.theta, p.u_star,
                                 math.cos(p.omega_h_rad_s * t + p.demodulation_phase_rad))
     omega, u_alpha, u_beta, signal_strength, observable = pulsating_track_and_inject(
-        x, p.monitor, k, i_alpha, i_beta, math.sin(p.omega_h_rad_s * t), p.injection_amplitude_V, p.kp, p.ki, p.T_s_s,
-        -i_qhf)
-    u_alpha, u_beta, state = startup_step(x, p.startup, k, i_alpha, i_beta, sample.u_applied_alpha,
-                                          sample.u_applied_beta, u_alpha, u_beta, -i_qhf, observable,
-                                          sample.theta_e_encoder, sample.R_s_ohm)
-    write_injecting_estimate(out, x.theta, omega, u_alpha, u_beta, -i_qhf, signal_strength, state,
+        x, p, k, (i_alpha, i_beta), math.sin(p.omega_h_rad_s * t), -i_qhf)
+    u_alpha, u_beta, state = startup_step(x, p.startup, k, sample, (i_alpha, i_beta), (u_alpha, u_beta),
+                                          -i_qhf, observable)
+    write_injecting_estimate(out, x.theta, omega, (u_alpha, u_beta), -i_qhf, signal_strength, state,
                              p.injection_amplitude_V)
 
 

@@ -138,29 +138,26 @@ def replay(recording, estimators):
     log0 = recording.log
     truth = recording.ground_truth
     n_p = recording.n_p
-    encoder = (np.ascontiguousarray(n_p * log0[:, COLUMN["theta_m"]]),
-               np.ascontiguousarray(n_p * log0[:, COLUMN["omega_m"]]))
+    encoder = (n_p * log0[:, COLUMN["theta_m"]], n_p * log0[:, COLUMN["omega_m"]])
     unresolved = log0[:, COLUMN["state"]] != TRACKING
     unresolved &= np.isfinite(log0[:, COLUMN["state"]])
-    estimate = (np.ascontiguousarray(held(np.where(unresolved, np.nan, log0[:, COLUMN["theta_e_hat"]]),
-                                          np.isnan(log0[:, COLUMN["state"]]))),
-                np.ascontiguousarray(held(log0[:, COLUMN["omega_e_hat"]])))
+    estimate = (held(np.where(unresolved, np.nan, log0[:, COLUMN["theta_e_hat"]]), np.isnan(log0[:, COLUMN["state"]])),
+                held(log0[:, COLUMN["omega_e_hat"]]))
     t = log0[:, COLUMN["t"]]
     scored = _mask(t, recording.windows)
     calibration = recording.commissioning.calibration()
     entries, results = [], []
     for name in estimators:
         e = replayed_estimator(recording, name)
-        theta_ref, omega_ref = encoder if excitation_need(name) == "encoder" else estimate
+        reference = np.column_stack(encoder if excitation_need(name) == "encoder" else estimate)
         out = estimates(len(currents))
-        replay_samples(e.step, e.state.copy(), e.params, currents[:2], u_applied[:2], whole[:2],
-                       theta_ref[:2], omega_ref[:2], calibration, out[:2])
+        replay_samples(e.step, e.core(e.state.copy()), currents[:2], u_applied[:2], reference[:2], whole[:2],
+                       calibration, out[:2])
         wall = math.inf
         for _ in range(TIMED_RUNS):
-            state = e.state.copy()
+            core = e.core(e.state.copy())
             start = time.perf_counter()
-            replay_samples(e.step, state, e.params, currents, u_applied, whole, theta_ref, omega_ref,
-                           calibration, out)
+            replay_samples(e.step, core, currents, u_applied, reference, whole, calibration, out)
             wall = min(wall, time.perf_counter() - start)
         log = log0.copy()
         for field in ESTIMATE_FIELDS:

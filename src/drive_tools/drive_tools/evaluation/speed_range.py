@@ -102,8 +102,7 @@ def observer_on_run(result, scenario):
     e = make_estimator("flux_observer", scenario.motor.nameplate, scenario.T_s, {}, commissioning, inverter)
     currents, u_applied, whole = logged_inputs(result.log, scenario.drive_delay_periods())
     out = estimates(len(currents))
-    zeros = np.zeros(len(currents))
-    replay_samples(e.step, e.state.copy(), e.params, currents, u_applied, whole, zeros, zeros,
+    replay_samples(e.step, e.core(e.state.copy()), currents, u_applied, np.zeros((len(currents), 2)), whole,
                    commissioning.calibration(), out)
     log = result.log.copy()
     for field in ESTIMATE_FIELDS:

@@ -3,33 +3,37 @@ thread behind a pseudo-terminal or a CAN bus, the bridge core, and the estimator
 answering each telemetry frame (with blocks of N samples, each TELEMETRY_BLOCK by the block kernels and
 one COMMAND_BLOCK). For tests, `drive bridge` and `drive bench bridge`."""
 import contextlib
+import math
 import tempfile
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from drive_bridge.inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from drive_bridge.inverter_protocol import MAX_BLOCK
 from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_common.config.scenario import behind_an_inverter
+from drive_common.contract.drive_records import commands, drive_inputs
 from drive_common.contract.estimator_records import estimates
 from drive_common.contract.log import COLUMN, LOG_COLUMNS
 from drive_common.contract.run_result import RunResult
 from drive_common.math.command_delay import command_line, issue_command
-from drive_common.math.current_sensing import corrected_currents
 from drive_common.math.safe_state import safe_state_for
 from drive_common.math.winding import R_S_IN_USE
-from drive_common.motor.nameplate import trip_current_A
 from drive_common.runtime.interrupt import Interrupted, checkpoint
 from drive_common.runtime.realtime import collector_held
-from foc_controller.control import controller_block, controller_step
+from foc_controller.control import controller_block
 from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block, protection_summary
-from hf_estimator.block import estimator_block, sample_inputs
+from hf_estimator.block import estimator_block
 from hf_estimator.interface import contract_injection
 
 from .loop import write_row
 from .runner import build_drive, cut
+
+NO_TRUTH = (0.0,) * 7
+"""The plant's truth in a log row the host writes: it knows none (the inverter's truth fills it after the run)."""
 
 
 @dataclass
@@ -95,8 +99,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
     log = np.zeros((n, len(LOG_COLUMNS)))
     received = np.zeros(n, dtype=bool)
     host_s = np.zeros(n)
-    answer = _BlockAnswer(host, scenario, line, log) if scenario.block_samples > 1 else \
-        _SampleAnswer(host, scenario, line, log)
+    answer = _HostAnswer(host, scenario, line, log)
     bridge.poll(0.0)
     start = time.perf_counter()
     last_report = 0
@@ -168,93 +171,54 @@ def protect(host, currents, n, k_last, u_dc_V, omega_e_hat, cx, px):
     return True, safe_state_for(omega_e_hat, u_dc_V, host.protection.psi_f_Wb)
 
 
-class _SampleAnswer:
-    """The host's answer to each sample: the estimator's and the controller's step, COMMAND(k)."""
+@njit(cache=True)
+def fill_inputs(inputs, currents, theta_m, n_p, speed_ref, tau_feedforward, k0, n):
+    """Samples k0 … k0 + n − 1 of a telemetry block into ``inputs`` (DRIVE_INPUT records): the measured
+    ``currents`` (n × 3) [A], the encoder's mechanical ``theta_m`` [rad] as electrical (NaN: none, 0) and
+    the schedule's speed reference [rad/s] and torque feed-forward [N·m] of each sample."""
+    for i in range(n):
+        s = inputs[i]
+        s.i_a_A, s.i_b_A, s.i_c_A = currents[i, 0], currents[i, 1], currents[i, 2]
+        s.theta_e_encoder_rad = 0.0 if math.isnan(theta_m[i]) else n_p * theta_m[i]
+        s.omega_e_encoder_rad_s = 0.0
+        s.omega_m_ref_rad_s, s.tau_feedforward_Nm = speed_ref[k0 + i], tau_feedforward[k0 + i]
+
+
+@njit(cache=True)
+def issue_and_log(line, rows, k0, n, T_s, inputs, estimates, commands):
+    """The commands of samples k0 … k0 + n − 1 into the delay ``line`` and the samples into ``rows``
+    (LOG_COLUMNS) from their records (DRIVE_INPUT, ESTIMATE, COMMAND); T_s [s] the sample period."""
+    for i in range(n):
+        issue_command(line, k0 + i, commands[i].u_alpha_V, commands[i].u_beta_V)
+        write_row(rows[i], (k0 + i) * T_s, NO_TRUTH, inputs[i], estimates[i], commands[i])
+
+
+class _HostAnswer:
+    """The host's answer to each whole block of N samples (N = 1: each sample): ``estimator_block`` and
+    ``controller_block`` (as ``drive run`` composes them), one COMMAND_BLOCK (N = 1: one COMMAND). A block
+    with a sample missing is not answered (the inverter applies zero volts for it)."""
 
     def __init__(self, host, scenario, line, log):
         self.host, self.scenario, self.line, self.log = host, scenario, line, log
-        self.calibration = host.commissioning.calibration()
-        self.trip_A = trip_current_A(scenario.motor.nameplate)
-        self.currents, self.encoder, self.estimate = np.zeros((1, 3)), np.zeros((1, 2)), estimates(1)
-        self.inputs = sample_inputs()
+        self.sensing = host.sensing()
+        N = scenario.block_samples
+        self.currents, self.inputs = np.zeros((N, 3)), drive_inputs(N)
+        self.est_out, self.ctrl_out, self.core = estimates(N), commands(N), host.estimator.core()
         self.warm_up()
 
     def warm_up(self):
         """Load the kernels on copies of the states before the inverter starts: a first call loads a kernel
         from numba's cache (up to 0.3 s), longer than the bridge's link timeout in lock-step."""
-        host, est = self.host, self.estimate[0]
-        e = host.estimator
-        estimator_block(e.step, e.state.copy(), e.params, 0, 1, self.currents, self.line.copy(), self.encoder,
-                        self.calibration, self.trip_A, self.estimate, self.inputs)
-        corrected_currents(0.0, 0.0, 0.0, self.calibration)
-        controller_step(host.controller_x.copy(), host.controller_z.copy(), host.controller, 0.0, 0.0, 0.0,
-                        est["theta_e_hat"], est["omega_e_hat"], host.speed_ref[0], est["u_inj_alpha"],
-                        est["u_inj_beta"], est["state"], host.tau_feedforward[0])
-        issue_command(self.line.copy(), 0, 0.0, 0.0)
-        protect(host, self.currents, 1, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
-        write_row(np.zeros(len(LOG_COLUMNS)), 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
-                  est["theta_e_hat"], est["omega_e_hat"], 0.0, 0.0, est["u_inj_alpha"], est["u_inj_beta"],
-                  host.speed_ref[0], 0.0, 0.0, 0.0, 0.0, est["eps"], est["signal"], est["state"],
-                  est["injection_amplitude"], est["observer_weight"], est["leader"])
-
-    def block(self, b, bridge):
-        """Answer each sample of ``b``; the samples answered."""
-        answered = []
-        for s in b.samples():
-            if s.k < self.scenario.n_samples:
-                self.sample(s, bridge)
-                answered.append(s.k)
-        return answered
-
-    def sample(self, s, bridge):
-        """Answer sample ``s``: the estimator's and the controller's step, COMMAND(k)."""
-        host, line, k = self.host, self.line, s.k
-        e, cx, cz, cp = host.estimator, host.controller_x, host.controller_z, host.controller
-        self.currents[0] = s.i_a, s.i_b, s.i_c
-        self.encoder[0, 0] = cp.n_p * s.theta_m if s.theta_m == s.theta_m else 0.0
-        self.inputs[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
-        estimator_block(e.step, e.state, e.params, k, 1, self.currents, line, self.encoder, self.calibration,
-                        self.trip_A, self.estimate, self.inputs)
-        est = self.estimate[0]
-        enable, safe = protect(host, self.currents, 1, k, s.u_dc_V, est["omega_e_hat"], cx, host.protection_x)
-        c_a, c_b, c_c = corrected_currents(s.i_a, s.i_b, s.i_c, self.calibration)
-        u_a, u_b, i_d, i_q, i_d_ref, i_q_ref = controller_step(
-            cx, cz, cp, c_a, c_b, c_c, est["theta_e_hat"], est["omega_e_hat"], host.speed_ref[k], est["u_inj_alpha"],
-            est["u_inj_beta"], est["state"], host.tau_feedforward[k])
-        issue_command(line, k, u_a, u_b)
-        bridge.command(k, u_a, u_b, enable, safe)
-        write_row(self.log[k], k * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, s.i_a, s.i_b, s.i_c,
-                  est["theta_e_hat"], est["omega_e_hat"], u_a, u_b, est["u_inj_alpha"], est["u_inj_beta"],
-                  host.speed_ref[k], i_d, i_q, i_d_ref, i_q_ref, est["eps"], est["signal"], est["state"],
-                  est["injection_amplitude"], est["observer_weight"], est["leader"])
-
-
-class _BlockAnswer:
-    """The host's answer to each whole block of N samples: ``estimator_block`` and ``controller_block``
-    (as ``drive run`` composes them), one COMMAND_BLOCK. A block with a sample missing is not answered
-    (the inverter applies zero volts for it)."""
-
-    def __init__(self, host, scenario, line, log):
-        self.host, self.scenario, self.line, self.log = host, scenario, line, log
-        self.calibration = host.commissioning.calibration()
-        self.trip_A = trip_current_A(scenario.motor.nameplate)
-        N = scenario.block_samples
-        self.currents, self.encoder = np.zeros((N, 3)), np.zeros((N, 2))
-        self.est_out, self.ctrl_out, self.inputs = estimates(N), np.zeros((N, 6)), sample_inputs()
-        self.warm_up()
-
-    def warm_up(self):
-        """Load the kernels on copies of the states before the inverter's clock starts (a first call
-        costs up to 0.3 s)."""
         host, N = self.host, self.scenario.block_samples
         e = host.estimator
-        estimator_block(e.step, e.state.copy(), e.params, 0, N, self.currents, self.line.copy(),
-                        self.encoder, self.calibration, self.trip_A, self.est_out, self.inputs)
-        controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.currents,
-                         self.est_out, host.speed_ref[:N], host.tau_feedforward[:N], self.calibration, self.trip_A,
-                         self.ctrl_out)
+        fill_inputs(self.inputs, self.currents, np.zeros(N), 1, host.speed_ref, host.tau_feedforward, 0, N)
+        estimator_block(e.step, e.core(e.state.copy()), 0, N, self.inputs, self.line.copy(), self.sensing,
+                        self.est_out)
+        controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.inputs,
+                         self.est_out, self.sensing, self.ctrl_out)
         protect(host, self.currents, N, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
-        self.issue_and_log(self.line.copy(), np.zeros((1, len(LOG_COLUMNS))), 0, 1)
+        issue_and_log(self.line.copy(), np.zeros((1, len(LOG_COLUMNS))), 0, 1, self.scenario.T_s, self.inputs,
+                      self.est_out, self.ctrl_out)
 
     def block(self, b, bridge):
         """Answer block ``b`` when it is a whole one (its first sample a multiple of N; N samples, or the
@@ -264,31 +228,19 @@ class _BlockAnswer:
         if k0 % N or len(b) < n:
             return ()
         host, line = self.host, self.line
-        e, n_p = host.estimator, host.controller.n_p
         self.currents[:n] = b.currents_A[:n]
-        theta = b.theta_m[:n]
-        self.encoder[:n, 0] = np.where(np.isnan(theta), 0.0, n_p * theta)
-        self.inputs[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
-        estimator_block(e.step, e.state, e.params, k0, n, self.currents, line, self.encoder, self.calibration,
-                        self.trip_A, self.est_out, self.inputs)
+        fill_inputs(self.inputs, self.currents, b.theta_m, host.controller.n_p, host.speed_ref, host.tau_feedforward,
+                    k0, n)
+        self.core.sample[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
+        estimator_block(host.estimator.step, self.core, k0, n, self.inputs, line, self.sensing, self.est_out)
         enable, safe = protect(host, self.currents, n, k0 + n - 1, b.u_dc_V, self.est_out[n - 1]["omega_e_hat"],
                                host.controller_x, host.protection_x)
-        controller_block(host.controller_x, host.controller_z, host.controller, n, self.currents, self.est_out,
-                         host.speed_ref[k0:k0 + n], host.tau_feedforward[k0:k0 + n], self.calibration, self.trip_A,
-                         self.ctrl_out)
-        self.issue_and_log(line, self.log[k0:k0 + n], k0, n)
-        bridge.command_block(k0, self.ctrl_out[:n, 0], self.ctrl_out[:n, 1], enable, safe)
+        controller_block(host.controller_x, host.controller_z, host.controller, n, self.inputs, self.est_out,
+                         self.sensing, self.ctrl_out)
+        issue_and_log(line, self.log[k0:k0 + n], k0, n, self.scenario.T_s, self.inputs, self.est_out, self.ctrl_out)
+        c = self.ctrl_out
+        if N == 1:
+            bridge.command(k0, c[0]["u_alpha_V"], c[0]["u_beta_V"], enable, safe)
+        else:
+            bridge.command_block(k0, c["u_alpha_V"][:n], c["u_beta_V"][:n], enable, safe)
         return range(k0, k0 + n)
-
-    def issue_and_log(self, line, rows, k0, n):
-        """The block's commands into ``line`` and its samples k0 … k0 + n − 1 into ``rows`` (LOG_COLUMNS),
-        from the measured currents and the kernels' outputs."""
-        c, est, m = self.ctrl_out, self.est_out, self.currents
-        for i in range(n):
-            j = k0 + i
-            issue_command(line, j, c[i, 0], c[i, 1])
-            e = est[i]
-            write_row(rows[i], j * self.scenario.T_s, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, m[i, 0], m[i, 1], m[i, 2],
-                      e["theta_e_hat"], e["omega_e_hat"], c[i, 0], c[i, 1], e["u_inj_alpha"], e["u_inj_beta"],
-                      self.host.speed_ref[j], c[i, 2], c[i, 3], c[i, 4], c[i, 5], e["eps"], e["signal"], e["state"],
-                      e["injection_amplitude"], e["observer_weight"], e["leader"])

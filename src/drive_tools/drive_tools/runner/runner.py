@@ -9,6 +9,7 @@ import numpy as np
 
 from drive_common.contract.log import LOG_COLUMNS
 from drive_common.contract.run_result import RunResult
+from drive_common.math.current_sensing import current_sensing
 from drive_common.motor.commissioning import resolve_commissioning
 from drive_common.motor.nameplate import trip_current_A
 from drive_common.runtime.interrupt import Interrupted, checkpoint, deferred
@@ -20,7 +21,7 @@ from hf_estimator.interface import contract_injection
 from hf_estimator.startup import estimator_startup
 from pmsm_plant.build import plant_for_scenario
 
-from .loop import run_blocks
+from .loop import ClosedLoop, PlantCore, Schedule, run_blocks
 
 
 @dataclass
@@ -51,12 +52,21 @@ class Drive:
     def run(self, k_start, k_end, log):
         """Run samples k_start..k_end−1 of the compiled loop (k_start a multiple of the scenario's
         block_samples); ``log`` receives one row per sample."""
-        p, e = self.plant, self.estimator
-        run_blocks(k_start, k_end, self.scenario.block_samples, p.x, p.line, p.machine, p.mechanics, p.inverter,
-                   p.sensor, p.seed, p.T_s, p.substeps, e.step, e.state, e.params, self.controller_x,
-                   self.controller_z, self.controller, self.speed_ref, self.tau_load, self.tau_feedforward,
-                   p.imposed_speed, self.brake, self.commissioning.calibration(),
-                   trip_current_A(self.scenario.motor.nameplate), self.protection_x, self.protection, log)
+        run_blocks(self.estimator.step, self.closed_loop(), k_start, k_end, log)
+
+    def closed_loop(self):
+        """The loop's cores and states (drive_tools.runner.loop.ClosedLoop); the states are this drive's."""
+        p = self.plant
+        plant = PlantCore(p.x, p.line, p.machine, p.mechanics, p.inverter, p.sensor, p.seed, p.T_s, p.substeps,
+                          p.imposed_speed)
+        return ClosedLoop(plant, self.estimator.core(), self.controller, self.controller_x, self.controller_z,
+                          self.protection, self.protection_x, self.sensing(),
+                          Schedule(self.speed_ref, self.tau_load, self.tau_feedforward, self.brake),
+                          self.scenario.block_samples)
+
+    def sensing(self):
+        """How this drive reads its currents: the commissioned calibration and the motor's trip current."""
+        return current_sensing(self.commissioning.calibration(), trip_current_A(self.scenario.motor.nameplate))
 
 
 def brake_state(scenario):
