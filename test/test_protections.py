@@ -20,7 +20,7 @@ from drive_common.contract.estimator_records import ESTIMATE, SAMPLE, estimates
 from drive_common.contract.estimator_states import TRACKING
 from drive_common.contract.exit_codes import EXIT_TRIPPED
 from drive_common.math.copper import COPPER_ALPHA_PER_K
-from drive_common.math.current_sensing import UNCALIBRATED
+from drive_common.math.current_sensing import CurrentCalibration
 from drive_common.math.frames import clarke, rotate
 from drive_common.math.safe_state import ASC, FREEWHEEL, safe_state_for
 from drive_common.math.winding import R_S_IN_USE, R_S_STEP, winding_estimate
@@ -156,7 +156,7 @@ def _command(cx, cz, c, currents, theta_e, omega_e, omega_ref):
     inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents
     inputs["omega_m_ref_rad_s"] = omega_ref
     estimate["theta_e_hat"], estimate["omega_e_hat"], estimate["state"] = theta_e, omega_e, TRACKING
-    controller_step(cx, cz, c, inputs, estimate, UNCALIBRATED, out)
+    controller_step(cx, cz, c, inputs, estimate, CurrentCalibration(1.0, 1.0, 1.0, 0.0, 0.0, 0.0), out)
     return out["u_alpha_V"], out["u_beta_V"]
 
 
