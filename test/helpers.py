@@ -122,10 +122,10 @@ def paced_on_a_virtual_clock(scenario, answer, rate_Hz, by_host_writes=False, **
     """A VirtualInverter of ``scenario`` paced at ``rate_Hz`` on a VirtualClock behind a
     HostOnAVirtualClock answering as ``answer`` says (``by_host_writes``: the inverter judges commands by
     the host's write time), run to its end: (inverter, host)."""
-    from drive_bridge.virtual_inverter import VirtualInverter
+    from drive_tools.doubles.virtual_inverter import InverterOptions, VirtualInverter
     clock = VirtualClock()
     host = HostOnAVirtualClock(clock, answer)
-    inverter = VirtualInverter(scenario, host, rate_Hz=rate_Hz, clock=clock.monotonic, **options)
+    inverter = VirtualInverter(scenario, host, InverterOptions(rate_Hz=rate_Hz, clock=clock.monotonic, **options))
     if by_host_writes:
         inverter.hear_host_writes(host.written_at)
     inverter.run()

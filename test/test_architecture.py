@@ -202,10 +202,51 @@ def test_the_architecture_page_states_the_graph_the_code_has():
 
 def test_the_bridge_package_holds_only_the_inverter_link():
     """The protocol, the links (a serial port, a CAN bus, the CAN cable between processes), the bridge and
-    its node; and the virtual inverter that stands in for a real one, with its own process."""
+    its node, on the library alone: the virtual inverter that stands in for a real one lives with the test
+    doubles (drive_tools.doubles)."""
     names = {p.stem for p in (SRC / "drive_bridge" / "drive_bridge").glob("*.py")}
-    assert names == {"__init__", "inverter_protocol", "inverter_link", "can_cable", "inverter_bridge", "bridge_node",
-                     "virtual_inverter", "inverter_process"}
+    assert names == {"__init__", "inverter_protocol", "inverter_link", "can_cable", "inverter_bridge", "bridge_node"}
+    assert package_graph()["drive_bridge"] == {LIBRARY}
+
+
+TEST_HOOK = re.compile(r"fault_plan|\w*_hook|lose_\w+|hold_collector")
+"""Parameter names of fault injection and test hooks."""
+MAX_PARAMETERS = 8
+
+
+def functions(package):
+    """(module name, function) of every function and method defined in ``package``'s modules."""
+    for name, path in modules().items():
+        if name.split(".")[0] == package:
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    yield name, node
+
+
+def parameters(function):
+    """A function's parameter names, ``self``/``cls`` left out."""
+    a = function.args
+    names = [arg.arg for arg in a.posonlyargs + a.args + a.kwonlyargs]
+    return names[1:] if names[:1] in (["self"], ["cls"]) else names
+
+
+def test_test_doubles_are_apart_from_what_runs_a_drive():
+    """Fault injection and test hooks live in drive_tools.doubles (as ros2_control's mock components): no
+    function elsewhere takes a fault plan, a hook, a loss rate or a lever of that kind; a test or bench that
+    needs faults composes a faulty double (drive_tools.doubles.faults) instead."""
+    offending = [f"{module}.{function.name}({name})" for package in PACKAGES for module, function in functions(package)
+                 if not module.startswith(f"{TOOLS}.doubles") for name in parameters(function)
+                 if TEST_HOOK.fullmatch(name)]
+    assert offending == []
+
+
+def test_the_composing_functions_take_named_records():
+    """What composes the cores and links them (the tools, the bridge) takes at most MAX_PARAMETERS parameters,
+    the rest in named records (DriveSpec, GraphOptions, InverterOptions, ...); numba kernels are the cores'."""
+    offending = [f"{module}.{function.name}: {len(parameters(function))}" for package in (TOOLS, "drive_bridge")
+                 for module, function in functions(package) if len(parameters(function)) > MAX_PARAMETERS
+                 and not any(ast.unparse(d).startswith("njit") for d in function.decorator_list)]
+    assert offending == []
 
 
 def test_every_path_the_docs_cite_exists():

@@ -63,11 +63,11 @@ def mcap_stamps(bag, topic):
 @pytest.fixture(scope="module")
 def bags(tmp_path_factory):
     pytest.importorskip("rclpy")
-    from drive_tools.launch.launcher import launch
+    from drive_tools.launch.launcher import DriveSpec, launch
     root = tmp_path_factory.mktemp("bags")
     path = root / "scenario.yaml"
     path.write_text(SCENARIO)
-    launch(str(path), namespace="/drive", bag=str(root / "graph"))
+    launch(DriveSpec(str(path), "/drive", bag=str(root / "graph")))
     write_run_bag(run_scenario(load_scenario(str(path))), root / "run")
     return root / "graph", root / "run", 500
 
@@ -249,11 +249,11 @@ def test_a_block_recording_reads_back_sample_by_sample_and_replays_exactly(tmp_p
     samples); read back it holds the samples of the runner with the same N, and replaying its own
     estimator (the applied voltage lagging by d + 1 = 11 samples) gives the recorded estimate exactly."""
     pytest.importorskip("rclpy")
-    from drive_tools.launch.launcher import launch
+    from drive_tools.launch.launcher import DriveSpec, launch
     path = tmp_path / "blocks.yaml"
     path.write_text(SCENARIO + "block_samples: 10\n")
     bag = tmp_path / "graph"
-    assert not launch(str(path), namespace="/blocks", bag=str(bag)).node_faults
+    assert not launch(DriveSpec(str(path), "/blocks", bag=str(bag))).node_faults
     counts = {t["topic"]: (t["type"], t["count"]) for t in bag_info(bag)["topics"]}
     for topic in ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state"):
         assert counts[f"/blocks/{topic}_block"] == ("sensor_msgs/msg/JointState", 50), topic

@@ -20,11 +20,14 @@ from drive_bridge.inverter_protocol import (
     Hello,
     TelemetryBlock,
 )
-from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
 from drive_common.config.experiment import Table
 from drive_common.config.scenario import load_scenario
 from drive_common.math.safe_state import FREEWHEEL, PWM
 from drive_common.motor.motor_file import load_motor, motor_path
+from drive_tools.doubles.faults import FaultPlan, acting_at, faulty
+from drive_tools.doubles.inverter_timing import timing_report
+from drive_tools.doubles.virtual_inverter import InverterOptions, VirtualInverter
+from drive_tools.doubles.virtual_links import make_links
 from drive_tools.evaluation.metrics import angle_error, compute_metrics
 from drive_tools.runner.bridge_loop import run_through_bridge
 from drive_tools.runner.runner import run_scenario
@@ -56,7 +59,7 @@ def test_the_loop_through_the_bridge_matches_the_direct_run(direct, link):
 def test_serial_link_faults_are_counted_and_dropped():
     faults = FaultPlan(corrupt_every=97, drop_every=89, duplicate_every=83, reorder_every=101,
                        garbage_every=71)
-    result = run_through_bridge(SCENARIO, "pty", faults=faults)
+    result = run_through_bridge(SCENARIO, "pty", inverter=faulty(faults))
     injected, counters, errors = faults.counts, result.counters, result.frame_errors
     assert counters["duplicated"] == injected["duplicated"]
     bad_frames = errors.get("crc", 0) + errors.get("framing", 0)
@@ -77,24 +80,23 @@ def test_serial_link_faults_are_counted_and_dropped():
 
 def test_can_link_faults_are_counted():
     faults = FaultPlan(drop_every=47, duplicate_every=37)
-    result = run_through_bridge(SCENARIO, "can", faults=faults)
+    result = run_through_bridge(SCENARIO, "can", inverter=faulty(faults))
     assert result.counters["duplicated"] == faults.counts["duplicated"]
     assert result.counters["dropped"] == faults.counts["dropped"]
 
 
 def test_unplugged_pty_trips_the_inverter_and_the_bridge_recovers():
-    """At sample 2000 the pty disappears for 0.3 s. The inverter misses commands and its watchdog
+    """Right after sending sample 2000 the pty disappears for 0.3 s. The inverter misses commands and its watchdog
     switches PWM off; the bridge loses the link, reopens the port when it is back, clears the watchdog
     (never an overcurrent) and drives on; the estimate is back on the rotor within 0.2 s."""
     replugged = threading.Event()
 
-    def unplug(inverter, endpoint, k):
-        if k == 2000:
-            endpoint.unplug()
-            threading.Timer(0.3, lambda: (endpoint.replug(), replugged.set())).start()
+    def unplug(inverter):
+        inverter.endpoint.unplug()
+        threading.Timer(0.3, lambda: (inverter.endpoint.replug(), replugged.set())).start()
 
     scenario = dataclasses.replace(SCENARIO, duration_s=1.0)
-    result = run_through_bridge(scenario, "pty", command_wait_s=0.02, inverter_hook=unplug)
+    result = run_through_bridge(scenario, "pty", InverterOptions(command_wait_s=0.02), inverter=acting_at(2000, unplug))
     assert replugged.is_set()
     c = result.counters
     assert c["link_lost"] == 1 and c["reconnects"] >= 1 and c["faults_cleared"] >= 1
@@ -108,17 +110,16 @@ def test_bus_off_is_counted_and_the_bridge_reopens_the_bus():
     import can
     failures = []
 
-    def bus_off(inverter, endpoint, k):
-        if k == 1500:
-            bus = hosts[0].link.bus
-            original = bus.send
+    def bus_off(inverter):
+        bus = hosts[0].link.bus
+        original = bus.send
 
-            def failing(message, timeout=None):
-                if len(failures) < 3:
-                    failures.append(message)
-                    raise can.CanOperationError("bus-off")
-                return original(message, timeout)
-            bus.send = failing
+        def failing(message, timeout=None):
+            if len(failures) < 3:
+                failures.append(message)
+                raise can.CanOperationError("bus-off")
+            return original(message, timeout)
+        bus.send = failing
 
     hosts = []
     original_init = InverterBridge.__init__
@@ -128,16 +129,17 @@ def test_bus_off_is_counted_and_the_bridge_reopens_the_bus():
         hosts.append(self)
     InverterBridge.__init__ = capture
     try:
-        result = run_through_bridge(SCENARIO, "can", command_wait_s=0.02, inverter_hook=bus_off)
+        result = run_through_bridge(SCENARIO, "can", InverterOptions(command_wait_s=0.02),
+                                    inverter=acting_at(1500, bus_off))
     finally:
         InverterBridge.__init__ = original_init
     assert failures and result.counters["bus_off"] >= 1 and result.counters["reconnects"] >= 1
     assert result.received[-500:].all()
 
 
-def _bridge_against(tmp_path, scenario, **inverter_options):
+def _bridge_against(tmp_path, scenario, options):
     endpoint, host_link = make_links("pty", tmp_path)
-    inverter = VirtualInverter(scenario, endpoint, **inverter_options)
+    inverter = VirtualInverter(scenario, endpoint, options)
     bridge = InverterBridge(host_link, block_samples=scenario.block_samples)
     bridge.poll(0.0)
     thread = threading.Thread(target=inverter.run, daemon=True)
@@ -149,7 +151,7 @@ def test_a_silent_graph_gets_the_safe_state(tmp_path):
     """Telemetry flows (the inverter's own 1 kHz clock) but nobody commands after sample 50: within
     command_timeout_s the bridge disables the inverter (CONTROL 1) and reports it; the inverter's watchdog
     has already switched PWM off."""
-    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, SCENARIO, rate_Hz=1000.0)
+    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, SCENARIO, InverterOptions(rate_Hz=1000.0))
     try:
         last = None
         deadline = time.monotonic() + 3.0
@@ -173,7 +175,8 @@ def test_overcurrent_trips_and_stays_latched(tmp_path):
     The shaft is held (imposed zero speed): PWM off is modelled as zero volts, which on a turning rotor
     would brake it with short-circuit current."""
     held = dataclasses.replace(SCENARIO, mode="imposed_speed", speed=Table((0.0,), (0.0,), "step"))
-    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, held, trip_current_A=0.3, rate_Hz=1000.0)
+    endpoint, inverter, bridge, thread = _bridge_against(tmp_path, held,
+                                                        InverterOptions(rate_Hz=1000.0, trip_current_A=0.3))
     try:
         statuses = []
         while inverter.k < 400 and thread.is_alive():
@@ -194,15 +197,15 @@ def test_overcurrent_trips_and_stays_latched(tmp_path):
 
 
 def test_a_can_inverter_off_the_bus_and_back():
-    """At sample 2000 the inverter's CAN interface goes down for 0.3 s (its frames are lost); the bridge
-    reports the link lost, and when telemetry returns it clears the watchdog and drives on."""
-    def off_the_bus(inverter, endpoint, k):
-        if k == 2000:
-            endpoint.close()
-            threading.Timer(0.3, endpoint.open).start()
+    """Right after sending sample 2000 the inverter's CAN interface goes down for 0.3 s (its frames are lost);
+    the bridge reports the link lost, and when telemetry returns it clears the watchdog and drives on."""
+    def off_the_bus(inverter):
+        inverter.endpoint.close()
+        threading.Timer(0.3, inverter.endpoint.open).start()
 
     scenario = dataclasses.replace(SCENARIO, duration_s=1.0)
-    result = run_through_bridge(scenario, "can", command_wait_s=0.02, inverter_hook=off_the_bus)
+    result = run_through_bridge(scenario, "can", InverterOptions(command_wait_s=0.02),
+                                inverter=acting_at(2000, off_the_bus))
     assert result.counters["link_lost"] == 1 and result.counters["faults_cleared"] >= 1
     assert result.inverter_counters["link_down"] > 0 and result.inverter_counters["watchdog_trips"] == 1
     assert result.received[-1000:].all()
@@ -215,8 +218,6 @@ def test_a_paced_inverter_counts_late_commands_as_zero_volts():
     last, answering sample 39, would act after the run), with its latency in the histogram's bins beyond
     one period; the others (written a tenth of a period after) arrive within their period. The watchdog
     (10 missing in a row) does not trip on isolated late commands."""
-    from drive_bridge.virtual_inverter import timing_report
-
     forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
     period = 1.0 / 50.0
     inverter, host = paced_on_a_virtual_clock(
@@ -242,8 +243,6 @@ def test_a_command_written_in_time_but_read_late_is_the_links_not_the_hosts(by_h
     (10 and 9: the last held-back one would act after the run). Judged as a device, by the host's write
     time plus the wire's 50 µs (``hear_host_writes``), it misses only the host's 10 and applies the
     held-back ones in their periods (``read_late``: 9)."""
-    from drive_bridge.virtual_inverter import timing_report
-
     forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
     period = 1.0 / 50.0
 
@@ -335,8 +334,6 @@ def test_a_late_block_says_whether_the_host_had_written_its_command_in_time():
     the command's time on the wire, written early enough to arrive by then."""
     from types import SimpleNamespace
 
-    from drive_bridge.virtual_inverter import timing_report
-
     inverter = SimpleNamespace(latencies_s=[3e-4], late_latencies_s=[2e-3, 2e-3], k=100, rate_Hz=1e4,
                                before_start=0, counters={"missing": 20, "watchdog_trips": 0, "overruns": 0,
                                                          "host_silent_trips": 0},
@@ -396,7 +393,7 @@ def test_a_lost_block_is_a_block_of_zero_volts_the_host_knows_of():
     writes into its estimator's delay line. Each lost block (a 1 ms gap in the estimator's samples and in
     the injection) disturbs the angle by up to about 0.6 rad; the drive keeps its lock."""
     faults = FaultPlan(drop_every=37)
-    result = run_through_bridge(dataclasses.replace(SCENARIO, block_samples=10), "pty", faults=faults)
+    result = run_through_bridge(dataclasses.replace(SCENARIO, block_samples=10), "pty", inverter=faulty(faults))
     lost = faults.counts["dropped"]
     assert lost == SCENARIO.n_samples // 10 // 37
     assert result.counters["dropped"] == 10 * lost and result.inverter_counters["missing"] == 10 * lost
@@ -415,7 +412,7 @@ def test_a_late_command_block_is_zero_volts_the_host_pairs_and_ours_barely_feels
     docs/results.md, 2026-11-26.)"""
     faults = FaultPlan(lose_command_every=37)
     sc = dataclasses.replace(load_scenario(scenario), duration_s=duration_s, block_samples=10)
-    result = run_through_bridge(sc, "pty", faults=faults)
+    result = run_through_bridge(sc, "pty", inverter=faulty(faults))
     lost = faults.counts["commands_lost"]
     assert lost == sc.n_samples // 10 // 37 and result.inverter_counters["missing"] == 10 * lost
     assert result.inverter_counters["watchdog_trips"] == 0 and result.received.all()
@@ -441,7 +438,7 @@ def test_late_blocks_in_a_row_trip_the_watchdog_at_its_limit_and_the_drive_recov
     told of every period at zero volts, keeps its lock and is back at the clean run's error after the gap
     (measured: peak 0.05, 0.16, 0.70 rad in runs of 2, 3, 8 blocks; 0.048 without)."""
     faults = FaultPlan(lose_commands=tuple(range(430, 430 + run_of_blocks)))
-    result = run_through_bridge(LOSSY, "can", faults=faults)
+    result = run_through_bridge(LOSSY, "can", inverter=faulty(faults))
     inverter = result.inverter_counters
     assert faults.counts["commands_lost"] == run_of_blocks and inverter["missing"] == 10 * run_of_blocks
     assert inverter["watchdog_trips"] == trips and result.counters["faults_cleared"] == trips
@@ -458,7 +455,7 @@ def test_a_block_the_simulation_sent_late_leaves_the_host_its_whole_window_and_n
     those 50 µs counts as in time for that reason (``sent_late``); a restart of the clock after the
     telemetry left (an overrun of a later block) moves no deadline of a block already sent."""
     scenario = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s, block_samples=4)
-    inverter = VirtualInverter(scenario, endpoint=None, rate_Hz=1e4)
+    inverter = VirtualInverter(scenario, None, InverterOptions(rate_Hz=1e4))
     inverter.clock_start, inverter.k = 100.0, 12
     inverter.sent_at[0:4] = 100.0 + 3e-4
     inverter.sent_at[4:8], inverter.sent_late_s[4:8] = 100.0 + 7e-4 + 50e-6, 50e-6
@@ -479,8 +476,6 @@ def test_a_paced_inverter_applies_a_block_during_the_block_after_next():
     are, says COMMAND_MISSING; every other block's commands act on time. The answers to the last two
     blocks would act after the run."""
     from drive_bridge.inverter_protocol import COMMAND_MISSING
-    from drive_bridge.virtual_inverter import timing_report
-
     forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s, block_samples=4)
     inverter, host = paced_on_a_virtual_clock(forty, lambda k0, n: (0.13 if k0 == 8 else 0.002, 0.0), 50.0)
     timing = timing_report(inverter, 1.0 / 50.0)
@@ -498,12 +493,12 @@ def test_the_inverter_in_its_own_process_keeps_its_duties(tmp_path, link):
     of missing periods, whatever the machine's pace (each wait ends 0.2 s after its telemetry, or at once
     when a later command is heard)."""
     from drive_bridge.inverter_link import CanLink, SerialLink
-    from drive_bridge.inverter_process import InverterProcess
-    from drive_bridge.virtual_inverter import timing_report
+    from drive_tools.doubles.inverter_process import InverterProcess
 
     T_s = SCENARIO.T_s
     path = tmp_path / ("inverter0" if link == "pty" else "can_cable0")
-    inverter = InverterProcess({"scenario": "wang_100rpm", "duration_s": 40 * T_s}, link, path, None, 0.2)
+    inverter = InverterProcess({"scenario": "wang_100rpm", "duration_s": 40 * T_s}, link, path,
+                               InverterOptions(command_wait_s=0.2))
     host_link = SerialLink(str(path)) if link == "pty" else CanLink(str(path), 0, "cable")
     bridge = InverterBridge(host_link)
     try:
@@ -528,10 +523,11 @@ def test_the_inverter_in_its_own_process_keeps_its_duties(tmp_path, link):
 
 
 def test_an_inverter_process_that_cannot_start_says_why_in_one_line(tmp_path, capfd):
-    from drive_bridge.inverter_process import InverterProcess, InverterProcessError
+    from drive_tools.doubles.inverter_process import InverterProcess, InverterProcessError
 
     with pytest.raises(InverterProcessError, match="did not start"):
-        InverterProcess({"scenario": "no_such_scenario"}, "pty", tmp_path / "inverter0", 50.0, 1.0)
+        InverterProcess({"scenario": "no_such_scenario"}, "pty", tmp_path / "inverter0",
+                        InverterOptions(rate_Hz=50.0, command_wait_s=1.0))
     lines = capfd.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("virtual inverter: ") and "no_such_scenario" in lines[0]
 
@@ -568,8 +564,6 @@ def test_the_drive_starts_with_its_first_command_in_time(first_answer, before_st
     """On its own 50 Hz clock (a virtual one), 40 periods: a host that answers from sample 3 on starts the
     drive there (the 3 periods before have PWM off and are not missing, no watchdog); one that never answers
     has the watchdog's 10 periods of grace, then every period is missing and the watchdog trips."""
-    from drive_bridge.virtual_inverter import timing_report
-
     forty = dataclasses.replace(SCENARIO, duration_s=40 * SCENARIO.T_s)
 
     def answer(k0, n):
@@ -614,11 +608,7 @@ def test_through_the_bridge_the_host_trips_on_the_inverters_bus_into_the_safe_st
                                    injection=None, speed=Table((0.0, 0.05), (rpm, 0.0), "step"),
                                    initial_omega_m_rad_s=rpm, duration_s=0.2)
     inverters = []
-
-    def keep(inverter, endpoint, k):
-        inverters[:] = [inverter]
-
-    result = run_through_bridge(scenario, "pty", inverter_hook=keep)
+    result = run_through_bridge(scenario, "pty", inverter=acting_at(0, inverters.append))
     modes = inverters[0].modes
     trip = result.protection["trip"]
     assert trip["safe_state"] == "freewheel" and trip["cause"] == "DC-link over-voltage"

@@ -165,9 +165,9 @@ def test_the_launcher_gives_the_estimator_the_drive_configuration_alone(tmp_path
     """A scenario naming its drive file over the graph: the estimator runs from the drive configuration
     with no scenario, and the samples are the runner's, to 1e-9."""
     pytest.importorskip("rclpy")
-    from drive_tools.launch.launcher import launch
+    from drive_tools.launch.launcher import DriveSpec, launch
     _, experiment = files(tmp_path)
-    result = launch(str(experiment), namespace="/drive_file")
+    result = launch(DriveSpec(str(experiment), "/drive_file"))
     assert not result.interrupted and not result.node_faults
     reference = run_scenario(load_scenario(str(experiment))).log
     for name in ("theta_m", "i_a_meas", "theta_e_hat", "u_alpha", "state"):

@@ -126,9 +126,9 @@ def test_the_graph_gives_the_runners_samples_through_both_handovers(tmp_path, mo
     and the current sensors' quantisation amplifies that: the same scores and handovers within 5 ms."""
     pytest.importorskip("rclpy")
     from drive_common.config.scenario import load_scenario
-    from drive_tools.launch.launcher import launch
+    from drive_tools.launch.launcher import DriveSpec, launch
     path = up_and_down_file(tmp_path, motor)
-    result = launch(path, processes="composed", namespace=f"/full_{motor}")
+    result = launch(DriveSpec(path, f"/full_{motor}"))
     assert not result.interrupted and not result.node_faults
     reference = run_scenario(load_scenario(path))
     log, expected = result.log, reference.log

@@ -29,7 +29,7 @@ from drive_common.contract.estimator_states import TRACKING
 from drive_common.contract.log import COLUMN
 from drive_common.contract.stamps import sample_of, stamp_parts
 from drive_common.ros.node import Health, parameter_overrides, stamp, topic_qos
-from drive_tools.launch.launcher import DriveSpec, launch, launch_many
+from drive_tools.launch.launcher import DriveSpec, GraphOptions, RealTime, launch, launch_many
 from drive_tools.runner.runner import run_scenario
 from foc_controller.node import SPEED_LIMIT, ControllerNode
 from hf_estimator.node import EstimatorNode
@@ -84,8 +84,8 @@ def test_graph_gives_the_runners_samples(tmp_path, processes, block_samples, int
     then) and the load's torque fed forward (`torque_feedforward`). Blocks of 7 do not divide the run:
     its last block is shorter."""
     path = scenario_file(tmp_path, brake=processes == "separate" or intra_process, block_samples=block_samples)
-    result = launch(path, processes=processes, namespace=f"/eq_{processes}_{block_samples}_{intra_process:d}",
-                    intra_process=intra_process)
+    result = launch(DriveSpec(path, f"/eq_{processes}_{block_samples}_{intra_process:d}"),
+                    GraphOptions(processes, intra_process=intra_process))
     assert not result.interrupted and not result.node_faults
     assert_same_samples(result, path)
 
@@ -102,7 +102,7 @@ def test_the_graphs_drive_runs_the_protections_the_runner_does(tmp_path, block_s
                    "limit_degC: 90.0}\n")
     reference = run_scenario(load_scenario(path))
     assert reference.protection["winding_peak_degC"] > 70.0 and reference.protection["trip"] is None
-    result = launch(path, namespace=f"/protected_{block_samples}")
+    result = launch(DriveSpec(path, f"/protected_{block_samples}"))
     assert not result.interrupted and not result.node_faults
     assert_same_samples(result, path)
 
@@ -536,8 +536,8 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks, intra
     whichever sample the graph's timing gives it."""
     from drive_tools.runner.bridge_loop import run_through_bridge
     path = scenario_file(tmp_path, rpm=0.0)
-    result = launch(path, processes=processes, link=link, intra_process=intra_process,
-                    extra_parameters={"diagnostics_period_s": 0.05, "block_samples": blocks})
+    result = launch(DriveSpec(path, extra_parameters={"diagnostics_period_s": 0.05, "block_samples": blocks},
+                              link=link), GraphOptions(processes, intra_process=intra_process))
     reference = run_through_bridge(dataclasses.replace(load_scenario(path), block_samples=blocks), link)
     assert result.missing_samples == {}
     for name in ("i_a_meas", "theta_e_hat", "omega_e_hat", "u_alpha", "u_beta"):
@@ -608,12 +608,14 @@ def test_the_bridge_node_reports_link_faults_on_diagnostics(tmp_path):
     drive_bridge node publishes currents, and /diagnostics shows an ERROR with the corrupt and dropped
     frames counted and the inverter's watchdog (left latched: nobody asked to drive); when the inverter
     stops, the link is reported lost."""
-    from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
+    from drive_tools.doubles.faults import FaultPlan, FaultyInverter
+    from drive_tools.doubles.virtual_inverter import InverterOptions
+    from drive_tools.doubles.virtual_links import make_links
     from drive_tools.launch.launcher import make_node
 
     endpoint, host_link = make_links("pty", tmp_path)
-    inverter = VirtualInverter(load_scenario(scenario_file(tmp_path)), endpoint, rate_Hz=2000.0,
-                               faults=FaultPlan(corrupt_every=20, drop_every=30))
+    inverter = FaultyInverter(load_scenario(scenario_file(tmp_path)), endpoint, InverterOptions(rate_Hz=2000.0),
+                              FaultPlan(corrupt_every=20, drop_every=30))
     h = Harness("/drive")
     try:
         h.nodes.append(make_node("drive_bridge", h.context, h.namespace, {"diagnostics_period_s": 0.05},
@@ -640,7 +642,7 @@ def test_the_bridge_node_reports_link_faults_on_diagnostics(tmp_path):
 
 def test_a_full_disk_while_recording_the_graph_keeps_its_metrics(tmp_path, small_disk):
     path = scenario_file(tmp_path)
-    result = launch(path, namespace="/full_disk", duration_s=0.3, bag=str(small_disk / "graph"))
+    result = launch(DriveSpec(path, "/full_disk", duration_s=0.3, bag=str(small_disk / "graph")))
     assert result.recording_error and "No space left on device" in result.recording_error
     assert result.log.shape[0] == 3000 and np.isfinite(result.log[:, COLUMN["theta_e_hat"]]).all()
     assert (small_disk / "graph" / "graph_0.mcap").stat().st_size > 0
@@ -833,8 +835,8 @@ def test_diagnostics_are_stamped_on_the_datas_clock(tmp_path):
 
     from drive_tools.bags.common import typestore
     path = scenario_file(tmp_path)
-    result = launch(path, namespace="/stamped", bag=str(tmp_path / "bag"),
-                    extra_parameters={"diagnostics_period_s": 0.05})
+    result = launch(DriveSpec(path, "/stamped", extra_parameters={"diagnostics_period_s": 0.05},
+                              bag=str(tmp_path / "bag")))
     with AnyReader([tmp_path / "bag"], default_typestore=typestore()) as reader:
         connections = [c for c in reader.connections if c.topic == "/diagnostics"]
         stamps = [reader.deserialize(data, c.msgtype).header.stamp for c, _, data in reader.messages(connections)]
@@ -869,7 +871,7 @@ def test_a_round_rotor_is_refused_on_diagnostics_over_the_graph(tmp_path):
     path = tmp_path / "round.yaml"
     text = SCENARIO.format(estimator="injection_frame", rpm=60.0).replace("duration_s: 0.06", "duration_s: 0.15")
     path.write_text(text + "non_idealities: {saturation: false}\n")
-    result = launch(str(path), namespace="/round")
+    result = launch(DriveSpec(str(path), "/round"))
     faults = result.node_faults["/round/hf_estimator"]
     assert faults["faults"]["start_refused"] == 1
     assert any("no saliency found" in message for message in faults["messages"])
@@ -885,7 +887,7 @@ def test_the_graph_with_its_inverter_apart_and_its_recorder_on_a_thread_records_
     from drive_tools.runner.bridge_loop import run_through_bridge
     path = scenario_file(tmp_path, rpm=0.0, block_samples=10)
     spec = DriveSpec(str(path), "/apart", duration_s=0.3, link="can", inverter_apart=True)
-    result, = launch_many([spec], rt_priority=50, cpus={1})
+    result, = launch_many([spec], GraphOptions(real_time=RealTime(rt_priority=50, cpus={1})))
     reference = run_through_bridge(dataclasses.replace(load_scenario(path), duration_s=0.3), "can")
     n = result.scenario.n_samples
     assert result.timing["periods"] == n and result.log.shape[0] == n and result.missing_samples == {}
@@ -907,18 +909,19 @@ def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_fe
     likewise. In lock-step (the inverter waits for each command, or knows it lost it), so the outcome is the
     same on any machine; the paced figures are `drive bench bridge --paced --graph --lose-command-every 37`'s."""
     from drive_bridge.inverter_protocol import MAX_BLOCK
-    from drive_bridge.virtual_inverter import FaultPlan
     from drive_common.config.scenario import behind_an_inverter
+    from drive_tools.doubles.faults import FaultPlan, faulty
     from drive_tools.evaluation.metrics import compute_metrics
     from drive_tools.evaluation.recording import read_recording
     from drive_tools.evaluation.replay import replay
     from drive_tools.runner.bridge_loop import run_through_bridge
     bag = tmp_path / "lossy"
     sc = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.6, block_samples=10)
-    result = launch("wang_100rpm", namespace="/lossy", duration_s=sc.duration_s, link="can", lose_command_every=37,
-                    extra_parameters={"block_samples": 10}, bag=str(bag), intra_process=intra_process)
+    lossy = faulty(FaultPlan(lose_command_every=37))
+    result = launch(DriveSpec("wang_100rpm", "/lossy", duration_s=sc.duration_s, extra_parameters={"block_samples": 10},
+                              bag=str(bag), link="can", inverter=lossy), GraphOptions(intra_process=intra_process))
     faults = FaultPlan(lose_command_every=37)
-    reference = run_through_bridge(sc, "can", faults=faults)
+    reference = run_through_bridge(sc, "can", inverter=faulty(faults))
     lost = faults.counts["commands_lost"]
     assert lost == sc.n_samples // 10 // 37
     assert result.timing["missing"] == reference.inverter_counters["missing"] == 10 * lost

@@ -127,13 +127,13 @@ def test_the_graph_runs_a_motor_file_given_as_the_motor_file_parameter(joint, tm
     """A shipped scenario with the nodes' ``motor_file`` and ``commissioning`` parameters: the graph's
     samples are the runner's with the same motor override, sample for sample."""
     pytest.importorskip("rclpy")
-    from drive_tools.launch.launcher import launch
+    from drive_tools.launch.launcher import DriveSpec, launch
     motor, commissioning = joint
     path = tmp_path / "short.yaml"
     path.write_text("motor: wang_spmsm\nestimator: injection_frame\nduration_s: 0.05\nsampling_period_s: 1.0e-4\n"
                     "speed: {unit: rpm, interpolation: linear, points: [[0.0, 0.0], [0.05, 60.0]]}\n")
-    result = launch(str(path), namespace="/joint",
-                    extra_parameters={"motor_file": str(motor), "commissioning": str(commissioning)})
+    result = launch(DriveSpec(str(path), "/joint",
+                              extra_parameters={"motor_file": str(motor), "commissioning": str(commissioning)}))
     assert not result.interrupted and not result.node_faults and result.scenario.motor.name == "test_joint"
     reference = run_scenario(dataclasses.replace(load_scenario(str(path), motor_override=str(motor)),
                                                  commissioning=str(commissioning)))
@@ -283,8 +283,8 @@ def test_the_controller_node_reports_the_shaft_dragged_backwards_on_diagnostics(
     """Over the graph the controller node supervises as it controls: the overload is a `not_following`
     fault on /diagnostics naming what the shaft did, as the log's supervision (`drive launch`'s exit 6)."""
     pytest.importorskip("rclpy")
-    from drive_tools.launch.launcher import launch
-    result = launch(str(overload(joint, tmp_path)), namespace="/overload")
+    from drive_tools.launch.launcher import DriveSpec, launch
+    result = launch(DriveSpec(str(overload(joint, tmp_path)), "/overload"))
     controller = result.node_faults["/overload/foc_controller"]
     assert controller["faults"]["not_following"] >= 1
     assert any("dragged backwards" in message for message in controller["messages"])

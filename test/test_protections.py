@@ -12,7 +12,6 @@ import numpy as np
 import pytest
 
 from drive_bridge.inverter_protocol import FREEWHEELING, OVERVOLTAGE, PWM_OFF, SAFE_AUTO, SHORT_CIRCUIT
-from drive_bridge.virtual_inverter import VirtualInverter
 from drive_common.config.experiment import NON_IDEALITIES, Table
 from drive_common.config.scenario import load_scenario
 from drive_common.contract.drive_records import commands, drive_inputs
@@ -28,6 +27,7 @@ from drive_common.motor.commissioning import nameplate_commissioning
 from drive_common.motor.motor_file import MotorFileError, load_motor, motor_path
 from drive_common.motor.nameplate import InverterRating
 from drive_tools.cli.options import exit_code, tripped
+from drive_tools.doubles.virtual_inverter import VirtualInverter
 from drive_tools.evaluation.run_report import protection_line, run_report
 from drive_tools.runner.runner import run_scenario
 from foc_controller.control import REGEN_CUT, controller_state, controller_step

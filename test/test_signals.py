@@ -199,6 +199,8 @@ def test_a_long_loop_stops_at_its_next_pass_after_a_swallowed_signal(loop):
 
     from drive_common.config.scenario import load_scenario
     from drive_common.runtime import interrupt
+    from drive_tools.doubles.faults import acting_at
+    from drive_tools.doubles.virtual_inverter import InverterOptions
     from drive_tools.runner.bridge_loop import run_through_bridge
     from drive_tools.runner.runner import run_scenario
 
@@ -207,8 +209,8 @@ def test_a_long_loop_stops_at_its_next_pass_after_a_swallowed_signal(loop):
         if loop == "runner":
             result = run_scenario(scenario, progress=lambda fraction: swallowed_sigterm(), chunk_samples=2000)
         else:
-            result = run_through_bridge(scenario, command_wait_s=0.02,
-                                        inverter_hook=lambda inverter, endpoint, k: k == 100 and swallowed_sigterm())
+            result = run_through_bridge(scenario, options=InverterOptions(command_wait_s=0.02),
+                                        inverter=acting_at(100, lambda inverter: swallowed_sigterm()))
     assert result.interrupted == signal.SIGTERM
     assert 0 < len(result.log) <= {"runner": 2000, "bridge": 1000}[loop]
     assert interrupt.requested() == 0

@@ -17,6 +17,15 @@ def digest(log):
     return hashlib.sha256(np.ascontiguousarray(log, dtype=np.float64).tobytes()).hexdigest()[:16]
 
 
+def graph_log(launch, name):
+    """The log of ``name`` run DURATION_S in the composed graph: launch takes one drive's record (DriveSpec)
+    since the launcher has GraphOptions, its keywords before (at bcad1f6 and earlier)."""
+    launcher = sys.modules[launch.__module__]
+    if hasattr(launcher, "GraphOptions"):
+        return launch(launcher.DriveSpec(name, duration_s=DURATION_S)).log
+    return launch(name, duration_s=DURATION_S).log
+
+
 def main():
     try:
         from drive_common.config.scenario import load_scenario, scenario_names
@@ -45,7 +54,7 @@ def main():
         out[f"bridge {name}"] = digest(run_through_bridge(scenario, "pty").log)
     if os.environ.get("DIGEST_GRAPH", "1") == "1":
         for name in ("wang_100rpm", "szabo_profile"):
-            out[f"graph {name}"] = digest(launch(name, duration_s=DURATION_S).log)
+            out[f"graph {name}"] = digest(graph_log(launch, name))
     json.dump(out, sys.stdout, indent=1, sort_keys=True)
     print()
 

@@ -1,7 +1,7 @@
 """A virtual CAN bus between processes on one host, for machines without SocketCAN (no PF_CAN, so no
 vcan): every member of the bus is a UNIX datagram socket in one directory, the bus's channel, and a frame
 sent goes to every other member, as on a CAN bus. python-can's own virtual bus lives in one process; this
-one lets the virtual inverter run in a process of its own (drive_bridge.inverter_process). No rclpy.
+one lets the virtual inverter run in a process of its own (drive_tools.doubles.inverter_process). No rclpy.
 
 A frame on the socket: arbitration id (uint32, little-endian), flags (bit 0 extended id, bit 1 CAN FD,
 bit 2 bit-rate switch), then the data bytes (0-64)."""

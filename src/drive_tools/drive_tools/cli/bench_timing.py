@@ -104,7 +104,7 @@ def cmd_bench_blocks(args):
 
 def _graph_real_time(args, links):
     """bench bridge --paced --graph: the ROS graph on the inverter's clock, per link and lever."""
-    from drive_tools.evaluation.bench import REAL_TIME_LEVERS, graph_real_time
+    from drive_tools.evaluation.bench import REAL_TIME_LEVERS, RealTimeBench, graph_real_time
 
     if not (args.paced and args.graph):
         raise CommandLineError("--graph, --load and --levers measure the ROS graph on the inverter's clock: "
@@ -125,9 +125,9 @@ def _graph_real_time(args, links):
     lost = f", every {args.lose_command_every}th command block lost" if args.lose_command_every else ""
     print(f"drive launch {args.scenario} --link L --paced, {args.repeats} runs per link and lever"
           f"{', one core kept busy by another process' if args.load else ''}{lost}", file=sys.stderr)
-    report = graph_real_time(args.scenario, links, args.repeats, args.load, levers,
-                             progress=lambda line: print(line, file=sys.stderr), block_samples=blocks,
-                             lose_command_every=args.lose_command_every, watch_machine=args.watch_machine)
+    bench = RealTimeBench(tuple(links), args.repeats, args.load, tuple(levers), blocks, args.lose_command_every,
+                          args.watch_machine)
+    report = graph_real_time(args.scenario, bench, progress=lambda line: print(line, file=sys.stderr))
     if args.json:
         print_json(report)
     return exit_code(report["interrupted"])

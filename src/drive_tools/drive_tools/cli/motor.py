@@ -19,7 +19,8 @@ from .options import (
 
 def cmd_commission(args):
     from drive_common.motor.commissioning import default_commissioning_file, save_commissioning
-    from drive_tools.evaluation.motor_report import commissioning_lines, commissioning_report
+    from drive_tools.evaluation.motor_report import CommissioningWritten, commissioning_lines, commissioning_report
+    from drive_tools.runner.commissioning_run import CommissioningRun
     from drive_tools.runner.runner import terminal_progress
     from hf_estimator.commissioning.procedure import METHOD
 
@@ -80,8 +81,9 @@ def cmd_commission(args):
         save_commissioning(out, record, scenario.motor.name, METHOD, conditions)
     finally:
         work.unlink(missing_ok=True)
-    report = commissioning_report(out, scenario.motor.name, METHOD, host, conditions, wall, procedure, record, rated,
-                                  truth, true_currents, rotating, loaded)
+    written = CommissioningWritten(out, scenario.motor.name, METHOD, conditions)
+    run = CommissioningRun(procedure, truth, true_currents, wall, host)
+    report = commissioning_report(written, run, record, rated, rotating, loaded)
     print_report(report, args, commissioning_lines)
     return 0
 

@@ -95,7 +95,7 @@ def _report(result, args, extra):
 
 
 def cmd_launch(args):
-    from drive_tools.launch.launcher import launch, missing_samples_line
+    from drive_tools.launch.launcher import DriveSpec, GraphOptions, RealTime, launch, missing_samples_line
     from drive_tools.runner.runner import terminal_progress
 
     estimator_arg(args)
@@ -119,13 +119,12 @@ def cmd_launch(args):
     if args.link:
         from drive_bridge.inverter_protocol import MAX_BLOCK
         behind_an_inverter(dataclasses.replace(scenario, block_samples=blocks or scenario.block_samples), MAX_BLOCK)
-    result = launch(args.scenario, estimator=args.estimator, duration_s=args.duration,
-                    processes=args.processes, executor=args.executor, namespace=args.namespace,
-                    timeout_s=args.timeout, bag=args.record, link=args.link, paced=args.paced,
-                    extra_parameters=extra or None, rt_priority=args.rt_priority, cpus=args.cpus,
-                    workqueue_cpus=args.workqueue_cpus, cpu_dma_latency_us=args.cpu_dma_latency_us,
-                    intra_process=args.intra_process,
-                    progress=terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
+    drive = DriveSpec(args.scenario, args.namespace, args.estimator, args.duration, extra or None, args.record,
+                      args.link, args.paced)
+    real_time = RealTime(args.rt_priority, args.cpus, args.workqueue_cpus, args.cpu_dma_latency_us)
+    options = GraphOptions(args.processes, args.executor, timeout_s=args.timeout, intra_process=args.intra_process,
+                           real_time=real_time)
+    result = launch(drive, options, terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
     for line in result.scheduling["refused"]:
         print(f"drive: warning: {line}", file=sys.stderr)
     faults = result.node_faults
@@ -155,12 +154,14 @@ def cmd_launch(args):
 
 
 def cmd_bridge(args):
+    from drive_tools.doubles.virtual_inverter import InverterOptions
     from drive_tools.runner.bridge_loop import run_through_bridge
     from drive_tools.runner.runner import terminal_progress
 
     args.block_samples = link_block_samples(args.paced, args.block_samples)
     scenario = scenario_arg(args)
-    result = run_through_bridge(scenario, args.link, rate_Hz=1.0 / scenario.T_s if args.paced else None,
+    paced = InverterOptions(rate_Hz=1.0 / scenario.T_s if args.paced else None)
+    result = run_through_bridge(scenario, args.link, paced,
                                 progress=terminal_progress(f"{scenario.name}/{scenario.estimator} through the "
                                                            f"bridge ({args.link})"))
     extra = {"link": f"virtual inverter over {args.link}, bridge core, estimator and controller cores",

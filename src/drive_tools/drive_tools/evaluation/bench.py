@@ -10,6 +10,7 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -182,18 +183,24 @@ def graph_throughput(scenario_name=BENCH_SCENARIO, duration_s=0.5, record=False,
 
 def _graph_runs(report, scenario_name, duration_s, record, repeats, progress, block_sizes, configurations):
     """graph_throughput's runs into ``report``, stopping at the first signal (polled between steps)."""
-    from drive_tools.launch.launcher import DELIVERIES_PER_SAMPLE, DELIVERIES_PER_SAMPLE_INTRA_PROCESS, launch
+    from drive_tools.launch.launcher import (
+        DELIVERIES_PER_SAMPLE,
+        DELIVERIES_PER_SAMPLE_INTRA_PROCESS,
+        DriveSpec,
+        GraphOptions,
+        launch,
+    )
 
     results = report["results"]
-    report["interrupted"] = launch(scenario_name, duration_s=0.05, record=record).interrupted
+    report["interrupted"] = launch(DriveSpec(scenario_name, duration_s=0.05), GraphOptions(record=record)).interrupted
     if report["interrupted"]:
         return
     for (processes, executor, *intra), block in ((c, n) for n in block_sizes for c in configurations):
         walls, samples = [], 0
         deliveries = DELIVERIES_PER_SAMPLE_INTRA_PROCESS if intra else DELIVERIES_PER_SAMPLE
         for _ in range(repeats):
-            r = launch(scenario_name, duration_s=duration_s, processes=processes, executor=executor,
-                       record=record, extra_parameters={"block_samples": block}, intra_process=bool(intra))
+            r = launch(DriveSpec(scenario_name, duration_s=duration_s, extra_parameters={"block_samples": block}),
+                       GraphOptions(processes, executor, record, intra_process=bool(intra)))
             report["interrupted"] = r.interrupted or interrupt.requested()
             if report["interrupted"]:
                 return
@@ -325,6 +332,7 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
     (telemetry decoded, estimator and controller run, command encoded and written). ``block_samples``:
     N (None: the scenario's). Beside them the machine's rclpy hop cost (``hop_us``) and the latencies in hops,
     so that figures compare across machines."""
+    from drive_tools.doubles.virtual_inverter import InverterOptions
     from drive_tools.evaluation.metrics import compute_metrics
     from drive_tools.launch.hop_cost import HOP_ROUND_TRIPS_BESIDE_A_RUN, hop_latency
     from drive_tools.runner.bridge_loop import run_through_bridge
@@ -341,7 +349,7 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
         run_through_bridge(dataclasses.replace(linked, duration_s=min(scenario.duration_s, 0.05)), link)
         best = None
         for _ in range(repeats):
-            result = run_through_bridge(linked, link, rate_Hz=rate)
+            result = run_through_bridge(linked, link, InverterOptions(rate_Hz=rate))
             if best is None or (result.timing["missing"] > best.timing["missing"] if paced
                                 else result.wall_time_s < best.wall_time_s):
                 best = result
@@ -379,7 +387,35 @@ CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1); and the kernel's 
 link's bytes pass through one) on CPU 1 too; and the controller taking the estimator's answers directly
 (intra_process: four deliveries a block fewer); and the CPUs kept out of idle states slower to leave than
 0 µs (pmqos: PM QoS, /dev/cpu_dma_latency). The virtual inverter runs on a thread of the graph's process
-but in inverter_apart, where it has a process of its own (on the CPU the graph leaves)."""
+but in inverter_apart, where it has a process of its own (on the CPU the graph leaves). Each lever's keys
+are launch's: RealTime's fields, GraphOptions' ``intra_process``, DriveSpec's ``inverter_apart``."""
+
+
+def lever_launch(lever):
+    """(real-time levers, intra_process, inverter_apart) of ``lever`` (a REAL_TIME_LEVERS name), as launch
+    takes them (drive_tools.launch.launcher: RealTime, GraphOptions, DriveSpec)."""
+    from drive_tools.launch.launcher import RealTime
+    settings = dict(REAL_TIME_LEVERS[lever])
+    intra_process, inverter_apart = settings.pop("intra_process", False), settings.pop("inverter_apart", False)
+    return RealTime(**settings), intra_process, inverter_apart
+
+
+@dataclass(frozen=True)
+class RealTimeBench:
+    """What `drive bench bridge --paced --graph` runs: per link of ``links`` and lever of ``levers``
+    (REAL_TIME_LEVERS' names), ``repeats`` runs in blocks of ``block_samples``; with ``load`` another process
+    keeps one core busy meanwhile; ``lose_command_every``: the inverter (a faulty double,
+    drive_tools.doubles.faults) loses every Nth command block (ours' degradation; 0: none);
+    ``watch_machine``: beside each run a process above the drive's priority on its CPUs notes when the
+    machine stalls (drive_common.runtime.machine_watch)."""
+
+    links: tuple = ("pty", "can")
+    repeats: int = 3
+    load: bool = False
+    levers: tuple = tuple(REAL_TIME_LEVERS)
+    block_samples: int = PACED_BLOCK_SAMPLES
+    lose_command_every: int = 0
+    watch_machine: bool = False
 
 
 @contextlib.contextmanager
@@ -416,37 +452,40 @@ def machine_line(machine):
     return f"{machine['missing_runs_explained']}/{machine['missing_runs']}"
 
 
-def graph_real_time(scenario_ref, links, repeats=3, load=False, levers=tuple(REAL_TIME_LEVERS), progress=None,
-                    block_samples=PACED_BLOCK_SAMPLES, lose_command_every=0, watch_machine=False):
+def graph_real_time(scenario_ref, bench=None, progress=None):
     """`drive bench bridge --paced --graph`: the robot's configuration, `drive launch --link L --paced`
-    (the composed graph behind the virtual inverter on its own clock, blocks of ``block_samples``), run
-    ``repeats`` times per link and lever; with ``load`` another process keeps one core busy meanwhile. Per
-    run: late periods, watchdog trips, lock losses, ours' angle error and the latencies in µs and in hops
-    (each run measures the rclpy hop beside it); ``lose_command_every``: the inverter loses every Nth command
-    block (ours' degradation); ``watch_machine``: beside each run a process above the drive's priority on its
-    CPUs notes when the machine stalls, and each run says how many of its late blocks the machine explains
-    (drive_common.runtime.machine_watch). A signal stops it; what was done is returned."""
+    (the composed graph behind the virtual inverter on its own clock, in blocks), run as ``bench``
+    (RealTimeBench; None: its defaults) says. Per run: late periods, watchdog trips, lock losses, ours' angle
+    error and the latencies in µs and in hops (each run measures the rclpy hop beside it); with the machine
+    watched, how many of its late blocks the machine explains. A signal stops it; what was done is returned."""
     from drive_common.runtime.machine_watch import MachineWatch
-    from drive_tools.launch.launcher import launch
+    from drive_tools.doubles.faults import FaultPlan, faulty
+    from drive_tools.doubles.virtual_inverter import VirtualInverter
+    from drive_tools.launch.launcher import DriveSpec, GraphOptions, launch
 
     from .metrics import compute_metrics
     from .speed_range import meets_targets
 
+    bench = bench or RealTimeBench()
     scenario = load_scenario(scenario_ref)
     report = {"benchmark": "graph_real_time", "scenario": scenario.name, "samples": scenario.n_samples,
-              "block_samples": block_samples, "repeats": repeats, "load": load,
-              "lose_command_every": lose_command_every, "rows": [], "interrupted": 0}
-    with core_kept_busy(load), interrupt.polled():
-        for link in links:
-            for lever in levers:
-                runs, settings = [], REAL_TIME_LEVERS[lever]
-                for _ in range(repeats):
+              "block_samples": bench.block_samples, "repeats": bench.repeats, "load": bench.load,
+              "lose_command_every": bench.lose_command_every, "rows": [], "interrupted": 0}
+    watch_machine, every = bench.watch_machine, bench.lose_command_every
+    with core_kept_busy(bench.load), interrupt.polled():
+        for link in bench.links:
+            for lever in bench.levers:
+                runs = []
+                real_time, intra_process, inverter_apart = lever_launch(lever)
+                options = GraphOptions(intra_process=intra_process, real_time=real_time)
+                for _ in range(bench.repeats):
                     stolen_before = stolen_s()
-                    with (MachineWatch(settings.get("rt_priority", 0) + 1, settings.get("cpus"))
+                    inverter = faulty(FaultPlan(lose_command_every=every)) if every else VirtualInverter
+                    drive = DriveSpec(scenario_ref, extra_parameters={"block_samples": bench.block_samples},
+                                      link=link, paced=True, inverter_apart=inverter_apart, inverter=inverter)
+                    with (MachineWatch(real_time.rt_priority + 1, real_time.cpus)
                           if watch_machine else contextlib.nullcontext()) as watch:
-                        result = launch(scenario_ref, record=True, link=link, paced=True,
-                                        extra_parameters={"block_samples": block_samples},
-                                        lose_command_every=lose_command_every, **settings)
+                        result = launch(drive, options)
                     report["interrupted"] = result.interrupted or interrupt.requested()
                     if report["interrupted"]:
                         return report

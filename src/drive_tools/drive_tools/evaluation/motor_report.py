@@ -1,5 +1,8 @@
 """Reports of motors (drive presets, motor show, commission): what the drive is told of a motor beside the
 simulated plant's truth, the loops scaled to it, and what commissioning identified; each as text lines."""
+from dataclasses import dataclass
+from pathlib import Path
+
 import numpy as np
 
 from drive_common.math.tables import table_value
@@ -84,13 +87,24 @@ def motor_lines(report):
     return lines
 
 
-def commissioning_report(out, motor_name, method, host, conditions, wall_time_s, procedure, record, rated_A,
-                         truth=None, true_currents=None, rotating=None, loaded=None):
-    """What ``drive commission`` wrote to ``out`` and identified (procedure: the finished
-    hf_estimator.commissioning.procedure run; record: its Commissioning, with ψ_f and J from ``rotating`` when
-    the rotating test ran and ours' correction from ``loaded`` (hf_estimator.commissioning.loaded.loaded_shift with
-    its conditions and the true error at each hold) when the loaded test ran), beside the plant's ``truth``
-    where a simulation knows it."""
+@dataclass(frozen=True)
+class CommissioningWritten:
+    """A commissioning file as ``drive commission`` wrote it: its path ``out``, the motor's name, the
+    identification ``method`` and the ``conditions`` the file states."""
+
+    out: Path
+    motor_name: str
+    method: str
+    conditions: dict
+
+
+def commissioning_report(written, run, record, rated_A, rotating=None, loaded=None):
+    """What ``drive commission`` wrote (``written``, a CommissioningWritten) and identified: ``run`` how it ran
+    (drive_tools.runner.commissioning_run.CommissioningRun: the finished hf_estimator.commissioning.procedure,
+    the host, its wall time, and the plant's truth and true currents where a simulation knows them), ``record``
+    its Commissioning, with ψ_f and J from ``rotating`` when the rotating test ran and ours' correction from
+    ``loaded`` (hf_estimator.commissioning.loaded.loaded_shift with its conditions and the true error at each
+    hold) when the loaded test ran; ``rated_A`` the motor's rated current [A]."""
     from drive_common.motor.commissioning import SCALARS
 
     identified = {key: float(getattr(record, key)) for key in SCALARS}
@@ -101,14 +115,16 @@ def commissioning_report(out, motor_name, method, host, conditions, wall_time_s,
     identified["convergence_slope_at_rated"] = table_value(rated_A, record.saliency_shift_i_q_A,
                                                            record.convergence_slope)
     identified["tracking_current_limit_A"] = record.tracking_current_limit_A()
-    report = {"file": str(out), "motor": motor_name, "method": method, "host": host,
-              "duration_s": conditions["duration_s"], "wall_time_s": wall_time_s, "polarity": conditions["polarity"],
-              "saliency": conditions["saliency"], "current_limit_A": procedure.limit_A,
-              "peak_measured_current_A": float(np.max(np.abs(procedure.raw))), "identified": identified}
-    if truth is not None:
-        report["truth"] = truth
-    if true_currents is not None:
-        report["peak_true_current_A"] = float(np.max(np.abs(true_currents)))
+    conditions, procedure = written.conditions, run.procedure
+    report = {"file": str(written.out), "motor": written.motor_name, "method": written.method, "host": run.host,
+              "duration_s": conditions["duration_s"], "wall_time_s": run.wall_time_s,
+              "polarity": conditions["polarity"], "saliency": conditions["saliency"],
+              "current_limit_A": procedure.limit_A, "peak_measured_current_A": float(np.max(np.abs(procedure.raw))),
+              "identified": identified}
+    if run.truth is not None:
+        report["truth"] = run.truth
+    if run.true_currents is not None:
+        report["peak_true_current_A"] = float(np.max(np.abs(run.true_currents)))
     if rotating:
         report["rotating_test"] = rotating
     if loaded:

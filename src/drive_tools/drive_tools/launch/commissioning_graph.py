@@ -10,6 +10,7 @@ from drive_common.runtime.interrupt import Interrupted, polled, requested
 from hf_estimator.commissioning.procedure import procedure_for_scenario
 
 from .launcher import (
+    DriveSpec,
     GraphError,
     NamespaceLock,
     _virtual_inverter,
@@ -48,7 +49,8 @@ def commission_over_ros(scenario_ref, namespace=DEFAULT_NAMESPACE, link=None, ti
         refuse_occupied(context, [namespace])
         ex = make_executor("events", context)
         if link:
-            inverter, host_link = _virtual_inverter(scenario, parameters, link, workdir.name, 0, False, timeout_s)
+            apart = DriveSpec(scenario_ref, namespace, link=link, inverter_apart=True)
+            inverter, host_link = _virtual_inverter(scenario, parameters, apart, (workdir.name, 0), timeout_s)
             nodes.append(make_node("drive_bridge", context, namespace, {"link_timeout_s": timeout_s,
                                                                         "command_timeout_s": timeout_s},
                                    link=host_link))

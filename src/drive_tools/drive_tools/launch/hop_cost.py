@@ -61,7 +61,7 @@ def hop_latency(round_trips=20000):
 
 
 def in_hops(timing, hop):
-    """A timing report (drive_bridge.virtual_inverter.timing_report) with the hop cost beside it: ``hop_us``
+    """A timing report (drive_tools.doubles.inverter_timing.timing_report) with the hop cost beside it: ``hop_us``
     and each latency and answer figure also in hops (``latency_p50_hops``, ``answer_p50_hops`` ...)."""
     us = hop["us_per_hop"]
     extra = {"hop_us": us}

@@ -11,11 +11,11 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 from drive_bridge.inverter_protocol import MAX_BLOCK
-from drive_bridge.virtual_inverter import timing_report
 from drive_common.config.parameters import all_parameters, scenario_from_parameters
 from drive_common.config.scenario import behind_an_inverter, resolve
 from drive_common.contract.errors import DriveError
@@ -25,6 +25,8 @@ from drive_common.runtime.interrupt import polled, requested
 from drive_common.runtime.realtime import collector_held, cpu_wakeup_latency_held, real_time_scheduled, unbound_work_on
 from drive_tools.bags.common import BagWriteError
 from drive_tools.bags.writer import BagWriter
+from drive_tools.doubles.inverter_timing import timing_report
+from drive_tools.doubles.virtual_inverter import InverterOptions, VirtualInverter
 from drive_tools.runner.runner import build_drive, cut
 from foc_controller.build import protection_for_scenario
 
@@ -165,7 +167,8 @@ class GraphResult(RunResult):
     node_faults: dict = None
     """{node: {"faults": {kind: count}, "messages": [...]}} of every node that reported a fault."""
     timing: dict = None
-    """Behind a virtual inverter: how the graph kept pace with it (virtual_inverter.timing_report)."""
+    """Behind a virtual inverter: how the graph kept pace with it
+    (drive_tools.doubles.inverter_timing.timing_report)."""
     missing_samples: dict = None
     """{topic: samples never received within the final wait} of a run that ended (its log holds NaN
     there, a recording lacks them); empty when everything came."""
@@ -205,36 +208,50 @@ class DriveSpec:
     """With a link: the virtual inverter in a process of its own (as a real one is a device of its own) instead
     of a thread of the launcher's, paced or in lock-step: paced on this 2-core machine it makes the graph later,
     not earlier (docs/results.md, 2026-11-26), so it is a lever to measure, not the default."""
-    lose_command_every: int = 0
-    """With a link, the inverter on a thread of the launcher: it loses every Nth command message the graph
-    sends, as if it came too late (zero volts; the graceful degradation measured, 0: never)."""
+    inverter: Callable = VirtualInverter
+    """With a link, the inverter on a thread of the launcher: the double that stands in for it, a class or
+    factory called as VirtualInverter (a faulty one, drive_tools.doubles.faults, for a bench or test of how
+    the drive degrades)."""
 
 
-def launch(scenario_ref, estimator=None, duration_s=None, processes="composed", executor="events",
-           namespace=DEFAULT_NAMESPACE, record=True, timeout_s=1.0, startup_timeout_s=60.0,
-           progress=None, extra_parameters=None, bag=None, link=None, paced=False, rt_priority=0, cpus=None,
-           hold_collector=True, inverter_apart=False, lose_command_every=0, workqueue_cpus=None,
-           cpu_dma_latency_us=None, intra_process=False):
-    """Run a scenario through the ROS graph; returns a GraphResult (metrics as for drive run).
+@dataclass(frozen=True)
+class RealTime:
+    """The graph's soft real-time levers (drive_common.runtime.realtime): ``rt_priority`` (SCHED_FIFO; 0: none)
+    and ``cpus`` of its processes, ``workqueue_cpus``: the kernel's unbound workqueues there for the run,
+    ``cpu_dma_latency_us``: the CPUs' wake-up latency limit for the run, ``hold_collector``: the garbage
+    collector out of the sample path (off only to measure what it gives)."""
 
-    SIGINT/SIGTERM stop the run cleanly (children too) and return what was recorded, marked
-    ``interrupted``; a ``bag`` being recorded is closed complete. ``link`` ('pty', 'can') puts the
-    virtual inverter and the drive_bridge node in the plant's place; ``paced`` runs it on its own clock.
-    ``rt_priority``, ``cpus``: real-time scheduling of the graph's processes; ``workqueue_cpus``: the kernel's
-    unbound workqueues there for the run; ``cpu_dma_latency_us``: the CPUs' wake-up latency limit for the run;
-    ``hold_collector``: the garbage collector out of the sample path
-    (drive_common.runtime.realtime; off only to measure what it gives);
-    ``inverter_apart``: a paced inverter in a process of its own, ``lose_command_every``: its lost commands
-    (DriveSpec); ``intra_process``: the controller takes the estimator's answers directly (composed only)."""
-    spec = DriveSpec(scenario_ref, namespace, estimator, duration_s, extra_parameters, bag, link, paced,
-                     inverter_apart, lose_command_every)
-    return launch_many([spec], processes, executor, record, timeout_s, startup_timeout_s, progress, rt_priority,
-                       cpus, hold_collector, workqueue_cpus, intra_process, cpu_dma_latency_us)[0]
+    rt_priority: int = 0
+    cpus: frozenset = None
+    workqueue_cpus: frozenset = None
+    cpu_dma_latency_us: int = None
+    hold_collector: bool = True
 
 
-def launch_many(specs, processes="composed", executor="events", record=True, timeout_s=1.0,
-                startup_timeout_s=60.0, progress=None, rt_priority=0, cpus=None, hold_collector=True,
-                workqueue_cpus=None, intra_process=False, cpu_dma_latency_us=None):
+@dataclass(frozen=True)
+class GraphOptions:
+    """How a graph runs: its nodes composed in this process or ``processes`` of their own, the ``executor``,
+    whether the launcher ``record``s a log, the lock-step wait ``timeout_s`` [s] of every node, how long the
+    drives may take to start (``startup_timeout_s`` [s]), whether each controller takes its estimator's
+    answers directly (``intra_process``, composed only), and its ``real_time`` levers."""
+
+    processes: str = "composed"
+    executor: str = "events"
+    record: bool = True
+    timeout_s: float = 1.0
+    startup_timeout_s: float = 60.0
+    intra_process: bool = False
+    real_time: RealTime = RealTime()
+
+
+def launch(drive, options=GraphOptions(), progress=None):
+    """Run one drive (a DriveSpec) through the ROS graph as ``options`` (GraphOptions) say; returns a
+    GraphResult (metrics as for drive run). SIGINT/SIGTERM stop the run cleanly (children too) and return
+    what was recorded, marked ``interrupted``; a bag being recorded is closed complete."""
+    return launch_many([drive], options, progress)[0]
+
+
+def launch_many(specs, options=GraphOptions(), progress=None):
     """Run several drives side by side in one graph (one namespace each); one GraphResult per spec. A
     scenario whose drive is a drive configuration file (``drive: FILE``) gives the estimator that file and
     no scenario (as on a robot); the plant and the controller's speed schedule take the experiment. With
@@ -247,8 +264,10 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
 
     from drive_common.ros.node import make_executor
 
-    from .scenario_driver import ScenarioDriver
+    from .scenario_driver import DriverSettings, ScenarioDriver
 
+    processes, executor, timeout_s = options.processes, options.executor, options.timeout_s
+    intra_process, real_time = options.intra_process, options.real_time
     if processes not in PROCESSES:
         raise GraphError(f"processes: must be one of {', '.join(PROCESSES)}, not '{processes}'")
     if intra_process and processes != "composed":
@@ -304,9 +323,8 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             roles = {"pmsm_plant": plant, "hf_estimator": estimator, "foc_controller": scheduled}
             inverter = None
             if spec.link:
-                inverter, host_link = _virtual_inverter(scenario, parameters, spec.link, workdir.name, i, spec.paced,
-                                                        timeout_s, rt_priority, cpus, spec.inverter_apart,
-                                                        spec.lose_command_every)
+                inverter, host_link = _virtual_inverter(scenario, parameters, spec, (workdir.name, i), timeout_s,
+                                                        real_time)
                 inverters.append(inverter)
                 del roles["pmsm_plant"]
                 period = float(all_parameters(parameters)["diagnostics_period_s"])
@@ -325,8 +343,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
                                            **(partners if intra_process else {}))
                     nodes.append(made[role])
                 else:
-                    children.append((role, _spawn(role, spec.namespace, role_parameters, executor, rt_priority,
-                                                  cpus)))
+                    children.append((role, _spawn(role, spec.namespace, role_parameters, executor, real_time)))
             driver_node = Node("drive_launcher", context=context, namespace=spec.namespace)
             nodes.append(driver_node)
             listener = Node("drive_recorder", context=context, namespace=spec.namespace)
@@ -334,9 +351,10 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             host_bridge = made["drive_bridge"].bridge if spec.link and processes == "composed" else None
             if host_bridge is not None and spec.paced and not spec.inverter_apart:
                 inverter.hear_host_writes(host_bridge.written_at)
-            driver = ScenarioDriver(driver_node, scenario, record, 0.1 if processes == "composed" else 0.5,
-                                    startup_timeout_s, progress if i == 0 else None, recorders[i], inverter,
-                                    listener, intra_process, host_bridge)
+            settings = DriverSettings(options.record, 0.1 if processes == "composed" else 0.5,
+                                      options.startup_timeout_s, intra_process)
+            driver = ScenarioDriver(driver_node, scenario, settings, progress if i == 0 else None, recorders[i],
+                                    inverter, listener, host_bridge)
             driver.done = Future()
             drives.append(drive)
             drivers.append(driver)
@@ -344,9 +362,10 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             ex.add_node(node)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
-        with real_time_scheduled(rt_priority, cpus) as scheduling, unbound_work_on(workqueue_cpus) as work, \
-                cpu_wakeup_latency_held(cpu_dma_latency_us) as idle, \
-                collector_held() if hold_collector else contextlib.nullcontext():
+        with real_time_scheduled(real_time.rt_priority, real_time.cpus) as scheduling, \
+                unbound_work_on(real_time.workqueue_cpus) as work, \
+                cpu_wakeup_latency_held(real_time.cpu_dma_latency_us) as idle, \
+                collector_held() if real_time.hold_collector else contextlib.nullcontext():
             scheduling = {key: scheduling[key] + work[key] + idle[key] for key in scheduling}
             if any(line.startswith("SCHED_FIFO") for line in scheduling["applied"]):
                 listening = Listening(make_executor(executor, context), listeners)
@@ -359,7 +378,7 @@ def launch_many(specs, processes="composed", executor="events", record=True, tim
             if listening:
                 listening.stop()
         nodes[-1].destroy_timer(watcher)
-        results = [_result(driver, drive, record, processes, executor, requested(), hop)
+        results = [_result(driver, drive, options, requested(), hop)
                    for driver, drive in zip(drivers, drives)]
     finally:
         polling.__exit__(None, None, None)
@@ -437,9 +456,9 @@ def _close(recorder):
     return None
 
 
-def _result(driver, drive, record, processes, executor, interrupted, hop=None):
+def _result(driver, drive, options, interrupted, hop=None):
     """The GraphResult of one drive (``drive``: the runner's composition of the same scenario, for its
-    current limit and commissioning record)."""
+    current limit and commissioning record) run as ``options`` (GraphOptions) say."""
     scenario = driver.scenario
     if driver.inverter is not None:
         driver.inverter.stop()
@@ -449,11 +468,11 @@ def _result(driver, drive, record, processes, executor, interrupted, hop=None):
     end = driver.finished_at or time.monotonic()
     wall = end - driver.started_at if driver.started_at else 0.0
     written_at = driver.host_bridge.written_at if driver.host_bridge else None
-    log = driver.log[:driver.last_sample + 1] if record else driver.log[:0]
+    log = driver.log[:driver.last_sample + 1] if options.record else driver.log[:0]
     scenario = cut(scenario, driver.last_sample + 1)
     return GraphResult(scenario, scenario.estimator, log, wall, drive.controller.i_max_A,
                        commissioning=drive.commissioning, estimator_facts=drive.estimator.facts(),
-                       processes=processes, executor=executor,
+                       processes=options.processes, executor=options.executor,
                        interrupted=interrupted,
                        diagnostics=dict(driver.diagnostics), node_faults=driver.faults(),
                        missing_samples={} if interrupted else driver.missing_samples(),
@@ -461,35 +480,34 @@ def _result(driver, drive, record, processes, executor, interrupted, hop=None):
                        if driver.inverter else None)
 
 
-def _virtual_inverter(scenario, parameters, link, workdir, drive_id, paced, timeout_s, rt_priority=0, cpus=None,
-                      apart=True, lose_command_every=0):
-    """A virtual inverter for ``scenario`` (not yet running) and the host's end of its link. Paced, it runs
-    on its own clock, else it waits for each of the graph's commands as long as a plant node would
-    (``timeout_s``). ``apart``: in a process of its own, as a real inverter is a device of its own (on the
-    CPUs the host's ``cpus`` leave, if any; CAN then on a cable between processes, drive_bridge.can_cable).
-    Not apart, it runs on a thread of the host's process and loses every ``lose_command_every``th command
-    (0: none)."""
+def _virtual_inverter(scenario, parameters, spec, where, timeout_s, real_time=RealTime()):
+    """The virtual inverter of ``spec``'s link for ``scenario`` (not yet running) and the host's end of its link,
+    ``where``: (working directory, drive id). Paced (``spec.paced``), it runs on its own clock, else it waits
+    for each of the graph's commands as long as a plant node would (``timeout_s``). Apart
+    (``spec.inverter_apart``): in a process of its own, as a real inverter is a device of its own (on the CPUs
+    ``real_time.cpus`` leave, if any; CAN then on a cable between processes, drive_bridge.can_cable). Not apart,
+    it is ``spec.inverter`` (a double) on a thread of the host's process."""
     import os
 
     from drive_bridge.inverter_link import CanLink, SerialLink
-    from drive_bridge.inverter_process import InverterProcess, InverterProcessError
-    from drive_bridge.virtual_inverter import FaultPlan, VirtualInverter, make_links
-    if not apart:
-        endpoint, host_link = make_links(link, workdir, drive_id)
-        rate = 1.0 / scenario.T_s if paced else None
-        return VirtualInverter(scenario, endpoint, rate_Hz=rate, command_wait_s=timeout_s, drive_id=drive_id,
-                               faults=FaultPlan(lose_command_every=lose_command_every)), host_link
-    if lose_command_every:
-        raise GraphError("lose_command_every: only with the virtual inverter on a thread of the launcher, not "
-                         "apart")
-    path = Path(workdir) / (f"inverter{drive_id}" if link == "pty" else f"can_cable{drive_id}")
+    from drive_tools.doubles.inverter_process import InverterProcess, InverterProcessError
+    from drive_tools.doubles.virtual_links import make_links
+    workdir, drive_id = where
+    options = InverterOptions(rate_Hz=1.0 / scenario.T_s if spec.paced else None, command_wait_s=timeout_s,
+                              drive_id=drive_id)
+    if not spec.inverter_apart:
+        endpoint, host_link = make_links(spec.link, workdir, drive_id)
+        return spec.inverter(scenario, endpoint, options), host_link
+    if spec.inverter is not VirtualInverter:
+        raise GraphError("a double of the virtual inverter runs on a thread of the launcher, not apart")
+    path = Path(workdir) / (f"inverter{drive_id}" if spec.link == "pty" else f"can_cable{drive_id}")
+    cpus = real_time.cpus
     others = set(os.sched_getaffinity(0)) - set(cpus) if cpus else None
     try:
-        inverter = InverterProcess(parameters, link, path, 1.0 / scenario.T_s if paced else None, timeout_s,
-                                   drive_id, rt_priority, others or None)
+        inverter = InverterProcess(parameters, spec.link, path, options, real_time.rt_priority, others or None)
     except InverterProcessError as error:
         raise GraphError(str(error)) from None
-    host_link = SerialLink(str(path)) if link == "pty" else CanLink(str(path), drive_id, "cable")
+    host_link = SerialLink(str(path)) if spec.link == "pty" else CanLink(str(path), drive_id, "cable")
     return inverter, host_link
 
 
@@ -517,8 +535,10 @@ def _watch(drivers, children, all_done):
         all_done.set_result(True)
 
 
-def _spawn(name, namespace, parameters, executor, rt_priority=0, cpus=None):
-    scheduling = ["--rt-priority", str(rt_priority)] + (["--cpus", ",".join(map(str, sorted(cpus)))] if cpus else [])
+def _spawn(name, namespace, parameters, executor, real_time=RealTime()):
+    cpus = real_time.cpus
+    scheduling = ["--rt-priority", str(real_time.rt_priority)] + (["--cpus", ",".join(map(str, sorted(cpus)))]
+                                                                  if cpus else [])
     args = [sys.executable, "-m", NODES[name], "--executor", executor, *scheduling, "--ros-args", "-r",
             f"__ns:={namespace}"]
     for name, value in parameters.items():

@@ -2,6 +2,7 @@
 drive, and records what the graph says."""
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from rclpy.serialization import deserialize_message, serialize_message
@@ -42,21 +43,35 @@ a reliable writer resends a message lost on the way (e.g. a full shared-memory q
 reader) on its next heartbeat, every 3 s by default in Fast DDS; a complete run ends at once."""
 
 
+@dataclass(frozen=True)
+class DriverSettings:
+    """How the scenario driver runs a drive: ``record`` fills a log; ``settle_s`` [s] after every lock-step
+    endpoint is matched before it starts the plant, at most ``startup_timeout_s`` [s] for that;
+    ``intra_process``: the controller takes the estimator's answers and the currents directly (no
+    subscriptions of its own to match)."""
+
+    record: bool = True
+    settle_s: float = 0.1
+    startup_timeout_s: float = 60.0
+    intra_process: bool = False
+
+
 class ScenarioDriver:
     """The launcher's own node, the operator of the scenario: waits until every lock-step endpoint is
     matched, then publishes the load torque of sample 0, which starts the plant. The plant and the
     controller take the scenario's schedule themselves, sample-exact (``scenario_schedule``), so the
     driver costs the lock-step nothing per sample; it learns the run's progress and end from the nodes'
-    /diagnostics. With ``record`` it fills a log (drive_common.contract.log.LOG_COLUMNS) from the per-sample
-    topics; columns no topic carries stay NaN. With a ``recorder`` (drive_tools.bags.writer.BagWriter) it
-    writes every contract topic as received, serialized, and the schedule's speed, load and feed-forward
-    of each sample as the plant reaches it. With a virtual ``inverter`` (the bridge in the plant's place)
-    it starts the inverter at sample 0."""
+    /diagnostics; ``settings`` (DriverSettings) say how. With ``record`` it fills a log
+    (drive_common.contract.log.LOG_COLUMNS) from the per-sample topics; columns no topic carries stay NaN.
+    With a ``recorder`` (drive_tools.bags.writer.BagWriter) it writes every contract topic as received,
+    serialized, and the schedule's speed, load and feed-forward of each sample as the plant reaches it. With
+    a virtual ``inverter`` (the bridge in the plant's place) it starts the inverter at sample 0."""
 
-    def __init__(self, node, scenario, record, settle_s, startup_timeout_s, progress, recorder=None,
-                 inverter=None, listener=None, intra_process=False, host_bridge=None):
+    def __init__(self, node, scenario, settings, progress=None, recorder=None, inverter=None, listener=None,
+                 host_bridge=None):
         self.node, self.scenario = node, scenario
-        self.intra_process = intra_process
+        record = settings.record
+        self.intra_process = settings.intra_process
         """The controller takes the estimator's answers and the currents directly (no subscriptions)."""
         self.host_bridge = host_bridge
         """Behind a virtual inverter in this process, the bridge node's InverterBridge (its write times)."""
@@ -66,7 +81,7 @@ class ScenarioDriver:
         self.n = scenario.n_samples
         self.n_p = scenario.motor.nameplate.n_p
         self.record = record
-        self.settle_s, self.startup_timeout_s, self.progress = settle_s, startup_timeout_s, progress
+        self.settle_s, self.startup_timeout_s, self.progress = settings.settle_s, settings.startup_timeout_s, progress
         self.speed, self.load = scenario.schedule()
         self.feedforward = scenario.feedforward() if scenario.torque_feedforward is not None else None
         self.log = np.full((self.n if record else 1, len(LOG_COLUMNS)), np.nan)

@@ -13,7 +13,6 @@ from numba import njit
 
 from drive_bridge.inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from drive_bridge.inverter_protocol import MAX_BLOCK
-from drive_bridge.virtual_inverter import VirtualInverter, make_links, timing_report
 from drive_common.config.scenario import behind_an_inverter
 from drive_common.contract.drive_records import commands, drive_inputs
 from drive_common.contract.estimator_records import estimates
@@ -24,6 +23,9 @@ from drive_common.math.safe_state import safe_state_for
 from drive_common.math.winding import R_S_IN_USE
 from drive_common.runtime.interrupt import Interrupted, checkpoint
 from drive_common.runtime.realtime import collector_held
+from drive_tools.doubles.inverter_timing import timing_report
+from drive_tools.doubles.virtual_inverter import InverterOptions, VirtualInverter
+from drive_tools.doubles.virtual_links import make_links
 from foc_controller.control import controller_block
 from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block, protection_summary
 from hf_estimator.block import estimator_block
@@ -42,7 +44,6 @@ class BridgeRunResult(RunResult):
     counters: dict = field(default_factory=dict)
     frame_errors: dict = field(default_factory=dict)
     inverter_counters: dict = field(default_factory=dict)
-    injected: dict = field(default_factory=dict)
     latencies_s: np.ndarray = None
     """Inverter-side time from sending TELEMETRY(k) to receiving COMMAND(k), per answered sample."""
     received: np.ndarray = None
@@ -50,45 +51,46 @@ class BridgeRunResult(RunResult):
     host_s: np.ndarray = None
     """Per answered sample: the host's time from the telemetry's arrival to its command written."""
     timing: dict = None
-    """How the host kept pace with the inverter (drive_bridge.virtual_inverter.timing_report)."""
+    """How the host kept pace with the inverter (drive_tools.doubles.inverter_timing.timing_report)."""
 
 
-def run_through_bridge(scenario, link="pty", faults=None, rate_Hz=None, command_wait_s=0.5, progress=None,
-                       inverter_hook=None):
-    """Run ``scenario`` with its plant behind the virtual inverter and the bridge (with blocks, at the
-    protocol's answer delay: ``behind_an_inverter``). ``inverter_hook(inverter, endpoint, k)`` is called
-    by the host loop after each sample (tests unplug links with it). The garbage collector is held off
-    during the loop (``collector_held``)."""
+def run_through_bridge(scenario, link="pty", options=None, progress=None, inverter=VirtualInverter):
+    """Run ``scenario`` with its plant behind a virtual inverter on ``link`` ('pty', 'can') and the bridge
+    (with blocks, at the protocol's answer delay: ``behind_an_inverter``); ``options`` (InverterOptions,
+    None: lock-step): the inverter's clock and wait; ``inverter``: the double to run behind (a class or factory
+    called as VirtualInverter: a faulty one of drive_tools.doubles.faults for the tests). The garbage
+    collector is held off during the loop (``collector_held``)."""
     scenario = behind_an_inverter(scenario, MAX_BLOCK)
-    with virtual_inverter_link(scenario, link, rate_Hz=rate_Hz, command_wait_s=command_wait_s,
-                               faults=faults) as (inverter, endpoint, bridge):
-        return _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook)
+    with virtual_inverter_link(scenario, link, options, inverter) as (virtual, bridge):
+        return _run(scenario, link, virtual, bridge, progress)
 
 
 @contextlib.contextmanager
-def virtual_inverter_link(scenario, link, **inverter_options):
-    """(virtual inverter, its link endpoint, the host's bridge core) for ``scenario`` on ``link`` ('pty',
-    'can') in a temporary directory; the inverter is not started. All three are stopped and closed on
-    exit. In lock-step the inverter is silent while it waits for the host (up to its ``command_wait_s``), so
-    the bridge's link and command timeouts count from then: a host slowed by its machine is not a lost link."""
+def virtual_inverter_link(scenario, link, options=None, inverter=VirtualInverter):
+    """(virtual inverter, the host's bridge core) for ``scenario`` on ``link`` ('pty', 'can') in a temporary
+    directory, the inverter made by ``inverter`` (a class or factory called as VirtualInverter) with
+    ``options`` (InverterOptions; None: lock-step); the inverter is not started. Both and the link are
+    stopped and closed on exit. In lock-step the inverter is silent while it waits for the host (up to its
+    ``command_wait_s``), so the bridge's link and command timeouts count from then: a host slowed by its
+    machine is not a lost link."""
     scenario = behind_an_inverter(scenario, MAX_BLOCK)
     with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
         endpoint, host_link = make_links(link, workdir)
-        inverter = VirtualInverter(scenario, endpoint, **inverter_options)
-        timeouts = {} if inverter.rate_Hz else {"link_timeout_s": inverter.command_wait_s + LINK_TIMEOUT_S,
-                                                "command_timeout_s": inverter.command_wait_s + COMMAND_TIMEOUT_S}
+        virtual = inverter(scenario, endpoint, options or InverterOptions())
+        timeouts = {} if virtual.rate_Hz else {"link_timeout_s": virtual.command_wait_s + LINK_TIMEOUT_S,
+                                               "command_timeout_s": virtual.command_wait_s + COMMAND_TIMEOUT_S}
         bridge = InverterBridge(host_link, block_samples=scenario.block_samples, **timeouts)
-        if inverter.rate_Hz:
-            inverter.hear_host_writes(bridge.written_at)
+        if virtual.rate_Hz:
+            virtual.hear_host_writes(bridge.written_at)
         try:
-            yield inverter, endpoint, bridge
+            yield virtual, bridge
         finally:
-            inverter.stop()
+            virtual.stop()
             bridge.close()
             endpoint.close()
 
 
-def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
+def _run(scenario, link, inverter, bridge, progress):
     """The host's loop. The estimator pairs each current step with the voltage that acted: the commands of
     periods the inverter ran at zero volts (``BridgeBlock.at_zero_volts``: period j, the command of sample
     j − d) and the command of a sample never received are zero in its delay line."""
@@ -128,8 +130,6 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
                         host_s[answered] = time.perf_counter() - arrived
                         received[answered] = True
                     for k in range(k0, k_end):
-                        if inverter_hook:
-                            inverter_hook(inverter, endpoint, k)
                         if progress and k - last_report >= n // 100:
                             last_report = k
                             progress(k / n)
@@ -154,7 +154,7 @@ def _run(scenario, link, inverter, endpoint, bridge, progress, inverter_hook):
                            e.facts(), protection=protection_summary(host.protection_x, host.protection),
                            injection=contract_injection(e.facts(), scenario.injection), link=link,
                            counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
-                           inverter_counters=dict(inverter.counters), injected=dict(inverter.faults.counts),
+                           inverter_counters=dict(inverter.counters),
                            latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
                            host_s=host_s[:done][received[:done]],
                            timing=timing_report(inverter, scenario.T_s, bridge.written_at))

@@ -73,7 +73,7 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
 
     procedure = procedure_for_scenario(scenario, settings)
     n = procedure.total_samples
-    with virtual_inverter_link(shaft_held(scenario, n * scenario.T_s), link) as (inverter, _, bridge):
+    with virtual_inverter_link(shaft_held(scenario, n * scenario.T_s), link) as (inverter, bridge):
         start = time.perf_counter()
         bridge.poll(0.0)
         inverter.start()

@@ -15,20 +15,13 @@ import collections
 import math
 import threading
 import time
-from dataclasses import dataclass, field
-from pathlib import Path
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
-from drive_common.config.scenario import behind_an_inverter
-from drive_common.math.command_delay import issue_command
-from drive_common.math.safe_state import ASC, FREEWHEEL, PWM, overvoltage_trip_V
-from drive_common.motor.nameplate import trip_current_A as default_trip_current_A
-from pmsm_plant.build import plant_for_scenario
-from pmsm_plant.model import INVERTER_MODE, bus_voltage, plant_block
-
-from .inverter_link import CanLink, LinkDown, PtyEndpoint, SerialLink
-from .inverter_protocol import (
+from drive_bridge.inverter_link import LinkDown
+from drive_bridge.inverter_protocol import (
     BAD_FRAME,
     COMMAND_MISSING,
     CONTROL_CLEAR_FAULTS,
@@ -56,32 +49,32 @@ from .inverter_protocol import (
     encode_frame,
     requested_safe_state,
 )
-
-LINKS = ("pty", "can")
+from drive_common.config.scenario import behind_an_inverter
+from drive_common.math.command_delay import issue_command
+from drive_common.math.safe_state import ASC, FREEWHEEL, PWM, overvoltage_trip_V
+from drive_common.motor.nameplate import trip_current_A as default_trip_current_A
+from pmsm_plant.build import plant_for_scenario
+from pmsm_plant.model import INVERTER_MODE, bus_voltage, plant_block
 
 HOST_SILENCE_S = 0.1
 """Nothing from the host for this long: PWM off, HEARTBEAT_LOST latched (the protocol's 100 ms)."""
 
 
-@dataclass
-class FaultPlan:
-    """Link faults the virtual inverter injects into its telemetry, every Nth frame (0: never)."""
+@dataclass(frozen=True)
+class InverterOptions:
+    """How a virtual inverter runs: ``rate_Hz`` its clock (None: lock-step, waiting up to ``command_wait_s``
+    [s] for each command), ``watchdog_periods`` missing commands in a row that switch PWM off (None: 10
+    periods, three blocks with blocks), ``trip_current_A`` its overcurrent trip (None: the nameplate's),
+    ``drive_id`` on the link, ``encoder`` whether it has one, ``clock`` its clock [s] (a test's virtual
+    clock paces it without the machine's pace)."""
 
-    corrupt_every: int = 0
-    """Flip one byte of the frame (serial only)."""
-    drop_every: int = 0
-    duplicate_every: int = 0
-    reorder_every: int = 0
-    """Hold the frame back and send it after the next one."""
-    garbage_every: int = 0
-    """Insert random bytes before the frame (resynchronisation; serial only)."""
-    lose_command_every: int = 0
-    """Lose every Nth command message the host sends (to the inverter, an answer that came too late)."""
-    lose_commands: tuple = ()
-    """Also lose these command messages, by their number in the order heard (1 the first): a run of
-    consecutive ones is a run of late blocks."""
-    seed: int = 1
-    counts: dict = field(default_factory=dict)
+    rate_Hz: float = None
+    command_wait_s: float = 0.5
+    watchdog_periods: int = None
+    trip_current_A: float = None
+    drive_id: int = 0
+    encoder: bool = True
+    clock: Callable[[], float] = time.monotonic
 
 
 def _clip16(value):
@@ -89,17 +82,16 @@ def _clip16(value):
 
 
 class VirtualInverter:
-    """The plant of ``scenario`` behind the protocol on ``endpoint`` (PtyEndpoint or an opened
-    CanLink); ``start`` (a thread), ``stop`` to end, ``join``. With the scenario's
+    """The plant of ``scenario`` behind the protocol on ``endpoint`` (a PtyEndpoint, drive_tools.doubles.virtual_links,
+    or an opened CanLink), run as ``options`` say; ``start`` (a thread), ``stop`` to end, ``join``. With the scenario's
     ``block_samples`` N > 1 it announces N in HELLO, sends TELEMETRY_BLOCK and takes COMMAND_BLOCK (the
     command answering sample k acts in period k + 2N: docs/inverter-protocol.md; ScenarioError for what
     cannot run behind an inverter, drive_common.config.scenario.behind_an_inverter). ``truth`` holds θ_m,
     ω_m, τ_e, τ_load and the true currents per sample for scoring, ``modes`` the bridge's mode in the period
     before each sample (drive_common.math.safe_state: PWM, FREEWHEEL, ASC)."""
 
-    def __init__(self, scenario, endpoint, rate_Hz=None, command_wait_s=0.5, watchdog_periods=None,
-                 trip_current_A=None, drive_id=0, faults=None, encoder=True, clock=time.monotonic):
-        self.clock = clock
+    def __init__(self, scenario, endpoint, options=InverterOptions()):
+        self.clock = options.clock
         """The inverter's clock [s] (a test double's virtual clock paces it without the machine's pace)."""
         scenario = behind_an_inverter(scenario, MAX_BLOCK)
         self.plant = plant_for_scenario(scenario)
@@ -108,13 +100,12 @@ class VirtualInverter:
         self.block_samples = scenario.block_samples
         self.delay = scenario.drive_delay_periods()
         self.endpoint = endpoint
-        self.rate_Hz, self.command_wait_s = rate_Hz, command_wait_s
-        self.watchdog_periods = watchdog_periods or max(10, 3 * self.block_samples)
+        self.rate_Hz, self.command_wait_s = options.rate_Hz, options.command_wait_s
+        self.watchdog_periods = options.watchdog_periods or max(10, 3 * self.block_samples)
         """Missing commands in a row that switch PWM off (default 10 periods, three blocks with blocks)."""
-        self.trip_current_A = trip_current_A or default_trip_current_A(scenario.motor.nameplate)
-        self.encoder = encoder
-        self.faults = faults or FaultPlan()
-        self.random = np.random.default_rng(self.faults.seed)
+        self.trip_current_A = options.trip_current_A or default_trip_current_A(scenario.motor.nameplate)
+        self.encoder = encoder = options.encoder
+        drive_id = options.drive_id
         self.current_lsb = float(np.float32(2.0 * self.trip_current_A / 32767.0))
         self.voltage_lsb = float(np.float32(2.0 * self.plant.inverter.U_dc_V / 32767.0))
         self.hello = Hello(drive_id, (HELLO_ENCODER_PRESENT if encoder else 0) | HELLO_SAFE_STATES,
@@ -137,8 +128,6 @@ class VirtualInverter:
         self.decided = 0
         """Periods before this one have their voltage in the plant's delay line."""
         self.last_heard = self.clock()
-        self.held_back = None
-        self.commands_heard = 0
         self.commands = {}
         """sample → (u_α [V], u_β [V], flags, when read [monotonic s]) of each command received and not yet
         applied."""
@@ -167,8 +156,9 @@ class VirtualInverter:
         self.heard_up_to = -1
         """The last sample answered by a command message heard (in time or not, lost or kept)."""
         self.lost_on_the_way = set()
-        """First samples of the telemetry frames the fault plan lost (dropped, corrupted) or held back: in
-        lock-step their answers are not waited for, since the host cannot send them in time."""
+        """First samples of the telemetry frames lost on the way (by a faulty double, drive_tools.doubles.faults:
+        dropped, corrupted, held back): in lock-step their answers are not waited for, since the host cannot
+        send them in time."""
         self.started = False
         """A command came in time: the drive runs, and the watchdog counts."""
         self.before_start = 0
@@ -470,10 +460,10 @@ class VirtualInverter:
 
     def await_commands(self, first, last):
         """Lock-step: wait until the commands answering samples first … last − 1 came, or a command message
-        answering that sample or a later one was heard (the link keeps order: one lost on the way, by the
-        fault plan, is not waited for), each at most ``command_wait_s`` after its telemetry was sent; nor is
-        the answer to telemetry the fault plan lost. The outcome then does not depend on the machine's pace,
-        only on what the host sent."""
+        answering that sample or a later one was heard (the link keeps order: one lost on the way, by a
+        faulty double, is not waited for), each at most ``command_wait_s`` after its telemetry was sent; nor is
+        the answer to telemetry lost on the way (``lost_on_the_way``). The outcome then does not depend on
+        the machine's pace, only on what the host sent."""
         N = self.block_samples
         for c in range(max(0, first), min(last, self.k)):
             if c - c % N in self.lost_on_the_way:
@@ -499,26 +489,7 @@ class VirtualInverter:
                 c0 -= 2 ** 32
             if 0 <= c0 <= self.k:
                 self.heard_up_to = max(self.heard_up_to, c0 + len(values) - 1)
-            if self.faults.lose_command_every or self.faults.lose_commands:
-                self.commands_heard += 1
-                every = self.faults.lose_command_every
-                if (every and self.commands_heard % every == 0) or self.commands_heard in self.faults.lose_commands:
-                    self.faults.counts["commands_lost"] = self.faults.counts.get("commands_lost", 0) + 1
-                    return
-            in_time = self.arrival(c0, now) is not None
-            fresh = [c for c in range(c0, c0 + len(values))
-                     if 0 <= c < self.k and c + self.delay >= self.decided and c not in self.commands]
-            if fresh:
-                (self.latencies_s if in_time else self.late_latencies_s).append(now - self.sent_at[fresh[0]])
-            else:
-                self.counters["discarded"] += 1
-                if 0 <= c0 < self.k:
-                    self.late_latencies_s.append(now - self.sent_at[c0])
-                return
-            lsb = self.voltage_lsb
-            for c, (u_alpha, u_beta) in zip(range(c0, c0 + len(values)), values):
-                if c in fresh:
-                    self.commands[c] = (u_alpha * lsb, u_beta * lsb, message.flags, now)
+            self.take_command(c0, values, message.flags, now)
         elif isinstance(message, Control):
             if message.action == CONTROL_CLEAR_FAULTS:
                 self.latched = 0
@@ -528,6 +499,25 @@ class VirtualInverter:
                 self.enabled = False
             elif message.action == CONTROL_SEND_HELLO:
                 self.send(self.hello)
+
+    def take_command(self, c0, values, flags, now):
+        """Store the voltages of a command message heard at ``now`` [monotonic s] answering samples c0 … (each
+        (u_α, u_β) in the protocol's integers) for their periods, with their latency; one for periods already
+        decided or already answered is discarded."""
+        in_time = self.arrival(c0, now) is not None
+        fresh = [c for c in range(c0, c0 + len(values))
+                 if 0 <= c < self.k and c + self.delay >= self.decided and c not in self.commands]
+        if fresh:
+            (self.latencies_s if in_time else self.late_latencies_s).append(now - self.sent_at[fresh[0]])
+        else:
+            self.counters["discarded"] += 1
+            if 0 <= c0 < self.k:
+                self.late_latencies_s.append(now - self.sent_at[c0])
+            return
+        lsb = self.voltage_lsb
+        for c, (u_alpha, u_beta) in zip(range(c0, c0 + len(values)), values):
+            if c in fresh:
+                self.commands[c] = (u_alpha * lsb, u_beta * lsb, flags, now)
 
     def send(self, message):
         """Send, or lose the frame while the link is down (an unplugged cable, a bus being reopened)."""
@@ -544,126 +534,10 @@ class VirtualInverter:
             return []
 
     def transmit(self, telemetry, k0):
-        """Send the telemetry frame of samples k0 … through the fault plan: on a byte link (pty) the encoded
-        frame, on CAN the message; corruption and garbage exist on byte links only (CAN's own CRC would turn
-        them into error frames, which never arrive). A frame dropped, corrupted or held back is noted in
-        ``lost_on_the_way``."""
-        f = self.faults
+        """Send the telemetry frame of samples k0 …: on a byte link (pty) the encoded frame, on CAN the
+        message."""
         self.sent_frames += 1
-        n = self.sent_frames
-        byte_link = hasattr(self.endpoint, "send_bytes")
-        if byte_link:
-            frame = bytearray(encode_frame(telemetry))
-            item, emit = frame, lambda x: self.endpoint.send_bytes(bytes(x))
+        if hasattr(self.endpoint, "send_bytes"):
+            self.endpoint.send_bytes(encode_frame(telemetry))
         else:
-            item, emit = telemetry, self.send
-
-        def due(every, kind):
-            if every and n % every == 0:
-                f.counts[kind] = f.counts.get(kind, 0) + 1
-                return True
-            return False
-
-        if due(f.drop_every, "dropped"):
-            self.lost_on_the_way.add(k0)
-            return
-        if byte_link and due(f.corrupt_every, "corrupted"):
-            frame[int(self.random.integers(0, len(frame) - 1))] ^= 0x5A
-            self.lost_on_the_way.add(k0)
-        if byte_link and due(f.garbage_every, "garbage"):
-            self.endpoint.send_bytes(bytes(self.random.integers(1, 256, 7, dtype=np.uint8)) + b"\x00")
-        if self.held_back is None and due(f.reorder_every, "reordered"):
-            self.held_back = bytes(frame) if byte_link else telemetry
-            self.lost_on_the_way.add(k0)
-            return
-        emit(item)
-        if self.held_back is not None:
-            emit(self.held_back)
-            self.held_back = None
-        if due(f.duplicate_every, "duplicated"):
-            emit(item)
-
-
-def make_links(link, workdir, drive_id=0, channel=None):
-    """(inverter endpoint, host link) of a fresh virtual link: a pty whose slave the host opens by a
-    symlink in ``workdir``, or a CAN channel (python-can's virtual bus unless SocketCAN has it)."""
-    if link == "pty":
-        endpoint = PtyEndpoint(Path(workdir) / f"inverter{drive_id}")
-        return endpoint, SerialLink(endpoint.link_path)
-    if link == "can":
-        channel = channel or f"drive_bridge_{id(workdir)}"
-        endpoint = CanLink(channel, drive_id)
-        endpoint.open()
-        return endpoint, CanLink(channel, drive_id)
-    raise ValueError(f"unknown virtual link '{link}' (known: {', '.join(LINKS)})")
-
-
-LATENCY_BINS_PER_PERIOD = (0.0, 0.25, 0.5, 0.75, 1.0, 2.0, 5.0, 10.0, math.inf)
-"""Edges of the command latency histogram, in sampling periods: below 1 a command can be in time."""
-
-
-MISSING_RUNS_SHOWN = 20
-
-
-def timing_report(inverter, T_s, written_at=None):
-    """How the host kept pace with a virtual inverter: periods run, commands missing (late or never
-    sent: zero volts), their fraction, latency percentiles [µs] over every command that came (late ones
-    included), as a device also the host's answer percentiles [µs] (telemetry sent to the host's write of its
-    command, over the commands written after the drive started; None otherwise) and how many it never wrote
-    (``never_answered``), the histogram of those latencies (edges in sampling periods and µs), the runs of missing
-    periods (how many, the longest, the first ones as [time s, periods]) and the periods before the drive
-    started (before its first command in time, PWM off: not missing). With ``written_at(k)`` (the host
-    bridge's InverterBridge.written_at, on the same machine) also how many of those runs began with a
-    command the host had written early enough to arrive in time over the real link's wire. ``in_time_by``:
-    whether a command counted as arrived when the host's write and the wire were done ("host write + wire",
-    VirtualInverter.hear_host_writes) or when the inverter's thread read it ("inverter read");
-    ``sent_late_in_time``: periods in time only because the simulation sent their telemetry late (the host's
-    window counts from then); ``read_late_in_time``: periods whose command was read after its deadline
-    but had arrived in time by the host's write time."""
-    every = np.concatenate([inverter.latencies_s, inverter.late_latencies_s]) * 1e6
-    if getattr(inverter, "host_written_at", None) is not None:
-        inverter.note_answers(final=True)
-    answers = np.asarray(getattr(inverter, "answers_s", ())) * 1e6
-    edges = np.asarray(LATENCY_BINS_PER_PERIOD)
-    counts, _ = np.histogram(every, bins=edges * T_s * 1e6)
-    return {"paced": bool(inverter.rate_Hz), "periods": inverter.k, "missing": inverter.counters["missing"],
-              "late_fraction": inverter.counters["missing"] / max(inverter.k, 1),
-              "late_arrivals": len(inverter.late_latencies_s),
-              "latency_p50_us": float(np.percentile(every, 50)) if every.size else None,
-              "latency_p99_us": float(np.percentile(every, 99)) if every.size else None,
-              "latency_max_us": float(every.max()) if every.size else None,
-              "answer_p50_us": float(np.percentile(answers, 50)) if answers.size else None,
-              "answer_p99_us": float(np.percentile(answers, 99)) if answers.size else None,
-              "answer_max_us": float(answers.max()) if answers.size else None,
-              "never_answered": getattr(inverter, "never_answered", 0),
-              "latency_histogram": {"edges_periods": [float(e) if math.isfinite(e) else None for e in edges],
-                                    "counts": [int(c) for c in counts]},
-              "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],
-              "host_silent_trips": inverter.counters["host_silent_trips"],
-              "periods_before_start": inverter.before_start,
-              "in_time_by": "host write + wire" if getattr(inverter, "host_written_at", None) else "inverter read",
-              "sent_late_in_time": inverter.counters.get("sent_late", 0),
-              "read_late_in_time": inverter.counters.get("read_late", 0),
-              "missing_runs": missing_runs(inverter.missing_runs, T_s),
-              **written_before_due(inverter.missing_runs, written_at, getattr(inverter, "command_wire_s", 0.0))}
-
-
-def written_before_due(runs, written_at, wire_s=0.0):
-    """Of the runs of missing periods, how long before its due time each one's first command had arrived by
-    the host's write time (kept in the run, else ``written_at``) and ``wire_s`` on the wire [µs]
-    (negative: after; NaN: not known), and how many had so arrived in time; None without ``written_at``."""
-    if written_at is None:
-        return {"missing_runs_written_in_time": None, "missing_runs_written_before_due_us": None}
-    before = [1e6 * (run[3] - (run[5] if len(run) > 5 and math.isfinite(run[5]) else written_at(run[4])) - wire_s)
-              for run in runs if run[3]]
-    return {"missing_runs_written_in_time": sum(b >= 0.0 for b in before),
-            "missing_runs_written_before_due_us": [round(b, 1) if math.isfinite(b) else None for b in before]}
-
-
-def missing_runs(runs, T_s):
-    """How many runs of periods without a command in time, the longest [periods], the first ones as
-    [time s, periods], and each one's window [telemetry sent, command due] on the machine's monotonic clock
-    (paced; to set beside what else watched the machine then, drive_common.runtime.machine_watch)."""
-    return {"count": len(runs), "longest_periods": max((run[1] for run in runs), default=0),
-            "first": [[round(run[0] * T_s, 4), run[1]] for run in runs[:MISSING_RUNS_SHOWN]],
-            "windows_monotonic_s": [run[2:4] for run in runs if run[3]]}
+            self.send(telemetry)

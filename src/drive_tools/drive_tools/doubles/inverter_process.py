@@ -1,7 +1,7 @@
 """The virtual inverter in a process of its own, as a real inverter is a device of its own: its simulation
 then never holds the host's interpreter lock (docs/bridge.md, "Virtual inverter"). No rclpy.
 
-``InverterProcess`` (the host's side) starts ``python -m drive_bridge.inverter_process`` with the scenario's
+``InverterProcess`` (the host's side) starts ``python -m drive_tools.doubles.inverter_process`` with the scenario's
 node parameters, waits until its link is open and its kernels are loaded, starts its clock, stops it and
 reads back what ``timing_report`` needs. The child speaks lines on its standard streams: it prints
 ``ready``, waits for ``start``, runs until ``stop`` (or its last sample), then prints one JSON line of its
@@ -18,6 +18,8 @@ import threading
 
 import numpy as np
 
+from .virtual_inverter import InverterOptions
+
 READY_TIMEOUT_S = 120.0
 """How long the host waits for the child's link and kernels (a cold numba cache compiles for tens of s)."""
 
@@ -28,18 +30,21 @@ class InverterProcessError(RuntimeError):
 
 class InverterProcess:
     """A virtual inverter running in a child process behind ``link`` ('pty': a pseudo-terminal whose slave
-    is at ``link_path``; 'can': the CAN cable whose directory is ``link_path``, drive_bridge.can_cable). Its
-    attributes after ``join`` are those of VirtualInverter that ``timing_report`` reads."""
+    is at ``link_path``; 'can': the CAN cable whose directory is ``link_path``, drive_bridge.can_cable), run as
+    ``options`` (InverterOptions: its clock, wait and drive id) say, with real-time priority ``rt_priority``
+    on ``cpus``. Its attributes after ``join`` are those of VirtualInverter that ``timing_report`` reads."""
 
-    def __init__(self, parameters, link, link_path, rate_Hz, command_wait_s, drive_id=0, rt_priority=0, cpus=None):
-        args = [sys.executable, "-m", "drive_bridge.inverter_process", "--parameters", json.dumps(parameters),
-                "--link", link, "--link-path", str(link_path), "--command-wait-s", repr(command_wait_s),
-                "--drive-id", str(drive_id), "--rt-priority", str(rt_priority)]
-        if rate_Hz:
-            args += ["--rate-Hz", repr(rate_Hz)]
+    def __init__(self, parameters, link, link_path, options=None, rt_priority=0, cpus=None):
+        options = options or InverterOptions()
+        args = [sys.executable, "-m", "drive_tools.doubles.inverter_process", "--parameters",
+                json.dumps(parameters), "--link", link, "--link-path", str(link_path),
+                "--command-wait-s", repr(options.command_wait_s), "--drive-id", str(options.drive_id),
+                "--rt-priority", str(rt_priority)]
+        if options.rate_Hz:
+            args += ["--rate-Hz", repr(options.rate_Hz)]
         if cpus:
             args += ["--cpus", ",".join(str(c) for c in sorted(cpus))]
-        self.rate_Hz = rate_Hz
+        self.rate_Hz = options.rate_Hz
         self.k = 0
         self.counters = {"missing": 0, "watchdog_trips": 0, "overruns": 0, "host_silent_trips": 0}
         self.latencies_s, self.late_latencies_s, self.missing_runs = [], [], []
@@ -111,7 +116,7 @@ class InverterProcess:
 
 
 def _arguments(argv):
-    parser = argparse.ArgumentParser(prog="python -m drive_bridge.inverter_process",
+    parser = argparse.ArgumentParser(prog="python -m drive_tools.doubles.inverter_process",
                                      description="A virtual inverter in a process of its own (started by drive "
                                                  "launch --link ... --paced)")
     parser.add_argument("--parameters", required=True, help="the node parameters of the scenario, JSON")
@@ -126,12 +131,13 @@ def _arguments(argv):
 
 
 def main(argv=None):
+    from drive_bridge.inverter_link import CanLink
     from drive_common.config.parameters import all_parameters, scenario_from_parameters
     from drive_common.contract.errors import DriveError
     from drive_common.runtime.realtime import collector_held, real_time_scheduling
 
-    from .inverter_link import CanLink, PtyEndpoint
     from .virtual_inverter import VirtualInverter
+    from .virtual_links import PtyEndpoint
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     args = _arguments(argv)
@@ -142,8 +148,9 @@ def main(argv=None):
         else:
             endpoint = CanLink(args.link_path, args.drive_id, "cable")
             endpoint.open()
-        inverter = VirtualInverter(scenario, endpoint, rate_Hz=args.rate_Hz, command_wait_s=args.command_wait_s,
-                                   drive_id=args.drive_id)
+        inverter = VirtualInverter(scenario, endpoint, InverterOptions(rate_Hz=args.rate_Hz,
+                                                                       command_wait_s=args.command_wait_s,
+                                                                       drive_id=args.drive_id))
         inverter.warm_up(np.zeros((inverter.block_samples, 10)))
     except (DriveError, ValueError, OSError) as error:
         print(f"virtual inverter: {error}", file=sys.stderr)
