@@ -104,8 +104,8 @@ def package_graph():
     return graph_of(lambda name: name.split(".")[0])
 
 
-def layers(graph):
-    """The number of layers of an acyclic {node: successors} graph: the nodes on its longest path."""
+def layer_of(graph):
+    """{node: its layer} of an acyclic {node: successors} graph: one above the highest it points to (1: none)."""
     depth = {}
 
     def of(node):
@@ -113,7 +113,14 @@ def layers(graph):
             depth[node] = 1 + max((of(s) for s in graph.get(node, ())), default=0)
         return depth[node]
 
-    return max(of(node) for node in graph)
+    for node in graph:
+        of(node)
+    return depth
+
+
+def layers(graph):
+    """The number of layers of an acyclic {node: successors} graph: the nodes on its longest path."""
+    return max(layer_of(graph).values())
 
 
 def test_no_import_cycle_between_modules_subpackages_or_packages():
@@ -184,15 +191,8 @@ def test_the_architecture_page_states_the_graph_the_code_has():
     """docs/architecture.md's picture puts each package in its layer (one above the highest it imports) and
     its table of who imports whom is the code's, unit by unit (a node package, or a subpackage of the library
     or the tools); its package count is the code's."""
-    graph = package_graph()
-    layer = {}
-
-    def of(package):
-        if package not in layer:
-            layer[package] = 1 + max((of(s) for s in graph[package]), default=0)
-        return layer[package]
-
-    assert documented_layers() == {package: of(package) for package in PACKAGES}
+    layer = layer_of(package_graph())
+    assert documented_layers() == {package: layer[package] for package in PACKAGES}
     units = {name: imported for name, imported in graph_of(unit).items() if name not in (LIBRARY, TOOLS)}
     assert documented_graph() == units
     text = (ROOT / "docs" / "architecture.md").read_text()
