@@ -1,5 +1,5 @@
 """One name per quantity (docs/glossary.md): no synonym the glossary refuses in the code, the shipped files
-or the docs; the glossary's code names exist in the code, and its list of names not yet renamed is true."""
+or the docs, and the glossary's code names exist in the code."""
 import io
 import re
 import subprocess
@@ -13,7 +13,6 @@ pytestmark = pytest.mark.unit
 ROOT = Path(__file__).resolve().parent.parent
 GLOSSARY = ROOT / "docs" / "glossary.md"
 QUANTITY_COLUMNS = ("quantity", "symbol", "code name", "unit", "key where it differs", "refused")
-NOT_YET_COLUMNS = ("name in code", "where", "the glossary's name")
 SHIPPED_SUFFIXES = (".py", ".yaml", ".md", ".xml", ".cfg")
 
 
@@ -36,11 +35,6 @@ def names(cell):
 def quantities():
     return [dict(zip(QUANTITY_COLUMNS, row)) for header, rows in tables(GLOSSARY.read_text())
             if header == QUANTITY_COLUMNS for row in rows]
-
-
-def not_yet_renamed():
-    return [dict(zip(NOT_YET_COLUMNS, row)) for header, rows in tables(GLOSSARY.read_text())
-            if header == NOT_YET_COLUMNS for row in rows]
 
 
 def checked_files():
@@ -95,15 +89,6 @@ def test_no_refused_synonym_in_code_shipped_files_or_docs():
         if path.suffix == ".py":
             found += [f"{path.relative_to(ROOT)}: identifier {name}" for name in sorted(python_names(path) & symbols)]
     assert found == []
-
-
-def test_the_names_not_yet_renamed_are_still_in_the_code():
-    """The glossary's list of names still to rename stays true: a name renamed leaves the list."""
-    words = code_words()
-    rows = not_yet_renamed()
-    assert rows
-    gone = [name for row in rows for name in names(row["name in code"]) if name not in words]
-    assert gone == []
 
 
 def test_the_rule_finds_a_synonym_as_a_word_and_a_symbol_as_an_identifier(tmp_path):

@@ -25,7 +25,7 @@ from hf_estimator.synchronous import first_order_lowpass
 
 pytestmark = pytest.mark.unit
 
-TABLE1 = dict(R_ohm=6.2, L_dh_H=20.025e-3, L_qh_H=40.17e-3, injection_frequency_Hz=1500.0,
+TABLE1 = dict(R_s_ohm=6.2, L_dh_H=20.025e-3, L_qh_H=40.17e-3, injection_frequency_Hz=1500.0,
               injection_amplitude_V=40.0, u_star=1.0)
 T_F = 0.53e-3
 

@@ -252,18 +252,18 @@ class InverterBridgeNode(DriveNode):
         self.bridge.command_block(k0, u_alpha, u_beta)
         QUIET_TIME.quiet()
 
-    def on_rotor_estimate_block(self, sec, nanosec, theta_hat_m, omega_hat_m, _):
+    def on_rotor_estimate_block(self, sec, nanosec, theta_m_hat, omega_m_hat, _):
         """`angle_error` of each block's first sample."""
         if self.T_s is None:
             return
         k0 = sample_at(sec, nanosec, self.T_s)
-        if k0 not in self.history or not len(theta_hat_m) or not finite(theta_hat_m[0], omega_hat_m[0]):
+        if k0 not in self.history or not len(theta_m_hat) or not finite(theta_m_hat[0], omega_m_hat[0]):
             return
         theta, velocity = self.history[k0]
         error = Vector3Stamped()
         error.header.stamp = stamp(k0, self.T_s)
-        error.vector.x = wrap(self.n_p * (theta[0] - theta_hat_m[0]))
-        error.vector.y = velocity[0] - omega_hat_m[0]
+        error.vector.x = wrap(self.n_p * (theta[0] - theta_m_hat[0]))
+        error.vector.y = velocity[0] - omega_m_hat[0]
         self.angle_error_pub.publish(error)
 
     def configure(self, hello):

@@ -51,7 +51,7 @@ to 80 Hz."""
 
 
 def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
-                           estimator_bandwidth_Hz=math.inf, commissioning=None):
+                           tracking_bandwidth_Hz=math.inf, commissioning=None):
     """ControllerParams for a motor with this ``nameplate`` (drive_common.motor.nameplate.Nameplate) on an
     ``inverter`` (InverterRating; its delay_periods the whole delay d from sample to applied command,
     blocks included) at sampling period T_s; R_s of the current loops comes from the
@@ -67,12 +67,12 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and the speed bandwidth a cascade step below it
     (CURRENT_TO_SPEED_RATIO) and within the current loops' lag (CURRENT_LAG_AT_SPEED_CROSSOVER_RAD). The
     notch sits at the estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade
-    step below the angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · estimator_bandwidth_Hz
+    step below the angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · tracking_bandwidth_Hz
     (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
     """
     s = check_settings(settings, T_s)
-    if "speed_filter_Hz" not in (settings or {}) and math.isfinite(estimator_bandwidth_Hz):
-        s["speed_filter_Hz"] = max(s["speed_filter_Hz"], SPEED_FILTER_PER_TRACKING * estimator_bandwidth_Hz)
+    if "speed_filter_Hz" not in (settings or {}) and math.isfinite(tracking_bandwidth_Hz):
+        s["speed_filter_Hz"] = max(s["speed_filter_Hz"], SPEED_FILTER_PER_TRACKING * tracking_bandwidth_Hz)
     m = nameplate
     if commissioning is not None:
         m = m._replace(R_s_ohm=commissioning.R_s_ohm)
@@ -85,7 +85,7 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         d = current_pi_gains_any_bandwidth(m.L_d_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
         q = current_pi_gains_any_bandwidth(m.L_q_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
         current_lag_s = 2.0 * s["current_damping"] / current_bandwidth + (inverter.delay_periods + 0.5) * T_s
-        speed_bandwidth = min(_capped_speed_bandwidth(s, estimator_bandwidth_Hz),
+        speed_bandwidth = min(_capped_speed_bandwidth(s, tracking_bandwidth_Hz),
                               current_bandwidth / CURRENT_TO_SPEED_RATIO,
                               CURRENT_LAG_AT_SPEED_CROSSOVER_RAD / (2.0 * s["speed_damping"] * current_lag_s))
         w = speed_pi_gains(m.J_kgm2, m.B_Nms if math.isfinite(m.B_Nms) else 0.0, k_t, speed_bandwidth,
@@ -132,8 +132,8 @@ def check_speed_limit(value):
     return SETTING["speed_limit_rad_s"].read(value)
 
 
-def _capped_speed_bandwidth(s, estimator_bandwidth_Hz):
+def _capped_speed_bandwidth(s, tracking_bandwidth_Hz):
     """The speed-loop bandwidth used with 'rule' gains (s: the merged settings): the requested one,
     capped a cascade step below the estimator's tracking loop."""
     return min(float(s["speed_bandwidth_rad_s"]),
-               float(s["speed_to_estimator_ratio"]) * 2.0 * math.pi * estimator_bandwidth_Hz)
+               float(s["speed_to_estimator_ratio"]) * 2.0 * math.pi * tracking_bandwidth_Hz)

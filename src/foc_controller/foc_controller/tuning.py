@@ -16,20 +16,20 @@ class PIGains(NamedTuple):
     ki: float
 
 
-def current_pi_gains(L_H, R_ohm, omega_n_rad_s, zeta):
+def current_pi_gains(L_H, R_s_ohm, omega_n_rad_s, zeta):
     """Current PI gains [V/A, V/(A·s)] for closed-loop poles ω_n, ζ."""
-    kp = 2.0 * zeta * omega_n_rad_s * L_H - R_ohm
+    kp = 2.0 * zeta * omega_n_rad_s * L_H - R_s_ohm
     if kp <= 0.0:
-        raise ValueError(f"current bandwidth {omega_n_rad_s} rad/s too low for L={L_H} H, R={R_ohm} Ω")
+        raise ValueError(f"current bandwidth {omega_n_rad_s} rad/s too low for L={L_H} H, R={R_s_ohm} Ω")
     return PIGains(kp, omega_n_rad_s ** 2 * L_H)
 
 
-def current_pi_gains_any_bandwidth(L_H, R_ohm, omega_n_rad_s, zeta):
+def current_pi_gains_any_bandwidth(L_H, R_s_ohm, omega_n_rad_s, zeta):
     """``current_pi_gains``, or the internal-model gains at ω_b = ω_n where that rule has no positive k_p
     (the slow current loops of large blocks: docs/architecture.md "Block transport")."""
-    if 2.0 * zeta * omega_n_rad_s * L_H > R_ohm:
-        return current_pi_gains(L_H, R_ohm, omega_n_rad_s, zeta)
-    return PIGains(omega_n_rad_s * L_H, omega_n_rad_s * R_ohm)
+    if 2.0 * zeta * omega_n_rad_s * L_H > R_s_ohm:
+        return current_pi_gains(L_H, R_s_ohm, omega_n_rad_s, zeta)
+    return PIGains(omega_n_rad_s * L_H, omega_n_rad_s * R_s_ohm)
 
 
 def speed_pi_gains(J_kgm2, B_Nms, k_t_Nm_per_A, omega_n_rad_s, zeta):
@@ -40,10 +40,10 @@ def speed_pi_gains(J_kgm2, B_Nms, k_t_Nm_per_A, omega_n_rad_s, zeta):
     return PIGains(kp, omega_n_rad_s ** 2 * J_kgm2 / k_t_Nm_per_A)
 
 
-def current_bandwidth_damping(L_H, R_ohm, gains):
+def current_bandwidth_damping(L_H, R_s_ohm, gains):
     """The (ω_n, ζ) that ``current_pi_gains`` maps to ``gains``: its inverse."""
     omega_n = (gains.ki / L_H) ** 0.5
-    return omega_n, (gains.kp + R_ohm) / (2.0 * omega_n * L_H)
+    return omega_n, (gains.kp + R_s_ohm) / (2.0 * omega_n * L_H)
 
 
 def speed_bandwidth_damping(J_kgm2, B_Nms, k_t_Nm_per_A, gains):

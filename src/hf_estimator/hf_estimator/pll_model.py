@@ -41,19 +41,19 @@ class PllProcess:
         return (self.p1 * s * s + self.p2 * s + self.p3) / ((s - self.lambda_d) * (s - self.lambda_q))
 
 
-def pll_process(R_ohm, L_dh_H, L_qh_H, injection_frequency_Hz, injection_amplitude_V, u_star):
+def pll_process(R_s_ohm, L_dh_H, L_qh_H, injection_frequency_Hz, injection_amplitude_V, u_star):
     """G_p and K from the motor's R, its incremental L_dh, L_qh (docs/glossary.md; Szabó writes L_d, L_q) and
     the injection (Szabó Eq. 24-38). ValueError without HF saliency (L_dh = L_qh): the q̂ current then carries
     no angle information (§2.3, case 2)."""
     if L_dh_H == L_qh_H:
         raise ValueError(f"L_dh = L_qh = {L_dh_H:g} H: no saliency, so the PLL has no angle signal to track")
     omega_h = 2.0 * math.pi * injection_frequency_Hz
-    y_d, y_q = 1.0 / complex(R_ohm, omega_h * L_dh_H), 1.0 / complex(R_ohm, omega_h * L_qh_H)
+    y_d, y_q = 1.0 / complex(R_s_ohm, omega_h * L_dh_H), 1.0 / complex(R_s_ohm, omega_h * L_qh_H)
     i_d, phi_d = abs(y_d), cmath.phase(y_d)
     i_q, phi_q = abs(y_q), cmath.phase(y_q)
     c = math.sqrt(i_d ** 2 + i_q ** 2 - 2.0 * i_d * i_q * math.cos(phi_q - phi_d))  # Eq. (30)
     phi_star = math.atan(-i_q * math.sin(phi_q - phi_d) / (i_d + i_q * math.cos(phi_q - phi_d)))  # Eq. (31)
-    lambda_d, lambda_q = -R_ohm / L_dh_H, -R_ohm / L_qh_H  # Eq. (25)
+    lambda_d, lambda_q = -R_s_ohm / L_dh_H, -R_s_ohm / L_qh_H  # Eq. (25)
     S = math.sin(phi_d + phi_star)
     a, b = i_d * math.sin(phi_d) / S, i_q * math.sin(phi_q) / S  # Eq. (33)
     p1 = -a + b + c  # Eq. (35)
@@ -128,7 +128,7 @@ def sos_response(sos, omega, T_s):
 class CarrierPath:
     """What the carrier model needs of a drive and a pulsating-injection estimator."""
 
-    R_ohm: float
+    R_s_ohm: float
     L_d_H: float
     L_q_H: float
     T_s_s: float
@@ -149,22 +149,22 @@ class CarrierPath:
     """Wang's improved structure: demodulate α and β, low-pass, then rotate by θ̂ (Eq. 22)."""
 
 
-def sampled_admittance(R_ohm, L_H, T_s_s, delay_periods, omega):
+def sampled_admittance(R_s_ohm, L_H, T_s_s, delay_periods, omega):
     """Sampled current per voltage command of one R-L axis at ω [rad/s]: the command delay, the
     zero-order hold and 1/(R + sL) (exact for the average-value inverter)."""
-    a = math.exp(-R_ohm * T_s_s / L_H)
+    a = math.exp(-R_s_ohm * T_s_s / L_H)
     zi = np.exp(-1j * np.asarray(omega, dtype=float) * T_s_s)
-    return zi ** delay_periods * (1.0 - a) / R_ohm * zi / (1.0 - a * zi)
+    return zi ** delay_periods * (1.0 - a) / R_s_ohm * zi / (1.0 - a * zi)
 
 
-def aligned_demodulation_phase(R_ohm, L_dh_H, L_qh_H, T_s_s, delay_periods, omega_h, bandpass):
+def aligned_demodulation_phase(R_s_ohm, L_dh_H, L_qh_H, T_s_s, delay_periods, omega_h, bandpass):
     """Phase φ [rad] added to a pulsating-injection estimator's demodulation carrier (Szabó: cos(ω_h t + φ)
     against u_h sin ω_h t; Wang: sin(ω_h t + φ) against U_h cos ω_h t) that puts it in phase with the
     sampled q̂ current an angle error produces: φ = −π/2 + arg((Y_q − Y_d)·B) at ω_h, B the band-pass
     sections before demodulation (none: empty); 0 for the papers' continuous loops of lossless
     inductances."""
-    y = (sampled_admittance(R_ohm, L_qh_H, T_s_s, delay_periods, omega_h)
-         - sampled_admittance(R_ohm, L_dh_H, T_s_s, delay_periods, omega_h))
+    y = (sampled_admittance(R_s_ohm, L_qh_H, T_s_s, delay_periods, omega_h)
+         - sampled_admittance(R_s_ohm, L_dh_H, T_s_s, delay_periods, omega_h))
     return -math.pi / 2.0 + float(np.angle(y * sos_response(bandpass, omega_h, T_s_s)))
 
 
@@ -175,7 +175,7 @@ def carrier_loop(path):
     rot = cmath.exp(1j * path.carrier_phase_difference_rad)
 
     def admittance(L, nu):
-        return sampled_admittance(path.R_ohm, L, T_s, path.delay_periods, nu)
+        return sampled_admittance(path.R_s_ohm, L, T_s, path.delay_periods, nu)
 
     def band(nu):
         return sos_response(path.bandpass, nu, T_s) if len(path.bandpass) else np.ones_like(nu, dtype=complex)
@@ -291,7 +291,7 @@ carrier phase, error sign, αβ structure). Szabó injects u_h sin ω_h t and de
 the PI gets 0 − î_qhf; Wang injects U_h cos ω_h t and demodulates with 2 sin ω_h t."""
 
 
-def carrier_path(estimator, R_ohm, L_dh_H, L_qh_H, delay_periods):
+def carrier_path(estimator, R_s_ohm, L_dh_H, L_qh_H, delay_periods):
     """The CarrierPath of a built estimator (``interface.Estimator``) on a motor with HF inductances
     L_dh, L_qh; KeyError for an estimator this model does not cover."""
     base = estimator.name.removesuffix("_aligned")
@@ -302,8 +302,8 @@ def carrier_path(estimator, R_ohm, L_dh_H, L_qh_H, delay_periods):
     p = estimator.params
     u_star = getattr(p, "u_star", None) or p.demodulation_amplitude
     phase -= getattr(p, "demodulation_phase_rad", 0.0)
-    return CarrierPath(R_ohm, L_dh_H, L_qh_H, p.T_s_s, delay_periods, p.omega_h_rad_s, p.injection_amplitude_V, u_star,
-                       phase, sign, np.zeros((0, 6)) if alphabeta else p.bandpass, p.lowpass, alphabeta)
+    return CarrierPath(R_s_ohm, L_dh_H, L_qh_H, p.T_s_s, delay_periods, p.omega_h_rad_s, p.injection_amplitude_V,
+                       u_star, phase, sign, np.zeros((0, 6)) if alphabeta else p.bandpass, p.lowpass, alphabeta)
 
 
 def fastest_pi(loop, phase_margin_deg, pi_zero_ratio=10.0):

@@ -269,19 +269,19 @@ class PlantNode(DriveNode):
             return
         self.publish_block()
 
-    def on_rotor_estimate_block(self, sec, nanosec, theta_hat_m, omega_hat_m, _):
+    def on_rotor_estimate_block(self, sec, nanosec, theta_m_hat, omega_m_hat, _):
         """`angle_error` of each block's first sample (introspection, decimated to one per block at least)."""
         k0 = sample_at(sec, nanosec, self.T_s)
-        if k0 is None or k0 not in self.history or not len(theta_hat_m) or not len(omega_hat_m):
+        if k0 is None or k0 not in self.history or not len(theta_m_hat) or not len(omega_m_hat):
             return
-        self.estimate_seen = max(self.estimate_seen, k0 + len(theta_hat_m) - 1)
+        self.estimate_seen = max(self.estimate_seen, k0 + len(theta_m_hat) - 1)
         if (k0 // self.block_samples) % max(1, self.angle_error_decimation // self.block_samples) or not finite(
-                theta_hat_m[0], omega_hat_m[0]):
+                theta_m_hat[0], omega_m_hat[0]):
             return
         theta_m, omega_m = self.history[k0][0]
         n_p = self.plant.machine.n_p
-        self.angle_error_pub.publish(self.error_wire.encode(sec, nanosec, wrap(n_p * (theta_m - theta_hat_m[0])),
-                                                            omega_m - omega_hat_m[0], 0.0))
+        self.angle_error_pub.publish(self.error_wire.encode(sec, nanosec, wrap(n_p * (theta_m - theta_m_hat[0])),
+                                                            omega_m - omega_m_hat[0], 0.0))
 
     def status_values(self):
         return {"sample": self.k, "started": self.started, "finished": self.finished,

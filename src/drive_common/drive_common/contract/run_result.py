@@ -25,7 +25,7 @@ class RunResult:
     """The start-up's own account at the end (hf_estimator.startup.startup_summary), for an injecting
     estimator run in process."""
 
-    pole_pairs: int = None
+    recording_n_p: int = None
     """Pole pairs of a recording's motor when it has no scenario (None: the scenario's motor's)."""
     protection: dict = None
     """What the drive's protections did (foc_controller.protection.protection_summary), when known."""
@@ -36,4 +36,4 @@ class RunResult:
     @property
     def n_p(self):
         """Pole pairs of the run's motor (its nameplate)."""
-        return self.pole_pairs or self.scenario.motor.nameplate.n_p
+        return self.recording_n_p or self.scenario.motor.nameplate.n_p

@@ -234,7 +234,7 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
             return _cdr_vector3_stamped(sec, nanosec, t.frame_id, *values, *[0.0] * (3 - len(values)))
         return _cdr_joint_state(sec, nanosec, *values)
 
-    theta_hat_m, omega_hat_m = col["theta_e_hat"] / n_p, col["omega_e_hat"] / n_p
+    theta_m_hat, omega_m_hat = col["theta_e_hat"] / n_p, col["omega_e_hat"] / n_p
     speed_changes = np.ones(n, dtype=bool)
     speed_changes[1:] = col["omega_m_ref"][1:] != col["omega_m_ref"][:-1]
     per_sample = [
@@ -248,8 +248,8 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
         (ESTIMATOR_STATE, logged(ESTIMATOR_STATE), None),
         (ESTIMATOR_BLEND, logged(ESTIMATOR_BLEND), None),
         (ANGLE_ERROR, _cdr_vector3_stamped(sec, nanosec, TOPICS[ANGLE_ERROR].frame_id,
-                                             wrap.py_func(n_p * (col["theta_m"] - theta_hat_m)),
-                                             col["omega_m"] - omega_hat_m, 0.0), None),
+                                             wrap.py_func(n_p * (col["theta_m"] - theta_m_hat)),
+                                             col["omega_m"] - omega_m_hat, 0.0), None),
         (VOLTAGE_COMMAND, logged(VOLTAGE_COMMAND), None)]
     if scenario.torque_feedforward is not None:
         feedforward = scenario.feedforward()[:n]

@@ -176,7 +176,7 @@ def replay(recording, estimators):
             else:
                 entry["lost"] = bool(reported_losses(log[t >= recording.start_s, COLUMN["state"]]))
         entries.append(entry)
-        results.append(RunResult(recording.scenario, name, log, wall, math.nan, pole_pairs=n_p))
+        results.append(RunResult(recording.scenario, name, log, wall, math.nan, recording_n_p=n_p))
     return entries, results
 
 

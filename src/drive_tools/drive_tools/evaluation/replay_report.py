@@ -32,7 +32,7 @@ def compared_run(recording):
     entry.update({key: scores[key] if entry["ground_truth"] or key == "observable_fraction" else None
                   for _, key, _ in COMPARED_METRICS})
     return entry, RunResult(recording.scenario, recording.estimator, recording.log, 0.0, math.nan,
-                            pole_pairs=recording.n_p)
+                            recording_n_p=recording.n_p)
 
 
 def compare_lines(report, names):

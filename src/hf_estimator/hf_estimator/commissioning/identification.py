@@ -31,7 +31,7 @@ def resistance_and_dead_time(currents_ab, commands_ab, phase_currents):
     return float(R), float(V)
 
 
-def admittance(currents_ab, applied_ab, R_ohm, T_s):
+def admittance(currents_ab, applied_ab, R_s_ohm, T_s):
     """Incremental admittance Γ = ∂i/∂ψ (2 × 2 symmetric, stationary frame) [1/H] from HF current steps:
     i[k] − i[k−1] = T_s·Γ·(u[k] − R·½(i[k] + i[k−1])) + r, with u[k] the voltage applied during that
     period and r a constant drift (back-EMF, offsets). Fitted summed up: i[k] = i[0] + Γ·ψ[k] + r·k with
@@ -39,7 +39,7 @@ def admittance(currents_ab, applied_ab, R_ohm, T_s):
     the variance at 10 samples per carrier period). currents_ab: (n + 1) × 2 samples; applied_ab: n × 2
     (the commands less the dead-time voltage)."""
     i = np.asarray(currents_ab, dtype=float)
-    v = T_s * (np.asarray(applied_ab, dtype=float) - R_ohm * 0.5 * (i[1:] + i[:-1]))
+    v = T_s * (np.asarray(applied_ab, dtype=float) - R_s_ohm * 0.5 * (i[1:] + i[:-1]))
     psi = np.cumsum(v, axis=0)
     n = psi.shape[0]
     zero, one, ramp = np.zeros(n), np.ones(n), np.arange(1.0, n + 1.0)
