@@ -898,6 +898,23 @@ def test_the_graph_with_its_inverter_apart_and_its_recorder_on_a_thread_records_
     assert len(result.scheduling["applied"]) + len(result.scheduling["refused"]) == 2
 
 
+def test_an_inverter_that_goes_silent_ends_the_run_short_with_the_samples_it_never_sent_counted(tmp_path):
+    """The inverter's thread ends at sample 300 of 3000 (a device that loses power; paced, one whose clock ran
+    through its periods while the host fell behind): the run does not wait for a last sample that cannot come.
+    It ends, its log holds what the host reached, the samples never received are counted up to the run's
+    end, and the bridge reports its link lost."""
+    from drive_tools.doubles.faults import acting_at
+    path = scenario_file(tmp_path, rpm=0.0)
+    spec = DriveSpec(path, "/silent", duration_s=0.3, link="pty",
+                     extra_parameters={"diagnostics_period_s": 0.05},
+                     inverter=acting_at(300, lambda inverter: inverter.stop()))
+    result = launch(spec)
+    reached = result.log.shape[0]
+    assert 250 <= reached <= 302
+    assert result.missing_samples and all(count >= 3000 - reached for count in result.missing_samples.values())
+    assert "/silent/drive_bridge" in result.node_faults
+
+
 @pytest.mark.parametrize("intra_process", [False, True])
 def test_the_estimator_learns_which_periods_ran_at_zero_volts_and_ours_barely_feels_a_lost_block(tmp_path,
                                                                                                  intra_process):

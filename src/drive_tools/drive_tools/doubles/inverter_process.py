@@ -89,6 +89,14 @@ class InverterProcess:
         """Stop the clock and wait up to ``timeout_s`` for the child's report; read it into the attributes
         (its link stays open until ``close``)."""
         self.stop()
+        self._take_report(timeout_s)
+
+    def ran_out(self):
+        """Its run is over (its report came, or the child exited): nothing more comes from it."""
+        return self._take_report(0.0) or self.process.poll() is not None
+
+    def _take_report(self, timeout_s):
+        """Read the child's report (within ``timeout_s``) into the attributes, once; whether it is read."""
         if self.report is None and self.process.poll() is None:
             line = self._read_line(timeout_s)
             if line:
@@ -100,6 +108,7 @@ class InverterProcess:
                 self.missing_runs = self.report["missing_runs"]
                 self.before_start = self.report["before_start"]
                 self.scheduling = self.report["scheduling"]
+        return self.report is not None
 
     def close(self, timeout_s=2.0):
         """Close the link and end the child however it stands (the host's tear-down)."""

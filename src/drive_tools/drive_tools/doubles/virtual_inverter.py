@@ -199,6 +199,10 @@ class VirtualInverter:
     def is_alive(self):
         return self.worker is not None and self.worker.is_alive()
 
+    def ran_out(self):
+        """Started and its thread ended: its last period is sent (or it stopped, or failed); nothing more comes."""
+        return self.worker is not None and not self.worker.is_alive()
+
     def join(self, timeout_s):
         if self.worker is not None:
             self.worker.join(timeout_s)

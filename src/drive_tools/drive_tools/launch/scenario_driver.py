@@ -65,7 +65,9 @@ class ScenarioDriver:
     (drive_common.contract.log.LOG_COLUMNS) from the per-sample topics; columns no topic carries stay NaN.
     With a ``recorder`` (drive_tools.bags.writer.BagWriter) it writes every contract topic as received,
     serialized, and the schedule's speed, load and feed-forward of each sample as the plant reaches it. With
-    a virtual ``inverter`` (the bridge in the plant's place) it starts the inverter at sample 0."""
+    a virtual ``inverter`` (the bridge in the plant's place) it starts the inverter at sample 0, and once the
+    inverter ran out (its last period sent, or it stopped) the run ends FINAL_WAIT_S later wherever the host
+    stands: the samples it never reached count as missing."""
 
     def __init__(self, node, scenario, settings, progress=None, recorder=None, inverter=None, listener=None,
                  host_bridge=None):
@@ -115,6 +117,9 @@ class ScenarioDriver:
         self.ready_since = None
         self.checked_at = 0.0
         self.started_at = self.finished_at = None
+        self.inverter_ran_out = False
+        """The inverter's last period went before the host reached the run's last sample: the run ends
+        FINAL_WAIT_S later, short of it."""
         self.last_sample = -1
         self.error = None
         self.exited = {}
@@ -275,6 +280,9 @@ class ScenarioDriver:
             return
         if self.progress:
             self.progress((self.last_sample + 1) / self.n)
+        if self.finished_at is None and self.inverter is not None and self.inverter.ran_out():
+            self.finished_at = now
+            self.inverter_ran_out = True
         if self.finished_at is not None and (self.complete() or now - self.finished_at > FINAL_WAIT_S):
             self.finish()
 
@@ -284,9 +292,9 @@ class ScenarioDriver:
                 and len(self.nodes_complete) >= self.lockstep_nodes)
 
     def missing_samples(self):
-        """{topic: samples of the run's span (up to the last sample reached) never received}, for every
-        logged topic short of them."""
-        reached = self.last_sample + 1
+        """{topic: samples of the run's span (up to the last sample reached; all of them when the inverter ran
+        out first) never received}, for every logged topic short of them."""
+        reached = self.n if self.inverter_ran_out else self.last_sample + 1
         return {self.node.resolve_topic_name(topic): reached - count
                 for topic, count in sorted(self.received.items()) if count < reached}
 
