@@ -2,10 +2,17 @@
 import json
 import subprocess
 import sys
+from pathlib import Path
 
+import numpy as np
 import pytest
 
+from drive_common.config.scenario import load_scenario
+from drive_common.contract.exit_codes import EXIT_NOT_TRACKING
+from drive_common.contract.log import COLUMN
 from drive_tools.cli.cli import main
+from drive_tools.evaluation.metrics import compute_metrics
+from drive_tools.runner.runner import run_scenario
 
 RUN_KEYS = {"angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms"}
 
@@ -147,3 +154,40 @@ def test_the_real_time_bench_and_launch_check_their_options():
     assert run.returncode == 2 and "--cpu-dma-latency-us: a whole number of µs ≥ 0" in run.stderr
     run = subprocess.run(drive + ["bench", "bridge", "--watch-machine"], capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and run.stderr.strip().endswith("give --paced --graph")
+
+
+def test_improved_under_rated_load_reports_its_lost_lock_and_ends_at_zero_torque():
+    """`drive run wang_load_step --estimator improved`: it slips under the rated load; the drive says so
+    (lock_lost, exit code 5) and ends either tracking or holding zero torque (no q-current reference)."""
+    result = run_scenario(load_scenario("wang_load_step", "improved"))
+    state = result.log[:, COLUMN["state"]]
+    assert compute_metrics(result)["lock_lost"] >= 1
+    assert state[-1] == 3 or (state[-1] == 4 and np.all(result.log[-100:, COLUMN["i_q_ref"]] == 0.0))
+    run = subprocess.run([sys.executable, "-m", "drive_tools.cli.cli", "run", "wang_load_step", "--estimator",
+                          "improved", "--no-plot"], capture_output=True, text=True)
+    assert run.returncode == (EXIT_NOT_TRACKING if state[-1] == 4 else 0)
+    assert "the estimator reported" in run.stdout and "lost lock" in run.stdout
+
+
+def test_protection_figures_are_declared_keys_and_the_graph_refuses_a_link_it_cannot_see(tmp_path):
+    """A scenario's `protection:` figures are read through their declarations (a typo names the key meant,
+    a value out of its interval names it), and `drive launch` refuses a motor whose link can rise (C_dc_F:
+    the graph's topics carry no bus voltage), one line naming the key, before any node starts."""
+    from drive_common.config.scenario import ScenarioError
+    from drive_common.motor.commissioning import nameplate_commissioning
+    from foc_controller.build import protection_for_scenario
+
+    base = Path(load_scenario("wang_100rpm").source).read_text()
+    for protection, refused in (("{limt_degC: 100.0}", r"protection.limt_degC: unknown key \(did you mean limit_degC"),
+                                ("{thermal_time_constant_s: -1.0}", r"protection.thermal_time_constant_s: must lie"),
+                                ("{warning_degC: 140.0}", r"ambient_degC < warning_degC < limit_degC")):
+        path = tmp_path / "s.yaml"
+        path.write_text(base + f"protection: {protection}\n")
+        scenario = load_scenario(str(path))
+        with pytest.raises(ScenarioError, match=rf"^{path}: .*{refused}"):
+            protection_for_scenario(scenario, nameplate_commissioning(scenario.motor.nameplate))
+    link = Path(__file__).resolve().parent.parent / "docs" / "motors" / "wang_spmsm_link.yaml"
+    done = subprocess.run([sys.executable, "-m", "drive_tools.cli", "launch", "wang_100rpm", "--motor", str(link),
+                           "--duration", "0.01", "--no-plot"], capture_output=True, text=True)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
+    assert "inverter.C_dc_F" in done.stderr and str(link) in done.stderr, done.stderr

@@ -3,8 +3,6 @@ a brake chopper; the winding's temperature and R_s(T); the inverter's safe state
 active short circuit) in the plant."""
 import dataclasses
 import math
-import subprocess
-import sys
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -437,26 +435,3 @@ def test_a_link_that_would_trip_at_rest_or_drain_its_supply_is_refused(tmp_path,
     with pytest.raises(MotorFileError, match=key):
         load_motor(str(tmp_path / "bad.yaml"))
 
-
-def test_protection_figures_are_declared_keys_and_the_graph_refuses_a_link_it_cannot_see(tmp_path):
-    """A scenario's `protection:` figures are read through their declarations (a typo names the key meant,
-    a value out of its interval names it), and `drive launch` refuses a motor whose link can rise (C_dc_F:
-    the graph's topics carry no bus voltage), one line naming the key, before any node starts."""
-    from drive_common.config.scenario import ScenarioError
-    from drive_common.motor.commissioning import nameplate_commissioning
-    from foc_controller.build import protection_for_scenario
-
-    base = Path(load_scenario("wang_100rpm").source).read_text()
-    for protection, refused in (("{limt_degC: 100.0}", r"protection.limt_degC: unknown key \(did you mean limit_degC"),
-                                ("{thermal_time_constant_s: -1.0}", r"protection.thermal_time_constant_s: must lie"),
-                                ("{warning_degC: 140.0}", r"ambient_degC < warning_degC < limit_degC")):
-        path = tmp_path / "s.yaml"
-        path.write_text(base + f"protection: {protection}\n")
-        scenario = load_scenario(str(path))
-        with pytest.raises(ScenarioError, match=rf"^{path}: .*{refused}"):
-            protection_for_scenario(scenario, nameplate_commissioning(scenario.motor.nameplate))
-    link = Path(__file__).resolve().parent.parent / "docs" / "motors" / "wang_spmsm_link.yaml"
-    done = subprocess.run([sys.executable, "-m", "drive_tools.cli", "launch", "wang_100rpm", "--motor", str(link),
-                           "--duration", "0.01", "--no-plot"], capture_output=True, text=True)
-    assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
-    assert "inverter.C_dc_F" in done.stderr and str(link) in done.stderr, done.stderr
