@@ -22,3 +22,14 @@ def test_the_samples_depend_on_the_delay_not_on_the_block_size():
     a, b = run_scenario(tens).log, run_scenario(fives).log
     assert np.array_equal(a, b)
     assert not np.array_equal(a, run_scenario(base).log)
+
+
+def test_a_run_shorter_than_one_block_is_refused_behind_an_inverter():
+    """Behind an inverter nothing answers a block that never fills: the scenario is refused naming its
+    duration and the block, before any process starts."""
+    from drive_bridge.inverter_protocol import MAX_BLOCK
+    from drive_common.config.scenario import ScenarioError, behind_an_inverter
+    short = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=5e-4, block_samples=10)
+    with pytest.raises(ScenarioError, match=r"duration_s: 0\.0005 s is less than one block of 10 samples \(0\.001 s\)"):
+        behind_an_inverter(short, MAX_BLOCK)
+    assert behind_an_inverter(dataclasses.replace(short, duration_s=1e-3), MAX_BLOCK).answer_periods == 11

@@ -102,6 +102,8 @@ def test_bench_against_refuses_what_is_not_a_commit():
     (["run", "wang_100rpm", "--duration", "1e-12"], "--duration: 1e-12 s is less than one sample (0.0001 s)"),
     (["launch", "wang_100rpm", "--duration", "1e-12"], "--duration: 1e-12 s is less than one sample"),
     (["bridge", "wang_100rpm", "--duration", "1e-12"], "--duration: 1e-12 s is less than one sample"),
+    (["launch", "wang_100rpm", "--link", "pty", "--paced", "--duration", "1e-4"],
+     "--duration: 0.0001 s is less than one block of 10 samples (0.001 s): nothing to answer"),
     (["echo", "currents", "--timeout", "0"], "--timeout: must be positive (seconds), not 0"),
     (["echo", "currents", "--timeout", "-1"], "--timeout: must be positive (seconds), not -1"),
     (["tune", "pll", "--crossover", "0"], "--crossover: must be positive, not 0"),
@@ -110,7 +112,7 @@ def test_bench_against_refuses_what_is_not_a_commit():
     (["bench", "stop", "--cases", "run,walk"], "--cases: 'walk' is not one of commission standstill"),
 ])
 def test_numeric_options_are_checked_before_anything_runs(capsys, argv, message):
-    """inf, nan, a duration past the scenario file's sample cap or under one sample, a wait that would never
+    """inf, nan, a duration past the scenario file's sample cap or under one sample (one block), a wait that would never
     end or a division by zero: exit 2 and the option named, never an allocation of terabytes, an empty run or a
     traceback."""
     try:

@@ -4,6 +4,7 @@ kernel's unbound workqueues moved for a run and put back."""
 import argparse
 import gc
 import os
+import re
 import sys
 import time
 
@@ -52,20 +53,73 @@ def test_cpu_lists_and_priorities_are_checked():
 
 def test_the_kernels_unbound_workqueues_go_where_asked_for_the_run_and_come_back(tmp_path):
     """A system-wide setting: put back after the run, also when the run fails; a refusal is one line."""
-    mask = tmp_path / "cpumask"
+    mask, holders = tmp_path / "cpumask", tmp_path / "holders"
     mask.write_text("3\n")
-    with pytest.raises(RuntimeError), realtime.unbound_work_on({1}, mask) as work:
+    with pytest.raises(RuntimeError), realtime.unbound_work_on({1}, mask, holders) as work:
         assert mask.read_text() == "2"
         assert work == {"applied": ["kernel's unbound workqueues on CPU 1"], "refused": []}
         raise RuntimeError
     assert mask.read_text() == "3"
-    with realtime.unbound_work_on(None, mask) as work:
+    with realtime.unbound_work_on(None, mask, holders) as work:
         assert work == {"applied": [], "refused": []} and mask.read_text() == "3"
-    with realtime.unbound_work_on({0, 1}, tmp_path / "absent") as work:
+    with realtime.unbound_work_on({0, 1}, tmp_path / "absent", holders) as work:
         assert not work["applied"] and len(work["refused"]) == 1
         assert work["refused"][0].startswith(f"kernel's unbound workqueues on CPU 0,1 refused: {tmp_path / 'absent'}")
     assert realtime.cpu_mask({0, 1}) == "3" and realtime.cpu_mask({1, 4}) == "12"
     assert realtime.cpu_mask({33}) == "2,00000000"
+
+
+HOLDER = """import json, sys
+from drive_common.runtime.realtime import unbound_work_on
+with unbound_work_on({int(sys.argv[1])}, sys.argv[2], sys.argv[3]) as work:
+    print(json.dumps(work), flush=True)
+    sys.stdin.readline()
+"""
+
+
+def test_the_workqueue_mask_is_shared_by_the_machines_drives_and_the_last_one_out_puts_it_back(tmp_path):
+    """Two drive processes holding the kernel's unbound workqueues on CPU 1: the first one out leaves the mask
+    as the other needs it, the last puts back the mask found before the first; a drive asking for other CPUs
+    meanwhile is refused naming the holder. A holder killed with SIGKILL is found stale by the next drive,
+    which puts the saved mask back first, and its own exit restores it."""
+    import json
+    import signal
+    import subprocess
+    import sys
+
+    mask, holders = tmp_path / "cpumask", tmp_path / "holders"
+    mask.write_text("3\n")
+
+    def holder(cpu):
+        child = subprocess.Popen([sys.executable, "-c", HOLDER, str(cpu), str(mask), str(holders)],
+                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+        return child, json.loads(child.stdout.readline())
+
+    def leave(child):
+        child.stdin.write("\n")
+        child.stdin.flush()
+        assert child.wait(30) == 0
+
+    first, work = holder(1)
+    assert work["applied"] and mask.read_text() == "2"
+    second, work = holder(1)
+    assert work["applied"] and mask.read_text() == "2"
+    other, work = holder(0)
+    assert not work["applied"] and "held at 2 by drive process" in work["refused"][0]
+    assert {str(first.pid), str(second.pid)} <= set(re.findall(r"\d+", work["refused"][0]))
+    leave(other)
+    leave(first)
+    assert mask.read_text() == "2"
+    leave(second)
+    assert mask.read_text() == "3"
+    killed, _ = holder(1)
+    killed.send_signal(signal.SIGKILL)
+    killed.wait(30)
+    assert mask.read_text() == "2"
+    with realtime.unbound_work_on({1}, mask, holders) as work:
+        assert work["applied"][1] == f"{mask} put back to 3 (its last holder was gone)"
+        assert mask.read_text() == "2"
+    assert mask.read_text() == "3"
 
 
 def test_the_cpus_wake_up_latency_is_held_for_the_run_only(tmp_path):

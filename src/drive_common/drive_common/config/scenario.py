@@ -107,7 +107,7 @@ def link_block_samples(paced, requested):
 def behind_an_inverter(scenario, max_block_samples):
     """``scenario`` as it runs behind the inverter bridge; ScenarioError naming the key of what cannot:
     a holding brake (an inverter does not see the drive's state, which releases the brake), blocks of
-    more than the protocol's ``max_block_samples``, and with blocks of N samples an
+    more than the protocol's ``max_block_samples``, a run shorter than one block, and with blocks of N samples an
     ``answer_periods`` other than N + 1 (the protocol applies a COMMAND_BLOCK during the block after
     next, docs/inverter-protocol.md), which is set when left to the inverter."""
     if scenario.brake:
@@ -117,6 +117,9 @@ def behind_an_inverter(scenario, max_block_samples):
     if n > max_block_samples:
         raise ScenarioError(f"{scenario.source}: block_samples: {n}: the inverter protocol carries at most "
                             f"{max_block_samples} samples per block")
+    if scenario.n_samples < n:
+        raise ScenarioError(f"{scenario.source}: duration_s: {scenario.duration_s:g} s is less than one block of {n} "
+                            f"samples ({n * scenario.T_s:g} s): nothing to answer")
     if n > 1 and scenario.answer_periods not in (0, n + 1):
         raise ScenarioError(f"{scenario.source}: answer_periods: {scenario.answer_periods}: an inverter "
                             f"with blocks of {n} applies a block's commands from the block after next, "

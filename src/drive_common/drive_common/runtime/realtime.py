@@ -11,6 +11,8 @@ import sys
 import threading
 import time
 
+from .machine_setting import SharedSetting
+
 GIL_SWITCH_S = 2e-4
 """Python's thread switch interval while a drive runs (its default is 5 ms): a thread woken by the link or
 the middleware waits this long at most for the one holding the interpreter to hand over."""
@@ -174,32 +176,32 @@ def cpu_mask(cpus):
 
 
 @contextlib.contextmanager
-def unbound_work_on(cpus, mask_file=WORKQUEUE_CPUMASK):
-    """The kernel's unbound workqueues on ``cpus`` (None: left as they are) for a run, the mask before it put
-    back afterwards. System-wide: every unbound kernel work item runs there meanwhile. Yields
-    {"applied": [...], "refused": [...]} as real_time_scheduled; a refusal is never an exception."""
-    applied, refused, before = [], [], None
+def unbound_work_on(cpus, mask_file=WORKQUEUE_CPUMASK, holders_dir=None):
+    """The kernel's unbound workqueues on ``cpus`` (None: left as they are) for a run. System-wide: every
+    unbound kernel work item runs there meanwhile; shared by the machine's drive processes
+    (machine_setting.SharedSetting, its holders in ``holders_dir``): the last one out puts the mask found
+    before the first back, also after a holder was killed. Yields {"applied": [...], "refused": [...]} as
+    real_time_scheduled; a refusal (not root, another drive holding other CPUs) is never an exception."""
+    applied, refused, setting = [], [], None
     if cpus:
         text = ",".join(str(c) for c in sorted(cpus))
+        shared = SharedSetting(mask_file, holders_dir)
         try:
-            with open(mask_file) as f:
-                before = f.read().strip()
-            with open(mask_file, "w") as f:
-                f.write(cpu_mask(cpus))
-            applied.append(f"kernel's unbound workqueues on CPU {text}")
+            why_not, note = shared.take(cpu_mask(cpus))
         except OSError as error:
-            before = None
-            refused.append(f"kernel's unbound workqueues on CPU {text} refused: {mask_file}: "
-                           f"{error.strerror or error} (needs root); they stay where they were")
+            why_not, note = f"{error.filename or mask_file}: {error.strerror or error} (needs root)", None
+        if why_not:
+            refused.append(f"kernel's unbound workqueues on CPU {text} refused: {why_not}; they stay where they "
+                           f"were")
+        else:
+            setting = shared
+            applied += [f"kernel's unbound workqueues on CPU {text}"] + ([note] if note else [])
     try:
         yield {"applied": applied, "refused": refused}
     finally:
-        if before is not None:
-            try:
-                with open(mask_file, "w") as f:
-                    f.write(before)
-            except OSError:
-                pass
+        if setting is not None:
+            with contextlib.suppress(OSError):
+                setting.give_back()
 
 
 CPU_DMA_LATENCY = "/dev/cpu_dma_latency"

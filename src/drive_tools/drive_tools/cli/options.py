@@ -170,15 +170,18 @@ def sample_period_arg(T_s):
         raise CommandLineError(f"--sample-period: {str(error).split(': ', 1)[1]}") from None
 
 
-def duration_arg(duration, T_s):
-    """--duration checked: at least one sample, and within the sample cap a scenario file has (MAX_SAMPLES at
-    T_s)."""
+def duration_arg(duration, T_s, block_samples=1):
+    """--duration checked: at least one sample (one block of ``block_samples``), and within the sample cap a
+    scenario file has (MAX_SAMPLES at T_s)."""
     if duration is None:
         return None
     if duration <= 0.0:
         raise CommandLineError(f"--duration: must be positive, not {duration}")
     if round(duration / T_s) < 1:
         raise CommandLineError(f"--duration: {duration:g} s is less than one sample ({T_s:g} s): nothing to run")
+    if round(duration / T_s) < block_samples:
+        raise CommandLineError(f"--duration: {duration:g} s is less than one block of {block_samples} samples "
+                               f"({block_samples * T_s:g} s): nothing to answer")
     if duration / T_s > MAX_SAMPLES:
         raise CommandLineError(f"--duration: {duration:g} s at {T_s:g} s per sample is more than {MAX_SAMPLES} "
                                f"samples (the cap a scenario file has too)")

@@ -102,7 +102,6 @@ def cmd_launch(args):
     scenario = load_scenario(args.scenario, estimator_override=args.estimator,
                              override_source="command line --estimator", motor_override=args.motor,
                              motor_source="--motor")
-    duration_arg(args.duration, scenario.T_s)
     record_arg(args.record)
     if args.paced and not args.link:
         raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
@@ -116,6 +115,7 @@ def cmd_launch(args):
     blocks = link_block_samples(args.paced, args.block_samples)
     if blocks is not None:
         extra["block_samples"] = block_sizes(str(blocks))[0]
+    duration_arg(args.duration, scenario.T_s, extra.get("block_samples") or scenario.block_samples)
     if args.link:
         from drive_bridge.inverter_protocol import MAX_BLOCK
         behind_an_inverter(dataclasses.replace(scenario, block_samples=blocks or scenario.block_samples), MAX_BLOCK)
