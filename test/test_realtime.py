@@ -272,3 +272,10 @@ def test_status_work_taken_by_two_threads_runs_each_piece_once():
     finally:
         sys.setswitchinterval(interval)
     assert not failed and sorted(done) == list(range(600))
+
+
+def test_the_real_time_benchs_lines_show_a_run_without_a_figure_as_a_question_mark():
+    """A run cut short measured no answer: its figure is `?` in the bench's progress line, never a traceback."""
+    from drive_tools.evaluation.bench import figures
+    runs = [{"answer_p99_us": 812.4}, {"answer_p99_us": None}]
+    assert figures(runs, "answer_p99_us") == "812, ?"

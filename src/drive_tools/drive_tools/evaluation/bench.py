@@ -452,6 +452,12 @@ def machine_line(machine):
     return f"{machine['missing_runs_explained']}/{machine['missing_runs']}"
 
 
+def figures(runs, key):
+    """The runs' ``key`` figures for a progress line, rounded; ``?`` for a run that has none (it measured no
+    answer: a run cut short)."""
+    return ", ".join("?" if r[key] is None else f"{r[key]:.0f}" for r in runs)
+
+
 def graph_real_time(scenario_ref, bench=None, progress=None):
     """`drive bench bridge --paced --graph`: the robot's configuration, `drive launch --link L --paced`
     (the composed graph behind the virtual inverter on its own clock, in blocks), run as ``bench``
@@ -518,7 +524,7 @@ def graph_real_time(scenario_ref, bench=None, progress=None):
                 report["rows"].append(row)
                 if progress:
                     late = ", ".join(f"{100 * r['late_fraction']:.2f}" for r in runs)
-                    p99 = ", ".join(f"{r['latency_p99_hops']:.0f}" for r in runs)
+                    p99 = figures(runs, "latency_p99_hops")
                     stolen_ms = ", ".join(str(sum(r["stolen_ms"].values())) for r in runs)
                     progress(f"  {link:4s} {lever:20s} late {late} %, watchdog trips {row['watchdog_trips']}, "
                              f"lock held in {row['runs_lock_held']} of {len(runs)}, ours within its targets in "
@@ -527,8 +533,8 @@ def graph_real_time(scenario_ref, bench=None, progress=None):
                     if any(r["missing_samples"] for r in runs):
                         missing = ", ".join(str(r["missing_samples"]) for r in runs)
                         progress(f"       samples that never reached the launcher's log: {missing}")
-                    if runs[0]["answer_p99_us"] is not None:
-                        answers = ", ".join(f"{r['answer_p99_us']:.0f}" for r in runs)
+                    if any(r["answer_p99_us"] is not None for r in runs):
+                        answers = figures(runs, "answer_p99_us")
                         progress(f"       the drive's answer (telemetry sent to command written) p99 {answers} µs")
                     written = ", ".join(f"{r['missing_runs_written_in_time']}/{r['missing_runs']['count']}"
                                         if r["missing_runs_written_in_time"] is not None else "?" for r in runs)
