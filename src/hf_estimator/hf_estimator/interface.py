@@ -113,10 +113,91 @@ def contract_injection(facts, scenario_injection):
     return {"kind": kind, "frequency_Hz": facts["injection_frequency_Hz"], "amplitude_V": amplitude}
 
 
+PLUGIN_GROUP = "pmsm_drive.estimators"
+"""The entry-point group of estimators in packages of their own (docs/estimator-plugins.md): an entry point
+names the module whose import registers, with ``register``, the estimator of the entry point's name."""
+_PLUGIN_ERRORS = {}
+"""Installed plugins that could not be loaded: name → why."""
+_installed_loaded = False
+
+
+def _load_installed():
+    """Import every installed plugin of PLUGIN_GROUP once; one that fails is kept in _PLUGIN_ERRORS."""
+    global _installed_loaded
+    if _installed_loaded:
+        return
+    _installed_loaded = True
+    from importlib.metadata import entry_points
+    for point in entry_points(group=PLUGIN_GROUP):
+        if point.name in _REGISTRY:
+            continue
+        try:
+            point.load()
+        except Exception as error:  # a plugin's own failure, whatever it is, is its entry's, not the drive's
+            _PLUGIN_ERRORS[point.name] = f"plugin {point.value}: {type(error).__name__}: {error}"
+            continue
+        if point.name not in _REGISTRY:
+            _PLUGIN_ERRORS[point.name] = (f"plugin {point.value}: registers no estimator named '{point.name}' "
+                                          f"(hf_estimator.interface.register)")
+
+
+def _load_reference(name):
+    """``module:factory`` (a dotted module on the path or a .py file, and its factory registered with
+    ``register``): that estimator, also under this name. KeyError naming what failed."""
+    import importlib
+    import importlib.util
+    import sys
+    from pathlib import Path
+    module_name, _, factory_name = name.rpartition(":")
+    try:
+        if module_name.endswith(".py"):
+            path = Path(module_name).resolve()
+            spec = importlib.util.spec_from_file_location(f"estimator_plugin_{path.stem}", path)
+            if spec is None or not path.is_file():
+                raise FileNotFoundError(f"no file {path}")
+            module = importlib.util.module_from_spec(spec)
+            sys.modules[spec.name] = module
+            spec.loader.exec_module(module)
+        else:
+            module = importlib.import_module(module_name)
+    except Exception as error:  # the plugin's import, whatever it raises, is refused in one line
+        raise KeyError(f"estimator '{name}': {type(error).__name__}: {error}") from None
+    factory = getattr(module, factory_name, None)
+    found = [entry for entry in _REGISTRY.values() if entry.factory is factory and factory is not None]
+    if not found:
+        raise KeyError(f"estimator '{name}': {module_name} has no factory '{factory_name}' registered with "
+                       f"hf_estimator.interface.register")
+    _REGISTRY[name] = found[0]
+
+
 def _entry(name):
+    if name not in _REGISTRY:
+        _load_installed()
+    if name not in _REGISTRY and name in _PLUGIN_ERRORS:
+        raise KeyError(f"estimator '{name}': {_PLUGIN_ERRORS[name]}")
+    if name not in _REGISTRY and ":" in name:
+        _load_reference(name)
     if name not in _REGISTRY:
         raise KeyError(f"unknown estimator '{name}' (known: {', '.join(estimator_names())})")
     return _REGISTRY[name]
+
+
+def known_estimator(name):
+    """Whether ``name`` is a registered estimator, an installed plugin's or a loadable ``module:factory``;
+    KeyError naming why a plugin named so cannot be loaded."""
+    try:
+        _entry(name)
+    except KeyError:
+        if name in _PLUGIN_ERRORS or ":" in name:
+            raise
+        return False
+    return True
+
+
+def plugin_errors():
+    """{name: why} of the installed plugins that could not be loaded."""
+    _load_installed()
+    return dict(_PLUGIN_ERRORS)
 
 
 def injects(name):
@@ -129,7 +210,9 @@ def excitation_need(name):
 
 
 def estimator_names():
-    return sorted(_REGISTRY)
+    """The registered estimators and the installed plugins' (not the ``module:factory`` references)."""
+    _load_installed()
+    return sorted(name for name in _REGISTRY if ":" not in name)
 
 
 def describe(name):

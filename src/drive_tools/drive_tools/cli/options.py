@@ -22,7 +22,7 @@ from drive_common.contract.exit_codes import (
 )
 from drive_common.contract.strict_json import dumps
 from drive_common.runtime.realtime import ROBOT_RT_PRIORITY
-from hf_estimator.registry import estimator_names
+from hf_estimator.registry import estimator_names, known_estimator
 
 MOTOR_HELP = ("the motor in place of the scenario's: a shipped motor's name or a motor file "
               "(`drive motor template` writes one)")
@@ -146,19 +146,29 @@ def motor_reference(name_or_path):
 
 
 def estimator_arg(args):
-    """Refuse an unknown --estimator before anything runs, naming the option."""
-    if args.estimator and args.estimator not in estimator_names():
-        raise CommandLineError(f"--estimator: unknown estimator '{args.estimator}' "
-                               f"(known: {', '.join(estimator_names())})")
+    """Refuse an unknown --estimator (or a plugin that cannot be loaded) before anything runs, naming the
+    option."""
+    if args.estimator:
+        known_estimator_arg("--estimator", args.estimator)
+
+
+def known_estimator_arg(option, name):
+    """CommandLineError naming ``option`` unless ``name`` is an estimator: registered, an installed plugin's or
+    a ``module:factory`` (docs/estimator-plugins.md)."""
+    try:
+        known = known_estimator(name)
+    except KeyError as error:
+        raise CommandLineError(f"{option}: {error.args[0]}") from None
+    if not known:
+        raise CommandLineError(f"{option}: unknown estimator '{name}' (known: {', '.join(estimator_names())}; "
+                               f"or MODULE:FACTORY)")
 
 
 def estimator_list(text):
     """The estimators of ``--estimators a,b`` (all when empty); CommandLineError names an unknown one."""
     names = text.split(",") if text else estimator_names()
     for name in names:
-        if name not in estimator_names():
-            raise CommandLineError(f"--estimators: unknown estimator '{name}' "
-                                   f"(known: {', '.join(estimator_names())})")
+        known_estimator_arg("--estimators", name)
     return names
 
 

@@ -15,7 +15,7 @@ from drive_common.config.scenario import (
 from drive_common.contract.graph import DEFAULT_NAMESPACE, EXECUTORS
 from drive_common.runtime.interrupt import Interrupted
 from drive_common.runtime.realtime import ROBOT_RT_PRIORITY, add_scheduling_arguments
-from hf_estimator.registry import describe, estimator_names
+from hf_estimator.registry import describe, estimator_names, plugin_errors
 
 from .options import (
     COMMISSIONING_HELP,
@@ -189,12 +189,16 @@ def cmd_scenarios(args):
 
 
 def cmd_estimators(args):
-    entries = [describe(n) for n in estimator_names()]
+    entries = [describe(n) for n in estimator_names()] + [{"name": name, "error": why}
+                                                          for name, why in sorted(plugin_errors().items())]
     if args.json:
         print_json(entries)
     else:
         for e in entries:
-            print(f"{e['name']:16s} {e['description']}\n{'':16s} {e['paper']}; module {e['module']}")
+            if "error" in e:
+                print(f"{e['name']:16s} not loaded: {e['error']}")
+            else:
+                print(f"{e['name']:16s} {e['description']}\n{'':16s} {e['paper']}; module {e['module']}")
     return 0
 
 

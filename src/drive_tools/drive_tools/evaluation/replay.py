@@ -34,6 +34,11 @@ TIMED_RUNS = 3
 LOCK_BAND_RAD = math.pi / 8
 """Time to lock: from the start until |angle error| stays within this band to the end. Every saliency
 tracker's error signal goes as sin 2Δθ; within π/8 its slope is still ≥ 0.71 of the small-signal one."""
+FAILURES = ("failed:", "too slow:", "answered NaN")
+"""How a replay entry's reason begins where the estimator itself failed on the bag."""
+PROBE_SAMPLES = 2000
+"""Samples timed first: an estimator slower per sample than the recording's sampling period is not replayed
+further (it could not run the drive it is measured for)."""
 SCORED = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms")
 
 
@@ -133,51 +138,86 @@ def applicability(recording, name, frequency, requested, scored):
 
 
 def replay(recording, estimators):
-    """Replay each estimator on a Recording (drive_tools.evaluation.recording) → ([entry dict], [RunResult])."""
-    currents, u_applied, whole = replay_inputs(recording)
+    """Replay each estimator on a Recording (drive_tools.evaluation.recording) → ([entry dict], [RunResult, or
+    None for an estimator that failed]). An estimator that raises, answers NaN or steps slower than the
+    recording's sampling period is reported so in its entry (applicable False, the reason), never aborting the
+    others (a plugin, docs/estimator-plugins.md)."""
+    inputs = replay_inputs(recording)
     log0 = recording.log
-    truth = recording.ground_truth
     n_p = recording.n_p
     encoder = (n_p * log0[:, COLUMN["theta_m"]], n_p * log0[:, COLUMN["omega_m"]])
     unresolved = log0[:, COLUMN["state"]] != TRACKING
     unresolved &= np.isfinite(log0[:, COLUMN["state"]])
     estimate = (held(np.where(unresolved, np.nan, log0[:, COLUMN["theta_e_hat"]]), np.isnan(log0[:, COLUMN["state"]])),
                 held(log0[:, COLUMN["omega_e_hat"]]))
+    entries, results = [], []
+    for name in estimators:
+        reference = np.column_stack(encoder if excitation_need(name) == "encoder" else estimate)
+        try:
+            entry, result = _replay_one(recording, name, inputs, reference)
+        except Exception as error:  # an estimator's own failure (a plugin's, whatever it raises) is its entry's
+            entry = {"estimator": name, "applicable": False,
+                     "reason": f"failed: {type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}",
+                     "samples": 0, "samples_per_second": None, "observable_fraction": None}
+            result = None
+        entries.append(entry)
+        results.append(result)
+    return entries, results
+
+
+def _replay_one(recording, name, inputs, reference):
+    """(entry, RunResult) of estimator ``name`` replayed on ``recording``'s ``inputs`` (replay_inputs) with the
+    ``reference`` angle and speed its polarity may take (n × 2)."""
+    currents, u_applied, whole = inputs
+    log0, truth, n_p = recording.log, recording.ground_truth, recording.n_p
     t = log0[:, COLUMN["t"]]
     scored = _mask(t, recording.windows)
     calibration = recording.commissioning.calibration()
-    entries, results = [], []
-    for name in estimators:
-        e = replayed_estimator(recording, name)
-        reference = np.column_stack(encoder if excitation_need(name) == "encoder" else estimate)
-        out = estimates(len(currents))
-        replay_samples(e.step, e.core(e.state.copy()), currents[:2], u_applied[:2], reference[:2], whole[:2],
-                       calibration, out[:2])
-        wall = math.inf
-        for _ in range(TIMED_RUNS):
-            core = e.core(e.state.copy())
-            start = time.perf_counter()
-            replay_samples(e.step, core, currents, u_applied, reference, whole, calibration, out)
-            wall = min(wall, time.perf_counter() - start)
-        log = log0.copy()
-        for field in ESTIMATE_FIELDS:
-            log[:, COLUMN[field]] = out[field]
-        injection = np.column_stack((out["u_inj_alpha"], out["u_inj_beta"]))
-        applicable, reason = applicability(recording, name, e.injection_frequency_Hz, injection, scored)
-        scores = angle_scores(log, n_p, recording.windows, recording.start_s)
-        entry = {"estimator": name, "applicable": applicable, "reason": reason, "samples": int(whole.sum()),
-                 "samples_per_second": len(currents) / wall,
-                 "observable_fraction": scores["observable_fraction"] if applicable else None}
-        if applicable:
-            if truth:
-                entry.update({key: scores[key] for key in SCORED})
-                entry["time_to_lock_s"] = time_to_lock(log, n_p)
-                entry["lost"] = bool(scores["lock_lost_s"])
-            else:
-                entry["lost"] = bool(reported_losses(log[t >= recording.start_s, COLUMN["state"]]))
-        entries.append(entry)
-        results.append(RunResult(recording.scenario, name, log, wall, math.nan, recording_n_p=n_p))
-    return entries, results
+    e = replayed_estimator(recording, name)
+    out = estimates(len(currents))
+    replay_samples(e.step, e.core(e.state.copy()), currents[:2], u_applied[:2], reference[:2], whole[:2],
+                   calibration, out[:2])
+    probe = min(len(currents), PROBE_SAMPLES)
+    start = time.perf_counter()
+    replay_samples(e.step, e.core(e.state.copy()), currents[:probe], u_applied[:probe], reference[:probe],
+                   whole[:probe], calibration, out[:probe])
+    per_sample_s = (time.perf_counter() - start) / probe
+    T_s = recording.scenario.T_s
+    if per_sample_s > T_s:
+        return {"estimator": name, "applicable": False,
+                "reason": f"too slow: {1e6 * per_sample_s:.0f} µs per sample, more than the recording's sampling "
+                          f"period of {1e6 * T_s:.0f} µs", "samples": 0,
+                "samples_per_second": 1.0 / per_sample_s, "observable_fraction": None}, None
+    wall = math.inf
+    for _ in range(TIMED_RUNS):
+        core = e.core(e.state.copy())
+        start = time.perf_counter()
+        replay_samples(e.step, core, currents, u_applied, reference, whole, calibration, out)
+        wall = min(wall, time.perf_counter() - start)
+    answered = np.column_stack([out[field] for field in ("theta_e_hat", "omega_e_hat", "u_inj_alpha",
+                                                         "u_inj_beta")])
+    if not np.isfinite(answered).all():
+        first = int(np.argmax(~np.isfinite(answered).all(axis=1)))
+        return {"estimator": name, "applicable": False, "reason": f"answered NaN or ∞ from sample {first} on",
+                "samples": int(whole.sum()), "samples_per_second": len(currents) / wall,
+                "observable_fraction": None}, None
+    log = log0.copy()
+    for field in ESTIMATE_FIELDS:
+        log[:, COLUMN[field]] = out[field]
+    injection = np.column_stack((out["u_inj_alpha"], out["u_inj_beta"]))
+    applicable, reason = applicability(recording, name, e.injection_frequency_Hz, injection, scored)
+    scores = angle_scores(log, n_p, recording.windows, recording.start_s)
+    entry = {"estimator": name, "applicable": applicable, "reason": reason, "samples": int(whole.sum()),
+             "samples_per_second": len(currents) / wall,
+             "observable_fraction": scores["observable_fraction"] if applicable else None}
+    if applicable:
+        if truth:
+            entry.update({key: scores[key] for key in SCORED})
+            entry["time_to_lock_s"] = time_to_lock(log, n_p)
+            entry["lost"] = bool(scores["lock_lost_s"])
+        else:
+            entry["lost"] = bool(reported_losses(log[t >= recording.start_s, COLUMN["state"]]))
+    return entry, RunResult(recording.scenario, name, log, wall, math.nan, recording_n_p=n_p)
 
 
 def time_to_lock(log, n_p):
@@ -191,7 +231,8 @@ def time_to_lock(log, n_p):
 
 def summarise(per_bag, estimators):
     """One row per estimator over a corpus (``per_bag``: [{..., "results": replay entries}]): bags scored
-    (applicable, with ground truth), not applicable, real lock losses, median and worst RMS, bias (worst:
+    (applicable, with ground truth), not applicable (``failed`` among them: the estimator raised, answered NaN
+    or was too slow), real lock losses, median and worst RMS, bias (worst:
     the largest magnitude) and peak, and the slowest replay speed."""
     rows = []
     for name in estimators:
@@ -201,10 +242,11 @@ def summarise(per_bag, estimators):
                  for key in ("angle_error_rms", "angle_error_bias", "angle_error_peak")}
         median = {key: float(np.median(v)) if v else None for key, v in found.items()}
         worst = {key: float(max(v, key=abs)) if v else None for key, v in found.items()}
-        speeds = [e["samples_per_second"] for e in entries]
+        speeds = [e["samples_per_second"] for e in entries if e["samples_per_second"] is not None]
         rows.append({"estimator": name, "bags": len(entries), "scored": len(scored),
                      "not_applicable": sum(not e["applicable"] for e in entries),
                      "lost": sum(bool(e.get("lost")) for e in entries),
+                     "failed": sum(e["reason"].startswith(FAILURES) for e in entries if not e["applicable"]),
                      "rms_median": median["angle_error_rms"], "rms_worst": worst["angle_error_rms"],
                      "bias_median": median["angle_error_bias"], "bias_worst": worst["angle_error_bias"],
                      "peak_median": median["angle_error_peak"], "peak_worst": worst["angle_error_peak"],

@@ -94,18 +94,20 @@ def corpus_lines(report):
     lines = [f"replay of {report['bags']} bags ({report['pattern']})"
              + (f", {len(skipped)} paths skipped (not a bag, or not replayable: one line each above)"
                 if skipped else ""),
-             f"  {'estimator':22s}{'scored':>8s}{'n/a':>5s}{'lost':>6s}{'RMS med':>10s}{'RMS worst':>11s}"
+             f"  {'estimator':22s}{'scored':>8s}{'n/a':>5s}{'failed':>7s}{'lost':>6s}{'RMS med':>10s}{'RMS worst':>11s}"
              f"{'bias med':>10s}{'bias worst':>11s}{'peak med':>10s}{'peak worst':>11s}{'samples/s':>12s}"]
     for row in report["summary"]:
-        lines.append(f"  {row['estimator']:22s}{row['scored']:8d}{row['not_applicable']:5d}{row['lost']:6d}"
+        lines.append(f"  {row['estimator']:22s}{row['scored']:8d}{row['not_applicable']:5d}{row['failed']:7d}"
+                     f"{row['lost']:6d}"
                      f"{formatted(row['rms_median'], '{:.4f}'):>10s}{formatted(row['rms_worst'], '{:.4f}'):>11s}"
                      f"{formatted(row['bias_median'], '{:+.4f}'):>10s}"
                      f"{formatted(row['bias_worst'], '{:+.4f}'):>11s}"
                      f"{formatted(row['peak_median'], '{:.4f}'):>10s}{formatted(row['peak_worst'], '{:.4f}'):>11s}"
                      f"{formatted(row['samples_per_second_min'], '{:,.0f}'):>12s}")
     lines.append("  scored: bags where it is applicable and the bag has ground truth; n/a: bags where it is not "
-                 "applicable; lost: real losses of lock; worst bias: the largest magnitude; samples/s: the "
-                 "slowest bag")
+                 "applicable; failed: bags where the estimator raised, answered NaN or was slower than the bag's "
+                 "sampling; lost: real losses of lock; worst bias: the largest magnitude; samples/s: the slowest "
+                 "bag")
     if "json" in report:
         lines.append(f"  json: {report['json']}")
     return lines
