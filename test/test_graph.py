@@ -553,15 +553,19 @@ def test_the_bridge_in_the_plants_place(tmp_path, link, processes, blocks, intra
 
 def test_samples_the_launcher_never_received_are_counted_per_topic_and_named_in_one_line():
     """A run's log short of samples (a message lost on the way and not resent within the final wait)
-    counts them per topic, over the span the run reached; `drive launch` names them in one line."""
+    counts them per topic, over the span the run reached (the whole run when its inverter ran out first);
+    `drive launch` names them in one line."""
     from types import SimpleNamespace
 
     from drive_tools.launch.launcher import missing_samples_line
     from drive_tools.launch.scenario_driver import FINAL_WAIT_S, ScenarioDriver
-    driver = SimpleNamespace(last_sample=599, received={"currents": 597, "rotor_estimate": 600},
+    driver = SimpleNamespace(last_sample=599, received={"currents": 597, "rotor_estimate": 600}, n=1000,
+                             inverter_ran_out=False,
                              node=SimpleNamespace(resolve_topic_name=lambda topic: f"/drive/{topic}"))
     missing = ScenarioDriver.missing_samples(driver)
     assert missing == {"/drive/currents": 3}
+    driver.inverter_ran_out = True
+    assert ScenarioDriver.missing_samples(driver) == {"/drive/currents": 403, "/drive/rotor_estimate": 400}
     assert missing_samples_line({}) is None
     line = missing_samples_line(missing)
     assert "\n" not in line and "/drive/currents 3" in line and f"{FINAL_WAIT_S:g} s" in line
