@@ -65,6 +65,28 @@ plant:
   L_dh_drop_at_rated: 0.1
 """
 
+JOINT_21 = """format_version: 1
+name: joint21
+description: "robot joint, 21 pole pairs, 48 V, J 5e-5 kg·m²"
+nameplate:
+  n_p: 21
+  R_s_ohm: 0.3
+  L_d_H: 2.0e-4
+  L_q_H: 2.0e-4
+  psi_f_Wb: 0.006
+  rated_current_A: 8.0
+  rated_speed_rpm: 1000.0
+  current_limit_A: 12.0
+  J_kgm2: 5.0e-5
+inverter:
+  U_dc_V: 48.0
+plant:
+  L_dh_H: 1.7e-4
+  L_qh_H: 1.98e-4
+  L_qh_drop_at_rated: 0.05
+  sensor: {noise_std_A: 0.02, adc_bits: 12, adc_range_A: 24.0}
+"""
+
 ROUND = """format_version: 1
 name: round_rotor
 description: "no saliency at all: a round rotor to HF injection"
@@ -195,6 +217,7 @@ def _exit_cases(tmp_path):
         "  delay_periods: 1\n", "  delay_periods: 1\n  C_dc_F: 1.0e-3\n  U_overvoltage_V: 27.0\n", 1)
     linked = _file(tmp_path, "wang_link.yaml", link.replace("name: wang_spmsm", "name: wang_link"))
     round_rotor = _file(tmp_path, "round.yaml", ROUND)
+    joint = _file(tmp_path, "joint21.yaml", JOINT_21)
     files = {
         "good": GOOD,
         "bad": GOOD.replace("duration_s: 0.3", "duration_s: -1"),
@@ -214,6 +237,8 @@ def _exit_cases(tmp_path):
             ("run plot unwritable", ["run", str(paths["good"]), "--out", str(tmp_path / "not_a_dir")],
              EXIT_RECORDING_FAILED),
             ("run start refused", ["run", str(paths["refused_start"]), "--no-plot"], EXIT_NOT_TRACKING),
+            ("run lock lost", ["run", "wang_100rpm", "--motor", str(joint), "--commissioning", "nameplate",
+                               "--duration", "1.0", "--no-plot"], EXIT_NOT_TRACKING),
             ("run dragged", ["run", str(paths["dragged"]), "--no-plot"], EXIT_NOT_FOLLOWING),
             ("run tripped", ["run", str(paths["tripped"]), "--no-plot"], EXIT_TRIPPED),
             ("commission refused", ["commission", "wang_100rpm", "--motor", str(bus), "--out", "c.yaml"],
@@ -237,6 +262,8 @@ def test_every_exit_says_its_one_reason_and_no_text_claims_success(tmp_path):
         assert "exit 0" not in done.stdout and "commissioned at standstill" not in done.stdout, name
         if argv[0] == "run" and code != EXIT_REFUSED:
             assert f"exit {code}: " in done.stdout, (name, done.stdout)
+        if name == "run lock lost":
+            assert "lost its lock" in reasons[0] and "holds zero torque from" in reasons[0], reasons
     json_run = _drive(["run", str(tmp_path / "refused_start.yaml"), "--no-plot", "--json"], tmp_path)
     outcome = json.loads(json_run.stdout)["outcome"]
     assert outcome["exit_code"] == EXIT_NOT_TRACKING and outcome["reason"] in json_run.stderr

@@ -82,6 +82,9 @@ def not_tracking(result, metrics=None):
     """Why the run is not tracking at its end, or None: the estimator refused to start, or the run ended holding
     zero torque after a lost lock (the log's last state; the estimator's own account). A run shorter than the
     start-up is not a failure. ``metrics``: the run's report (its start-up line names the measured cause)."""
+    import numpy as np
+
+    from drive_common.contract.estimator_states import LOCK_LOST
     from drive_common.contract.log import COLUMN
     states = result.log[:, COLUMN["state"]]
     if not states.size:
@@ -90,11 +93,12 @@ def not_tracking(result, metrics=None):
     refused = startup.get("refused") or (result.startup or {}).get("refused")
     if refused and not startup.get("completed"):
         return f"the start was refused, no torque applied: {refused}"
-    if states[-1] == 4.0:
+    if states[-1] == LOCK_LOST:
         lost = int(startup.get("lock_lost") or 0)
-        cause = f": {refused}" if refused else ""
-        return (f"the drive lost its lock ({lost} time(s) by its own account) and ended holding zero torque{cause}; "
-                f"the shaft no longer follows its command")
+        held = states.size - int(np.argmax(states[::-1] != LOCK_LOST)) if (states != LOCK_LOST).any() else 0
+        at_s = float(result.log[held, COLUMN["t"]])
+        return (f"the drive lost its lock {lost} time(s) by its own account and holds zero torque from {at_s:.3f} s "
+                f"to the end: the shaft no longer follows its command")
     return None
 
 
