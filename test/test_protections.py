@@ -24,7 +24,7 @@ from drive_common.math.winding import R_S_IN_USE, R_S_STEP, winding_estimate
 from drive_common.motor.commissioning import nameplate_commissioning
 from drive_common.motor.motor_file import MotorFileError, load_motor, motor_path
 from drive_common.motor.nameplate import InverterRating
-from drive_tools.cli.options import exit_code, tripped
+from drive_tools.cli.outcome import exit_code, tripped
 from drive_tools.doubles.virtual_inverter import VirtualInverter
 from drive_tools.evaluation.run_report import protection_line, run_report
 from drive_tools.runner.runner import run_scenario

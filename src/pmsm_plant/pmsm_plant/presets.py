@@ -10,7 +10,7 @@ import math
 from dataclasses import dataclass, field
 
 from drive_common.config.experiment import NO_DEVIATION
-from drive_common.contract.settings import shown
+from drive_common.contract.settings import refuse_unknown_keys, shown
 from drive_common.motor.motor_file import MotorFileError, load_motor, shipped_motor_names
 from drive_common.motor.nameplate import NAMEPLATE_KEYS, Nameplate
 
@@ -81,8 +81,7 @@ def plant_truth(motor, source="motor"):
     def fail(key, problem):
         raise MotorFileError(f"{where}.{key}: {problem}")
 
-    for key in sorted(set(plant) - set(PLANT_KEYS), key=str):
-        fail(key, f"unknown key (known: {', '.join(PLANT_KEYS)})")
+    _refuse_typos(plant, PLANT_KEYS, "", fail)
 
     def value(key, default, low=0.0, low_inclusive=False, high=math.inf):
         v = plant.get(key, default)
@@ -142,12 +141,19 @@ def plant_truth(motor, source="motor"):
                        source=source, assumptions=tuple(assumptions))
 
 
+def _refuse_typos(given, known, prefix, fail):
+    """``fail`` on the first unknown key of ``given``, naming the nearest known one (refuse_unknown_keys)."""
+    try:
+        refuse_unknown_keys(given, known, prefix)
+    except ValueError as error:
+        fail(*str(error).split(": ", 1))
+
+
 def _sensor(given, plate, fail):
     """SensorParams of a plant section's ``sensor`` mapping, with the defaults stated above."""
     if not isinstance(given, dict):
         fail("sensor", f"must be a mapping ({', '.join(SENSOR_KEYS)})")
-    for key in sorted(set(given) - set(SENSOR_KEYS), key=str):
-        fail(f"sensor.{key}", f"unknown key (known: {', '.join(SENSOR_KEYS)})")
+    _refuse_typos(given, SENSOR_KEYS, "sensor.", fail)
 
     def checked(key, v):
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):

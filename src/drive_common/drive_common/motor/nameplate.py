@@ -127,6 +127,10 @@ def nameplate_from_mapping(data, source, defaults=None, key_prefix=""):
         values.setdefault("J_kgm2", math.nan)
         values.setdefault("B_Nms", math.nan)
         plate = Nameplate(name=name, **values)
+    if plate.current_limit_A < plate.rated_current_A:
+        raise NameplateError(f"{source}: {key_prefix}current_limit_A: {plate.current_limit_A:g} A is below the rated "
+                             f"current {plate.rated_current_A:g} A: the drive could not hold rated torque; give the "
+                             f"current the motor is rated for as rated_current_A (and its torque as rated_torque_Nm)")
     if plate.current_limit_A > CURRENT_LIMIT_PER_RATED * plate.rated_current_A:
         raise NameplateError(f"{source}: {key_prefix}current_limit_A: {plate.current_limit_A:g} A is more than "
                              f"{CURRENT_LIMIT_PER_RATED:g} × the rated current {plate.rated_current_A:g} A: out of "

@@ -1,6 +1,7 @@
 """The ``drive`` command line: one entry, a subcommand per job, each family in its own module; every
 result-printing command also has ``--json``. Domain errors (drive_common.contract.errors.DriveError) are printed as
-one line, exit code 2."""
+one line, exit code 2; every other non-zero exit prints its one-line reason on stderr too (options.say_reason, else
+options.fallback_reason)."""
 import os
 import sys
 from pathlib import Path
@@ -13,6 +14,7 @@ from drive_common.runtime.interrupt import Interrupted
 
 from . import bag, bench_drive, bench_timing, motor, replay, run, tune
 from .options import OneLineParser, os_error_line
+from .outcome import fallback_reason, forget_reasons, reasons_said, say_reason
 
 
 def build_parser():
@@ -49,6 +51,7 @@ def main(argv=None, early_signals=()):
     drive_tools.cli.entry), so that the command stops at once as interrupted."""
     args = build_parser().parse_args(argv)
     show_warnings_in_one_line("drive")
+    forget_reasons()
     try:
         with interrupt.handled():
             if early_signals:
@@ -56,6 +59,8 @@ def main(argv=None, early_signals=()):
             code = args.func(args)
             if interrupt.requested() and code < EXIT_SIGNAL_BASE:
                 raise Interrupted(interrupt.requested())
+            if code and not reasons_said():
+                say_reason(fallback_reason(args.command, code))
             return code
     except DriveError as error:
         text = " ".join(f"{error}{_remedy(error, args)}".split())

@@ -11,18 +11,12 @@ from drive_common.config.drive_config import MAX_BLOCK_SAMPLES, SAMPLING_PERIOD
 from drive_common.config.experiment import MAX_SAMPLES
 from drive_common.config.scenario import load_scenario
 from drive_common.contract.errors import DriveError
-from drive_common.contract.exit_codes import (
-    EXIT_NODE_FAULTS,
-    EXIT_NOT_FOLLOWING,
-    EXIT_NOT_TRACKING,
-    EXIT_RECORDING_FAILED,
-    EXIT_REFUSED,
-    EXIT_SIGNAL_BASE,
-    EXIT_TRIPPED,
-)
+from drive_common.contract.exit_codes import EXIT_REFUSED
 from drive_common.contract.strict_json import dumps
 from drive_common.runtime.realtime import ROBOT_RT_PRIORITY
 from hf_estimator.registry import estimator_names, known_estimator
+
+from .outcome import exit_code as exit_code  # the commands share it from here
 
 MOTOR_HELP = ("the motor in place of the scenario's: a shipped motor's name or a motor file "
               "(`drive motor template` writes one)")
@@ -73,46 +67,6 @@ def print_report(report, args, lines):
         print_json(report)
     else:
         print("\n".join(lines(report)))
-
-
-def exit_code(interrupted=0, node_faults=None, output_error=None, not_tracking=False, not_following=False,
-              tripped=False):
-    """128 + the signal that stopped the run, else the worst of drive_common.contract.exit_codes (an output, bag
-    or plot, not written in full; the drive tripped by its protections; the drive not tracking at the end;
-    the shaft not following its command; a node fault), else 0."""
-    if interrupted:
-        return EXIT_SIGNAL_BASE + interrupted
-    if output_error:
-        return EXIT_RECORDING_FAILED
-    if tripped:
-        return EXIT_TRIPPED
-    if not_tracking:
-        return EXIT_NOT_TRACKING
-    if not_following:
-        return EXIT_NOT_FOLLOWING
-    return EXIT_NODE_FAULTS if node_faults else 0
-
-
-def tripped(metrics):
-    """Whether the drive's protections tripped it during the run (its report's ``protection``)."""
-    return bool((metrics.get("protection") or {}).get("trip"))
-
-
-def not_tracking(result):
-    """The estimator refused to start, or the run ended holding zero torque after a lost lock (the log's
-    last state; the estimator's own account). A run shorter than the start-up is not a failure."""
-    from drive_common.contract.log import COLUMN
-    states = result.log[:, COLUMN["state"]]
-    if not states.size:
-        return False
-    return bool((result.startup or {}).get("refused")) or states[-1] == 4.0
-
-
-def output_failed(error):
-    """Say on stderr, in one line, that an output could not be written; return the error."""
-    if error:
-        print(f"drive: {' '.join(error.split())}", file=sys.stderr)
-    return error
 
 
 def os_error_line(error):
@@ -268,7 +222,7 @@ def warn_if_nameplate_only(source, motor, scenario_name):
     from drive_common.motor.commissioning import NAMEPLATE_ONLY, default_commissioning_file
 
     if source == NAMEPLATE_ONLY:
-        print(f"drive: no {default_commissioning_file(motor)} here and none named: the drive ran on "
+        print(f"drive: warning: no {default_commissioning_file(motor)} here and none named: the drive ran on "
               f"its nameplate alone (`drive commission {scenario_name}` measures the motor)", file=sys.stderr)
 
 

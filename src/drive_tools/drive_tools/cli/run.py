@@ -25,19 +25,16 @@ from .options import (
     block_sizes,
     duration_arg,
     estimator_arg,
-    exit_code,
     finite_float,
     motor_reference,
-    not_tracking,
     os_error_line,
-    output_failed,
     print_json,
     record_arg,
     robot_real_time,
     scenario_arg,
-    tripped,
     warn_if_nameplate_only,
 )
+from .outcome import node_fault_line, not_following, not_tracking, outcome, output_failed, say_reason, tripped
 
 
 def cmd_run(args):
@@ -62,16 +59,18 @@ def cmd_run(args):
             recording_error = f"{args.record}: writing interrupted; the bag is closed as far as written"
         if recording_error:
             extra["recording_error"] = recording_error
-    plot_error, metrics = _report(result, args, extra)
-    if recording_error:
-        output_failed(recording_error)
-    return exit_code(interrupted, output_error=recording_error or plot_error, not_tracking=not_tracking(result),
-                      not_following=bool(metrics["supervision"]), tripped=tripped(metrics))
+
+    def judge(metrics):
+        return outcome(interrupted, output_error=output_failed(recording_error, metrics.get("plot_error")),
+                       not_tracking=not_tracking(result, metrics), not_following=not_following(metrics),
+                       tripped=tripped(metrics))
+    return _report(result, args, extra, judge)
 
 
-def _report(result, args, extra):
-    """Print a run's report (drive run, launch, bridge) or its JSON, write its plot unless --no-plot;
-    returns (why the plot could not be written, or None; the metrics, printed either way)."""
+def _report(result, args, extra, judge):
+    """Print a run's report (drive run, launch, bridge) or its JSON, its plot written unless --no-plot, with
+    its ``outcome`` (exit code and reason) from ``judge(metrics)`` (options.outcome); the reason of a non-zero
+    exit said on stderr after it. Returns the exit code."""
     from drive_common.motor.commissioning import NAMEPLATE_ONLY
     from drive_tools.evaluation.plots import plot_run
     from drive_tools.evaluation.run_report import run_lines, run_report
@@ -87,11 +86,15 @@ def _report(result, args, extra):
             metrics["plots"] = [str(plot_run(result, out_dir, args.command))]
         except OSError as error:
             metrics["plot_error"] = os_error_line(error)
+    code, reason = judge(metrics)
+    metrics["outcome"] = {"exit_code": code, "reason": reason}
     if args.json:
         print_json(metrics)
     else:
         print("\n".join(run_lines(metrics, extra)))
-    return output_failed(metrics.get("plot_error")), metrics
+    if code:
+        say_reason(reason)
+    return code
 
 
 def cmd_launch(args):
@@ -144,13 +147,15 @@ def cmd_launch(args):
     lost = missing_samples_line(result.missing_samples)
     if lost:
         extra["missing_samples"] = result.missing_samples
-    plot_error, metrics = _report(result, args, extra)
-    if result.recording_error:
-        output_failed(result.recording_error)
-    output_failed(lost)
+        if faults:
+            print(f"drive: warning: {lost}", file=sys.stderr)
     lost_on_the_way = lost if not faults else None
-    return exit_code(result.interrupted, faults, result.recording_error or lost_on_the_way or plot_error,
-                      not_following=bool(metrics["supervision"]))
+
+    def judge(metrics):
+        return outcome(result.interrupted, node_fault_line(faults),
+                       output_failed(result.recording_error, lost_on_the_way, metrics.get("plot_error")),
+                       not_tracking=not_tracking(result, metrics), not_following=not_following(metrics))
+    return _report(result, args, extra, judge)
 
 
 def cmd_bridge(args):
@@ -168,9 +173,12 @@ def cmd_bridge(args):
              "samples_per_s": round(result.log.shape[0] / result.wall_time_s) if result.wall_time_s > 0 else None,
              "bridge": result.counters, "frame_errors": result.frame_errors,
              "inverter": result.inverter_counters, "timing": result.timing, "interrupted": bool(result.interrupted)}
-    plot_error, metrics = _report(result, args, extra)
-    return exit_code(result.interrupted, output_error=plot_error, not_following=bool(metrics["supervision"]),
-                     tripped=tripped(metrics))
+
+    def judge(metrics):
+        return outcome(result.interrupted, output_error=metrics.get("plot_error"),
+                       not_tracking=not_tracking(result, metrics), not_following=not_following(metrics),
+                       tripped=tripped(metrics))
+    return _report(result, args, extra, judge)
 
 
 def cmd_scenarios(args):

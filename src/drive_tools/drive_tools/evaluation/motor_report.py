@@ -60,28 +60,64 @@ MOTOR_LOOP_ROWS = (("rated-torque acceleration", "acceleration_e_rad_s2", "rad/s
                    ("speed loop bandwidth", "speed_bandwidth_rad_s", "rad/s"))
 
 
-def motor_report(motor, T_s):
+def motor_report(motor, T_s, scenario=None):
     """A motor (drive_common.motor.motor_file.Motor): its nameplate, inverter and the loops scaled to it at the
-    sampling period T_s [s] (drive_common.motor.scaled_loops)."""
+    sampling period T_s [s] (drive_common.motor.scaled_loops); with a ``scenario`` (its motor this one), what
+    `drive run` of it uses instead (drive_loops)."""
     from drive_common.motor.scaled_loops import scaled_loops
 
     loops = scaled_loops(motor.nameplate, motor.inverter, T_s)
     report = {"name": motor.name, "file": motor.source, "description": motor.description,
               "nameplate": motor.nameplate._asdict(), "inverter": motor.inverter._asdict(),
-              "simulated_plant": bool(motor.plant), "sample_period_s": T_s, "loops": loops._asdict()}
+              "simulated_plant": bool(motor.plant), "sample_period_s": T_s, "loops": loops._asdict(),
+              "run": drive_loops(scenario) if scenario is not None else None}
     report["loops"]["notes"] = list(loops.notes)
     return report
+
+
+def drive_loops(scenario):
+    """What a run of ``scenario`` uses, built as drive_tools.runner.runner.build_drive builds it (the same
+    commissioning, estimator and controller builders): {scenario, sample_period_s, commissioning, the
+    estimator's facts (carrier, amplitude, tracking bandwidth and current, note), current_limit_A, the speed
+    loop's kp and ki}."""
+    from drive_tools.runner.runner import scenario_commissioning
+    from foc_controller.build import controller_for_scenario
+    from hf_estimator.build import estimator_for_scenario
+
+    commissioning = scenario_commissioning(scenario)
+    estimator = estimator_for_scenario(scenario, commissioning)
+    controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz, estimator.tracking_bandwidth_Hz,
+                                         estimator.tracking_current_limit_A, commissioning)
+    return {"scenario": scenario.name, "sample_period_s": scenario.T_s, "commissioning": commissioning.source,
+            **estimator.facts(), "current_limit_A": controller.i_max_A, "speed_kp": controller.kp_speed,
+            "speed_ki": controller.ki_speed}
+
+
+RUN_ROWS = (("injection frequency", "injection_frequency_Hz", "Hz"),
+            ("injection amplitude", "injection_amplitude_V", "V"),
+            ("tracking bandwidth", "tracking_bandwidth_Hz", "Hz"), ("current limit", "current_limit_A", "A"),
+            ("speed loop kp", "speed_kp", "A·s/rad"), ("speed loop ki", "speed_ki", "A/rad"))
+"""What motor_lines prints of drive_loops: label, key, unit."""
 
 
 def motor_lines(report):
     lines = [f"{report['name']}: {report['description'] or report['file']} ({report['file']})"]
     lines += [f"  {key:34s} {cell(value)}" for key, value in {**report["nameplate"], **report["inverter"]}.items()
               if key != "name"]
-    lines.append(f"  loops scaled to it at {1.0 / report['sample_period_s']:g} Hz sampling "
-                 f"(docs/motors-and-control.md):")
-    loops = report["loops"]
-    lines += [f"  {label:34s} {loops[key]:.4g} {unit}" for label, key, unit in MOTOR_LOOP_ROWS]
-    lines += [f"  note: {note}" for note in loops["notes"]]
+    run = report.get("run")
+    if run:
+        lines.append(f"  what `drive run {run['scenario']} --motor {report['file']}` uses "
+                     f"({1.0 / run['sample_period_s']:g} Hz sampling, {run['estimator']}, commissioning: "
+                     f"{run['commissioning']}):")
+        lines += [f"  {label:34s} {cell(run[key])} {unit}" for label, key, unit in RUN_ROWS if run[key] is not None]
+        lines += [f"  note: {note}" for note in (run["injection_note"] or "").split("; ") if note]
+    else:
+        lines.append(f"  loops scaled to it at {1.0 / report['sample_period_s']:g} Hz sampling: what ours runs where "
+                     f"a scenario sets no carrier or loop of its own (docs/motors-and-control.md; the paper scenarios "
+                     f"set their paper's: `--scenario S` prints what `drive run S --motor` uses):")
+        loops = report["loops"]
+        lines += [f"  {label:34s} {loops[key]:.4g} {unit}" for label, key, unit in MOTOR_LOOP_ROWS]
+        lines += [f"  note: {note}" for note in loops["notes"]]
     plant = "given (plant:)" if report["simulated_plant"] else "none: the nameplate is the plant"
     lines.append(f"  simulated plant: {plant}")
     return lines
@@ -116,8 +152,9 @@ def commissioning_report(written, run, record, rated_A, rotating=None, loaded=No
                                                            record.convergence_slope)
     identified["tracking_current_limit_A"] = record.tracking_current_limit_A()
     conditions, procedure = written.conditions, run.procedure
-    report = {"file": str(written.out), "motor": written.motor_name, "method": written.method, "host": run.host,
-              "duration_s": conditions["duration_s"], "wall_time_s": run.wall_time_s,
+    report = {"file": str(written.out), "written": str(written.out), "tests_completed": conditions["tests_completed"],
+              "refused": None, "motor": written.motor_name, "method": written.method, "host": run.host,
+              "duration_s": conditions["duration_s"], "wall_time_s": run.wall_time_s, "scaled": conditions["scaled"],
               "polarity": conditions["polarity"], "saliency": conditions["saliency"],
               "current_limit_A": procedure.limit_A, "peak_measured_current_A": float(np.max(np.abs(procedure.raw))),
               "identified": identified}
@@ -136,12 +173,31 @@ def commissioning_report(written, run, record, rated_A, rotating=None, loaded=No
     return report
 
 
+def refused_report(motor_name, test, reason):
+    """What ``drive commission`` reports where its ``test`` refused before anything was written."""
+    return {"file": None, "written": None, "tests_completed": [], "motor": motor_name,
+            "refused": {"test": test, "reason": reason}}
+
+
+def refusal_lines(report):
+    """What was written and what was refused, as text lines (empty where nothing was refused)."""
+    refused = report.get("refused")
+    if not refused:
+        return []
+    written = (f"written: {report['written']} (the {', '.join(report['tests_completed'])} test(s) only)"
+               if report.get("written") else "nothing written")
+    return [f"  REFUSED: the {refused['test']} test: {refused['reason']}", f"  {written}"]
+
+
 def commissioning_lines(report):
     truth = report.get("truth")
+    if report.get("written") is None:
+        return [f"{report['motor']}: commissioning refused"] + refusal_lines(report)
     lines = [f"{report['file']}: {report['motor']} commissioned at standstill, shaft held ({report['host']}), "
              f"{report['duration_s']:.2f} s of motor time in {report['wall_time_s']:.2f} s"
              + (", then turning (the rotating test: ψ_f, J)" if report.get("rotating_test") else ""),
              f"  polarity: {report['polarity']}"]
+    lines += [f"  scaled to the bus: {note}" for note in report.get("scaled", [])]
     if report["saliency"] != "measured":
         lines.append(f"  saliency: {report['saliency']}")
     lines.append(f"  {'':30s} {'identified':>12s}" + (f" {'truth':>12s} {'error':>9s}" if truth else ""))
@@ -164,4 +220,4 @@ def commissioning_lines(report):
         for hold in loaded["holds"]:
             lines.append(f"  {hold['i_q_A']:12.3f} {hold['moved_rad']:+15.4f} {hold['correction_rad']:+11.4f} "
                          f"{hold['true_error_rad']:+11.4f}")
-    return lines
+    return lines + refusal_lines(report)

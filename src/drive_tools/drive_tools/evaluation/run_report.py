@@ -2,6 +2,7 @@
 injected, warned of and supervised; and the report as text lines."""
 import math
 
+from drive_common.contract.exit_codes import EXIT_NOT_FOLLOWING, EXIT_NOT_TRACKING, EXIT_SIGNAL_BASE, EXIT_TRIPPED
 from foc_controller.supervision import fault_line
 
 from .metrics import compute_metrics, configuration_warnings, supervision_faults
@@ -20,7 +21,8 @@ RUN_ROWS = (("angle error RMS (steady)", "angle_error_rms", "rad"),
 
 def run_report(result):
     """The metrics of a run (drive_tools.runner.runner.RunResult or one like it) with ``commissioning`` (its
-    source), ``motor_knowledge``, ``injection`` (when the estimator injects), ``warnings`` and
+    source), ``motor_knowledge``, ``injection`` (when the estimator injects), ``loops`` (what it ran with, as
+    `drive motor show --scenario` prints it), ``warnings`` and
     ``supervision`` (the speed supervisor's faults) and ``protection`` (what the drive's protections did,
     where the run composed them: foc_controller.protection.protection_summary)."""
     from drive_common.motor.knowledge import motor_knowledge
@@ -34,11 +36,48 @@ def run_report(result):
     if facts.get("injection_amplitude_V") is not None:
         metrics["injection"] = {"frequency_Hz": facts["injection_frequency_Hz"],
                                 "amplitude_V": facts["injection_amplitude_V"], "note": facts["injection_note"]}
+    if (metrics.get("startup") or {}).get("refused"):
+        metrics["startup"]["refused"] = refusal_cause(metrics["startup"], result)
+    metrics["loops"] = {"sample_period_s": result.scenario.T_s, "current_limit_A": result.current_limit_A,
+                        **{key: facts.get(key) for key in ("injection_frequency_Hz", "injection_amplitude_V",
+                                                           "tracking_bandwidth_Hz")}}
     metrics["warnings"] = configuration_warnings(result)
     metrics["supervision"] = supervision_faults(result)
     if getattr(result, "protection", None) is not None:
         metrics["protection"] = result.protection
     return metrics
+
+
+def refusal_cause(startup, result):
+    """The start-up's refusal (``startup["refused"]``, hf_estimator.startup.REFUSALS) with the cause the drive
+    measured and its figure: the commissioned saliency where no angle signal was seen, the pulses' asymmetry
+    where no polarity was told."""
+    from drive_common.motor.commissioning import MIN_SALIENCY_RATIO, NAMEPLATE_ONLY
+    from hf_estimator.startup import DEFAULTS, REFUSALS
+    from hf_estimator.startup_state import NO_POLARITY, NO_SALIENCY
+
+    refused, record = startup["refused"], result.commissioning
+    settings = {**DEFAULTS, **(result.scenario.estimator_settings or {})}
+    if refused == REFUSALS[NO_SALIENCY]:
+        timeout = f"{1e3 * settings['align_timeout_s']:g} ms"
+        if record is None or record.source == NAMEPLATE_ONLY:
+            plate = result.scenario.motor.nameplate
+            return (f"no angle signal while aligning ({timeout}): the estimator never found it observable; the motor "
+                    f"is not commissioned (nameplate L_q/L_d = {plate.L_q_H / plate.L_d_H:.3g}): `drive commission` "
+                    f"measures its saliency")
+        ratio = abs(record.delta / record.sigma)
+        if ratio < MIN_SALIENCY_RATIO:
+            return (f"no saliency: commissioning measured |Δ|/Σ = {ratio:.3g} < {MIN_SALIENCY_RATIO:g}, a round rotor "
+                    f"to HF injection: its angle cannot be told")
+        return (f"no angle signal while aligning ({timeout}): the estimator never found it observable although "
+                f"commissioning measured |Δ|/Σ = {ratio:.3g}: the signal at this carrier and amplitude is lost in the "
+                f"current sensors' noise")
+    if refused == REFUSALS[NO_POLARITY]:
+        ratio = result.startup["polarity_ratio"]
+        return (f"the polarity pulses found no saturation asymmetry: ratio {ratio:+.3g} within the margin "
+                f"±{settings['polarity_margin']:g} after {settings['polarity_tries']} tries: the magnet's polarity "
+                f"cannot be told")
+    return refused
 
 
 def run_lines(metrics, extra):
@@ -78,12 +117,32 @@ def run_lines(metrics, extra):
     if metrics["lock_lost"]:
         lock += f"; the estimator reported {metrics['lock_lost']} lost lock(s)"
     lines.append(f"  {'lock':36s} {lock}")
-    lines.append(f"  {'speed supervision':36s} "
-                 f"{'; '.join(fault_line(f) for f in metrics['supervision']) or 'the shaft followed its command'}")
+    lines.append(f"  {'speed supervision':36s} {supervision_line(metrics)}")
     if "protection" in metrics:
         lines.append(f"  {'protections':36s} {protection_line(metrics['protection'])}")
     lines += [f"  plot: {path}" for path in metrics.get("plots", [])]
+    if "outcome" in metrics:
+        lines.append(f"  {'outcome':36s} {outcome_line(metrics['outcome'])}")
     return lines
+
+
+def supervision_line(metrics):
+    """The speed supervision in one line: its faults; else that the shaft followed its command only where the
+    run ended with the drive tracking and holding torque (its ``outcome``), else why it was not judged."""
+    faults = metrics["supervision"]
+    if faults:
+        return "; ".join(fault_line(f) for f in faults)
+    code = (metrics.get("outcome") or {}).get("exit_code", 0)
+    if code in (EXIT_NOT_TRACKING, EXIT_NOT_FOLLOWING, EXIT_TRIPPED) or code >= EXIT_SIGNAL_BASE:
+        return "no fault found before the drive stopped driving the shaft (see the outcome)"
+    return "the shaft followed its command"
+
+
+def outcome_line(outcome):
+    """The run's exit code and why, in one line."""
+    if not outcome["exit_code"]:
+        return "exit 0: done"
+    return f"exit {outcome['exit_code']}: {outcome['reason']}"
 
 
 def protection_line(protection):

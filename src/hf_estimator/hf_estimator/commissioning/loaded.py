@@ -81,15 +81,23 @@ def loaded_shift(log, commissioning):
     tracking = log[t >= START_S, COLUMN["state"]] == TRACKING
     if not tracking.all():
         lost = 100.0 * (1.0 - tracking.mean())
-        raise LoadedTestError(f"the loaded test: ours stopped tracking for {lost:.0f} % of the test (the load beyond "
-                              f"what it can hold?): its loaded error not measured")
+        first = int(np.argmax((t >= START_S) & (log[:, COLUMN["state"]] != TRACKING)))
+        i_q = float(log[first, COLUMN["i_q"]])
+        limit = commissioning.tracking_current_limit_A()
+        where = (f"first at {t[first]:.3f} s at i_q {i_q:+.3g} A, "
+                 + (f"beyond the {limit:.3g} A up to which the commissioned saliency holds (a load beyond what it "
+                    f"tracks)" if abs(i_q) > limit else f"within the {limit:.3g} A up to which the commissioned "
+                                                         f"saliency holds: not the load; ours' loops lost the angle"))
+        raise LoadedTestError(f"the loaded test: ours stopped tracking for {lost:.0f} % of the test ({where}): its "
+                              f"loaded error not measured")
     angle = np.unwrap(log[:, COLUMN["theta_e_hat"]])
     means = _hold_means(t, angle, log[:, COLUMN["i_q"]])
     zero = [m for (m, _), level in zip(means, LEVELS) if level == 0.0]
     spread = float(max(zero) - min(zero))
     if spread > ZERO_SPREAD_RAD:
-        raise LoadedTestError(f"the loaded test: θ̂ at zero current moved by {spread:.3g} rad between holds (the "
-                              f"shaft turned: is it held?): its loaded error not measured")
+        raise LoadedTestError(f"the loaded test: θ̂ at zero current moved by {spread:.3g} rad between holds, more than "
+                              f"{ZERO_SPREAD_RAD:g} rad (the shaft turned, not held by its brake, or ours drifted "
+                              f"at zero current): its loaded error not measured")
     reference = float(np.mean(zero))
     currents = commissioning.saliency_shift_i_q_A
     held = [(i_q, m - reference) for (m, i_q), level in zip(means, LEVELS) if level != 0.0]

@@ -3,8 +3,8 @@ place. For sample k it takes `currents`(k) and answers `voltage_command`(k) unti
 the plant (or the drive_bridge node with a real inverter) must run with the shaft held (its parameter
 ``shaft_held``; a real robot: the brake engaged) for ``duration_s`` = the procedure's length
 (``procedure.procedure_for_scenario(...).total_samples``). At the end it writes the record to the
-parameter ``out`` (when given) and says ``run_complete`` on /diagnostics. Bad currents abort the
-procedure: zero voltage from then on.
+parameter ``out`` (when given) and says ``run_complete`` on /diagnostics. Bad currents, or a test current the
+bus does not drive (procedure.CommissioningError), abort the procedure: zero voltage from then on.
 """
 import sys
 
@@ -15,7 +15,7 @@ from drive_common.contract.topics import CURRENTS, TOPICS, VOLTAGE_COMMAND
 from drive_common.motor.commissioning import save_commissioning
 from drive_common.ros.node import DriveNode, finite, run_node, stamp, topic_qos
 
-from .procedure import METHOD, procedure_for_scenario
+from .procedure import METHOD, CommissioningError, procedure_for_scenario
 
 
 class CommissioningNode(DriveNode):
@@ -67,7 +67,10 @@ class CommissioningNode(DriveNode):
             self.abort(f"currents at sample {k}: ({v.x}, {v.y}, {v.z}) A are not finite or beyond the "
                        f"{self.trip_A:g} A trip; commissioning aborted, zero voltage", "bad_input")
         else:
-            u_alpha, u_beta = p.step(self.k, v.x, v.y, v.z)
+            try:
+                u_alpha, u_beta = p.step(self.k, v.x, v.y, v.z)
+            except CommissioningError as error:
+                self.abort(f"{error}; zero voltage", "refused")
             if p.done:
                 self.finish()
         m = self.voltage_msg

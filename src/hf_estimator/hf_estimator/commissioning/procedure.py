@@ -9,17 +9,25 @@ Segments, in order, each a fixed number of samples (so a host knows the length b
 3. HF rotating voltage at zero current: Γ, the saliency axis (mod π), L_dh and L_qh;
 4. ± current with HF along both axes of Γ: the d axis and the magnet's polarity from the saturation
    asymmetry of the inductance (the magnet's axis saturates; L_dh > L_qh is then recognised too);
-5. a grid of q currents up to the current limit, each at i_d = −Δ, 0, +Δ, with HF: the saliency-axis
-   shift δ(i_q) and the convergence slope F(i_q) = 1 + i_q·∂δ/∂i_d from one smooth surface fitted
-   to all the points (identification.saliency_surface: the weak saliency of an SPMSM makes each
-   point's angle noisy);
+5. a grid of q currents up to the current limit (or the largest the bus drives), each at i_d = −Δ, 0, +Δ,
+   with HF: the saliency-axis shift δ(i_q) and the convergence slope F(i_q) = 1 + i_q·∂δ/∂i_d from one
+   smooth surface fitted to all the points (identification.saliency_surface: the weak saliency of an SPMSM
+   makes each point's angle noisy);
 6. zero voltage.
+
+Every test current is checked against the bus before it is applied (the voltage it needs in steady state,
+R_s·I plus the HF amplitude and the dead-time voltage, within BUS_HEADROOM of the modulation limit U_dc/√3:
+the nameplate's R_s before the DC points, the measured one after) and after (each segment's mean current
+within REACHED_SHARE of its reference): a DC point the bus cannot drive is refused (CommissioningError),
+before any current where the nameplate predicts it; the polarity current and the table's top are scaled
+down to what the bus drives, and ``conditions()["scaled"]`` says so.
 """
 import math
 from typing import NamedTuple
 
 import numpy as np
 
+from drive_common.contract.errors import DriveError
 from drive_common.contract.settings import number
 from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from drive_common.math.frames import SQRT3, clarke
@@ -52,6 +60,20 @@ RAMP_SAMPLES = 40
 """A reference change is ramped over this many samples (no overshoot past the current limit)."""
 TABLE_POINTS = 65
 """The record's tables sample the fitted surface on this many currents (the drive interpolates them)."""
+BUS_HEADROOM = 0.95
+"""A test current is reachable where the steady voltage it needs stays within this share of the modulation
+limit U_dc/√3 (the rest: the current loop's headroom for noise and its integrator)."""
+MIN_HF_SHARE = 0.25
+"""The HF carrier's amplitude is lowered where the bus leaves it too little room beside the rated current's
+R_s·I (its current ripple, and so the admittance's signal, shrinks with it), down to this share of its own."""
+MIN_POLARITY_SHARE = 0.5
+"""The polarity test runs at rated current, or at what the bus drives down to this share of it (the saturation
+asymmetry it measures shrinks with the current); below, commissioning is refused."""
+REACHED_SHARE = 0.95
+"""A segment's mean current must reach this share of its reference where the voltage stood at BUS_HEADROOM of its
+limit or more; less: the bus could not drive it."""
+DEAD_TIME_AB = 4.0 / 3.0
+"""The dead-time voltage per phase seen in αβ at most (amplitude-invariant Clarke)."""
 
 
 class Segment(NamedTuple):
@@ -63,8 +85,15 @@ class Segment(NamedTuple):
     measure: int
 
 
-class CommissioningError(ValueError):
+class CommissioningError(DriveError):
     """The motor or the settings do not allow commissioning; the message says why."""
+
+
+def reachable_current_A(R_s_ohm, u_max_V, injection_amplitude_V=0.0, dead_time_V=0.0):
+    """The largest DC current [A] a current loop holds with the voltage vector limited to ``u_max_V``
+    (U_dc/√3): BUS_HEADROOM·u_max less the HF amplitude and the dead-time voltage in αβ, through R_s."""
+    room = BUS_HEADROOM * u_max_V - injection_amplitude_V - DEAD_TIME_AB * max(dead_time_V, 0.0)
+    return math.inf if R_s_ohm <= 0.0 else max(room, 0.0) / R_s_ohm
 
 
 def check_settings(settings, T_s):
@@ -100,12 +129,22 @@ class CommissioningProcedure:
         self.N = int(round(1.0 / (s["injection_frequency_Hz"] * T_s)))
         L_mean = 0.5 * (nameplate.L_d_H + nameplate.L_q_H)
         omega_h = 2.0 * math.pi / (self.N * T_s)
-        self.injection_amplitude_V = s["hf_current_fraction"] * nameplate.rated_current_A * omega_h * L_mean
+        nominal_V = s["hf_current_fraction"] * nameplate.rated_current_A * omega_h * L_mean
         w = 2.0 * math.pi * s["current_bandwidth_Hz"]
         self.kp, self.ki = w * L_mean, w * nameplate.R_s_ohm * T_s
         self.u_max = rating.U_dc_V / SQRT3
         self.delay = rating.delay_periods
         self.limit_A = nameplate.current_limit_A
+        self.U_dc_V = rating.U_dc_V
+        self.scaled = []
+        self.R = nameplate.R_s_ohm
+        room_V = BUS_HEADROOM * self.u_max - nameplate.R_s_ohm * nameplate.rated_current_A
+        self.injection_amplitude_V = max(min(nominal_V, room_V), MIN_HF_SHARE * nominal_V)
+        if self.injection_amplitude_V < nominal_V:
+            self.scaled.append(f"HF carrier {self.injection_amplitude_V:.3g} V, not {nominal_V:.3g} V: the "
+                               f"{rating.U_dc_V:g} V bus leaves no more beside rated current through R_s")
+        self._check_bus("DC", max(s["dc_levels"]) * nameplate.rated_current_A,
+                        reachable_current_A(nameplate.R_s_ohm, self.u_max), "the nameplate's", "before any current")
         self.total_samples = sum(sum(SAMPLES[kind]) * count for kind, count in self._segment_counts())
         n = self.total_samples
         self.raw = np.zeros((n, 3))
@@ -114,7 +153,6 @@ class CommissioningProcedure:
         self.offsets = np.zeros(3)
         self.noise = 0.0
         self.gains = np.ones(3)
-        self.R = nameplate.R_s_ohm
         self.V_dt = 0.0
         self.integral = np.zeros(2)
         self.reference = np.zeros(2)
@@ -123,6 +161,31 @@ class CommissioningProcedure:
         self.segment_start = 0
         self.done = False
         self.record = None
+
+    def _check_bus(self, test, wanted_A, reachable_A, which, when):
+        """CommissioningError before the ``test`` current ``wanted_A`` is applied where the bus cannot drive
+        it (``reachable_A`` through ``which`` R_s); ``when``: the refusal's moment, in words."""
+        if wanted_A > reachable_A:
+            needed = f"a bus of about {self.U_dc_V * wanted_A / reachable_A:.3g} V drives it" if reachable_A > 0.0 \
+                else "the HF carrier alone takes the whole voltage"
+            raise CommissioningError(
+                f"commissioning refused {when}: the {self.U_dc_V:g} V bus cannot drive the {test} test current: "
+                f"{wanted_A:.3g} A wanted, at most {reachable_A:.3g} A reachable (through {which} R_s {self.R:.3g} Ω "
+                f"within U_dc/√3 = {self.u_max:.3g} V); {needed}; nothing written")
+
+    def _check_reached(self, window, i_ref_ab, test):
+        """CommissioningError where a segment's mean current fell short of its reference ``i_ref_ab`` with the
+        voltage at the modulation limit: the bus could not drive it."""
+        wanted = math.hypot(*i_ref_ab)
+        reached = float(np.hypot(*_alpha_beta(self.corrected(window["raw"])).mean(axis=0)))
+        issued = float(np.mean(np.hypot(*window["issued"].T)))
+        if wanted <= 0.0 or reached >= REACHED_SHARE * wanted or issued < BUS_HEADROOM * self.u_max:
+            return
+        raise CommissioningError(
+            f"commissioning refused: the {self.U_dc_V:g} V bus did not drive the {test} test current: {wanted:.3g} A "
+            f"wanted, {reached:.3g} A reached (the voltage at the modulation limit U_dc/√3 = {self.u_max:.3g} V: the "
+            f"winding takes {issued / max(reached, 1e-9):.3g} Ω there against the nameplate's R_s "
+            f"{self.plate.R_s_ohm:.3g} Ω); nothing written")
 
     def _segment_counts(self):
         s = self.settings
@@ -144,7 +207,9 @@ class CommissioningProcedure:
             for j in range(6):
                 angle = j * math.pi / 3.0
                 current = level * plate.rated_current_A
-                window = yield self._segment("dc", (current * math.cos(angle), current * math.sin(angle)))
+                reference = (current * math.cos(angle), current * math.sin(angle))
+                window = yield self._segment("dc", reference)
+                self._check_reached(window, reference, "DC")
                 dc.append((window["raw"].mean(axis=0) - self.offsets, window["issued"].mean(axis=0)))
         readings = np.array([r for r, _ in dc])
         self.gains = relative_gains(readings)
@@ -155,13 +220,21 @@ class CommissioningProcedure:
         low_axis, _, _ = saliency_axis(gamma0)
         current = _alpha_beta(window["phase"])
         ripple = float(np.max(np.hypot(*(current - current.mean(axis=0)).T)))
+        reachable = reachable_current_A(self.R, self.u_max, self.injection_amplitude_V, self.V_dt)
         i_p = plate.rated_current_A
+        if reachable < i_p:
+            if reachable < MIN_POLARITY_SHARE * i_p:
+                self._check_bus("polarity", i_p, reachable, "the measured", "after the DC points")
+            self.scaled.append(f"polarity test at {reachable:.3g} A, not the rated {i_p:.3g} A: the {self.U_dc_V:g} V "
+                               f"bus drives no more with the HF carrier through R_s {self.R:.3g} Ω")
+            i_p = reachable
         asymmetries = []
         for axis in (low_axis, low_axis + 0.5 * math.pi):
             inductance = []
             for sign in (1.0, -1.0):
-                window = yield self._segment("polarity", (sign * i_p * math.cos(axis), sign * i_p * math.sin(axis)),
-                                             hf=True)
+                reference = (sign * i_p * math.cos(axis), sign * i_p * math.sin(axis))
+                window = yield self._segment("polarity", reference, hf=True)
+                self._check_reached(window, reference, "polarity")
                 inductance.append(1.0 / in_frame(self._admittance(window), axis)[0])
             asymmetries.append((inductance[1] - inductance[0]) / (0.5 * (inductance[0] + inductance[1])))
         j = int(np.argmax(np.abs(asymmetries)))
@@ -178,6 +251,10 @@ class CommissioningProcedure:
         self.saliency_ratio = (g_dd - g_qq) / (g_dd + g_qq)
         saliency_sign = 1.0 if g_dd >= g_qq else -1.0
         top = s["limit_margin"] * self.limit_A - ripple
+        if reachable < top:
+            self.scaled.append(f"tables up to {reachable:.3g} A, not {top:.3g} A (the current limit's): the "
+                               f"{self.U_dc_V:g} V bus drives no more with the HF carrier through R_s {self.R:.3g} Ω")
+            top = reachable
         sweep = s["d_sweep_fraction"] * plate.rated_current_A
         i_q_top = math.sqrt(max(top * top - sweep * sweep, 0.0))
         grid = np.linspace(-i_q_top, i_q_top, s["q_points"])
@@ -186,7 +263,9 @@ class CommissioningProcedure:
         c, sn = math.cos(d_axis), math.sin(d_axis)
         for j, i_q in enumerate(grid):
             for m, i_d in enumerate((-sweep, 0.0, sweep)):
-                window = yield self._segment("table", (c * i_d - sn * i_q, sn * i_d + c * i_q), hf=True)
+                reference = (c * i_d - sn * i_q, sn * i_d + c * i_q)
+                window = yield self._segment("table", reference, hf=True)
+                self._check_reached(window, reference, "saliency table")
                 gamma = self._admittance(window)
                 shifts[j, m] = axis_shift(gamma, d_axis, saliency_sign)
                 if i_d == 0.0:
@@ -281,7 +360,7 @@ class CommissioningProcedure:
                 "current_limit_A": self.limit_A, "peak_planned_A": self.peak_planned_A,
                 "polarity": self.polarity, "polarity_L_dh_asymmetry": self.asymmetry,
                 "saliency_ratio": float(self.saliency_ratio), "saliency": self.saliency,
-                "saliency_fit_residual_rad": float(self.surface_residual)}
+                "saliency_fit_residual_rad": float(self.surface_residual), "scaled": list(self.scaled)}
 
 
 def procedure_for_scenario(scenario, settings=None):

@@ -23,6 +23,7 @@ from drive_common.contract.estimator_states import TRACKING
 from drive_common.contract.log import COLUMN
 from drive_common.math.current_sensing import corrected_currents
 from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
+from drive_common.motor.commissioning import WEAK_SALIENCY_RATIO
 
 SPEEDS_PER_RATED = (0.05, 0.10)
 """The two held speeds, per rated speed: where ours tracks (docs/results.md) and the back-EMF stands
@@ -61,26 +62,61 @@ def assumed_inertia_kgm2(nameplate):
     return nameplate.rated_torque_Nm * ASSUMED_RAMP_S / (nameplate.rated_speed_rpm * math.pi / 30.0)
 
 
-def _check_followed(t, state, omega_m, rated_speed_rad_s):
+AT_LIMIT_SHARE = 0.95
+"""A q current reference at this share of the test's current limit or more counts as at the limit: the speed loop
+asked for all it may (a load or a brake against it)."""
+
+
+def _current_at(i_q_ref, window, limit_A):
+    """(the largest |i_q*| [A] over the samples ``window``, whether it reaches AT_LIMIT_SHARE of ``limit_A``)."""
+    peak = float(np.max(np.abs(i_q_ref[window]))) if window.any() else 0.0
+    return peak, peak >= AT_LIMIT_SHARE * limit_A
+
+
+def _why_lost(t, log, limit_A, saliency_ratio):
+    """The measured cause of ours losing track in the rotating test, with its figure."""
+    state = log[:, COLUMN["state"]]
+    first = int(np.argmax((t >= HOLD_WINDOWS_S[0][0]) & (state != TRACKING)))
+    before = (t >= t[first] - 0.05) & (t <= t[first])
+    peak, at_limit = _current_at(log[:, COLUMN["i_q_ref"]], before, limit_A)
+    where = f"at {t[first]:.3f} s, ω̂ {log[first, COLUMN['omega_e_hat']]:.3g} rad/s el."
+    if at_limit:
+        return f"{where}, the q current at its limit ({peak:.3g} of {limit_A:.3g} A): a load on the shaft"
+    if saliency_ratio < WEAK_SALIENCY_RATIO:
+        return (f"{where}, the q current {peak:.3g} A below its limit: weak saliency (|Δ|/Σ = {saliency_ratio:.3g} "
+                f"< {WEAK_SALIENCY_RATIO:g})")
+    return (f"{where}, the q current {peak:.3g} A below its limit {limit_A:.3g} A and |Δ|/Σ = {saliency_ratio:.3g}: "
+            f"neither a load nor a weak saliency; ours' loops lost the angle (`drive motor show` prints them)")
+
+
+def _check_followed(t, log, omega_m, rated_speed_rad_s, limit_A, saliency_ratio, J_assumed):
     """RotatingTestError unless the estimator tracked from the first hold on and each hold's speed lies
-    within FOLLOW_TOLERANCE of its reference."""
-    tracking = state[t >= HOLD_WINDOWS_S[0][0]] == TRACKING
+    within FOLLOW_TOLERANCE of its reference; its message names the cause measured (the q current against the
+    test's ``limit_A``, the commissioned ``saliency_ratio``, the speed's swing) and its figure."""
+    tracking = log[t >= HOLD_WINDOWS_S[0][0], COLUMN["state"]] == TRACKING
     if not tracking.all():
         lost = 100.0 * (1.0 - tracking.mean())
         raise RotatingTestError(f"the rotating test: the estimator stopped tracking for {lost:.0f} % of the test "
-                                f"(weak saliency, or a load on the shaft?): ψ_f and J not measured")
+                                f"({_why_lost(t, log, limit_A, saliency_ratio)}): ψ_f and J not measured")
     per = max(1, int(round(RIPPLE_AVERAGE_S / (t[1] - t[0]))))
     for (a, b), share in zip(HOLD_WINDOWS_S, SPEEDS_PER_RATED):
-        hold = omega_m[(t >= a) & (t < b)]
+        window = (t >= a) & (t < b)
+        hold = omega_m[window]
         held, wanted = float(np.mean(hold)), share * rated_speed_rad_s
         if abs(held - wanted) > FOLLOW_TOLERANCE * wanted:
+            peak, at_limit = _current_at(log[:, COLUMN["i_q_ref"]], window, limit_A)
+            cause = (f"the q current at its limit ({peak:.3g} of {limit_A:.3g} A): a load or a brake on the shaft"
+                     if at_limit else f"the q current {peak:.3g} A, below its limit {limit_A:.3g} A: the speed loop "
+                                      f"did not settle within the hold")
             raise RotatingTestError(f"the rotating test: the shaft held {held:.3g} rad/s where {wanted:.3g} rad/s "
-                                    f"was asked (a load or a brake on it?): ψ_f and J not measured")
+                                    f"was asked ({cause}): ψ_f and J not measured")
         ripple = float(np.std(hold[:len(hold) // per * per].reshape(-1, per).mean(axis=1)))
         if ripple > RIPPLE_SHARE * wanted:
+            J = ("J assumed (the nameplate gives none): give J_kgm2 roughly" if J_assumed else
+                 "the nameplate's J_kgm2 far from the rotor's?")
             raise RotatingTestError(f"the rotating test: the speed swung by {ripple:.3g} rad/s RMS about "
-                                    f"{wanted:.3g} rad/s (the speed loop hunts: J far from the one assumed? give "
-                                    f"J_kgm2 roughly): ψ_f and J not measured")
+                                    f"{wanted:.3g} rad/s, more than {RIPPLE_SHARE:g} of it (the speed loop hunts; "
+                                    f"{J}): ψ_f and J not measured")
 
 
 def _settled_s(t, omega_m, target):
@@ -106,7 +142,9 @@ def rotating_estimates(log, nameplate, commissioning, T_s, delay_periods):
     t = log[:, COLUMN["t"]]
     n_p = nameplate.n_p
     omega_e = log[:, COLUMN["omega_e_hat"]]
-    _check_followed(t, log[:, COLUMN["state"]], omega_e / n_p, nameplate.rated_speed_rpm * math.pi / 30.0)
+    limit = min(nameplate.current_limit_A, commissioning.tracking_current_limit_A())
+    _check_followed(t, log, omega_e / n_p, nameplate.rated_speed_rpm * math.pi / 30.0, limit,
+                    abs(commissioning.delta / commissioning.sigma), not math.isfinite(nameplate.J_kgm2))
     angle = log[:, COLUMN["theta_e_hat"]] + (delay_periods + 0.5) * omega_e * T_s
     c, s = np.cos(angle), np.sin(angle)
     u_a, u_b = log[:, COLUMN["u_alpha"]], log[:, COLUMN["u_beta"]]
