@@ -463,3 +463,28 @@ def test_sampled_faster_as_the_drive_advises_the_joint_holds_a_rated_load_step(j
     assert "load steps above" not in result.estimator_facts["injection_note"] and not configuration_warnings(result)
     m = compute_metrics(result)
     assert m["angle_error_rms"] <= 0.02 and m["angle_error_peak"] <= 0.15 and not m["lock_lost_s"]
+
+
+def test_a_paper_scenario_on_another_motor_takes_ours_loops_scaled_to_it_and_says_what_each_estimator_used():
+    """`drive run wang_100rpm --motor F`: the scenario's injection is written for its own motor; on another one
+    ours takes the carrier and loops scaled to F (as `drive motor show` says), the papers' estimators keep their
+    paper's carrier, and each says which it used and why. On the scenario's own motor nothing changes."""
+    from drive_common.motor.commissioning import nameplate_commissioning
+    from hf_estimator.build import estimator_for_scenario
+    gimbal = str(Path(__file__).resolve().parent.parent / "docs" / "motors" / "gimbal_20w.yaml")
+    for motor, replaced in ((gimbal, True), ("wang_spmsm", False)):
+        scenario = load_scenario("wang_100rpm", motor_override=motor)
+        assert bool(scenario.written_for) is replaced and scenario.written_for in ("", "wang_spmsm")
+        commissioning = nameplate_commissioning(scenario.motor.nameplate)
+        plate = commissioning.refined(scenario.motor.nameplate)
+        loops = scaled_loops(plate, scenario.motor.inverter, scenario.T_s)
+        ours = estimator_for_scenario(scenario, commissioning)
+        paper = estimator_for_scenario(dataclasses.replace(scenario, estimator="conventional"), commissioning)
+        assert paper.injection_frequency_Hz == pytest.approx(scenario.injection["frequency_Hz"])
+        if replaced:
+            assert ours.injection_frequency_Hz == pytest.approx(loops.injection_frequency_Hz, rel=0.1)
+            assert "is wang_spmsm's; on gimbal_20w ours takes the carrier and loops scaled to it" in ours.injection_note
+            assert "conventional keeps its paper's injection" in paper.injection_note
+        else:
+            assert ours.injection_frequency_Hz == pytest.approx(scenario.injection["frequency_Hz"], rel=0.02)
+            assert "scaled to it" not in ours.injection_note and "paper's injection" not in paper.injection_note

@@ -23,6 +23,15 @@ def scaled_injection(scenario, plate):
         return settings, []
     notes = list(loops.notes) if scenario.estimator in SCALED_TRACKING else []
     injection = dict(scenario.injection)
+    if scenario.written_for and injection:
+        given = ", ".join(f"{key} {value:g}" for key, value in sorted(injection.items()))
+        if scenario.estimator in SCALED_TRACKING:
+            notes.append(f"the scenario's injection ({given}) is {scenario.written_for}'s; on "
+                         f"{scenario.motor.name} ours takes the carrier and loops scaled to it")
+            injection = {}
+        else:
+            notes.append(f"{scenario.estimator} keeps its paper's injection ({given}) and loop on "
+                         f"{scenario.motor.name}: the method as published, written for {scenario.written_for}")
     if scenario.estimator in SCALED_TRACKING:
         injection = {"frequency_Hz": loops.injection_frequency_Hz, "amplitude_V": loops.injection_amplitude_V,
                      **injection}

@@ -78,6 +78,9 @@ class DriveConfig:
     """The drive configuration file the drive's part came from ("": a scenario file itself)."""
     from_drive_file: tuple = ()
     """The keys the drive configuration file (a scenario's ``drive: FILE``) gave."""
+    written_for: str = ""
+    """The motor the file's injection and loops were written for, where an override put another motor in its
+    place ("": the file's own motor runs)."""
 
     def source_of(self, key):
         """The file that gave the top-level ``key``: the drive configuration file, or the source."""
@@ -131,6 +134,13 @@ def read_drive(data, name, source, drive_file, origin, fail, overrides):
     estimator_override, motor_override = overrides["estimator_override"], overrides["motor_override"]
     motor = _motor(motor_override or data["motor"], overrides["motor_source"] if motor_override else
                    f"{origin.get('motor', source)}: motor", origin.get("motor", source), from_file=not motor_override)
+    written_for = ""
+    if motor_override:
+        try:
+            own = _motor(data["motor"], f"{origin.get('motor', source)}: motor", origin.get("motor", source), True)
+            written_for = own.name if own.name != motor.name else ""
+        except ScenarioError:
+            written_for = str(data["motor"])
     estimator, settings = _estimator(data["estimator"], fail)
     estimator_source = f"{origin.get('estimator', source)}: estimator"
     if estimator_override:
@@ -157,7 +167,8 @@ def read_drive(data, name, source, drive_file, origin, fail, overrides):
         estimator_settings=settings, injection={key: given[key] for key in injection}, T_s=values["sampling_period_s"],
         controller=data.get("controller") or {}, protection=dict(data.get("protection") or {}),
         commissioning=commissioning, estimator_source=estimator_source, block_samples=values["block_samples"],
-        answer_periods=values["answer_periods"], drive_file=drive_file, from_drive_file=tuple(sorted(origin)))
+        answer_periods=values["answer_periods"], drive_file=drive_file, from_drive_file=tuple(sorted(origin)),
+        written_for=written_for)
 
 
 
