@@ -146,6 +146,17 @@ def test_a_small_random_draw_gets_a_verdict_per_motor_and_counts_that_add_up(tmp
     assert {r["file"] for r in rows} == {str(p) for p in sorted((tmp_path / "motors").glob("*.yaml"))}
 
 
+def test_a_trial_that_raises_is_a_failure_row_not_a_lost_one(tmp_path, monkeypatch):
+    import drive_tools.evaluation.random_motor_bench as bench
+
+    def crash(path, options):
+        raise FloatingPointError("overflow in the plant")
+    monkeypatch.setattr(bench, "motor_trial", crash)
+    report = random_motor_bench(RandomBenchOptions(2, 5, tmp_path, workers=1))
+    assert [row["verdict"] for row in report["rows"]] == ["failure", "failure"]
+    assert report["summary"]["failure_kinds"] == {"the trial raised FloatingPointError: overflow in the plant": 2}
+
+
 @pytest.mark.heavy
 def test_a_larger_random_draw_gets_a_verdict_per_motor(tmp_path):
     report = random_motor_bench(RandomBenchOptions(24, 2, tmp_path / "motors", starts=4, workers=2))

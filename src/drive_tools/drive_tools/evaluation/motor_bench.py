@@ -245,6 +245,16 @@ def _verdict(row, refused=None):
     return row
 
 
+def crashed_row(motor_ref, options, error):
+    """The failure row of a trial that raised ``error`` (a defect of the drive or the bench, shown as such)."""
+    motor = load_motor(motor_ref, "drive bench motor")
+    reason = f"the trial raised {type(error).__name__}: {' '.join(str(error).split())}"
+    return {"motor": motor.name, "file": motor.source, "description": motor.description,
+            "sample_period_s": options.T_s, "tests": [], "identification_error": {}, "exit_codes": {},
+            "current_limit_A": None, "warnings": [], "polarity_correct": None, "cases": [], "refused_at": None,
+            "verdict": "failure", "reason": reason, "problems": [reason]}
+
+
 def reason_kind(reason):
     """A reason with its numbers and motor names taken out: refusals and failures of one cause count
     together."""

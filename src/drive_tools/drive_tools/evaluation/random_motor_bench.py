@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 from drive_common.runtime.interrupt import Interrupted
 
-from .motor_bench import VERDICTS, TrialOptions, motor_trial, reason_kind
+from .motor_bench import VERDICTS, TrialOptions, crashed_row, motor_trial, reason_kind
 from .random_motors import draw_motors, write_motor_files
 
 SALIENT_RATIO = 1.3
@@ -41,8 +41,14 @@ def _worker_ignores_signals():
 
 
 def _trial(job):
+    """motor_trial of one job; a trial that raised is a failure row naming the exception (never a lost row)."""
     path, trial = job
-    return motor_trial(path, trial)
+    try:
+        return motor_trial(path, trial)
+    except Interrupted:
+        raise
+    except Exception as error:  # noqa: BLE001 - any crash is the motor's failure row, shown in the table
+        return crashed_row(path, trial, error)
 
 
 def random_motor_bench(options, progress=None):
