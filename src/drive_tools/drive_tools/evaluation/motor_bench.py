@@ -90,9 +90,9 @@ def case_verdict(metrics, faults, refused):
 
 
 def one_line(error):
-    """A refusal's reason: the error's text without the scenario or file it names first."""
+    """A refusal's reason: the error's text without the experiment and motor it names first."""
     text = " ".join(str(error).split())
-    return text.partition("estimator: ")[2] or text
+    return re.sub(r"^\w+ on [\w.-]+: ", "", text.partition("estimator: ")[2] or text)
 
 
 def motor_trial(motor_ref, options=None, progress=None):
@@ -107,7 +107,7 @@ def motor_trial(motor_ref, options=None, progress=None):
            "current_limit_A": None, "warnings": [], "drive_notes": "", "loaded_test": None,
            "tracking_bandwidth_Hz": None, "injection_frequency_Hz": None, "injection_amplitude_V": None,
            "startup": None, "polarity_correct": None, "cases": [], "refused_at": None, "reason": "",
-           "problems": []}
+           "problems": [], "derated": False, "testing": None}
     steps = 3 + options.starts + len(CASES)
 
     def advanced(done):
@@ -120,7 +120,7 @@ def motor_trial(motor_ref, options=None, progress=None):
         try:
             _commission(first, commissioning, row)
         except NOT_APPLICABLE as error:
-            return _verdict(row, refused=("commissioning", one_line(error)))
+            return _verdict(row, refused=(f"commissioning, the {row['testing']} test", one_line(error)))
         advanced(3)
         try:
             row["startup"] = _starts(motor, start_angles, commissioning, options.T_s, advanced)
@@ -133,6 +133,7 @@ def motor_trial(motor_ref, options=None, progress=None):
 def _commission(scenario, commissioning, row):
     """Commission ``scenario``'s motor into the file ``commissioning`` as `drive commission --loaded` (and
     --rotating where the nameplate gives no J) does; fill ``row``'s identification errors and tests."""
+    row["testing"] = "standstill"
     run = commission_in_process(scenario)
     measured, truth = run.procedure.result(), dict(run.truth)
     name = scenario.motor.name
@@ -140,11 +141,13 @@ def _commission(scenario, commissioning, row):
     row["tests"].append("standstill")
     row["identification_error"] = _errors(measured, truth, IDENTIFIED)
     if not math.isfinite(scenario.motor.nameplate.J_kgm2):
+        row["testing"] = "rotating"
         estimates, rotating_truth, _ = rotating_test_in_process(scenario, commissioning)
         measured = measured._replace(psi_f_Wb=estimates["psi_f_Wb"], J_kgm2=estimates["J_kgm2"])
         save_commissioning(commissioning, measured, name, "drive bench motor")
         row["tests"].append("rotating")
         row["identification_error"].update(_errors(measured, rotating_truth, ROTATING_IDENTIFIED))
+    row["testing"] = "loaded"
     loaded, _ = loaded_test_in_process(scenario, commissioning)
     measured = with_loaded_test(measured, loaded)
     save_commissioning(commissioning, measured, name, "drive bench motor")
@@ -187,12 +190,14 @@ def _cases(motor, angles, commissioning, T_s, row, advanced):
     load_per_rated = 1.0
     for i, (case, theta_e) in enumerate(zip(CASES, angles)):
         experiment = ExperimentOptions(T_s, float(theta_e), 1, load_per_rated, str(commissioning))
-        result = run_scenario(motor_experiment(case, motor, "drive bench motor", options=experiment))
+        scenario = motor_experiment(case, motor, "drive bench motor", options=experiment)
+        result = run_scenario(scenario)
         metrics, faults = compute_metrics(result), supervision_faults(result)
         refused = (result.startup or {}).get("refused")
         code = case_exit_code(result, faults)
         row["exit_codes"][case] = code
-        row["cases"].append({"case": case, "load_per_rated": load_per_rated, "exit_code": code,
+        top_load = max(abs(v) for v in scenario.load.values) / motor.nameplate.rated_torque_Nm
+        row["cases"].append({"case": case, "load_per_rated": top_load, "exit_code": code,
                              "angle_error_rms": metrics["angle_error_rms"],
                              "angle_error_peak": metrics["angle_error_peak"],
                              "speed_tracking_error_rms": metrics["speed_tracking_error_rms"],
@@ -207,7 +212,8 @@ def _cases(motor, angles, commissioning, T_s, row, advanced):
                        injection_frequency_Hz=facts.get("injection_frequency_Hz"),
                        injection_amplitude_V=facts.get("injection_amplitude_V"))
             stated = result.current_limit_A / motor.nameplate.rated_current_A
-            load_per_rated = min(1.0, DERATED_LOAD_PER_LIMIT * stated)
+            row["derated"] = stated < 1.0
+            load_per_rated = DERATED_LOAD_PER_LIMIT * stated if row["derated"] else 1.0
         advanced(i + 1)
 
 
@@ -233,7 +239,7 @@ def _verdict(row, refused=None):
         elif case["verdict"] != "within targets":
             problems.append(f"{case['case']}: {case['verdict']} (RMS {case['angle_error_rms']:.3g} rad, peak "
                             f"{case['angle_error_peak']:.3g} rad)")
-    derated = row["current_limit_A"] is not None and any(c["load_per_rated"] < 1.0 for c in row["cases"])
+    derated = row["derated"]
     row["problems"] = problems
     if problems:
         row["verdict"], row["reason"] = "failure", "; ".join(problems)
@@ -258,5 +264,6 @@ def crashed_row(motor_ref, options, error):
 def reason_kind(reason):
     """A reason with its numbers and motor names taken out: refusals and failures of one cause count
     together."""
-    text = re.sub(r"random_\d+_\d+", "MOTOR", reason)
+    text = re.sub(r"\S*motor_bench_\S*\.yaml", "FILE", reason)
+    text = re.sub(r"random_\d+_\d+", "MOTOR", text)
     return re.sub(r"[-+−]?\d+(\.\d+)?(e[-+]?\d+)?", "#", text)
