@@ -117,6 +117,17 @@ def test_an_experiment_without_a_motor_is_refused_naming_the_option(capsys):
     assert err.count("\n") == 1 and "rated_load" in err and "--motor" in err
 
 
+@pytest.mark.parametrize("argv, option", [(["--random", "0"], "--random"),
+                                          (["--random", "2", "--starts", "0"], "--starts"),
+                                          (["--random", "2", "--workers", "0"], "--workers"),
+                                          (["--random", "2", "--sample-period", "1"], "--sample-period")])
+def test_the_random_bench_refuses_bad_options_in_one_line(argv, option, capsys, tmp_path):
+    assert main(["bench", "motors", *argv, "--out", str(tmp_path / "m")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and option in err
+    assert not (tmp_path / "m").exists()
+
+
 def test_a_small_random_draw_gets_a_verdict_per_motor_and_counts_that_add_up(tmp_path):
     """The fixed small draw of the suite (the full table: `drive bench motors --random N`, docs/results.md):
     each motor one verdict of the issue's set; a refusal has its reason and exit 2 for every case; a
