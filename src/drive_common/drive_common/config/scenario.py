@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from drive_common.contract.settings import FORMAT_VERSION_KEY, read_format_version, refuse_unknown_keys, shown
+from drive_common.motor.motor_file import MotorFileError, load_motor
 
 from .drive_config import (
     DRIVE_FIELDS,
@@ -29,6 +30,7 @@ from .experiment import (
     Table,
     read_experiment,
 )
+from .motor_experiments import EXPERIMENTS, ExperimentOptions, describe_experiment, experiment_document
 
 SCENARIO_DIR = Path(__file__).parent / "scenarios"
 TOP_KEYS = (*DRIVE_KEYS, *EXPERIMENT_KEYS, "description", "drive", FORMAT_VERSION_KEY)
@@ -148,10 +150,29 @@ def load_scenario(name_or_path, estimator_override=None, override_source="estima
                   motor_source="motor override"):
     """The scenario of a shipped name or a YAML path; ``estimator_override`` replaces its estimator
     (``override_source`` names where it came from: "command line --estimator", "parameter estimator"), and
-    ``motor_override`` (a shipped motor or a motor file, from ``motor_source``) its motor."""
+    ``motor_override`` (a shipped motor or a motor file, from ``motor_source``) its motor. The name of one
+    of a motor's own experiments (motor_experiments) makes it from ``motor_override``'s rating."""
+    if name_or_path in EXPERIMENTS and not Path(name_or_path).exists():
+        return motor_experiment(name_or_path, motor_override, motor_source, estimator_override, override_source)
     path = resolve(name_or_path)
     return parse_scenario(read_yaml(path, "scenario file"), path.stem, str(path), estimator_override,
                           override_source, motor_override, motor_source)
+
+
+def motor_experiment(name, motor, motor_source="--motor", estimator_override=None,
+                     override_source="estimator override", options=None):
+    """The Scenario of the motor's own experiment ``name`` on ``motor`` (a shipped name, a motor file or a
+    Motor read from a file) with ``options`` (motor_experiments.ExperimentOptions); ScenarioError names
+    ``motor_source`` where no motor is given."""
+    if motor is None:
+        raise ScenarioError(f"{name}: a motor's own experiment ({describe_experiment(name)}): give the motor "
+                            f"({motor_source} NAME|FILE)")
+    try:
+        loaded = load_motor(motor, motor_source)
+    except MotorFileError as error:
+        raise ScenarioError(str(error)) from None
+    return parse_scenario(experiment_document(name, loaded, options or ExperimentOptions()), name,
+                          f"{name} on {loaded.name}", estimator_override, override_source, loaded.source, motor_source)
 
 
 def load_drive_configuration(path, label="drive configuration", estimator_override=None,

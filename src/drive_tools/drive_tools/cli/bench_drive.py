@@ -9,6 +9,7 @@ from drive_common.runtime.interrupt import Interrupted
 from hf_estimator.interface import injects
 from hf_estimator.registry import estimator_names
 
+from .bench_motors import add_random_motors_command
 from .options import (
     CommandLineError,
     estimator_arg,
@@ -72,14 +73,15 @@ def cmd_bench_injection_cost(args):
 
 def cmd_bench_motor(args):
     from drive_tools.evaluation.bench_report import motor_bench_lines
-    from drive_tools.evaluation.motor_bench import motor_bench
+    from drive_tools.evaluation.motor_bench import TrialOptions, motor_trial
 
     if args.angles < 1:
         raise CommandLineError(f"--angles: must be at least 1, not {args.angles}")
     sample_period_arg(args.sample_period)
     motors = [load_motor(m, "drive bench motor") for m in args.motors]
+    trial = TrialOptions(args.sample_period, args.angles)
     return _swept("motor", [(m, m.name) for m in motors],
-                  lambda motor, progress: motor_bench(motor, args.angles, progress, args.sample_period), args,
+                  lambda motor, progress: motor_trial(motor, trial, progress), args,
                   motor_bench_lines, angles=args.angles, sample_period_s=args.sample_period)
 
 
@@ -151,14 +153,16 @@ def add_bench_commands(bench_sub):
     startup.set_defaults(func=cmd_bench_startup)
 
     motor_bench = bench_sub.add_parser("motor", help="motors nobody tuned for: commissioned from the nameplate, "
-                                                     "start-up polarity, rated load, a speed step, a reversal and "
-                                                     "a load step at 5 %% rated speed on the loops scaled to each")
+                                                     "start-up polarity, then the motor's own experiments on the "
+                                                     "loops scaled to each, and a verdict")
     motor_bench.add_argument("motors", nargs="+", metavar="NAME|FILE", help="shipped motors or motor files")
     motor_bench.add_argument("--angles", type=int, default=24, help="start angles over the electrical circle")
     motor_bench.add_argument("--sample-period", type=finite_float, default=1e-4, metavar="S",
                              help="the drive's sampling period [s] (default 1e-4)")
     motor_bench.add_argument("--json", action="store_true")
     motor_bench.set_defaults(func=cmd_bench_motor)
+
+    add_random_motors_command(bench_sub)
 
     full = bench_sub.add_parser("full-speed", help="the whole speed range: the blended estimator, injection only "
                                                    "and the observer only, angle error and HF current per speed band")

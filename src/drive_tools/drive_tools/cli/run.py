@@ -187,6 +187,10 @@ def cmd_scenarios(args):
         s = load_scenario(name)
         entries.append({"name": name, "motor": s.motor.name, "estimator": s.estimator,
                         "duration_s": s.duration_s, "description": s.description})
+    from drive_common.config.motor_experiments import DURATION_S, describe_experiment, experiment_names
+    entries += [{"name": name, "motor": "--motor", "estimator": "injection_frame", "duration_s": DURATION_S,
+                 "description": f"the motor's own experiment: {describe_experiment(name)}"}
+                for name in experiment_names()]
     if args.json:
         print_json(entries)
     else:

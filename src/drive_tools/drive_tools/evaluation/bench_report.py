@@ -99,26 +99,24 @@ def injection_cost_lines(report):
 
 
 def motor_bench_lines(reports):
-    """drive_tools.evaluation.motor_bench.motor_bench per motor: commissioning, loops, start-up and the cases."""
+    """drive_tools.evaluation.motor_bench.motor_trial per motor: commissioning, loops, start-up, the cases and
+    the verdict."""
     lines = []
     for r in reports:
-        errors = ", ".join(f"{k} {100.0 * v:+.2f} %" for k, v in r["commissioning_error"].items())
+        errors = ", ".join(f"{k} {100.0 * v:+.2f} %" for k, v in r["identification_error"].items())
         lines.append(f"{r['motor']}: {r['description'] or r['file']}")
-        if r.get("refused"):
-            lines += [f"  commissioned (against the plant's truth): {errors}", f"  REFUSED {r['refused']}"]
+        lines.append(f"  commissioned ({', '.join(r['tests'])}; against the plant's truth): {errors or '—'}")
+        if r["refused_at"]:
+            lines += [f"  REFUSED ({r['refused_at']}): {r['reason']}", f"  verdict: {r['verdict']}"]
             continue
         s = r["startup"]
-        lines.append(f"  commissioned (against the plant's truth): {errors}; current limit "
-                     f"{r['current_limit_A']:.3g} A")
-        lines.append(f"  loops: tracking {r['tracking_bandwidth_Hz']:.3g} Hz, carrier "
-                     f"{r['injection_frequency_Hz']:.4g} Hz, {r['injection_amplitude_V']:.3g} V")
+        lines.append(f"  current limit {r['current_limit_A']:.3g} A; loops: tracking {r['tracking_bandwidth_Hz']:.3g} "
+                     f"Hz, carrier {r['injection_frequency_Hz']:.4g} Hz, {r['injection_amplitude_V']:.3g} V")
         lines += [f"  WARNING {line}" for line in r["warnings"]]
         if r["drive_notes"]:
             lines.append(f"  the drive says: {r['drive_notes']}")
         loaded = r["loaded_test"]
-        if "refused" in loaded:
-            lines.append(f"  loaded test: {loaded['refused']}")
-        elif loaded["significant"]:
+        if loaded["significant"]:
             lines.append(f"  loaded test: ours' error under load corrected ({loaded['correction_at_rated_rad']:+.4f} "
                          f"rad at rated current)")
         else:
@@ -128,8 +126,11 @@ def motor_bench_lines(reports):
         lines.append(f"  start-up over {s['runs']} angles: polarity "
                      f"{formatted(None if fraction is None else 100.0 * fraction, '{:.1f} %')}, "
                      f"lock lost {s['lock_lost']}, not started {s['not_started']}")
-        lines += [f"  {c['case']:24s} RMS {c['angle_error_rms']:.4f} rad  peak {c['angle_error_peak']:.3f} rad  "
-                  f"speed tracking {c['speed_tracking_error_rms']:.3g} rad/s  {c['verdict']}" for c in r["cases"]]
+        lines += [f"  {c['case']:16s} load {c['load_per_rated']:.2f} rated  RMS "
+                  f"{formatted(c['angle_error_rms'], '{:.4f}')} rad  peak {formatted(c['angle_error_peak'], '{:.3f}')} "
+                  f"rad  exit {c['exit_code']}  {c['verdict']}"
+                  for c in r["cases"]]
+        lines.append(f"  verdict: {r['verdict']}" + (f": {r['reason']}" if r["reason"] else ""))
     return lines
 
 
