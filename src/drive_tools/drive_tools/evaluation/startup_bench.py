@@ -31,6 +31,8 @@ class LoadCase(NamedTuple):
     brake: bool
     feedforward: bool = False
     """The robot tells the drive the load's torque (`torque_feedforward`, its gravity model)."""
+    forced: bool = False
+    """The drive runs as `drive run --force` would (the estimator's setting ``run_refused``)."""
 
 
 STANDARD_CASES = (LoadCase("no load", 0.0, False), LoadCase("0.5 rated, brake", 0.5, True),
@@ -48,7 +50,8 @@ def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None, com
     shipped = load_scenario(MOTOR_SCENARIOS[m.name]) if m.shipped else None
     plate = m.nameplate
     speed = SPEED_PER_RATED * plate.rated_speed_rpm
-    data = {"motor": m.source, "estimator": {"type": estimator or "injection_frame", "settings": settings or {}},
+    settings = {**(settings or {}), **({"run_refused": True} if case.forced else {})}
+    data = {"motor": m.source, "estimator": {"type": estimator or "injection_frame", "settings": settings},
             "injection": dict(shipped.injection) if shipped else {}, "duration_s": DURATION_S,
             "sampling_period_s": T_s or (shipped.T_s if shipped else 1e-4),
             "speed": {"unit": "rpm", "interpolation": "linear",
@@ -63,15 +66,15 @@ def bench_scenario(motor, estimator, theta_e_rad, seed, case, settings=None, com
 
 
 def startup_sweep(motor, case, angles=72, seeds=(1, 2, 3), estimator=None, progress=None, commissioning="",
-                  T_s=None, settings=None):
-    """One row per (angle, seed): the start-up metrics (metrics.startup_metrics) of a bench run (the estimator's
-    ``settings`` given), and the summary of them all."""
+                  T_s=None):
+    """One row per (angle, seed): the start-up metrics (metrics.startup_metrics) of a bench run, and
+    the summary of them all."""
     rows = []
     total = angles * len(seeds)
     for i in range(angles):
         theta_e = 2.0 * math.pi * i / angles - math.pi
         for seed in seeds:
-            scenario = bench_scenario(motor, estimator, theta_e, seed, case, settings, commissioning, T_s)
+            scenario = bench_scenario(motor, estimator, theta_e, seed, case, commissioning=commissioning, T_s=T_s)
             result = run_scenario(scenario)
             rows.append({"theta_e_rad": theta_e, "seed": seed, **startup_metrics(scenario, result.log, result.n_p),
                          "refused": (result.startup or {}).get("refused")})
@@ -193,9 +196,9 @@ def drawn_startup_bench(count, seed, angles, seeds, progress=None):
                                     "refused": str(error), "signal_refused": None, **summary([])})
                     continue
                 signal_refused = str(error)
-            sweep = startup_sweep(motor, STANDARD_CASES[0], angles, seeds, commissioning=commissioning,
-                                  progress=progress and (lambda f, j=j: progress((j + f) / count)),
-                                  settings={"run_refused": bool(signal_refused)})
+            case = STANDARD_CASES[0]._replace(forced=bool(signal_refused))
+            sweep = startup_sweep(motor, case, angles, seeds, commissioning=commissioning,
+                                  progress=progress and (lambda f, j=j: progress((j + f) / count)))
             reports.append({**sweep, **figures, "refused": None, "signal_refused": signal_refused})
     return reports
 
@@ -207,19 +210,24 @@ def drawn_motor_text(path):
 
 
 def drawn_lines(reports):
-    """drawn_startup_bench's reports as a table: per motor its figures, polarity correct, the largest
-    rotation against the command [° mechanical], or the drive's refusal; then the totals."""
-    lines = [f"{'motor':9s} {'n_p':>3s} {'J kg·m²':>8s} {'|Δ|/Σ':>6s} {'asym':>6s} {'runs':>5s} {'polarity':>9s} "
-             f"{'back max':>9s}  refused"]
+    """drawn_startup_bench's reports as a table: per motor its figures, the starts that reached torque and
+    those with the right pole, the starts refused before torque, the largest rotation against the command
+    [° mechanical], or the drive's refusal of the motor; then the totals."""
+    lines = [f"{'motor':9s} {'n_p':>3s} {'J kg·m²':>8s} {'|Δ|/Σ':>6s} {'asym':>6s} {'runs':>5s} {'torque':>6s} "
+             f"{'right':>6s} {'refused':>7s} {'back max':>9s}  note"]
+    totals = np.zeros(4, dtype=int)
     for r in reports:
-        fraction, back = r["polarity_correct_fraction"], r["reverse_rotation_max_m_deg"]
+        rows = r.get("rows", [])
+        counts = (len(rows), sum(row["completed"] for row in rows), sum(bool(row["polarity_correct"]) for row in rows),
+                  sum(not row["completed"] for row in rows))
+        totals += counts
+        back = r["reverse_rotation_max_m_deg"]
+        note = r["refused"] or ("the angle signal refused, run as --force" if r["signal_refused"] else "")
         lines.append(f"{r['motor']:9s} {r['n_p']:3d} {r['J_kgm2']:8.1e} {r['saliency_ratio']:6.3f} "
-                     f"{r['saturation_asymmetry']:6.3f} {r['runs']:5d} "
-                     f"{'' if fraction is None else f'{100.0 * fraction:.1f} %':>9s} "
-                     f"{'' if back is None else f'{back:.2f}°':>9s}  {r['refused'] or ''}"
-                     f"{'(angle signal refused, run forced)' if r['signal_refused'] else ''}")
-    runs = [r for r in reports if r["runs"]]
-    correct = sum(round(r["polarity_correct_fraction"] * r["runs"]) for r in runs if r["polarity_correct_fraction"])
-    lines.append(f"started motors {len(runs)} of {len(reports)}: polarity correct {correct} of "
-                 f"{sum(r['runs'] for r in runs)} starts")
+                     f"{r['saturation_asymmetry']:6.3f} {counts[0]:5d} {counts[1]:6d} {counts[2]:6d} {counts[3]:7d} "
+                     f"{'' if back is None else f'{back:.2f}°':>9s}  {note}")
+    lines.append(f"{len(reports)} motors: {totals[0]} starts, {totals[1]} reached torque, {totals[2]} with the right "
+                 f"pole, {totals[3]} refused before torque")
     return lines
+
+
