@@ -185,11 +185,12 @@ PULSE_CURRENT_MAX_PER_RATED = 1.0
 """Designed pulses reach at most rated current: the commissioning measured the asymmetry there."""
 PULSE_CURRENT_STEP = 0.85
 """A pulse current that turns the rotor too far is lowered by this factor at a time."""
-MAX_SEQUENCES = 16
+MAX_SEQUENCES = 32
 """The most pulse sequences (of 4 pulses) a test averages."""
-DECISION_Z = 3.9
+DECISION_Z = 3.0
 """The decision margin is half the expected S/T and stands this many noise σ clear: a wrong pole needs noise
-of 2 × 3.9 σ (one-sided probability 4e-15), a needless retry 3.9 σ (5e-5)."""
+of 3 × 3 σ (one-sided probability 1e-19), a retry a quarter turn further 3 σ (1.3e-3; it then tries the
+other axes, polarity_tries in all)."""
 ANGLE_UNCERTAINTY_PER_TOLERANCE = 2.0
 """The modulo-π estimate may be off the d axis by this many alignment tolerances while pulsing (the
 smoothed error is below one tolerance; one fit's noise is not)."""
