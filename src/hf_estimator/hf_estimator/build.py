@@ -12,11 +12,11 @@ from .pll_model import PEAK_PER_RMS, injection_frame_noise_gain, predicted_angle
 from .registry import make_estimator
 
 SCALED_TRACKING = ("injection_frame", "full_speed")
+"""Ours: the tracking bandwidth, carrier and amplitude follow the motor (scaled_loops) unless set; the
+papers' estimators keep their papers' carrier and loop unless set (only the bus caps their amplitude)."""
 TARGET_RMS_RAD = 0.02
 TARGET_PEAK_RAD = 0.15
 """Ours' targets: what the predicted angle error must meet for the drive to run (docs/hf-demodulation.md §5)."""
-"""Ours: the tracking bandwidth, carrier and amplitude follow the motor (scaled_loops) unless set; the
-papers' estimators keep their papers' carrier and loop unless set (only the bus caps their amplitude)."""
 
 
 def scaled_injection(scenario, plate):

@@ -291,9 +291,10 @@ def polarity_design(plate, commissioning, T_s, inverter, align_tolerance_rad, le
         if motion <= align_tolerance_rad:
             if design.margin >= DECISION_Z * noise:
                 return design
+            limited = " (larger ones turn the rotor too far)" if design is not largest else ""
             return design._replace(problem=(
                 f"saturation asymmetry {100.0 * asymmetry:.2g} % (commissioned) gives the polarity pulses an S/T of "
-                f"{expected:.2g} against noise σ {noise:.2g} ({sequences} sequences of {current:.3g} A; "
+                f"{expected:.2g} against noise σ {noise:.2g} ({sequences} sequences of {current:.3g} A{limited}; "
                 f"{2.0 * DECISION_Z:g} σ wanted)"))
         current *= PULSE_CURRENT_STEP
     if largest is None:
