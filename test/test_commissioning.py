@@ -203,8 +203,8 @@ def test_a_weakly_salient_plant_gets_a_stronger_injection_and_holds_its_targets(
     measured = commission_in_process(deviated("wang_100rpm", INVERTED)).procedure.result()
     path = str(save_commissioning("inverted.yaml", measured, "wang_spmsm", "standstill_tests"))
     steady = deviated("wang_100rpm", INVERTED)
-    fixed = compute_metrics(run_scenario(dataclasses.replace(steady, commissioning=path,
-                                                             estimator_settings={"saliency_snr_min": 0.0})))
+    fixed = compute_metrics(run_scenario(dataclasses.replace(steady, commissioning=path, estimator_settings={
+        "saliency_snr_min": 0.0, "run_refused": True})))
     raised = run_scenario(dataclasses.replace(steady, commissioning=path))
     assert raised.estimator_facts["injection_amplitude_V"] == pytest.approx(0.8 * 24.0 / np.sqrt(3.0))
     assert "held by the voltage cap" in raised.estimator_facts["injection_note"]

@@ -13,7 +13,7 @@ from drive_common.motor.motor_file import nameplate
 from drive_tools.evaluation.metrics import compute_metrics
 from drive_tools.evaluation.startup_bench import STANDARD_CASES, startup_sweep
 from drive_tools.runner.runner import build_drive, run_scenario
-from hf_estimator.startup import NO_SALIENCY, REFUSALS, estimator_startup, startup_follow
+from hf_estimator.startup import NO_SALIENCY, NO_SETTLED_AXIS, REFUSALS, estimator_startup, startup_follow
 
 pytestmark = pytest.mark.unit
 
@@ -91,13 +91,16 @@ def test_a_slip_under_rated_load_is_caught_from_the_back_emf():
 
 
 
-def test_a_round_rotor_is_refused_with_a_clear_message():
+@pytest.mark.parametrize("commissioning, refusal", [("nameplate", NO_SALIENCY), ("", NO_SETTLED_AXIS)])
+def test_a_round_rotor_is_refused_with_a_clear_message(commissioning, refusal):
     """No saturation on wang_spmsm: a round rotor. The start-up finds no saliency within its timeout and
-    refuses: no torque ever (zero q-current reference), zero voltage after, exit code 5 and the reason."""
-    scenario = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.3,
+    refuses: no torque ever (zero q-current reference), zero voltage after, exit code 5 and the reason: a round
+    rotor where the drive knows none (its nameplate, L_d = L_q), an axis that never settled where its
+    commissioning measured one (it never says "a round rotor?" of a rotor measured salient)."""
+    scenario = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.3, commissioning=commissioning,
                                    non_idealities={**load_scenario("wang_100rpm").non_idealities, "saturation": False})
     result = run_scenario(scenario)
-    assert result.startup["refused"] == REFUSALS[NO_SALIENCY]
+    assert result.startup["refused"] == REFUSALS[refusal]
     assert not (result.log[:, COLUMN["state"]] == 3).any()
     assert np.all(result.log[:, COLUMN["i_q_ref"]] == 0.0)
     assert np.all(result.log[-100:, COLUMN["u_inj_alpha"]] == 0.0)

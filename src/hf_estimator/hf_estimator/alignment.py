@@ -1,16 +1,19 @@
 """The start-up's alignment (docs/startup.md; startup.py, item 1): the estimator's own tracker converges on
 its own injection to the saliency axis (mod π). Aligned once its error, scaled to radians by the estimator's gain
 and smoothed, has stayed below ``align_tolerance_rad`` (MOVING_TOLERANCE_FACTOR times more at speed) for
-settle_samples. Not aligned within align_timeout_samples: the start is refused (the rotor moving, or no
-saliency), or, after a lost lock, counted as another loss."""
+settle_samples. Not aligned within align_timeout_samples: the start is refused (the rotor moving; no saliency
+seen where the motor's L_dh, L_qh hold none, else an axis that never settled: too weak a signal), or, after a
+lost lock, counted as another loss."""
 import math
 
 from numba import njit
 
 from drive_common.contract.estimator_states import ALIGNING, HOLD
+from drive_common.motor.commissioning import MIN_SALIENCY_RATIO
 
 from .startup_state import (
     NO_SALIENCY,
+    NO_SETTLED_AXIS,
     ROTOR_MOVED,
     backemf_clear,
     lose_lock,
@@ -44,6 +47,7 @@ def alignment_step(x, p, k, since, u_inj_alpha, u_inj_beta, eps, observable):
         return False, u_inj_alpha, u_inj_beta, float(ALIGNING)
     if s.restarts == 0.0:
         moving = backemf_clear(x, p, max(abs(x.omega) * p.psi_f_Wb, math.hypot(s.e_alpha, s.e_beta)))
-        s.refused = ROTOR_MOVED if observable > 0.5 or moving else NO_SALIENCY
+        salient = abs(1.0 / p.L_dh_H - 1.0 / p.L_qh_H) >= MIN_SALIENCY_RATIO * (1.0 / p.L_dh_H + 1.0 / p.L_qh_H)
+        s.refused = ROTOR_MOVED if observable > 0.5 or moving else (NO_SETTLED_AXIS if salient else NO_SALIENCY)
         return False, 0.0, 0.0, float(HOLD)
     return False, u_inj_alpha, u_inj_beta, lose_lock(x, p, k)

@@ -1,17 +1,22 @@
 """The estimator a scenario names, built for its motor's nameplate and a commissioning record, with the
 loops scaled to the motor (drive_common.motor.scaled_loops) where the scenario does not set them."""
 import dataclasses
+import math
 
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE
 from drive_common.motor.scaled_loops import scaled_loops
 
 from .interface import injects
+from .pll_model import PEAK_PER_RMS, injection_frame_noise_gain, predicted_angle_error_rad
 from .registry import make_estimator
 
 SCALED_TRACKING = ("injection_frame", "full_speed")
 """Ours: the tracking bandwidth, carrier and amplitude follow the motor (scaled_loops) unless set; the
 papers' estimators keep their papers' carrier and loop unless set (only the bus caps their amplitude)."""
+TARGET_RMS_RAD = 0.02
+TARGET_PEAK_RAD = 0.15
+"""Ours' targets: what the predicted angle error must meet for the drive to run (docs/hf-demodulation.md §5)."""
 
 
 def scaled_injection(scenario, plate):
@@ -56,6 +61,40 @@ def _blamed(scenario, message):
     return f"{scenario.source_of('estimator')}: estimator: {message}"
 
 
+def predicted_error(estimator, commissioning):
+    """(RMS, peak) [rad] of ours' noise-driven angle error at no load predicted before running from the
+    commissioned saliency and sensor noise and ours' loop (pll_model.predicted_angle_error_rad), and the saliency
+    current I_Δ [A]; None for another estimator, or where the noise or the saliency is not measured."""
+    p = getattr(estimator.params, "hf", estimator.params)
+    if estimator.name not in SCALED_TRACKING or commissioning.sensor_noise_A <= 0.0 or not commissioning.salient():
+        return None
+    omega_h = 2.0 * math.pi / (p.N * p.T_s_s)
+    current = p.injection_amplitude_V * abs(commissioning.delta) / omega_h
+    gain = injection_frame_noise_gain((p.kp, p.ki, p.ka), 2 * p.N, p.delay_periods, p.T_s_s)
+    rms = predicted_angle_error_rad(current, commissioning.sensor_noise_A, gain, p.N)
+    return rms, PEAK_PER_RMS * rms, current
+
+
+def refused_signal(estimator, commissioning, run_refused):
+    """What the drive says of ours' predicted angle error ("" within the targets): beyond TARGET_RMS_RAD or
+    TARGET_PEAK_RAD, ValueError in one line (the predicted error, the target, the saliency figure) unless
+    ``run_refused``, then a note."""
+    predicted = predicted_error(estimator, commissioning)
+    if predicted is None or (predicted[0] <= TARGET_RMS_RAD and predicted[1] <= TARGET_PEAK_RAD):
+        return ""
+    rms, peak, current = predicted
+    p = getattr(estimator.params, "hf", estimator.params)
+    unsettled = (f"ours' {estimator.tracking_bandwidth_Hz:g} Hz tracking loop does not settle behind its fit over "
+                 f"{2 * p.N} samples and the drive's delay: " if not math.isfinite(rms) else "")
+    problem = (f"{unsettled}predicted angle error {rms:.3f} rad RMS, {peak:.2f} rad peak against ours' targets "
+               f"{TARGET_RMS_RAD:g} and {TARGET_PEAK_RAD:g} rad: saliency current {1e3 * current:.3g} mA (|Δ|/Σ "
+               f"{abs(commissioning.delta / commissioning.sigma):.3f}) against "
+               f"{1e3 * commissioning.sensor_noise_A:.3g} mA of sensor noise")
+    if not run_refused:
+        raise ValueError(f"{problem}; refused (`drive run --force` runs it anyway)")
+    return f"run although refused ({problem})"
+
+
 def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
@@ -68,6 +107,7 @@ def estimator_for_scenario(scenario, commissioning):
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)
         inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
         estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings, commissioning, inverter)
+        notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),) if n]
     except KeyError as error:
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
     except ValueError as error:

@@ -52,8 +52,8 @@ design).
    at most to HF_RIPPLE_MAX_PER_RATED
    of the rated current in HF ripple and HF_VOLTAGE_MAX_PER_LINEAR of the linear voltage range
    (docs/results.md, "A plant off its nameplate").
-5b. Where the caps hold the ratio below half of what the tracking loop wants (a weak saliency), ours refuses
-   to run unless ``run_on_weak_signal`` (docs/motors-and-control.md, "Loops scaled to the motor").
+5b. Where the angle error predicted from the saliency current, the noise and the loop misses ours' targets,
+   the drive refuses to run unless ``run_refused`` (hf_estimator.build, docs/hf-demodulation.md §5).
 6. A type-2 loop (PI + integrator) on ε with ω_n, ζ placed directly (ε has unit slope); its integrator
    state is the speed handed to the speed loop (the proportional path stays out of it). While |Δ̂|/Σ̂ is
    below the threshold the loop is held (ε = 0) and the flag says so. A type-2 loop lags a constant
@@ -116,7 +116,6 @@ def injection_frame_state():
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
             "signal_smoothing_Hz": 20.0, "dead_time_model": False, "saliency_snr_min": 8.0, "pll_type": 2,
-            "run_on_weak_signal": False,
             **STARTUP_DEFAULTS}
 ACCELERATION_POLE_RATIO = 0.5
 """The type-3 loop's third pole, real, at this share of ω_n (item 6)."""
@@ -131,9 +130,6 @@ give 0.5): below this the window cannot tell g_qq apart and Σ is taken from the
 SNR_REFERENCE_HZ = 18.0
 """``saliency_snr_min`` holds for this tracking bandwidth; a wider loop passes more noise (its variance
 grows with the bandwidth), so the wanted ratio grows as √(bandwidth / this)."""
-WEAK_SIGNAL_SHARE = 0.5
-"""Below this share of the wanted ratio ours refuses to run (item 5b): measured, 0.89 of it (a reverse-salient
-wang_spmsm at the voltage cap) still meets the targets, 0.36 (servo_400w_weak) misses them 2.6-fold."""
 HF_RIPPLE_MAX_PER_RATED = 0.5
 """The largest HF current ripple U_h·Σ/ω_h ours allows itself when it raises its amplitude, per rated
 current (Wang's own reversal runs at 0.38)."""
@@ -189,22 +185,6 @@ def raised_injection_amplitude(requested_V, commissioning, nameplate, inverter, 
     at = " at rated current" if retained < 1.0 else ""
     return injection_amplitude_V, (f"raised from {requested_V:g} V: saliency current{at} {reached:.1f} σ of the "
                                    f"commissioned sensor noise, {snr_min:g} wanted{limited}")
-
-
-def weak_signal_note(injection_amplitude_V, commissioning, omega_h, snr_min, run_on_weak_signal=False):
-    """What the drive says of a weak angle signal ("" where it is not weak): where the saliency current at
-    ``injection_amplitude_V`` [V] (ours' largest, the caps applied) stays below WEAK_SIGNAL_SHARE of the
-    ``snr_min`` σ its tracking loop wants, ours' targets are out of reach: ValueError (the drive refuses)
-    unless ``run_on_weak_signal``. Silent where the saliency or the noise is not measured."""
-    reached = saliency_snr(injection_amplitude_V, commissioning, omega_h)
-    if snr_min <= 0.0 or reached <= 0.0 or not commissioning.salient() or reached >= WEAK_SIGNAL_SHARE * snr_min:
-        return ""
-    problem = (f"saliency current {reached:.1f} σ of the commissioned sensor noise at {injection_amplitude_V:.3g} V, "
-               f"{snr_min:.3g} σ wanted by the tracking loop")
-    if not run_on_weak_signal:
-        raise ValueError(f"{problem}: too weak an angle signal for ours' targets; refused (the setting "
-                         f"run_on_weak_signal: true runs beyond them)")
-    return f"run on a weak angle signal ({problem}): angle errors beyond ours' targets"
 
 
 def tracking_loop_type(requested, injection_amplitude_V, commissioning, omega_h, snr_min):
@@ -383,9 +363,8 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
     injection_amplitude_V, note = raised_injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate,
                                                              inverter, omega_h, snr_min)
     loop_type, loop_note = tracking_loop_type(s["pll_type"], injection_amplitude_V, commissioning, omega_h, snr_min)
-    weak_note = weak_signal_note(injection_amplitude_V, commissioning, omega_h, snr_min, bool(s["run_on_weak_signal"]))
     shift_rad, loaded_note = loaded_correction(commissioning, 1.0 / (N * T_s), injection_amplitude_V)
-    note = "; ".join(n for n in (note, weak_note, loop_note, loaded_note) if n)
+    note = "; ".join(n for n in (note, loop_note, loaded_note) if n)
     pole = ACCELERATION_POLE_RATIO * omega_n if loop_type == 3 else 0.0
     delay_periods = inverter.delay_periods
     startup = make_startup(nameplate, commissioning, T_s, inverter, 1.0, s)

@@ -313,3 +313,54 @@ def fastest_pi(loop, phase_margin_deg, pi_zero_ratio=10.0):
     crossover = highest_crossover(loop, phase_margin_deg, pi_zero_ratio)
     T_i = pi_zero_ratio / crossover
     return crossover, 1.0 / abs(loop.open_loop(1.0, T_i, crossover)), T_i
+
+
+NOISE_GAIN_SETTLE_PERIODS = 40.0
+"""Ours' noise gain sums the impulse response over this many periods of the loop's natural frequency."""
+UNSETTLED_SHARE = 1e-3
+"""A loop whose impulse response keeps this share of its energy in its last tenth does not settle."""
+CLARKE_NOISE_SHARE = 5.0 / 6.0
+"""The variance of one αβ current component per phase-current noise variance, averaged over α (= a, 1) and
+β ((b − c)/√3, 2/3): the contract's Clarke on measured currents."""
+PEAK_PER_RMS = 4.0
+"""The peak of a run's noise-driven angle error per its RMS (a Gaussian's largest of ~10³ loop correlation
+times: √(2 ln 10³) ≈ 3.7)."""
+
+
+def injection_frame_noise_gain(gains, window_samples, delay_periods, T_s):
+    """Σ h_k² of ours' loop (injection_frame item 6): the response h of θ̂ [rad] to one sample's contribution
+    c (unit) to the fit's error, the fit averaging the last ``window_samples`` samples of c − θ̂ (θ̂ as issued
+    ``delay_periods`` + 1 samples before), the loop's ``gains`` (k_p, k_i, k_a) [1/s, 1/s², 1/s³] updating as
+    the estimator does (type 3 where k_a ≠ 0). Dimensionless: σ_θ² = var(c)·Σh²; ∞ where the loop does not
+    settle (its last tenth still holds UNSETTLED_SHARE of the sum)."""
+    kp, ki, ka = gains
+    omega_n = math.sqrt(ki)
+    steps = window_samples + delay_periods + int(NOISE_GAIN_SETTLE_PERIODS * 2.0 * math.pi / (omega_n * T_s))
+    lag = delay_periods + 1
+    theta = np.zeros(steps + 1)
+    error_sum, omega, acceleration, total = 0.0, 0.0, 0.0, 0.0
+    for k in range(steps):
+        error_sum += (1.0 if k == 0 else 0.0) - theta[max(k - lag, 0)] * (k >= lag)
+        if k >= window_samples:
+            error_sum -= (1.0 if k == window_samples else 0.0) - theta[k - window_samples - lag] * (
+                k - window_samples >= lag)
+        eps = error_sum / window_samples
+        acceleration += T_s * ka * eps
+        omega += T_s * acceleration + T_s * ki * eps
+        theta[k + 1] = theta[k] + T_s * (kp * eps + omega)
+        total += theta[k + 1] ** 2
+    tail = float(np.sum(theta[-(steps // 10):] ** 2))
+    return total if math.isfinite(total) and tail <= UNSETTLED_SHARE * total else math.inf
+
+
+def predicted_angle_error_rad(saliency_current_A, sensor_noise_A, noise_gain, carrier_samples):
+    """Ours' noise-driven angle error RMS [rad] (docs/hf-demodulation.md §5): the fit's Δi holds the sensor
+    noise differenced (variance 4σ²sin²(π/N) at the carrier, σ² = CLARKE_NOISE_SHARE × the phase noise²),
+    the cross admittance g_dq = 2|Δ|·e from unit regressors over the window; each sample adds var(c) =
+    σ²·2 sin²(π/N)/(T_s²U_h²Δ²) = σ²/(2 I_Δ²)·(sin(π/N)/(π/N))², I_Δ = U_h|Δ|/ω_h the saliency current [A];
+    the loop passes var(c)·Σh² (injection_frame_noise_gain)."""
+    if saliency_current_A <= 0.0 or not math.isfinite(noise_gain):
+        return math.inf
+    sigma = math.sqrt(CLARKE_NOISE_SHARE) * sensor_noise_A
+    shape = math.sin(math.pi / carrier_samples) / (math.pi / carrier_samples)
+    return sigma / saliency_current_A * shape * math.sqrt(0.5 * noise_gain)

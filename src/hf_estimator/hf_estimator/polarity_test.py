@@ -2,9 +2,15 @@
 aligned axis, from voltage pulses + − − + (every other sequence mirrored) after a quiet time, from the
 back-EMF's sign at speed, or in replay from the recording drive's own choice. With i_j the d̂ current at the j-th pulse
 boundary, S = −i₀ + 2i₁ − 2i₂ + 2i₃ − i₄ = 2(A₊ − A₋) and T = −i₀ + 2i₁ − 2i₃ + i₄ = 2(A₊ + A₋); the magnet
-saturates the d axis further when i_d > 0, so S/T < −margin means θ̂ is the magnet's south."""
-import math
+saturates the d axis further when i_d > 0, so S/T < −margin means θ̂ is the magnet's south.
 
+The pulses are designed from what the commissioning measured (polarity_design, docs/startup.md "Pulses
+from the commissioning"): the saturation asymmetry gives the S/T to expect, the sensor noise its spread,
+the inertia how far the pulses can turn the rotor when θ̂ is off the d axis."""
+import math
+from typing import NamedTuple
+
+import numpy as np
 from numba import njit
 
 from drive_common.contract.estimator_states import ALIGNING, HOLD, POLARITY
@@ -113,6 +119,8 @@ def quiet_over(x, p, k):
     if k - (s.quiet - 1.0) < p.quiet_samples:
         return False
     s.quiet = 0.0
+    s.score = 0.0
+    s.span = 0.0
     enter(x, p, k, POLARITY)
     return True
 
@@ -171,3 +179,130 @@ def polarity_step(x, p, k, since, i_alpha, i_beta, u_inj_alpha, u_inj_beta):
     if since < decide_at + p.flush_samples:
         return False, u_inj_alpha, u_inj_beta, float(POLARITY)
     return True, 0.0, 0.0, float(POLARITY)
+
+
+PULSE_CURRENT_MAX_PER_RATED = 1.0
+"""Designed pulses reach at most rated current: the commissioning measured the asymmetry there."""
+PULSE_CURRENT_STEP = 0.85
+"""A pulse current that turns the rotor too far is lowered by this factor at a time."""
+MAX_SEQUENCES = 32
+"""The most pulse sequences (of 4 pulses) a test averages."""
+DECISION_Z = 3.0
+"""The decision margin is half the expected S/T and stands this many noise σ clear: a wrong pole needs noise
+of 3 × 3 σ (one-sided probability 1e-19), a retry a quarter turn further 3 σ (1.3e-3; it then tries the
+other axes, polarity_tries in all)."""
+ANGLE_UNCERTAINTY_PER_TOLERANCE = 2.0
+"""The modulo-π estimate may be off the d axis by this many alignment tolerances while pulsing (the
+smoothed error is below one tolerance; one fit's noise is not)."""
+SUBSTEPS = 16
+
+
+class PolarityDesign(NamedTuple):
+    """The polarity pulses: n samples each at ``pulse_V`` [V] reaching ``pulse_current_A``, ``sequences`` of
+    them, the decision ``margin`` on S/T; what to expect: ``expected_ratio`` (the magnet's S/T), its noise σ
+    ``noise_ratio``, the rotor's largest turn during them ``motion_e_rad`` [rad, electrical]; ``problem``:
+    why the polarity cannot be told ("" where it can)."""
+    n: int
+    pulse_V: float
+    pulse_current_A: float
+    sequences: int
+    margin: float
+    expected_ratio: float
+    noise_ratio: float
+    motion_e_rad: float
+    problem: str
+
+
+def pulse_currents(winding, pulses, asymmetry):
+    """The d̂ current [A] at each sample of a pulse train on a winding (R_s [Ω], L [H], I_rated [A], T_s [s])
+    whose incremental inductance falls with magnetising current as the commissioning measured it between
+    ±I_rated: L(i) = L·(1 − ½·asymmetry·i/I_rated); ``pulses``: (n, pulse_V, sequences, delay_periods)."""
+    R, L, I_rated, T_s = winding
+    n, pulse_V, sequences, delay = pulses
+    issue_end = sequences * 4 * n
+    out = np.zeros(issue_end + delay + 1)
+    i, h = 0.0, T_s / SUBSTEPS
+    for k in range(len(out)):
+        out[k] = i
+        issued = k - delay
+        u = pulse_sign(issued, n) * pulse_V if 0 <= issued < issue_end else 0.0
+        for _ in range(SUBSTEPS):
+            i += h * (u - R * i) / (L * max(0.2, 1.0 - 0.5 * asymmetry * i / I_rated))
+    return out
+
+
+def _sums(currents, n, sequences, delay):
+    """(S, T, Σ w_S²) of the first ``sequences`` sequences of a pulse train's currents."""
+    score = span = weight = 0.0
+    for k in range(sequences * 4 * n + delay + 1):
+        w_s, w_t = polarity_coefficients(k - delay, n, 4 * n, sequences)
+        score += w_s * currents[k]
+        span += w_t * currents[k]
+        weight += w_s * w_s
+    return score, span, weight
+
+
+def rotor_motion_e_rad(currents, rotor, T_s):
+    """The largest turn [rad, electrical] of a rotor at rest under a pulse train's d̂ currents when θ̂ is
+    ``e`` off the d axis; ``rotor``: (n_p, ψ_f [Wb], L_d − L_q [H], J [kg·m²], e [rad]). Torque
+    1.5 n_p sin e (ψ_f i + ΔL cos e · i²)."""
+    n_p, psi_f, delta_L, J, e = rotor
+    torque = 1.5 * n_p * math.sin(e) * (psi_f * currents + delta_L * math.cos(e) * currents ** 2)
+    speed = np.cumsum(torque) * T_s / J
+    return float(n_p * np.max(np.abs(np.cumsum(speed) * T_s)))
+
+
+def polarity_design(plate, commissioning, T_s, inverter, align_tolerance_rad, least_sequences):
+    """The polarity pulses for a motor (its nameplate ``plate``, refined by the rotating test) from its
+    commissioning: the largest pulse current up to rated current whose pulses turn the rotor (electrical) less
+    than the alignment tolerance ``align_tolerance_rad`` (the test's axis stays as aligned), the shortest
+    pulses the bus allows (0.8 U_dc/√3), and the fewest sequences (at least ``least_sequences``, even) whose
+    noise leaves the expected S/T DECISION_Z σ clear of the margin, half of it. None where the commissioning
+    holds no asymmetry or noise, or the inertia is unknown (the fixed pulses of DEFAULTS then). A
+    PolarityDesign with ``problem`` set where no pulses can tell the polarity."""
+    asymmetry, J = commissioning.saturation_asymmetry, plate.J_kgm2
+    if not (math.isfinite(asymmetry) and math.isfinite(J) and commissioning.sensor_noise_A > 0.0):
+        return None
+    R, L, delay = commissioning.R_s_ohm, commissioning.L_dh_H, int(inverter.delay_periods)
+    u_max = 0.8 * inverter.U_dc_V / math.sqrt(3.0)
+    rotor = (plate.n_p, plate.psi_f_Wb, plate.L_d_H - plate.L_q_H, J, ANGLE_UNCERTAINTY_PER_TOLERANCE *
+             align_tolerance_rad)
+    first = max(2, least_sequences + least_sequences % 2)
+    current, largest = PULSE_CURRENT_MAX_PER_RATED * min(plate.rated_current_A, plate.current_limit_A), None
+    while current > 0.05 * plate.rated_current_A:
+        resistive = 0.5 * R * current
+        if resistive >= u_max:
+            current *= PULSE_CURRENT_STEP
+            continue
+        n = max(2, math.ceil(current * L / (T_s * (u_max - resistive))))
+        pulses = (n, current * L / (n * T_s) + resistive, MAX_SEQUENCES, delay)
+        saturated = pulse_currents((R, L, plate.rated_current_A, T_s), pulses, asymmetry)
+        linear = pulse_currents((R, L, plate.rated_current_A, T_s), pulses, 0.0)
+        for sequences in range(first, MAX_SEQUENCES + 1, 2):
+            score, span, weight = _sums(saturated, n, sequences, delay)
+            score_linear, span_linear, _ = _sums(linear, n, sequences, delay)
+            expected = float(abs(score / span - score_linear / span_linear))
+            noise = float(commissioning.sensor_noise_A * math.sqrt(weight) / abs(span))
+            if 0.5 * expected >= DECISION_Z * noise:
+                break
+        motion = rotor_motion_e_rad(saturated[:sequences * 4 * n + delay + 1], rotor, T_s)
+        design = PolarityDesign(n, pulses[1], current, sequences, 0.5 * expected, expected, noise, motion, "")
+        largest = largest or design
+        if motion <= align_tolerance_rad:
+            if design.margin >= DECISION_Z * noise:
+                return design
+            limited = " (larger ones turn the rotor too far)" if design is not largest else ""
+            return design._replace(problem=(
+                f"saturation asymmetry {100.0 * asymmetry:.2g} % (commissioned) gives the polarity pulses an S/T of "
+                f"{expected:.2g} against noise σ {noise:.2g} ({sequences} sequences of {current:.3g} A{limited}; "
+                f"{2.0 * DECISION_Z:g} σ wanted)"))
+        current *= PULSE_CURRENT_STEP
+    if largest is None:
+        return PolarityDesign(0, u_max, 0.0, 0, 0.0, 0.0, math.inf, math.inf, (
+            f"saturation asymmetry {100.0 * asymmetry:.2g} % (commissioned), but the bus's {u_max:.3g} V drive no "
+            f"pulse current through R_s"))
+    return largest._replace(problem=(
+        f"saturation asymmetry {100.0 * asymmetry:.2g} % (commissioned): pulses that resolve it against the sensor "
+        f"noise ({largest.sequences} sequences of {largest.pulse_current_A:.3g} A) turn the rotor "
+        f"{largest.motion_e_rad:.2g} rad, more than the alignment tolerance {align_tolerance_rad:g} rad "
+        f"(J {J:.3g} kg·m²)"))

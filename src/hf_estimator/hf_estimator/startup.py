@@ -61,10 +61,18 @@ from drive_common.motor.commissioning import NAMEPLATE_ONLY
 
 from .alignment import ALIGN_SMOOTHING_S, alignment_step
 from .lock_monitor import backemf_residual, lock_step, reacquire_step
-from .polarity_test import linear_polarity_ratio, polarity_begin, polarity_step, quiet_over, winding_step
+from .polarity_test import (
+    linear_polarity_ratio,
+    polarity_begin,
+    polarity_design,
+    polarity_step,
+    quiet_over,
+    winding_step,
+)
 from .startup_state import (
     NO_POLARITY,
     NO_SALIENCY,
+    NO_SETTLED_AXIS,
     NOT_REFUSED,
     ROTOR_MOVED,
     TOO_MANY_LOSSES,
@@ -76,14 +84,19 @@ from .startup_state import (
 REFUSALS = {NO_SALIENCY: "no saliency found: HF injection cannot tell this rotor's angle (a round rotor?)",
             ROTOR_MOVED: "the rotor turned while aligning (a load driving the shaft?): no still saliency axis "
                          "to align on; start with the shaft held or braked",
+            NO_SETTLED_AXIS: "no saliency axis settled while aligning although the motor's L_dh and L_qh differ: too "
+                             "weak an angle signal against the sensor noise (the drive's predicted angle error)",
             NO_POLARITY: "no saturation asymmetry on the d axis: the magnet's polarity cannot be told",
             TOO_MANY_LOSSES: "lock lost too often; holding zero torque"}
 DEFAULTS = {"align_tolerance_rad": 0.05, "settle_s": 3e-3, "align_timeout_s": 0.1, "quiet_s": 3e-3,
             "pulse_current_per_rated": 0.7, "pulse_s": 5e-4, "pulse_sequences": 2, "polarity_margin": 0.01,
             "polarity_tries": 3, "flush_s": 6e-3, "lock_filter_Hz": 100.0, "lock_persist_s": 5e-3,
-            "lost_hold_s": 0.01, "max_restarts": 3, "backemf_polarity_ratio": 3.0, "polarity_from_recording": False}
+            "lost_hold_s": 0.01, "max_restarts": 3, "backemf_polarity_ratio": 3.0, "polarity_from_recording": False,
+            "run_refused": False}
 """Start-up settings (estimator settings of every injecting estimator; ``polarity_from_recording``: replay,
-item 5)."""
+item 5). The pulses' current, length, count and margin are these only where the commissioning holds no
+saturation asymmetry or the inertia is unknown (polarity_test.polarity_design designs them otherwise).
+``run_refused`` (`drive run --force`): run a drive refused before running (the polarity, the angle signal)."""
 PULSE_VOLTAGE_MAX_PER_LINEAR = 0.8
 """Polarity pulses use at most this share of the linear voltage range U_dc/√3 (longer pulses beyond)."""
 LOCK_RESISTANCE_ERROR = 0.1
@@ -104,11 +117,10 @@ def dead_time_uncertainty_V(inverter, commissioning, share):
     return share * 4.0 / 3.0 * commissioning.dead_time_voltage_V
 
 
-def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
-    """StartupParams for an estimator on ``inverter``
-    (InverterRating: U_dc, ∞ when unknown, and the drive's whole delay); ``settings``: its checked
-    settings (interface.check_settings, DEFAULTS among them), ``error_gain`` its ε per radian."""
-    s = settings
+def _fixed_pulses(nameplate, commissioning, T_s, inverter, s):
+    """(n, pulse_V [V], sequences, margin) of the pulses the settings fix (``pulse_current_per_rated`` of rated
+    current in ``pulse_s``, longer where the bus needs; ``pulse_sequences``; ``polarity_margin``): a drive
+    whose commissioning holds no saturation asymmetry, or that does not know its inertia."""
     I_p = s["pulse_current_per_rated"] * nameplate.rated_current_A
     u_max = PULSE_VOLTAGE_MAX_PER_LINEAR * inverter.U_dc_V / math.sqrt(3.0)
     resistive = 0.5 * commissioning.R_s_ohm * I_p
@@ -117,7 +129,23 @@ def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
                          f"than {u_max:.3g} V across R_s alone")
     n = max(2, int(round(s["pulse_s"] / T_s)),
             math.ceil(I_p * commissioning.L_dh_H / (T_s * (u_max - resistive))))
-    pulse_V = I_p * commissioning.L_dh_H / (n * T_s) + resistive
+    return n, I_p * commissioning.L_dh_H / (n * T_s) + resistive, int(s["pulse_sequences"]), s["polarity_margin"]
+
+
+def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
+    """StartupParams for an estimator on ``inverter``
+    (InverterRating: U_dc, ∞ when unknown, and the drive's whole delay); ``settings``: its checked
+    settings (interface.check_settings, DEFAULTS among them), ``error_gain`` its ε per radian."""
+    s = settings
+    design = polarity_design(nameplate, commissioning, T_s, inverter, s["align_tolerance_rad"],
+                             int(s["pulse_sequences"]))
+    if design is None:
+        n, pulse_V, sequences, margin = _fixed_pulses(nameplate, commissioning, T_s, inverter, s)
+    else:
+        if design.problem and not s["run_refused"]:
+            raise ValueError(f"the magnet's polarity cannot be told before torque: {design.problem}; refused "
+                             f"(`drive run --force` runs it anyway)")
+        n, pulse_V, sequences, margin = design.n, design.pulse_V, design.sequences, design.margin
     other_decay, other_gain = winding_step(commissioning.R_s_ohm, commissioning.L_dh_H, T_s)
     omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * 2.0 * math.pi / 60.0
     threshold = (LOCK_RESISTANCE_ERROR * commissioning.R_s_ohm * nameplate.rated_current_A
@@ -131,10 +159,10 @@ def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
         align_tolerance_rad=s["align_tolerance_rad"], settle_samples=samples(s["settle_s"]),
         align_timeout_samples=samples(s["align_timeout_s"]), quiet_samples=samples(s["quiet_s"]),
         error_smoothing=1.0 - math.exp(-1.0 / samples(ALIGN_SMOOTHING_S)),
-        pulse_samples=n, pulse_V=pulse_V, pulse_sequences=int(s["pulse_sequences"]),
-        polarity_margin=s["polarity_margin"], polarity_tries=int(s["polarity_tries"]),
+        pulse_samples=n, pulse_V=pulse_V, pulse_sequences=sequences,
+        polarity_margin=margin, polarity_tries=int(s["polarity_tries"]),
         polarity_linear_ratio=linear_polarity_ratio(commissioning.R_s_ohm, commissioning.L_dh_H, T_s, n,
-                                                    int(s["pulse_sequences"]), int(inverter.delay_periods)),
+                                                    sequences, int(inverter.delay_periods)),
         other_decay=other_decay, other_gain=other_gain,
         flush_samples=samples(s["flush_s"]), R_s_ohm=commissioning.R_s_ohm, L_dh_H=commissioning.L_dh_H,
         L_qh_H=commissioning.L_qh_H, delta_L_H=nameplate.L_d_H - nameplate.L_q_H, psi_f_Wb=nameplate.psi_f_Wb,

@@ -23,7 +23,7 @@ the d̂ current the voltage beside its pulses drives (a linear winding's) [A]; t
 back-EMF residual (θ̂ frame) [V], the previous currents, the voltage applied before this sample net of the
 dead-time loss [V], samples beyond the threshold, the back-EMF (αβ) [V], and the lost-lock fit of its
 angle (FIT sums, φ raw and unwrapped)."""
-NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES, ROTOR_MOVED = 0, 1, 2, 3, 4
+NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES, ROTOR_MOVED, NO_SETTLED_AXIS = 0, 1, 2, 3, 4, 5
 """Why a start-up was refused (its ``refused`` field)."""
 
 

@@ -91,6 +91,9 @@ class Commissioning(NamedTuple):
     """The carrier ours ran during the loaded test [Hz]; NaN: not run."""
     loaded_test_amplitude_V: float = math.nan
     """The HF amplitude ours ran during the loaded test [V]; NaN: not run."""
+    saturation_asymmetry: float = math.nan
+    """(L_dh at −I_rated − L_dh at +I_rated)/their mean along the magnet's d axis (the standstill test's polarity
+    step) [1]: the magnet's saturation the start-up's polarity pulses measure; NaN: a file written before."""
 
     def loaded_test_values(self):
         """{key: value} of the loaded test's conditions (empty where it did not run)."""
@@ -197,6 +200,7 @@ VALUE_KEYS = (
     Key("J_kgm2", "kg·m²", 0.0, default=math.nan, doc="the rotating test's"),
     Key("loaded_test_frequency_Hz", "Hz", 0.0, default=math.nan, doc="the loaded test's"),
     Key("loaded_test_amplitude_V", "V", 0.0, default=math.nan, doc="the loaded test's"),
+    Key("saturation_asymmetry", "", -1.0, 1.0, default=math.nan, doc="the standstill test's polarity step"),
 )
 """A commissioning file's scalar values, declared once (drive_common.contract.settings.Key); the tables
 (TABLES, OPTIONAL_TABLES) are lists of finite numbers of one length."""
@@ -273,6 +277,8 @@ def commissioning_values(commissioning):
     values = {key: float(getattr(commissioning, key)) for key in SCALARS}
     values.update(commissioning.rotating_values())
     values.update(commissioning.loaded_test_values())
+    if math.isfinite(commissioning.saturation_asymmetry):
+        values["saturation_asymmetry"] = float(commissioning.saturation_asymmetry)
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in TABLES})
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in OPTIONAL_TABLES
                    if getattr(commissioning, key) is not None})

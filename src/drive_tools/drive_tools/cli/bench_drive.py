@@ -100,6 +100,12 @@ def cmd_bench_startup(args):
     for flag, value in (("--angles", args.angles), ("--seeds", args.seeds)):
         if value < 1:
             raise CommandLineError(f"{flag}: must be at least 1, not {value}")
+    seeds = tuple(range(1, args.seeds + 1))
+    if args.drawn:
+        from drive_tools.evaluation.startup_bench import drawn_lines, drawn_startup_bench
+        return _swept("startup", [(args.drawn, f"{args.drawn} drawn motors")],
+                      lambda count, progress: drawn_startup_bench(count, args.draw_seed, args.angles, seeds, progress),
+                      args, lambda reports: drawn_lines(reports[0]), draw_seed=args.draw_seed)
     motors = [load_motor(args.motor, "--motor")] if args.motor else [load_motor(m) for m in sorted(MOTOR_SCENARIOS)]
     cases = STANDARD_CASES
     if args.load is not None:
@@ -111,7 +117,6 @@ def cmd_bench_startup(args):
         first = bench_scenario(motor, args.estimator, 0.0, 1, cases[0])
         warn_if_nameplate_only(scenario_commissioning(first).source, motor.name,
                                MOTOR_SCENARIOS.get(motor.name, f"wang_100rpm --motor {motor.source}"))
-    seeds = tuple(range(1, args.seeds + 1))
     return _swept("startup", [((motor, case), f"{motor}, {case.name}") for motor in motors for case in cases],
                   lambda item, progress: startup_sweep(*item, args.angles, seeds, args.estimator, progress), args,
                   startup_lines, angles=args.angles, seeds=args.seeds)
@@ -149,6 +154,9 @@ def add_bench_commands(bench_sub):
     startup.add_argument("--feedforward", action="store_true",
                          help="with --load: the robot tells the drive the load's torque (torque_feedforward)")
     startup.add_argument("--estimator", help="an injecting estimator (default: injection_frame)")
+    startup.add_argument("--drawn", type=int, metavar="N", help="N many-pole, low-inertia motors drawn, commissioned, "
+                         "started without load (docs/startup.md)")
+    startup.add_argument("--draw-seed", type=int, default=1, help="with --drawn: the draw's seed")
     startup.add_argument("--json", action="store_true")
     startup.set_defaults(func=cmd_bench_startup)
 

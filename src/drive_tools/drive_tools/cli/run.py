@@ -239,6 +239,8 @@ def add_commands(sub):
                           "(default: the inverter's 1; docs/architecture.md)")
     run.add_argument("--record", metavar="BAG",
                      help="write the run as a rosbag2/MCAP bag into this new directory")
+    run.add_argument("--force", action="store_true", help="run a motor the drive refuses before running (its "
+                     "predicted angle error, its polarity: docs/startup.md)")
     run.set_defaults(func=cmd_run)
 
     for name, func, text in (("scenarios", cmd_scenarios, "list shipped scenarios"),

@@ -283,7 +283,8 @@ class CommissioningProcedure:
         self.peak_planned_A = top + ripple
         self.ripple_A = ripple
         self.record = Commissioning(self.R, self.V_dt, *self.gains, *self.offsets, self.noise, self.L_dh, self.L_qh,
-                                    table, shift, slope, source="", saliency_ratio=np.interp(table, grid, ratios))
+                                    table, shift, slope, source="", saliency_ratio=np.interp(table, grid, ratios),
+                                    saturation_asymmetry=abs(self.asymmetry))
         yield self._segment("end")
         yield None
 
