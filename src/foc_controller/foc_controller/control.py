@@ -172,7 +172,7 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
     out.i_d_A, out.i_q_A, out.i_d_ref_A, out.i_q_ref_A = i_d, i_q, i_d_ref, i_q_ref
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline='always')
 def controller_block(x, z_notch, c, n, inputs, estimates, sensing, out):
     """n consecutive samples of ``controller_step``: ``inputs`` (n DRIVE_INPUT records), ``estimates`` (n
     ESTIMATE records), ``sensing`` (drive_common.math.current_sensing.CurrentSensing) → ``out`` (n COMMAND

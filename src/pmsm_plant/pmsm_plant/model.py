@@ -252,7 +252,7 @@ def plant_outputs(x, m):
     return _phase_outputs(x, i_a, i_b, m.n_p)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline='always')
 def plant_block(x, line, k0, n, inputs, p, out):
     """Samples k0 … k0+n−1 of the plant: for each k, the period k−1 under the voltage the delay line
     ``line`` holds for it (none before sample 0), then the sample. ``inputs``: PlantInputs (load and

@@ -132,7 +132,9 @@ def run_blocks(step, loop, k_start, k_end, log):
     Not cached on disk: numba cannot re-save a cache index whose entries are specialised on other
     processes' step functions ("underlying object has vanished"); the kernels it calls are cached. Like
     every kernel on the per-sample path it allocates nothing and is compiled without reference counting
-    (``_nrt=False``: the counts' atomic updates at each call cost a tenth of a sample's time with N = 1).
+    (``_nrt=False``: the counts' atomic updates at each call cost a tenth of a sample's time with N = 1); the
+    block kernels are inlined into it (``inline='always'``: a call copies its parameters, flattened, onto the
+    stack, a tenth again).
     """
     px, line, machine, mech, inverter, sensor, seed, T_s, substeps, imposed = loop.plant
     speed_ref, tau_load, tau_ff, brake = loop.schedule
