@@ -18,7 +18,7 @@ from .startup_state import (
 )
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline='always')
 def backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta, R_s_tracked_ohm):
     """Update the low-passed back-EMF residual (θ̂ frame) with sample k's currents (α, β) [A] and the
     voltage (u_α, u_β) [V] applied in the period before it → its magnitude [V]. e = u − R̂ī − L̂·Δi/T_s per
@@ -54,7 +54,7 @@ def backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta, R_s_tracked_ohm)
     return math.hypot(s.residual_d, s.residual_q)
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline='always')
 def lock_step(x, p, k, residual, observable):
     """Tracking or holding: the residual [V] beyond V_th + ½ max(|ω̂ψ_f|, |e|) for lock_persist_samples
     loses the lock (a π slip makes it 2ωψ_f, a runaway estimate |ω − ω̂|ψ_f). → the state code: LOCK_LOST,

@@ -137,7 +137,7 @@ def _derivatives_at(s, i, drive, m, mech, R_s):
     return u_a - R_s * i_a, u_b - R_s * i_b, d_omega, d_theta
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline='always')
 def _bridge_voltage(x, u, i0, p, U_dc, R_s):
     """Duties (d_a, d_b, d_c) and the average stator voltage (u_α, u_β) [V] the bridge applies in the
     period, by its mode x[INVERTER_MODE]: PWM realises the command u = (u_α, u_β) [V] on the bus U_dc with
@@ -320,7 +320,7 @@ def _adc(value, s):
     return code * lsb
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def sense_currents(i_a, i_b, i_c, s, seed, k):
     """Measured phase currents [A] of the true ones at sample k: gain and offset errors, Gaussian noise
     (seeded by ``seed`` and k) and ADC quantisation (SensorParams s). No state."""
