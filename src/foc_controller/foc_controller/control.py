@@ -33,6 +33,9 @@ INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, TORQUE_ALLOWED, LAST_THETA, STARTED, FO
 N_STATE = 9
 JUMP_RAD = 0.25
 """A change of θ̂ beyond ω̂·T_s by more than this in one sample is a jump, not tracking."""
+ROUNDING_SPARE = 1e-9
+"""A voltage this share of the linear range inside a limiter's bound (the injection's |u_α| + |u_β| taken off
+for the fundamental's) cannot reach it whatever the rounding: the limiter then skips its root."""
 
 
 class ControllerParams(NamedTuple):
@@ -65,6 +68,12 @@ class ControllerParams(NamedTuple):
 
 
 @njit(cache=True)
+def within(x, y, limit):
+    """|(x, y)| ≤ limit, compared in squares (no root)."""
+    return limit > 0.0 and x * x + y * y <= limit * limit
+
+
+@njit(cache=True, _nrt=False)
 def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
     """One control period from sample k: ``inputs`` (a DRIVE_INPUT record, drive_common.contract.drive_records:
     the measured phase currents [A], corrected here by the commissioned ``calibration``, the speed reference
@@ -139,9 +148,12 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
         u_q += omega_e_hat * (c.L_d_H * i_d + c.psi_f_Wb)
 
     u_max = c.U_dc_V / SQRT3
-    u_fund_max = max(u_max - math.hypot(u_inj_alpha, u_inj_beta), 0.0)
-    magnitude = math.hypot(u_d, u_q)
-    scale = 1.0 if magnitude <= u_fund_max else u_fund_max / magnitude
+    inside = (1.0 - ROUNDING_SPARE) * u_max
+    scale = 1.0
+    if not within(u_d, u_q, inside - (abs(u_inj_alpha) + abs(u_inj_beta))):
+        u_fund_max = max(u_max - math.hypot(u_inj_alpha, u_inj_beta), 0.0)
+        magnitude = math.hypot(u_d, u_q)
+        scale = 1.0 if magnitude <= u_fund_max else u_fund_max / magnitude
     x[INT_D] += c.T_s_s * c.ki_d * e_d + (scale - 1.0) * u_d
     x[INT_Q] += c.T_s_s * c.ki_q * e_q + (scale - 1.0) * u_q
     u_d *= scale
@@ -151,15 +163,16 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
     u_alpha, u_beta = rotate(u_d, u_q, theta_v)
     u_alpha += u_inj_alpha
     u_beta += u_inj_beta
-    total = math.hypot(u_alpha, u_beta)
-    if total > u_max:
-        u_alpha *= u_max / total
-        u_beta *= u_max / total
+    if not within(u_alpha, u_beta, inside):
+        total = math.hypot(u_alpha, u_beta)
+        if total > u_max:
+            u_alpha *= u_max / total
+            u_beta *= u_max / total
     out.u_alpha_V, out.u_beta_V = u_alpha, u_beta
     out.i_d_A, out.i_q_A, out.i_d_ref_A, out.i_q_ref_A = i_d, i_q, i_d_ref, i_q_ref
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, inline='always')
 def controller_block(x, z_notch, c, n, inputs, estimates, sensing, out):
     """n consecutive samples of ``controller_step``: ``inputs`` (n DRIVE_INPUT records), ``estimates`` (n
     ESTIMATE records), ``sensing`` (drive_common.math.current_sensing.CurrentSensing) → ``out`` (n COMMAND

@@ -97,7 +97,7 @@ def make_protection_params(nameplate, inverter, T_s, settings=None, commissionin
                                                               "ambient_degC", "warning_degC", "limit_degC")})
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, inline='always')
 def protection_block(s, p, currents, n, k_last, U_dc, omega_e_hat, cx):
     """n samples, the last sample k_last: the phase currents (n × 3, measured [A]) heat the winding estimate
     (winding_block); the bus U_dc [V] measured at the last of them and the speed estimate ω̂_e [rad/s] there

@@ -36,7 +36,7 @@ count, the smoothed |Δ̂| [1/H], the ring of issued injections (carrier, angle)
 samples and the ring of products (d, q, c²) of one carrier period (the rings' first entries used)."""
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def monitor_step(m, p, k, i_alpha, i_beta, carrier_now, angle_now):
     """Update the monitor state ``m`` (monitor_dtype) with sample k's currents; record the injection
     issued now (carrier value c and axis angle).

@@ -26,7 +26,7 @@ def sample_inputs():
     return np.zeros(1, SAMPLE)
 
 
-@njit
+@njit(_nrt=False, inline='always')
 def estimator_block(step, core, k0, n, inputs, line, sensing, out):
     """Samples k0 … k0+n−1 of the estimator ``step`` on ``core`` (EstimatorCore).
 

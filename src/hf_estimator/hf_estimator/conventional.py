@@ -64,7 +64,7 @@ class WangParams(NamedTuple):
     startup: StartupParams
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def conventional_step(x, p, k, sample, out):
     """One sample (interface.py) → ``out``: θ̂_e, ω̂_e = the PI integrator, the injection, ε [A], signal
     |Δ̂| [1/H], the start-up's state. State x (pulsating.py): its filters are the band-pass and the
@@ -76,7 +76,7 @@ def conventional_step(x, p, k, sample, out):
     wang_answer(x, p, k, sample, out, i_alpha, i_beta, eps)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def wang_answer(x, p, k, sample, out, i_alpha, i_beta, eps):
     """What ``conventional`` and ``improved`` do with their ε: track it, monitor the admittance, inject
     U_h cos ω_h t on the new d̂ (Wang Eq. 7), supervise the start-up, answer θ̂ and the PI integrator."""

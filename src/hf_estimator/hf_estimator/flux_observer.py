@@ -56,7 +56,7 @@ class FluxObserverParams(NamedTuple):
     dead_time_smoothing_A: float
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def flux_observer_step(x, p, k, sample, out):
     """One sample (interface.py): the currents and the voltage applied in the period before → ``out``:
     θ̂_e, ω̂_e, no injection, ε [rad], signal the back-EMF |ω̂|ψ_f [V], the state code, weight 1. State x:
@@ -104,7 +104,7 @@ def flux_observer_step(x, p, k, sample, out):
     out.leader = LEADER_BACKEMF
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def flux_observer_follow(x, p, theta, omega):
     """Set the observer's θ̂ and ω̂ to another source's ``theta`` [rad] and ``omega`` [rad/s] (the follower of
     a blend, hf_estimator.full_speed), and its flux to the current model's in that frame (L_d i_d + ψ_f,

@@ -98,13 +98,13 @@ class FullSpeedParams(NamedTuple):
     lookahead_s: float
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _slew(value, target, step):
     """``value`` moved towards ``target`` by at most ``step``."""
     return min(value + step, target) if target > value else max(value - step, target)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def full_speed_step(x, p, k, sample, out):
     """One sample (interface.py) → ``out``: the blend's θ̂_e, ω̂_e, ours' injection faded, the weighted ε
     [rad], ours' |Δ̂| [1/H], the state, the injection's amplitude [V], the observer's weight and the

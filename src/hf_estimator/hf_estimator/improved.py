@@ -18,7 +18,7 @@ from .conventional import DEFAULTS, WangVariant, make_wang, wang_answer
 from .interface import register
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def improved_step(x, p, k, sample, out):
     """One sample (interface.py) → ``out``: θ̂_e, ω̂_e = the PI integrator, the injection, ε [A] of Eq. 22,
     signal |Δ̂| [1/H], the start-up's state. State x (pulsating.py): its filters are the α and the β

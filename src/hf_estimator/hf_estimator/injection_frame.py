@@ -232,7 +232,7 @@ class InjectionFrameParams(NamedTuple):
     startup: StartupParams
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _fit_error(x, n, p):
     """Least-squares Γ̂ from the sliding sums → (e [rad], |Δ̂| [1/H], Σ̂ [1/H])."""
     sums = x.sums
@@ -270,7 +270,7 @@ def _fit_error(x, n, p):
             0.5 * (g_dd + g_qq))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def injection_frame_step(x, p, k, sample, out):
     """One sample (interface.py): the currents and the voltage applied in the period before → ``out``:
     θ̂_e, ω̂_e = the loop's integrator, the injection, ε [rad], signal |Δ̂| [1/H], the start-up's state.

@@ -18,7 +18,7 @@ from .startup_state import (
 )
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, inline='always')
 def backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta, R_s_tracked_ohm):
     """Update the low-passed back-EMF residual (θ̂ frame) with sample k's currents (α, β) [A] and the
     voltage (u_α, u_β) [V] applied in the period before it → its magnitude [V]. e = u − R̂ī − L̂·Δi/T_s per
@@ -54,7 +54,7 @@ def backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta, R_s_tracked_ohm)
     return math.hypot(s.residual_d, s.residual_q)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, inline='always')
 def lock_step(x, p, k, residual, observable):
     """Tracking or holding: the residual [V] beyond V_th + ½ max(|ω̂ψ_f|, |e|) for lock_persist_samples
     loses the lock (a π slip makes it 2ωψ_f, a runaway estimate |ω − ω̂|ψ_f). → the state code: LOCK_LOST,
@@ -73,7 +73,7 @@ def lock_step(x, p, k, residual, observable):
     return float(code)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def fit_backemf_angle(x, p, since):
     """Add this sample's back-EMF angle (stationary frame, unwrapped) to a straight-line fit over the
     lost-lock hold, when the back-EMF stands clear of its threshold."""
@@ -96,7 +96,7 @@ def fit_backemf_angle(x, p, since):
     s.fit_tt += t * t
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def seed_from_backemf(x, p, since):
     """At the end of the lost-lock hold: when the back-EMF stood clear in most of it, its angle's fitted
     line gives the rotor's speed (the slope: the back-EMF turns with the rotor, either way) and angle
@@ -122,7 +122,7 @@ def seed_from_backemf(x, p, since):
     return seeded
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def reacquire_step(x, p, k, since, u_inj_alpha, u_inj_beta):
     """A lost lock, ``since`` samples ago: zero torque for lost_hold_samples while the back-EMF's angle
     is fitted, then θ̂ seeded from it where it stood clear and a new alignment; more than max_restarts

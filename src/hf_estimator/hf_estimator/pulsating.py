@@ -27,7 +27,7 @@ def pulsating_state():
     return state
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def q_axis_demodulation(z, bandpass, lowpass, i_alpha, i_beta, theta, amplitude, carrier):
     """The q̂-axis demodulation of Wang §II (Eq. 8-11) and Szabó §2.3 (Eq. 15-21): î_q in the θ̂ frame →
     band-pass (filter state z[0]) → × amplitude·carrier → low-pass (z[1])."""
@@ -35,7 +35,7 @@ def q_axis_demodulation(z, bandpass, lowpass, i_alpha, i_beta, theta, amplitude,
     return sos_step(lowpass, z[1], sos_step(bandpass, z[0], i_q) * amplitude * carrier)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def pulsating_track_and_inject(x, p, k, i_alpha_beta_A, carrier, error):
     """What the papers' methods do after demodulating ε: the PI tracking loop (p.kp, p.ki, p.T_s_s), the HF
     admittance monitor (p.monitor) on the measured currents (α, β) [A], and the next injection

@@ -18,7 +18,7 @@ SENSORED = np.dtype([("theta", np.float64), ("omega", np.float64)])
 """Its state: the last angle [rad] and speed [rad/s] passed through."""
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def sensored_step(x, p, k, sample, out):
     """One sample (interface.py) → ``out``: the encoder's θ_e, ω_e passed through, no injection, ε 0,
     signal 1, state tracking (an encoder needs no start-up)."""

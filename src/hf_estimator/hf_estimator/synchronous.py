@@ -53,7 +53,7 @@ class SynchronousParams(NamedTuple):
     startup: StartupParams
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def synchronous_step(x, p, k, sample, out):
     """One sample (interface.py) → ``out``: θ̂_e, ω̂_e = the PI output, the injection, ε = −î_qhf [A], signal
     |Δ̂| [1/H], the start-up's state. State x (pulsating.py): its filters are the band-pass and the T_f

@@ -118,9 +118,15 @@ def _derivatives(s, drive, m, mech, R_s):
     """Time derivatives of the state s = (ψ_α, ψ_β [Wb], ω_m [rad/s], θ_m [rad]) under drive = (u_α, u_β
     [V], τ_load [N·m], imposed, ω_imposed [rad/s]): dψ/dt = u − R_s i (R_s [Ω]), the shaft's torque
     balance (or the imposed speed)."""
+    return _derivatives_at(s, stator_current(s[0], s[1], s[3], m), drive, m, mech, R_s)
+
+
+@njit(cache=True)
+def _derivatives_at(s, i, drive, m, mech, R_s):
+    """_derivatives where the state's currents i = (i_α, i_β) [A] are known already."""
     psi_a, psi_b, omega_m, theta_m = s
     u_a, u_b, tau_load, imposed, omega_imposed = drive
-    i_a, i_b = stator_current(psi_a, psi_b, theta_m, m)
+    i_a, i_b = i
     tau_e = electromagnetic_torque(psi_a, psi_b, i_a, i_b, m.n_p)
     if imposed:
         d_omega = 0.0
@@ -131,7 +137,7 @@ def _derivatives(s, drive, m, mech, R_s):
     return u_a - R_s * i_a, u_b - R_s * i_b, d_omega, d_theta
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, inline='always')
 def _bridge_voltage(x, u, i0, p, U_dc, R_s):
     """Duties (d_a, d_b, d_c) and the average stator voltage (u_α, u_β) [V] the bridge applies in the
     period, by its mode x[INVERTER_MODE]: PWM realises the command u = (u_α, u_β) [V] on the bus U_dc with
@@ -158,7 +164,7 @@ def _bridge_voltage(x, u, i0, p, U_dc, R_s):
     return d_a, d_b, d_c, v_a, v_b
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _link_and_winding(x, duties, i0, i1, p, U_dc, R_s):
     """The period's DC link and winding heat from the duties (d_a, d_b, d_c) and the currents (i_α, i_β)
     [A] at its start (i0) and end (i1): i_dc = Σ d_x i_x (period average), C dU/dt = −i_dc − i_brake above
@@ -183,10 +189,11 @@ def _link_and_winding(x, duties, i0, i1, p, U_dc, R_s):
         x[WINDING_RISE] += T_s / m.C_th_J_K * (1.5 * R_s * i_sq - x[WINDING_RISE] / m.R_th_K_W)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _period(x, u, i0, tau_load_Nm, imposed, omega_imposed, p):
-    """plant_advance with the currents i0 = (i_α, i_β) [A] of the state at the period start given;
-    returns those at its end (the next sample's), which the DC link and the winding need too."""
+    """plant_advance with the currents i0 = (i_α, i_β) [A] of the state at the period start given (the
+    first Runge-Kutta stage's); returns those at its end (the next sample's), which the DC link and the
+    winding need too. Four current evaluations a substep."""
     m = p.machine
     U_dc = bus_voltage(x, p.inverter)
     R_s = winding_resistance(x, m)
@@ -195,9 +202,10 @@ def _period(x, u, i0, tau_load_Nm, imposed, omega_imposed, p):
     d_a, d_b, d_c, v_a, v_b = _bridge_voltage(x, u, i0, p, U_dc, R_s)
     drive = (v_a, v_b, tau_load_Nm, imposed, omega_imposed)
     h = p.T_s_s / p.substeps
+    i_step = i0
     for _ in range(p.substeps):
         s0, s1, s2, s3 = x[PSI_ALPHA], x[PSI_BETA], x[OMEGA_M], x[THETA_M]
-        k1 = _derivatives((s0, s1, s2, s3), drive, m, p.mechanics, R_s)
+        k1 = _derivatives_at((s0, s1, s2, s3), i_step, drive, m, p.mechanics, R_s)
         k2 = _derivatives((s0 + 0.5 * h * k1[0], s1 + 0.5 * h * k1[1], s2 + 0.5 * h * k1[2],
                            s3 + 0.5 * h * k1[3]), drive, m, p.mechanics, R_s)
         k3 = _derivatives((s0 + 0.5 * h * k2[0], s1 + 0.5 * h * k2[1], s2 + 0.5 * h * k2[2],
@@ -208,9 +216,9 @@ def _period(x, u, i0, tau_load_Nm, imposed, omega_imposed, p):
         x[PSI_BETA] = s1 + h / 6.0 * (k1[1] + 2.0 * k2[1] + 2.0 * k3[1] + k4[1])
         x[OMEGA_M] = s2 + h / 6.0 * (k1[2] + 2.0 * k2[2] + 2.0 * k3[2] + k4[2])
         x[THETA_M] = s3 + h / 6.0 * (k1[3] + 2.0 * k2[3] + 2.0 * k3[3] + k4[3])
-    i1 = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
-    _link_and_winding(x, (d_a, d_b, d_c), i0, i1, p, U_dc, R_s)
-    return i1
+        i_step = stator_current(x[PSI_ALPHA], x[PSI_BETA], x[THETA_M], m)
+    _link_and_winding(x, (d_a, d_b, d_c), i0, i_step, p, U_dc, R_s)
+    return i_step
 
 
 @njit(cache=True)
@@ -244,7 +252,7 @@ def plant_outputs(x, m):
     return _phase_outputs(x, i_a, i_b, m.n_p)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False, inline='always')
 def plant_block(x, line, k0, n, inputs, p, out):
     """Samples k0 … k0+n−1 of the plant: for each k, the period k−1 under the voltage the delay line
     ``line`` holds for it (none before sample 0), then the sample. ``inputs``: PlantInputs (load and
@@ -312,7 +320,7 @@ def _adc(value, s):
     return code * lsb
 
 
-@njit(cache=True)
+@njit(cache=True, inline='always')
 def sense_currents(i_a, i_b, i_c, s, seed, k):
     """Measured phase currents [A] of the true ones at sample k: gain and offset errors, Gaussian noise
     (seeded by ``seed`` and k) and ADC quantisation (SensorParams s). No state."""

@@ -16,7 +16,7 @@ def command_line(delay_periods):
     return np.zeros((int(delay_periods) + 1, 2))
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def issue_command(line, k, u_alpha, u_beta):
     """Store the command answering sample k [V, αβ]."""
     slot = k % line.shape[0]
@@ -24,7 +24,7 @@ def issue_command(line, k, u_alpha, u_beta):
     line[slot, 1] = u_beta
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def applied_voltage(line, j):
     """The command acting during period j (from t_j to t_{j+1}): command(j − d), zero before sample 0."""
     k = j - (line.shape[0] - 1)

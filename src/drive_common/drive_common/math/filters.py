@@ -26,7 +26,7 @@ def notch(frequency_Hz, quality, T_s):
     return signal.tf2sos(b, a)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def sos_step(sos, z, x):
     """Filter one sample x through the sections ``sos`` with state ``z`` (n_sections × 2)."""
     for s in range(sos.shape[0]):

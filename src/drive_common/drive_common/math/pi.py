@@ -2,7 +2,7 @@
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def pi_limited(x, index, kp, ki, T_s, error, limit, feedforward):
     """PI plus ``feedforward`` with output limit ±limit and back-calculation anti-windup; integral state
     in x[index].

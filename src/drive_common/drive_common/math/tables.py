@@ -2,7 +2,7 @@
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def table_value(x, grid, table):
     """``table`` at ``x`` by linear interpolation over the uniform ascending ``grid``, held at its ends;
     0 for an empty table."""

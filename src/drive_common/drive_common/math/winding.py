@@ -69,7 +69,7 @@ def winding_estimate(s, p):
     return T, resistance_at(p, T)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def winding_block(s, p, currents, n):
     """n samples of phase currents (n × 3, measured [A]; a sample not finite is skipped) heat the winding
     estimate of the state s sample by sample; R̂_s moves R_S_IN_USE by steps of R_S_STEP. Returns T̂ [°C]."""

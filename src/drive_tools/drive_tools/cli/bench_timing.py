@@ -190,7 +190,8 @@ def add_bench_commands(bench_sub):
                                                              "--against: rounds)")
     tp.add_argument("--against", metavar="COMMIT",
                     help="also time the bench of this older commit (a git worktree of it, this venv), alternating "
-                         "with today's in separate processes: best, median and the ratio per estimator")
+                         "with today's in separate processes, each on its CPU clock: best, median and the ratio "
+                         "per estimator")
     tp.add_argument("--no-motulator", action="store_true",
                     help="skip timing motulator's signal-injection example")
     tp.add_argument("--json", action="store_true")

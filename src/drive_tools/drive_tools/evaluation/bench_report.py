@@ -13,7 +13,7 @@ def against_lines(report):
     """Today's throughput beside an older commit's (drive_tools.evaluation.bench.throughput_against)."""
     then = report["label"]
     lines = [f"  {report['rounds']} alternating runs of {report['samples']} samples each, today and {then} "
-             f"(samples/s, best / median)"]
+             f"(samples per CPU second, best / median)"]
     for name, row in report["results"].items():
         cells = [f"{label} " + (f"{row[label]['best']:11,.0f} / {row[label]['median']:11,.0f}" if "best" in row[label]
                                 else f"not measured ({row[label]['error']})") for label in ("today", then)]

@@ -48,11 +48,27 @@ class Schedule(NamedTuple):
     brake: np.ndarray
 
 
+class BlockBuffers(NamedTuple):
+    """One block's samples as they pass from core to core: the plant's rows (N × 10, pmsm_plant.model.plant_block),
+    the drive's inputs (N DRIVE_INPUT records), the estimates (N ESTIMATE) and the commands (N COMMAND)."""
+
+    plant: np.ndarray
+    inputs: np.ndarray
+    estimates: np.ndarray
+    commands: np.ndarray
+
+
+def block_buffers(block_samples):
+    """Zeroed BlockBuffers for blocks of ``block_samples`` samples."""
+    return BlockBuffers(np.zeros((block_samples, 10)), np.zeros(block_samples, DRIVE_INPUT),
+                        np.zeros(block_samples, ESTIMATE), np.zeros(block_samples, COMMAND))
+
+
 class ClosedLoop(NamedTuple):
     """Every core of the one-process loop with its state: the plant, the estimator (EstimatorCore), the
     controller's parameters and states (foc_controller.control), the protections' parameters and state
-    (foc_controller.protection), how the drive reads its currents (CurrentSensing), the schedule and the
-    block size N."""
+    (foc_controller.protection), how the drive reads its currents (CurrentSensing), the schedule, the
+    block size N and the block's buffers."""
 
     plant: PlantCore
     estimator: EstimatorCore
@@ -64,9 +80,10 @@ class ClosedLoop(NamedTuple):
     sensing: CurrentSensing
     schedule: Schedule
     block_samples: int
+    buffers: BlockBuffers
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def write_row(row, t_s, truth, inputs, estimate, command):
     """Write one sample into a log row in the layout of drive_common.contract.log.LOG_COLUMNS: the time t_s
     [s]; ``truth``, the plant's (θ_m, ω_m, τ_e, τ_load, i_a, i_b, i_c) (zeros where the drive knows none);
@@ -96,7 +113,7 @@ def write_row(row, t_s, truth, inputs, estimate, command):
     row[27] = estimate.leader
 
 
-@njit
+@njit(_nrt=False)
 def run_blocks(step, loop, k_start, k_end, log):
     """Run samples k_start..k_end−1 (k_start a multiple of the block size N) of ``loop`` (ClosedLoop), its
     estimator's step kernel ``step``, in blocks of N samples; row k − k_start of ``log`` receives sample k
@@ -113,19 +130,19 @@ def run_blocks(step, loop, k_start, k_end, log):
     they chose from the next period on; the estimator's resistive drop takes their R̂_s (R_S_IN_USE) from
     the next block on.
     Not cached on disk: numba cannot re-save a cache index whose entries are specialised on other
-    processes' step functions ("underlying object has vanished"); the kernels it calls are cached.
+    processes' step functions ("underlying object has vanished"); the kernels it calls are cached. Like
+    every kernel on the per-sample path it allocates nothing and is compiled without reference counting
+    (``_nrt=False``: the counts' atomic updates at each call cost a tenth of a sample's time with N = 1); the
+    block kernels are inlined into it (``inline='always'``: a call copies its parameters, flattened, onto the
+    stack, a tenth again).
     """
-    block = loop.block_samples
     px, line, machine, mech, inverter, sensor, seed, T_s, substeps, imposed = loop.plant
     speed_ref, tau_load, tau_ff, brake = loop.schedule
     cx, cz, cp, ps, pp = loop.controller_x, loop.controller_z, loop.controller, loop.protection_x, loop.protection
     n_p = machine.n_p
-    plant_out = np.zeros((block, 10))
-    est_out = np.zeros(block, ESTIMATE)
-    inputs = np.zeros(block, DRIVE_INPUT)
-    ctrl_out = np.zeros(block, COMMAND)
-    for k0 in range(k_start, k_end, block):
-        n = min(block, k_end - k0)
+    plant_out, inputs, est_out, ctrl_out = loop.buffers
+    for k0 in range(k_start, k_end, loop.block_samples):
+        n = min(loop.block_samples, k_end - k0)
         release = -1
         if brake[0] > 0.5:
             release = NOT_RELEASED if brake[1] < 0.0 else int(brake[1])

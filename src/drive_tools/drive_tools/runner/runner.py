@@ -21,7 +21,7 @@ from hf_estimator.interface import contract_injection
 from hf_estimator.startup import estimator_startup
 from pmsm_plant.build import plant_for_scenario
 
-from .loop import ClosedLoop, PlantCore, Schedule, run_blocks
+from .loop import ClosedLoop, PlantCore, Schedule, block_buffers, run_blocks
 
 
 @dataclass
@@ -62,7 +62,7 @@ class Drive:
         return ClosedLoop(plant, self.estimator.core(), self.controller, self.controller_x, self.controller_z,
                           self.protection, self.protection_x, self.sensing(),
                           Schedule(self.speed_ref, self.tau_load, self.tau_feedforward, self.brake),
-                          self.scenario.block_samples)
+                          self.scenario.block_samples, block_buffers(self.scenario.block_samples))
 
     def sensing(self):
         """How this drive reads its currents: the commissioned calibration and the motor's trip current."""
