@@ -12,6 +12,9 @@ from .registry import make_estimator
 SCALED_TRACKING = ("injection_frame", "full_speed")
 """Ours: the tracking bandwidth, carrier and amplitude follow the motor (scaled_loops) unless set; the
 papers' estimators keep their papers' carrier and loop unless set (only the bus caps their amplitude)."""
+OWN_CARRIER = ("square_wave",)
+"""Its carrier, amplitude and tracking follow its own rules (hf_estimator.square_wave); a scenario's sine
+carrier is not its."""
 
 
 def scaled_injection(scenario, plate):
@@ -22,7 +25,7 @@ def scaled_injection(scenario, plate):
     if not injects(scenario.estimator):
         return settings, []
     notes = list(loops.notes) if scenario.estimator in SCALED_TRACKING else []
-    injection = dict(scenario.injection)
+    injection = {} if scenario.estimator in OWN_CARRIER else dict(scenario.injection)
     if scenario.estimator in SCALED_TRACKING:
         injection = {"frequency_Hz": loops.injection_frequency_Hz, "amplitude_V": loops.injection_amplitude_V,
                      **injection}
