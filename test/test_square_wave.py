@@ -1,12 +1,14 @@
 """The square-wave estimator (hf_estimator/square_wave.py): its error signal against the model on the plant, the
 closed loop on a shipped scenario, and the rule that says when it serves a motor."""
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from drive_common.contract.estimator_records import SAMPLE, estimates
 from drive_common.math.command_delay import applied_voltage, command_line, issue_command
+from drive_common.motor.commissioning import nameplate_commissioning
 from drive_common.motor.motor_file import load_motor
 from helpers import ideal_commissioning as commission
 from helpers import run, shipped
@@ -14,6 +16,7 @@ from hf_estimator.registry import make_estimator
 from hf_estimator.square_wave import (
     demodulation_delay_s,
     sine_tracking_limit_Hz,
+    square_wave_serves,
     square_wave_tracking_limit_Hz,
 )
 from pmsm_plant.model import N_STATE, plant_advance, plant_outputs, plant_reset
@@ -24,6 +27,7 @@ pytestmark = pytest.mark.unit
 
 WANG = PRESETS["wang_spmsm"]
 WANG_INVERTER = load_motor("wang_spmsm", "test").inverter
+ROOT = Path(__file__).resolve().parent.parent
 LINEAR = {"saturation": False, "dead_time": False, "delay": True, "sensor_noise": False, "sensor_offset_gain": False,
           "adc": False}
 
@@ -83,3 +87,41 @@ def test_closed_loop_meets_the_targets_on_a_shipped_scenario():
     assert metrics["angle_error_rms"] <= 0.02
     assert metrics["angle_error_peak"] <= 0.15
     assert not metrics["lock_lost_s"]
+
+
+def rated_commissioning(motor, noise_A):
+    """What commissioning would find on a docs/ motor file's plant, to the rule's needs: its HF inductances and
+    sensor noise (no saliency table: the no-load saliency throughout)."""
+    plant = motor.plant
+    c = nameplate_commissioning(motor.nameplate)
+    return c._replace(L_dh_H=plant["L_dh_H"], L_qh_H=plant["L_qh_H"], sensor_noise_A=noise_A)
+
+
+@pytest.mark.parametrize("motor_file, T_s, serves", [
+    ("docs/motors/joint_21pp_48v.yaml", 1e-4, True),
+    ("docs/motors/joint_14pp_24v.yaml", 1e-4, True),
+    ("docs/motors/robot_joint_10pp.yaml", 1e-4, True),
+    ("docs/motors/robot_joint_10pp.yaml", 5e-5, False),
+    ("docs/motors/joint_21pp_48v_geared.yaml", 1e-4, False),
+    ("docs/motors/ipmsm_2kw.yaml", 1e-4, False),
+])
+def test_the_rule_takes_the_square_wave_where_the_rotors_acceleration_outruns_the_sine(motor_file, T_s, serves):
+    """square_wave_serves: the light joints at 10 kHz (their rated-torque acceleration wants 116-201 Hz of tracking,
+    the sine allows 80) take it; at 20 kHz the sine's 160 Hz covers robot_joint_10pp's 116; a geared joint (J × 10)
+    and a 2 kW motor want less than the sine allows. Where it serves, the rotor wants more than the sine allows
+    and the square wave's delay allows more than the sine."""
+    motor = load_motor(str(ROOT / motor_file), "test")
+    choice = square_wave_serves(motor.nameplate, rated_commissioning(motor, 0.015), motor.inverter, T_s)
+    assert choice.serves == serves, choice.reason
+    if serves:
+        assert choice.wanted_Hz > choice.sine_limit_Hz
+        assert choice.square_limit_Hz > choice.sine_limit_Hz
+
+
+def test_the_rule_leaves_a_weak_signal_to_the_sine():
+    """The same light joint with 10 times the sensor noise: the square wave's signal would make it refuse, so the
+    rule does not take it, and says so."""
+    motor = load_motor(str(ROOT / "docs/motors/joint_21pp_48v.yaml"), "test")
+    choice = square_wave_serves(motor.nameplate, rated_commissioning(motor, 0.15), motor.inverter, 1e-4)
+    assert not choice.serves
+    assert "refuse" in choice.reason

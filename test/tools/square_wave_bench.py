@@ -5,7 +5,8 @@ error RMS / peak, the verdict, the HF current (sampled, and for the square wave 
 and its copper loss; and the tracking loop's closed-loop bandwidth, measured by the stepped sine of
 `drive tune pll --check` (shaft driven, speed loop held). One JSON document on stdout.
 
-``python test/tools/square_wave_bench.py [--sample-period S] [--seeds 1,2] [--no-bandwidth] FILE ...``
+``python test/tools/square_wave_bench.py [--sample-period S] [--seeds 1,2] [--no-bandwidth] [--scenarios A,B] FILE ...``
+(``--scenarios``: shipped scenarios run by both estimators as they ship, the same measures).
 """
 import argparse
 import dataclasses
@@ -17,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drive_common.config.scenario import parse_scenario
+from drive_common.config.scenario import load_scenario, parse_scenario
 from drive_common.motor.commissioning import resolve_commissioning, save_commissioning
 from drive_common.motor.motor_file import load_motor
 from drive_tools.evaluation.metrics import compute_metrics, supervision_faults
@@ -87,15 +88,30 @@ def motor_rows(motor_ref, T_s, seeds, bandwidth):
     return {"motor": motor.name, "T_s": T_s, "rule": choice._asdict(), "bandwidth": bandwidths, "cases": rows}
 
 
+def scenario_rows(names, seeds):
+    """The shipped scenarios ``names`` run by each estimator at each noise seed."""
+    rows = []
+    for name in names:
+        for estimator in ESTIMATORS:
+            for seed in seeds:
+                rows.append({"scenario": name, **case_row(load_scenario(name), estimator, seed)})
+                row = rows[-1]
+                print(f"{name} {estimator} seed {seed}: {row['rms']:.4f} / {row['peak']:.3f}", file=sys.stderr)
+    return rows
+
+
 def main():
     parser = argparse.ArgumentParser()
-    parser.add_argument("motors", nargs="+")
+    parser.add_argument("motors", nargs="*")
+    parser.add_argument("--scenarios", default="", help="comma-separated shipped scenarios")
     parser.add_argument("--sample-period", type=float, default=1e-4)
     parser.add_argument("--seeds", default="1")
     parser.add_argument("--no-bandwidth", action="store_true")
     args = parser.parse_args()
     seeds = [int(s) for s in args.seeds.split(",")]
     report = [motor_rows(m, args.sample_period, seeds, not args.no_bandwidth) for m in args.motors]
+    if args.scenarios:
+        report.append({"scenarios": scenario_rows(args.scenarios.split(","), seeds)})
     json.dump(report, sys.stdout, indent=1, default=float)
 
 

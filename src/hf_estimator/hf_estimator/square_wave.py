@@ -176,7 +176,8 @@ def square_wave_serves(nameplate, commissioning, inverter, T_s, snr_min=DEFAULTS
     """The rule for choosing the square wave over ours' sine carrier (docs/hf-demodulation.md §6): it serves a
     motor whose rated-torque acceleration wants a tracking bandwidth beyond what the sine carrier allows at this
     sampling, where the square wave's delay allows more, and where its signal at the largest amplitude the caps
-    allow reaches the noise margin its wider loop wants. → SquareWaveChoice."""
+    allow keeps it from refusing (WEAK_SIGNAL_SHARE of the margin its wider loop wants: at 0.86 of it the light
+    joint of docs/results.md keeps the targets). → SquareWaveChoice."""
     wanted = rotor_tracking_wanted_Hz(nameplate)
     sine = sine_tracking_limit_Hz(T_s)
     square = square_wave_tracking_limit_Hz(T_s, inverter.delay_periods)
@@ -193,9 +194,10 @@ def square_wave_serves(nameplate, commissioning, inverter, T_s, snr_min=DEFAULTS
     if square <= sine:
         return SquareWaveChoice(False, wanted, sine, square, snr, snr_wanted,
                                 f"the drive's delay leaves the square wave no wider loop ({square:.0f} Hz)")
-    if snr < snr_wanted:
+    if snr < WEAK_SIGNAL_SHARE * snr_wanted:
         return SquareWaveChoice(False, wanted, sine, square, snr, snr_wanted,
-                                f"its saliency current reaches {snr:.1f} σ at most, {snr_wanted:.1f} wanted")
+                                f"its saliency current reaches {snr:.1f} σ at most, {snr_wanted:.1f} wanted: it would "
+                                f"refuse")
     return SquareWaveChoice(True, wanted, sine, square, snr, snr_wanted,
                             f"tracking wants {wanted:.0f} Hz: the sine carrier allows {sine:.0f} Hz, the square wave "
                             f"{square:.0f} Hz at {snr:.1f} σ of signal")
