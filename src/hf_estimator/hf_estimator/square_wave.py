@@ -34,7 +34,8 @@ drives VESC and MESC run their HFI.
    (injection_frame item 5) on that current: raised to ``saliency_snr_min``·√(B/18 Hz) σ of the
    commissioned sensor noise at the saliency left at rated current, within the ripple cap (the
    triangle's peak m·T_s·U_h·Σ/2 ≤ HF_RIPPLE_MAX_PER_RATED × rated current) and the voltage cap; where
-   the caps hold it below WEAK_SIGNAL_SHARE of that, refused unless ``run_on_weak_signal``. Each step
+   the caps hold it below WEAK_SIGNAL_SHARE of that, refused unless ``run_on_weak_signal`` (an amplitude set, as a
+   recording's in replay, runs with a note). Each step
    carries the same information whatever m, while the ripple grows as m: m = 1 costs least.
 4. Tracking: ours' type-2 / type-3 loop (injection_frame item 6) on ε. Its bandwidth follows the rotor's
    acceleration as ours' (drive_common.motor.scaled_loops: √(a_e/0.25 rad), ≥ 18 Hz) but is capped by
@@ -310,11 +311,17 @@ def saliency_retained_table(commissioning):
 
 
 def _checked(settings, T_s):
-    """The settings read through their keys, None kept for the two the rules set."""
+    """The settings read through their keys, None kept for the two the rules set. A carrier given as
+    ``frequency_Hz`` (a recording's, in replay) sets the half-period: m = round(f_s/(2·f_h)), at least 1."""
     rule_set = {name: settings.get(name) for name in ("amplitude_V", "pll_bandwidth_Hz")}
     given = {name: value for name, value in settings.items() if not (name in rule_set and value is None)}
-    s = check_settings("square_wave", given, {**DEFAULTS, "amplitude_V": 1.0, "pll_bandwidth_Hz": MIN_TRACKING_HZ},
-                       T_s)
+    s = check_settings("square_wave", given, {**DEFAULTS, "amplitude_V": 1.0, "pll_bandwidth_Hz": MIN_TRACKING_HZ,
+                                              "frequency_Hz": MIN_TRACKING_HZ}, T_s)
+    if "frequency_Hz" in given:
+        if "samples_per_half_period" in given:
+            raise ValueError("estimator 'square_wave': frequency_Hz and samples_per_half_period both set the carrier: "
+                             "give one")
+        s["samples_per_half_period"] = max(1, int(round(0.5 / (s["frequency_Hz"] * T_s))))
     for name, value in rule_set.items():
         if value is None:
             s[name] = None
@@ -350,7 +357,7 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
     if snr_min > 0.0 and snr > 0.0 and commissioning.salient() and snr < WEAK_SIGNAL_SHARE * snr_wanted:
         problem = (f"saliency current {snr:.1f} σ of the commissioned sensor noise at {amplitude_V:.3g} V, "
                    f"{snr_wanted:.3g} σ wanted by the tracking loop")
-        if not s["run_on_weak_signal"]:
+        if not s["run_on_weak_signal"] and s["amplitude_V"] is None:
             raise ValueError(f"estimator 'square_wave': {problem}: too weak an angle signal for its targets; refused "
                              f"(the setting run_on_weak_signal: true runs beyond them)")
         notes.append(f"run on a weak angle signal ({problem}): angle errors beyond the targets")
