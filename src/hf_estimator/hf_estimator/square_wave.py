@@ -361,6 +361,9 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
             raise ValueError(f"estimator 'square_wave': {problem}: too weak an angle signal for its targets; refused "
                              f"(the setting run_on_weak_signal: true runs beyond them)")
         notes.append(f"run on a weak angle signal ({problem}): angle errors beyond the targets")
+    if commissioning.saliency_ratio is None and commissioning.salient():
+        notes.append("the commissioning holds no |Δ|/Σ table: under load the error's gain falls with the saliency "
+                     "the q axis keeps and the lock sits off by δ(1 − r)/r (`drive commission` measures the table)")
     loop_type = s["pll_type"]
     if loop_type == "auto":
         loop_type = 3 if acceleration_sets and snr >= snr_wanted * (1.0 - 1e-9) else 2
