@@ -17,6 +17,9 @@ papers' estimators keep their papers' carrier and loop unless set (only the bus 
 TARGET_RMS_RAD = 0.02
 TARGET_PEAK_RAD = 0.15
 """Ours' targets: what the predicted angle error must meet for the drive to run (docs/hf-demodulation.md §5)."""
+OWN_CARRIER = ("square_wave",)
+"""Its carrier, amplitude and tracking follow its own rules (hf_estimator.square_wave); a scenario's sine
+carrier is not its."""
 
 
 def scaled_injection(scenario, plate):
@@ -27,7 +30,7 @@ def scaled_injection(scenario, plate):
     if not injects(scenario.estimator):
         return settings, []
     notes = list(loops.notes) if scenario.estimator in SCALED_TRACKING else []
-    injection = dict(scenario.injection)
+    injection = {} if scenario.estimator in OWN_CARRIER else dict(scenario.injection)
     if scenario.written_for and injection:
         given = ", ".join(f"{key} {value:g}" for key, value in sorted(injection.items()))
         if scenario.estimator in SCALED_TRACKING:

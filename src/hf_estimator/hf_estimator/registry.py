@@ -1,3 +1,12 @@
 """Importing this module registers every estimator core."""
-from . import conventional, flux_observer, full_speed, improved, injection_frame, sensored, synchronous  # noqa: F401
+from . import (  # noqa: F401
+    conventional,
+    flux_observer,
+    full_speed,
+    improved,
+    injection_frame,
+    sensored,
+    square_wave,
+    synchronous,
+)
 from .interface import describe, estimator_names, known_estimator, make_estimator, plugin_errors  # noqa: F401

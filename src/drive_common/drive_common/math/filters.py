@@ -4,6 +4,7 @@ Filters are second-order sections (rows b0 b1 b2 1 a1 a2, as scipy's ``sos``) ru
 direct form II by one numba kernel; they are designed once in Python with scipy, imported where a filter
 is designed (scipy.signal takes over a second to import, which every `drive` command would pay).
 """
+import numpy as np
 from numba import njit
 
 
@@ -20,7 +21,10 @@ def butterworth_bandpass(order, low_Hz, high_Hz, T_s):
 
 
 def notch(frequency_Hz, quality, T_s):
-    """Second-order IIR notch (one SOS row)."""
+    """Second-order IIR notch (one SOS row); at the Nyquist frequency the mean of two samples, which a carrier
+    alternating every sample (hf_estimator.square_wave) cannot pass."""
+    if frequency_Hz * T_s >= 0.5:
+        return np.array([[0.5, 0.5, 0.0, 1.0, 0.0, 0.0]])
     from scipy import signal
     b, a = signal.iirnotch(frequency_Hz, quality, fs=1.0 / T_s)
     return signal.tf2sos(b, a)
