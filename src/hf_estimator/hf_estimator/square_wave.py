@@ -34,8 +34,9 @@ drives VESC and MESC run their HFI.
    (injection_frame item 5) on that current: raised to ``saliency_snr_min``·√(B/18 Hz) σ of the
    commissioned sensor noise at the saliency left at rated current, within the ripple cap (the
    triangle's peak m·T_s·U_h·Σ/2 ≤ HF_RIPPLE_MAX_PER_RATED × rated current) and the voltage cap; where
-   the caps hold it below WEAK_SIGNAL_SHARE of that, refused unless ``run_on_weak_signal`` (an amplitude set, as a
-   recording's in replay, runs with a note). Each step
+   the caps hold it below WEAK_SIGNAL_SHARE of that, refused unless ``run_refused`` (`drive run --force`; an
+   amplitude set, as a recording's in replay, runs with a note). Ours' refusal predicts its angle error
+   (docs/hf-demodulation.md §5); the square wave's keeps this σ rule until its error is predicted likewise. Each step
    carries the same information whatever m, while the ripple grows as m: m = 1 costs least.
 4. Tracking: ours' type-2 / type-3 loop (injection_frame item 6) on ε. Its bandwidth follows the rotor's
    acceleration as ours' (drive_common.motor.scaled_loops: √(a_e/0.25 rad), ≥ 18 Hz) but is capped by
@@ -65,7 +66,6 @@ from .injection_frame import (
     HF_RIPPLE_MAX_PER_RATED,
     HF_VOLTAGE_MAX_PER_LINEAR,
     SNR_REFERENCE_HZ,
-    WEAK_SIGNAL_SHARE,
 )
 from .interface import MAX_DELAY_PERIODS, Estimator, check_settings, register, ring_capacity, stator_resistance
 from .outputs import write_injecting_estimate
@@ -94,9 +94,13 @@ currents (αβ) [A], î_q smoothed [A], the saliency vector (z_d, z_q) in the θ
 it was turned to [rad], the ring of the axes issued in the last d + 2 samples [rad], the ring of the last m steps
 (y_d [A], y_q [A], a [V], b [V]) and the start-up's."""
 
+WEAK_SIGNAL_SHARE = 0.5
+"""Below this share of the saliency current its loop wants the square wave refuses to run (the σ rule ours had
+before its error was predicted: at 0.89 of it a reverse-salient wang_spmsm still met the targets, at 0.36
+servo_400w_weak missed them 2.6-fold)."""
 DEFAULTS = {"samples_per_half_period": 1, "amplitude_V": None, "pll_bandwidth_Hz": None, "pll_damping": 0.9,
             "pll_type": "auto", "observable_ratio": 0.005, "signal_smoothing_Hz": 20.0, "saliency_snr_min": 8.0,
-            "run_on_weak_signal": False, "dead_time_model": True, **STARTUP_DEFAULTS}
+            "dead_time_model": True, **STARTUP_DEFAULTS}
 """``amplitude_V`` and ``pll_bandwidth_Hz`` None: from the rules (items 3, 4)."""
 
 
@@ -357,9 +361,9 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
     if snr_min > 0.0 and snr > 0.0 and commissioning.salient() and snr < WEAK_SIGNAL_SHARE * snr_wanted:
         problem = (f"saliency current {snr:.1f} σ of the commissioned sensor noise at {amplitude_V:.3g} V, "
                    f"{snr_wanted:.3g} σ wanted by the tracking loop")
-        if not s["run_on_weak_signal"] and s["amplitude_V"] is None:
+        if not s["run_refused"] and s["amplitude_V"] is None:
             raise ValueError(f"estimator 'square_wave': {problem}: too weak an angle signal for its targets; refused "
-                             f"(the setting run_on_weak_signal: true runs beyond them)")
+                             f"(`drive run --force` runs it anyway)")
         notes.append(f"run on a weak angle signal ({problem}): angle errors beyond the targets")
     if commissioning.saliency_ratio is None and commissioning.salient():
         notes.append("the commissioning holds no |Δ|/Σ table: under load the error's gain falls with the saliency "
