@@ -352,7 +352,8 @@ def test_the_starts_refusal_names_the_commissioned_saliency():
 
 def test_motor_show_prints_what_the_run_uses(tmp_path):
     """`drive motor show F --scenario S --json` gives the carrier, amplitude, tracking bandwidth and current limit
-    `drive run S --motor F --json` reports it ran with (the paper scenario's carrier with another motor)."""
+    `drive run S --motor F --json` reports it ran with (with another motor, ours' carrier scaled to it, not the
+    paper scenario's 909 Hz)."""
     motor = str(Path(__file__).parent.parent / "docs" / "motors" / "gimbal_20w.yaml")
     shown = _drive(["motor", "show", motor, "--scenario", "wang_100rpm", "--commissioning", "nameplate", "--json"],
                    tmp_path)
@@ -364,7 +365,7 @@ def test_motor_show_prints_what_the_run_uses(tmp_path):
     for key in ("injection_frequency_Hz", "injection_amplitude_V", "tracking_bandwidth_Hz", "current_limit_A",
                 "sample_period_s"):
         assert uses[key] == pytest.approx(loops[key], rel=1e-12), key
-    assert uses["injection_frequency_Hz"] == pytest.approx(1e4 / 11)
+    assert uses["injection_frequency_Hz"] == pytest.approx(1e4 / 9)
 
 
 @pytest.mark.parametrize("change, said", [

@@ -182,7 +182,7 @@ def _replay_one(recording, name, inputs, reference):
     replay_samples(e.step, e.core(e.state.copy()), currents[:probe], u_applied[:probe], reference[:probe],
                    whole[:probe], calibration, out[:probe])
     per_sample_s = (time.perf_counter() - start) / probe
-    T_s = recording.scenario.T_s
+    T_s = recording.T_s
     if per_sample_s > T_s:
         return {"estimator": name, "applicable": False,
                 "reason": f"too slow: {1e6 * per_sample_s:.0f} µs per sample, more than the recording's sampling "
@@ -194,18 +194,18 @@ def _replay_one(recording, name, inputs, reference):
         start = time.perf_counter()
         replay_samples(e.step, core, currents, u_applied, reference, whole, calibration, out)
         wall = min(wall, time.perf_counter() - start)
+    injection = np.column_stack((out["u_inj_alpha"], out["u_inj_beta"]))
+    applicable, reason = applicability(recording, name, e.injection_frequency_Hz, injection, scored)
     answered = np.column_stack([out[field] for field in ("theta_e_hat", "omega_e_hat", "u_inj_alpha",
                                                          "u_inj_beta")])
-    if not np.isfinite(answered).all():
-        first = int(np.argmax(~np.isfinite(answered).all(axis=1)))
-        return {"estimator": name, "applicable": False, "reason": f"answered NaN or ∞ from sample {first} on",
-                "samples": int(whole.sum()), "samples_per_second": len(currents) / wall,
-                "observable_fraction": None}, None
+    broken = whole & ~np.isfinite(answered).all(axis=1)
+    if applicable and broken.any():
+        return {"estimator": name, "applicable": False,
+                "reason": f"answered NaN or ∞ from sample {int(np.argmax(broken))} on", "samples": int(whole.sum()),
+                "samples_per_second": len(currents) / wall, "observable_fraction": None}, None
     log = log0.copy()
     for field in ESTIMATE_FIELDS:
         log[:, COLUMN[field]] = out[field]
-    injection = np.column_stack((out["u_inj_alpha"], out["u_inj_beta"]))
-    applicable, reason = applicability(recording, name, e.injection_frequency_Hz, injection, scored)
     scores = angle_scores(log, n_p, recording.windows, recording.start_s)
     entry = {"estimator": name, "applicable": applicable, "reason": reason, "samples": int(whole.sum()),
              "samples_per_second": len(currents) / wall,
