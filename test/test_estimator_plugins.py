@@ -5,6 +5,7 @@ slow is reported as that, never aborting the command or the corpus."""
 import dataclasses
 import json
 import os
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -32,16 +33,18 @@ def bag(tmp_path_factory):
 @pytest.fixture(scope="module")
 def scratch(tmp_path_factory):
     """A venv that sees the drive's installed packages (a site directory of its own pointing at them, as
-    --system-site-packages would at a system's), the example installed into it without dependencies. Its
-    python."""
+    --system-site-packages would at a system's), the example (a copy: its build stays out of the repository)
+    installed into it without dependencies. Its python."""
     env = tmp_path_factory.mktemp("scratch") / "venv"
     subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(env)], check=True)
     python = env / "bin" / "python"
     site = Path(subprocess.run([str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
                                capture_output=True, text=True, check=True).stdout.strip())
     (site / "drive.pth").write_text(f"import site; site.addsitedir({sysconfig.get_paths()['purelib']!r})\n")
+    source = env.parent / "rotating_injection"
+    shutil.copytree(EXAMPLE, source, ignore=shutil.ignore_patterns("build", "*.egg-info", "__pycache__"))
     subprocess.run([sys.executable, "-m", "pip", "install", "--quiet", "--no-deps", "--no-build-isolation",
-                    "--target", str(site), str(EXAMPLE)], check=True, cwd=env.parent)
+                    "--target", str(site), str(source)], check=True, cwd=env.parent)
     return python
 
 
