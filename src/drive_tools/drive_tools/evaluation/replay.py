@@ -156,13 +156,18 @@ def replay(recording, estimators):
         try:
             entry, result = _replay_one(recording, name, inputs, reference)
         except Exception as error:  # an estimator's own failure (a plugin's, whatever it raises) is its entry's
-            entry = {"estimator": name, "applicable": False,
-                     "reason": f"failed: {type(error).__name__}: {str(error).splitlines()[0] if str(error) else ''}",
-                     "samples": 0, "samples_per_second": None, "observable_fraction": None}
+            entry = failed_entry(name, f"failed: {type(error).__name__}: "
+                                       f"{str(error).splitlines()[0] if str(error) else ''}", 0, None)
             result = None
         entries.append(entry)
         results.append(result)
     return entries, results
+
+
+def failed_entry(name, reason, samples, samples_per_second):
+    """The replay entry of an estimator that failed on a bag (FAILURES: ``reason``), not applicable there."""
+    return {"estimator": name, "applicable": False, "reason": reason, "samples": samples,
+            "samples_per_second": samples_per_second, "observable_fraction": None}
 
 
 def _replay_one(recording, name, inputs, reference):
@@ -184,10 +189,8 @@ def _replay_one(recording, name, inputs, reference):
     per_sample_s = (time.perf_counter() - start) / probe
     T_s = recording.T_s
     if per_sample_s > T_s:
-        return {"estimator": name, "applicable": False,
-                "reason": f"too slow: {1e6 * per_sample_s:.0f} µs per sample, more than the recording's sampling "
-                          f"period of {1e6 * T_s:.0f} µs", "samples": 0,
-                "samples_per_second": 1.0 / per_sample_s, "observable_fraction": None}, None
+        return failed_entry(name, f"too slow: {1e6 * per_sample_s:.0f} µs per sample, more than the recording's "
+                                  f"sampling period of {1e6 * T_s:.0f} µs", 0, 1.0 / per_sample_s), None
     wall = math.inf
     for _ in range(TIMED_RUNS):
         core = e.core(e.state.copy())
@@ -200,9 +203,8 @@ def _replay_one(recording, name, inputs, reference):
                                                          "u_inj_beta")])
     broken = whole & ~np.isfinite(answered).all(axis=1)
     if applicable and broken.any():
-        return {"estimator": name, "applicable": False,
-                "reason": f"answered NaN or ∞ from sample {int(np.argmax(broken))} on", "samples": int(whole.sum()),
-                "samples_per_second": len(currents) / wall, "observable_fraction": None}, None
+        return failed_entry(name, f"answered NaN or ∞ from sample {int(np.argmax(broken))} on", int(whole.sum()),
+                            len(currents) / wall), None
     log = log0.copy()
     for field in ESTIMATE_FIELDS:
         log[:, COLUMN[field]] = out[field]
