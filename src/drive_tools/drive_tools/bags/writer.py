@@ -8,6 +8,7 @@ The one-process runner writes the same topics from its log (``write_run_bag``), 
 and `joint_states`, which only nodes produce.
 """
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -202,9 +203,29 @@ def _cdr_scalars(dtype, *columns):
     return records
 
 
-def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=CHUNK_BYTES):
+class RecorderFlaws(NamedTuple):
+    """What a robot's recorder does to a run's messages (docs/recordings.md, "A robot's recording"): its
+    stamps from a wall clock at ``epoch_s`` [s], each off its sample instant by up to ± ``jitter_s`` [s] (the
+    same for every topic of a sample), a share ``lost_share`` of each per-sample topic's messages never
+    recorded (drawn per topic from ``seed``); ``scenario_named``: drive_config names the scenario file (a
+    robot's drive runs none: its drive_config then gives the motor, estimator and injection alone). The
+    defaults record as the graph does."""
+
+    epoch_s: float = 0.0
+    jitter_s: float = 0.0
+    lost_share: float = 0.0
+    seed: int = 0
+    scenario_named: bool = True
+
+
+AS_THE_GRAPH_RECORDS = RecorderFlaws()
+
+
+def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=CHUNK_BYTES,
+                  flaws=AS_THE_GRAPH_RECORDS):
     """Write a one-process run (drive_common.contract.run_result.RunResult, its ``injection`` known) as the
-    graph would have recorded it, its messages serialised to CDR in bulk with numpy."""
+    graph would have recorded it, its messages serialised to CDR in bulk with numpy; ``flaws``
+    (RecorderFlaws) as a robot's recorder would have."""
     log, scenario = result.log, result.scenario
     n, n_p, c = log.shape[0], result.n_p, COLUMN
     writer = BagWriter(path, chunk_bytes)
@@ -222,7 +243,12 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
               "command_delay_periods": scenario.drive_delay_periods()}
     if result.commissioning is not None:
         config["commissioning"] = commissioning_record(result.commissioning)
-    t_ns = np.round(np.arange(n) * scenario.T_s * 1e9).astype(np.int64)
+    if not flaws.scenario_named:
+        for key in ("scenario", "source", "scenario_injection", "controller"):
+            del config[key]
+    rng = np.random.default_rng(flaws.seed)
+    jitter_s = rng.uniform(-flaws.jitter_s, flaws.jitter_s, n) if flaws.jitter_s > 0.0 else 0.0
+    t_ns = (int(round(flaws.epoch_s * 1e9)) + np.round((np.arange(n) * scenario.T_s + jitter_s) * 1e9)).astype(np.int64)
     sec, nanosec = np.divmod(t_ns, 1_000_000_000)
     col = {name: log[:, c[name]] for name in LOG_COLUMNS}
 
@@ -260,7 +286,8 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
     for topic, records in ((t, r) for t, r, _ in per_sample):
         records["enc"] = CDR_LITTLE_ENDIAN
         streams.append((full_name(namespace, topic), memoryview(records.tobytes()), records.dtype.itemsize))
-    masks = [mask for _, _, mask in per_sample]
+    masks = [mask if flaws.lost_share <= 0.0 or topic == CLOCK or mask is not None
+             else rng.random(n) >= flaws.lost_share for topic, _, mask in per_sample]
     config_data = writer.store.serialize_cdr(writer.store.types["std_msgs/msg/String"](
         data=dumps(config)), "std_msgs/msg/String")
     writer.write(full_name(namespace, DRIVE_CONFIG), config_data, False, 0)

@@ -1,7 +1,13 @@
-"""``drive echo`` and ``drive bag info|reindex``: a drive topic as it goes by, and recordings."""
+"""``drive echo`` and ``drive bag info|reindex|synth``: a drive topic as it goes by, and recordings."""
+import os
+import sys
+from pathlib import Path
+
 from drive_common.contract.graph import DEFAULT_NAMESPACE
 
-from .options import CommandLineError, finite_float, print_report
+from .options import CommandLineError, exit_code, finite_float, print_report
+
+MAX_SYNTHETIC_BAGS = 100_000
 
 
 def cmd_echo(args):
@@ -26,8 +32,26 @@ def cmd_bag_reindex(args):
     return 0
 
 
+def cmd_bag_synth(args):
+    from drive_tools.evaluation.synthetic_corpus import SyntheticOptions, corpus_lines, synthetic_corpus
+    for flag, value, low in (("--count", args.count, 1), ("--workers", args.workers, 1), ("--seed", args.seed, 0)):
+        if value < low:
+            raise CommandLineError(f"--{flag.lstrip('-')}: must be at least {low}, not {value}")
+    if args.count > MAX_SYNTHETIC_BAGS:
+        raise CommandLineError(f"--count: at most {MAX_SYNTHETIC_BAGS} bags, not {args.count}")
+    if not 0.2 <= args.duration <= 60.0:
+        raise CommandLineError(f"--duration: from 0.2 to 60 s per bag, not {args.duration:g}")
+    folder = Path(args.dir)
+    if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
+        raise CommandLineError(f"{folder}: exists and is not an empty folder; name a new one")
+    options = SyntheticOptions(args.count, args.seed, folder, args.duration, args.workers)
+    report = synthetic_corpus(options, lambda line: print(line, file=sys.stderr, flush=True))
+    print_report(report, args, corpus_lines)
+    return exit_code(report["interrupted"])
+
+
 def add_commands(sub):
-    """echo, bag info|reindex."""
+    """echo, bag info|reindex|synth."""
     echo = sub.add_parser("echo", help="print a drive topic (like ros2 topic echo)")
     echo.add_argument("topic", help="contract topic, e.g. angle_error, joint_states, /diagnostics")
     echo.add_argument("--namespace", default=DEFAULT_NAMESPACE)
@@ -37,7 +61,7 @@ def add_commands(sub):
     echo.add_argument("--json", action="store_true", help="one JSON object per line")
     echo.set_defaults(func=cmd_echo)
 
-    bag = sub.add_parser("bag", help="recordings (rosbag2 directories with MCAP storage)")
+    bag = sub.add_parser("bag", aliases=["bags"], help="recordings (rosbag2 directories with MCAP storage)")
     bag_sub = bag.add_subparsers(dest="bag_command", required=True)
     info = bag_sub.add_parser("info", help="topics, types, counts, duration (like ros2 bag info)")
     info.add_argument("bag")
@@ -48,3 +72,13 @@ def add_commands(sub):
     reindex.add_argument("--force", action="store_true", help="also when metadata.yaml exists (a cut .mcap)")
     reindex.add_argument("--json", action="store_true")
     reindex.set_defaults(func=cmd_bag_reindex)
+    synth = bag_sub.add_parser("synth", help="write a varied corpus of recordings with ground truth from random "
+                                             "motors (docs/recordings.md#a-synthetic-corpus)")
+    synth.add_argument("dir", help="the corpus folder (new, or empty)")
+    synth.add_argument("--count", type=int, required=True, metavar="N", help="how many bags")
+    synth.add_argument("--seed", type=int, default=1, help="the draw's seed (bag i of a seed is the same for any N)")
+    synth.add_argument("--duration", type=finite_float, default=1.0, metavar="S", help="each bag's length [s]")
+    synth.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                       help="processes writing bags side by side (default: 2, or 1 on one CPU)")
+    synth.add_argument("--json", action="store_true")
+    synth.set_defaults(func=cmd_bag_synth)

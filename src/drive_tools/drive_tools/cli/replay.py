@@ -3,10 +3,15 @@ replayed on a recording's currents or on a corpus of recordings."""
 import sys
 from pathlib import Path
 
-from drive_common.contract.errors import DriveError
 from drive_common.contract.strict_json import dumps
 
-from .options import CommandLineError, estimator_list, print_report, recording_options, windows_arg
+from .options import (
+    CommandLineError,
+    estimator_list,
+    print_report,
+    recording_options,
+    windows_arg,
+)
 
 
 def _recording(bag, args):
@@ -62,6 +67,14 @@ def cmd_bench_replay(args):
 
     names = estimator_list(args.estimators)
     bags, corpus = _bags(args.bag)
+    if args.workers is not None and args.cluster:
+        raise CommandLineError("--workers and --cluster: give one (local processes, or a cluster's scheduler)")
+    if not corpus:
+        for flag, given in (("--workers", args.workers is not None), ("--cluster", args.cluster),
+                            ("--report", args.report)):
+            if given:
+                raise CommandLineError(f"{flag}: a corpus's option (a directory or glob of bags); {args.bag} is "
+                                       f"one bag")
     if corpus:
         return _replay_corpus(bags, names, args)
     recording = _recording(args.bag, args)
@@ -82,31 +95,33 @@ def cmd_bench_replay(args):
 
 
 def _replay_corpus(bags, names, args):
-    """Every bag of a corpus replayed; one summary row per estimator. A path that is not a bag, or a bag
-    that cannot be replayed, is skipped with one line on stderr (and listed under ``skipped``)."""
-    from drive_tools.evaluation.replay import replay, summarise
+    """Every bag of a corpus replayed (here, in --workers local processes or on the --cluster); one summary
+    row per estimator. A path that is not a bag, or a bag that cannot be replayed, is skipped with one line
+    on stderr (and listed under ``skipped``)."""
+    from drive_tools.evaluation.corpus_replay import Engine, ReplayOptions, replay_corpus
+    from drive_tools.evaluation.replay import summarise
     from drive_tools.evaluation.replay_report import corpus_lines
-    from drive_tools.runner.runner import terminal_progress
 
-    per_bag, skipped = [], []
-    progress = terminal_progress(f"replay of {len(bags)} bags")
-    for i, bag in enumerate(bags):
-        try:
-            recording = _recording(bag, args)
-            entries, _ = replay(recording, names)
-        except DriveError as error:
-            skipped.append({"path": bag, "reason": str(error)})
-            print(f"drive: skipped {bag}: {error}", file=sys.stderr)
-        else:
-            per_bag.append({**recording.report(), "results": entries})
-        if progress:
-            progress((i + 1) / len(bags))
+    if args.workers is not None and args.workers < 1:
+        raise CommandLineError(f"--workers: must be at least 1, not {args.workers}")
+    options = ReplayOptions(tuple(names), args.motor, args.sample_period, args.commissioning,
+                            windows_arg(args.windows))
+    engine = Engine(args.workers or 0, args.cluster or "")
+    say = (lambda line: print(line, file=sys.stderr, flush=True)) if sys.stderr.isatty() else None
+    outcomes, engine_facts = replay_corpus(bags, options, engine, say)
+    per_bag = [o["report"] for o in outcomes if "report" in o]
+    skipped = [{"path": o["path"], "reason": o["skipped"]} for o in outcomes if "skipped" in o]
+    for entry in skipped:
+        print(f"drive: skipped {entry['path']}: {entry['reason']}", file=sys.stderr)
     if not per_bag:
         raise CommandLineError(f"bag: {args.bag}: none of its {len(bags)} paths could be replayed")
-    report = {"benchmark": "replay corpus", "pattern": args.bag, "bags": len(per_bag),
+    report = {"benchmark": "replay corpus", "pattern": args.bag, "bags": len(per_bag), "engine": engine_facts,
               "summary": summarise(per_bag, names), "skipped": skipped, "per_bag": per_bag}
     if args.out:
         _save_report(report, Path(args.out) / "replay_corpus.json")
+    if args.report:
+        from drive_tools.evaluation.corpus_report import write_report
+        report["report"] = write_report(report, args.report)
     print_report(report, args, corpus_lines)
     return 0
 
@@ -130,5 +145,15 @@ def add_bench_commands(bench_sub):
     rp.add_argument("--out", help="directory for angle_error.png and replay.json (default runs/replay/BAG; a "
                                   "corpus writes replay_corpus.json only with --out)")
     rp.add_argument("--no-plot", action="store_true")
+    rp.add_argument("--workers", type=int, metavar="N",
+                    help="a corpus: replay its bags in N local worker processes (Dask distributed; default: "
+                         "this process)")
+    rp.add_argument("--cluster", metavar="ADDRESS",
+                    help="a corpus: replay its bags on the Dask scheduler at ADDRESS (tcp://HOST:PORT), whose "
+                         "workers have this package installed (docs/recordings.md)")
+    rp.add_argument("--report", metavar="DIR",
+                    help="a corpus: write report.html (self-contained), report.json and bags.csv there: intervals "
+                         "over bags, a ranking with significance, per motor class and speed band "
+                         "(docs/recordings.md)")
     rp.add_argument("--json", action="store_true")
     rp.set_defaults(func=cmd_bench_replay)

@@ -22,6 +22,9 @@ from .virtual_inverter import InverterOptions
 
 READY_TIMEOUT_S = 120.0
 """How long the host waits for the child's link and kernels (a cold numba cache compiles for tens of s)."""
+EXIT_WAIT_S = 20.0
+"""How long a child whose input closed has to exit by itself (its interpreter's tear-down took over 2 s on a
+machine at half this one's pace with the other core busy) before it is killed."""
 
 
 class InverterProcessError(RuntimeError):
@@ -110,8 +113,9 @@ class InverterProcess:
                 self.scheduling = self.report["scheduling"]
         return self.report is not None
 
-    def close(self, timeout_s=2.0):
-        """Close the link and end the child however it stands (the host's tear-down)."""
+    def close(self, timeout_s=EXIT_WAIT_S):
+        """Close the link and end the child however it stands (the host's tear-down): it has ``timeout_s``
+        to exit by itself once its input closes, then it is killed."""
         for stream in (self.process.stdin, self.process.stdout):
             try:
                 stream.close()

@@ -25,6 +25,7 @@ from drive_tools.bags.common import BagError
 from drive_tools.bags.reader import bag_scenario, bag_topics, has_ground_truth, log_from_topics, recorded_estimator
 
 from .excitation import AXIS_BLOCK_S, describe_excitation, signed_carrier
+from .metrics import _mask
 from .metrics import windows as scenario_windows
 
 CONTRACT_DELAY_PERIODS = 1
@@ -89,7 +90,21 @@ class Recording:
                 "sample_period_s": self.T_s, "motor": self.nameplate.name, "ground_truth": self.ground_truth,
                 "excitation": self.excitation, "sources": self.sources, "timing": self.timing,
                 "missing_samples": self.gaps["missing_samples"], "cut_samples": self.gaps["cut_samples"],
-                "windows": {"source": self.sources["windows"], "steady_s": [list(w) for w in self.windows]}}
+                "windows": {"source": self.sources["windows"], "steady_s": [list(w) for w in self.windows]},
+                "motor_figures": self.motor_figures()}
+
+    def motor_figures(self):
+        """The class figures a corpus report groups the bag by: pole pairs, the HF saliency L_qh/L_dh the
+        replay's commissioning holds (the nameplate's L_q/L_d where it is the nameplate alone), and the speed
+        in the scored windows: the median |ω_m| (ground truth, else the recorded estimate) per rated speed
+        (None where the nameplate gives none)."""
+        plate, c = self.nameplate, self.commissioning
+        column = "omega_m" if self.ground_truth else "omega_e_hat"
+        speed = self.log[_mask(self.log[:, COLUMN["t"]], self.windows), COLUMN[column]]
+        speed = np.abs(speed[np.isfinite(speed)]) / (1.0 if self.ground_truth else self.n_p)
+        rated = plate.rated_speed_rpm * np.pi / 30.0
+        share = float(np.median(speed) / rated) if speed.size and np.isfinite(rated) and rated > 0 else None
+        return {"n_p": int(plate.n_p), "saliency": float(c.L_qh_H / c.L_dh_H), "speed_per_rated": share}
 
 
 def read_recording(path, motor=None, sample_period_s=None, commissioning=None, windows=None):
@@ -269,13 +284,15 @@ def _injection(scenario, configs, excitation, sources):
 
 
 def automatic_windows(log, T_s, plate):
-    """([(t0, t1)], how they were found): from AUTO_START_S on, runs of AUTO_WINDOW_S blocks where the
-    recorded speed estimate (else the measured speed) is steady and the recorded estimator tracks."""
+    """([(t0, t1)], how they were found): from AUTO_START_S on, runs of AUTO_WINDOW_S blocks where the true
+    speed (ground truth) is steady, once the recorded estimator first tracked (its start-up, whose polarity
+    the replayed estimators take, is over); without ground truth, where the recorded speed estimate is steady
+    and the recorded estimator tracks. With ground truth the windows do not depend on how the recording's own
+    estimator did after its start (a corpus scored only where it worked would favour it)."""
     c = COLUMN
-    speed = log[:, c["omega_e_hat"]] / plate.n_p
-    which = "the recorded estimate's speed"
-    if not np.isfinite(speed).any():
-        speed, which = log[:, c["omega_m"]], "the measured speed"
+    truth = has_ground_truth(log)
+    speed = log[:, c["omega_m"]] if truth else log[:, c["omega_e_hat"]] / plate.n_p
+    which = "the true speed (ground truth)" if truth else "the recorded estimate's speed"
     if not np.isfinite(speed).any():
         return [], "the bag has neither rotor_estimate nor rotor_state"
     known = np.isfinite(speed)
@@ -285,6 +302,8 @@ def automatic_windows(log, T_s, plate):
     smoothed = np.convolve(filled, np.ones(smooth) / smooth, mode="same")
     state = log[:, c["state"]]
     tracked = np.isnan(state) | (state == TRACKING)
+    if truth:
+        tracked = np.maximum.accumulate(tracked)
     rated = plate.rated_speed_rpm * math.pi / 30.0
     block = max(1, int(round(AUTO_WINDOW_S / T_s)))
     chosen = []
@@ -301,8 +320,9 @@ def automatic_windows(log, T_s, plate):
             else:
                 chosen.append((t0, t1))
     return chosen, (f"{AUTO_WINDOW_S:g} s blocks from {AUTO_START_S:g} s where {which} spans at most "
-                    f"{AUTO_SPEED_SPAN:.0%} of rated speed + {AUTO_SPEED_SHARE:.0%} of itself and the recorded "
-                    f"estimator tracks")
+                    f"{AUTO_SPEED_SPAN:.0%} of rated speed + {AUTO_SPEED_SHARE:.0%} of itself"
+                    + (", after the recorded estimator first tracked" if truth else
+                       " and the recorded estimator tracks"))
 
 
 def held(values, lost=None):

@@ -91,15 +91,18 @@ def rebuilt_voltage(voltage, injection):
     return voltage
 
 
-def replayed_estimator(recording, name):
+def replayed_estimator(recording, name, forced=False):
     """The estimator ``name`` built as the recording drive would have built it (its motor, sample period,
     delay, commissioning and injection); the recording's own estimator keeps its recorded settings and
-    start-up, any other takes the polarity from the recording."""
+    start-up, any other takes the polarity from the recording. ``forced``: built past the drive's refusal to
+    run it on this motor (`drive run --force`)."""
     settings = dict(recording.estimator_settings) if name == recording.estimator else {}
     if injects(name):
         settings = {**recording.injection, **settings}
         if name != recording.estimator:
             settings["polarity_from_recording"] = True
+        if forced:
+            settings["run_refused"] = True
     inverter = InverterRating(U_dc_V=math.inf, delay_periods=recording.delay_periods)
     return make_estimator(name, recording.nameplate, recording.T_s, settings, recording.commissioning, inverter)
 
@@ -145,7 +148,7 @@ def replay(recording, estimators):
     inputs = replay_inputs(recording)
     log0 = recording.log
     n_p = recording.n_p
-    encoder = (n_p * log0[:, COLUMN["theta_m"]], n_p * log0[:, COLUMN["omega_m"]])
+    encoder = (held(n_p * log0[:, COLUMN["theta_m"]]), held(n_p * log0[:, COLUMN["omega_m"]]))
     unresolved = log0[:, COLUMN["state"]] != TRACKING
     unresolved &= np.isfinite(log0[:, COLUMN["state"]])
     estimate = (held(np.where(unresolved, np.nan, log0[:, COLUMN["theta_e_hat"]]), np.isnan(log0[:, COLUMN["state"]])),
@@ -155,6 +158,8 @@ def replay(recording, estimators):
         reference = np.column_stack(encoder if excitation_need(name) == "encoder" else estimate)
         try:
             entry, result = _replay_one(recording, name, inputs, reference)
+        except NotBuilt as refusal:
+            entry, result = failed_entry(name, str(refusal), 0, None), None
         except Exception as error:  # an estimator's own failure (a plugin's, whatever it raises) is its entry's
             entry = failed_entry(name, f"failed: {type(error).__name__}: "
                                        f"{str(error).splitlines()[0] if str(error) else ''}", 0, None)
@@ -178,7 +183,7 @@ def _replay_one(recording, name, inputs, reference):
     t = log0[:, COLUMN["t"]]
     scored = _mask(t, recording.windows)
     calibration = recording.commissioning.calibration()
-    e = replayed_estimator(recording, name)
+    e, refused = _built(recording, name)
     out = estimates(len(currents))
     replay_samples(e.step, e.core(e.state.copy()), currents[:2], u_applied[:2], reference[:2], whole[:2],
                    calibration, out[:2])
@@ -209,7 +214,7 @@ def _replay_one(recording, name, inputs, reference):
     for field in ESTIMATE_FIELDS:
         log[:, COLUMN[field]] = out[field]
     scores = angle_scores(log, n_p, recording.windows, recording.start_s)
-    entry = {"estimator": name, "applicable": applicable, "reason": reason, "samples": int(whole.sum()),
+    entry = {"estimator": name, "applicable": applicable, "reason": reason + refused, "samples": int(whole.sum()),
              "samples_per_second": len(currents) / wall,
              "observable_fraction": scores["observable_fraction"] if applicable else None}
     if applicable:
@@ -220,6 +225,31 @@ def _replay_one(recording, name, inputs, reference):
         else:
             entry["lost"] = bool(reported_losses(log[t >= recording.start_s, COLUMN["state"]]))
     return entry, RunResult(recording.scenario, name, log, wall, math.nan, recording_n_p=n_p)
+
+
+class NotBuilt(Exception):
+    """An estimator that cannot be built for a recording (its motor, sample period or recorded injection is
+    outside what the estimator takes): not applicable there, not a failure of the estimator."""
+
+
+def _built(recording, name):
+    """(replayed_estimator of ``name``, "" or the note that the drive refuses it on this motor and it is
+    replayed as `drive run --force` runs it): replay measures an estimator, it does not drive the motor.
+    NotBuilt where the estimator refuses the recording's motor, sample period or injection (a ValueError or
+    KeyError naming its setting, even forced)."""
+    try:
+        return replayed_estimator(recording, name), ""
+    except (ValueError, KeyError) as error:
+        first = str(error).strip("'\"").splitlines()[0]
+        if injects(name):
+            try:
+                forced = replayed_estimator(recording, name, forced=True)
+            except (ValueError, KeyError):
+                pass
+            else:
+                return forced, f"; the drive refuses it on this motor ({first}): replayed as `drive run --force` " \
+                               f"runs it"
+        raise NotBuilt(f"cannot be built for this recording: {first}") from None
 
 
 def time_to_lock(log, n_p):

@@ -110,4 +110,6 @@ def corpus_lines(report):
                  "bag")
     if "json" in report:
         lines.append(f"  json: {report['json']}")
+    if "report" in report:
+        lines.append(f"  report: {report['report']['html']} (and report.json, bags.csv beside it)")
     return lines

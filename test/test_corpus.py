@@ -1,0 +1,165 @@
+"""A corpus for estimator authors (issue 55 items 2-3): `drive bag synth` writes varied recordings with ground
+truth from the random motors, and `drive bench replay CORPUS` runs them here, in local worker processes or on a
+Dask cluster, with the same per-bag results wherever a bag ran, and a worker killed mid-corpus costing nothing."""
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drive_common.config.scenario import load_scenario
+from drive_tools.bags.writer import RecorderFlaws, write_run_bag
+from drive_tools.evaluation.corpus_replay import Engine, ReplayOptions, replay_corpus
+from drive_tools.evaluation.random_motors import draw_motor
+from drive_tools.evaluation.synthetic_corpus import draw_case
+from drive_tools.runner.runner import run_scenario
+from helpers import drive_in_process
+
+ESTIMATORS = ("injection_frame", "sensored")
+BAGS = 4
+OPTIONS = ReplayOptions(ESTIMATORS, windows=[(0.25, 0.4)])
+
+
+def without_timing(outcomes):
+    """Per-bag outcomes without the figures that depend on the machine's pace (samples per second)."""
+    kept = []
+    for outcome in outcomes:
+        report = outcome.get("report")
+        if report is not None:
+            report = {**report, "results": [{k: v for k, v in e.items() if k != "samples_per_second"}
+                                            for e in report["results"]]}
+        kept.append({**outcome, "report": report})
+    return kept
+
+
+@pytest.fixture(scope="module")
+def corpus(tmp_path_factory):
+    """(the folder, its paths, their serial replay): BAGS bags of one wang_100rpm run (0.4 s), each with its own
+    recorder's flaws (a robot's wall clock, jitter, a share of lost messages), and one path that is not a bag."""
+    folder = tmp_path_factory.mktemp("corpus")
+    scenario = load_scenario("wang_100rpm")
+    import dataclasses
+    result = run_scenario(dataclasses.replace(scenario, duration_s=0.4))
+    for i in range(BAGS):
+        flaws = RecorderFlaws(1.76e9 + i, 2e-6 * i, 0.001 * i, i) if i else RecorderFlaws()
+        write_run_bag(result, folder / f"bag_{i}", flaws=flaws)
+    (folder / "notes").mkdir()
+    (folder / "notes" / "metadata.yaml").write_text("not a bag\n")
+    bags = sorted(str(p.parent) for p in folder.rglob("metadata.yaml"))
+    return folder, bags, replay_corpus(bags, OPTIONS)
+
+
+def test_a_synthetic_corpus_is_drawn_the_same_for_any_count_and_varies_what_a_benchmark_needs():
+    """Bag i of a seed is drawn from its own generator (the same case in a corpus of any size); over 200 draws
+    the cases cover every estimator, sampling period and profile, loads on about half, a robot's recorder on
+    about half, speeds within 1-10 % of rated (a hold at zero)."""
+    cases = [draw_case(4, i, 0, draw_motor(4, i)) for i in range(200)]
+    assert draw_case(4, 17, 0, draw_motor(4, 17)) == cases[17]
+    assert {c.estimator for c in cases} == {"injection_frame", "conventional", "improved", "synchronous", "square_wave"}
+    assert {c.T_s for c in cases} == {5e-5, 1e-4, 2e-4} and len({c.profile for c in cases}) == 5
+    loaded = np.mean([c.load_per_rated > 0 for c in cases])
+    flawed = np.mean([c.flaws.lost_share > 0 for c in cases])
+    assert 0.38 < loaded < 0.62 and 0.38 < flawed < 0.62
+    for c in cases:
+        rated = draw_motor(4, cases.index(c)).document["nameplate"]["rated_speed_rpm"]
+        assert (c.speed_rpm == 0.0) == (c.profile == "hold")
+        assert c.profile == "hold" or 0.01 * rated <= c.speed_rpm <= 0.1 * rated
+        assert c.flaws.jitter_s <= 0.05 * c.T_s
+
+
+def test_bag_synth_writes_bags_with_ground_truth_that_replay_reads(tmp_path):
+    """Two bags of 0.3 s: each written with its motor's class figures and case in corpus.json, its ground truth
+    in the bag, its recorder's lost messages counted by replay, and the same case as draw_case says."""
+    out = drive_in_process(["bag", "synth", tmp_path / "c", "--count", "2", "--seed", "11", "--duration", "0.3",
+                            "--workers", "1", "--json"])
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    assert report["written"] == 2 and json.loads((tmp_path / "c" / "corpus.json").read_text()) == report
+    for row in report["bags"]:
+        case = draw_case(11, row["index"], len(row["attempts"]), draw_motor(11, row["index"]))
+        assert row["case"]["estimator"] == case.estimator and row["case"]["T_s"] == case.T_s
+        replayed = drive_in_process(["bench", "replay", tmp_path / "c" / row["bag"], "--estimators", "sensored",
+                                     "--no-plot", "--json", "--windows", "0.1:0.3"])
+        assert replayed.returncode == 0, replayed.stderr
+        replay = json.loads(replayed.stdout)
+        assert replay["ground_truth"] and replay["results"][0]["angle_error_rms"] == pytest.approx(0.0, abs=1e-9)
+        lost = sum(replay["missing_samples"].values())
+        assert (lost > 0) == (case.flaws.lost_share * row["samples"] > 5)
+    again = drive_in_process(["bag", "synth", tmp_path / "c", "--count", "1"])
+    assert again.returncode == 2 and "not an empty folder" in again.stderr
+
+
+def test_a_corpus_on_local_workers_gives_the_serial_results(corpus):
+    """--workers 2 (a local Dask cluster): every bag's entries equal the serial run's, a path that is not a bag
+    skipped the same way."""
+    folder, bags, (serial, facts) = corpus
+    spread, spread_facts = replay_corpus(bags, OPTIONS, Engine(workers=2))
+    assert facts["engine"] == "this process" and spread_facts["workers"] == 2
+    assert without_timing(spread) == without_timing(serial)
+    assert sum("skipped" in o for o in serial) == 1 and sum("report" in o for o in serial) == BAGS
+
+
+def _free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_a_worker_killed_mid_corpus_costs_only_its_bags_retried(corpus, tmp_path):
+    """A scheduler on the loopback address and two worker processes (`dask scheduler`, `dask worker`, no
+    nanny to restart them); one worker is killed (SIGKILL) as the first bag comes back, while it holds another
+    (each worker has two). Its bags go to the other worker (retried ≥ 1), every bag is replayed, each as in
+    the serial run; the replay through the command line names the
+    cluster."""
+    folder, bags, (serial, _) = corpus
+    dask = str(Path(sys.executable).parent / "dask")
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "DASK_DISTRIBUTED__WORKER__DAEMON": "False"}
+    logs = [open(tmp_path / name, "w") for name in ("scheduler.log", "worker_a.log", "worker_b.log")]
+    scheduler = subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                                  "--no-dashboard"], stdout=logs[0], stderr=subprocess.STDOUT, env=env)
+    workers = [subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--no-nanny", "--no-dashboard",
+                                 "--host", "127.0.0.1"], stdout=log, stderr=subprocess.STDOUT, env=env)
+               for log in logs[1:]]
+    try:
+        from distributed import Client
+        with Client(address, timeout="30s") as client:
+            client.wait_for_workers(2, timeout=60)
+        killed = []
+
+        def kill_one(line):
+            if not killed:
+                workers[0].send_signal(signal.SIGKILL)
+                killed.append(time.monotonic())
+        outcomes, facts = replay_corpus(bags, OPTIONS, Engine(cluster=address), kill_one)
+        assert killed and workers[0].wait(timeout=10) == -signal.SIGKILL
+        assert without_timing(outcomes) == without_timing(serial)
+        assert facts["address"] == address and facts["workers"] == 2 and facts["retried"] >= 1
+        out = drive_in_process(["bench", "replay", folder, "--estimators", "injection_frame", "--windows", "0.25:0.4",
+                                "--cluster", address, "--no-plot", "--json"])
+        assert out.returncode == 0, out.stderr
+        report = json.loads(out.stdout)
+        assert report["engine"]["address"] == address and report["bags"] == BAGS
+    finally:
+        for process in (*workers, scheduler):
+            process.kill()
+            process.wait(timeout=10)
+        for log in logs:
+            log.close()
+
+
+def test_the_engine_options_are_refused_where_they_do_not_apply(corpus):
+    folder, bags, _ = corpus
+    one = drive_in_process(["bench", "replay", bags[0], "--workers", "2", "--no-plot"])
+    assert one.returncode == 2 and "is one bag" in one.stderr and one.stderr.count("\n") == 1
+    both = drive_in_process(["bench", "replay", folder, "--workers", "2", "--cluster", "tcp://127.0.0.1:1"])
+    assert both.returncode == 2 and "give one" in both.stderr
+    none = drive_in_process(["bench", "replay", folder, "--workers", "0"])
+    assert none.returncode == 2 and "--workers" in none.stderr
