@@ -1,5 +1,6 @@
 """Reports of motors (drive presets, motor show, commission): what the drive is told of a motor beside the
 simulated plant's truth, the loops scaled to it, and what commissioning identified; each as text lines."""
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -66,10 +67,13 @@ def motor_report(motor, T_s, scenario=None):
     `drive run` of it uses instead (drive_loops)."""
     from drive_common.config.motor_experiments import ExperimentOptions
     from drive_common.config.scenario import motor_experiment
+    from drive_common.contract.settings import FormatMigrated
     from drive_common.motor.scaled_loops import scaled_loops
 
     loops = scaled_loops(motor.nameplate, motor.inverter, T_s)
-    own = motor_experiment("low_speed", motor, "motor show", options=ExperimentOptions(T_s))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FormatMigrated)  # said once already, when the motor was read
+        own = motor_experiment("low_speed", motor, "motor show", options=ExperimentOptions(T_s))
     report = {"name": motor.name, "file": motor.source, "description": motor.description,
               "nameplate": motor.nameplate._asdict(), "inverter": motor.inverter._asdict(),
               "simulated_plant": bool(motor.plant), "sample_period_s": T_s, "loops": loops._asdict(),
