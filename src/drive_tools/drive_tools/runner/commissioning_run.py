@@ -179,8 +179,11 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
             measured = loaded_shift(result.log, record, top)
             break
         except LoadedTestError as error:
-            if error.retry_current_A is None or run == TRIES - 1:
+            if error.retry_current_A is None:
                 raise
+            if run == TRIES - 1:
+                raise LoadedTestError(f"{error} (in each of {TRIES} runs, the last up to {top:.3g} A, "
+                                      f"{100.0 * top / first:.0f} % of the first: not the load alone)") from None
             top = error.retry_current_A
     measured["loaded_test_current_A"] = top if top < first else None
     facts = result.estimator_facts
