@@ -187,8 +187,8 @@ def tracking_bound(commissioning, current_A):
         if limit < end and abs(limit - current_A) <= 1e-6 * max(current_A, 1e-6):
             return bound, why
     if abs(end - current_A) <= 1e-6 * max(current_A, 1e-6):
-        return BOUNDS[6], (f"its tables end at {end:.3g} A: the bus drove no more at standstill beside the HF "
-                           f"carrier, or the current limit")
+        return BOUNDS[6], (f"its tables end at {end:.3g} A: commissioning keeps each DC level and its HF ripple "
+                           f"within the current limit and what the bus drives")
     return None
 
 
