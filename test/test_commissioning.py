@@ -335,25 +335,33 @@ def test_the_loaded_test_reads_ours_error_under_load_from_a_held_shaft():
     """θ̂ moved by 0.004·i_q + 0.0005·i_q³ rad under load, with a convergence slope of 0.9: the correction is
     0.9 × that at every hold (fitted odd, held beyond the largest current); a move within the zero holds'
     spread (its odd part: a move alike at ±i_q is the zero reference's error) gives no correction; a shaft
-    that turned or ours losing track is refused, nothing measured."""
+    that turned or ours losing track measures nothing: a load that took the angle (lost in the hold at full
+    load, 0.7 s) gives the current a test run again may reach (the largest load held before, 2 A), a loss
+    before any load none."""
     grid = np.linspace(-4.0, 4.0, 9)
     record = nameplate_commissioning(nameplate("wang_spmsm"))._replace(
         saliency_shift_i_q_A=grid, saliency_shift_rad=np.zeros(9), convergence_slope=np.full(9, 0.9))
-    result = loaded_shift(held_shaft_log(lambda i: 0.004 * i + 0.0005 * i ** 3), record)
+    result = loaded_shift(held_shaft_log(lambda i: 0.004 * i + 0.0005 * i ** 3), record, 3.0)
     assert result["significant"] and result["zero_spread_rad"] < 1e-12 and result["top_current_A"] == 3.0
     for hold in result["holds"]:
         i = hold["i_q_A"]
         assert hold["correction_rad"] == pytest.approx(0.9 * (0.004 * i + 0.0005 * i ** 3), abs=1e-9)
     expected = 0.9 * (0.004 * np.clip(grid, -3, 3) + 0.0005 * np.clip(grid, -3, 3) ** 3)
     assert np.allclose(result["estimator_shift_rad"], expected, atol=1e-9)
-    quiet = loaded_shift(held_shaft_log(lambda i: 0.0005 * np.sign(i), zero_drift=0.001), record)
+    quiet = loaded_shift(held_shaft_log(lambda i: 0.0005 * np.sign(i), zero_drift=0.001), record, 3.0)
     assert not quiet["significant"] and not quiet["estimator_shift_rad"].any()
-    even = loaded_shift(held_shaft_log(lambda i: 0.01 * np.abs(i) + 0.0003 * i, zero_drift=0.001), record)
+    even = loaded_shift(held_shaft_log(lambda i: 0.01 * np.abs(i) + 0.0003 * i, zero_drift=0.001), record, 3.0)
     assert not even["significant"] and not even["estimator_shift_rad"].any()
-    with pytest.raises(LoadedTestError, match="moved by 0.0.* rad between holds, more than 0.02 rad .*shaft turned"):
-        loaded_shift(held_shaft_log(lambda i: 0.0 * i, zero_drift=0.05), record)
-    with pytest.raises(LoadedTestError, match="ours stopped tracking for .* %"):
-        loaded_shift(held_shaft_log(lambda i: 0.0 * i, lost_at_s=1.0), record)
+    with pytest.raises(LoadedTestError, match="moved by 0.0.* rad between holds up to 3 A, more than 0.02 rad "
+                                              ".*shaft turned") as moved:
+        loaded_shift(held_shaft_log(lambda i: 0.0 * i, zero_drift=0.05), record, 3.0)
+    assert moved.value.retry_current_A == pytest.approx(2.0)
+    with pytest.raises(LoadedTestError, match="ours stopped tracking for .* %.*the load took its angle") as lost:
+        loaded_shift(held_shaft_log(lambda i: 0.0 * i, lost_at_s=0.7), record, 3.0)
+    assert lost.value.retry_current_A == pytest.approx(2.0)
+    with pytest.raises(LoadedTestError, match="before any load: ours did not start") as unstarted:
+        loaded_shift(held_shaft_log(lambda i: 0.0 * i, lost_at_s=0.31), record, 3.0)
+    assert unstarted.value.retry_current_A is None
 
 
 def test_ours_takes_the_loaded_correction_only_at_the_tests_carrier_and_amplitude(tmp_path):

@@ -3,6 +3,7 @@ import math
 
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.scaled_loops import scaled_loops
+from drive_common.motor.torque_limit import MtpaPath, current_bound, sensorless_torque
 
 from .params import check_settings, make_controller_params
 from .protection import make_protection_params
@@ -42,6 +43,17 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
                                       settings, injection_frequency_Hz, tracking_bandwidth_Hz, commissioning)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source_of('controller')}: {error.args[0]}") from None
+
+
+def stated_torque(scenario, commissioning, controller, injecting):
+    """The SensorlessTorque the drive of ``scenario`` states before it runs (drive_common.motor.torque_limit): the
+    torque at the ``controller``'s (ControllerParams) current limit on its current path, and what set that
+    limit (the ``commissioning``'s tables where the estimator is ``injecting``, the bus, the nameplate)."""
+    plate = commissioning.refined(scenario.motor.nameplate)
+    path = (MtpaPath(controller.mtpa_current_A, controller.mtpa_d_current_A, math.nan)
+            if controller.mtpa_current_A.shape[0] else None)
+    bound = current_bound(plate, commissioning, scenario.motor.inverter, controller.i_max_A, injecting)
+    return sensorless_torque(plate, commissioning, controller.i_max_A, path, bound)
 
 
 def protection_for_scenario(scenario, commissioning, current_limit_A=None, bus_measured=True):

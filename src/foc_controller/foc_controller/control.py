@@ -25,6 +25,7 @@ from drive_common.math.current_sensing import bad_currents, corrected_currents
 from drive_common.math.filters import sos_step
 from drive_common.math.frames import SQRT3, clarke_contract, rotate
 from drive_common.math.pi import pi_limited
+from drive_common.math.tables import table_value
 
 # Controller state layout (integrators, filtered speed, torque gate, last θ̂, and the limits the drive's
 # protections set: the current limit's foldback [A], the share of braking current cut, foc_controller.protection;
@@ -65,6 +66,10 @@ class ControllerParams(NamedTuple):
     """First-order smoothing per sample of the estimated speed before any use (1 = no filter)."""
     speed_limit_rad_s: float
     """The mechanical speed reference is clamped to ±this (∞: no limit)."""
+    mtpa_current_A: np.ndarray
+    """Current magnitudes of the MTPA table [A] (drive_common.motor.torque_limit); empty: i_d* = 0."""
+    mtpa_d_current_A: np.ndarray
+    """The MTPA d current at each magnitude [A] (≤ 0 where L_q > L_d)."""
 
 
 @njit(cache=True)
@@ -85,7 +90,9 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
     (the speed filter and the jump detector start from the first sample's estimate); z_notch: the notch
     sections of d (z_notch[0]) and q (z_notch[1]). The speed loop's current limit is i_max less the
     protections' foldback x[FOLDBACK_A]; a braking current (i_q* against ω̂_e, regenerating) at most
-    (1 − x[REGEN_CUT]) of it (the DC-link over-voltage controller).
+    (1 − x[REGEN_CUT]) of it (the DC-link over-voltage controller). The speed loop's output is a current
+    magnitude: with an MTPA table it is split into i_d* (the table's) and i_q* of the same magnitude
+    (drive_common.motor.torque_limit), else it is i_q* (i_d* = 0).
 
     The estimated speed is low-pass filtered once and that value feeds the speed loop, the back-EMF
     decoupling and the delay compensation: a raw PLL speed in the feed-forward closes a fast loop
@@ -134,6 +141,9 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
         x[INT_SPEED] = 0.0
         i_q_ref = 0.0
     i_d_ref = 0.0
+    if c.mtpa_current_A.shape[0] > 0 and i_q_ref != 0.0:
+        i_d_ref = table_value(abs(i_q_ref), c.mtpa_current_A, c.mtpa_d_current_A)
+        i_q_ref = math.copysign(math.sqrt(max(i_q_ref * i_q_ref - i_d_ref * i_d_ref, 0.0)), i_q_ref)
 
     e_d = i_d_ref - i_d
     e_q = i_q_ref - i_q

@@ -53,7 +53,7 @@ from drive_common.math.current_sensing import current_sensing
 from drive_common.motor.knowledge import motor_knowledge
 from drive_common.ros.node import DriveNode, describe, finite, run_node, stamp, topic_qos
 
-from .build import check_controller_settings, controller_for_scenario, protection_for_scenario
+from .build import check_controller_settings, controller_for_scenario, protection_for_scenario, stated_torque
 from .control import OMEGA_FILTERED, controller_block, controller_state, estimated_torque
 from .params import check_speed_limit
 from .protection import protection_block, protection_state
@@ -179,8 +179,10 @@ class ControllerNode(DriveNode):
         self.n_p = self.params.n_p
         self.trip_A = self.trip_current_A()
         self.sensing = current_sensing(self.calibration, self.trip_A)
+        self.torque_limit = stated_torque(self.config, self.commissioning, self.params,
+                                          config["tracking_current_limit_A"] is not None).line()
         self.supervisor = SpeedSupervisor(self.n_p, self.nameplate().rated_speed_rpm * math.pi / 30.0,
-                                          self.params.i_max_A, self.T_s)
+                                          self.params.i_max_A, self.T_s, self.torque_limit)
         self.supervisor.warm_up()
         self.x, self.z = controller_state(self.params)
         self.protection = self.protection._replace(current_limit_A=self.params.i_max_A)
@@ -352,8 +354,9 @@ class ControllerNode(DriveNode):
             if bad:
                 self.fault("bad_input", f"currents at samples {k0}..{k0 + n - 1}: {bad} of {n} not finite or beyond "
                                         f"the {self.trip_A:g} A trip, or a non-finite estimate; zero voltage there")
-            self.current_limited = abs(out[-1]["i_q_ref_A"]) >= self.params.i_max_A
-            self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], out["i_q_ref_A"], state[2]))
+            current_ref = np.hypot(out["i_d_ref_A"], out["i_q_ref_A"])
+            self.current_limited = bool(current_ref[-1] >= (1.0 - 1e-9) * self.params.i_max_A)
+            self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], current_ref, state[2]))
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
             if joint is not None:
                 j = self.joint_msg
@@ -405,6 +408,7 @@ class ControllerNode(DriveNode):
                   "current_limited": self.current_limited}
         if self.params:
             values["speed_supervision"] = "; ".join(fault_line(f) for f in self.supervisor.open.values()) or "ok"
+            values["sensorless_torque_limit"] = self.torque_limit
         return values
 
 

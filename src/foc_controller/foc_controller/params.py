@@ -6,6 +6,7 @@ import numpy as np
 
 from drive_common.contract.settings import Key, read_keys, shown
 from drive_common.math.filters import notch
+from drive_common.motor.torque_limit import controller_path
 
 from .control import ControllerParams
 from .tuning import SZABO_TABLE2, current_pi_gains_any_bandwidth, speed_pi_gains
@@ -23,6 +24,8 @@ SETTINGS = (
     Key("hf_notch_quality", "", 0.0, default=1.0),
     Key("speed_filter_Hz", "Hz", 0.0, low_inclusive=True, default=100.0, doc="below Nyquist; 0: none"),
     Key("speed_limit_rad_s", "rad/s", 0.0, infinite=True, default=math.inf),
+    Key("mtpa", "", choices=(True, False), default=True,
+        doc="the most torque per ampere where it gains (drive_common.motor.torque_limit); false: i_d = 0"),
 )
 """The controller's settings (a scenario's or drive configuration's ``controller:``, the node's
 ``controller.*`` parameters), each declared once (drive_common.contract.settings.Key)."""
@@ -52,23 +55,24 @@ to 80 Hz."""
 
 def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
                            tracking_bandwidth_Hz=math.inf, commissioning=None):
-    """ControllerParams for a motor with this ``nameplate`` (drive_common.motor.nameplate.Nameplate) on an
-    ``inverter`` (InverterRating; its delay_periods the whole delay d from sample to applied command,
-    blocks included) at sampling period T_s; R_s of the current loops comes from the
-    ``commissioning`` record when given, else the nameplate. Their inductances stay the nameplate's:
-    the commissioned ones are incremental at no load (for the estimators), and the loops' gains tuned on
-    them overshoot the current limit further in a speed reversal (docs/commissioning.md §1).
+    """ControllerParams for a motor with this ``nameplate`` (drive_common.motor.nameplate.Nameplate) on an ``inverter``
+    (InverterRating; its delay_periods the whole delay d from sample to applied command, blocks included) at
+    sampling period T_s; R_s of the current loops comes from the ``commissioning`` record when given, else the
+    nameplate. Their inductances stay the nameplate's: the commissioned ones are incremental at no load (for the
+    estimators), and the loops' gains tuned on them overshoot the current limit further in a speed reversal
+    (docs/commissioning.md §1).
 
-    settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s,
-    current_damping, speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A,
-    decoupling, delay_compensation, hf_notch_quality, speed_filter_Hz (0: none; unset, at least
-    SPEED_FILTER_PER_TRACKING × the estimator's bandwidth), speed_limit_rad_s
-    (mechanical, clamps the speed reference; ∞: none). With 'rule' gains the current bandwidth is capped
-    for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and the speed bandwidth a cascade step below it
-    (CURRENT_TO_SPEED_RATIO) and within the current loops' lag (CURRENT_LAG_AT_SPEED_CROSSOVER_RAD). The
-    notch sits at the estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade
-    step below the angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · tracking_bandwidth_Hz
-    (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
+    settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s, current_damping,
+    speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A, decoupling, delay_compensation,
+    hf_notch_quality, speed_filter_Hz (0: none; unset, at least SPEED_FILTER_PER_TRACKING × the estimator's
+    bandwidth), speed_limit_rad_s (mechanical, clamps the speed reference; ∞: none), mtpa (the MTPA table up to the
+    current limit from the ``commissioning`` record, drive_common.motor.torque_limit.controller_path; false or none:
+    i_d = 0). With 'rule' gains the current bandwidth is capped for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and
+    the speed bandwidth a cascade step below it (CURRENT_TO_SPEED_RATIO) and within the current loops' lag
+    (CURRENT_LAG_AT_SPEED_CROSSOVER_RAD). The notch sits at the estimator's injection frequency. With 'rule' gains
+    the speed loop is kept a cascade step below the angle estimator: its bandwidth is at most
+    speed_to_estimator_ratio · 2π · tracking_bandwidth_Hz (a speed loop faster than the estimate it is fed makes the
+    drive chase its own estimation lag).
     """
     s = check_settings(settings, T_s)
     if "speed_filter_Hz" not in (settings or {}) and math.isfinite(tracking_bandwidth_Hz):
@@ -99,6 +103,7 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         sos = notch(injection_frequency_Hz, s["hf_notch_quality"], T_s)
     else:
         sos = np.zeros((0, 6))
+    path = controller_path(m, commissioning, float(i_max)) if s["mtpa"] else None
     return ControllerParams(
         T_s_s=T_s, n_p=m.n_p, R_s_ohm=m.R_s_ohm, L_d_H=m.L_d_H, L_q_H=m.L_q_H, psi_f_Wb=m.psi_f_Wb,
         U_dc_V=inverter.U_dc_V, kp_d=d.kp, ki_d=d.ki, kp_q=q.kp, ki_q=q.ki,
@@ -106,7 +111,9 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos),
         speed_filter_gain=(1.0 - math.exp(-2.0 * math.pi * s["speed_filter_Hz"] * T_s)
                            if s["speed_filter_Hz"] > 0.0 else 1.0),
-        speed_limit_rad_s=float(s["speed_limit_rad_s"]))
+        speed_limit_rad_s=float(s["speed_limit_rad_s"]),
+        mtpa_current_A=np.ascontiguousarray(path.current_A if path else np.zeros(0)),
+        mtpa_d_current_A=np.ascontiguousarray(path.d_current_A if path else np.zeros(0)))
 
 
 def check_settings(settings, T_s=None):

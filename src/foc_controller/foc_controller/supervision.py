@@ -9,8 +9,11 @@ tracks:
 - the speed error e = ω*_m − ω̂_m, low-passed over FILTER_S, beyond SPEED_TOLERANCE_PER_RATED of rated
   speed plus FOLLOW_TOLERANCE of |ω*|, for longer than PERSIST_S: "dragged backwards" where ω̂ runs
   against a non-zero ω*, "stalled" where |ω̂| stays within the tolerance, else "not following";
-- |i_q*| at LIMIT_SHARE of the current limit for longer than CURRENT_LIMIT_PERSIST_S: "at the current
-  limit" (a speed ramp at full torque lasts a few tenths of a second; a held overload does not end).
+- the current reference's magnitude |i*| at LIMIT_SHARE of the current limit for longer than
+  CURRENT_LIMIT_PERSIST_S: "at the current limit" (a speed ramp at full torque lasts a few tenths of a
+  second; a held overload does not end).
+Each fault names the torque the drive holds there (its stated sensorless torque limit,
+drive_common.motor.torque_limit) where it is given: a load beyond it is held at it, the angle kept.
 """
 import math
 
@@ -69,12 +72,14 @@ def supervision_block(s, p, omega_m_ref, omega_e_hat, i_q_ref, state, events):
 
 class SpeedSupervisor:
     """The supervision of one drive: n_p, rated speed [rad/s mech.], current limit [A], sample period
-    [s]. ``update`` takes the samples from ``k0`` on and returns the faults raised in them; ``faults``
-    holds every fault, {kind, start_s, duration_s (None while it lasts), speed_reference_rad_s,
-    speed_estimate_rad_s}."""
+    [s], the line stating its torque limit ("": none stated). ``update`` takes the samples from ``k0`` on (the
+    current reference as its magnitude) and returns the faults raised in them; ``faults`` holds every fault,
+    {kind, start_s, duration_s (None while it lasts), speed_reference_rad_s, speed_estimate_rad_s,
+    torque_limit}."""
 
-    def __init__(self, n_p, rated_speed_rad_s, current_limit_A, T_s):
+    def __init__(self, n_p, rated_speed_rad_s, current_limit_A, T_s, torque_limit=""):
         self.T_s = T_s
+        self.torque_limit = torque_limit
         self.params = np.array([1.0 - math.exp(-T_s / FILTER_S), SPEED_TOLERANCE_PER_RATED * rated_speed_rad_s,
                                 FOLLOW_TOLERANCE, n_p, LIMIT_SHARE * current_limit_A,
                                 max(1, round(PERSIST_S / T_s)), max(1, round(CURRENT_LIMIT_PERSIST_S / T_s))])
@@ -113,7 +118,8 @@ class SpeedSupervisor:
                 need = self.params[NEED_LIMIT if i == 3 else NEED_SPEED]
                 fault = {"kind": kind, "start_s": (k - need + 1) * self.T_s, "duration_s": None,
                          "speed_reference_rad_s": float(omega_m_ref),
-                         "speed_estimate_rad_s": float(omega_e_hat / self.params[N_P])}
+                         "speed_estimate_rad_s": float(omega_e_hat / self.params[N_P]),
+                         "torque_limit": self.torque_limit}
                 self.open[kind] = fault
                 self.faults.append(fault)
                 raised.append(fault)
@@ -126,15 +132,17 @@ class SpeedSupervisor:
         self.open = {}
 
 
-def speed_supervision(t_s, omega_m_ref, omega_e_hat, i_q_ref, state, n_p, rated_speed_rad_s, current_limit_A):
+def speed_supervision(t_s, omega_m_ref, omega_e_hat, current_ref, state, drive):
     """Faults of a run's samples (arrays per sample: time [s], mechanical speed reference [rad/s],
-    electrical speed estimate [rad/s], q-current reference [A], estimator state code), in order."""
+    electrical speed estimate [rad/s], current reference magnitude [A], estimator state code), in order;
+    ``drive``: (n_p, rated speed [rad/s mech.], current limit [A], the torque limit's line)."""
     if len(t_s) < 2:
         return []
     T_s = float(t_s[1] - t_s[0])
     k0 = int(round(t_s[0] / T_s))
-    supervisor = SpeedSupervisor(n_p, rated_speed_rad_s, current_limit_A, T_s)
-    supervisor.update(k0, omega_m_ref, omega_e_hat, i_q_ref, state)
+    n_p, rated_speed_rad_s, current_limit_A, torque_limit = drive
+    supervisor = SpeedSupervisor(n_p, rated_speed_rad_s, current_limit_A, T_s, torque_limit)
+    supervisor.update(k0, omega_m_ref, omega_e_hat, current_ref, state)
     supervisor.finish(k0 + len(t_s))
     return sorted(supervisor.faults, key=lambda f: f["start_s"])
 
@@ -142,5 +150,6 @@ def speed_supervision(t_s, omega_m_ref, omega_e_hat, i_q_ref, state, n_p, rated_
 def fault_line(fault):
     """One line for a supervision fault."""
     lasting = "" if fault["duration_s"] is None else f" for {fault['duration_s']:.3f} s"
+    held = f": the drive holds its {fault['torque_limit']}" if fault.get("torque_limit") else ""
     return (f"{fault['kind']} from {fault['start_s']:.3f} s{lasting} "
-            f"(ω* {fault['speed_reference_rad_s']:+.2f}, ω̂ {fault['speed_estimate_rad_s']:+.2f} rad/s)")
+            f"(ω* {fault['speed_reference_rad_s']:+.2f}, ω̂ {fault['speed_estimate_rad_s']:+.2f} rad/s){held}")

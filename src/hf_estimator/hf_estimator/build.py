@@ -6,6 +6,7 @@ import math
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE
 from drive_common.motor.scaled_loops import scaled_loops
+from drive_common.motor.torque_limit import estimator_commissioning
 
 from .interface import injects
 from .pll_model import PEAK_PER_RMS, injection_frame_noise_gain, predicted_angle_error_rad
@@ -101,7 +102,8 @@ def refused_signal(estimator, commissioning, run_refused):
 def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
-    angle information holds. ScenarioError names the scenario and the key at fault."""
+    angle information holds; the estimators run on the saliency shift of the controller's current path
+    (drive_common.motor.torque_limit.estimator_commissioning). ScenarioError names the scenario and the key at fault."""
     plate = commissioning.refined(scenario.motor.nameplate)
     try:
         settings, notes = scaled_injection(scenario, plate)
@@ -109,7 +111,8 @@ def estimator_for_scenario(scenario, commissioning):
         if injects(scenario.estimator):
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)
         inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
-        estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings, commissioning, inverter)
+        estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings,
+                                   estimator_commissioning(plate, commissioning, scenario.controller), inverter)
         notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),) if n]
     except KeyError as error:
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None

@@ -33,6 +33,10 @@ class RunResult:
     """drive_config's ``injection`` object (contract v2: kind, frequency_Hz, amplitude_V) of the estimator as
     it ran (hf_estimator.interface.contract_injection), when known."""
 
+    sensorless_torque: dict = None
+    """The torque the drive stated it holds at its current limit (drive_common.motor.torque_limit
+    SensorlessTorque.as_dict: N·m, share of rated, current, why), when known."""
+
     @property
     def n_p(self):
         """Pole pairs of the run's motor (its nameplate)."""

@@ -94,6 +94,9 @@ class Commissioning(NamedTuple):
     saturation_asymmetry: float = math.nan
     """(L_dh at −I_rated − L_dh at +I_rated)/their mean along the magnet's d axis (the standstill test's polarity
     step) [1]: the magnet's saturation the start-up's polarity pulses measure; NaN: a file written before."""
+    loaded_test_current_A: float = math.nan
+    """The largest current ours kept its angle at in the loaded test [A] where that is below the tables' own
+    limit (the test found the sensorless limit itself); NaN: not found lower, or not run."""
 
     def loaded_test_values(self):
         """{key: value} of the loaded test's conditions (empty where it did not run)."""
@@ -165,15 +168,17 @@ class Commissioning(NamedTuple):
         """The largest current |i_q| [A] up to which the convergence slope (interpolated linearly in the
         table) stays at or above ``min_slope`` on both signs of the current and, where the commissioning
         measured it, the saliency keeps SALIENCY_RETAINED of its strength at no load; the table's end if
-        neither falls below."""
+        neither falls below; at most the loaded test's current where it found ours losing its angle lower."""
         currents = self.saliency_shift_i_q_A
-        limit = _held_up_to(currents, self.convergence_slope, min_slope)
+        limit = held_up_to(currents, self.convergence_slope, min_slope)
         if self.saliency_ratio is not None:
             ratio = np.abs(self.saliency_ratio)
-            limit = min(limit, _held_up_to(currents, ratio, SALIENCY_RETAINED * ratio[np.argmin(np.abs(currents))]))
+            limit = min(limit, held_up_to(currents, ratio, SALIENCY_RETAINED * ratio[np.argmin(np.abs(currents))]))
+        if math.isfinite(self.loaded_test_current_A):
+            limit = min(limit, self.loaded_test_current_A)
         return limit
 
-def _held_up_to(currents, values, threshold):
+def held_up_to(currents, values, threshold):
     """The largest |current| [A] up to which ``values`` (a table over ``currents``, interpolated linearly)
     stays at or above ``threshold`` on both signs; 0 where the value at zero current is below it."""
     if values[np.argmin(np.abs(currents))] < threshold:
@@ -201,6 +206,7 @@ VALUE_KEYS = (
     Key("loaded_test_frequency_Hz", "Hz", 0.0, default=math.nan, doc="the loaded test's"),
     Key("loaded_test_amplitude_V", "V", 0.0, default=math.nan, doc="the loaded test's"),
     Key("saturation_asymmetry", "", -1.0, 1.0, default=math.nan, doc="the standstill test's polarity step"),
+    Key("loaded_test_current_A", "A", 0.0, default=math.nan, doc="the loaded test's limit where it found one"),
 )
 """A commissioning file's scalar values, declared once (drive_common.contract.settings.Key); the tables
 (TABLES, OPTIONAL_TABLES) are lists of finite numbers of one length."""
@@ -277,8 +283,9 @@ def commissioning_values(commissioning):
     values = {key: float(getattr(commissioning, key)) for key in SCALARS}
     values.update(commissioning.rotating_values())
     values.update(commissioning.loaded_test_values())
-    if math.isfinite(commissioning.saturation_asymmetry):
-        values["saturation_asymmetry"] = float(commissioning.saturation_asymmetry)
+    for key in ("saturation_asymmetry", "loaded_test_current_A"):
+        if math.isfinite(getattr(commissioning, key)):
+            values[key] = float(getattr(commissioning, key))
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in TABLES})
     values.update({key: [float(v) for v in getattr(commissioning, key)] for key in OPTIONAL_TABLES
                    if getattr(commissioning, key) is not None})

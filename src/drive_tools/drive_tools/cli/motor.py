@@ -23,7 +23,12 @@ from .outcome import say_reason
 
 def cmd_commission(args):
     from drive_common.motor.commissioning import default_commissioning_file, save_commissioning
-    from drive_tools.evaluation.motor_report import CommissioningWritten, commissioning_report, refused_report
+    from drive_tools.evaluation.motor_report import (
+        CommissioningWritten,
+        commissioning_report,
+        refused_report,
+        stated_torque_report,
+    )
     from drive_tools.runner.runner import terminal_progress
     from hf_estimator.commissioning.loaded import LoadedTestError
     from hf_estimator.commissioning.procedure import METHOD, CommissioningError
@@ -69,6 +74,7 @@ def cmd_commission(args):
     written = CommissioningWritten(out, scenario.motor.name, METHOD, conditions)
     report = commissioning_report(written, run, record, scenario.motor.nameplate.rated_current_A, rotating, loaded)
     report["refused"] = refused
+    report["sensorless_torque"] = stated_torque_report(dataclasses.replace(scenario, commissioning=str(out)))
     return _refused(args, report) if refused else _done(args, report)
 
 

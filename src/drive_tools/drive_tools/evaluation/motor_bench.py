@@ -35,8 +35,9 @@ PEAK_TARGET_RAD = 0.15
 IDENTIFICATION_TOLERANCE = 0.10
 """Identification within 10 % of the plant's truth (issue 51's "works")."""
 DERATED_LOAD_PER_LIMIT = 0.9
-"""A drive that states a sensorless current limit below rated current is loaded to this share of the torque
-at that limit (1.5·n_p·ψ_f·i_limit) instead of rated torque."""
+"""A drive that states a sensorless torque limit below rated torque (drive_common.motor.torque_limit: the torque
+on its current path, MTPA where it gains, at its sensorless current limit) is loaded to this share of it
+instead of rated torque."""
 VERDICTS = ("works", "works derated", "works above a speed", "refused up front", "failure")
 """Issue 51's four verdicts, and failure: anything else. The drive states no minimum speed today (the next
 issue), so "works above a speed" is not given yet."""
@@ -107,7 +108,7 @@ def motor_trial(motor_ref, options=None, progress=None):
            "current_limit_A": None, "warnings": [], "drive_notes": "", "loaded_test": None,
            "tracking_bandwidth_Hz": None, "injection_frequency_Hz": None, "injection_amplitude_V": None,
            "startup": None, "polarity_correct": None, "cases": [], "refused_at": None, "reason": "",
-           "problems": [], "derated": False, "testing": None}
+           "problems": [], "derated": False, "testing": None, "sensorless_torque": None}
     steps = 3 + options.starts + len(CASES)
 
     def advanced(done):
@@ -185,8 +186,8 @@ def _starts(motor, angles, commissioning, T_s, advanced):
 
 def _cases(motor, angles, commissioning, T_s, row, advanced):
     """Run the motor's experiments, each from its angle of ``angles``, into ``row``. A drive that states a
-    sensorless current limit below rated current (its first case shows it) is loaded to
-    DERATED_LOAD_PER_LIMIT of the torque at that limit."""
+    sensorless torque limit below rated torque (its first case shows it) is loaded to DERATED_LOAD_PER_LIMIT
+    of it."""
     load_per_rated = 1.0
     for i, (case, theta_e) in enumerate(zip(CASES, angles)):
         experiment = ExperimentOptions(T_s, float(theta_e), 1, load_per_rated, str(commissioning))
@@ -211,7 +212,8 @@ def _cases(motor, angles, commissioning, T_s, row, advanced):
                        tracking_bandwidth_Hz=facts.get("tracking_bandwidth_Hz"),
                        injection_frequency_Hz=facts.get("injection_frequency_Hz"),
                        injection_amplitude_V=facts.get("injection_amplitude_V"))
-            stated = result.current_limit_A / motor.nameplate.rated_current_A
+            row["sensorless_torque"] = result.sensorless_torque
+            stated = result.sensorless_torque["rated_share"]
             row["derated"] = stated < 1.0
             load_per_rated = DERATED_LOAD_PER_LIMIT * stated if row["derated"] else 1.0
         advanced(i + 1)
@@ -245,7 +247,7 @@ def _verdict(row, refused=None):
         row["verdict"], row["reason"] = "failure", "; ".join(problems)
     elif derated:
         row["verdict"] = "works derated"
-        row["reason"] = f"sensorless current limit {row['current_limit_A']:.3g} A stated before the run"
+        row["reason"] = f"{row['sensorless_torque']['line']}, stated before the run"
     else:
         row["verdict"] = "works"
     return row

@@ -1,5 +1,6 @@
 """Reports of motors (drive presets, motor show, commission): what the drive is told of a motor beside the
 simulated plant's truth, the loops scaled to it, and what commissioning identified; each as text lines."""
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -64,15 +65,41 @@ def motor_report(motor, T_s, scenario=None):
     """A motor (drive_common.motor.motor_file.Motor): its nameplate, inverter and the loops scaled to it at the
     sampling period T_s [s] (drive_common.motor.scaled_loops); with a ``scenario`` (its motor this one), what
     `drive run` of it uses instead (drive_loops)."""
+    from drive_common.config.motor_experiments import ExperimentOptions
+    from drive_common.config.scenario import motor_experiment
+    from drive_common.contract.settings import FormatMigrated
     from drive_common.motor.scaled_loops import scaled_loops
 
     loops = scaled_loops(motor.nameplate, motor.inverter, T_s)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FormatMigrated)  # said once already, when the motor was read
+        own = motor_experiment("low_speed", motor, "motor show", options=ExperimentOptions(T_s))
     report = {"name": motor.name, "file": motor.source, "description": motor.description,
               "nameplate": motor.nameplate._asdict(), "inverter": motor.inverter._asdict(),
               "simulated_plant": bool(motor.plant), "sample_period_s": T_s, "loops": loops._asdict(),
-              "run": drive_loops(scenario) if scenario is not None else None}
+              "run": drive_loops(scenario) if scenario is not None else None,
+              "sensorless_torque": stated_torque_report(scenario if scenario is not None else own)}
     report["loops"]["notes"] = list(loops.notes)
     return report
+
+
+def stated_torque_report(scenario):
+    """The torque ``scenario``'s drive states it holds sensorless at low speed (foc_controller.build.stated_torque,
+    SensorlessTorque.as_dict), built as a run builds its drive; {"line": why not} where the drive refuses it."""
+    from drive_common.contract.errors import DriveError
+    from drive_tools.runner.runner import scenario_commissioning
+    from foc_controller.build import controller_for_scenario, stated_torque
+    from hf_estimator.build import estimator_for_scenario
+
+    try:
+        commissioning = scenario_commissioning(scenario)
+        estimator = estimator_for_scenario(scenario, commissioning)
+        controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz,
+                                             estimator.tracking_bandwidth_Hz, estimator.tracking_current_limit_A,
+                                             commissioning)
+    except DriveError as error:
+        return {"line": f"sensorless torque limit not stated: the drive refuses to run it ({error})"}
+    return stated_torque(scenario, commissioning, controller, estimator.tracking_current_limit_A is not None).as_dict()
 
 
 def drive_loops(scenario):
@@ -118,6 +145,7 @@ def motor_lines(report):
         loops = report["loops"]
         lines += [f"  {label:34s} {loops[key]:.4g} {unit}" for label, key, unit in MOTOR_LOOP_ROWS]
         lines += [f"  note: {note}" for note in loops["notes"]]
+    lines.append(f"  {report['sensorless_torque']['line']}")
     plant = "given (plant:)" if report["simulated_plant"] else "none: the nameplate is the plant"
     lines.append(f"  simulated plant: {plant}")
     return lines
@@ -169,7 +197,7 @@ def commissioning_report(written, run, record, rated_A, rotating=None, loaded=No
                                                                  record.estimator_shift_rad)
         report["loaded_test"] = {key: loaded[key] for key in ("top_current_A", "zero_spread_rad", "significant",
                                                               "injection_frequency_Hz", "injection_amplitude_V",
-                                                              "holds")}
+                                                              "holds", "loaded_test_current_A")}
     return report
 
 
@@ -210,12 +238,17 @@ def commissioning_lines(report):
         lines.append(line)
     peak = report.get("peak_true_current_A", report["peak_measured_current_A"])
     lines.append(f"  peak phase current {peak:.3f} A (limit {report['current_limit_A']:.3f} A)")
+    if report.get("sensorless_torque"):
+        lines.append(f"  {report['sensorless_torque']['line']}")
     loaded = report.get("loaded_test")
     if loaded:
         outcome = ("ours corrects it from now on" if loaded["significant"] else
                    f"within 3× its own noise ({loaded['zero_spread_rad']:.3g} rad at zero current): no correction")
         lines.append(f"  loaded test (shaft held, ours at {loaded['injection_frequency_Hz']:.0f} Hz, "
                      f"{loaded['injection_amplitude_V']:.3g} V): θ̂ moved under load; {outcome}")
+        if loaded.get("loaded_test_current_A"):
+            lines.append(f"  the loads took ours' angle above {loaded['loaded_test_current_A']:.3g} A: the drive's "
+                         f"sensorless limit from now on (the test ran again up to it)")
         lines.append(f"  {'i_q [A]':>12s} {'θ̂ moved [rad]':>15s} {'correction':>11s} {'true θ − θ̂':>11s}")
         for hold in loaded["holds"]:
             lines.append(f"  {hold['i_q_A']:12.3f} {hold['moved_rad']:+15.4f} {hold['correction_rad']:+11.4f} "

@@ -99,7 +99,7 @@ def compact_row(row, figures):
             "reason": row["reason"], "refused_at": row["refused_at"], "problems": row["problems"],
             "exit_codes": row["exit_codes"], "tests": row["tests"],
             "identification_error": row["identification_error"], "current_limit_A": row["current_limit_A"],
-            "derated": row.get("derated", False),
+            "derated": row.get("derated", False), "sensorless_torque": row.get("sensorless_torque"),
             "warnings": row["warnings"], "polarity_correct": row["polarity_correct"],
             "cases": {c["case"]: {"exit_code": c["exit_code"], "angle_error_rms": c["angle_error_rms"],
                                   "angle_error_peak": c["angle_error_peak"], "load_per_rated": c["load_per_rated"],

@@ -23,7 +23,8 @@ def run_report(result):
     """The metrics of a run (drive_tools.runner.runner.RunResult or one like it) with ``commissioning`` (its
     source), ``motor_knowledge``, ``injection`` (when the estimator injects), ``loops`` (what it ran with, as
     `drive motor show --scenario` prints it), ``warnings`` and
-    ``supervision`` (the speed supervisor's faults) and ``protection`` (what the drive's protections did,
+    ``supervision`` (the speed supervisor's faults), ``sensorless_torque`` (the torque the drive stated it holds,
+    drive_common.motor.torque_limit) and ``protection`` (what the drive's protections did,
     where the run composed them: foc_controller.protection.protection_summary)."""
     from drive_common.motor.knowledge import motor_knowledge
 
@@ -43,6 +44,7 @@ def run_report(result):
                                                            "tracking_bandwidth_Hz")}}
     metrics["warnings"] = configuration_warnings(result)
     metrics["supervision"] = supervision_faults(result)
+    metrics["sensorless_torque"] = getattr(result, "sensorless_torque", None)
     if getattr(result, "protection", None) is not None:
         metrics["protection"] = result.protection
     return metrics

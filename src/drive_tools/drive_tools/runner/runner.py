@@ -13,7 +13,7 @@ from drive_common.math.current_sensing import current_sensing
 from drive_common.motor.commissioning import resolve_commissioning
 from drive_common.motor.nameplate import trip_current_A
 from drive_common.runtime.interrupt import Interrupted, checkpoint, deferred
-from foc_controller.build import controller_for_scenario, protection_for_scenario
+from foc_controller.build import controller_for_scenario, protection_for_scenario, stated_torque
 from foc_controller.control import controller_state
 from foc_controller.protection import protection_state, protection_summary
 from hf_estimator.build import estimator_for_scenario
@@ -122,7 +122,9 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
     return RunResult(cut(scenario, done), drive.estimator.name, log[:done], wall, drive.controller.i_max_A,
                      interrupted, drive.commissioning, drive.estimator.facts(), estimator_startup(drive.estimator),
                      protection=protection_summary(drive.protection_x, drive.protection),
-                     injection=contract_injection(drive.estimator.facts(), scenario.injection))
+                     injection=contract_injection(drive.estimator.facts(), scenario.injection),
+                     sensorless_torque=stated_torque(scenario, drive.commissioning, drive.controller,
+                                                     drive.estimator.tracking_current_limit_A is not None).as_dict())
 
 
 def cut(scenario, samples):

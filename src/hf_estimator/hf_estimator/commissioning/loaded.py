@@ -9,6 +9,12 @@ Where ours' equilibrium moved by Δθ̂ at q current i_q, its error signal there
 the commissioned saliency shift (F: the convergence slope of the standstill table), so the correction
 added to ours' shift table is c(i_q) = F(i_q)·Δθ̂(i_q), fitted as an odd polynomial a₁·i_q + a₃·i_q³ (the
 rotor is symmetric about its d axis), held at its value beyond the largest current tested.
+
+A load that takes ours' angle (it stops tracking, or θ̂ at zero current does not come back) is the
+sensorless limit found, not a refusal: the test runs again up to a lower current (retry_current_A, at most
+TRIES runs), and the current the last run completes at is the drive's sensorless limit from then on
+(Commissioning.loaded_test_current_A). The drive runs its own current path (MTPA where it gains), so the
+holds measure ours where the current will be.
 """
 import numpy as np
 
@@ -39,13 +45,35 @@ load is lost in that noise and the table is zero (gimbal_20w: an odd part of 0.0
 limit against a spread of 0.007; its correction did not help a running drive)."""
 
 
+TRIES = 3
+"""A test whose loads took ours' angle away is run again at a lower largest current (retry_current_A), at
+most this many runs in all: the current the last one completes at is the drive's sensorless limit."""
+
+
 class LoadedTestError(DriveError):
-    """The loaded test did not hold its conditions: nothing is measured."""
+    """The loaded test did not hold its conditions: nothing is measured. ``retry_current_A``: the largest
+    current [A] a test run again may reach where the loads were the cause (None: not the load)."""
+
+    def __init__(self, message, retry_current_A=None):
+        super().__init__(message)
+        self.retry_current_A = retry_current_A
+
+
+def retry_current_A(level_index, top_current_A):
+    """The largest current [A] for a test run again after ours lost its angle first in the hold of LEVELS
+    index ``level_index`` of a test up to ``top_current_A``: the largest load held before it (the load before
+    a zero hold is taken as the cause), at most two thirds of the test's and at least two thirds of its
+    smallest load; None where it was lost before any load (the start, not the load)."""
+    if level_index <= 0:
+        return None
+    before = LEVELS[:level_index - 1] if LEVELS[level_index] == 0.0 else LEVELS[:level_index]
+    held = max((abs(level) for level in before), default=0.0)
+    return top_current_A * min(2.0 / 3.0, max(held, 2.0 / 3.0 * LEVELS[1]))
 
 
 def test_current_A(commissioning, current_limit_A):
-    """The test's largest |i_q| [A]: the drive's sensorless current limit (where the commissioned tables keep
-    a saliency tracker's loop gain), at most ``current_limit_A``."""
+    """The test's first largest current [A]: the drive's sensorless current limit (where the commissioned
+    tables keep a saliency tracker's loop gain), at most ``current_limit_A``."""
     return min(commissioning.tracking_current_limit_A(), current_limit_A)
 
 
@@ -71,33 +99,35 @@ def _hold_means(t, angle, i_q):
     return [(float(np.mean(angle[w])), float(np.mean(i_q[w]))) for w in hold_windows(t)]
 
 
-def loaded_shift(log, commissioning):
-    """Ours' correction from the test's ``log`` (drive_common.contract.log columns) on top of the standstill record
-    ``commissioning``: {"estimator_shift_rad": the table over commissioning.saliency_shift_i_q_A (zero
-    where not ``significant``, SIGNIFICANCE), "significant", "holds": [{i_q_A, moved_rad, correction_rad}],
-    "zero_spread_rad", "top_current_A"}. LoadedTestError where ours did not track
-    throughout or θ̂ at zero current moved between the zero holds."""
+def loaded_shift(log, commissioning, top_current_A):
+    """Ours' correction from the ``log`` (drive_common.contract.log columns) of a test up to ``top_current_A``
+    [A] on top of the standstill record ``commissioning``: {"estimator_shift_rad": the table over
+    commissioning.saliency_shift_i_q_A (zero where not ``significant``, SIGNIFICANCE), "significant", "holds":
+    [{i_q_A, moved_rad, correction_rad}], "zero_spread_rad", "top_current_A"}. LoadedTestError where ours did
+    not track throughout (with retry_current_A where a load took its angle) or θ̂ at zero current moved
+    between the zero holds (the loads moved it: retry at two thirds of the largest)."""
     t = log[:, COLUMN["t"]]
     tracking = log[t >= START_S, COLUMN["state"]] == TRACKING
     if not tracking.all():
         lost = 100.0 * (1.0 - tracking.mean())
         first = int(np.argmax((t >= START_S) & (log[:, COLUMN["state"]] != TRACKING)))
+        level = min(int((t[first] - START_S) // HOLD_S), len(LEVELS) - 1)
+        retry = retry_current_A(level, top_current_A)
         i_q = float(log[first, COLUMN["i_q"]])
-        limit = commissioning.tracking_current_limit_A()
-        where = (f"first at {t[first]:.3f} s at i_q {i_q:+.3g} A, "
-                 + (f"beyond the {limit:.3g} A up to which the commissioned saliency holds (a load beyond what it "
-                    f"tracks)" if abs(i_q) > limit else f"within the {limit:.3g} A up to which the commissioned "
-                                                         f"saliency holds: not the load; ours' loops lost the angle"))
+        where = (f"first at {t[first]:.3f} s at i_q {i_q:+.3g} A in the hold at {LEVELS[level] * top_current_A:+.3g} A"
+                 + (": the load took its angle" if retry is not None else
+                    ", before any load: ours did not start on the held shaft, not the load"))
         raise LoadedTestError(f"the loaded test: ours stopped tracking for {lost:.0f} % of the test ({where}): its "
-                              f"loaded error not measured")
+                              f"loaded error not measured", retry)
     angle = np.unwrap(log[:, COLUMN["theta_e_hat"]])
     means = _hold_means(t, angle, log[:, COLUMN["i_q"]])
     zero = [m for (m, _), level in zip(means, LEVELS) if level == 0.0]
     spread = float(max(zero) - min(zero))
     if spread > ZERO_SPREAD_RAD:
-        raise LoadedTestError(f"the loaded test: θ̂ at zero current moved by {spread:.3g} rad between holds, more than "
-                              f"{ZERO_SPREAD_RAD:g} rad (the shaft turned, not held by its brake, or ours drifted "
-                              f"at zero current): its loaded error not measured")
+        raise LoadedTestError(f"the loaded test: θ̂ at zero current moved by {spread:.3g} rad between holds up to "
+                              f"{top_current_A:.3g} A, more than {ZERO_SPREAD_RAD:g} rad (the loads moved ours' angle, "
+                              f"or the shaft turned): its loaded error not measured",
+                              2.0 / 3.0 * top_current_A)
     reference = float(np.mean(zero))
     currents = commissioning.saliency_shift_i_q_A
     held = [(i_q, m - reference) for (m, i_q), level in zip(means, LEVELS) if level != 0.0]
