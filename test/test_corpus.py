@@ -163,3 +163,32 @@ def test_the_engine_options_are_refused_where_they_do_not_apply(corpus):
     assert both.returncode == 2 and "give one" in both.stderr
     none = drive_in_process(["bench", "replay", folder, "--workers", "0"])
     assert none.returncode == 2 and "--workers" in none.stderr
+
+
+def test_a_corpus_report_is_one_self_contained_page_with_its_data_beside_it(corpus, tmp_path):
+    """--report DIR: report.html with its plot inline and nothing fetched, report.json and bags.csv with one
+    row per bag and estimator; per estimator the median over bags with its bootstrap interval around it; the
+    ranking tests neighbours on their common bags; every not-applicable entry counted by its reason."""
+    import csv
+    folder, bags, _ = corpus
+    out = drive_in_process(["bench", "replay", folder, "--estimators", ",".join(ESTIMATORS), "--windows", "0.25:0.4",
+                            "--no-plot", "--report", tmp_path / "report", "--json"])
+    assert out.returncode == 0, out.stderr
+    report = json.loads(out.stdout)
+    html = Path(report["report"]["html"]).read_text()
+    assert "data:image/png;base64," in html and "http" not in html and "<script" not in html
+    data = json.loads(Path(report["report"]["json"]).read_text())
+    with open(report["report"]["csv"]) as stream:
+        rows = list(csv.DictReader(stream))
+    assert len(rows) == BAGS * len(ESTIMATORS) == len(data["rows"])
+    for entry in data["estimators"]:
+        assert entry["scored"] == BAGS
+        low, high = entry["rms_median_ci"]
+        assert low <= entry["rms_median"] <= high
+        assert 0.0 <= entry["within_share_ci"][0] <= entry["within_share"] <= entry["within_share_ci"][1] <= 1.0
+    ranked = data["ranking"]
+    assert [r["estimator"] for r in ranked] == ["sensored", "injection_frame"]
+    test = ranked[0]["against_next"]
+    assert test["common_bags"] == BAGS and test["p"] is None
+    assert data["by_pole_pairs"] == {"1-5": {name: {"bags": BAGS, "rms_median": next(
+        e["rms_median"] for e in data["estimators"] if e["estimator"] == name)} for name in ESTIMATORS}}

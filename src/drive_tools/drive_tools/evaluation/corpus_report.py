@@ -196,7 +196,7 @@ def _figure_png(data):
     values = [[r["angle_error_rms"] for r in _scored(data["rows"], n).values()] for n in names]
     fig, ax = plt.subplots(figsize=(9, 0.45 * len(names) + 1.5))
     if names:
-        ax.boxplot(values, vert=False, showfliers=False)
+        ax.boxplot(values, orientation="horizontal", showfliers=False)
         rng = np.random.default_rng(0)
         for i, v in enumerate(values, 1):
             ax.plot(v, i + rng.uniform(-0.15, 0.15, len(v)), ".", alpha=0.5, markersize=4)
