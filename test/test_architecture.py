@@ -25,7 +25,8 @@ LIBRARY, TOOLS = "drive_common", "drive_tools"
 MAX_PACKAGES, MAX_LAYERS = 6, 5
 ROSDEP_KEYS = {"numpy": "python3-numpy", "numba": "python3-numba", "scipy": "python3-scipy",
                "yaml": "python3-yaml", "matplotlib": "python3-matplotlib", "serial": "python3-serial",
-               "can": "python3-can", "mcap": "python3-mcap", "rosbags": "python3-rosbags", "rclpy": "rclpy"}
+               "can": "python3-can", "mcap": "python3-mcap", "rosbags": "python3-rosbags", "rclpy": "rclpy",
+               "dask": "python3-dask", "distributed": "python3-distributed"}
 MESSAGE_PACKAGES = {"geometry_msgs", "sensor_msgs", "std_msgs", "rosgraph_msgs", "diagnostic_msgs",
                     "builtin_interfaces", "rcl_interfaces", "std_srvs"}
 OWN_ENVIRONMENT = {SRC / TOOLS / TOOLS / "evaluation" / "motulator_reference.py"}
@@ -433,8 +434,11 @@ def _commands(parser, words):
     import argparse
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
+            seen = set()
             for name, sub in action.choices.items():
-                yield from _commands(sub, words + [name])
+                if id(sub) not in seen:
+                    seen.add(id(sub))
+                    yield from _commands(sub, words + [name])
             return
     yield words
 
