@@ -187,22 +187,20 @@ def synthetic_bag(job):
 
 
 def _recorded_run(case, motor_path, n_p, seed, duration_s, scratch):
-    """(the RunResult of ``case``, whether standstill commissioning took): commissioned at standstill first
-    (the nameplate alone where commissioning refuses the motor)."""
+    """(the RunResult of ``case``, whether standstill commissioning took): commissioned at standstill first;
+    the nameplate alone where commissioning refuses the motor or the drive refuses what it measured."""
     commissioning = Path(scratch) / "commissioning.yaml"
     scenario = parse_scenario(case_document(case, motor_path, n_p, seed, duration_s), "synthetic",
                               f"synthetic recording on {motor_path}")
-    commissioned = True
-    try:
-        measured = commission_in_process(scenario).procedure.result()
-        save_commissioning(commissioning, measured, case.motor, "drive bag synth")
-        scenario = dataclasses.replace(scenario, commissioning=str(commissioning))
-    except CommissioningError:
-        commissioned = False
     if injects(scenario.estimator):
         scenario = dataclasses.replace(scenario, estimator_settings={**scenario.estimator_settings,
                                                                      "run_refused": True})
-    return run_scenario(scenario), commissioned
+    try:
+        measured = commission_in_process(scenario).procedure.result()
+        save_commissioning(commissioning, measured, case.motor, "drive bag synth")
+        return run_scenario(dataclasses.replace(scenario, commissioning=str(commissioning))), True
+    except (CommissioningError, ScenarioError):
+        return run_scenario(scenario), False
 
 
 def _case_row(case):
