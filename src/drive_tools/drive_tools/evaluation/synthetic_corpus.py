@@ -25,7 +25,6 @@ from drive_common.runtime.interrupt import Interrupted
 from drive_tools.bags.writer import RecorderFlaws, write_run_bag
 from drive_tools.runner.commissioning_run import commission_in_process
 from drive_tools.runner.runner import run_scenario
-from hf_estimator.commissioning.procedure import CommissioningError
 from hf_estimator.interface import injects
 
 from .metrics import compute_metrics
@@ -199,7 +198,7 @@ def _recorded_run(case, motor_path, n_p, seed, duration_s, scratch):
         measured = commission_in_process(scenario).procedure.result()
         save_commissioning(commissioning, measured, case.motor, "drive bag synth")
         return run_scenario(dataclasses.replace(scenario, commissioning=str(commissioning))), True
-    except (CommissioningError, ScenarioError):
+    except DriveError:
         return run_scenario(scenario), False
 
 
