@@ -6,6 +6,12 @@ import numpy as np
 
 from drive_common.contract.settings import Key, read_keys, shown
 from drive_common.math.filters import notch
+from drive_common.motor.open_loop_start import (
+    AGREEMENT_PER_SPEED,
+    DAMPING_FILTER_PER_SWING,
+    DAMPING_GAIN,
+    open_loop_start,
+)
 
 from .control import ControllerParams
 from .tuning import SZABO_TABLE2, current_pi_gains_any_bandwidth, speed_pi_gains
@@ -50,8 +56,12 @@ at 20 kHz, tracking 116 Hz and its speed loop at 182 rad/s, hunted at 55 Hz behi
 to 80 Hz."""
 
 
+IF_AGREEMENT_S = 0.01
+"""The I-f start hands over once the observer's speed has agreed with the ramp's this long."""
+
+
 def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
-                           tracking_bandwidth_Hz=math.inf, commissioning=None):
+                           tracking_bandwidth_Hz=math.inf, commissioning=None, open_loop=False):
     """ControllerParams for a motor with this ``nameplate`` (drive_common.motor.nameplate.Nameplate) on an
     ``inverter`` (InverterRating; its delay_periods the whole delay d from sample to applied command,
     blocks included) at sampling period T_s; R_s of the current loops comes from the
@@ -69,6 +79,8 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     notch sits at the estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade
     step below the angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · tracking_bandwidth_Hz
     (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
+    ``open_loop``: with the I-f start of drive_common.motor.open_loop_start (an estimator that says OPEN_LOOP
+    below its speed); ValueError where that start refuses the motor.
     """
     s = check_settings(settings, T_s)
     if "speed_filter_Hz" not in (settings or {}) and math.isfinite(tracking_bandwidth_Hz):
@@ -77,11 +89,11 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     if commissioning is not None:
         m = m._replace(R_s_ohm=commissioning.R_s_ohm)
     k_t = 1.5 * m.n_p * m.psi_f_Wb
+    current_bandwidth = min(s["current_bandwidth_rad_s"],
+                            DELAY_LAG_AT_BANDWIDTH_RAD / ((inverter.delay_periods + 0.5) * T_s))
     if s["gains"] == "szabo_table2":
         d, q, w = SZABO_TABLE2["d"], SZABO_TABLE2["q"], SZABO_TABLE2["speed"]
     elif s["gains"] == "rule":
-        current_bandwidth = min(s["current_bandwidth_rad_s"],
-                                DELAY_LAG_AT_BANDWIDTH_RAD / ((inverter.delay_periods + 0.5) * T_s))
         d = current_pi_gains_any_bandwidth(m.L_d_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
         q = current_pi_gains_any_bandwidth(m.L_q_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
         current_lag_s = 2.0 * s["current_damping"] / current_bandwidth + (inverter.delay_periods + 0.5) * T_s
@@ -99,6 +111,16 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         sos = notch(injection_frequency_Hz, s["hf_notch_quality"], T_s)
     else:
         sos = np.zeros((0, 6))
+    start = {}
+    if open_loop:
+        plan = open_loop_start(m, commissioning, inverter.U_dc_V, current_bandwidth)
+        if plan.refused:
+            raise ValueError(plan.refused)
+        start = {"if_current_A": plan.current_A, "if_acceleration_rad_s2": plan.acceleration_rad_s2,
+                 "if_handover_rad_s": plan.handover_rad_s, "if_align_samples": int(round(plan.align_s / T_s)),
+                 "if_agree_samples": max(1, int(round(IF_AGREEMENT_S / T_s))),
+                 "if_damping_filter_rad_s": DAMPING_FILTER_PER_SWING * plan.swing_rad_s,
+                 "if_damping_gain": DAMPING_GAIN, "if_agreement": AGREEMENT_PER_SPEED}
     return ControllerParams(
         T_s_s=T_s, n_p=m.n_p, R_s_ohm=m.R_s_ohm, L_d_H=m.L_d_H, L_q_H=m.L_q_H, psi_f_Wb=m.psi_f_Wb,
         U_dc_V=inverter.U_dc_V, kp_d=d.kp, ki_d=d.ki, kp_q=q.kp, ki_q=q.ki,
@@ -106,7 +128,7 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos),
         speed_filter_gain=(1.0 - math.exp(-2.0 * math.pi * s["speed_filter_Hz"] * T_s)
                            if s["speed_filter_Hz"] > 0.0 else 1.0),
-        speed_limit_rad_s=float(s["speed_limit_rad_s"]))
+        speed_limit_rad_s=float(s["speed_limit_rad_s"]), **start)
 
 
 def check_settings(settings, T_s=None):

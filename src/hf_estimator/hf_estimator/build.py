@@ -5,8 +5,10 @@ import math
 
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE
+from drive_common.motor.open_loop_start import ESTIMATOR as OPEN_LOOP_ESTIMATOR
 from drive_common.motor.scaled_loops import scaled_loops
 
+from .if_observer import below_speed_refusal
 from .interface import injects
 from .pll_model import PEAK_PER_RMS, injection_frame_noise_gain, predicted_angle_error_rad
 from .registry import make_estimator
@@ -98,6 +100,17 @@ def refused_signal(estimator, commissioning, run_refused):
     return f"run although refused ({problem})"
 
 
+def below_speed(scenario, estimator, run_refused):
+    """An I-f start's refusal of a scenario asking below its speed (hf_estimator.if_observer): ValueError in one
+    line unless ``run_refused``, then a note; "" for another estimator or a scenario above the speed."""
+    if estimator.name != OPEN_LOOP_ESTIMATOR:
+        return ""
+    refusal = below_speed_refusal(scenario, estimator.params.handover_rad_s)
+    if refusal and not run_refused:
+        raise ValueError(f"{refusal}; refused (`drive run --force` runs it anyway)")
+    return f"run although refused ({refusal})" if refusal else ""
+
+
 def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
@@ -110,7 +123,8 @@ def estimator_for_scenario(scenario, commissioning):
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)
         inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
         estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings, commissioning, inverter)
-        notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),) if n]
+        notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),
+                              below_speed(scenario, estimator, bool(settings.get("run_refused")))) if n]
     except KeyError as error:
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
     except ValueError as error:
