@@ -31,13 +31,19 @@ from drive_common.math.pi import pi_limited
 # Controller state layout (integrators, filtered speed, torque gate, last θ̂, and the limits the drive's
 # protections set: the current limit's foldback [A], the share of braking current cut, foc_controller.protection;
 # 0: none; then the I-f start's: open loop on, the ramp's angle and speed, the stabilising loop's filtered speed,
-# the lock samples left, the samples the observer agreed, the last q voltage, a mode switch pending (+1 to
-# closed loop, −1 to open loop)); the notch states (d, q) live in a separate array.
+# the lock samples left, the samples the observer agreed, a mode switch pending (+1 to closed loop, −1 to open
+# loop)); the notch states (d, q) live in a separate array.
 (INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, TORQUE_ALLOWED, LAST_THETA, STARTED, FOLDBACK_A, REGEN_CUT,
- IF_MODE, IF_THETA, IF_RAMP, IF_FILTERED, IF_ALIGN_LEFT, IF_AGREED, IF_UQ, IF_SWITCH) = range(17)
-N_STATE = 17
-IF_ANGLE_LIMIT_RAD = math.pi / 4.0
-"""The stabilising loop turns the I-f current by at most this; a hand-back sets the load angle within it."""
+ IF_MODE, IF_THETA, IF_RAMP, IF_FILTERED, IF_ALIGN_LEFT, IF_AGREED, IF_SWITCH) = range(16)
+N_STATE = 16
+IF_ANGLE_LIMIT_RAD = math.pi / 2.0
+"""The stabilising loop turns the I-f current by at most this (π/4 held a rotor's swing from 2 rad at the lock
+to a 10 % decay per period on a heavy rotor); a hand-back sets the load angle within IF_HANDBACK_ANGLE_RAD."""
+IF_HANDBACK_ANGLE_RAD = math.pi / 4.0
+IF_DAMPED_PER_HANDOVER = 0.3
+"""The stabilising loop runs during the lock and from this share of the hand-over speed on, where the observer's
+speed has converged; not between (at the ramp's start an observer drifted 1 rad at rest swung its speed
+against the rotor's and the loop turned a heavy rotor's load angle to 1.9 rad)."""
 JUMP_RAD = 0.25
 """A change of θ̂ beyond ω̂·T_s by more than this in one sample is a jump, not tracking."""
 ROUNDING_SPARE = 1e-9
@@ -95,13 +101,15 @@ def within(x, y, limit):
 def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
     """The I-f start (Fatu et al. 2008, drive_common.motor.open_loop_start) for one period: → (whether the
     current is turned open loop, its angle [rad], the frame's speed [rad/s]). Entered when the estimator says
-    OPEN_LOOP: from rest with a lock at θ̂ for ``if_align_samples``; from closed loop with the load angle
-    that keeps the torque current (asin(∫speed/I_f))). The ramp slews its speed to ``omega_e_ref`` at
-    ``if_acceleration_rad_s2``; the stabilising loop retards the current's angle by φ = −k·ṽ (ṽ the rotor's
-    speed, from the q voltage of the current's frame (u_q − ω·L_d·I_f)/ψ_f, less the ramp's, through
-    1/(s + c)). Hands over (x[IF_SWITCH] = 1, x[INT_SPEED] the torque current I_f·sin(θ_if − θ̂)) once the
-    estimator tracks, the ramp is at the hand-over speed and the observer's speed agrees for
-    ``if_agree_samples``."""
+    OPEN_LOOP: from rest with a lock at θ̂ for ``if_align_samples``, its second half a quarter turn further
+    (a rotor at the first lock's unstable point, its d axis against the current, is pulled off it); from
+    closed loop with the load angle that keeps the torque current (asin(∫speed/I_f)). The ramp slews its
+    speed to ``omega_e_ref`` at ``if_acceleration_rad_s2``. During the lock the stabilising loop turns the
+    current's angle by φ = −k·ṽ (ṽ the rotor's speed by the observer, the back-EMF of its swing, through
+    1/(s + c)), and again from IF_DAMPED_PER_HANDOVER of the hand-over speed; between, φ decays: the
+    swing from the ramp's start stays within 2·asin(ACCELERATION_SHARE) (open_loop_start). Hands over
+    (x[IF_SWITCH] = 1, x[INT_SPEED] the torque current I_f·sin(θ_if − θ̂)) once the estimator tracks, the ramp is at the hand-over speed and the
+    observer's speed agrees for ``if_agree_samples``."""
     if x[IF_MODE] < 0.5:
         if state != OPEN_LOOP:
             return False, theta_e_hat, omega_e_hat
@@ -110,8 +118,8 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
         x[IF_AGREED] = 0.0
         x[IF_SWITCH] = -1.0 if x[TORQUE_ALLOWED] > 0.5 else 0.0
         if x[TORQUE_ALLOWED] > 0.5:
-            share = min(max(x[INT_SPEED] / c.if_current_A, -math.sin(IF_ANGLE_LIMIT_RAD)),
-                        math.sin(IF_ANGLE_LIMIT_RAD))
+            share = min(max(x[INT_SPEED] / c.if_current_A, -math.sin(IF_HANDBACK_ANGLE_RAD)),
+                        math.sin(IF_HANDBACK_ANGLE_RAD))
             x[IF_THETA] = theta_e_hat + math.asin(share)
             x[IF_RAMP] = x[OMEGA_FILTERED]
             x[IF_ALIGN_LEFT] = 0.0
@@ -119,16 +127,18 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
             x[IF_THETA] = theta_e_hat
             x[IF_RAMP] = 0.0
             x[IF_ALIGN_LEFT] = c.if_align_samples
-        x[IF_UQ] = x[IF_RAMP] * (c.L_d_H * c.if_current_A + c.psi_f_Wb)
         x[TORQUE_ALLOWED] = 0.0
     if x[IF_ALIGN_LEFT] > 0.0:
         x[IF_ALIGN_LEFT] -= 1.0
+        if x[IF_ALIGN_LEFT] == c.if_align_samples // 2:
+            x[IF_THETA] += 0.5 * math.pi
     else:
         step = c.if_acceleration_rad_s2 * c.T_s_s
         x[IF_RAMP] += min(max(omega_e_ref - x[IF_RAMP], -step), step)
     ramp = x[IF_RAMP]
-    rotor = (x[IF_UQ] - ramp * c.L_d_H * c.if_current_A) / c.psi_f_Wb
-    x[IF_FILTERED] += c.T_s_s * (rotor - ramp - c.if_damping_filter_rad_s * x[IF_FILTERED])
+    observed = x[IF_ALIGN_LEFT] > 0.0 or abs(ramp) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s
+    swing = omega_e_hat - ramp if observed else 0.0
+    x[IF_FILTERED] += c.T_s_s * (swing - c.if_damping_filter_rad_s * x[IF_FILTERED])
     x[IF_THETA] += ramp * c.T_s_s
     phi = min(max(-c.if_damping_gain * x[IF_FILTERED], -IF_ANGLE_LIMIT_RAD), IF_ANGLE_LIMIT_RAD)
     theta = x[IF_THETA] + phi
@@ -231,7 +241,6 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
         e_q = 0.0
     u_d = c.kp_d * e_d + x[INT_D]
     u_q = c.kp_q * e_q + x[INT_Q]
-    x[IF_UQ] = u_q
     if c.decoupling and torque:
         u_d -= omega_e_hat * c.L_q_H * i_q
         u_q += omega_e_hat * (c.L_d_H * i_d + c.psi_f_Wb)

@@ -12,9 +12,14 @@ same idea without the stabilising loop.
 Everything here comes from the nameplate and the commissioning (R_s, the dead-time voltage, J where the
 rotating test measured it), never from the plant:
 - the I-f current I_f: rated current, lower where the rotor's swing about its load angle,
-  Ω = √(n_p·τ_f/J) (τ_f = 1.5·n_p·ψ_f·I_f), would come within SWING_PER_CURRENT_LOOP of the current loop;
+  Ω = √(n_p·τ_f/J) (τ_f = 1.5·n_p·ψ_f·I_f), would come within SWING_PER_CURRENT_LOOP of the current loop
+  or of the observer's speed estimate;
+- the lock: ALIGN_SWINGS swing periods 2π/Ω at a fixed angle (half of it a quarter turn further), the
+  stabilising loop damping the rotor's swing from the observer's speed (the back-EMF of the swing);
 - the ramp's acceleration: ACCELERATION_SHARE of τ_f over J (electrical rad/s²), the rest of τ_f the
-  stated load margin for friction and load while open loop (load angle asin(ACCELERATION_SHARE) ≈ 17°);
+  stated load margin for friction and load while open loop (load angle asin(ACCELERATION_SHARE) ≈ 17°; the
+  ramp's start swings the rotor to twice that, 0.61 rad, well inside ±π/2, without a stabilising loop: at the
+  ramp's start the observer, drifted at rest, is worst);
 - the observer's minimum speed: where its angle error bound U_err/(ω_e·ψ_f) reaches OBSERVER_ERROR_BOUND_RAD
   (ours' peak target), U_err what its voltage model can be wrong by (hf_estimator.full_speed's: the
   dead-time voltage ×4/3, 2 % of U_dc where never measured, plus 10 % of R_s·I_f), and its angle noise
@@ -29,7 +34,11 @@ ESTIMATOR = "if_observer"
 ACCELERATION_SHARE = 0.3
 """The share of the I-f torque the ramp's acceleration takes; 1 − it is the load margin while open loop."""
 SWING_PER_CURRENT_LOOP = 0.25
-"""The rotor's swing frequency Ω at most this share of the current loop's bandwidth."""
+"""The rotor's swing frequency Ω at most this share of the current loop's bandwidth,"""
+OBSERVER_SPEED_BANDWIDTH_RAD_S = 0.5 * 2.0 * math.pi * 100.0
+"""and of the observer's speed estimate (it follows at α_o/2, α_o = 2π·100 Hz, hf_estimator.flux_observer's
+default), which feeds the stabilising loop: on a light rotor whose Ω was 198 rad/s the loop, fed a lagging
+speed, left the swing undamped and the observer never agreed."""
 OBSERVER_ERROR_BOUND_RAD = 0.15
 """The back-EMF observer leads once its angle error bound U_err/(ω_e·ψ_f) is within ours' peak target."""
 OBSERVER_NOISE_RMS_RAD = 0.02
@@ -40,13 +49,15 @@ MAX_HANDOVER_PER_RATED = 0.5
 HANDBACK_PER_HANDOVER = 0.6
 RESISTANCE_ERROR = 0.1
 UNMEASURED_DEAD_TIME_PER_U_DC = 0.02
-ALIGN_SWINGS = 3.0
-"""The first lock at a fixed angle lasts this many swing periods 2π/Ω (the stabilising loop settles it)."""
+ALIGN_SWINGS = 4.0
+"""The first lock lasts this many swing periods 2π/Ω (the stabilising loop settles it), half at a fixed
+angle, half a quarter turn further."""
 DAMPING_FILTER_PER_SWING = 3.0
 DAMPING_GAIN = 4.0
-"""The stabilising loop: the current's angle retarded by φ = −k·ṽ, ṽ the rotor's speed less the ramp's
-through 1/(s + c), c = DAMPING_FILTER_PER_SWING·Ω, k = DAMPING_GAIN: the swing's characteristic polynomial
-s³ + c·s² + Ω²(1 + k)·s + Ω²·c = (s + Ω)(s² + 2Ω·s + 3Ω²), damping 0.58, for any Ω."""
+"""The stabilising loop during the lock: the current's angle retarded by φ = −k·ṽ, ṽ the rotor's speed
+through 1/(s + c), c = DAMPING_FILTER_PER_SWING·Ω, k = DAMPING_GAIN: the linearised swing's characteristic
+polynomial s³ + c·s² + Ω²(1 + k)·s + Ω²·c = (s + Ω)(s² + 2Ω·s + 3Ω²), damping 0.58, for any Ω. (From the q
+voltage of the current's frame instead of the observer, the swing of a heavy rotor did not decay.)"""
 AGREEMENT_PER_SPEED = 0.2
 """The hand-over waits for the observer's speed within this share of the ramp's."""
 
@@ -100,7 +111,7 @@ def open_loop_start(plate, commissioning, U_dc_V, current_bandwidth_rad_s):
                    "test needs the saliency this motor lacks)")
         J = math.nan
     else:
-        swing_max = SWING_PER_CURRENT_LOOP * current_bandwidth_rad_s
+        swing_max = SWING_PER_CURRENT_LOOP * min(current_bandwidth_rad_s, OBSERVER_SPEED_BANDWIDTH_RAD_S)
         current = min(current, swing_max ** 2 * J / (1.5 * n_p ** 2 * psi_f))
     torque = 1.5 * n_p * psi_f * current
     swing = math.sqrt(n_p * torque / J) if math.isfinite(J) else math.nan

@@ -33,14 +33,12 @@ PEAK_TARGET_RAD = 0.15
 RAMP_S = 0.1
 """The experiments' tables reach their speed in 0.1 s; stretched so the I-f ramp gets there in that time."""
 REFUSED_CASE = "standstill_hold"
-SALIENCY_REFUSALS = ("predicted angle error", "polarity cannot be told", "no saliency")
-"""What the injecting drive says when a motor lacks the saliency it needs (hf_estimator.build, startup)."""
 
 
 def saliency_refusal(scenario):
     """"" or the one line with which ours (``scenario``'s injecting estimator, on its commissioning) refuses the
     motor for its saliency."""
-    from hf_estimator.build import estimator_for_scenario
+    from hf_estimator.build import SALIENCY_REFUSALS, estimator_for_scenario
     commissioning = scenario_commissioning(scenario)
     if not commissioning.salient():
         return "no saliency measured at standstill: the HF injection has no angle to find"
@@ -49,7 +47,8 @@ def saliency_refusal(scenario):
     except ScenarioError as error:
         text = " ".join(str(error).split())
         if any(kind in text for kind in SALIENCY_REFUSALS):
-            return text.partition("estimator: ")[2] or text
+            return (text.partition("estimator: ")[2] or text).partition("; `estimator: ")[0].partition(
+                "; nor can it start open loop")[0]
     return ""
 
 
@@ -184,3 +183,13 @@ def above_speed_trial(motor, commissioning_file, options, row, reason, exit_code
     else:
         row["verdict"], row["reason"] = "works above a speed", plan.statement(n_p)
     return row
+
+
+def stated_before_run(scenario):
+    """The line `drive run` says before it acts with the I-f start ("" with another estimator)."""
+    if scenario.estimator != ESTIMATOR:
+        return ""
+    from hf_estimator.if_observer import plan_for
+    commissioning = scenario_commissioning(scenario)
+    plan = plan_for(commissioning.refined(scenario.motor.nameplate), commissioning, scenario.motor.inverter)
+    return "" if plan.refused else f"{scenario.motor.name}: {plan.statement(scenario.motor.nameplate.n_p)}"
