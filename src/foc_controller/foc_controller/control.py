@@ -108,8 +108,8 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
     current's angle by φ = −k·ṽ (ṽ the rotor's speed by the observer, the back-EMF of its swing, through
     1/(s + c)), and again from IF_DAMPED_PER_HANDOVER of the hand-over speed; between, φ decays: the
     swing from the ramp's start stays within 2·asin(ACCELERATION_SHARE) (open_loop_start). Hands over
-    (x[IF_SWITCH] = 1, x[INT_SPEED] the torque current I_f·sin(θ_if − θ̂)) once the estimator tracks, the ramp is at the hand-over speed and the
-    observer's speed agrees for ``if_agree_samples``."""
+    (x[IF_SWITCH] = 1, x[INT_SPEED] the torque current I_f·sin(θ_if − θ̂)) once the estimator tracks, the
+    ramp is at the hand-over speed and the observer's speed agrees for ``if_agree_samples``."""
     if x[IF_MODE] < 0.5:
         if state != OPEN_LOOP:
             return False, theta_e_hat, omega_e_hat
