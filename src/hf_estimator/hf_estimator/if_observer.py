@@ -83,7 +83,8 @@ def make_if_observer(nameplate, T_s, settings, commissioning, inverter):
     plan = plan_for(nameplate, commissioning, inverter)
     if plan.refused:
         raise ValueError(plan.refused)
-    observer = make_flux_observer(nameplate, T_s, {"speed_bandwidth_Hz": s["speed_bandwidth_Hz"]}, commissioning,
+    measured = nameplate._replace(L_d_H=commissioning.L_dh_H, L_q_H=commissioning.L_qh_H)
+    observer = make_flux_observer(measured, T_s, {"speed_bandwidth_Hz": s["speed_bandwidth_Hz"]}, commissioning,
                                   inverter)
     state = np.zeros(1, np.dtype([("theta", np.float64), ("omega", np.float64), ("tracking", np.float64),
                                   ("observer", observer.state.dtype)]))

@@ -13,7 +13,9 @@ Everything here comes from the nameplate and the commissioning (R_s, the dead-ti
 rotating test measured it), never from the plant:
 - the I-f current I_f: rated current, lower where the rotor's swing about its load angle,
   Ω = √(n_p·τ_f/J) (τ_f = 1.5·n_p·ψ_f·I_f), would come within SWING_PER_CURRENT_LOOP of the current loop
-  or of the observer's speed estimate;
+  or of the observer's speed estimate, and where the reluctance torque would soften the lock: its stiffness
+  1.5·n_p·I_f·(ψ_f − (L_q − L_d)·I_f) kept at least 1 − RELUCTANCE_SHARE of the magnet's (an interior
+  magnet's current along d meets the q axis' larger inductance);
 - the lock: ALIGN_SWINGS swing periods 2π/Ω at a fixed angle (half of it a quarter turn further), the
   stabilising loop damping the rotor's swing from the observer's speed (the back-EMF of the swing);
 - the ramp's acceleration: ACCELERATION_SHARE of τ_f over J (electrical rad/s²), the rest of τ_f the
@@ -43,6 +45,7 @@ OBSERVER_ERROR_BOUND_RAD = 0.15
 """The back-EMF observer leads once its angle error bound U_err/(ω_e·ψ_f) is within ours' peak target."""
 OBSERVER_NOISE_RMS_RAD = 0.02
 """Its angle noise L_q·σ_i/ψ_f must lie within ours' RMS target, or the observer cannot meet it at any speed."""
+RELUCTANCE_SHARE = 0.3
 MIN_HANDOVER_PER_RATED = 0.02
 MAX_HANDOVER_PER_RATED = 0.5
 """A minimum speed above this share of rated speed is refused: the motor would hardly run."""
@@ -104,6 +107,8 @@ def open_loop_start(plate, commissioning, U_dc_V, current_bandwidth_rad_s):
     n_p, psi_f = plate.n_p, plate.psi_f_Wb
     omega_rated = n_p * plate.rated_speed_rpm * math.pi / 30.0
     current = min(plate.rated_current_A, plate.current_limit_A)
+    if abs(plate.L_q_H - plate.L_d_H) > 0.0:
+        current = min(current, RELUCTANCE_SHARE * psi_f / abs(plate.L_q_H - plate.L_d_H))
     J = plate.J_kgm2
     refused = ""
     if not math.isfinite(J) or J <= 0.0:
