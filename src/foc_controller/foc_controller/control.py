@@ -40,10 +40,11 @@ IF_ANGLE_LIMIT_RAD = math.pi / 2.0
 """The stabilising loop turns the I-f current by at most this (π/4 held a rotor's swing from 2 rad at the lock
 to a 10 % decay per period on a heavy rotor); a hand-back sets the load angle within IF_HANDBACK_ANGLE_RAD."""
 IF_HANDBACK_ANGLE_RAD = math.pi / 4.0
-IF_DAMPED_PER_HANDOVER = 0.3
-"""The stabilising loop runs during the lock and from this share of the hand-over speed on, where the observer's
-speed has converged; not between (at the ramp's start an observer drifted 1 rad at rest swung its speed
-against the rotor's and the loop turned a heavy rotor's load angle to 1.9 rad)."""
+IF_DAMPED_PER_HANDOVER = 0.6
+"""The stabilising loop runs during the lock and from this share of the hand-over speed on (the hand-back
+speed), where the observer's speed has converged and its angle lies within ±π/2 of the current's; not between
+(at the ramp's start an observer drifted 1 rad at rest swung its speed against the rotor's: from 0.3 of the
+hand-over speed on the loop turned a light rotor's load angle to 3 rad at 0.4 of it)."""
 JUMP_RAD = 0.25
 """A change of θ̂ beyond ω̂·T_s by more than this in one sample is a jump, not tracking."""
 ROUNDING_SPARE = 1e-9
@@ -136,7 +137,9 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
         step = c.if_acceleration_rad_s2 * c.T_s_s
         x[IF_RAMP] += min(max(omega_e_ref - x[IF_RAMP], -step), step)
     ramp = x[IF_RAMP]
-    observed = x[IF_ALIGN_LEFT] > 0.0 or abs(ramp) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s
+    lead = wrap(x[IF_THETA] + ramp * c.T_s_s - theta_e_hat)
+    observed = x[IF_ALIGN_LEFT] > 0.0 or (abs(ramp) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s and abs(
+        omega_e_hat) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s and abs(lead) < 0.5 * math.pi)
     swing = omega_e_hat - ramp if observed else 0.0
     x[IF_FILTERED] += c.T_s_s * (swing - c.if_damping_filter_rad_s * x[IF_FILTERED])
     x[IF_THETA] += ramp * c.T_s_s

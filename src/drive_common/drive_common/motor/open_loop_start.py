@@ -22,8 +22,7 @@ rotating test measured it), never from the plant:
   stated load margin for friction and load while open loop (load angle asin(ACCELERATION_SHARE) ≈ 17°; the
   ramp's start swings the rotor to twice that, 0.61 rad, well inside ±π/2, without a stabilising loop: at the
   ramp's start the observer, drifted at rest, is worst);
-- the observer's minimum speed: where its angle error bound U_err/(ω_e·ψ_f) reaches OBSERVER_ERROR_BOUND_RAD
-  (ours' peak target), U_err what its voltage model can be wrong by (hf_estimator.full_speed's: the
+- the observer's minimum speed: where its angle error bound U_err/(ω_e·ψ_f) reaches OBSERVER_ERROR_BOUND_RAD, U_err what its voltage model can be wrong by (hf_estimator.full_speed's: the
   dead-time voltage ×4/3, 2 % of U_dc where never measured, plus 10 % of R_s·I_f), and its angle noise
   L_q·σ_i/ψ_f (σ_i the commissioned sensor noise) within ours' RMS target; at least MIN_HANDOVER_PER_RATED
   of rated speed. Hand back to I-f below HANDBACK_PER_HANDOVER of it.
@@ -41,8 +40,11 @@ OBSERVER_SPEED_BANDWIDTH_RAD_S = 0.5 * 2.0 * math.pi * 100.0
 """and of the observer's speed estimate (it follows at α_o/2, α_o = 2π·100 Hz, hf_estimator.flux_observer's
 default), which feeds the stabilising loop: on a light rotor whose Ω was 198 rad/s the loop, fed a lagging
 speed, left the swing undamped and the observer never agreed."""
-OBSERVER_ERROR_BOUND_RAD = 0.15
-"""The back-EMF observer leads once its angle error bound U_err/(ω_e·ψ_f) is within ours' peak target."""
+OBSERVER_ERROR_BOUND_RAD = 0.1
+"""The back-EMF observer leads once its angle error bound U_err/(ω_e·ψ_f) is within this: two thirds of ours'
+peak target. The bound is a ripple's peak (the dead-time voltage at no load, where the current crosses zero
+all the time): at 1.5 × the speed of a bound of 0.15 rad a drawn 16-pole-pair round rotor ran at 0.03 rad
+RMS, at 1.5 × that of 0.1 rad within ours' 0.02."""
 OBSERVER_NOISE_RMS_RAD = 0.02
 """Its angle noise L_q·σ_i/ψ_f must lie within ours' RMS target, or the observer cannot meet it at any speed."""
 RELUCTANCE_SHARE = 0.3
