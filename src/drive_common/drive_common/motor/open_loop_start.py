@@ -24,8 +24,9 @@ rotating test measured it), never from the plant:
   ramp's start the observer, drifted at rest, is worst; the loop takes over again from the hand-back speed);
 - the observer's minimum speed: where its angle error bound U_err/(ω_e·ψ_f) reaches OBSERVER_ERROR_BOUND_RAD,
   U_err what its voltage model can be wrong by (hf_estimator.full_speed's: the dead-time voltage ×4/3, 2 % of
-  U_dc where never measured, plus 10 % of R_s·I_f), and its angle noise L_q·σ_i/ψ_f (σ_i the commissioned sensor noise) within ours' RMS target; at least MIN_HANDOVER_PER_RATED
-  of rated speed. Hand back to I-f below HANDBACK_PER_HANDOVER of it.
+  U_dc where never measured, plus 10 % of R_s·I_f), and its angle noise L_q·σ_i/ψ_f (σ_i the commissioned
+  sensor noise) within ours' RMS target; at least MIN_HANDOVER_PER_RATED of rated speed. Hand back to I-f
+  below HANDBACK_PER_HANDOVER of it.
 """
 import math
 from typing import NamedTuple
