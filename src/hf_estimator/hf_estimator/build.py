@@ -115,12 +115,14 @@ def open_loop_offer(refusal, plate, commissioning, inverter):
     return f"; `estimator: {OPEN_LOOP_ESTIMATOR}` runs it without injection: {plan.statement(plate.n_p)}"
 
 
-def below_speed(scenario, estimator, run_refused):
-    """An I-f start's refusal of a scenario asking below its speed (hf_estimator.if_observer): ValueError in one
-    line unless ``run_refused``, then a note; "" for another estimator or a scenario above the speed."""
+def below_speed(scenario, estimator, commissioning, run_refused):
+    """An I-f start's refusal (hf_estimator.if_observer) of its motor (open_loop_start's) or of a scenario asking
+    below its speed: ValueError in one line unless ``run_refused``, then a note; "" for another estimator or a
+    scenario above the speed."""
     if estimator.name != OPEN_LOOP_ESTIMATOR:
         return ""
-    refusal = below_speed_refusal(scenario, estimator.params.handover_rad_s)
+    plan = plan_for(commissioning.refined(scenario.motor.nameplate), commissioning, scenario.motor.inverter)
+    refusal = plan.refused or below_speed_refusal(scenario, estimator.params.handover_rad_s)
     if refusal and not run_refused:
         raise ValueError(f"{refusal}; refused (`drive run --force` runs it anyway)")
     return f"run although refused ({refusal})" if refusal else ""
@@ -139,7 +141,8 @@ def estimator_for_scenario(scenario, commissioning):
         inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
         estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings, commissioning, inverter)
         notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),
-                              below_speed(scenario, estimator, bool(settings.get("run_refused")))) if n]
+                              below_speed(scenario, estimator, commissioning,
+                                          bool(settings.get("run_refused")))) if n]
     except KeyError as error:
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
     except ValueError as error:

@@ -85,8 +85,6 @@ def make_if_observer(nameplate, T_s, settings, commissioning, inverter):
     s = check_settings(ESTIMATOR, settings, {"speed_bandwidth_Hz": OBSERVER_BANDWIDTH_HZ,
                                              "run_refused": False}, T_s)
     plan = plan_for(nameplate, commissioning, inverter)
-    if plan.refused:
-        raise ValueError(plan.refused)
     measured = nameplate._replace(L_d_H=commissioning.L_dh_H, L_q_H=commissioning.L_qh_H)
     observer = make_flux_observer(measured, T_s, {"speed_bandwidth_Hz": s["speed_bandwidth_Hz"]}, commissioning,
                                   inverter)
@@ -97,7 +95,7 @@ def make_if_observer(nameplate, T_s, settings, commissioning, inverter):
                               FLUX_RANGE[0] * nameplate.psi_f_Wb, FLUX_RANGE[1] * nameplate.psi_f_Wb)
     return Estimator(ESTIMATOR, if_observer_step, params, state, 0.0,
                      SPEED_ESTIMATE_PER_BANDWIDTH * s["speed_bandwidth_Hz"],
-                     injection_note=plan.statement(nameplate.n_p))
+                     injection_note="" if plan.refused else plan.statement(nameplate.n_p))
 
 
 def below_speed_refusal(scenario, handover_rad_s):

@@ -118,12 +118,11 @@ def case_problems(figures, unit_rad_s):
 
 def above_speed_cases(motor, options, align_s, angles, starts, exit_code):
     """Run the start from each of ``starts`` (electrical angles, the low-speed case) and the experiments, each
-    from its angle of ``angles`` (pairs with motor_bench.CASES), with ``options`` and the first lock ``align_s``
+    from its angle (``angles``: case name → electrical angle), with ``options`` and the first lock ``align_s``
     (above_speed_plan's); ``exit_code(result)``: a finished run's exit code. Returns (start rows, case rows)."""
-    from drive_tools.evaluation.motor_bench import CASES
     start_rows, case_rows = [], []
     unit = options.unit_rpm * math.pi / 30.0
-    jobs = [("low_speed", float(a), True) for a in starts] + [(c, float(a), False) for c, a in zip(CASES, angles)]
+    jobs = [("low_speed", float(a), True) for a in starts] + [(c, float(a), False) for c, a in angles.items()]
     for case, theta_e, is_start in jobs:
         scenario_options = options._replace(theta_e_rad=theta_e, load_per_rated=1.0)
         try:
@@ -153,13 +152,13 @@ def above_speed_cases(motor, options, align_s, angles, starts, exit_code):
 
 
 
-def above_speed_trial(motor, commissioning_file, options, row, reason, exit_code):
-    """``row`` (motor_bench.motor_trial's, commissioned at standstill into ``commissioning_file``) of a motor
-    ours refuses for its saliency (``reason``) tried above a speed: refused up front where the I-f start is
-    (its reason after the saliency's), else its starts and cases (``options``: motor_bench.TrialOptions;
+def above_speed_trial(motor, commissioning_file, T_s, row, reason, angles, exit_code):
+    """``row`` (motor_bench.motor_trial's, commissioned at standstill into ``commissioning_file``, its
+    ``problems`` the identification's) of a motor ours refuses for its saliency (``reason``) tried above a
+    speed at the sampling period ``T_s``: refused up front where the I-f start is (its reason after the
+    saliency's), else its starts and cases (``angles``: (start angles, case name → angle) [rad, electrical];
     ``exit_code(result)``) and the verdict "works above a speed" or failure with its problems."""
-    from drive_tools.evaluation.motor_bench import IDENTIFICATION_TOLERANCE, angles_e_rad
-    plan, experiment, align_s = above_speed_plan(motor, commissioning_file, options.T_s)
+    plan, experiment, align_s = above_speed_plan(motor, commissioning_file, T_s)
     row["refused_for_saliency"] = reason
     if experiment is None:
         row.update(refused_at="the drive", reason=f"{reason}; {plan.refused}", problems=[plan.refused],
@@ -167,14 +166,12 @@ def above_speed_trial(motor, commissioning_file, options, row, reason, exit_code
         return row
     n_p = motor.nameplate.n_p
     row.update(stated=plan.statement(n_p), above_speed_rpm=plan.handover_rpm(n_p), drive_notes=plan.statement(n_p))
-    start_angles, case_angles = angles_e_rad(options)
-    starts, cases = above_speed_cases(motor, experiment, align_s, case_angles, start_angles, exit_code)
+    starts, cases = above_speed_cases(motor, experiment, align_s, angles[1], angles[0], exit_code)
     row["startup"] = {"runs": len(starts), "synchronous": sum(1 for r in starts if not r["problems"]),
                       "load_angle_max_rad": max((r.get("load_angle_max_rad", 0.0) for r in starts), default=None)}
     row["cases"] = cases
     row["exit_codes"] = {c["case"]: c["exit_code"] for c in cases}
-    problems = [f"identification {key} {100.0 * error:+.1f} %" for key, error in row["identification_error"].items()
-                if abs(error) > IDENTIFICATION_TOLERANCE]
+    problems = list(row["problems"])
     problems += [f"start from {r['theta_e_rad']:+.2f} rad: {p}" for r in starts for p in r["problems"]]
     problems += [p for r in cases for p in r["problems"]]
     row["problems"] = problems

@@ -122,7 +122,9 @@ def motor_trial(motor_ref, options=None, progress=None):
         try:
             _commission(first, commissioning, row)
         except RefusedForSaliency as refusal:
-            return above_speed_trial(motor, commissioning, options, row, str(refusal),
+            row["problems"] = _identification_problems(row)
+            return above_speed_trial(motor, commissioning, options.T_s, row, str(refusal),
+                                     (start_angles, dict(zip(CASES, case_angles))),
                                      lambda result: case_exit_code(result, supervision_faults(result)))
         except NOT_APPLICABLE as error:
             return _verdict(row, refused=(f"commissioning, the {row['testing']} test", one_line(error)))
@@ -241,8 +243,7 @@ def _verdict(row, refused=None):
     polarity = [starts["polarity_correct"]] + [int(bool(c["polarity_correct"])) for c in row["cases"]]
     runs = starts["runs"] + len(row["cases"])
     row["polarity_correct"] = {"correct": int(sum(polarity)), "starts": runs}
-    problems = [f"identification {key} {100.0 * error:+.1f} %" for key, error in row["identification_error"].items()
-                if abs(error) > IDENTIFICATION_TOLERANCE]
+    problems = _identification_problems(row)
     if sum(polarity) < runs:
         problems.append(f"polarity wrong or not found in {runs - sum(polarity)} of {runs} starts")
     for case in row["cases"]:
@@ -261,6 +262,11 @@ def _verdict(row, refused=None):
     else:
         row["verdict"] = "works"
     return row
+
+
+def _identification_problems(row):
+    return [f"identification {key} {100.0 * error:+.1f} %" for key, error in row["identification_error"].items()
+            if abs(error) > IDENTIFICATION_TOLERANCE]
 
 
 def crashed_row(motor_ref, options, error):
