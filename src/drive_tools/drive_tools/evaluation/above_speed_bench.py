@@ -162,7 +162,7 @@ def above_speed_trial(motor, commissioning_file, T_s, row, reason, angles, exit_
     row["refused_for_saliency"] = reason
     if experiment is None:
         row.update(refused_at="the drive", reason=f"{reason}; {plan.refused}", problems=[plan.refused],
-                   verdict="refused up front")
+                   verdict="refused up front", exit_codes={case: EXIT_REFUSED for case in angles[1]})
         return row
     n_p = motor.nameplate.n_p
     row.update(stated=plan.statement(n_p), above_speed_rpm=plan.handover_rpm(n_p), drive_notes=plan.statement(n_p))
