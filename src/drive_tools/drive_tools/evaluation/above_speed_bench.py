@@ -10,6 +10,7 @@ them; the standstill hold must be refused up front (exit 2). Each case is judged
 - the speed followed: the mean |ω_m − ω*_m| over the case's last FINAL_SHARE within SPEED_TOLERANCE of the
   experiments' speed unit;
 - exit code 0 (no trip, no supervision fault)."""
+import dataclasses
 import math
 
 import numpy as np
@@ -37,8 +38,14 @@ REFUSED_CASE = "standstill_hold"
 
 def saliency_refusal(scenario):
     """"" or the one line with which ours (``scenario``'s injecting estimator, on its commissioning) refuses the
-    motor for its saliency."""
+    motor for its saliency; where the nameplate gives no J, with the J the rotating test assumes (ours' start-up
+    sizes its polarity pulses on it, as it would in that test)."""
     from hf_estimator.build import SALIENCY_REFUSALS, estimator_for_scenario
+    from hf_estimator.commissioning.rotating import assumed_inertia_kgm2
+    plate = scenario.motor.nameplate
+    if not math.isfinite(plate.J_kgm2):
+        motor = dataclasses.replace(scenario.motor, nameplate=plate._replace(J_kgm2=assumed_inertia_kgm2(plate)))
+        scenario = dataclasses.replace(scenario, motor=motor)
     commissioning = scenario_commissioning(scenario)
     if not commissioning.salient():
         return "no saliency measured at standstill: the HF injection has no angle to find"
