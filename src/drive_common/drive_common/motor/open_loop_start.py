@@ -50,8 +50,9 @@ OBSERVER_NOISE_RMS_RAD = 0.02
 """Its angle noise L_q·σ_i/ψ_f must lie within ours' RMS target, or the observer cannot meet it at any speed."""
 RELUCTANCE_SHARE = 0.3
 MIN_HANDOVER_PER_RATED = 0.02
-MAX_HANDOVER_PER_RATED = 0.5
-"""A minimum speed above this share of rated speed is refused: the motor would hardly run."""
+MAX_HANDOVER_PER_RATED = 0.4
+"""A minimum speed above this share of rated speed is refused: the motor would hardly run (and its own
+experiments, a speed step to twice 1.2 × that speed, would pass rated speed)."""
 HANDBACK_PER_HANDOVER = 0.6
 RESISTANCE_ERROR = 0.1
 UNMEASURED_DEAD_TIME_PER_U_DC = 0.02

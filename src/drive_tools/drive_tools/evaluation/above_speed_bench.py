@@ -1,7 +1,7 @@
 """A motor refused for saliency, tried as it can run (issue 52 item 3, docs/random-motors.md "works above a
 speed"): the I-f start up to the back-EMF observer's minimum speed, then closed loop on the observer
 (hf_estimator.if_observer, drive_common.motor.open_loop_start). The motor's own experiments run with their
-speeds in units of ABOVE_SPEED_MARGIN × that speed and their times stretched so the I-f ramp can follow
+speeds in units of ABOVE_SPEED_MARGIN of that speed and their times stretched so the I-f ramp can follow
 them; the standstill hold must be refused up front (exit 2). Each case is judged on the plant's truth:
 - I-f: no loss of synchronism, the load angle λ (the true current's angle less the rotor's d axis) within
   ±π/2 in every open-loop sample after the first lock where the current has reached half the I-f current;
@@ -23,9 +23,10 @@ from drive_common.math.frames import clarke_contract
 from drive_common.motor.open_loop_start import ESTIMATOR
 from drive_tools.runner.runner import run_scenario, scenario_commissioning
 
-ABOVE_SPEED_MARGIN = 1.5
-"""The experiments' speed unit: this many times the stated minimum speed (a speed step's low level, a
-reversal's end points and the load's speed)."""
+ABOVE_SPEED_MARGIN = (1.5, 1.2)
+"""The experiments' speed unit (a speed step's low level, a reversal's end points and the load's speed): 1.5 ×
+the stated minimum speed, at most half rated speed (the speed step doubles it) but at least 1.2 × that speed
+(a speed step past rated speed failed on the bus, not on the start)."""
 SETTLED_S = 0.02
 FINAL_SHARE = 0.1
 SPEED_TOLERANCE = 0.1
@@ -72,7 +73,9 @@ def above_speed_plan(motor, commissioning_file, T_s):
     if plan.refused:
         return plan, None, None
     controller = controller_for_scenario(scenario, 0.0, math.inf, None, commissioning)
-    unit_rpm = ABOVE_SPEED_MARGIN * plan.handover_rpm(motor.nameplate.n_p)
+    handover_rpm = plan.handover_rpm(motor.nameplate.n_p)
+    unit_rpm = max(min(ABOVE_SPEED_MARGIN[0] * handover_rpm, 0.5 * motor.nameplate.rated_speed_rpm),
+                   ABOVE_SPEED_MARGIN[1] * handover_rpm)
     unit_e = unit_rpm * math.pi / 30.0 * motor.nameplate.n_p
     scale = max(1.0, (plan.align_s + unit_e / plan.acceleration_rad_s2) / RAMP_S,
                 2.0 * unit_e / plan.acceleration_rad_s2 / (2.0 * RAMP_S))
