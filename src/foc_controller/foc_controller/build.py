@@ -2,6 +2,7 @@
 import math
 
 from drive_common.config.scenario import ScenarioError
+from drive_common.motor.open_loop_start import ESTIMATOR as OPEN_LOOP_ESTIMATOR
 from drive_common.motor.scaled_loops import scaled_loops
 from drive_common.motor.torque_limit import MtpaPath, current_bound, sensorless_torque
 
@@ -40,7 +41,8 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
         delay_periods=scenario.answer_delay_periods() + scenario.block_samples - 1)
     try:
         return make_controller_params(plate, inverter, scenario.T_s,
-                                      settings, injection_frequency_Hz, tracking_bandwidth_Hz, commissioning)
+                                      settings, injection_frequency_Hz, tracking_bandwidth_Hz, commissioning,
+                                      scenario.estimator == OPEN_LOOP_ESTIMATOR)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source_of('controller')}: {error.args[0]}") from None
 

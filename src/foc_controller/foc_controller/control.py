@@ -9,9 +9,11 @@ The estimator's start-up state (hf_estimator.startup, `estimator_state` z) gates
 first reports tracking (3), and again while aligning (1) or after a lost lock (4), the current loops
 hold zero current (no speed loop, no back-EMF feed-forward, which would be wrong by 2ωψ_f on the wrong
 pole); during the polarity test (2) the fundamental is frozen at its integrators so the estimator's
-pulses act alone. Hold (0) after tracking keeps torque. A jump of θ̂ (the estimator turning to the other
-pole or onto the measured axis) turns the current loops' integrators and notch states with it, so the
-stationary-frame voltage does not jump.
+pulses act alone. Hold (0) after tracking keeps torque. Open loop (5), with an I-f start configured
+(``if_current_A`` > 0, drive_common.motor.open_loop_start): the controller turns the current itself
+(open_loop_step) until the observer agrees, then hands over keeping the torque current. A jump of θ̂
+(the estimator turning to the other pole or onto the measured axis) turns the current loops' integrators
+and notch states with it, so the stationary-frame voltage does not jump.
 """
 import math
 from typing import NamedTuple
@@ -20,18 +22,30 @@ import numpy as np
 from numba import njit
 
 from drive_common.contract import numba_records  # noqa: F401  (controller_block takes records: cached safely)
-from drive_common.contract.estimator_states import ALIGNING, LOCK_LOST, POLARITY, TRACKING
+from drive_common.contract.estimator_states import ALIGNING, LOCK_LOST, OPEN_LOOP, POLARITY, TRACKING
 from drive_common.math.current_sensing import bad_currents, corrected_currents
 from drive_common.math.filters import sos_step
-from drive_common.math.frames import SQRT3, clarke_contract, rotate
+from drive_common.math.frames import SQRT3, clarke_contract, rotate, wrap
 from drive_common.math.pi import pi_limited
 from drive_common.math.tables import table_value
 
 # Controller state layout (integrators, filtered speed, torque gate, last θ̂, and the limits the drive's
 # protections set: the current limit's foldback [A], the share of braking current cut, foc_controller.protection;
-# 0: none); the notch states (d, q) live in a separate array.
-INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, TORQUE_ALLOWED, LAST_THETA, STARTED, FOLDBACK_A, REGEN_CUT = range(9)
-N_STATE = 9
+# 0: none; then the I-f start's: open loop on, the ramp's angle and speed, the stabilising loop's filtered speed,
+# the lock samples left, the samples the observer agreed, a mode switch pending (+1 to closed loop, −1 to open
+# loop)); the notch states (d, q) live in a separate array.
+(INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, TORQUE_ALLOWED, LAST_THETA, STARTED, FOLDBACK_A, REGEN_CUT,
+ IF_MODE, IF_THETA, IF_RAMP, IF_FILTERED, IF_ALIGN_LEFT, IF_AGREED, IF_SWITCH) = range(16)
+N_STATE = 16
+IF_ANGLE_LIMIT_RAD = math.pi / 2.0
+"""The stabilising loop turns the I-f current by at most this (π/4 held a rotor's swing from 2 rad at the lock
+to a 10 % decay per period on a heavy rotor); a hand-back sets the load angle within IF_HANDBACK_ANGLE_RAD."""
+IF_HANDBACK_ANGLE_RAD = math.pi / 4.0
+IF_DAMPED_PER_HANDOVER = 0.6
+"""The stabilising loop runs during the lock and from this share of the hand-over speed on (the hand-back
+speed), where the observer's speed has converged and its angle lies within ±π/2 of the current's; not between
+(at the ramp's start an observer drifted 1 rad at rest swung its speed against the rotor's: from 0.3 of the
+hand-over speed on the loop turned a light rotor's load angle to 3 rad at 0.4 of it)."""
 JUMP_RAD = 0.25
 """A change of θ̂ beyond ω̂·T_s by more than this in one sample is a jump, not tracking."""
 ROUNDING_SPARE = 1e-9
@@ -70,12 +84,85 @@ class ControllerParams(NamedTuple):
     """Current magnitudes of the MTPA table [A] (drive_common.motor.torque_limit); empty: i_d* = 0."""
     mtpa_d_current_A: np.ndarray
     """The MTPA d current at each magnitude [A] (≤ 0 where L_q > L_d)."""
+    if_current_A: float = 0.0
+    """The I-f start's current [A] (0: none; drive_common.motor.open_loop_start)."""
+    if_acceleration_rad_s2: float = 0.0
+    if_handover_rad_s: float = 0.0
+    if_align_samples: int = 0
+    if_agree_samples: int = 0
+    if_damping_filter_rad_s: float = 0.0
+    if_damping_gain: float = 0.0
+    if_agreement: float = 0.0
+    """The ramp's acceleration, the hand-over speed (electrical), the first lock and the agreement wanted
+    [samples], the stabilising loop's c [rad/s] and k, the observer's speed within this share of the ramp's."""
 
 
 @njit(cache=True)
 def within(x, y, limit):
     """|(x, y)| ≤ limit, compared in squares (no root)."""
     return limit > 0.0 and x * x + y * y <= limit * limit
+
+
+@njit(cache=True, _nrt=False)
+def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
+    """The I-f start (Fatu et al. 2008, drive_common.motor.open_loop_start) for one period: → (whether the
+    current is turned open loop, its angle [rad], the frame's speed [rad/s]). Entered when the estimator says
+    OPEN_LOOP: from rest with a lock at θ̂ for ``if_align_samples``, its second half a quarter turn further
+    (a rotor at the first lock's unstable point, its d axis against the current, is pulled off it); from
+    closed loop with the load angle that keeps the torque current (asin(∫speed/I_f)). The ramp slews its
+    speed to ``omega_e_ref`` at ``if_acceleration_rad_s2``. During the lock the stabilising loop turns the
+    current's angle by φ = −k·ṽ (ṽ the rotor's speed by the observer, the back-EMF of its swing, through
+    1/(s + c)), and again from IF_DAMPED_PER_HANDOVER of the hand-over speed; between, φ decays: the
+    swing from the ramp's start stays within 2·asin(ACCELERATION_SHARE) (open_loop_start). Hands over
+    (x[IF_SWITCH] = 1, x[INT_SPEED] the torque current I_f·sin(θ_if − θ̂)) once the estimator tracks, the
+    ramp is at the hand-over speed and the observer's speed agrees for ``if_agree_samples``."""
+    if x[IF_MODE] < 0.5:
+        if state != OPEN_LOOP:
+            return False, theta_e_hat, omega_e_hat
+        x[IF_MODE] = 1.0
+        x[IF_FILTERED] = 0.0
+        x[IF_AGREED] = 0.0
+        x[IF_SWITCH] = -1.0 if x[TORQUE_ALLOWED] > 0.5 else 0.0
+        if x[TORQUE_ALLOWED] > 0.5:
+            share = min(max(x[INT_SPEED] / c.if_current_A, -math.sin(IF_HANDBACK_ANGLE_RAD)),
+                        math.sin(IF_HANDBACK_ANGLE_RAD))
+            x[IF_THETA] = theta_e_hat + math.asin(share)
+            x[IF_RAMP] = x[OMEGA_FILTERED]
+            x[IF_ALIGN_LEFT] = 0.0
+        else:
+            x[IF_THETA] = theta_e_hat
+            x[IF_RAMP] = 0.0
+            x[IF_ALIGN_LEFT] = c.if_align_samples
+        x[TORQUE_ALLOWED] = 0.0
+    if x[IF_ALIGN_LEFT] > 0.0:
+        x[IF_ALIGN_LEFT] -= 1.0
+        if x[IF_ALIGN_LEFT] == c.if_align_samples // 2:
+            x[IF_THETA] += 0.5 * math.pi
+    else:
+        step = c.if_acceleration_rad_s2 * c.T_s_s
+        x[IF_RAMP] += min(max(omega_e_ref - x[IF_RAMP], -step), step)
+    ramp = x[IF_RAMP]
+    lead = wrap(x[IF_THETA] + ramp * c.T_s_s - theta_e_hat)
+    observed = x[IF_ALIGN_LEFT] > 0.0 or (abs(ramp) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s and abs(
+        omega_e_hat) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s and abs(lead) < 0.5 * math.pi)
+    swing = omega_e_hat - ramp if observed else 0.0
+    x[IF_FILTERED] += c.T_s_s * (swing - c.if_damping_filter_rad_s * x[IF_FILTERED])
+    x[IF_THETA] += ramp * c.T_s_s
+    phi = min(max(-c.if_damping_gain * x[IF_FILTERED], -IF_ANGLE_LIMIT_RAD), IF_ANGLE_LIMIT_RAD)
+    theta = x[IF_THETA] + phi
+    lead = wrap(theta - theta_e_hat)
+    if (state == TRACKING and x[IF_ALIGN_LEFT] <= 0.0 and abs(ramp) >= c.if_handover_rad_s
+            and abs(omega_e_hat - ramp) < c.if_agreement * abs(ramp) and abs(lead) < 0.5 * math.pi):
+        x[IF_AGREED] += 1.0
+    else:
+        x[IF_AGREED] = 0.0
+    if x[IF_AGREED] >= c.if_agree_samples:
+        x[IF_MODE] = 0.0
+        x[TORQUE_ALLOWED] = 1.0
+        x[IF_SWITCH] = 1.0
+        x[INT_SPEED] = c.if_current_A * math.sin(lead)
+        return False, theta_e_hat, omega_e_hat
+    return True, theta, ramp
 
 
 @njit(cache=True, _nrt=False)
@@ -105,11 +192,18 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
         x[STARTED] = 1.0
         x[OMEGA_FILTERED] = omega_e_hat
         x[LAST_THETA] = theta_e_hat
-    if state == TRACKING:
+    open_loop, omega_frame = False, omega_e_hat
+    omega_m_ref = min(max(inputs.omega_m_ref_rad_s, -c.speed_limit_rad_s), c.speed_limit_rad_s)
+    if c.if_current_A > 0.0:
+        open_loop, theta_e_hat, omega_frame = open_loop_step(x, c, state, theta_e_hat, omega_e_hat,
+                                                             c.n_p * omega_m_ref)
+    if open_loop:
+        pass
+    elif state == TRACKING:
         x[TORQUE_ALLOWED] = 1.0
     elif state == ALIGNING or state == POLARITY or state == LOCK_LOST:
         x[TORQUE_ALLOWED] = 0.0
-    jump = theta_e_hat - x[LAST_THETA] - omega_e_hat * c.T_s_s
+    jump = theta_e_hat - x[LAST_THETA] - omega_frame * c.T_s_s
     jump = jump - 2.0 * math.pi * math.floor((jump + math.pi) / (2.0 * math.pi))
     if abs(jump) > JUMP_RAD:
         x[INT_D], x[INT_Q] = rotate(x[INT_D], x[INT_Q], -jump)
@@ -124,12 +218,18 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
         i_q = sos_step(c.hf_notch_sos, z_notch[1], i_q)
 
     x[OMEGA_FILTERED] += c.speed_filter_gain * (omega_e_hat - x[OMEGA_FILTERED])
-    omega_e_hat = x[OMEGA_FILTERED]
+    omega_e_hat = omega_frame if open_loop else x[OMEGA_FILTERED]
     omega_m_hat = omega_e_hat / c.n_p
-    omega_m_ref = min(max(inputs.omega_m_ref_rad_s, -c.speed_limit_rad_s), c.speed_limit_rad_s)
-    torque = x[TORQUE_ALLOWED] > 0.5
+    torque = x[TORQUE_ALLOWED] > 0.5 and not open_loop
+    if x[IF_SWITCH] != 0.0 and c.decoupling:
+        # the back-EMF feed-forward starts (+1) or stops (−1): the integrators take it over, the voltage stays
+        x[INT_D] += x[IF_SWITCH] * omega_e_hat * c.L_q_H * i_q
+        x[INT_Q] -= x[IF_SWITCH] * omega_e_hat * (c.L_d_H * i_d + c.psi_f_Wb)
     if torque:
         i_limit = max(c.i_max_A - x[FOLDBACK_A], 0.0)
+        if x[IF_SWITCH] > 0.0:
+            x[INT_SPEED] -= c.kp_speed * (omega_m_ref - omega_m_hat) + inputs.tau_feedforward_Nm / (
+                1.5 * c.n_p * c.psi_f_Wb)
         i_q_ref = pi_limited(x, INT_SPEED, c.kp_speed, c.ki_speed, c.T_s_s, omega_m_ref - omega_m_hat,
                              i_limit, inputs.tau_feedforward_Nm / (1.5 * c.n_p * c.psi_f_Wb))
         braking = (1.0 - x[REGEN_CUT]) * i_limit
@@ -140,7 +240,8 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
     else:
         x[INT_SPEED] = 0.0
         i_q_ref = 0.0
-    i_d_ref = 0.0
+    x[IF_SWITCH] = 0.0
+    i_d_ref = c.if_current_A if open_loop else 0.0
     if c.mtpa_current_A.shape[0] > 0 and i_q_ref != 0.0:
         i_d_ref = table_value(abs(i_q_ref), c.mtpa_current_A, c.mtpa_d_current_A)
         i_q_ref = math.copysign(math.sqrt(max(i_q_ref * i_q_ref - i_d_ref * i_d_ref, 0.0)), i_q_ref)

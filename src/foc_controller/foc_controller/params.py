@@ -6,6 +6,12 @@ import numpy as np
 
 from drive_common.contract.settings import Key, read_keys, shown
 from drive_common.math.filters import notch
+from drive_common.motor.open_loop_start import (
+    AGREEMENT_PER_SPEED,
+    DAMPING_FILTER_PER_SWING,
+    DAMPING_GAIN,
+    open_loop_start,
+)
 from drive_common.motor.torque_limit import controller_path
 
 from .control import ControllerParams
@@ -53,26 +59,33 @@ at 20 kHz, tracking 116 Hz and its speed loop at 182 rad/s, hunted at 55 Hz behi
 to 80 Hz."""
 
 
-def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
-                           tracking_bandwidth_Hz=math.inf, commissioning=None):
-    """ControllerParams for a motor with this ``nameplate`` (drive_common.motor.nameplate.Nameplate) on an ``inverter``
-    (InverterRating; its delay_periods the whole delay d from sample to applied command, blocks included) at
-    sampling period T_s; R_s of the current loops comes from the ``commissioning`` record when given, else the
-    nameplate. Their inductances stay the nameplate's: the commissioned ones are incremental at no load (for the
-    estimators), and the loops' gains tuned on them overshoot the current limit further in a speed reversal
-    (docs/commissioning.md §1).
+IF_AGREEMENT_S = 0.01
+"""The I-f start hands over once the observer's speed has agreed with the ramp's this long."""
 
-    settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s, current_damping,
-    speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A, decoupling, delay_compensation,
-    hf_notch_quality, speed_filter_Hz (0: none; unset, at least SPEED_FILTER_PER_TRACKING × the estimator's
-    bandwidth), speed_limit_rad_s (mechanical, clamps the speed reference; ∞: none), mtpa (the MTPA table up to the
-    current limit from the ``commissioning`` record, drive_common.motor.torque_limit.controller_path; false or none:
-    i_d = 0). With 'rule' gains the current bandwidth is capped for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and
-    the speed bandwidth a cascade step below it (CURRENT_TO_SPEED_RATIO) and within the current loops' lag
-    (CURRENT_LAG_AT_SPEED_CROSSOVER_RAD). The notch sits at the estimator's injection frequency. With 'rule' gains
-    the speed loop is kept a cascade step below the angle estimator: its bandwidth is at most
-    speed_to_estimator_ratio · 2π · tracking_bandwidth_Hz (a speed loop faster than the estimate it is fed makes the
-    drive chase its own estimation lag).
+
+def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
+                           tracking_bandwidth_Hz=math.inf, commissioning=None, open_loop=False):
+    """ControllerParams for a motor with this ``nameplate`` (drive_common.motor.nameplate.Nameplate) on an
+    ``inverter`` (InverterRating; its delay_periods the whole delay d from sample to applied command,
+    blocks included) at sampling period T_s; R_s of the current loops comes from the
+    ``commissioning`` record when given, else the nameplate. Their inductances stay the nameplate's:
+    the commissioned ones are incremental at no load (for the estimators), and the loops' gains tuned on
+    them overshoot the current limit further in a speed reversal (docs/commissioning.md §1).
+
+    settings keys (all optional): gains ('rule' or 'szabo_table2'), current_bandwidth_rad_s,
+    current_damping, speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A,
+    decoupling, delay_compensation, hf_notch_quality, speed_filter_Hz (0: none; unset, at least
+    SPEED_FILTER_PER_TRACKING × the estimator's bandwidth), speed_limit_rad_s
+    (mechanical, clamps the speed reference; ∞: none), mtpa (the MTPA table up to the current
+    limit from the ``commissioning`` record, drive_common.motor.torque_limit.controller_path; false or
+    none: i_d = 0). With 'rule' gains the current bandwidth is capped
+    for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and the speed bandwidth a cascade step below it
+    (CURRENT_TO_SPEED_RATIO) and within the current loops' lag (CURRENT_LAG_AT_SPEED_CROSSOVER_RAD). The
+    notch sits at the estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade
+    step below the angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · tracking_bandwidth_Hz
+    (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
+    ``open_loop``: with the I-f start of drive_common.motor.open_loop_start (an estimator that says OPEN_LOOP
+    below its speed); ValueError where that start refuses the motor.
     """
     s = check_settings(settings, T_s)
     if "speed_filter_Hz" not in (settings or {}) and math.isfinite(tracking_bandwidth_Hz):
@@ -81,11 +94,11 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     if commissioning is not None:
         m = m._replace(R_s_ohm=commissioning.R_s_ohm)
     k_t = 1.5 * m.n_p * m.psi_f_Wb
+    current_bandwidth = min(s["current_bandwidth_rad_s"],
+                            DELAY_LAG_AT_BANDWIDTH_RAD / ((inverter.delay_periods + 0.5) * T_s))
     if s["gains"] == "szabo_table2":
         d, q, w = SZABO_TABLE2["d"], SZABO_TABLE2["q"], SZABO_TABLE2["speed"]
     elif s["gains"] == "rule":
-        current_bandwidth = min(s["current_bandwidth_rad_s"],
-                                DELAY_LAG_AT_BANDWIDTH_RAD / ((inverter.delay_periods + 0.5) * T_s))
         d = current_pi_gains_any_bandwidth(m.L_d_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
         q = current_pi_gains_any_bandwidth(m.L_q_H, m.R_s_ohm, current_bandwidth, s["current_damping"])
         current_lag_s = 2.0 * s["current_damping"] / current_bandwidth + (inverter.delay_periods + 0.5) * T_s
@@ -104,6 +117,16 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     else:
         sos = np.zeros((0, 6))
     path = controller_path(m, commissioning, float(i_max)) if s["mtpa"] else None
+    start = {}
+    if open_loop:
+        plan = open_loop_start(m, commissioning, inverter.U_dc_V, current_bandwidth)
+        if plan.refused:
+            raise ValueError(plan.refused)
+        start = {"if_current_A": plan.current_A, "if_acceleration_rad_s2": plan.acceleration_rad_s2,
+                 "if_handover_rad_s": plan.handover_rad_s, "if_align_samples": int(round(plan.align_s / T_s)),
+                 "if_agree_samples": max(1, int(round(IF_AGREEMENT_S / T_s))),
+                 "if_damping_filter_rad_s": DAMPING_FILTER_PER_SWING * plan.swing_rad_s,
+                 "if_damping_gain": DAMPING_GAIN, "if_agreement": AGREEMENT_PER_SPEED}
     return ControllerParams(
         T_s_s=T_s, n_p=m.n_p, R_s_ohm=m.R_s_ohm, L_d_H=m.L_d_H, L_q_H=m.L_q_H, psi_f_Wb=m.psi_f_Wb,
         U_dc_V=inverter.U_dc_V, kp_d=d.kp, ki_d=d.ki, kp_q=q.kp, ki_q=q.ki,
@@ -113,7 +136,7 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
                            if s["speed_filter_Hz"] > 0.0 else 1.0),
         speed_limit_rad_s=float(s["speed_limit_rad_s"]),
         mtpa_current_A=np.ascontiguousarray(path.current_A if path else np.zeros(0)),
-        mtpa_d_current_A=np.ascontiguousarray(path.d_current_A if path else np.zeros(0)))
+        mtpa_d_current_A=np.ascontiguousarray(path.d_current_A if path else np.zeros(0)), **start)
 
 
 def check_settings(settings, T_s=None):

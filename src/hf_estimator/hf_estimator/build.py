@@ -5,9 +5,11 @@ import math
 
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE
+from drive_common.motor.open_loop_start import ESTIMATOR as OPEN_LOOP_ESTIMATOR
 from drive_common.motor.scaled_loops import scaled_loops
 from drive_common.motor.torque_limit import estimator_commissioning
 
+from .if_observer import below_speed_refusal, plan_for
 from .interface import injects
 from .pll_model import PEAK_PER_RMS, injection_frame_noise_gain, predicted_angle_error_rad
 from .registry import make_estimator
@@ -99,6 +101,34 @@ def refused_signal(estimator, commissioning, run_refused):
     return f"run although refused ({problem})"
 
 
+SALIENCY_REFUSALS = ("predicted angle error", "polarity cannot be told")
+"""How ours' refusals for too little saliency begin (refused_signal; the start-up's polarity design)."""
+
+
+def open_loop_offer(refusal, plate, commissioning, inverter):
+    """What the drive offers a motor ours refuses for its saliency (``refusal``, its one line): the I-f start
+    and the back-EMF observer above their speed, or why not (hf_estimator.if_observer); "" for another refusal."""
+    if not any(kind in refusal for kind in SALIENCY_REFUSALS):
+        return ""
+    plan = plan_for(plate, commissioning, inverter)
+    if plan.refused:
+        return f"; nor can it start open loop: {plan.refused}"
+    return f"; `estimator: {OPEN_LOOP_ESTIMATOR}` runs it without injection: {plan.statement(plate.n_p)}"
+
+
+def below_speed(scenario, estimator, commissioning, run_refused):
+    """An I-f start's refusal (hf_estimator.if_observer) of its motor (open_loop_start's) or of a scenario asking
+    below its speed: ValueError in one line unless ``run_refused``, then a note; "" for another estimator or a
+    scenario above the speed."""
+    if estimator.name != OPEN_LOOP_ESTIMATOR:
+        return ""
+    plan = plan_for(commissioning.refined(scenario.motor.nameplate), commissioning, scenario.motor.inverter)
+    refusal = plan.refused or below_speed_refusal(scenario, estimator.params.handover_rad_s)
+    if refusal and not run_refused:
+        raise ValueError(f"{refusal}; refused (`drive run --force` runs it anyway)")
+    return f"run although refused ({refusal})" if refusal else ""
+
+
 def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
@@ -113,11 +143,14 @@ def estimator_for_scenario(scenario, commissioning):
         inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
         estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings,
                                    estimator_commissioning(plate, commissioning, scenario.controller), inverter)
-        notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),) if n]
+        notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),
+                              below_speed(scenario, estimator, commissioning,
+                                          bool(settings.get("run_refused")))) if n]
     except KeyError as error:
         raise ScenarioError(f"{scenario.estimator_source}: {error.args[0]}") from None
     except ValueError as error:
-        raise ScenarioError(_blamed(scenario, error.args[0])) from None
+        raise ScenarioError(_blamed(scenario, error.args[0] + open_loop_offer(error.args[0], plate, commissioning,
+                                                                              scenario.motor.inverter))) from None
     if injects(scenario.estimator):
         notes += [n for n in (commissioning.weak_saliency_note(),) if n]
     note = "; ".join(n for n in (estimator.injection_note, *notes) if n)

@@ -33,10 +33,11 @@ from drive_common.math.frames import clarke_contract, inverse_clarke, rotate
 from .interface import Estimator, check_settings, register, stator_resistance
 
 FLUX_OBSERVER = np.dtype([(name, np.float64) for name in ("theta", "omega", "psi_d", "psi_q", "prev_id", "prev_iq",
-                                                            "e_d", "omega_s", "started")])
+                                                            "e_d", "omega_s", "started", "psi_f")])
 """The observer's state: θ̂ [rad], ω̂ [rad/s], ψ̂_s (d, q) [Wb], the previous period's current (d, q) [A],
 the d part of its flux error (the q part is not fed back: k_2 = k_1) [Wb], ω_s (estimated rotor frame)
-[rad/s], a started flag."""
+[rad/s], a started flag, and the magnet flux of its model [Wb] (the nameplate's; hf_estimator.if_observer
+adapts it)."""
 DEFAULTS = {"speed_bandwidth_Hz": 100.0, "observable_backemf_per_rated": 0.05}
 
 
@@ -82,9 +83,9 @@ def flux_observer_step(x, p, k, sample, out):
         x.theta += p.T_s_s * w_s
         x.omega += p.T_s_s * 0.25 * p.alpha_d * (w_s - x.omega)
     i_d, i_q = rotate(i_alpha, i_beta, -x.theta)
-    e_d = p.L_d_H * i_d + p.psi_f_Wb - x.psi_d
+    e_d = p.L_d_H * i_d + x.psi_f - x.psi_d
     e_q = p.L_q_H * i_q - x.psi_q
-    psi_a = p.psi_f_Wb + (p.L_d_H - p.L_q_H) * i_d
+    psi_a = x.psi_f + (p.L_d_H - p.L_q_H) * i_d
     eps = -e_q / psi_a if psi_a != 0.0 else 0.0
     x.e_d = e_d
     x.omega_s = x.omega + p.alpha_d * eps
@@ -112,7 +113,7 @@ def flux_observer_follow(x, p, theta, omega):
     integrated without its own angle correction (which would turn θ̂ at once by its q error)."""
     i_d, i_q = rotate(x.prev_id, x.prev_iq, x.theta - theta)
     x.prev_id, x.prev_iq = i_d, i_q
-    x.psi_d = p.L_d_H * i_d + p.psi_f_Wb
+    x.psi_d = p.L_d_H * i_d + x.psi_f
     x.psi_q = p.L_q_H * i_q
     x.e_d = 0.0
     x.theta = theta
@@ -136,6 +137,6 @@ def make_flux_observer(nameplate, T_s, settings, commissioning, inverter):
         dead_time_voltage_V=commissioning.dead_time_voltage_V,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A)
     state = np.zeros(1, FLUX_OBSERVER)
-    state["psi_d"] = nameplate.psi_f_Wb
+    state["psi_d"] = state["psi_f"] = nameplate.psi_f_Wb
     return Estimator("flux_observer", flux_observer_step, params, state, 0.0,
                      float(s["speed_bandwidth_Hz"]))

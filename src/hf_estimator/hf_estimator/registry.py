@@ -3,6 +3,7 @@ from . import (  # noqa: F401
     conventional,
     flux_observer,
     full_speed,
+    if_observer,
     improved,
     injection_frame,
     sensored,

@@ -39,6 +39,11 @@ class ExperimentOptions(NamedTuple):
     seed: int = 1
     load_per_rated: float = 1.0
     commissioning: str = ""
+    unit_rpm: float = 0.0
+    """The tables' speed unit [rpm] (0: LOW_SPEED_PER_RATED × rated speed)."""
+    time_scale: float = 1.0
+    """The tables' times stretched by this (a start the motor can follow: an I-f ramp)."""
+    estimator: str = "injection_frame"
 
 
 def experiment_names():
@@ -57,15 +62,16 @@ def experiment_document(name, motor, options=None):
     description, tables = EXPERIMENTS[name]
     options = options or ExperimentOptions()
     plate = motor.nameplate
-    unit_rpm = LOW_SPEED_PER_RATED * plate.rated_speed_rpm
+    unit_rpm = options.unit_rpm or LOW_SPEED_PER_RATED * plate.rated_speed_rpm
+    scale = options.time_scale
     data = {"description": f"{description} ({motor.name}: the motor's own experiment)",
-            "motor": motor.source, "estimator": "injection_frame", "duration_s": DURATION_S,
+            "motor": motor.source, "estimator": options.estimator, "duration_s": DURATION_S * scale,
             "sampling_period_s": options.T_s, "seed": options.seed,
-            "initial": {"theta_m_rad": options.theta_e_rad / plate.n_p}, "metrics": {"settle_s": SETTLE_S},
+            "initial": {"theta_m_rad": options.theta_e_rad / plate.n_p}, "metrics": {"settle_s": SETTLE_S * scale},
             "speed": {"unit": "rpm", "interpolation": "linear",
-                      "points": [[t, v * unit_rpm] for t, v in tables["speed"]]},
+                      "points": [[t * scale, v * unit_rpm] for t, v in tables["speed"]]},
             "load": {"unit": "rated", "interpolation": tables.get("load_interpolation", "step"),
-                     "points": [[t, v * options.load_per_rated] for t, v in tables["load"]]}}
+                     "points": [[t * scale, v * options.load_per_rated] for t, v in tables["load"]]}}
     if options.commissioning:
         data["commissioning"] = options.commissioning
     return data

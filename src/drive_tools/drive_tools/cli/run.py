@@ -38,10 +38,13 @@ from .outcome import node_fault_line, not_following, not_tracking, outcome, outp
 
 
 def cmd_run(args):
+    from drive_tools.evaluation.above_speed_bench import stated_before_run
     from drive_tools.runner.runner import run_scenario, terminal_progress
 
     scenario = scenario_arg(args)
     record_arg(args.record)
+    for line in filter(None, (stated_before_run(scenario),)):
+        print(f"drive: {line}", file=sys.stderr)
     result = run_scenario(scenario, progress=terminal_progress(f"{scenario.name}/{scenario.estimator}"))
     interrupted = result.interrupted
     extra, recording_error = {"interrupted": bool(interrupted)}, None

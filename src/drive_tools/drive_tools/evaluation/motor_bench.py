@@ -4,6 +4,7 @@ Per motor: commission it from its nameplate in simulation (standstill, shaft hel
 the nameplate gives no inertia; the loaded test), start it from angles over the electrical circle, then run
 the motor's own experiments (drive_common.config.motor_experiments) on the loops scaled to it; score each
 case against the plant's truth and give the motor one verdict of issue 51 (VERDICTS)."""
+import dataclasses
 import math
 import re
 import tempfile
@@ -19,6 +20,7 @@ from drive_common.contract.exit_codes import EXIT_NOT_FOLLOWING, EXIT_NOT_TRACKI
 from drive_common.contract.log import COLUMN
 from drive_common.motor.commissioning import save_commissioning
 from drive_common.motor.motor_file import load_motor
+from drive_tools.evaluation.above_speed_bench import above_speed_trial, saliency_refusal
 from drive_tools.evaluation.metrics import compute_metrics, configuration_warnings, startup_metrics, supervision_faults
 from drive_tools.evaluation.startup_bench import STANDARD_CASES, bench_scenario
 from drive_tools.runner.commissioning_run import (
@@ -39,8 +41,8 @@ DERATED_LOAD_PER_LIMIT = 0.9
 on its current path, MTPA where it gains, at its sensorless current limit) is loaded to this share of it
 instead of rated torque."""
 VERDICTS = ("works", "works derated", "works above a speed", "refused up front", "failure")
-"""Issue 51's four verdicts, and failure: anything else. The drive states no minimum speed today (the next
-issue), so "works above a speed" is not given yet."""
+"""Issue 51's four verdicts, and failure: anything else. "works above a speed": a motor ours refuses for its
+saliency, run on the I-f start and the back-EMF observer (drive_tools.evaluation.above_speed_bench)."""
 CASES = tuple(experiment_names())
 IDENTIFIED = ("R_s_ohm", "L_dh_H", "L_qh_H")
 ROTATING_IDENTIFIED = ("psi_f_Wb", "J_kgm2")
@@ -120,6 +122,11 @@ def motor_trial(motor_ref, options=None, progress=None):
                                  options=ExperimentOptions(options.T_s, commissioning="nameplate"))
         try:
             _commission(first, commissioning, row)
+        except RefusedForSaliency as refusal:
+            row["problems"] = _identification_problems(row)
+            return above_speed_trial(motor, commissioning, options.T_s, row, str(refusal),
+                                     (start_angles, dict(zip(CASES, case_angles))),
+                                     lambda result: case_exit_code(result, supervision_faults(result)))
         except NOT_APPLICABLE as error:
             return _verdict(row, refused=(f"commissioning, the {row['testing']} test", one_line(error)))
         advanced(3)
@@ -141,6 +148,9 @@ def _commission(scenario, commissioning, row):
     save_commissioning(commissioning, measured, name, "drive bench motor")
     row["tests"].append("standstill")
     row["identification_error"] = _errors(measured, truth, IDENTIFIED)
+    refusal = saliency_refusal(dataclasses.replace(scenario, commissioning=str(commissioning)))
+    if refusal:
+        raise RefusedForSaliency(refusal)
     if not math.isfinite(scenario.motor.nameplate.J_kgm2):
         row["testing"] = "rotating"
         estimates, rotating_truth, _ = rotating_test_in_process(scenario, commissioning)
@@ -157,6 +167,10 @@ def _commission(scenario, commissioning, row):
     row["loaded_test"] = {"significant": loaded["significant"], "zero_spread_rad": loaded["zero_spread_rad"],
                           "correction_at_rated_rad": float(np.interp(rated, measured.saliency_shift_i_q_A,
                                                                      loaded["estimator_shift_rad"]))}
+
+
+class RefusedForSaliency(Exception):
+    """Ours refuses the motor for its saliency after the standstill test (its one line)."""
 
 
 def _errors(measured, truth, keys):
@@ -231,8 +245,7 @@ def _verdict(row, refused=None):
     polarity = [starts["polarity_correct"]] + [int(bool(c["polarity_correct"])) for c in row["cases"]]
     runs = starts["runs"] + len(row["cases"])
     row["polarity_correct"] = {"correct": int(sum(polarity)), "starts": runs}
-    problems = [f"identification {key} {100.0 * error:+.1f} %" for key, error in row["identification_error"].items()
-                if abs(error) > IDENTIFICATION_TOLERANCE]
+    problems = _identification_problems(row)
     if sum(polarity) < runs:
         problems.append(f"polarity wrong or not found in {runs - sum(polarity)} of {runs} starts")
     for case in row["cases"]:
@@ -251,6 +264,11 @@ def _verdict(row, refused=None):
     else:
         row["verdict"] = "works"
     return row
+
+
+def _identification_problems(row):
+    return [f"identification {key} {100.0 * error:+.1f} %" for key, error in row["identification_error"].items()
+            if abs(error) > IDENTIFICATION_TOLERANCE]
 
 
 def crashed_row(motor_ref, options, error):

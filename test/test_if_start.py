@@ -1,0 +1,155 @@
+"""Motors without enough saliency (issue 52 item 3): the I-f start, then the back-EMF observer above its minimum
+speed (hf_estimator.if_observer, drive_common.motor.open_loop_start, foc_controller.control.open_loop_step).
+The plan's rules are checked over a random draw; the behaviour on a small fixed draw of round rotors (surface
+magnets, no saturation: no saliency at all), commissioned at standstill as a robot builder would, judged on
+the plant's truth: the start reaches the hand-over speed in synchronism from every start angle tried, the
+hand-over does not jump the torque, closed loop on the observer follows a speed step; a standstill case is
+refused up front."""
+import math
+
+import numpy as np
+import pytest
+
+from drive_common.config.motor_experiments import ExperimentOptions
+from drive_common.config.scenario import motor_experiment
+from drive_common.contract.log import COLUMN
+from drive_common.motor.commissioning import resolve_commissioning, save_commissioning
+from drive_common.motor.motor_file import load_motor, motor_from_mapping
+from drive_common.motor.open_loop_start import (
+    ACCELERATION_SHARE,
+    HANDBACK_PER_HANDOVER,
+    MIN_HANDOVER_PER_RATED,
+    OBSERVER_ERROR_BOUND_RAD,
+    OBSERVER_SPEED_BANDWIDTH_RAD_S,
+    RELUCTANCE_SHARE,
+    SWING_PER_CURRENT_LOOP,
+    observer_error_V,
+    open_loop_start,
+)
+from drive_tools.cli.cli import main
+from drive_tools.evaluation.above_speed_bench import (
+    PEAK_TARGET_RAD,
+    RMS_TARGET_RAD,
+    SPEED_TOLERANCE,
+    above_speed_plan,
+    case_figures,
+    saliency_refusal,
+)
+from drive_tools.evaluation.random_motors import draw_motor, draw_motors, write_motor_files
+from drive_tools.runner.commissioning_run import commission_in_process
+from drive_tools.runner.runner import run_scenario
+
+ROUND_ROTORS = ((5, 54), (5, 20))
+"""(seed, index) of drawn surface-magnet motors without saturation, J on the nameplate: a light 28-pole-pair
+one (acceleration time 14 ms) and a 16-pole-pair one (0.41 s)."""
+START_ANGLES_E_RAD = (-2.9, -1.6, -0.3, 1.0, 2.3)
+TORQUE_JUMP_PER_IF = 0.25
+"""The hand-over keeps the torque current: the true torque's mean over the 2 ms after it within this share of
+the I-f torque of its mean over the 2 ms before."""
+
+
+def test_the_start_is_stated_from_the_nameplate_and_commissioning_over_a_random_draw():
+    """Over 300 drawn motors (nameplate-only commissioning): the I-f current within rated current, the swing
+    frequency and the reluctance softening within their shares, the ramp's torque share, the minimum speed from
+    the observer's error bound (and at least its floor), the hand-back below it; no J: refused naming it."""
+    checked = 0
+    for motor in draw_motors(300, 7):
+        plate = motor_from_mapping(motor.document, motor.name, whole_file=True).nameplate
+        commissioning = resolve_commissioning(plate, "nameplate")
+        U_dc, bandwidth = motor.document["inverter"]["U_dc_V"], 2.0 * math.pi * 250.0
+        plan = open_loop_start(plate, commissioning, U_dc, bandwidth)
+        if not math.isfinite(plate.J_kgm2):
+            assert "J_kgm2" in plan.refused
+            continue
+        checked += 1
+        assert 0.0 < plan.current_A <= plate.rated_current_A * (1 + 1e-12)
+        assert plan.swing_rad_s <= SWING_PER_CURRENT_LOOP * min(bandwidth, OBSERVER_SPEED_BANDWIDTH_RAD_S) * (1 + 1e-9)
+        softening = abs(plate.L_q_H - plate.L_d_H) * plan.current_A / plate.psi_f_Wb
+        assert softening <= RELUCTANCE_SHARE * (1 + 1e-9)
+        J_e = plate.J_kgm2 / plate.n_p
+        assert plan.acceleration_rad_s2 * J_e == pytest.approx(ACCELERATION_SHARE * plan.torque_Nm, rel=1e-9)
+        rated_e = plate.n_p * plate.rated_speed_rpm * math.pi / 30.0
+        u_err = observer_error_V(plate, commissioning, U_dc, plan.current_A)
+        assert plan.handover_rad_s >= u_err / (OBSERVER_ERROR_BOUND_RAD * plate.psi_f_Wb) * (1 - 1e-9)
+        assert plan.handover_rad_s >= MIN_HANDOVER_PER_RATED * rated_e * (1 - 1e-9)
+        assert plan.handback_rad_s == pytest.approx(HANDBACK_PER_HANDOVER * plan.handover_rad_s)
+        if not plan.refused:
+            assert "works above" in plan.statement(plate.n_p) and "no standstill torque" in plan.statement(plate.n_p)
+    assert checked > 100
+
+
+@pytest.fixture(scope="module")
+def round_rotors(tmp_path_factory):
+    """The drawn round rotors, each commissioned at standstill: (motor, its commissioning file, the plan, the
+    experiments' options, the controller's lock [s])."""
+    folder = tmp_path_factory.mktemp("round_rotors")
+    rotors = []
+    for seed, index in ROUND_ROTORS:
+        drawn = draw_motor(seed, index)
+        assert drawn.figures["rotor"] == "surface" and not drawn.figures["saturation"]
+        motor = load_motor(str(write_motor_files([drawn], folder)[0]), "test")
+        first = motor_experiment("low_speed", motor, "test", options=ExperimentOptions(commissioning="nameplate"))
+        commissioning = folder / f"{motor.name}_commissioning.yaml"
+        save_commissioning(commissioning, commission_in_process(first).procedure.result(), motor.name, "test")
+        ours = motor_experiment("low_speed", motor, "test", options=ExperimentOptions(commissioning=str(commissioning)))
+        assert saliency_refusal(ours), "a round rotor is refused for its saliency"
+        plan, options, align_s = above_speed_plan(motor, commissioning, 1e-4)
+        assert not plan.refused
+        rotors.append((motor, commissioning, plan, options, align_s))
+    return rotors
+
+
+def _run(motor, options, case, theta_e):
+    return run_scenario(motor_experiment(case, motor, "test", options=options._replace(theta_e_rad=theta_e)))
+
+
+@pytest.mark.parametrize("which", range(len(ROUND_ROTORS)))
+def test_the_start_reaches_the_handover_in_synchronism_from_every_angle_without_a_torque_jump(round_rotors, which):
+    motor, _, plan, options, align_s = round_rotors[which]
+    for theta_e in START_ANGLES_E_RAD:
+        result = _run(motor, options, "low_speed", theta_e)
+        figures = case_figures(result, align_s)
+        assert figures["load_angle_max_rad"] < 0.5 * math.pi, f"lost synchronism from {theta_e} rad"
+        log = result.log
+        open_loop = log[:, COLUMN["i_d_ref"]] > 0.0
+        handover = int(np.argmax(~open_loop[1:] & open_loop[:-1])) + 1
+        assert handover > 1 and not open_loop[handover:].any(), f"one hand-over, no hand-back, from {theta_e} rad"
+        speed_e = abs(log[handover, COLUMN["omega_m"]]) * motor.nameplate.n_p
+        assert speed_e >= HANDBACK_PER_HANDOVER * plan.handover_rad_s
+        window = int(round(0.002 / result.scenario.T_s))
+        before = np.mean(log[handover - window:handover, COLUMN["tau_e"]])
+        after = np.mean(log[handover:handover + window, COLUMN["tau_e"]])
+        assert abs(after - before) <= TORQUE_JUMP_PER_IF * plan.torque_Nm, f"torque jump from {theta_e} rad"
+        assert figures["angle_error_rms"] <= RMS_TARGET_RAD and figures["angle_error_peak"] <= PEAK_TARGET_RAD
+
+
+@pytest.mark.parametrize("which", range(len(ROUND_ROTORS)))
+def test_closed_loop_on_the_observer_follows_a_speed_step(round_rotors, which):
+    motor, _, _, options, align_s = round_rotors[which]
+    result = _run(motor, options, "speed_step", 1.0)
+    figures = case_figures(result, align_s)
+    unit = options.unit_rpm * math.pi / 30.0
+    assert figures["closed_at_end"] and figures["load_angle_max_rad"] < 0.5 * math.pi
+    assert figures["speed_error_final_rad_s"] <= SPEED_TOLERANCE * unit
+    assert np.max(np.abs(result.log[:, COLUMN["omega_m_ref"]])) == pytest.approx(2.0 * unit)
+    assert figures["angle_error_rms"] <= RMS_TARGET_RAD and figures["angle_error_peak"] <= PEAK_TARGET_RAD
+
+
+def test_a_standstill_case_is_refused_up_front_in_one_line(round_rotors, capsys):
+    motor, commissioning, plan, _, _ = round_rotors[0]
+    code = main(["run", "standstill_hold", "--motor", motor.source, "--estimator", "if_observer",
+                 "--commissioning", str(commissioning), "--no-plot"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    rpm = f"{plan.handover_rpm(motor.nameplate.n_p):.0f} rpm"
+    assert f"works above {rpm}, no standstill torque" in lines[0], "stated before acting"
+    assert len(lines) == 2 and "standstill" in lines[1] and f"below {rpm}" in lines[1] and "refused" in lines[1]
+
+
+def test_ours_refusal_for_saliency_offers_the_start(round_rotors, capsys):
+    motor, commissioning, plan, _, _ = round_rotors[0]
+    code = main(["run", "low_speed", "--motor", motor.source, "--commissioning", str(commissioning), "--no-plot"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert f"`estimator: if_observer` runs it without injection: works above " \
+           f"{plan.handover_rpm(motor.nameplate.n_p):.0f} rpm, no standstill torque" in err[0]
