@@ -91,7 +91,8 @@ def test_motor_files_are_written_and_read_back(tmp_path):
 @pytest.mark.parametrize("index", [0, 5, 9])
 def test_the_motors_own_experiments_scale_with_its_rating(index, tmp_path):
     """Speeds are shares of rated speed (5 %, 10 % after the step, −5 % after the reversal, zero when
-    holding), the load a share of rated torque; the drive's loops are left to the motor (no injection set)."""
+    holding), the load a share of rated torque; the drive's loops are left to the motor (no injection set) and
+    the injection to the loops' rule."""
     path = write_motor_files([draw_motor(2, index)], tmp_path)[0]
     motor = load_scenario("low_speed", motor_override=str(path)).motor
     rated_rad_s = motor.nameplate.rated_speed_rpm * math.pi / 30.0
@@ -105,7 +106,7 @@ def test_the_motors_own_experiments_scale_with_its_rating(index, tmp_path):
         assert np.max(np.abs(speeds)) == pytest.approx(top, rel=1e-9)
         assert speeds[-1] == pytest.approx(last, rel=1e-9)
         assert np.max(loads) == pytest.approx(0.5 * load * motor.nameplate.rated_torque_Nm, rel=1e-9)
-        assert scenario.injection == {} and scenario.estimator_settings == {}
+        assert scenario.injection == {} and scenario.estimator_settings == {"injection_by_rule": True}
         assert scenario.initial_theta_m_rad == pytest.approx(ExperimentOptions().theta_e_rad / motor.nameplate.n_p)
 
 

@@ -62,6 +62,8 @@ design).
    2ζω_n s + ω_n²), p = ACCELERATION_POLE_RATIO·ω_n. Its acceleration is zero whenever ours is not
    tracking (start-up, hold): the estimate then coasts at constant speed. ``pll_type`` "auto"
    (tracking_loop_type) takes type 3 where the signal has the noise margin for it.
+6b. ``injection_by_rule`` (the motor's own experiments set it): the loops' rule chooses the square wave in its
+   place where it serves the motor (hf_estimator.build.chosen_estimator, square_wave.square_wave_serves).
 7. Start-up (startup.py): while aligning, a fit that finds the axis further than ALIGN_JUMP_RAD away
    moves θ̂ onto it at once (ε is in radians) and the next fit waits for a window of fresh samples; the
    loop settles the rest. Ours aligns in a few carrier periods instead of the loop's settling time.
@@ -116,7 +118,7 @@ def injection_frame_state():
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
             "signal_smoothing_Hz": 20.0, "dead_time_model": False, "saliency_snr_min": 8.0, "pll_type": 2,
-            **STARTUP_DEFAULTS}
+            "injection_by_rule": False, **STARTUP_DEFAULTS}
 ACCELERATION_POLE_RATIO = 0.5
 """The type-3 loop's third pole, real, at this share of ω_n (item 6)."""
 ALIGN_JUMP_RAD = 0.2

@@ -292,6 +292,7 @@ SETTING_KEYS = (
     Key("polarity_margin", "", 0.0, 0.5),
     Key("polarity_tries", "", 1, 100, low_inclusive=True, integer=True),
     Key("run_refused", "", choices=(True, False)),
+    Key("injection_by_rule", "", choices=(True, False)),
     Key("flush_s", "s", 0.0, 1.0, low_inclusive=True),
     Key("lock_filter_Hz", "Hz", 0.0),
     Key("lock_persist_s", "s", 0.0, 1.0),

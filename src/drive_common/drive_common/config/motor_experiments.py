@@ -1,7 +1,8 @@
 """A motor's own experiments (issue 51 item 2): scenarios made from a motor's rating, not a paper's motor,
 run by ``drive run NAME --motor FILE`` and by ``drive bench motor(s)``. Speeds are in shares of the
 motor's rated speed, loads in shares of its rated torque; the drive runs on the loops scaled to the
-motor (drive_common.motor.scaled_loops: no injection, estimator loop or speed loop is set here). Each is
+motor (drive_common.motor.scaled_loops: no injection, estimator loop or speed loop is set here), ours' sine carrier
+or the square wave as the loops' rule chooses (the estimator setting injection_by_rule). Each is
 DURATION_S long, the rotor starting at rest from an angle the drive is not told
 (docs/motors-and-control.md "The motor's own experiments")."""
 from typing import NamedTuple
@@ -59,7 +60,8 @@ def experiment_document(name, motor, options=None):
     plate = motor.nameplate
     unit_rpm = LOW_SPEED_PER_RATED * plate.rated_speed_rpm
     data = {"description": f"{description} ({motor.name}: the motor's own experiment)",
-            "motor": motor.source, "estimator": "injection_frame", "duration_s": DURATION_S,
+            "motor": motor.source, "estimator": {"type": "injection_frame", "settings": {"injection_by_rule": True}},
+            "duration_s": DURATION_S,
             "sampling_period_s": options.T_s, "seed": options.seed,
             "initial": {"theta_m_rad": options.theta_e_rad / plate.n_p}, "metrics": {"settle_s": SETTLE_S},
             "speed": {"unit": "rpm", "interpolation": "linear",
