@@ -280,7 +280,7 @@ SETTING_KEYS = (
     Key("dither_rad", "rad", 0.0, math.pi / 4.0),
     Key("samples_per_half_period", "", 1, 100, low_inclusive=True, integer=True),
     Key("signal_smoothing_Hz", "Hz", 0.0),
-    Key("dead_time_model", "", choices=(True, False)),
+    Key("dead_time_model", "", choices=(True, False, "auto")),
     Key("saliency_snr_min", "", 0.0, low_inclusive=True),
     Key("align_tolerance_rad", "rad", 0.0, 1.0),
     Key("settle_s", "s", 0.0, 1.0, low_inclusive=True),

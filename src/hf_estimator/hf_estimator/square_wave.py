@@ -426,7 +426,7 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
         current_smoothing=1.0 - math.exp(-1.0 / (2.0 * m)),
         shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad,
-        dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] else 0.0,
+        dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] in (True, "auto") else 0.0,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
         startup=make_startup(nameplate, commissioning, T_s, inverter, 1.0 if salient else 0.0, s))
     return Estimator("square_wave", square_wave_step, params, square_wave_state(), 0.5 / (m * T_s), bandwidth_Hz,
