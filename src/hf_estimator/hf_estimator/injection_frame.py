@@ -135,7 +135,7 @@ SNR_REFERENCE_HZ = 18.0
 grows with the bandwidth), so the wanted ratio grows as √(bandwidth / this)."""
 DEAD_TIME_MODEL_SHARE = 1.0 / 3.0
 """``dead_time_model: auto`` subtracts the dead-time voltage where it is at least this share of U_h·|Δ|/Σ: on
-drawn motors (seeds 2 and 4, 29 run) the dead time's angle error stayed within the noise's below it, and beyond it
+drawn motors (seeds 2 and 4, 26 run) the dead time's angle error stayed within the noise's below it, and beyond it
 turned the angle by up to 0.03 rad, which the model removes (docs/results.md, "Random motors (issue 51)")."""
 HF_RIPPLE_MAX_PER_RATED = 0.5
 """The largest HF current ripple U_h·Σ/ω_h ours allows itself when it raises its amplitude, per rated
