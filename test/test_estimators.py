@@ -8,12 +8,18 @@ import pytest
 from drive_common.contract.estimator_records import SAMPLE, estimates
 from drive_common.contract.log import COLUMN
 from drive_common.math.command_delay import applied_voltage, command_line, issue_command
+from drive_common.math.dead_time import MIN_SMOOTHING_A
 from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE, nameplate_commissioning
 from drive_common.motor.motor_file import load_motor
 from drive_tools.runner.runner import run_scenario
 from helpers import ideal_commissioning as commission
 from helpers import run, scenario, shipped
-from hf_estimator.injection_frame import raised_injection_amplitude
+from hf_estimator.injection_frame import (
+    DEAD_TIME_MODEL_SHARE,
+    dead_time_modelled,
+    dead_time_share,
+    raised_injection_amplitude,
+)
 from hf_estimator.registry import make_estimator
 from pmsm_plant.model import N_STATE, plant_advance, plant_outputs, plant_reset, saturation_saliency_angle
 from pmsm_plant.params import IDEAL_SENSOR, PlantParams
@@ -150,6 +156,30 @@ def test_ours_raises_its_amplitude_until_the_saliency_current_stands_above_the_n
     for record, snr, requested in ((c._replace(sensor_noise_A=0.0), 8.0, 5.0), (nameplate_commissioning(plate), 8.0,
                                    5.0), (c, 0.0, 5.0), (c, 8.0, 10.0)):
         assert raised_injection_amplitude(requested, record, plate, WANG_INVERTER, omega_h, snr) == (requested, "")
+
+
+def test_ours_models_the_dead_time_where_it_turns_the_axis_against_the_saliency():
+    """``dead_time_model: auto`` (injection_frame item 2): the commissioned dead-time voltage is subtracted where
+    it is at least DEAD_TIME_MODEL_SHARE of the saliency's share of the carrier voltage U_h·|Δ|/Σ, not below it,
+    nor without a commissioned dead-time voltage or saliency; True and False hold as set. The model's sign is
+    smoothed over at least MIN_SMOOTHING_A (Wang's motor: 1 % of its rated current is less)."""
+    plate = WANG.nameplate
+    c = commission(WANG.machine, plate.current_limit_A)._replace(dead_time_voltage_V=0.12)
+    boundary_V = 0.12 * abs(c.sigma / c.delta) / DEAD_TIME_MODEL_SHARE
+    assert dead_time_share(c, boundary_V) == pytest.approx(DEAD_TIME_MODEL_SHARE, rel=1e-12)
+    on, note = dead_time_modelled("auto", c, 0.99 * boundary_V)
+    assert on and note.startswith("dead-time model on: the 0.12 V dead-time voltage is 0.34")
+    assert dead_time_modelled("auto", c, 1.01 * boundary_V) == (False, "")
+    assert dead_time_modelled(True, c, 1.01 * boundary_V) == (True, "")
+    assert dead_time_modelled(False, c, 0.5 * boundary_V) == (False, "")
+    assert dead_time_modelled("auto", c._replace(dead_time_voltage_V=0.0), 0.5 * boundary_V) == (False, "")
+    assert dead_time_modelled("auto", c._replace(L_dh_H=c.L_qh_H), 0.5 * boundary_V) == (False, "")
+    settings = {"amplitude_V": 0.5 * boundary_V, "saliency_snr_min": 0.0}
+    for setting, subtracted in (("auto", 0.12), (False, 0.0)):
+        p = make_estimator("injection_frame", plate, 1e-4, {**settings, "dead_time_model": setting}, c,
+                           WANG_INVERTER).params
+        assert p.dead_time_voltage_V == subtracted
+        assert p.dead_time_smoothing_A == MIN_SMOOTHING_A > 0.01 * plate.rated_current_A
 
 
 def test_injection_frame_locks_at_100_rpm_closed_loop():

@@ -11,15 +11,19 @@ from drive_common.motor.torque_limit import estimator_commissioning
 
 from .if_observer import below_speed_refusal, plan_for
 from .interface import injects
-from .pll_model import PEAK_PER_RMS, injection_frame_noise_gain, predicted_angle_error_rad
+from .pll_model import (
+    PEAK_PER_RMS,
+    TARGET_PEAK_RAD,
+    TARGET_RMS_RAD,
+    injection_frame_noise_gain,
+    predicted_angle_error_rad,
+)
 from .registry import make_estimator
+from .square_wave import square_wave_predicted_error, square_wave_serves
 
 SCALED_TRACKING = ("injection_frame", "full_speed")
 """Ours: the tracking bandwidth, carrier and amplitude follow the motor (scaled_loops) unless set; the
 papers' estimators keep their papers' carrier and loop unless set (only the bus caps their amplitude)."""
-TARGET_RMS_RAD = 0.02
-TARGET_PEAK_RAD = 0.15
-"""Ours' targets: what the predicted angle error must meet for the drive to run (docs/hf-demodulation.md §5)."""
 OWN_CARRIER = ("square_wave",)
 """Its carrier, amplitude and tracking follow its own rules (hf_estimator.square_wave); a scenario's sine
 carrier is not its."""
@@ -67,13 +71,20 @@ def _blamed(scenario, message):
     return f"{scenario.source_of('estimator')}: estimator: {message}"
 
 
+PREDICTED = (*SCALED_TRACKING, "square_wave")
+"""The estimators whose angle error the drive predicts before running (and refuses on)."""
+
+
 def predicted_error(estimator, commissioning):
-    """(RMS, peak) [rad] of ours' noise-driven angle error at no load predicted before running from the
-    commissioned saliency and sensor noise and ours' loop (pll_model.predicted_angle_error_rad), and the saliency
-    current I_Δ [A]; None for another estimator, or where the noise or the saliency is not measured."""
+    """(RMS, peak) [rad] of the noise-driven angle error at no load predicted before running from the
+    commissioned saliency and sensor noise and the estimator's loop (pll_model.predicted_angle_error_rad; the
+    square wave's: square_wave.square_wave_predicted_error), and the saliency current I_Δ [A]; None for another
+    estimator, or where the noise or the saliency is not measured."""
     p = getattr(estimator.params, "hf", estimator.params)
-    if estimator.name not in SCALED_TRACKING or commissioning.sensor_noise_A <= 0.0 or not commissioning.salient():
+    if estimator.name not in PREDICTED or commissioning.sensor_noise_A <= 0.0 or not commissioning.salient():
         return None
+    if estimator.name == "square_wave":
+        return square_wave_predicted_error(p, commissioning.sensor_noise_A)
     omega_h = 2.0 * math.pi / (p.N * p.T_s_s)
     current = p.injection_amplitude_V * abs(commissioning.delta) / omega_h
     gain = injection_frame_noise_gain((p.kp, p.ki, p.ka), 2 * p.N, p.delay_periods, p.T_s_s)
@@ -82,7 +93,7 @@ def predicted_error(estimator, commissioning):
 
 
 def refused_signal(estimator, commissioning, run_refused):
-    """What the drive says of ours' predicted angle error ("" within the targets): beyond TARGET_RMS_RAD or
+    """What the drive says of the predicted angle error ("" within the targets): beyond TARGET_RMS_RAD or
     TARGET_PEAK_RAD, ValueError in one line (the predicted error, the target, the saliency figure) unless
     ``run_refused``, then a note."""
     predicted = predicted_error(estimator, commissioning)
@@ -90,8 +101,9 @@ def refused_signal(estimator, commissioning, run_refused):
         return ""
     rms, peak, current = predicted
     p = getattr(estimator.params, "hf", estimator.params)
-    unsettled = (f"ours' {estimator.tracking_bandwidth_Hz:g} Hz tracking loop does not settle behind its fit over "
-                 f"{2 * p.N} samples and the drive's delay: " if not math.isfinite(rms) else "")
+    window = f"{p.half_period + 1} samples" if estimator.name == "square_wave" else f"its fit over {2 * p.N} samples"
+    unsettled = (f"the {estimator.tracking_bandwidth_Hz:g} Hz tracking loop does not settle behind {window} and "
+                 f"the drive's delay: " if not math.isfinite(rms) else "")
     problem = (f"{unsettled}predicted angle error {rms:.3f} rad RMS, {peak:.2f} rad peak against ours' targets "
                f"{TARGET_RMS_RAD:g} and {TARGET_PEAK_RAD:g} rad: saliency current {1e3 * current:.3g} mA (|Δ|/Σ "
                f"{abs(commissioning.delta / commissioning.sigma):.3f}) against "
@@ -129,18 +141,34 @@ def below_speed(scenario, estimator, commissioning, run_refused):
     return f"run although refused ({refusal})" if refusal else ""
 
 
+def chosen_estimator(scenario, plate, commissioning, inverter):
+    """(the scenario with the estimator the loops' rule chooses, what the drive says of it): where ours runs with
+    ``injection_by_rule`` (the motor's own experiments), the square wave where it serves the motor
+    (square_wave.square_wave_serves, on ``plate``: the nameplate refined by the ``commissioning`` record, and
+    ``inverter`` with the drive's delay), else ours' sine carrier; any other scenario as it is."""
+    settings = dict(scenario.estimator_settings)
+    if scenario.estimator != "injection_frame" or not settings.pop("injection_by_rule", False):
+        return scenario, ""
+    choice = square_wave_serves(plate, commissioning, inverter, scenario.T_s)
+    name = "square_wave" if choice.serves else "injection_frame"
+    chosen = dataclasses.replace(scenario, estimator=name, estimator_settings=settings)
+    return chosen, f"the loops' rule: {'the square wave' if choice.serves else 'the sine carrier'} ({choice.reason})"
+
+
 def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
     angle information holds; the estimators run on the saliency shift of the controller's current path
     (drive_common.motor.torque_limit.estimator_commissioning). ScenarioError names the scenario and the key at fault."""
     plate = commissioning.refined(scenario.motor.nameplate)
+    inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
     try:
+        scenario, chosen = chosen_estimator(scenario, plate, commissioning, inverter)
         settings, notes = scaled_injection(scenario, plate)
+        notes = [chosen, *notes] if chosen else notes
         limit = None
         if injects(scenario.estimator):
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)
-        inverter = scenario.motor.inverter._replace(delay_periods=scenario.drive_delay_periods())
         estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings,
                                    estimator_commissioning(plate, commissioning, scenario.controller), inverter)
         notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),

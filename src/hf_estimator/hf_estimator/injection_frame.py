@@ -14,9 +14,10 @@ design).
    biases Γ̂ (under rated load and fast current-loop action the fit lost the angle without it). With
    the setting ``dead_time_model`` the commissioned dead-time voltage at the phase currents of the
    period's start (drive_common.math.dead_time) is subtracted too: where a phase current crosses zero the loss
-   switches with the HF current and turns the measured axis. It removes that error, but in closed loop
-   the drive's own sensor noise then costs more than it gains (docs/results.md, "A plant off its
-   nameplate"), so it is off by default.
+   switches with the HF current and turns the measured axis. Where that error is small the model costs more
+   than it gains in closed loop (docs/results.md, "A plant off its nameplate"); ``auto`` (the default) turns it
+   on where the dead-time voltage is at least DEAD_TIME_MODEL_SHARE of the saliency's share of the carrier
+   voltage, U_h·|Δ|/Σ (dead_time_share; docs/hf-demodulation.md §5).
 3. In the frame θ_axis of each period, the last 2N samples (one + and one − carrier period) give a
    least-squares fit of Γ̂ = [[g_dd, g_dq], [g_dq, g_qq]] and r (intercepts removed by centring, a 3 × 3
    normal system). On a salient rotor Γ̂ = Σ·I + Δ·[[cos 2e, sin 2e], [sin 2e, −cos 2e]], e = θ − θ_axis:
@@ -62,6 +63,8 @@ design).
    2ζω_n s + ω_n²), p = ACCELERATION_POLE_RATIO·ω_n. Its acceleration is zero whenever ours is not
    tracking (start-up, hold): the estimate then coasts at constant speed. ``pll_type`` "auto"
    (tracking_loop_type) takes type 3 where the signal has the noise margin for it.
+6b. ``injection_by_rule`` (the motor's own experiments set it): the loops' rule chooses the square wave in its
+   place where it serves the motor (hf_estimator.build.chosen_estimator, square_wave.square_wave_serves).
 7. Start-up (startup.py): while aligning, a fit that finds the axis further than ALIGN_JUMP_RAD away
    moves θ̂ onto it at once (ε is in radians) and the next fit waits for a window of fresh samples; the
    loop settles the rest. Ours aligns in a few carrier periods instead of the loop's settling time.
@@ -73,7 +76,7 @@ import numpy as np
 from numba import njit
 
 from drive_common.contract.estimator_states import ALIGNING, TRACKING
-from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
+from drive_common.math.dead_time import MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from drive_common.math.frames import clarke_contract, inverse_clarke, rotate
 from drive_common.math.tables import table_value
 
@@ -115,8 +118,8 @@ def injection_frame_state():
 
 DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 8.0,
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
-            "signal_smoothing_Hz": 20.0, "dead_time_model": False, "saliency_snr_min": 8.0, "pll_type": 2,
-            **STARTUP_DEFAULTS}
+            "signal_smoothing_Hz": 20.0, "dead_time_model": "auto", "saliency_snr_min": 8.0, "pll_type": 2,
+            "injection_by_rule": False, **STARTUP_DEFAULTS}
 ACCELERATION_POLE_RATIO = 0.5
 """The type-3 loop's third pole, real, at this share of ω_n (item 6)."""
 ALIGN_JUMP_RAD = 0.2
@@ -130,6 +133,10 @@ give 0.5): below this the window cannot tell g_qq apart and Σ is taken from the
 SNR_REFERENCE_HZ = 18.0
 """``saliency_snr_min`` holds for this tracking bandwidth; a wider loop passes more noise (its variance
 grows with the bandwidth), so the wanted ratio grows as √(bandwidth / this)."""
+DEAD_TIME_MODEL_SHARE = 1.0 / 3.0
+"""``dead_time_model: auto`` subtracts the dead-time voltage where it is at least this share of U_h·|Δ|/Σ: on
+drawn motors (seeds 2 and 4, 26 run) the dead time's angle error stayed within the noise's below it, and beyond it
+turned the angle by up to 0.03 rad, which the model removes (docs/results.md, "Random motors (issue 51)")."""
 HF_RIPPLE_MAX_PER_RATED = 0.5
 """The largest HF current ripple U_h·Σ/ω_h ours allows itself when it raises its amplitude, per rated
 current (Wang's own reversal runs at 0.38)."""
@@ -155,6 +162,30 @@ def loaded_correction(commissioning, frequency_Hz, injection_amplitude_V):
     return shift, (f"the loaded test's correction left out: it was measured at {tested_Hz:.0f} Hz, {tested_V:.3g} V, "
                    f"ours runs at {frequency_Hz:.0f} Hz, {injection_amplitude_V:.3g} V (`drive commission --loaded` "
                    f"with this drive measures it again)")
+
+
+def dead_time_share(commissioning, injection_amplitude_V):
+    """The commissioned dead-time voltage over the saliency's share of the carrier voltage, u_dt·Σ/(U_h·|Δ|):
+    how far the dead time's loss, switching with the HF current at the zero crossings, turns the measured axis
+    against the saliency that sets it (0 where no dead-time voltage is known, ∞ where no saliency is)."""
+    if commissioning.dead_time_voltage_V <= 0.0:
+        return 0.0
+    if commissioning.delta == 0.0:
+        return math.inf
+    return commissioning.dead_time_voltage_V * abs(commissioning.sigma / commissioning.delta) / injection_amplitude_V
+
+
+def dead_time_modelled(setting, commissioning, injection_amplitude_V):
+    """(whether ours subtracts the dead-time voltage, what it says of it): the setting ``dead_time_model``, or
+    for ``auto`` where dead_time_share reaches DEAD_TIME_MODEL_SHARE on a commissioned salient motor."""
+    if setting != "auto":
+        return bool(setting), ""
+    share = dead_time_share(commissioning, injection_amplitude_V)
+    if not (commissioning.salient() and share >= DEAD_TIME_MODEL_SHARE):
+        return False, ""
+    u_dt = commissioning.dead_time_voltage_V
+    return True, (f"dead-time model on: the {u_dt:.3g} V dead-time voltage is {share:.2f} of the saliency's "
+                  f"{u_dt / share:.3g} V share of the carrier (U_h·|Δ|/Σ; ≥ {DEAD_TIME_MODEL_SHARE:.2f})")
 
 
 def saliency_snr(injection_amplitude_V, commissioning, omega_h):
@@ -364,7 +395,8 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
                                                              inverter, omega_h, snr_min)
     loop_type, loop_note = tracking_loop_type(s["pll_type"], injection_amplitude_V, commissioning, omega_h, snr_min)
     shift_rad, loaded_note = loaded_correction(commissioning, 1.0 / (N * T_s), injection_amplitude_V)
-    note = "; ".join(n for n in (note, loop_note, loaded_note) if n)
+    modelled, dead_time_note = dead_time_modelled(s["dead_time_model"], commissioning, injection_amplitude_V)
+    note = "; ".join(n for n in (note, loop_note, loaded_note, dead_time_note) if n)
     pole = ACCELERATION_POLE_RATIO * omega_n if loop_type == 3 else 0.0
     delay_periods = inverter.delay_periods
     startup = make_startup(nameplate, commissioning, T_s, inverter, 1.0, s)
@@ -377,8 +409,8 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
         current_smoothing=1.0 - math.exp(-2.0 / N),
         shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=shift_rad,
-        dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] else 0.0,
-        dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
+        dead_time_voltage_V=commissioning.dead_time_voltage_V if modelled else 0.0,
+        dead_time_smoothing_A=max(SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A, MIN_SMOOTHING_A),
         sigma_per_H=commissioning.sigma, delta_abs_per_H=abs(commissioning.delta),
         saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0, startup=startup)
     return Estimator("injection_frame", injection_frame_step, params, injection_frame_state(),

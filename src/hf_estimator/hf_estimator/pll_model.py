@@ -322,6 +322,9 @@ UNSETTLED_SHARE = 1e-3
 CLARKE_NOISE_SHARE = 5.0 / 6.0
 """The variance of one αβ current component per phase-current noise variance, averaged over α (= a, 1) and
 β ((b − c)/√3, 2/3): the contract's Clarke on measured currents."""
+TARGET_RMS_RAD = 0.02
+TARGET_PEAK_RAD = 0.15
+"""Ours' targets: what the predicted angle error must meet for the drive to run (docs/hf-demodulation.md §5)."""
 PEAK_PER_RMS = 4.0
 """The peak of a run's noise-driven angle error per its RMS (a Gaussian's largest of ~10³ loop correlation
 times: √(2 ln 10³) ≈ 3.7)."""

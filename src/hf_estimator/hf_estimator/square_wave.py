@@ -27,17 +27,18 @@ drives VESC and MESC run their HFI.
    ``observable_ratio``·Σ̂ (0.005: the ripple, far larger than the commissioning's, sees a d admittance a few %
    of Σ off 1/L̂_dh — 6 % on that joint — which z_d counts as saliency; at ours' 0.02 the joint's signal dipped
    below it in a speed step and the loop, held, lost the lock).
-3. Noise: the samples alternate with the ripple, so the angle information is the f_h tone of i_q̂ of
-   amplitude ½·U_h·T_s·|Δ| per unit sin 2θ̃ (m = 1). Demodulated by ±1 (not by 2 cos ω_h t) its noise
-   is σ² per sample against the sine's 2σ²: it carries the angle information of a sine carrier's
-   saliency current I_Δ = U_h·T_s·|Δ|/√2 (square_wave_saliency_current). The amplitude rule is ours'
-   (injection_frame item 5) on that current: raised to ``saliency_snr_min``·√(B/18 Hz) σ of the
-   commissioned sensor noise at the saliency left at rated current, within the ripple cap (the
-   triangle's peak m·T_s·U_h·Σ/2 ≤ HF_RIPPLE_MAX_PER_RATED × rated current) and the voltage cap; where
-   the caps hold it below WEAK_SIGNAL_SHARE of that, refused unless ``run_refused`` (`drive run --force`; an
-   amplitude set, as a recording's in replay, runs with a note). Ours' refusal predicts its angle error
-   (docs/hf-demodulation.md §5); the square wave's keeps this σ rule until its error is predicted likewise. Each step
-   carries the same information whatever m, while the ripple grows as m: m = 1 costs least.
+3. Noise: ε's sensor noise is s_k·(n_k − n_{k−1} − n_{k−m} + n_{k−m−1})/(4·T_s·U_h·|Δ|), s_k the carrier's sign:
+   at m = 1 s_k·(n_k − 2n_{k−1} + n_{k−2}), whose power is 16σ² at low frequency and falls as cos⁴(ω/2) to none
+   at f_s/2, so a wide loop passes less of it than a white noise of that power. The angle error it leaves is
+   computed by stepping the loop (its gains, the delay, ε from the axes of d + 1 and d + 1 + m samples before)
+   on that noise (square_wave_noise_gain, square_wave_predicted_error: docs/hf-demodulation.md §6); the drive
+   refuses where it misses ours' targets (hf_estimator.build.refused_signal) unless ``run_refused`` (`drive run
+   --force`). At low frequency the square wave carries the angle information of a sine carrier's saliency
+   current I_Δ = U_h·T_s·|Δ|·√(m/2) (square_wave_saliency_current at m = 1), and ours' amplitude rule
+   (injection_frame item 5) applies to that current: raised to ``saliency_snr_min``·√(B/18 Hz) σ of the
+   commissioned sensor noise at the saliency left at rated current, within the ripple cap (the triangle's peak
+   m·T_s·U_h·Σ/2 ≤ HF_RIPPLE_MAX_PER_RATED × rated current) and the voltage cap. Each step carries the same
+   information whatever m, while the ripple grows as m: m = 1 costs least.
 4. Tracking: ours' type-2 / type-3 loop (injection_frame item 6) on ε. Its bandwidth follows the rotor's
    acceleration as ours' (drive_common.motor.scaled_loops: √(a_e/0.25 rad), ≥ 18 Hz) but is capped by
    the demodulation's delay instead of the sine's fit window: square_wave_tracking_limit_Hz, the rule
@@ -69,6 +70,14 @@ from .injection_frame import (
 )
 from .interface import MAX_DELAY_PERIODS, Estimator, check_settings, register, ring_capacity, stator_resistance
 from .outputs import write_injecting_estimate
+from .pll_model import (
+    CLARKE_NOISE_SHARE,
+    NOISE_GAIN_SETTLE_PERIODS,
+    PEAK_PER_RMS,
+    TARGET_PEAK_RAD,
+    TARGET_RMS_RAD,
+    UNSETTLED_SHARE,
+)
 from .startup import DEFAULTS as STARTUP_DEFAULTS
 from .startup import fresh_startup, make_startup, startup_step
 from .startup_state import STARTUP, StartupParams
@@ -94,10 +103,6 @@ currents (αβ) [A], î_q smoothed [A], the saliency vector (z_d, z_q) in the θ
 it was turned to [rad], the ring of the axes issued in the last d + 2 samples [rad], the ring of the last m steps
 (y_d [A], y_q [A], a [V], b [V]) and the start-up's."""
 
-WEAK_SIGNAL_SHARE = 0.5
-"""Below this share of the saliency current its loop wants the square wave refuses to run (the σ rule ours had
-before its error was predicted: at 0.89 of it a reverse-salient wang_spmsm still met the targets, at 0.36
-servo_400w_weak missed them 2.6-fold)."""
 DEFAULTS = {"samples_per_half_period": 1, "amplitude_V": None, "pll_bandwidth_Hz": None, "pll_damping": 0.9,
             "pll_type": "auto", "observable_ratio": 0.005, "signal_smoothing_Hz": 20.0, "saliency_snr_min": 8.0,
             "dead_time_model": True, **STARTUP_DEFAULTS}
@@ -129,9 +134,51 @@ def sine_tracking_limit_Hz(T_s):
 
 
 def square_wave_saliency_current(injection_amplitude_V, T_s, delta_per_H):
-    """The sine-carrier saliency current [A] carrying the same angle information as the square wave (item 3):
-    U_h·T_s·|Δ|/√2."""
+    """The sine-carrier saliency current [A] carrying the same angle information at low frequency as the square
+    wave at m = 1 (item 3): U_h·T_s·|Δ|/√2."""
     return injection_amplitude_V * T_s * abs(delta_per_H) / math.sqrt(2.0)
+
+
+def square_wave_noise_gain(gains, m, delay_periods, T_s):
+    """Σθ̂² of the square wave's loop (items 2-4) per unit white noise in one current component, over the noise
+    impulse's phase in the carrier's period: the noise enters ε as s_k·(n_k − n_{k−1} − n_{k−m} + n_{k−m−1}) (s_k the
+    carrier's sign), ε sees the axes issued d + 1 and d + 1 + m samples before (each half), the loop (k_p, k_i, k_a)
+    and the issued axis's prediction ω̂(d + ½)T_s as the estimator runs them. In units of (4·T_s·U_h·|Δ|)⁻²; ∞ where
+    the loop does not settle (as pll_model.injection_frame_noise_gain)."""
+    kp, ki, ka = gains
+    steps = 2 * m + delay_periods + int(NOISE_GAIN_SETTLE_PERIODS * 2.0 * math.pi / (math.sqrt(ki) * T_s))
+    lead = (delay_periods + 0.5) * T_s
+    taps = ((0, 1.0), (1, -1.0), (m, -1.0), (m + 1, 1.0))
+    total = tail = 0.0
+    for phase in range(2 * m):
+        axis = np.zeros(steps)
+        theta = omega = acceleration = 0.0
+        energy = np.zeros(steps)
+        for k in range(steps):
+            noise = sum(f for i, f in taps if i == k) * (1.0 if ((k + phase) // m) % 2 == 0 else -1.0)
+            seen = [axis[k - 1 - delay_periods - lag] if k - 1 - delay_periods - lag >= 0 else 0.0 for lag in (0, m)]
+            eps = noise - 0.5 * (seen[0] + seen[1])
+            acceleration += T_s * ka * eps
+            omega += T_s * acceleration + T_s * ki * eps
+            theta += T_s * (kp * eps + omega)
+            axis[k] = theta + omega * lead
+            energy[k] = theta * theta
+        total += float(np.sum(energy)) / (2 * m)
+        tail += float(np.sum(energy[-(steps // 10):])) / (2 * m)
+    return total if math.isfinite(total) and tail <= UNSETTLED_SHARE * total else math.inf
+
+
+def square_wave_predicted_error(params, sensor_noise_A):
+    """(RMS, peak) [rad] of the square wave's noise-driven angle error at no load, and its sine-equivalent saliency
+    current I_Δ [A] (item 3), from its params (SquareWaveParams: amplitude, half-period, |Δ|, loop gains, delay) and
+    the commissioned sensor noise of one phase current [A]: σ_αβ/(4·T_s·U_h·|Δ|)·√(square_wave_noise_gain), σ_αβ as
+    ours' (pll_model.CLARKE_NOISE_SHARE), the peak PEAK_PER_RMS times it (docs/hf-demodulation.md §6)."""
+    p = params
+    current = square_wave_saliency_current(p.injection_amplitude_V, p.T_s_s, p.delta_abs_per_H)
+    gain = square_wave_noise_gain((p.kp, p.ki, p.ka), p.half_period, p.delay_periods, p.T_s_s)
+    scale = 4.0 * p.T_s_s * p.injection_amplitude_V * p.delta_abs_per_H
+    rms = math.sqrt(CLARKE_NOISE_SHARE) * sensor_noise_A / scale * math.sqrt(gain) if scale > 0.0 else math.inf
+    return rms, PEAK_PER_RMS * rms, current
 
 
 def rotor_tracking_wanted_Hz(nameplate):
@@ -149,9 +196,10 @@ class SquareWaveChoice(NamedTuple):
     """The tracking bandwidth the rotor's rated-torque acceleration wants."""
     sine_limit_Hz: float
     square_limit_Hz: float
-    saliency_snr: float
-    """The square wave's sine-equivalent saliency current at its largest amplitude, in sensor-noise σ."""
-    snr_wanted: float
+    predicted_rms_rad: float
+    """The square wave's predicted angle error RMS on its own rules (square_wave_predicted_error; ∞ where the
+    saliency or the sensor noise is not measured)."""
+    predicted_peak_rad: float
     reason: str
 
 
@@ -170,42 +218,40 @@ def square_wave_amplitude(requested_V, commissioning, nameplate, inverter, T_s, 
     if noise <= 0.0 or not commissioning.salient():
         default = HF_RIPPLE_DEFAULT_PER_RATED * nameplate.rated_current_A * 2.0 / (m * T_s * abs(commissioning.sigma))
         return min(default, largest), largest, "square-wave amplitude for a 0.2 × rated ripple: sensor noise unknown"
-    wanted = snr_wanted * noise / square_wave_saliency_current(1.0, T_s, commissioning.delta * retained)
+    wanted = snr_wanted * noise / square_wave_saliency_current(1.0, T_s, commissioning.delta * retained) * math.sqrt(m)
     amplitude = min(wanted, largest)
     held = f"; held by the {cap_name} cap" if wanted > amplitude else ""
     return amplitude, largest, (f"square wave at {amplitude:.3g} V: saliency current "
                                 f"{snr_wanted * amplitude / wanted:.1f} σ, {snr_wanted:.3g} wanted{held}")
 
 
-def square_wave_serves(nameplate, commissioning, inverter, T_s, snr_min=DEFAULTS["saliency_snr_min"]):
-    """The rule for choosing the square wave over ours' sine carrier (docs/hf-demodulation.md §6): it serves a
-    motor whose rated-torque acceleration wants a tracking bandwidth beyond what the sine carrier allows at this
-    sampling, where the square wave's delay allows more, and where its signal at the largest amplitude the caps
-    allow keeps it from refusing (WEAK_SIGNAL_SHARE of the margin its wider loop wants: at 0.86 of it the light
-    joint of docs/results.md keeps the targets). → SquareWaveChoice."""
+def square_wave_serves(nameplate, commissioning, inverter, T_s):
+    """The loops' rule for choosing the square wave over ours' sine carrier (docs/hf-demodulation.md §6): it serves
+    a motor whose rated-torque acceleration wants a tracking bandwidth beyond what the sine carrier allows at this
+    sampling, where the square wave's delay allows more, and where its angle error predicted on its own rules
+    (amplitude, loop, delay: square_wave_predicted_error) meets ours' targets. → SquareWaveChoice."""
     wanted = rotor_tracking_wanted_Hz(nameplate)
     sine = sine_tracking_limit_Hz(T_s)
     square = square_wave_tracking_limit_Hz(T_s, inverter.delay_periods)
-    bandwidth = min(max(wanted, MIN_TRACKING_HZ), square)
-    snr_wanted = snr_min * math.sqrt(max(1.0, bandwidth / SNR_REFERENCE_HZ))
-    _, largest, _ = square_wave_amplitude(None, commissioning, nameplate, inverter, T_s, snr_wanted)
-    noise = commissioning.sensor_noise_A
-    retained = min(1.0, commissioning.saliency_retained(nameplate.rated_current_A))
-    snr = (square_wave_saliency_current(largest, T_s, commissioning.delta * retained) / noise
-           if noise > 0.0 else math.inf)
+    rms = peak = math.inf
+    if wanted > sine and square > sine and commissioning.salient() and commissioning.sensor_noise_A > 0.0:
+        built = make_square_wave(nameplate, T_s, {"run_refused": True}, commissioning, inverter)
+        rms, peak, _ = square_wave_predicted_error(built.params, commissioning.sensor_noise_A)
+
+    def choice(serves, reason):
+        return SquareWaveChoice(serves, wanted, sine, square, rms, peak, reason)
     if wanted <= sine:
-        reason = f"the sine carrier's {sine:.0f} Hz tracking covers the {wanted:.0f} Hz this rotor wants"
-        return SquareWaveChoice(False, wanted, sine, square, snr, snr_wanted, reason)
+        return choice(False, f"the sine carrier's {sine:.0f} Hz tracking covers the {wanted:.0f} Hz this rotor wants")
     if square <= sine:
-        return SquareWaveChoice(False, wanted, sine, square, snr, snr_wanted,
-                                f"the drive's delay leaves the square wave no wider loop ({square:.0f} Hz)")
-    if snr < WEAK_SIGNAL_SHARE * snr_wanted:
-        return SquareWaveChoice(False, wanted, sine, square, snr, snr_wanted,
-                                f"its saliency current reaches {snr:.1f} σ at most, {snr_wanted:.1f} wanted: it would "
-                                f"refuse")
-    return SquareWaveChoice(True, wanted, sine, square, snr, snr_wanted,
-                            f"tracking wants {wanted:.0f} Hz: the sine carrier allows {sine:.0f} Hz, the square wave "
-                            f"{square:.0f} Hz at {snr:.1f} σ of signal")
+        return choice(False, f"the drive's delay leaves the square wave no wider loop ({square:.0f} Hz)")
+    if not (commissioning.salient() and commissioning.sensor_noise_A > 0.0):
+        return choice(False, "the commissioning has not measured the saliency and the sensor noise its angle error "
+                             "is predicted from")
+    if not (rms <= TARGET_RMS_RAD and peak <= TARGET_PEAK_RAD):
+        return choice(False, f"its predicted angle error {rms:.3f} rad RMS, {peak:.2f} rad peak misses ours' targets "
+                             f"({TARGET_RMS_RAD:g}, {TARGET_PEAK_RAD:g} rad): it would refuse")
+    return choice(True, f"tracking wants {wanted:.0f} Hz: the sine carrier allows {sine:.0f} Hz, the square wave "
+                        f"{square:.0f} Hz at a predicted {rms:.3f} rad RMS")
 
 
 class SquareWaveParams(NamedTuple):
@@ -356,15 +402,9 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
     amplitude_V, _, note = square_wave_amplitude(s["amplitude_V"], commissioning, nameplate, inverter, T_s,
                                                  snr_wanted, m)
     noise = commissioning.sensor_noise_A
-    snr = square_wave_saliency_current(amplitude_V, T_s, commissioning.delta) / noise if noise > 0.0 else 0.0
+    snr = (square_wave_saliency_current(amplitude_V, T_s, commissioning.delta) * math.sqrt(m) / noise
+           if noise > 0.0 else 0.0)
     notes = [note] if note else []
-    if snr_min > 0.0 and snr > 0.0 and commissioning.salient() and snr < WEAK_SIGNAL_SHARE * snr_wanted:
-        problem = (f"saliency current {snr:.1f} σ of the commissioned sensor noise at {amplitude_V:.3g} V, "
-                   f"{snr_wanted:.3g} σ wanted by the tracking loop")
-        if not s["run_refused"] and s["amplitude_V"] is None:
-            raise ValueError(f"estimator 'square_wave': {problem}: too weak an angle signal for its targets; refused "
-                             f"(`drive run --force` runs it anyway)")
-        notes.append(f"run on a weak angle signal ({problem}): angle errors beyond the targets")
     if commissioning.saliency_ratio is None and commissioning.salient():
         notes.append("the commissioning holds no |Δ|/Σ table: under load the error's gain falls with the saliency "
                      "the q axis keeps and the lock sits off by δ(1 − r)/r (`drive commission` measures the table)")
@@ -386,7 +426,7 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
         current_smoothing=1.0 - math.exp(-1.0 / (2.0 * m)),
         shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad,
-        dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] else 0.0,
+        dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] in (True, "auto") else 0.0,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
         startup=make_startup(nameplate, commissioning, T_s, inverter, 1.0 if salient else 0.0, s))
     return Estimator("square_wave", square_wave_step, params, square_wave_state(), 0.5 / (m * T_s), bandwidth_Hz,

@@ -1,7 +1,8 @@
 """A motor's own experiments (issue 51 item 2): scenarios made from a motor's rating, not a paper's motor,
 run by ``drive run NAME --motor FILE`` and by ``drive bench motor(s)``. Speeds are in shares of the
 motor's rated speed, loads in shares of its rated torque; the drive runs on the loops scaled to the
-motor (drive_common.motor.scaled_loops: no injection, estimator loop or speed loop is set here). Each is
+motor (drive_common.motor.scaled_loops: no injection, estimator loop or speed loop is set here), ours' sine carrier
+or the square wave as the loops' rule chooses (the estimator setting injection_by_rule). Each is
 DURATION_S long, the rotor starting at rest from an angle the drive is not told
 (docs/motors-and-control.md "The motor's own experiments")."""
 from typing import NamedTuple
@@ -56,6 +57,14 @@ def describe_experiment(name):
     return EXPERIMENTS[name][0]
 
 
+def _estimator(name):
+    """A scenario's estimator key for the experiments' estimator ``name``: ours with the loops' rule choosing its
+    injection (hf_estimator.build.chosen_estimator), any other as it is."""
+    if name == "injection_frame":
+        return {"type": "injection_frame", "settings": {"injection_by_rule": True}}
+    return name
+
+
 def experiment_document(name, motor, options=None):
     """The scenario document (a scenario file's keys, drive_common.config.scenario.parse_scenario reads it)
     of experiment ``name`` on ``motor`` (a drive_common.motor.motor_file.Motor read from a file)."""
@@ -65,7 +74,7 @@ def experiment_document(name, motor, options=None):
     unit_rpm = options.unit_rpm or LOW_SPEED_PER_RATED * plate.rated_speed_rpm
     scale = options.time_scale
     data = {"description": f"{description} ({motor.name}: the motor's own experiment)",
-            "motor": motor.source, "estimator": options.estimator, "duration_s": DURATION_S * scale,
+            "motor": motor.source, "estimator": _estimator(options.estimator), "duration_s": DURATION_S * scale,
             "sampling_period_s": options.T_s, "seed": options.seed,
             "initial": {"theta_m_rad": options.theta_e_rad / plate.n_p}, "metrics": {"settle_s": SETTLE_S * scale},
             "speed": {"unit": "rpm", "interpolation": "linear",

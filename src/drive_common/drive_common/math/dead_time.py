@@ -10,6 +10,11 @@ SQRT3 = 3.0 ** 0.5
 SMOOTHING_PER_RATED_CURRENT = 0.01
 """The sign is smoothed as tanh(i / (this × rated current)): an assumption, the drive cannot resolve it
 at standstill."""
+MIN_SMOOTHING_A = 0.05
+"""Ours smooths the sign over at least this current: a small MOSFET bridge's switches commutate within about
+2·C_oss·U_dc/t_dead ≈ 2 · 300 pF · 24 V / 0.3 µs ≈ 50 mA whatever the motor's rating, so 1 % of a rating below 5 A
+is too sharp (on drawn motors rated 0.5-2 A a sharper sign doubled ours' error: docs/results.md, "Random motors
+(issue 51)"). The simulated plant commutates within 50 mA on every motor; the drive does not measure it."""
 
 
 @njit(cache=True)

@@ -29,7 +29,8 @@ from drive_tools.runner.commissioning_run import (
     rotating_test_in_process,
     with_loaded_test,
 )
-from drive_tools.runner.runner import run_scenario
+from drive_tools.runner.runner import build_drive, run_scenario
+from hf_estimator.build import predicted_error
 from hf_estimator.commissioning.procedure import CommissioningError
 
 RMS_TARGET_RAD = 0.02
@@ -48,6 +49,12 @@ IDENTIFIED = ("R_s_ohm", "L_dh_H", "L_qh_H")
 ROTATING_IDENTIFIED = ("psi_f_Wb", "J_kgm2")
 NOT_APPLICABLE = (DriveError, CommissioningError)
 """What the drive raises when it refuses: a one-line reason (exit 2 at the command line)."""
+SALIENCY_REFUSAL = "predicted angle error"
+"""The words of the drive's refusal for too weak an angle signal (hf_estimator.build.refused_signal): such a motor
+is run anyway (`drive run --force`) so that its predicted error can be set against the measured one."""
+INJECTIONS = ("injection_frame", "square_wave")
+"""The two injections the loops' rule chooses between; the rated-load case runs on both (issue 52 item 4)."""
+COMPARED_CASE = "rated_load"
 
 
 class TrialOptions(NamedTuple):
@@ -110,7 +117,8 @@ def motor_trial(motor_ref, options=None, progress=None):
            "current_limit_A": None, "warnings": [], "drive_notes": "", "loaded_test": None,
            "tracking_bandwidth_Hz": None, "injection_frequency_Hz": None, "injection_amplitude_V": None,
            "startup": None, "polarity_correct": None, "cases": [], "refused_at": None, "reason": "",
-           "problems": [], "derated": False, "testing": None, "sensorless_torque": None}
+           "problems": [], "derated": False, "testing": None, "sensorless_torque": None, "injection": None,
+           "injection_reason": "", "predicted": None, "forced": None, "rated_load_by_injection": {}}
     steps = 3 + options.starts + len(CASES)
 
     def advanced(done):
@@ -124,18 +132,80 @@ def motor_trial(motor_ref, options=None, progress=None):
             _commission(first, commissioning, row)
         except RefusedForSaliency as refusal:
             row["problems"] = _identification_problems(row)
-            return above_speed_trial(motor, commissioning, options.T_s, row, str(refusal),
-                                     (start_angles, dict(zip(CASES, case_angles))),
-                                     lambda result: case_exit_code(result, supervision_faults(result)))
+            row = above_speed_trial(motor, commissioning, options.T_s, row, str(refusal),
+                                    (start_angles, dict(zip(CASES, case_angles))),
+                                    lambda result: case_exit_code(result, supervision_faults(result)))
+            row["forced"] = _forced_commissioning(first, commissioning, (motor, case_angles, options.T_s), row,
+                                                  str(refusal))
+            return row
         except NOT_APPLICABLE as error:
-            return _verdict(row, refused=(f"commissioning, the {row['testing']} test", one_line(error)))
+            refused = (f"commissioning, the {row['testing']} test", one_line(error))
+            if SALIENCY_REFUSAL in refused[1]:
+                row["forced"] = _forced_commissioning(first, commissioning, (motor, case_angles, options.T_s), row,
+                                                      refused[1])
+            return _verdict(row, refused=refused)
         advanced(3)
         try:
             row["startup"] = _starts(motor, start_angles, commissioning, options.T_s, advanced)
             _cases(motor, case_angles, commissioning, options.T_s, row, lambda i: advanced(3 + options.starts + i))
         except ScenarioError as error:
-            return _verdict(row, refused=("the drive", one_line(error)))
+            reason = one_line(error)
+            if SALIENCY_REFUSAL in reason:
+                row["forced"] = _forced_cases(motor, case_angles, options.T_s, commissioning, row)
+            return _verdict(row, refused=("the drive", reason))
     return _verdict(row)
+
+
+def forced(scenario):
+    """``scenario`` run as `drive run --force` runs it (the estimator setting ``run_refused``)."""
+    return dataclasses.replace(scenario, estimator_settings={**scenario.estimator_settings, "run_refused": True})
+
+
+def _forced_commissioning(first, commissioning, trial, row, reason):
+    """A motor whose commissioning's rotating or loaded test was refused for its weak angle signal: commissioned
+    anyway (`--force`), then its cases run anyway (_forced_cases: ``trial`` is the motor, its cases' angles and
+    the sampling period); where the commissioning fails even so, {"commissioning": its reason}, and the prediction
+    the refusal ``reason`` stated into ``row``."""
+    try:
+        _commission(forced(first), commissioning, {**row, "tests": [], "identification_error": {}})
+    except NOT_APPLICABLE as error:
+        stated = re.search(r"predicted angle error ([\d.]+) rad RMS, ([\d.]+) rad peak", reason)
+        if stated:
+            row["predicted"] = {"rms": float(stated[1]), "peak": float(stated[2]), "estimator": "injection_frame"}
+        return {"commissioning": one_line(error)}
+    return _forced_cases(*trial, commissioning, row)
+
+
+def _predicted(scenario):
+    """{rms, peak} [rad] of the angle error the drive predicts for ``scenario`` before running
+    (hf_estimator.build.predicted_error), None where it predicts none."""
+    drive = build_drive(scenario)
+    predicted = predicted_error(drive.estimator, drive.commissioning)
+    return None if predicted is None else {"rms": float(predicted[0]), "peak": float(predicted[1]),
+                                           "estimator": drive.estimator.name}
+
+
+def _case_figures(result):
+    """A case's exit code and angle error figures."""
+    metrics, faults = compute_metrics(result), supervision_faults(result)
+    refused = (result.startup or {}).get("refused")
+    return {"exit_code": case_exit_code(result, faults), "angle_error_rms": metrics["angle_error_rms"],
+            "angle_error_peak": metrics["angle_error_peak"], "lock_lost_s": metrics["lock_lost_s"],
+            "verdict": case_verdict(metrics, faults, refused)}
+
+
+def _forced_cases(motor, angles, T_s, commissioning, row):
+    """A motor the drive refused for its weak angle signal, run anyway (`drive run --force`): every case's
+    figures, and the prediction it was refused on into ``row``."""
+    cases = {}
+    for case, theta_e in zip(CASES, angles):
+        scenario = motor_experiment(case, motor, "drive bench motor",
+                                    options=ExperimentOptions(T_s, float(theta_e), 1, 1.0, str(commissioning)))
+        scenario = forced(scenario)
+        if row["predicted"] is None:
+            row["predicted"] = _predicted(scenario)
+        cases[case] = _case_figures(run_scenario(scenario))
+    return cases
 
 
 def _commission(scenario, commissioning, row):
@@ -148,7 +218,8 @@ def _commission(scenario, commissioning, row):
     save_commissioning(commissioning, measured, name, "drive bench motor")
     row["tests"].append("standstill")
     row["identification_error"] = _errors(measured, truth, IDENTIFIED)
-    refusal = saliency_refusal(dataclasses.replace(scenario, commissioning=str(commissioning)))
+    refusal = "" if scenario.estimator_settings.get("run_refused") else saliency_refusal(
+        dataclasses.replace(scenario, commissioning=str(commissioning)))
     if refusal:
         raise RefusedForSaliency(refusal)
     if not math.isfinite(scenario.motor.nameplate.J_kgm2):
@@ -219,8 +290,12 @@ def _cases(motor, angles, commissioning, T_s, row, advanced):
                              "polarity_correct": metrics["startup"]["polarity_correct"],
                              "lock_lost_s": metrics["lock_lost_s"], "supervision": faults,
                              "verdict": case_verdict(metrics, faults, refused)})
+        if case == COMPARED_CASE:
+            _both_injections(scenario, result, row)
         if i == 0:
             facts = result.estimator_facts
+            row["injection"] = facts.get("estimator")
+            row["predicted"] = _predicted(scenario)
             row.update(current_limit_A=result.current_limit_A, warnings=configuration_warnings(result),
                        drive_notes=facts.get("injection_note", ""),
                        tracking_bandwidth_Hz=facts.get("tracking_bandwidth_Hz"),
@@ -231,6 +306,23 @@ def _cases(motor, angles, commissioning, T_s, row, advanced):
             row["derated"] = stated < 1.0
             load_per_rated = DERATED_LOAD_PER_LIMIT * stated if row["derated"] else 1.0
         advanced(i + 1)
+
+
+def _both_injections(scenario, result, row):
+    """The rated-load case on both injections (the one the loops' rule chose ran as ``result``; the other runs
+    on its own rules, a refusal counted as such) into ``row['rated_load_by_injection']``."""
+    chosen = result.estimator_facts.get("estimator")
+    for name in INJECTIONS:
+        if name == chosen:
+            row["rated_load_by_injection"][name] = _case_figures(result)
+            continue
+        other = dataclasses.replace(scenario, estimator=name, estimator_settings={})
+        try:
+            row["rated_load_by_injection"][name] = _case_figures(run_scenario(other))
+        except ScenarioError as error:
+            row["rated_load_by_injection"][name] = {"exit_code": EXIT_REFUSED, "angle_error_rms": None,
+                                                    "angle_error_peak": None, "lock_lost_s": None,
+                                                    "verdict": f"refused: {one_line(error)}"}
 
 
 def _verdict(row, refused=None):

@@ -11,7 +11,7 @@ from typing import NamedTuple
 
 from drive_common.runtime.interrupt import Interrupted
 
-from .motor_bench import VERDICTS, TrialOptions, crashed_row, motor_trial, reason_kind
+from .motor_bench import INJECTIONS, VERDICTS, TrialOptions, crashed_row, motor_trial, reason_kind
 from .random_motors import draw_motors, write_motor_files
 
 SALIENT_RATIO = 1.3
@@ -19,6 +19,10 @@ SALIENT_RATIO = 1.3
 not refused."""
 SALIENCY_BANDS = ((1.1, "< 1.1"), (SALIENT_RATIO, "1.1-1.3"), (float("inf"), "≥ 1.3"))
 POLE_PAIR_BANDS = ((5, "1-5"), (15, "6-15"), (30, "16-30"))
+PREDICTION_FACTOR = (0.5, 2.0)
+"""The factor within which the measured angle error RMS (the motor's low-speed case, no load) is set against the
+predicted one (docs/random-motors.md)."""
+PREDICTION_CASE = "low_speed"
 
 
 class RandomBenchOptions(NamedTuple):
@@ -101,6 +105,8 @@ def compact_row(row, figures):
             "identification_error": row["identification_error"], "current_limit_A": row["current_limit_A"],
             "derated": row.get("derated", False), "sensorless_torque": row.get("sensorless_torque"),
             "warnings": row["warnings"], "polarity_correct": row["polarity_correct"],
+            "injection": row.get("injection"), "predicted": row.get("predicted"), "forced": row.get("forced"),
+            "rated_load_by_injection": row.get("rated_load_by_injection", {}),
             "cases": {c["case"]: {"exit_code": c["exit_code"], "angle_error_rms": c["angle_error_rms"],
                                   "angle_error_peak": c["angle_error_peak"], "load_per_rated": c["load_per_rated"],
                                   "verdict": c["verdict"]} for c in row["cases"]}}
@@ -124,6 +130,51 @@ CLASSES = (("power", lambda f: f["power_class"]), ("rotor", lambda f: f["rotor"]
            ("J on the nameplate", lambda f: "yes" if f["J_on_nameplate"] else "no (rotating test)"))
 
 
+def prediction_rows(rows):
+    """Every motor with a predicted angle error and a measured low-speed case (the forced ones' measured as run
+    anyway): {motor, refused, predicted and measured RMS and peak [rad], their ratio}."""
+    out = []
+    for row in rows:
+        predicted, forced = row.get("predicted"), row.get("forced")
+        case = (forced or row.get("cases") or {}).get(PREDICTION_CASE) or {}
+        if not predicted or (case.get("angle_error_rms") is None and not forced):
+            continue
+        measured = case.get("angle_error_rms")
+        out.append({"motor": row["motor"], "refused": bool(forced), "estimator": predicted["estimator"],
+                    "predicted_rms": predicted["rms"], "predicted_peak": predicted["peak"],
+                    "measured_rms": measured, "measured_peak": case.get("angle_error_peak"),
+                    "lost": (forced or {}).get("commissioning", ""),
+                    "ratio_rms": measured / predicted["rms"] if measured is not None and predicted["rms"] > 0.0
+                    else None})
+    return out
+
+
+def prediction_summary(rows):
+    """How many of the predictions hold within PREDICTION_FACTOR, of the refused motors run anyway and of all (a
+    refused motor whose commissioning failed when run anyway has no measured error: counted, not within)."""
+    predictions = prediction_rows(rows)
+    low, high = PREDICTION_FACTOR
+
+    def within(group):
+        ratios = [p["ratio_rms"] for p in group if p["ratio_rms"] is not None]
+        return {"motors": len(group), "measured": len(ratios), "within_factor": sum(low <= r <= high for r in ratios),
+                "ratio_median": float(sorted(ratios)[len(ratios) // 2]) if ratios else None}
+    return {"factor": list(PREDICTION_FACTOR), "refused": within([p for p in predictions if p["refused"]]),
+            "all": within(predictions), "rows": predictions}
+
+
+def injection_summary(rows):
+    """Which injection the loops' rule chose (motors that ran), and the rated-load case on each injection: how many
+    motors ran it and how many within targets at exit 0 (issue 52 item 4)."""
+    chosen = Counter(row["injection"] for row in rows if row.get("injection"))
+    rated = {}
+    for name in INJECTIONS:
+        cases = [row["rated_load_by_injection"][name] for row in rows if name in row.get("rated_load_by_injection", {})]
+        rated[name] = {"motors": len(cases), "works": sum(c["exit_code"] == 0 and c["verdict"] == "within targets"
+                                                          for c in cases)}
+    return {"chosen": dict(chosen), "rated_load": rated}
+
+
 def summary(rows):
     """Counts per verdict, per class and verdict, refusals' and failures' reasons (numbers taken out:
     reason_kind; a failure by its first problem), and the refused motors issue 51 says must not be."""
@@ -140,7 +191,8 @@ def summary(rows):
             "failure_kinds": dict(Counter(reason_kind(r["problems"][0]) for r in rows
                                           if r["verdict"] == "failure").most_common()),
             "refused_at": dict(Counter(r["refused_at"] for r in refused)),
-            "refused_salient": [r["motor"] for r in refused if saliency_band(r["figures"]) == "≥ 1.3"]}
+            "refused_salient": [r["motor"] for r in refused if saliency_band(r["figures"]) == "≥ 1.3"],
+            "injection": injection_summary(rows), "prediction": prediction_summary(rows)}
 
 
 def random_bench_lines(report):
@@ -166,4 +218,18 @@ def random_bench_lines(report):
         lines += [f"| {reason} | {n} |" for reason, n in s[key].items()]
     lines += ["", f"refused although L_qh/L_dh ≥ {SALIENT_RATIO} (issue 51 says they must not be): "
                   f"{len(s['refused_salient'])} ({', '.join(s['refused_salient']) or 'none'})"]
+    injection = s["injection"]
+    lines += ["", "injection the loops' rule chose: " + (", ".join(f"{k} {n}" for k, n in injection["chosen"].items())
+                                                        or "none ran"),
+              "rated load within targets, each injection on the same motors: "
+              + ", ".join(f"{k} {v['works']} of {v['motors']}" for k, v in injection["rated_load"].items())]
+    prediction = s["prediction"]
+    low, high = prediction["factor"]
+    lines += ["", f"predicted against measured angle error RMS ({PREDICTION_CASE}), within {low:g}-{high:g}×: refused "
+                  f"motors run anyway {prediction['refused']['within_factor']} of {prediction['refused']['motors']}, "
+                  f"all {prediction['all']['within_factor']} of {prediction['all']['motors']}"]
+    lines += [f"  {p['motor']}{' (refused)' if p['refused'] else ''} {p['estimator']}: predicted "
+              f"{p['predicted_rms']:.4f} / {p['predicted_peak']:.3f}, measured "
+              + (f"{p['measured_rms']:.4f} / {p['measured_peak']:.3f} rad" if p["measured_rms"] is not None
+                 else f"none: run anyway, {p['lost']}") for p in prediction["rows"]]
     return lines

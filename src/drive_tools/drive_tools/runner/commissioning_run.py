@@ -121,7 +121,8 @@ def rotating_test_in_process(scenario, commissioning_file, progress=None):
     still = Table((0.0,), (0.0,), "step")
     test = dataclasses.replace(
         scenario, motor=dataclasses.replace(scenario.motor, nameplate=tuned), estimator="injection_frame",
-        estimator_settings={}, duration_s=DURATION_S, mode="speed_control",
+        estimator_settings={"run_refused": True} if scenario.estimator_settings.get("run_refused") else {},
+        duration_s=DURATION_S, mode="speed_control",
         speed=Table(tuple(t for t, _ in profile), tuple(RPM * v for _, v in profile), "linear"), load=still,
         torque_feedforward=None, brake=False, initial_omega_m_rad_s=0.0, commissioning=str(commissioning_file),
         controller=controller, block_samples=1, answer_periods=0)
@@ -169,7 +170,8 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
         profile = torque_profile(top, 1.5 * plate.n_p * plate.psi_f_Wb)
         test = dataclasses.replace(
             shaft_held(scenario, DURATION_S), estimator="injection_frame",
-            estimator_settings=scenario.estimator_settings if ours else {}, commissioning=str(commissioning_file),
+            estimator_settings={k: v for k, v in scenario.estimator_settings.items() if k != "injection_by_rule"}
+            if ours else {}, commissioning=str(commissioning_file),
             controller={**scenario.controller, "speed_bandwidth_rad_s": SPEED_BANDWIDTH_RAD_S},
             torque_feedforward=Table(tuple(t for t, _ in profile), tuple(v for _, v in profile), "linear"))
         result = run_scenario(test, progress, chunk_samples=TEST_CHUNK_SAMPLES)
