@@ -119,9 +119,14 @@ def check_settings(settings, T_s):
 
 class CommissioningProcedure:
     """The procedure for a motor known by its ``nameplate`` (drive_common.motor.nameplate.Nameplate) on an
-    inverter ``rating`` (InverterRating), sampled every T_s [s]. ``step(k, m_a, m_b, m_c)`` takes the
-    measured phase currents of sample k [A] and returns the command (u_α, u_β) [V] for the period
-    after it; ``total_samples`` is the procedure's length; ``result()`` the identified record."""
+    inverter ``rating`` (InverterRating), sampled every T_s [s]. Its current loop (current_bandwidth_Hz, ω) is a
+    PI with both closed-loop poles at −ω (gain 2ωL − R on the measurement, integral ω²L, the nameplate's mean L
+    and R_s): a voltage the loop does not know (the dead-time voltage, many times R_s·I on a high-voltage bus)
+    is rejected in a few 1/ω whatever L/R, so each DC point is steady when measured; on the reference it acts
+    with ωL only, so the reference still reaches the current as ω/(s + ω), without overshoot.
+    ``step(k, m_a, m_b, m_c)`` takes the measured phase currents of sample k [A] and returns the command
+    (u_α, u_β) [V] for the period after it; ``total_samples`` is the procedure's length; ``result()`` the
+    identified record."""
 
     def __init__(self, nameplate, rating, T_s, settings=None):
         s = check_settings(settings, T_s)
@@ -131,7 +136,8 @@ class CommissioningProcedure:
         omega_h = 2.0 * math.pi / (self.N * T_s)
         nominal_V = s["hf_current_fraction"] * nameplate.rated_current_A * omega_h * L_mean
         w = 2.0 * math.pi * s["current_bandwidth_Hz"]
-        self.kp, self.ki = w * L_mean, w * nameplate.R_s_ohm * T_s
+        self.kp = max(2.0 * w * L_mean - nameplate.R_s_ohm, w * L_mean)
+        self.kp_reference, self.ki = w * L_mean, w * w * L_mean * T_s
         self.u_max = rating.U_dc_V / SQRT3
         self.delay = rating.delay_periods
         self.limit_A = nameplate.current_limit_A
@@ -318,7 +324,7 @@ class CommissioningProcedure:
             self.reference = self.ramp_from + ramp * (np.asarray(seg.i_ref_ab) - self.ramp_from)
             error = self.reference - _alpha_beta(self.corrected(self.raw[max(0, k - self.N + 1):k + 1].mean(axis=0)))
             self.integral += self.ki * error
-            u = self.kp * error + self.integral
+            u = self.kp * error - (self.kp - self.kp_reference) * self.reference + self.integral
             if seg.hf:
                 phase = 2.0 * math.pi * (k % self.N) / self.N
                 u = u + self.injection_amplitude_V * np.array([math.cos(phase), math.sin(phase)])

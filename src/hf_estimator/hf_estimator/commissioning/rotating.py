@@ -13,6 +13,12 @@ command, its measured currents, its angle and speed estimates. Plain numpy, once
 - J: over the step from the first speed to the second, the torque less friction, integrated, over the
   change of speed: J = ∫(τ̂ − τ_c − B·ω̂_m) dt / Δω̂_m (the speed averaged over END_AVERAGE_S at each end;
   the window ends once the speed has settled).
+
+The speed loop must be tuned on a J before J is known. The drive tunes its first pass on the nameplate's J,
+or where it gives none on the lightest rotor the rating allows (ASSUMED_RAMP_S: a heavier rotor only makes
+that loop and the polarity pulses softer, never unstable); from every pass it fits J to the torque it made
+and the speed it got (``inertia_from_log``) and runs again on that J until the J it tuned on and the one it
+measured agree within RETUNE_FACTOR (``next_inertia_kgm2``, at most PASSES passes).
 """
 import math
 
@@ -36,11 +42,22 @@ SETTLED_SHARE = 0.02
 window keeps the friction model's error out of J on a light rotor."""
 FOLLOW_TOLERANCE = 0.1
 """The test counts only where the drive tracked throughout and held each speed within this share."""
-ASSUMED_RAMP_S = 0.1
-"""Where the nameplate gives no J, the test tunes its speed loop for one that takes rated torque this long
-to reach rated speed, at ASSUMED_SPEED_BANDWIDTH_RAD_S (a soft loop; a rotor far heavier than assumed
-leaves it too soft to hold the test's speeds, and the test refuses)."""
+ASSUMED_RAMP_S = 0.003
+"""Where the nameplate gives no J, the first pass tunes the speed loop (and sizes the polarity pulses) for the
+lightest rotor the rating allows: one that rated torque takes to rated speed in this long (docs/random-motors.md:
+3 ms-3 s). On a heavier rotor that loop is slower and the pulses turn it less: it follows the profile late, but
+it never hunts, and the pass measures J for the next."""
 ASSUMED_SPEED_BANDWIDTH_RAD_S = 20.0
+PASSES = 4
+"""At most this many passes; each tuned on the J the one before measured."""
+RETUNE_FACTOR = 1.25
+"""A pass whose measured J lies within this factor of the J it was tuned on is the test's result; else the test
+runs again tuned on the J measured (a speed loop on a J off by more settles late, and its step's window takes
+friction's error into J)."""
+ESCALATION = 30.0
+"""Where a pass moved the rotor too little to measure J (less than MOVED_SHARE of the first speed), the next
+pass assumes a rotor this many times heavier."""
+MOVED_SHARE = 0.1
 RIPPLE_SHARE = 0.1
 """The speed, averaged over RIPPLE_AVERAGE_S, may swing by this share of a hold's speed (RMS): beyond, the
 loop hunts and the holds are not steady."""
@@ -117,6 +134,53 @@ def _check_followed(t, log, omega_m, rated_speed_rad_s, limit_A, saliency_ratio,
             raise RotatingTestError(f"the rotating test: the speed swung by {ripple:.3g} rad/s RMS about "
                                     f"{wanted:.3g} rad/s, more than {RIPPLE_SHARE:g} of it (the speed loop hunts; "
                                     f"{J}): ψ_f and J not measured")
+
+
+def _tracked_span(state):
+    """The samples of the longest run in which ours tracked (a boolean mask)."""
+    tracking = np.concatenate([[False], state == TRACKING, [False]])
+    edges = np.flatnonzero(np.diff(tracking.astype(int)))
+    starts, ends = edges[::2], edges[1::2]
+    mask = np.zeros(state.shape, dtype=bool)
+    if starts.size:
+        longest = int(np.argmax(ends - starts))
+        mask[starts[longest]:ends[longest]] = True
+    return mask
+
+
+def inertia_from_log(log, nameplate, T_s, psi_f_Wb=None):
+    """J [kg·m²] fitted to a pass's log (drive_common.contract.log columns) over the longest span ours tracked,
+    whatever the speed loop did there: the torque 1.5·n_p·(ψ_f·i_q + (L_d − L_q)·i_d·i_q) (``psi_f_Wb``, else
+    the nameplate's; its L_d, L_q) integrated equals J·(ω̂_m − ω̂_m(0)) + τ_c·t + B·∫ω̂_m dt + c, fitted by
+    least squares (integrated, the speed estimate's noise enters once, not differentiated). NaN where the
+    speed moved less than MOVED_SHARE of the first held speed (nothing to measure J by)."""
+    t, n_p = log[:, COLUMN["t"]], nameplate.n_p
+    psi_f_Wb = nameplate.psi_f_Wb if psi_f_Wb is None else psi_f_Wb
+    span = _tracked_span(log[:, COLUMN["state"]]) & (t >= RAMP_END_S * 0.2)
+    if np.count_nonzero(span) < 10:
+        return math.nan
+    i_d, i_q = log[span, COLUMN["i_d"]], log[span, COLUMN["i_q"]]
+    omega_m = log[span, COLUMN["omega_e_hat"]] / n_p
+    torque = 1.5 * n_p * (psi_f_Wb * i_q + (nameplate.L_d_H - nameplate.L_q_H) * i_d * i_q)
+    wanted = SPEEDS_PER_RATED[0] * nameplate.rated_speed_rpm * math.pi / 30.0
+    if np.ptp(omega_m) < MOVED_SHARE * wanted:
+        return math.nan
+    design = np.column_stack([omega_m - omega_m[0], t[span] - t[span][0], np.cumsum(omega_m) * T_s,
+                              np.ones_like(omega_m)])
+    (J, *_), *_ = np.linalg.lstsq(design, np.cumsum(torque) * T_s, rcond=None)
+    return float(J) if J > 0.0 else math.nan
+
+
+def next_inertia_kgm2(J_tuned_kgm2, J_measured_kgm2, last):
+    """The J the next pass tunes on, or None: the test is done (the pass's J within RETUNE_FACTOR of the one it
+    was tuned on, or the ``last`` pass). ``J_measured_kgm2``: the pass's J (NaN: not measurable, the next pass
+    assumes a rotor ESCALATION times heavier)."""
+    if last:
+        return None
+    if not math.isfinite(J_measured_kgm2):
+        return J_tuned_kgm2 * ESCALATION
+    ratio = J_measured_kgm2 / J_tuned_kgm2
+    return None if 1.0 / RETUNE_FACTOR <= ratio <= RETUNE_FACTOR else J_measured_kgm2
 
 
 def _settled_s(t, omega_m, target):
