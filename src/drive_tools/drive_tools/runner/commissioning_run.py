@@ -99,10 +99,15 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
 def rotating_test_in_process(scenario, commissioning_file, progress=None):
     """The rotating test (hf_estimator.commissioning.rotating) on the scenario's simulated plant, shaft free and
     unloaded: the drive, commissioned at standstill (``commissioning_file``), spins it through the test's
-    speed profile, pass after pass, each tuned on the J the one before measured (rotating.next_inertia_kgm2).
-    Returns (estimates, the plant's true ψ_f, J and B, the last pass's RunResult); RotatingTestError from the
-    last pass where it did not follow; Interrupted when a signal stopped it (after the chunk in progress)."""
-    from drive_common.motor.commissioning import resolve_commissioning
+    speed profile, pass after pass, each tuned on the J the one before measured (rotating.next_inertia_kgm2):
+    the drive is told that J by a pass's own commissioning record (the standstill one with J_kgm2), so the
+    plant, and a ``plant_deviation`` relative to the nameplate, stay what they are. Returns (estimates, the
+    plant's true ψ_f, J and B, the last pass's RunResult); RotatingTestError from the last pass where it did
+    not follow; Interrupted when a signal stopped it (after the chunk in progress)."""
+    import tempfile
+    from pathlib import Path
+
+    from drive_common.motor.commissioning import resolve_commissioning, save_commissioning
     from hf_estimator.commissioning.rotating import (
         PASSES,
         RotatingTestError,
@@ -110,35 +115,40 @@ def rotating_test_in_process(scenario, commissioning_file, progress=None):
         inertia_from_log,
         next_inertia_kgm2,
         rotating_estimates,
+        test_timing,
     )
 
     plate = scenario.motor.nameplate
     record = resolve_commissioning(plate, str(commissioning_file), "the standstill commissioning")
     J_tuned = plate.J_kgm2 if math.isfinite(plate.J_kgm2) else assumed_inertia_kgm2(plate)
-    for attempt in range(PASSES):
-        test = _rotating_pass(scenario, commissioning_file, J_tuned, assumed=attempt == 0 and
-                              not math.isfinite(plate.J_kgm2))
-        result = run_scenario_chunked(test, progress)
-        try:
-            estimates, refusal = rotating_estimates(result.log, plate, record, test.T_s,
-                                                    test.answer_delay_periods()), None
-            J_measured = estimates["J_kgm2"]
-        except RotatingTestError as error:
-            estimates, refusal = None, error
-            J_measured = inertia_from_log(result.log, plate, test.T_s)
-        J_next = next_inertia_kgm2(J_tuned, J_measured, attempt == PASSES - 1)
-        if J_next is None and refusal is None:
-            break
-        if J_next is None:
-            raise refusal
-        J_tuned = J_next
+    with tempfile.TemporaryDirectory(prefix="rotating_test_") as folder:
+        told = Path(folder) / f"{plate.name}.yaml"
+        for attempt in range(PASSES):
+            timing = test_timing(plate, J_tuned)
+            save_commissioning(told, record._replace(J_kgm2=J_tuned), plate.name, "the rotating test's pass")
+            test = _rotating_pass(scenario, told, timing, assumed=attempt == 0 and not math.isfinite(plate.J_kgm2))
+            result = run_scenario_chunked(test, progress)
+            try:
+                estimates, refusal = rotating_estimates(result.log, plate, record, test.T_s,
+                                                        test.answer_delay_periods(), timing[0]), None
+                J_measured = estimates["J_kgm2"]
+            except RotatingTestError as error:
+                estimates, refusal = None, error
+                J_measured = inertia_from_log(result.log, plate, test.T_s)
+            J_next = next_inertia_kgm2(J_tuned, J_measured, attempt == PASSES - 1)
+            if J_next is None and refusal is None:
+                break
+            if J_next is None:
+                raise refusal
+            J_tuned = J_next
     plant = plant_for_scenario(test)
     truth = {"psi_f_Wb": plant.machine.psi_f_Wb, "J_kgm2": plant.mechanics.J_kgm2, "B_Nms": plant.mechanics.B_Nms}
     return estimates, truth, result
 
 
-def _rotating_pass(scenario, commissioning_file, J_kgm2, assumed):
-    """The scenario of one rotating-test pass: the speed loop (and ours' loops) tuned on ``J_kgm2``, at
+def _rotating_pass(scenario, commissioning_file, timing, assumed):
+    """The scenario of one rotating-test pass on the record ``commissioning_file`` (its J tunes the speed loop
+    and ours' loops), its profile ``timing`` (rotating.test_timing): the speed loop at
     ASSUMED_SPEED_BANDWIDTH_RAD_S where that J is ``assumed``, else scaled to the motor. Ours runs where a run
     would be refused before it (its predicted error over a run's targets, a polarity the pulses may miss): the
     test checks what it measured itself (rotating._check_followed), and the free, unloaded shaft may turn."""
@@ -149,11 +159,10 @@ def _rotating_pass(scenario, commissioning_file, J_kgm2, assumed):
     controller = dict(scenario.controller)
     if assumed:
         controller.setdefault("speed_bandwidth_rad_s", ASSUMED_SPEED_BANDWIDTH_RAD_S)
-    profile = speed_profile(plate.rated_speed_rpm)
+    profile = speed_profile(plate.rated_speed_rpm, timing)
     return dataclasses.replace(
-        scenario, motor=dataclasses.replace(scenario.motor, nameplate=plate._replace(J_kgm2=J_kgm2)),
-        estimator="injection_frame", estimator_settings={"run_refused": True}, duration_s=DURATION_S,
-        mode="speed_control",
+        scenario, estimator="injection_frame", estimator_settings={"run_refused": True},
+        duration_s=timing[0] * DURATION_S, mode="speed_control",
         speed=Table(tuple(t for t, _ in profile), tuple(RPM * v for _, v in profile), "linear"),
         load=Table((0.0,), (0.0,), "step"), torque_feedforward=None, brake=False, initial_omega_m_rad_s=0.0,
         commissioning=str(commissioning_file), controller=controller, block_samples=1, answer_periods=0)

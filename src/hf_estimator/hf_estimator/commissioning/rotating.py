@@ -10,9 +10,14 @@ command, its measured currents, its angle and speed estimates. Plain numpy, once
   taken off; ψ_f is fitted over both holds (one slope through the origin).
 - B and a constant friction torque τ_c: the torque 1.5·n_p·(ψ̂_f·i_q + (L_d − L_q)·i_d·i_q) held at the
   two speeds.
-- J: over the step from the first speed to the second, the torque less friction, integrated, over the
-  change of speed: J = ∫(τ̂ − τ_c − B·ω̂_m) dt / Δω̂_m (the speed averaged over END_AVERAGE_S at each end;
-  the window ends once the speed has settled).
+- J: over the step up from the first speed to the second and the step back down, the torque less friction,
+  integrated, over the change of speed: J = (∫_up − ∫_down)(τ̂ − τ_c − B·ω̂_m) dt / (Δω̂_up − Δω̂_down), the
+  speed and the integral alike averaged over END_AVERAGE_S at each end (a speed averaged there paired with
+  the integral up to its midpoint leaves out the torque of the last half average: 3-15 % of J where the
+  speed still moves), each window as long as the step up took to settle. The
+  rotor crosses the same speeds both ways in windows of one length, so an error in the friction model
+  (τ_c exactly, B mostly) cancels between them: on a light rotor friction's integral over a window is as
+  large as J·Δω (J from the step up alone: 5-13 % off with the plant's true torque and speed).
 
 The speed loop must be tuned on a J before J is known. The drive tunes its first pass on the nameplate's J,
 or where it gives none on the lightest rotor the rating allows (ASSUMED_RAMP_S: a heavier rotor only makes
@@ -31,11 +36,12 @@ from drive_common.math.current_sensing import corrected_currents
 from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
 from drive_common.motor.commissioning import WEAK_SALIENCY_RATIO
 
-SPEEDS_PER_RATED = (0.05, 0.10)
+SPEEDS_PER_RATED = (0.1, 0.2)
 """The two held speeds, per rated speed: where ours tracks (docs/results.md) and the back-EMF stands
 clear of the dead-time voltage."""
-RAMP_END_S, STEP_S, DURATION_S = 0.25, 0.6, 1.0
-HOLD_WINDOWS_S = ((0.35, 0.6), (0.8, 1.0))
+RAMP_END_S, STEP_S, STEP_DOWN_S, DURATION_S = 0.25, 0.6, 1.0, 1.4
+HOLD_WINDOWS_S = ((0.35, 0.6), (0.8, 1.0), (1.2, 1.4))
+HOLD_SPEEDS_PER_RATED = (SPEEDS_PER_RATED[0], SPEEDS_PER_RATED[1], SPEEDS_PER_RATED[0])
 END_AVERAGE_S = 0.02
 SETTLED_SHARE = 0.02
 """The step ends where the speed stays within this share of the second hold's for END_AVERAGE_S: a short
@@ -68,15 +74,37 @@ class RotatingTestError(DriveError):
     """The drive did not follow the rotating test's profile: nothing is measured."""
 
 
-def speed_profile(rated_speed_rpm):
-    """The test's speed reference: [[t_s, rpm], ...] (linear), from rest."""
+def speed_profile(rated_speed_rpm, timing=(1.0, 0.0)):
+    """The test's speed reference: [[t_s, rpm], ...] (linear), from rest; ``timing``: (its times' stretch, each
+    step's ramp [s]) of test_timing."""
+    stretch, ramp_s = timing
     low, high = (share * rated_speed_rpm for share in SPEEDS_PER_RATED)
-    return [[0.0, 0.0], [0.05, 0.0], [RAMP_END_S, low], [STEP_S, low], [STEP_S, high], [DURATION_S, high]]
+    points = [[0.0, 0.0], [0.05, 0.0], [RAMP_END_S, low], [STEP_S, low]]
+    points = [[stretch * t, v] for t, v in points]
+    up, down = stretch * STEP_S, stretch * STEP_DOWN_S
+    return points + [[up + ramp_s, high], [down, high], [down + ramp_s, low], [stretch * DURATION_S, low]]
+
+
+STEP_TIME_S = 0.1
+"""A speed step of the test may take this long at the base timing (half the time to the next hold)."""
+STEP_TORQUE_PER_RATED = 0.5
+"""A step's reference ramps at the rate this share of rated torque gives the rotor: the speed loop then asks
+for about it, not for the current limit, and the acceleration stays one ours' loops follow (they are scaled
+to a rated-torque step, drive_common.motor.scaled_loops)."""
 
 
 def assumed_inertia_kgm2(nameplate):
-    """J for tuning the test's speed loop where the nameplate has none (ASSUMED_RAMP_S)."""
+    """J for tuning the test's first pass where the nameplate has none (ASSUMED_RAMP_S)."""
     return nameplate.rated_torque_Nm * ASSUMED_RAMP_S / (nameplate.rated_speed_rpm * math.pi / 30.0)
+
+
+def test_timing(nameplate, J_kgm2):
+    """(stretch ≥ 1, ramp [s]) of a pass on a rotor of inertia ``J_kgm2``: each step of SPEEDS_PER_RATED[0] ×
+    rated speed ramps at STEP_TORQUE_PER_RATED of rated torque, and where that ramp takes longer than
+    STEP_TIME_S the whole profile is stretched to give it that room (a heavy rotor's test is longer)."""
+    step = SPEEDS_PER_RATED[0] * nameplate.rated_speed_rpm * math.pi / 30.0
+    ramp_s = J_kgm2 * step / (STEP_TORQUE_PER_RATED * nameplate.rated_torque_Nm)
+    return max(1.0, ramp_s / STEP_TIME_S), ramp_s
 
 
 AT_LIMIT_SHARE = 0.95
@@ -94,9 +122,9 @@ def _why_lost(t, log, limit_A, saliency_ratio):
     """The measured cause of ours losing track in the rotating test, with its figure."""
     state = log[:, COLUMN["state"]]
     first = int(np.argmax((t >= HOLD_WINDOWS_S[0][0]) & (state != TRACKING)))
-    before = (t >= t[first] - 0.05) & (t <= t[first])
+    before = (t >= t[first] - 0.05 * t[1] / log[1, COLUMN["t"]]) & (t <= t[first])
     peak, at_limit = _current_at(log[:, COLUMN["i_q_ref"]], before, limit_A)
-    where = f"at {t[first]:.3f} s, ω̂ {log[first, COLUMN['omega_e_hat']]:.3g} rad/s el."
+    where = f"at {log[first, COLUMN['t']]:.3f} s, ω̂ {log[first, COLUMN['omega_e_hat']]:.3g} rad/s el."
     if at_limit:
         return f"{where}, the q current at its limit ({peak:.3g} of {limit_A:.3g} A): a load on the shaft"
     if saliency_ratio < WEAK_SALIENCY_RATIO:
@@ -116,7 +144,7 @@ def _check_followed(t, log, omega_m, rated_speed_rad_s, limit_A, saliency_ratio,
         raise RotatingTestError(f"the rotating test: the estimator stopped tracking for {lost:.0f} % of the test "
                                 f"({_why_lost(t, log, limit_A, saliency_ratio)}): ψ_f and J not measured")
     per = max(1, int(round(RIPPLE_AVERAGE_S / (t[1] - t[0]))))
-    for (a, b), share in zip(HOLD_WINDOWS_S, SPEEDS_PER_RATED):
+    for (a, b), share in zip(HOLD_WINDOWS_S, HOLD_SPEEDS_PER_RATED):
         window = (t >= a) & (t < b)
         hold = omega_m[window]
         held, wanted = float(np.mean(hold)), share * rated_speed_rad_s
@@ -129,8 +157,8 @@ def _check_followed(t, log, omega_m, rated_speed_rad_s, limit_A, saliency_ratio,
                                     f"was asked ({cause}): ψ_f and J not measured")
         ripple = float(np.std(hold[:len(hold) // per * per].reshape(-1, per).mean(axis=1)))
         if ripple > RIPPLE_SHARE * wanted:
-            J = ("J assumed (the nameplate gives none): give J_kgm2 roughly" if J_assumed else
-                 "the nameplate's J_kgm2 far from the rotor's?")
+            J = ("J assumed (the nameplate gives none)" if J_assumed else
+                 "J the nameplate's or measured by the pass before")
             raise RotatingTestError(f"the rotating test: the speed swung by {ripple:.3g} rad/s RMS about "
                                     f"{wanted:.3g} rad/s, more than {RIPPLE_SHARE:g} of it (the speed loop hunts; "
                                     f"{J}): ψ_f and J not measured")
@@ -199,11 +227,12 @@ def _settled_s(t, omega_m, target):
     return HOLD_WINDOWS_S[1][0]
 
 
-def rotating_estimates(log, nameplate, commissioning, T_s, delay_periods):
+def rotating_estimates(log, nameplate, commissioning, T_s, delay_periods, stretch=1.0):
     """{psi_f_Wb, J_kgm2, B_Nms, friction_Nm, speeds_rad_s} from the test's log (drive_common.contract.log
     columns), the drive's ``nameplate`` (L_d, L_q, n_p) and ``commissioning`` record (R_s, dead time,
-    sensor calibration), sampled every ``T_s`` with the controller's ``delay_periods``."""
-    t = log[:, COLUMN["t"]]
+    sensor calibration), sampled every ``T_s`` with the controller's ``delay_periods``, its profile
+    ``stretch`` times the base timing (its windows read on t / stretch)."""
+    t = log[:, COLUMN["t"]] / stretch
     n_p = nameplate.n_p
     omega_e = log[:, COLUMN["omega_e_hat"]]
     limit = min(nameplate.current_limit_A, commissioning.tracking_current_limit_A())
@@ -226,14 +255,17 @@ def rotating_estimates(log, nameplate, commissioning, T_s, delay_periods):
     torque = 1.5 * n_p * (psi_f * i_q + (nameplate.L_d_H - nameplate.L_q_H) * i_d * i_q)
     held = np.array([np.mean(torque[w]) for w in holds])
     speeds_m = speeds_e / n_p
-    B = float((held[1] - held[0]) / (speeds_m[1] - speeds_m[0]))
-    friction = float(held[0] - B * speeds_m[0])
+    (B, friction), *_ = np.linalg.lstsq(np.column_stack([speeds_m, np.ones_like(speeds_m)]), held, rcond=None)
+    B, friction = float(B), float(friction)
     omega_m = omega_e / n_p
-    a, b = STEP_S - END_AVERAGE_S, _settled_s(t, omega_m, speeds_m[1]) + END_AVERAGE_S
-    step = (t >= a) & (t < b)
-    start = (t >= a) & (t < STEP_S)
-    end = (t >= b - END_AVERAGE_S) & (t < b)
-    gained = float(np.mean(omega_m[end]) - np.mean(omega_m[start]))
-    J = float(np.sum(torque[step] - friction - B * omega_m[step]) * T_s / gained)
+    length = _settled_s(t, omega_m, speeds_m[1]) + END_AVERAGE_S - STEP_S
+    accelerating = np.cumsum(torque - friction - B * omega_m) * T_s
+    impulse, gained = [], []
+    for at in (STEP_S, STEP_DOWN_S):
+        start = (t >= at - END_AVERAGE_S) & (t < at)
+        end = (t >= at + length - END_AVERAGE_S) & (t < at + length)
+        gained.append(float(np.mean(omega_m[end]) - np.mean(omega_m[start])))
+        impulse.append(float(np.mean(accelerating[end]) - np.mean(accelerating[start])))
+    J = (impulse[0] - impulse[1]) / (gained[0] - gained[1])
     return {"psi_f_Wb": psi_f, "J_kgm2": J, "B_Nms": B, "friction_Nm": friction,
             "speeds_rad_s": [float(w) for w in speeds_m]}
