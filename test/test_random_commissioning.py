@@ -2,7 +2,7 @@
 (HF saliency L_qh/L_dh or its inverse ≥ 1.3) is commissioned, not refused, and what commissioning measures
 (R_s, L_dh, L_qh; ψ_f and J by the rotating test where the nameplate gives no J) lies within 10 % of the
 plant's truth. The motors are those the draw gives, not chosen: the salient ones among the first DRAWN of
-seed SEED; one that does not yet hold is marked with its measured cause (strict: fixed, it must be unmarked)."""
+seed SEED."""
 import math
 
 import pytest
@@ -16,8 +16,6 @@ from drive_tools.evaluation.random_motors import draw_motors, write_motor_files
 from drive_tools.runner.commissioning_run import commission_in_process, rotating_test_in_process
 
 SEED, DRAWN = 3, 16
-KNOWN = {6: "J +10.9 % by the rotating test's step window (30 pole pairs, light rotor): the step's friction model"}
-"""Motors of the draw where a statement does not hold yet, with the measured cause."""
 
 
 def _salient(motor):
@@ -28,8 +26,7 @@ def _salient(motor):
 MOTORS = [i for i, motor in enumerate(draw_motors(DRAWN, SEED)) if _salient(motor)]
 
 
-@pytest.mark.parametrize("index", [pytest.param(i, marks=pytest.mark.xfail(reason=KNOWN[i], strict=True))
-                                   if i in KNOWN else i for i in MOTORS])
+@pytest.mark.parametrize("index", MOTORS)
 def test_a_salient_drawn_motor_is_commissioned_within_ten_percent(index, tmp_path):
     """Standstill commissioning, then the rotating test where the nameplate gives no J: no refusal, and every
     value measured within IDENTIFICATION_TOLERANCE (10 %) of the plant's truth."""

@@ -109,6 +109,7 @@ def rotating_test_in_process(scenario, commissioning_file, progress=None):
 
     from drive_common.motor.commissioning import resolve_commissioning, save_commissioning
     from hf_estimator.commissioning.rotating import (
+        HEAVIEST_RAMP_S,
         PASSES,
         RotatingTestError,
         assumed_inertia_kgm2,
@@ -135,7 +136,8 @@ def rotating_test_in_process(scenario, commissioning_file, progress=None):
             except RotatingTestError as error:
                 estimates, refusal = None, error
                 J_measured = inertia_from_log(result.log, plate, test.T_s)
-            J_next = next_inertia_kgm2(J_tuned, J_measured, attempt == PASSES - 1)
+            J_next = next_inertia_kgm2(J_tuned, J_measured, attempt == PASSES - 1,
+                                       assumed_inertia_kgm2(plate, HEAVIEST_RAMP_S))
             if J_next is None and refusal is None:
                 break
             if J_next is None:

@@ -61,9 +61,14 @@ RETUNE_FACTOR = 1.25
 runs again tuned on the J measured (a speed loop on a J off by more settles late, and its step's window takes
 friction's error into J)."""
 ESCALATION = 30.0
-"""Where a pass moved the rotor too little to measure J (less than MOVED_SHARE of the first speed), the next
-pass assumes a rotor this many times heavier."""
+"""Where a pass tracked but moved the rotor too little to measure J (less than MOVED_SHARE of the first speed),
+the next pass assumes a rotor this many times heavier, up to HEAVIEST_RAMP_S."""
 MOVED_SHARE = 0.1
+HEAVIEST_RAMP_S = 10.0
+"""The heaviest rotor the test serves: rated torque takes it to rated speed in this long (its profile then
+stretched to about 28 s); a pass tuned on it that still does not move the rotor ends the test."""
+TRACKED_SHARE = 0.5
+"""A pass in which ours tracked less than this share of the test teaches nothing of J: the test ends."""
 RIPPLE_SHARE = 0.1
 """The speed, averaged over RIPPLE_AVERAGE_S, may swing by this share of a hold's speed (RMS): beyond, the
 loop hunts and the holds are not steady."""
@@ -93,9 +98,10 @@ for about it, not for the current limit, and the acceleration stays one ours' lo
 to a rated-torque step, drive_common.motor.scaled_loops)."""
 
 
-def assumed_inertia_kgm2(nameplate):
-    """J for tuning the test's first pass where the nameplate has none (ASSUMED_RAMP_S)."""
-    return nameplate.rated_torque_Nm * ASSUMED_RAMP_S / (nameplate.rated_speed_rpm * math.pi / 30.0)
+def assumed_inertia_kgm2(nameplate, ramp_s=ASSUMED_RAMP_S):
+    """J [kg·m²] of a rotor that rated torque takes to rated speed in ``ramp_s``: the first pass's where the
+    nameplate has none (ASSUMED_RAMP_S), the heaviest the test serves (HEAVIEST_RAMP_S)."""
+    return nameplate.rated_torque_Nm * ramp_s / (nameplate.rated_speed_rpm * math.pi / 30.0)
 
 
 def test_timing(nameplate, J_kgm2):
@@ -181,12 +187,13 @@ def inertia_from_log(log, nameplate, T_s, psi_f_Wb=None):
     whatever the speed loop did there: the torque 1.5·n_p·(ψ_f·i_q + (L_d − L_q)·i_d·i_q) (``psi_f_Wb``, else
     the nameplate's; its L_d, L_q) integrated equals J·(ω̂_m − ω̂_m(0)) + τ_c·t + B·∫ω̂_m dt + c, fitted by
     least squares (integrated, the speed estimate's noise enters once, not differentiated). NaN where the
-    speed moved less than MOVED_SHARE of the first held speed (nothing to measure J by)."""
+    speed moved less than MOVED_SHARE of the first held speed (nothing to measure J by), None where ours
+    tracked less than TRACKED_SHARE of the test (no J would make it track)."""
     t, n_p = log[:, COLUMN["t"]], nameplate.n_p
     psi_f_Wb = nameplate.psi_f_Wb if psi_f_Wb is None else psi_f_Wb
     span = _tracked_span(log[:, COLUMN["state"]]) & (t >= RAMP_END_S * 0.2)
-    if np.count_nonzero(span) < 10:
-        return math.nan
+    if np.count_nonzero(span) < TRACKED_SHARE * t.size:
+        return None
     i_d, i_q = log[span, COLUMN["i_d"]], log[span, COLUMN["i_q"]]
     omega_m = log[span, COLUMN["omega_e_hat"]] / n_p
     torque = 1.5 * n_p * (psi_f_Wb * i_q + (nameplate.L_d_H - nameplate.L_q_H) * i_d * i_q)
@@ -199,14 +206,15 @@ def inertia_from_log(log, nameplate, T_s, psi_f_Wb=None):
     return float(J) if J > 0.0 else math.nan
 
 
-def next_inertia_kgm2(J_tuned_kgm2, J_measured_kgm2, last):
+def next_inertia_kgm2(J_tuned_kgm2, J_measured_kgm2, last, heaviest_kgm2=math.inf):
     """The J the next pass tunes on, or None: the test is done (the pass's J within RETUNE_FACTOR of the one it
-    was tuned on, or the ``last`` pass). ``J_measured_kgm2``: the pass's J (NaN: not measurable, the next pass
-    assumes a rotor ESCALATION times heavier)."""
-    if last:
+    was tuned on, the ``last`` pass, or a pass that taught nothing of J). ``J_measured_kgm2``: the pass's J
+    (None: ours did not track; NaN: the rotor did not move, the next pass assumes one ESCALATION times heavier,
+    up to ``heaviest_kgm2``)."""
+    if last or J_measured_kgm2 is None:
         return None
     if not math.isfinite(J_measured_kgm2):
-        return J_tuned_kgm2 * ESCALATION
+        return None if J_tuned_kgm2 >= heaviest_kgm2 else min(J_tuned_kgm2 * ESCALATION, heaviest_kgm2)
     ratio = J_measured_kgm2 / J_tuned_kgm2
     return None if 1.0 / RETUNE_FACTOR <= ratio <= RETUNE_FACTOR else J_measured_kgm2
 
