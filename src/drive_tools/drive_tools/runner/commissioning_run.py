@@ -127,7 +127,7 @@ def rotating_test_in_process(scenario, commissioning_file, progress=None):
         for attempt in range(PASSES):
             timing = test_timing(plate, J_tuned)
             save_commissioning(told, record._replace(J_kgm2=J_tuned), plate.name, "the rotating test's pass")
-            test = _rotating_pass(scenario, told, timing, assumed=attempt == 0 and not math.isfinite(plate.J_kgm2))
+            test = _rotating_pass(scenario, told, timing)
             result = run_scenario_chunked(test, progress)
             try:
                 estimates, refusal = rotating_estimates(result.log, plate, record, test.T_s,
@@ -148,19 +148,18 @@ def rotating_test_in_process(scenario, commissioning_file, progress=None):
     return estimates, truth, result
 
 
-def _rotating_pass(scenario, commissioning_file, timing, assumed):
+def _rotating_pass(scenario, commissioning_file, timing):
     """The scenario of one rotating-test pass on the record ``commissioning_file`` (its J tunes the speed loop
     and ours' loops), its profile ``timing`` (rotating.test_timing): the speed loop at
-    ASSUMED_SPEED_BANDWIDTH_RAD_S where that J is ``assumed``, else scaled to the motor. Ours runs where a run
+    TEST_SPEED_BANDWIDTH_RAD_S unless the scenario sets it (the test needs no stiffness). Ours runs where a run
     would be refused before it (its predicted error over a run's targets, a polarity the pulses may miss): the
     test checks what it measured itself (rotating._check_followed), and the free, unloaded shaft may turn."""
     from drive_common.config.experiment import RPM, Table
-    from hf_estimator.commissioning.rotating import ASSUMED_SPEED_BANDWIDTH_RAD_S, DURATION_S, speed_profile
+    from hf_estimator.commissioning.rotating import DURATION_S, TEST_SPEED_BANDWIDTH_RAD_S, speed_profile
 
     plate = scenario.motor.nameplate
     controller = dict(scenario.controller)
-    if assumed:
-        controller.setdefault("speed_bandwidth_rad_s", ASSUMED_SPEED_BANDWIDTH_RAD_S)
+    controller.setdefault("speed_bandwidth_rad_s", TEST_SPEED_BANDWIDTH_RAD_S)
     profile = speed_profile(plate.rated_speed_rpm, timing)
     return dataclasses.replace(
         scenario, estimator="injection_frame", estimator_settings={"run_refused": True},

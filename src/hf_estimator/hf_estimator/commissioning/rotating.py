@@ -53,7 +53,9 @@ ASSUMED_RAMP_S = 0.003
 lightest rotor the rating allows: one that rated torque takes to rated speed in this long (docs/random-motors.md:
 3 ms-3 s). On a heavier rotor that loop is slower and the pulses turn it less: it follows the profile late, but
 it never hunts, and the pass measures J for the next."""
-ASSUMED_SPEED_BANDWIDTH_RAD_S = 20.0
+TEST_SPEED_BANDWIDTH_RAD_S = 20.0
+"""The speed loop's bandwidth in every pass: soft, for the test needs no stiffness (the loop scaled to the motor,
+on the J measured, hunted on a 22 pole-pair rotor: ω̂ swung by 14 % of the hold's speed)."""
 PASSES = 4
 """At most this many passes; each tuned on the J the one before measured."""
 RETUNE_FACTOR = 1.25
@@ -163,8 +165,8 @@ def _check_followed(t, log, omega_m, rated_speed_rad_s, limit_A, saliency_ratio,
                                     f"was asked ({cause}): ψ_f and J not measured")
         ripple = float(np.std(hold[:len(hold) // per * per].reshape(-1, per).mean(axis=1)))
         if ripple > RIPPLE_SHARE * wanted:
-            J = ("J assumed (the nameplate gives none)" if J_assumed else
-                 "J the nameplate's or measured by the pass before")
+            J = ("tuned on the J the pass before measured, the first pass on the lightest rotor the rating "
+                 "allows" if J_assumed else "tuned on the J the pass before measured, the first on the nameplate's")
             raise RotatingTestError(f"the rotating test: the speed swung by {ripple:.3g} rad/s RMS about "
                                     f"{wanted:.3g} rad/s, more than {RIPPLE_SHARE:g} of it (the speed loop hunts; "
                                     f"{J}): ψ_f and J not measured")
