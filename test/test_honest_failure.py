@@ -271,17 +271,19 @@ def test_every_exit_says_its_one_reason_and_no_text_claims_success(tmp_path):
 
 
 def test_a_later_test_refused_still_reports_what_was_written(tmp_path):
-    """The rotating test on a shaft with 50× the nameplate's inertia cannot hold its speeds: `drive commission
-    --rotating --json` exits 2, its JSON names the file written with the standstill test and the rotating
-    test refused with its measured cause; the file holds the standstill test only."""
+    """The rotating test on a shaft a brake drags (viscous, 0.15 N·m·s: at the test's first speed, 15.7 rad/s,
+    twice the torque the current limit makes) cannot hold its speeds: `drive commission --rotating --json`
+    exits 2, its JSON names the file written with the standstill test and the rotating test refused with its
+    measured cause (the q current at its limit: a load or a brake); the file holds the standstill test only."""
     text = (Path(__file__).parent.parent / "docs" / "motors" / "robot_joint_10pp.yaml").read_text()
-    heavy = _file(tmp_path, "heavy.yaml", text.replace("plant:\n", "plant:\n  J_kgm2: 3.0e-3\n", 1))
+    heavy = _file(tmp_path, "dragged.yaml", text.replace("plant:\n", "plant:\n  B_Nms: 0.15\n", 1))
     done = _drive(["commission", "wang_100rpm", "--motor", str(heavy), "--out", "c.yaml", "--rotating", "--json"],
                   tmp_path)
     assert done.returncode == EXIT_REFUSED, done.stderr
     report = json.loads(done.stdout)
     assert report["written"].endswith("c.yaml") and report["tests_completed"] == ["standstill"]
     assert report["refused"]["test"] == "rotating" and "ψ_f and J not measured" in report["refused"]["reason"]
+    assert "a load or a brake on the shaft" in report["refused"]["reason"], report["refused"]["reason"]
     (reason,) = _reasons(done.stderr)
     assert reason == f"drive: {report['refused']['reason']}"
     assert "tests_completed:\n  - standstill\n" in (tmp_path / "c.yaml").read_text()

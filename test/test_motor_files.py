@@ -347,16 +347,19 @@ def test_the_rotating_test_measures_what_the_nameplate_leaves_out_or_gets_wrong(
     assert m["startup"]["polarity_correct"] and m["angle_error_rms"] < 0.03
 
 
-def test_the_rotating_test_refuses_where_the_drive_did_not_follow(joint, tmp_path):
-    """A shaft coupled to 50× the inertia its nameplate says: the speed loop tuned for the nameplate cannot
-    hold the test's speeds, and the test says so instead of measuring."""
+def test_the_rotating_test_measures_a_rotor_far_heavier_than_its_nameplate(joint):
+    """A shaft coupled to 50× the inertia its nameplate says: the first pass, tuned on the nameplate's J, does
+    not hold the test's speeds; it measures J from the torque it made and the speed it got, and the next pass,
+    tuned on that, measures ψ_f within 2 % and J within 10 % of the plant's (the rotating test in passes,
+    docs/commissioning.md §5b)."""
     from drive_tools.runner.commissioning_run import rotating_test_in_process
-    from hf_estimator.commissioning.rotating import RotatingTestError
     motor, commissioning = joint
     heavy = dataclasses.replace(experiment(motor, commissioning), plant_deviation={
         **experiment(motor, commissioning).plant_deviation, "J": 50.0})
-    with pytest.raises(RotatingTestError, match="ψ_f and J not measured"):
-        rotating_test_in_process(heavy, commissioning)
+    estimates, truth, _ = rotating_test_in_process(heavy, commissioning)
+    assert truth["J_kgm2"] == pytest.approx(50.0 * load_motor(motor).nameplate.J_kgm2, rel=1e-9)
+    assert estimates["psi_f_Wb"] == pytest.approx(truth["psi_f_Wb"], rel=0.02)
+    assert estimates["J_kgm2"] == pytest.approx(truth["J_kgm2"], rel=0.10)
 
 
 def test_ours_takes_a_type_3_loop_where_acceleration_sets_its_bandwidth_and_the_signal_allows(joint):

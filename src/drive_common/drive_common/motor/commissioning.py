@@ -35,9 +35,12 @@ WEAK_SALIENCY_RATIO = 0.05
 SALIENCY_RETAINED = 0.5
 """Sensorless operation also keeps the current where the saliency |Δ|/Σ keeps half its no-load strength:
 the q axis saturating under load can take a weak saliency away (the angle noise grows as 1/|Δ|)."""
-INDUCTANCE_TOLERANCE = 1.3
+INDUCTANCE_TOLERANCE = 2.0
 """A commissioned HF inductance more than this factor off its nameplate value contradicts the motor (a file
-measured on another motor, or a nameplate in the wrong unit): the drive refuses it."""
+measured on another motor, or a nameplate in the wrong unit): the drive refuses it. Not tighter: the
+commissioned inductance is incremental at no load, the nameplate's apparent; a surface magnet's saturation
+alone lowers the incremental L_d by up to a quarter, and a datasheet's L is often 10-20 % off (0.7 × the
+nameplate's is a sound motor, docs/random-motors.md)."""
 RESISTANCE_TOLERANCE = 2.0
 """Likewise R_s, with room for temperature (copper: +40 % from 20 °C to 120 °C)."""
 NAMEPLATE_ONLY = "nameplate"

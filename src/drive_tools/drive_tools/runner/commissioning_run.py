@@ -99,41 +99,84 @@ def commission_through_bridge(scenario, link="pty", settings=None, progress=None
 def rotating_test_in_process(scenario, commissioning_file, progress=None):
     """The rotating test (hf_estimator.commissioning.rotating) on the scenario's simulated plant, shaft free and
     unloaded: the drive, commissioned at standstill (``commissioning_file``), spins it through the test's
-    speed profile. Returns (estimates, the plant's true ψ_f, J and B, the RunResult); Interrupted when a
-    signal stopped it (after the chunk in progress)."""
-    from drive_common.config.experiment import RPM, Table
-    from drive_common.motor.commissioning import resolve_commissioning
-    from drive_tools.runner.runner import run_scenario
+    speed profile, pass after pass, each tuned on the J the one before measured (rotating.next_inertia_kgm2):
+    the drive is told that J by a pass's own commissioning record (the standstill one with J_kgm2), so the
+    plant, and a ``plant_deviation`` relative to the nameplate, stay what they are. Returns (estimates, the
+    plant's true ψ_f, J and B, the last pass's RunResult); RotatingTestError from the last pass where it did
+    not follow; Interrupted when a signal stopped it (after the chunk in progress)."""
+    import tempfile
+    from pathlib import Path
+
+    from drive_common.motor.commissioning import resolve_commissioning, save_commissioning
     from hf_estimator.commissioning.rotating import (
-        ASSUMED_SPEED_BANDWIDTH_RAD_S,
-        DURATION_S,
+        HEAVIEST_RAMP_S,
+        PASSES,
+        RotatingTestError,
         assumed_inertia_kgm2,
+        inertia_from_log,
+        next_inertia_kgm2,
         rotating_estimates,
-        speed_profile,
+        test_timing,
     )
 
     plate = scenario.motor.nameplate
-    tuned, controller = plate, dict(scenario.controller)
-    if not math.isfinite(plate.J_kgm2):
-        tuned = plate._replace(J_kgm2=assumed_inertia_kgm2(plate))
-        controller.setdefault("speed_bandwidth_rad_s", ASSUMED_SPEED_BANDWIDTH_RAD_S)
-    profile = speed_profile(plate.rated_speed_rpm)
-    still = Table((0.0,), (0.0,), "step")
-    test = dataclasses.replace(
-        scenario, motor=dataclasses.replace(scenario.motor, nameplate=tuned), estimator="injection_frame",
-        estimator_settings={"run_refused": True} if scenario.estimator_settings.get("run_refused") else {},
-        duration_s=DURATION_S, mode="speed_control",
-        speed=Table(tuple(t for t, _ in profile), tuple(RPM * v for _, v in profile), "linear"), load=still,
-        torque_feedforward=None, brake=False, initial_omega_m_rad_s=0.0, commissioning=str(commissioning_file),
-        controller=controller, block_samples=1, answer_periods=0)
-    result = run_scenario(test, progress, chunk_samples=TEST_CHUNK_SAMPLES)
-    if result.interrupted:
-        raise Interrupted(result.interrupted)
     record = resolve_commissioning(plate, str(commissioning_file), "the standstill commissioning")
-    estimates = rotating_estimates(result.log, plate, record, test.T_s, test.answer_delay_periods())
+    J_tuned = plate.J_kgm2 if math.isfinite(plate.J_kgm2) else assumed_inertia_kgm2(plate)
+    with tempfile.TemporaryDirectory(prefix="rotating_test_") as folder:
+        told = Path(folder) / f"{plate.name}.yaml"
+        for attempt in range(PASSES):
+            timing = test_timing(plate, J_tuned)
+            save_commissioning(told, record._replace(J_kgm2=J_tuned), plate.name, "the rotating test's pass")
+            test = _rotating_pass(scenario, told, timing)
+            result = run_scenario_chunked(test, progress)
+            try:
+                estimates, refusal = rotating_estimates(result.log, plate, record, test.T_s,
+                                                        test.answer_delay_periods(), timing[0]), None
+                J_measured = estimates["J_kgm2"]
+            except RotatingTestError as error:
+                estimates, refusal = None, error
+                J_measured = inertia_from_log(result.log, plate, test.T_s)
+            J_next = next_inertia_kgm2(J_tuned, J_measured, attempt == PASSES - 1,
+                                       assumed_inertia_kgm2(plate, HEAVIEST_RAMP_S))
+            if J_next is None and refusal is None:
+                break
+            if J_next is None:
+                raise refusal
+            J_tuned = J_next
     plant = plant_for_scenario(test)
     truth = {"psi_f_Wb": plant.machine.psi_f_Wb, "J_kgm2": plant.mechanics.J_kgm2, "B_Nms": plant.mechanics.B_Nms}
     return estimates, truth, result
+
+
+def _rotating_pass(scenario, commissioning_file, timing):
+    """The scenario of one rotating-test pass on the record ``commissioning_file`` (its J tunes the speed loop
+    and ours' loops), its profile ``timing`` (rotating.test_timing): the speed loop at
+    TEST_SPEED_BANDWIDTH_RAD_S unless the scenario sets it (the test needs no stiffness). Ours runs where a run
+    would be refused before it (its predicted error over a run's targets, a polarity the pulses may miss): the
+    test checks what it measured itself (rotating._check_followed), and the free, unloaded shaft may turn."""
+    from drive_common.config.experiment import RPM, Table
+    from hf_estimator.commissioning.rotating import DURATION_S, TEST_SPEED_BANDWIDTH_RAD_S, speed_profile
+
+    plate = scenario.motor.nameplate
+    controller = dict(scenario.controller)
+    controller.setdefault("speed_bandwidth_rad_s", TEST_SPEED_BANDWIDTH_RAD_S)
+    profile = speed_profile(plate.rated_speed_rpm, timing)
+    return dataclasses.replace(
+        scenario, estimator="injection_frame", estimator_settings={"run_refused": True},
+        duration_s=timing[0] * DURATION_S, mode="speed_control",
+        speed=Table(tuple(t for t, _ in profile), tuple(RPM * v for _, v in profile), "linear"),
+        load=Table((0.0,), (0.0,), "step"), torque_feedforward=None, brake=False, initial_omega_m_rad_s=0.0,
+        commissioning=str(commissioning_file), controller=controller, block_samples=1, answer_periods=0)
+
+
+def run_scenario_chunked(scenario, progress=None):
+    """run_scenario in TEST_CHUNK_SAMPLES chunks; Interrupted when a signal stopped it."""
+    from drive_tools.runner.runner import run_scenario
+
+    result = run_scenario(scenario, progress, chunk_samples=TEST_CHUNK_SAMPLES)
+    if result.interrupted:
+        raise Interrupted(result.interrupted)
+    return result
 
 
 def loaded_test_in_process(scenario, commissioning_file, progress=None):
