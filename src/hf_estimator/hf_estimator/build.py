@@ -92,6 +92,13 @@ def predicted_error(estimator, commissioning):
     return rms, PEAK_PER_RMS * rms, current
 
 
+def refusable(name):
+    """Whether the estimator ``name`` may refuse a motor or a scenario before running and takes the setting
+    ``run_refused`` (`drive run --force`): the injecting ones (their predicted error, the polarity) and the
+    I-f start (its speed)."""
+    return injects(name) or name == OPEN_LOOP_ESTIMATOR
+
+
 def refused_signal(estimator, commissioning, run_refused):
     """What the drive says of the predicted angle error ("" within the targets): beyond TARGET_RMS_RAD or
     TARGET_PEAK_RAD, ValueError in one line (the predicted error, the target, the saliency figure) unless

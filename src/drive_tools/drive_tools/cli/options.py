@@ -14,7 +14,7 @@ from drive_common.contract.errors import DriveError
 from drive_common.contract.exit_codes import EXIT_REFUSED
 from drive_common.contract.strict_json import dumps
 from drive_common.runtime.realtime import ROBOT_RT_PRIORITY
-from hf_estimator.interface import injects
+from hf_estimator.build import refusable
 from hf_estimator.registry import estimator_names, known_estimator
 
 from .outcome import exit_code as exit_code  # the commands share it from here
@@ -163,7 +163,7 @@ def scenario_arg(args):
         scenario = dataclasses.replace(scenario, duration_s=args.duration)
     if args.commissioning:
         scenario = dataclasses.replace(scenario, commissioning=args.commissioning)
-    if getattr(args, "force", False) and injects(scenario.estimator):
+    if getattr(args, "force", False) and refusable(scenario.estimator):
         scenario = dataclasses.replace(scenario, estimator_settings={**scenario.estimator_settings,
                                                                      "run_refused": True})
     blocks = getattr(args, "block_samples", None)
