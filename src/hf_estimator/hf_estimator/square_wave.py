@@ -365,13 +365,18 @@ def _checked(settings, T_s):
     ``frequency_Hz`` (a recording's, in replay) sets the half-period: m = round(f_s/(2·f_h)), at least 1."""
     rule_set = {name: settings.get(name) for name in ("amplitude_V", "pll_bandwidth_Hz")}
     given = {name: value for name, value in settings.items() if not (name in rule_set and value is None)}
-    s = check_settings("square_wave", given, {**DEFAULTS, "amplitude_V": 1.0, "pll_bandwidth_Hz": MIN_TRACKING_HZ,
-                                              "frequency_Hz": MIN_TRACKING_HZ}, T_s)
     if "frequency_Hz" in given:
         if "samples_per_half_period" in given:
             raise ValueError("estimator 'square_wave': frequency_Hz and samples_per_half_period both set the carrier: "
                              "give one")
-        s["samples_per_half_period"] = max(1, int(round(0.5 / (s["frequency_Hz"] * T_s))))
+        f_h = given.pop("frequency_Hz")
+        nyquist = 0.5 / T_s
+        if isinstance(f_h, bool) or not isinstance(f_h, (int, float)) or not 0.0 < f_h <= nyquist * (1.0 + 1e-9):
+            raise ValueError(f"estimator 'square_wave': frequency_Hz: must lie in (0, {nyquist:g}] (up to f_s/2, "
+                             f"the square wave's own carrier), not {f_h!r} [Hz]")
+        given["samples_per_half_period"] = max(1, int(round(nyquist / f_h)))
+    s = check_settings("square_wave", given, {**DEFAULTS, "amplitude_V": 1.0, "pll_bandwidth_Hz": MIN_TRACKING_HZ},
+                       T_s)
     for name, value in rule_set.items():
         if value is None:
             s[name] = None
