@@ -52,16 +52,24 @@ class BridgeRunResult(RunResult):
     """Per answered sample: the host's time from the telemetry's arrival to its command written."""
     timing: dict = None
     """How the host kept pace with the inverter (drive_tools.doubles.inverter_timing.timing_report)."""
+    scheduling: dict = None
+    """The compiled answer's thread: the real-time scheduling applied and refused (None: the answer in Python)."""
 
 
-def run_through_bridge(scenario, link="pty", options=None, progress=None, inverter=VirtualInverter):
+def run_through_bridge(scenario, link="pty", options=None, progress=None, inverter=VirtualInverter, answer=None):
     """Run ``scenario`` with its plant behind a virtual inverter on ``link`` ('pty', 'can') and the bridge
     (with blocks, at the protocol's answer delay: ``behind_an_inverter``); ``options`` (InverterOptions,
     None: lock-step): the inverter's clock and wait; ``inverter``: the double to run behind (a class or factory
-    called as VirtualInverter: a faulty one of drive_tools.doubles.faults for the tests). The garbage
-    collector is held off during the loop (``collector_held``)."""
+    called as VirtualInverter: a faulty one of drive_tools.doubles.faults for the tests); ``answer``
+    (compiled_answer.AnswerOptions; None: the answer in Python, the reference): the answer compiled whole, off
+    the interpreter's lock, on a serial link ('pty'). The garbage collector is held off during the loop
+    (``collector_held``)."""
     scenario = behind_an_inverter(scenario, MAX_BLOCK)
+    if answer is not None and link != "pty":
+        raise ValueError(f"the compiled answer runs on a serial link ('pty'), not {link!r}")
     with virtual_inverter_link(scenario, link, options, inverter) as (virtual, bridge):
+        if answer is not None:
+            return _run_compiled(scenario, link, virtual, bridge, (progress, answer))
         return _run(scenario, link, virtual, bridge, progress)
 
 
@@ -158,6 +166,67 @@ def _run(scenario, link, inverter, bridge, progress):
                            latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
                            host_s=host_s[:done][received[:done]],
                            timing=timing_report(inverter, scenario.T_s, bridge.written_at))
+
+
+def _run_compiled(scenario, link, inverter, bridge, progress_and_options):
+    """The host's loop compiled whole (compiled_answer.CompiledAnswer): the same answer as ``_run``, its
+    samples recorded from the ring; ``ring_overflow`` counts those the ring had no room for."""
+    from .compiled_answer import CompiledAnswer
+    progress, answer_options = progress_and_options
+    host = build_drive(scenario)
+    n = scenario.n_samples
+    delay = scenario.drive_delay_periods()
+    line = command_line(delay)
+    log = np.zeros((n, len(LOG_COLUMNS)))
+    received = np.zeros(n, dtype=bool)
+    host_s = np.zeros(n)
+    bridge.poll(0.0)
+    answer = CompiledAnswer(host, bridge, line, (n, delay), answer_options)
+    reported = [0]
+
+    def take(k, seconds, row):
+        log[k], host_s[k], received[k] = row, seconds, True
+        if progress and k - reported[0] >= n // 100:
+            reported[0] = k
+            progress(k / n)
+
+    start = time.perf_counter()
+    interrupted = 0
+    try:
+        with collector_held():
+            inverter.start()
+            answer.start(take)
+            while answer.alive():
+                checkpoint()
+                if not inverter.is_alive():
+                    answer.drain_then_stop()
+                answer.answering.join(0.05)
+    except Interrupted as stop:
+        interrupted = stop.signum
+        answer.stop()
+    inverter.stop()
+    answer.stop()
+    answer.join(5.0)
+    inverter.join(2.0)
+    wall = time.perf_counter() - start
+    if progress and not interrupted:
+        progress(1.0)
+    truth = inverter.truth
+    done = inverter.k
+    log = log[:done]
+    for column, name in enumerate(("theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c")):
+        log[:, COLUMN[name]] = truth[:done, column]
+    log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
+    e, cp = host.estimator, host.controller
+    return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
+                           e.facts(), protection=protection_summary(host.protection_x, host.protection),
+                           injection=contract_injection(e.facts(), scenario.injection), link=link,
+                           counters={**bridge.counters, "ring_overflow": answer.overflow},
+                           frame_errors=bridge.frame_errors(), inverter_counters=dict(inverter.counters),
+                           latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
+                           host_s=host_s[:done][received[:done]],
+                           timing=timing_report(inverter, scenario.T_s, bridge.written_at),
+                           scheduling=answer.scheduling)
 
 
 def protect(host, currents, n, k_last, u_dc_V, omega_e_hat, cx, px):
