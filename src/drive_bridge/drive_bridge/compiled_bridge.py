@@ -12,8 +12,8 @@ import numpy as np
 from numba import njit
 
 from . import frame_codec as fc
-from .compiled_io import io_scratch, monotonic_s, read_into, wait_readable, write_all
 from .compiled_io import ieee_remainder as remainder
+from .compiled_io import io_scratch, monotonic_s, read_into, wait_readable, write_all
 from .inverter_protocol import (
     CLEARED_BY_HOST,
     CONTROL_CLEAR_FAULTS,

@@ -1,8 +1,9 @@
 """The C library's calls a compiled answer needs on the link, as ctypes function pointers that numba calls in
 nopython mode without the interpreter's lock: read, write and poll on the link's file descriptor,
 clock_gettime (CLOCK_MONOTONIC, the clock of Python's time.monotonic) and the C library's IEEE remainder
-(math.remainder's value: both exact). Buffer addresses are passed as size_t (``array.ctypes.data``). Kernels calling them are not cached on disk
-(numba cannot cache a ctypes pointer); they compile with the loop that calls them."""
+(math.remainder's value: both exact). Buffer addresses are passed as size_t (``array.ctypes.data``). Kernels
+calling them are not cached on disk (numba cannot cache a ctypes pointer); they compile with the loop that
+calls them."""
 import ctypes
 import ctypes.util
 

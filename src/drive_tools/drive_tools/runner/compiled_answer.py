@@ -182,9 +182,10 @@ class CompiledAnswer:
     hands each sample's row to ``take(k, host_s, log_row)``; ``stop``; ``join``. The answer thread runs the
     compiled loop, and between its calls reconnects a failed link as InverterBridge does."""
 
-    def __init__(self, drive, bridge, line, run_samples, options=AnswerOptions()):
+    def __init__(self, drive, bridge, line, run_samples, options=None):
         n_samples, delay = run_samples
-        self.bridge, self.options = bridge, options
+        self.bridge, self.options = bridge, options or AnswerOptions()
+        options = self.options
         self.step = drive.estimator.step
         self.host = host_core(drive, line, bridge.block_samples)
         self.run = np.zeros(6, dtype=np.int64)
