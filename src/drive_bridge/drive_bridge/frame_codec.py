@@ -79,27 +79,32 @@ def cobs_decode(data, n, out, where):
 
 @njit(cache=True, nogil=True)
 def u16(data, at):
+    """The u16 at byte ``at`` (little-endian)."""
     return np.int64(data[at]) | np.int64(data[at + 1]) << 8
 
 
 @njit(cache=True, nogil=True)
 def i16(data, at):
+    """The i16 at byte ``at`` (little-endian, two's complement)."""
     value = u16(data, at)
     return value - 65536 if value >= 32768 else value
 
 
 @njit(cache=True, nogil=True)
 def u32(data, at):
+    """The u32 at byte ``at`` (little-endian)."""
     return u16(data, at) | u16(data, at + 2) << 16
 
 
 @njit(cache=True, nogil=True)
 def put_u16(data, at, value):
+    """``value``'s low 16 bits at byte ``at`` (little-endian)."""
     data[at], data[at + 1] = value & 0xFF, (value >> 8) & 0xFF
 
 
 @njit(cache=True, nogil=True)
 def put_u32(data, at, value):
+    """``value``'s low 32 bits at byte ``at`` (little-endian)."""
     put_u16(data, at, value & 0xFFFF)
     put_u16(data, at + 2, (value >> 16) & 0xFFFF)
 

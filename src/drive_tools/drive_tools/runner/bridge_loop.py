@@ -3,13 +3,11 @@ thread behind a pseudo-terminal or a CAN bus, the bridge core, and the estimator
 answering each telemetry frame (with blocks of N samples, each TELEMETRY_BLOCK by the block kernels and
 one COMMAND_BLOCK). For tests, `drive bridge` and `drive bench bridge`."""
 import contextlib
-import math
 import tempfile
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from drive_bridge.inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from drive_bridge.inverter_protocol import MAX_BLOCK
@@ -31,11 +29,8 @@ from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block, pro
 from hf_estimator.block import estimator_block
 from hf_estimator.interface import contract_injection
 
-from .loop import write_row
+from .answer_kernels import fill_inputs, issue_and_log
 from .runner import build_drive, cut
-
-NO_TRUTH = (0.0,) * 7
-"""The plant's truth in a log row the host writes: it knows none (the inverter's truth fills it after the run)."""
 
 
 @dataclass
@@ -238,28 +233,6 @@ def protect(host, currents, n, k_last, u_dc_V, omega_e_hat, cx, px):
     if px[TRIPPED]:
         return False, int(px[SAFE_STATE])
     return True, safe_state_for(omega_e_hat, u_dc_V, host.protection.psi_f_Wb)
-
-
-@njit(cache=True)
-def fill_inputs(inputs, currents, theta_m, n_p, speed_ref, tau_feedforward, k0, n):
-    """Samples k0 … k0 + n − 1 of a telemetry block into ``inputs`` (DRIVE_INPUT records): the measured
-    ``currents`` (n × 3) [A], the encoder's mechanical ``theta_m`` [rad] as electrical (NaN: none, 0) and
-    the schedule's speed reference [rad/s] and torque feed-forward [N·m] of each sample."""
-    for i in range(n):
-        s = inputs[i]
-        s.i_a_A, s.i_b_A, s.i_c_A = currents[i, 0], currents[i, 1], currents[i, 2]
-        s.theta_e_encoder_rad = 0.0 if math.isnan(theta_m[i]) else n_p * theta_m[i]
-        s.omega_e_encoder_rad_s = 0.0
-        s.omega_m_ref_rad_s, s.tau_feedforward_Nm = speed_ref[k0 + i], tau_feedforward[k0 + i]
-
-
-@njit(cache=True)
-def issue_and_log(line, rows, k0, n, T_s, inputs, estimates, commands):
-    """The commands of samples k0 … k0 + n − 1 into the delay ``line`` and the samples into ``rows``
-    (LOG_COLUMNS) from their records (DRIVE_INPUT, ESTIMATE, COMMAND); T_s [s] the sample period."""
-    for i in range(n):
-        issue_command(line, k0 + i, commands[i].u_alpha_V, commands[i].u_beta_V)
-        write_row(rows[i], (k0 + i) * T_s, NO_TRUTH, inputs[i], estimates[i], commands[i])
 
 
 class _HostAnswer:

@@ -26,7 +26,7 @@ from foc_controller.control import controller_block
 from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block
 from hf_estimator.block import EstimatorCore, estimator_block
 
-from .bridge_loop import fill_inputs, issue_and_log
+from .answer_kernels import fill_inputs, issue_and_log
 
 RING_K, RING_HOST_S, RING_LOG = 0, 1, 2
 """A ring row: the sample k, the host's time from its telemetry read to its command written [s], then its
@@ -68,11 +68,13 @@ class HostCore(NamedTuple):
 
 
 @njit(nogil=True, _nrt=False)
-def answer_block(step, h, b, run, k0, n, u_dc_V, status, arrived, ring):
-    """Block k0 … k0 + n − 1 (accepted into ``h.received_*``) as bridge_loop's host answers it: the commands of
+def answer_block(step, h, b, run, block, ring):
+    """Block k0 … k0 + n − 1 (``block``: k0, n, the bus [V], the status, when it was read [s]; its samples
+    accepted into ``h.received_*``) as bridge_loop's host answers it: the commands of
     samples never received and of periods run at zero volts are zero in the delay line; a whole block (its
     first sample a multiple of N; N samples, or the run's last ones) is answered by the block kernels and one
     command message, then each sample goes into ``ring`` (rows, indices). False when the link failed."""
+    k0, n, u_dc_V, status, arrived = block
     n_total, delay, N = run[N_SAMPLES], run[DELAY], h.currents.shape[0]
     if k0 >= n_total:
         return True
@@ -141,7 +143,7 @@ def answer_loop(step, h, b, run, ring):
             k0 = cb.accept_telemetry(b, seq, n, u_dc, status, h.received_currents, h.received_theta)
             if k0 < 0:
                 continue
-            if not answer_block(step, h, b, run, k0, n, u_dc * b.state[cb.VOLTAGE_LSB], status, arrived, ring):
+            if not answer_block(step, h, b, run, (k0, n, u_dc * b.state[cb.VOLTAGE_LSB], status, arrived), ring):
                 cb.keep_unframed(b, start)
                 return cb.LINK_DOWN
             if run[LAST_ANSWERED] == run[N_SAMPLES] - 1:
