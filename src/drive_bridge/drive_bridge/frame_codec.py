@@ -220,3 +220,40 @@ def frame_wire(raw, m, wire):
     length = cobs_encode(raw, m + 2, wire)
     wire[length] = 0
     return length + 1
+
+
+@njit(cache=True, nogil=True)
+def message_wire(kind, head, entries, n, wire):
+    """The serial wire bytes of a TELEMETRY, TELEMETRY_BLOCK, COMMAND, COMMAND_BLOCK or CONTROL into ``wire``
+    in one call: ``head`` (int64) its seq and (telemetry) u_dc and status, (commands) flags, (CONTROL) the
+    action first; ``entries`` (n × 4 or n × 2, int64) its samples. Their length, or −1 for a field out of
+    its integer type's range."""
+    width = 4 if kind == TELEMETRY or kind == TELEMETRY_BLOCK else 2
+    for i in range(n if kind != CONTROL else 0):
+        for j in range(width):
+            low, high = (0, 65535) if j == 3 else (-32768, 32767)
+            if not low <= entries[i, j] <= high:
+                return -1
+    raw = np.empty(MAX_FRAME + 2, dtype=np.uint8)
+    if kind == CONTROL:
+        m = write_control(head[0], raw)
+    elif width == 4:
+        m = write_telemetry(head[0], head[1], head[2], entries, n, kind == TELEMETRY_BLOCK, raw)
+    else:
+        m = write_command(head[0], head[1], entries, n, kind == COMMAND_BLOCK, raw)
+    return frame_wire(raw, m, wire)
+
+
+@njit(cache=True, nogil=True)
+def read_frame(data, n, raw, entries, where):
+    """The bytes between two delimiters ``data[:n]`` COBS-decoded into ``raw`` and checked in one call:
+    (the payload's length or cobs_decode's −1/−2, check_frame's verdict, and for a telemetry frame its seq,
+    u_dc, status and sample count, the counts in ``entries``; zeros otherwise)."""
+    m = cobs_decode(data, n, raw, where)
+    if m < 0:
+        return m, FRAME_FRAMING, 0, 0, 0, 0
+    check = check_frame(raw, m)
+    if check != FRAME_OK or (raw[1] != TELEMETRY and raw[1] != TELEMETRY_BLOCK):
+        return m, check, 0, 0, 0, 0
+    seq, u_dc, status, count = read_telemetry(raw, entries)
+    return m, check, seq, u_dc, status, count

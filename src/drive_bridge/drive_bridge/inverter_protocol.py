@@ -197,36 +197,65 @@ def _check_ranges(*arrays_and_bounds):
 
 
 def encode_frame(message):
-    """The serial wire bytes of one message: COBS(version, type, body, CRC16 LE) + 0x00 (frame_codec)."""
+    """The serial wire bytes of one message: COBS(version, type, body, CRC16 LE) + 0x00 (frame_codec; the
+    messages the compiled answer writes or reads in one kernel call, frame_codec.message_wire)."""
+    kind = TYPE_OF[type(message)]
+    wire = np.empty(frame_codec.WIRE_BYTES, dtype=np.uint8)
+    if kind in (TELEMETRY, TELEMETRY_BLOCK, COMMAND, COMMAND_BLOCK, CONTROL):
+        if kind == TELEMETRY:
+            head, entries = (message.seq, message.u_dc, message.status), [(message.i_a, message.i_b, message.i_c,
+                                                                           message.encoder)]
+        elif kind == COMMAND:
+            head, entries = (message.seq, message.flags), [(message.u_alpha, message.u_beta)]
+        elif kind == CONTROL:
+            head, entries = (message.action,), [(0, 0)]
+        else:
+            if not 1 <= len(message.samples) <= MAX_BLOCK:
+                raise ValueError(f"a block carries 1 to {MAX_BLOCK} samples, not {len(message.samples)}")
+            head = (message.seq, message.u_dc, message.status) if kind == TELEMETRY_BLOCK else (message.seq,
+                                                                                                message.flags)
+            entries = message.samples
+        length = frame_codec.message_wire(kind, np.array(head, dtype=np.int64), np.array(entries, dtype=np.int64),
+                                          len(entries), wire)
+        if length < 0:
+            raise struct.error(f"a field of {message!r} out of its integer type's range")
+        return wire[:length].tobytes()
     payload = pack(message)
     raw = np.zeros(len(payload) + 2, dtype=np.uint8)
     raw[:len(payload)] = np.frombuffer(payload, dtype=np.uint8)
-    wire = np.empty(frame_codec.WIRE_BYTES, dtype=np.uint8)
     return wire[:frame_codec.frame_wire(raw, len(payload), wire)].tobytes()
 
 
 def decode_frame(encoded):
     """A message from the bytes between two delimiters; FrameError naming the check that failed
-    (frame_codec.check_frame; telemetry read by frame_codec.read_telemetry)."""
-    raw = cobs_decode(encoded)
-    data = np.frombuffer(raw, dtype=np.uint8)
-    check = frame_codec.check_frame(data, len(data)) if 4 <= len(raw) <= MAX_FRAME else frame_codec.FRAME_FRAMING
-    if check == frame_codec.FRAME_FRAMING and not 4 <= len(raw) <= MAX_FRAME:
-        raise FrameError("framing", f"frame of {len(raw)} bytes (4 to {MAX_FRAME} allowed)")
-    payload, (crc,) = raw[:-2], struct.unpack("<H", raw[-2:])
+    (frame_codec.read_frame: COBS, the checks and a telemetry frame's fields in one kernel call)."""
+    data = _bytes_array(encoded)
+    raw, where = np.empty(max(len(data), 4), dtype=np.uint8), np.zeros(2, dtype=np.int64)
+    entries = np.empty((MAX_BLOCK, 4), dtype=np.int64)
+    m, check, seq, u_dc, status, count = frame_codec.read_frame(data, len(data), raw, entries, where)
+    if m == -1:
+        raise FrameError("framing", f"COBS block of {where[0]} at byte {where[1]} overruns the frame")
+    if m == -2:
+        raise FrameError("framing", "0x00 inside a COBS frame")
+    if not 4 <= m <= MAX_FRAME:
+        raise FrameError("framing", f"frame of {m} bytes (4 to {MAX_FRAME} allowed)")
+    payload, (crc,) = raw[:m - 2].tobytes(), struct.unpack("<H", raw[m - 2:m].tobytes())
     if check == frame_codec.FRAME_CRC:
         raise FrameError("crc", f"CRC {crc:#06x}, computed {crc16(payload):#06x}")
     if check == frame_codec.FRAME_VERSION:
         raise FrameError("version", f"protocol version {payload[0]}, this host speaks {VERSION}")
     if check == frame_codec.FRAME_UNKNOWN_TYPE:
         raise FrameError("unknown_type", f"message type {payload[1]:#04x}")
+    if check == frame_codec.FRAME_OK and payload[1] == TELEMETRY_BLOCK:
+        return TelemetryBlock(seq, u_dc, status, tuple(map(tuple, entries[:count].tolist())))
+    if check == frame_codec.FRAME_OK and payload[1] == TELEMETRY:
+        i_a, i_b, i_c, encoder = entries[0].tolist()
+        return Telemetry(seq, i_a, i_b, i_c, u_dc, encoder, status)
     if payload[1] in BLOCK_LAYOUTS:
         return _decode_block(payload)
     cls, body = LAYOUTS[payload[1]]
     if len(payload) - 2 != body.size:
         raise FrameError("framing", f"{cls.__name__} body of {len(payload) - 2} bytes, expected {body.size}")
-    if payload[1] == TELEMETRY:
-        return _telemetry(data, False)
     return cls(*body.unpack(payload[2:]))
 
 
