@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from drive_common.config.scenario import load_scenario
+from drive_common.runtime.realtime import ROBOT_RT_PRIORITY
 from drive_tools.doubles.faults import FaultPlan, faulty
 from drive_tools.runner.bridge_loop import run_through_bridge
 from drive_tools.runner.compiled_answer import AnswerOptions
@@ -26,12 +27,14 @@ def same_run(python, compiled):
     assert python.inverter_counters == compiled.inverter_counters
 
 
-@pytest.mark.parametrize("block_samples", [1, 10])
-def test_the_compiled_answer_gives_the_python_answers_samples_to_the_bit(block_samples):
+@pytest.mark.parametrize("block_samples, priority", [(1, 0), (10, ROBOT_RT_PRIORITY)])
+def test_the_compiled_answer_gives_the_python_answers_samples_to_the_bit(block_samples, priority):
+    """Also with its thread at SCHED_FIFO where the machine allows it (else one statement says why not)."""
     scenario = dataclasses.replace(SCENARIO, block_samples=block_samples)
     python = run_through_bridge(scenario, "pty")
-    compiled = run_through_bridge(scenario, "pty", answer=AnswerOptions())
+    compiled = run_through_bridge(scenario, "pty", answer=AnswerOptions(priority=priority))
     same_run(python, compiled)
+    assert len(compiled.scheduling["applied"] + compiled.scheduling["refused"]) == (1 if priority else 0)
     assert compiled.received.all() and compiled.counters["ring_overflow"] == 0
     assert compiled.log.shape[0] == scenario.n_samples
 
