@@ -6,7 +6,6 @@ machine allows it). What it produced (per sample: k, the host's time, the log ro
 lock-free ring (drive_common.runtime.sample_ring) that a thread that is not real-time reads: the recording
 waits for nothing and a full ring is counted, never silent. Reconnecting, HELLO's requests and the reports
 stay in Python, between calls of the compiled loop. A serial link (a UART, USB CDC, a pty) only."""
-import contextlib
 import os
 import threading
 import time
@@ -272,11 +271,12 @@ class CompiledAnswer:
         return self.answering.is_alive()
 
     def join(self, timeout_s=None):
-        """Wait for both threads; the answer thread's exception, if it died of one, raised here."""
-        with contextlib.suppress(RuntimeError):
-            self.answering.join(timeout_s)
-        if self.reading is not None:
-            self.reading.join(timeout_s)
+        """Wait up to ``timeout_s`` for the answer thread to end, then for the reader to have handed over every
+        row (it ends once the answer thread has and the ring is empty); the answer thread's exception, if it
+        died of one, raised here."""
+        self.answering.join(timeout_s)
+        if self.reading is not None and not self.answering.is_alive():
+            self.reading.join()
         if self.error is not None:
             raise self.error
 
