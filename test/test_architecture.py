@@ -206,7 +206,8 @@ def test_the_bridge_package_holds_only_the_inverter_link():
     its node, on the library alone: the virtual inverter that stands in for a real one lives with the test
     doubles (drive_tools.doubles)."""
     names = {p.stem for p in (SRC / "drive_bridge" / "drive_bridge").glob("*.py")}
-    assert names == {"__init__", "inverter_protocol", "inverter_link", "can_cable", "inverter_bridge", "bridge_node"}
+    assert names == {"__init__", "inverter_protocol", "frame_codec", "inverter_link", "can_cable", "compiled_io",
+                     "inverter_bridge", "compiled_bridge", "bridge_node"}
     assert package_graph()["drive_bridge"] == {LIBRARY}
 
 

@@ -279,3 +279,30 @@ def test_the_real_time_benchs_lines_show_a_run_without_a_figure_as_a_question_ma
     from drive_tools.evaluation.bench import figures
     runs = [{"answer_p99_us": 812.4}, {"answer_p99_us": None}]
     assert figures(runs, "answer_p99_us") == "812, ?"
+
+
+def test_the_sample_ring_hands_over_every_row_in_order_and_counts_what_a_full_ring_drops():
+    """A random interleaving of writes and reads (seeded): the rows read are the rows written that found room,
+    in order, none twice; a write to a full ring is dropped and counted, never blocking; written = read +
+    dropped + left in the ring."""
+    from drive_common.runtime.sample_ring import HEAD, OVERFLOW, TAIL, drain, free_slot, publish, sample_ring
+    rng = np.random.default_rng(7)
+    ring = sample_ring(16, 3)
+    accepted, read, value = [], [], 0
+    out = np.zeros((5, 3))
+    for _ in range(2000):
+        if rng.random() < 0.8:
+            slot = free_slot(ring.rows, ring.indices)
+            if slot >= 0:
+                ring.rows[slot] = value, -value, 2 * value
+                publish(ring.indices)
+                accepted.append(value)
+            value += 1
+        else:
+            count = drain(ring.rows, ring.indices, out)
+            read.extend(out[:count, 0].astype(int).tolist())
+            rows = out[:count]
+            assert np.array_equal(rows[:, 1], -rows[:, 0]) and np.array_equal(rows[:, 2], 2 * rows[:, 0])
+    head, tail, dropped = ring.indices[HEAD], ring.indices[TAIL], ring.indices[OVERFLOW]
+    assert read == accepted[:len(read)] and dropped > 0
+    assert value == head + dropped and head - tail == len(accepted) - len(read) <= 16

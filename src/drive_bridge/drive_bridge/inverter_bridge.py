@@ -186,6 +186,14 @@ class InverterBridge:
             done.append(block)
         return done
 
+    def reopen(self):
+        """Open the link again (after ``link_down``) and ask for HELLO; without effect until it opens."""
+        self._open()
+
+    def link_down(self, reason):
+        """The link failed (``reason``): counted, reopened after ``reconnect_s``."""
+        self._link_down(reason)
+
     def _open(self):
         try:
             self.link.open()

@@ -1,20 +1,24 @@
 """Inverter wire protocol, version 2 (docs/inverter-protocol.md): messages (per sample, and blocks of
 samples), the serial framing (COBS + CRC-16/CCITT-FALSE, 0x00-delimited), the classic-CAN mapping and
-blocks on CAN FD. Pure Python, no I/O."""
-import binascii
+blocks on CAN FD. No I/O; the serial framing and the telemetry and command bodies are frame_codec's kernels."""
 import dataclasses
 import struct
 from dataclasses import dataclass
 
-VERSION = 2
-MAX_BLOCK = 30
+import numpy as np
+
+from . import frame_codec
+
+VERSION = frame_codec.VERSION
+MAX_BLOCK = frame_codec.MAX_BLOCK
 """Most samples in one TELEMETRY_BLOCK or COMMAND_BLOCK (the largest frame then fits one COBS run)."""
-MAX_FRAME = 253
+MAX_FRAME = frame_codec.MAX_FRAME
 """Largest decoded frame (version, type, body, CRC) a receiver accepts [bytes]: a TELEMETRY_BLOCK of
 MAX_BLOCK samples."""
 
-TELEMETRY, HELLO, TELEMETRY_BLOCK = 0x01, 0x02, 0x03
-COMMAND, CONTROL, HEARTBEAT, COMMAND_BLOCK = 0x10, 0x11, 0x12, 0x13
+TELEMETRY, HELLO, TELEMETRY_BLOCK = frame_codec.TELEMETRY, frame_codec.HELLO, frame_codec.TELEMETRY_BLOCK
+COMMAND, CONTROL, HEARTBEAT, COMMAND_BLOCK = (frame_codec.COMMAND, frame_codec.CONTROL, frame_codec.HEARTBEAT,
+                                              frame_codec.COMMAND_BLOCK)
 CONTROL_DISABLE, CONTROL_CLEAR_FAULTS, CONTROL_SEND_HELLO = 1, 2, 3
 ENABLE = 0x01
 SAFE_STATE_SHIFT, SAFE_STATE_MASK = 1, 0x06
@@ -131,89 +135,138 @@ class FrameError(ValueError):
 
 
 def crc16(data):
-    """CRC-16/CCITT-FALSE: polynomial 0x1021, initial 0xFFFF, no reflection, no final XOR."""
-    return binascii.crc_hqx(data, 0xFFFF)
+    """CRC-16/CCITT-FALSE: polynomial 0x1021, initial 0xFFFF, no reflection, no final XOR
+    (frame_codec.crc16)."""
+    data = _bytes_array(data)
+    return int(frame_codec.crc16(data, len(data)))
+
+
+def _bytes_array(data):
+    return np.frombuffer(bytes(data), dtype=np.uint8)
 
 
 def cobs_encode(data):
-    """COBS: the bytes without any 0x00 (the frame delimiter is not included)."""
-    if len(data) < 254:
-        return b"".join(bytes((len(part) + 1,)) + part for part in bytes(data).split(b"\x00"))
-    out = bytearray()
-    block = bytearray()
-    for byte in data:
-        if byte == 0:
-            out.append(len(block) + 1)
-            out += block
-            block.clear()
-        else:
-            block.append(byte)
-            if len(block) == 254:
-                out.append(255)
-                out += block
-                block.clear()
-    out.append(len(block) + 1)
-    out += block
-    return bytes(out)
+    """COBS: the bytes without any 0x00 (the frame delimiter is not included; frame_codec.cobs_encode)."""
+    data = _bytes_array(data)
+    out = np.empty(len(data) + len(data) // 254 + 1, dtype=np.uint8)
+    return out[:frame_codec.cobs_encode(data, len(data), out)].tobytes()
 
 
 def cobs_decode(data):
-    """Inverse of cobs_encode; FrameError('framing') for a malformed block."""
-    out = bytearray()
-    i, n = 0, len(data)
-    while i < n:
-        code = data[i]
-        if code == 0 or i + code > n:
-            raise FrameError("framing", f"COBS block of {code} at byte {i} overruns the frame")
-        block = data[i + 1:i + code]
-        if 0 in block:
-            raise FrameError("framing", "0x00 inside a COBS frame")
-        out += block
-        i += code
-        if code < 255 and i < n:
-            out.append(0)
-    return bytes(out)
+    """Inverse of cobs_encode; FrameError('framing') for a malformed block (frame_codec.cobs_decode)."""
+    data = _bytes_array(data)
+    out, where = np.empty(len(data), dtype=np.uint8), np.zeros(2, dtype=np.int64)
+    m = frame_codec.cobs_decode(data, len(data), out, where)
+    if m == -1:
+        raise FrameError("framing", f"COBS block of {where[0]} at byte {where[1]} overruns the frame")
+    if m == -2:
+        raise FrameError("framing", "0x00 inside a COBS frame")
+    return out[:m].tobytes()
 
 
 def pack(message):
-    """version, type and body of a message (no CRC); ValueError for a block of 0 or over MAX_BLOCK samples."""
+    """version, type and body of a message (no CRC); ValueError for a block of 0 or over MAX_BLOCK samples.
+    Telemetry, commands and CONTROL are written by the kernels the compiled answer uses (frame_codec)."""
     kind = TYPE_OF[type(message)]
-    if kind in BLOCK_LAYOUTS:
-        _, head, entry = BLOCK_LAYOUTS[kind]
-        samples = message.samples
-        if not 1 <= len(samples) <= MAX_BLOCK:
-            raise ValueError(f"a block carries 1 to {MAX_BLOCK} samples, not {len(samples)}")
-        fields = [value for name, value in vars(message).items() if name != "samples"]
-        return (bytes((VERSION, kind)) + head.pack(*fields, len(samples))
-                + b"".join(entry.pack(*sample) for sample in samples))
-    return bytes((VERSION, kind)) + LAYOUTS[kind][1].pack(*vars(message).values())
+    if kind in BLOCK_LAYOUTS and not 1 <= len(message.samples) <= MAX_BLOCK:
+        raise ValueError(f"a block carries 1 to {MAX_BLOCK} samples, not {len(message.samples)}")
+    raw = np.zeros(MAX_FRAME + 2, dtype=np.uint8)
+    if kind in (TELEMETRY, TELEMETRY_BLOCK):
+        block = kind == TELEMETRY_BLOCK
+        entries = np.array(message.samples if block else [(message.i_a, message.i_b, message.i_c,
+                                                            message.encoder)], dtype=np.int64)
+        _check_ranges(entries[:, :3], -32768, 32767, entries[:, 3], 0, 65535)
+        m = frame_codec.write_telemetry(message.seq, message.u_dc, message.status, entries, len(entries), block, raw)
+    elif kind in (COMMAND, COMMAND_BLOCK):
+        block = kind == COMMAND_BLOCK
+        counts = np.array(message.samples if block else [(message.u_alpha, message.u_beta)], dtype=np.int64)
+        _check_ranges(counts, -32768, 32767)
+        m = frame_codec.write_command(message.seq, message.flags, counts, len(counts), block, raw)
+    elif kind == CONTROL:
+        m = frame_codec.write_control(message.action, raw)
+    else:
+        return bytes((VERSION, kind)) + LAYOUTS[kind][1].pack(*vars(message).values())
+    return raw[:m].tobytes()
+
+
+def _check_ranges(*arrays_and_bounds):
+    """struct.error for a field out of its integer type's range (as struct.pack refuses it)."""
+    for values, low, high in zip(*[iter(arrays_and_bounds)] * 3):
+        if values.size and not (low <= values.min() and values.max() <= high):
+            raise struct.error(f"a field out of {low} to {high}")
 
 
 def encode_frame(message):
-    """The serial wire bytes of one message: COBS(version, type, body, CRC16 LE) + 0x00."""
+    """The serial wire bytes of one message: COBS(version, type, body, CRC16 LE) + 0x00 (frame_codec; the
+    messages the compiled answer writes or reads in one kernel call, frame_codec.message_wire)."""
+    kind = TYPE_OF[type(message)]
+    wire = np.empty(frame_codec.WIRE_BYTES, dtype=np.uint8)
+    if kind in (TELEMETRY, TELEMETRY_BLOCK, COMMAND, COMMAND_BLOCK, CONTROL):
+        if kind == TELEMETRY:
+            head, entries = (message.seq, message.u_dc, message.status), [(message.i_a, message.i_b, message.i_c,
+                                                                           message.encoder)]
+        elif kind == COMMAND:
+            head, entries = (message.seq, message.flags), [(message.u_alpha, message.u_beta)]
+        elif kind == CONTROL:
+            head, entries = (message.action,), [(0, 0)]
+        else:
+            if not 1 <= len(message.samples) <= MAX_BLOCK:
+                raise ValueError(f"a block carries 1 to {MAX_BLOCK} samples, not {len(message.samples)}")
+            head = (message.seq, message.u_dc, message.status) if kind == TELEMETRY_BLOCK else (message.seq,
+                                                                                                message.flags)
+            entries = message.samples
+        length = frame_codec.message_wire(kind, np.array(head, dtype=np.int64), np.array(entries, dtype=np.int64),
+                                          len(entries), wire)
+        if length < 0:
+            raise struct.error(f"a field of {message!r} out of its integer type's range")
+        return wire[:length].tobytes()
     payload = pack(message)
-    return cobs_encode(payload + struct.pack("<H", crc16(payload))) + b"\x00"
+    raw = np.zeros(len(payload) + 2, dtype=np.uint8)
+    raw[:len(payload)] = np.frombuffer(payload, dtype=np.uint8)
+    return wire[:frame_codec.frame_wire(raw, len(payload), wire)].tobytes()
 
 
 def decode_frame(encoded):
-    """A message from the bytes between two delimiters; FrameError naming the check that failed."""
-    raw = cobs_decode(encoded)
-    if not 4 <= len(raw) <= MAX_FRAME:
-        raise FrameError("framing", f"frame of {len(raw)} bytes (4 to {MAX_FRAME} allowed)")
-    payload, (crc,) = raw[:-2], struct.unpack("<H", raw[-2:])
-    if crc16(payload) != crc:
+    """A message from the bytes between two delimiters; FrameError naming the check that failed
+    (frame_codec.read_frame: COBS, the checks and a telemetry frame's fields in one kernel call)."""
+    data = _bytes_array(encoded)
+    raw, where = np.empty(max(len(data), 4), dtype=np.uint8), np.zeros(2, dtype=np.int64)
+    entries = np.empty((MAX_BLOCK, 4), dtype=np.int64)
+    m, check, seq, u_dc, status, count = frame_codec.read_frame(data, len(data), raw, entries, where)
+    if m == -1:
+        raise FrameError("framing", f"COBS block of {where[0]} at byte {where[1]} overruns the frame")
+    if m == -2:
+        raise FrameError("framing", "0x00 inside a COBS frame")
+    if not 4 <= m <= MAX_FRAME:
+        raise FrameError("framing", f"frame of {m} bytes (4 to {MAX_FRAME} allowed)")
+    payload, (crc,) = raw[:m - 2].tobytes(), struct.unpack("<H", raw[m - 2:m].tobytes())
+    if check == frame_codec.FRAME_CRC:
         raise FrameError("crc", f"CRC {crc:#06x}, computed {crc16(payload):#06x}")
-    if payload[0] != VERSION:
+    if check == frame_codec.FRAME_VERSION:
         raise FrameError("version", f"protocol version {payload[0]}, this host speaks {VERSION}")
+    if check == frame_codec.FRAME_UNKNOWN_TYPE:
+        raise FrameError("unknown_type", f"message type {payload[1]:#04x}")
+    if check == frame_codec.FRAME_OK and payload[1] == TELEMETRY_BLOCK:
+        return TelemetryBlock(seq, u_dc, status, tuple(map(tuple, entries[:count].tolist())))
+    if check == frame_codec.FRAME_OK and payload[1] == TELEMETRY:
+        i_a, i_b, i_c, encoder = entries[0].tolist()
+        return Telemetry(seq, i_a, i_b, i_c, u_dc, encoder, status)
     if payload[1] in BLOCK_LAYOUTS:
         return _decode_block(payload)
-    layout = LAYOUTS.get(payload[1])
-    if layout is None:
-        raise FrameError("unknown_type", f"message type {payload[1]:#04x}")
-    cls, body = layout
+    cls, body = LAYOUTS[payload[1]]
     if len(payload) - 2 != body.size:
         raise FrameError("framing", f"{cls.__name__} body of {len(payload) - 2} bytes, expected {body.size}")
     return cls(*body.unpack(payload[2:]))
+
+
+def _telemetry(data, block):
+    """A checked TELEMETRY (``block`` false) or TELEMETRY_BLOCK frame's message (frame_codec.read_telemetry)."""
+    entries = np.zeros((MAX_BLOCK, 4), dtype=np.int64)
+    seq, u_dc, status, n = frame_codec.read_telemetry(data, entries)
+    if block:
+        return TelemetryBlock(seq, u_dc, status, tuple(map(tuple, entries[:n].tolist())))
+    i_a, i_b, i_c, encoder = entries[0].tolist()
+    return Telemetry(seq, i_a, i_b, i_c, u_dc, encoder, status)
 
 
 def _decode_block(payload):
@@ -224,6 +277,8 @@ def _decode_block(payload):
     *fields, count = head.unpack_from(payload, 2)
     if not 1 <= count <= MAX_BLOCK or len(payload) - 2 != head.size + count * entry.size:
         raise FrameError("framing", f"{cls.__name__} of {count} samples in a body of {len(payload) - 2} bytes")
+    if payload[1] == TELEMETRY_BLOCK:
+        return _telemetry(np.frombuffer(payload, dtype=np.uint8), True)
     return cls(*fields, tuple(entry.iter_unpack(payload[2 + head.size:])))
 
 

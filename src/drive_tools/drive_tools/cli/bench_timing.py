@@ -4,7 +4,7 @@ machine's own wake-up floor."""
 import sys
 
 from drive_common.config.scenario import PACED_BLOCK_SAMPLES, link_block_samples, load_scenario
-from drive_common.runtime.realtime import add_scheduling_arguments
+from drive_common.runtime.realtime import add_scheduling_arguments, fifo_priority
 
 from .options import (
     CommandLineError,
@@ -150,8 +150,14 @@ def cmd_bench_bridge(args):
         if not 1 <= args.block_samples <= MAX_BLOCK:
             raise CommandLineError(f"--block-samples: the inverter protocol carries 1 to {MAX_BLOCK} samples per "
                                    f"block, not {args.block_samples}")
+    answer = None
+    if args.answer == "compiled":
+        from drive_tools.runner.compiled_answer import AnswerOptions
+        if args.reader_stall_ms < 0:
+            raise CommandLineError(f"--reader-stall-ms: a pause ≥ 0 ms, not {args.reader_stall_ms:g}")
+        answer = AnswerOptions(priority=args.rt_priority, reader_stall_s=args.reader_stall_ms * 1e-3)
     report = bridge_rates(args.scenario, links, duration, args.repeats, args.paced,
-                          link_block_samples(args.paced, args.block_samples))
+                          link_block_samples(args.paced, args.block_samples), answer)
     if args.json:
         print_json(report)
     else:
@@ -245,6 +251,14 @@ def add_bench_commands(bench_sub):
                               help="with --graph: beside each run a process above the drive's priority on its CPUs "
                                    "notes the machine's stalls; each run says how many of its late blocks they "
                                    "explain")
+    bench_bridge.add_argument("--answer", choices=("python", "compiled"), default="python",
+                              help="the host's answer on the pty: in Python (the reference) or compiled whole, off "
+                                   "the interpreter's lock, on a thread of its own (CAN keeps Python's)")
+    bench_bridge.add_argument("--rt-priority", type=fifo_priority, default=0, metavar="1-99",
+                              help="with --answer compiled: SCHED_FIFO priority of its answer thread (0: normal)")
+    bench_bridge.add_argument("--reader-stall-ms", type=finite_float, default=0.0, metavar="MS",
+                              help="with --answer compiled: a pause of the ring's reader after each read (a "
+                                   "stall of the side that is not real-time)")
     bench_bridge.add_argument("--json", action="store_true")
     bench_bridge.set_defaults(func=cmd_bench_bridge)
     platform = bench_sub.add_parser("platform", help="the machine's own floor: how late a SCHED_FIFO thread "

@@ -169,9 +169,13 @@ def cmd_bridge(args):
     args.block_samples = link_block_samples(args.paced, args.block_samples)
     scenario = scenario_arg(args)
     paced = InverterOptions(rate_Hz=1.0 / scenario.T_s if args.paced else None)
+    if args.answer == "compiled" and args.link != "pty":
+        raise CommandLineError(f"--answer compiled: the compiled answer runs on a serial link (pty), not {args.link}")
+    from drive_tools.runner.compiled_answer import AnswerOptions
     result = run_through_bridge(scenario, args.link, paced,
                                 progress=terminal_progress(f"{scenario.name}/{scenario.estimator} through the "
-                                                           f"bridge ({args.link})"))
+                                                           f"bridge ({args.link})"),
+                                answer=AnswerOptions() if args.answer == "compiled" else None)
     extra = {"link": f"virtual inverter over {args.link}, bridge core, estimator and controller cores",
              "samples_per_s": round(result.log.shape[0] / result.wall_time_s) if result.wall_time_s > 0 else None,
              "bridge": result.counters, "frame_errors": result.frame_errors,
@@ -290,4 +294,6 @@ def add_commands(sub):
                              "late command is zero volts, counted")
     bridge.add_argument("--block-samples", type=int, metavar="N",
                         help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced)")
+    bridge.add_argument("--answer", choices=("python", "compiled"), default="python",
+                        help="the host's answer in Python, or compiled whole off the interpreter's lock (pty only)")
     bridge.set_defaults(func=cmd_bridge)

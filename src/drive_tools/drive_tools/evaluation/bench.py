@@ -340,15 +340,17 @@ def _percentile(values, q):
     return float(np.percentile(values, q)) if len(values) else None
 
 
-def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_samples=None):
+def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_samples=None, answer=None):
     """`drive bench bridge`: the sensorless loop through the bridge and the virtual inverter per link.
     Waiting for the host's answers (default): the sustained rate, best of ``repeats`` after a warm-up.
     ``paced``: the inverter on its own clock at the scenario's rate, never waiting: missing (late)
     commands and their latency, and the angle error of the run, worst of ``repeats``. Latency: the
     inverter's time from sending TELEMETRY(k) to receiving COMMAND(k); host: the host's part of it
     (telemetry decoded, estimator and controller run, command encoded and written). ``block_samples``:
-    N (None: the scenario's). Beside them the machine's rclpy hop cost (``hop_us``) and the latencies in hops,
-    so that figures compare across machines."""
+    N (None: the scenario's). ``answer`` (compiled_answer.AnswerOptions; None: the answer in Python): the
+    answer compiled whole on the pty (the CAN link keeps the Python answer); each row says which ran, with the
+    samples its ring had no room for. Beside them the machine's rclpy hop cost (``hop_us``) and the latencies
+    in hops, so that figures compare across machines."""
     from drive_tools.doubles.virtual_inverter import InverterOptions
     from drive_tools.evaluation.metrics import compute_metrics
     from drive_tools.launch.hop_cost import HOP_ROUND_TRIPS_BESIDE_A_RUN, hop_latency
@@ -363,10 +365,12 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
     rows = []
     hop_us = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN)["us_per_hop"]
     for link in links:
-        run_through_bridge(dataclasses.replace(linked, duration_s=min(scenario.duration_s, 0.05)), link)
+        compiled = answer if link == "pty" else None
+        run_through_bridge(dataclasses.replace(linked, duration_s=min(scenario.duration_s, 0.05)), link,
+                           answer=compiled)
         best = None
         for _ in range(repeats):
-            result = run_through_bridge(linked, link, InverterOptions(rate_Hz=rate))
+            result = run_through_bridge(linked, link, InverterOptions(rate_Hz=rate), answer=compiled)
             if best is None or (result.timing["missing"] > best.timing["missing"] if paced
                                 else result.wall_time_s < best.wall_time_s):
                 best = result
@@ -375,7 +379,9 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
                "latency_p50_us": _percentile(latencies, 50), "latency_p99_us": _percentile(latencies, 99),
                "host_p50_us": _percentile(host, 50), "host_p99_us": _percentile(host, 99),
                "link_echo_us": link_echo_us(link),
-               "missing_commands": int(best.inverter_counters["missing"]), "hop_us": hop_us}
+               "missing_commands": int(best.inverter_counters["missing"]), "hop_us": hop_us,
+               "answer": "compiled" if compiled else "python", "ring_overflow": best.counters.get("ring_overflow"),
+               "scheduling": best.scheduling}
         row.update({key.replace("_us", "_hops"): row[key] / hop_us if row[key] is not None else None
                     for key in ("latency_p50_us", "latency_p99_us", "host_p50_us", "host_p99_us")})
         if paced:

@@ -38,6 +38,9 @@ def bridge_lines(report, paced):
     answer-paced (samples/s, latency, the host's share, the bare link)."""
     hop = report["links"][0]["hop_us"] if report["links"] else None
     hop_line = f"  one rclpy hop on this machine: {hop:.1f} µs (latencies in hops in --json)" if hop else ""
+    hop_line += "".join(f"\n  {row['link']}: the answer compiled whole, {row['ring_overflow']} samples the ring had "
+                        f"no room for; {'; '.join(sum(row['scheduling'].values(), [])) or 'normal scheduling'}"
+                        for row in report["links"] if row.get("answer") == "compiled")
     if paced:
         lines = [f"bridge closed loop, {report['scenario']} ({report['samples']} samples, inverter on its own clock "
                  f"at {report['sampling_rate_Hz']:g} Hz; worst of {report['repeats']})",

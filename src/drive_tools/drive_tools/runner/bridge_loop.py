@@ -3,13 +3,11 @@ thread behind a pseudo-terminal or a CAN bus, the bridge core, and the estimator
 answering each telemetry frame (with blocks of N samples, each TELEMETRY_BLOCK by the block kernels and
 one COMMAND_BLOCK). For tests, `drive bridge` and `drive bench bridge`."""
 import contextlib
-import math
 import tempfile
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from numba import njit
 
 from drive_bridge.inverter_bridge import COMMAND_TIMEOUT_S, LINK_TIMEOUT_S, InverterBridge
 from drive_bridge.inverter_protocol import MAX_BLOCK
@@ -31,11 +29,8 @@ from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block, pro
 from hf_estimator.block import estimator_block
 from hf_estimator.interface import contract_injection
 
-from .loop import write_row
+from .answer_kernels import fill_inputs, issue_and_log
 from .runner import build_drive, cut
-
-NO_TRUTH = (0.0,) * 7
-"""The plant's truth in a log row the host writes: it knows none (the inverter's truth fills it after the run)."""
 
 
 @dataclass
@@ -52,16 +47,24 @@ class BridgeRunResult(RunResult):
     """Per answered sample: the host's time from the telemetry's arrival to its command written."""
     timing: dict = None
     """How the host kept pace with the inverter (drive_tools.doubles.inverter_timing.timing_report)."""
+    scheduling: dict = None
+    """The compiled answer's thread: the real-time scheduling applied and refused (None: the answer in Python)."""
 
 
-def run_through_bridge(scenario, link="pty", options=None, progress=None, inverter=VirtualInverter):
+def run_through_bridge(scenario, link="pty", options=None, progress=None, inverter=VirtualInverter, answer=None):
     """Run ``scenario`` with its plant behind a virtual inverter on ``link`` ('pty', 'can') and the bridge
     (with blocks, at the protocol's answer delay: ``behind_an_inverter``); ``options`` (InverterOptions,
     None: lock-step): the inverter's clock and wait; ``inverter``: the double to run behind (a class or factory
-    called as VirtualInverter: a faulty one of drive_tools.doubles.faults for the tests). The garbage
-    collector is held off during the loop (``collector_held``)."""
+    called as VirtualInverter: a faulty one of drive_tools.doubles.faults for the tests); ``answer``
+    (compiled_answer.AnswerOptions; None: the answer in Python, the reference): the answer compiled whole, off
+    the interpreter's lock, on a serial link ('pty'). The garbage collector is held off during the loop
+    (``collector_held``)."""
     scenario = behind_an_inverter(scenario, MAX_BLOCK)
+    if answer is not None and link != "pty":
+        raise ValueError(f"the compiled answer runs on a serial link ('pty'), not {link!r}")
     with virtual_inverter_link(scenario, link, options, inverter) as (virtual, bridge):
+        if answer is not None:
+            return _run_compiled(scenario, link, virtual, bridge, (progress, answer))
         return _run(scenario, link, virtual, bridge, progress)
 
 
@@ -160,6 +163,67 @@ def _run(scenario, link, inverter, bridge, progress):
                            timing=timing_report(inverter, scenario.T_s, bridge.written_at))
 
 
+def _run_compiled(scenario, link, inverter, bridge, progress_and_options):
+    """The host's loop compiled whole (compiled_answer.CompiledAnswer): the same answer as ``_run``, its
+    samples recorded from the ring; ``ring_overflow`` counts those the ring had no room for."""
+    from .compiled_answer import CompiledAnswer
+    progress, answer_options = progress_and_options
+    host = build_drive(scenario)
+    n = scenario.n_samples
+    delay = scenario.drive_delay_periods()
+    line = command_line(delay)
+    log = np.zeros((n, len(LOG_COLUMNS)))
+    received = np.zeros(n, dtype=bool)
+    host_s = np.zeros(n)
+    bridge.poll(0.0)
+    answer = CompiledAnswer(host, bridge, line, (n, delay), answer_options)
+    reported = [0]
+
+    def take(k, seconds, row):
+        log[k], host_s[k], received[k] = row, seconds, True
+        if progress and k - reported[0] >= n // 100:
+            reported[0] = k
+            progress(k / n)
+
+    start = time.perf_counter()
+    interrupted = 0
+    try:
+        with collector_held():
+            inverter.start()
+            answer.start(take)
+            while answer.alive():
+                checkpoint()
+                if not inverter.is_alive():
+                    answer.drain_then_stop()
+                answer.answering.join(0.05)
+    except Interrupted as stop:
+        interrupted = stop.signum
+        answer.stop()
+    inverter.stop()
+    answer.stop()
+    answer.join(5.0)
+    inverter.join(2.0)
+    wall = time.perf_counter() - start
+    if progress and not interrupted:
+        progress(1.0)
+    truth = inverter.truth
+    done = inverter.k
+    log = log[:done]
+    for column, name in enumerate(("theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c")):
+        log[:, COLUMN[name]] = truth[:done, column]
+    log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
+    e, cp = host.estimator, host.controller
+    return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
+                           e.facts(), protection=protection_summary(host.protection_x, host.protection),
+                           injection=contract_injection(e.facts(), scenario.injection), link=link,
+                           counters={**bridge.counters, "ring_overflow": answer.overflow},
+                           frame_errors=bridge.frame_errors(), inverter_counters=dict(inverter.counters),
+                           latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
+                           host_s=host_s[:done][received[:done]],
+                           timing=timing_report(inverter, scenario.T_s, bridge.written_at),
+                           scheduling=answer.scheduling)
+
+
 def protect(host, currents, n, k_last, u_dc_V, omega_e_hat, cx, px):
     """The drive's protections over n samples of measured ``currents`` with the inverter's bus ``u_dc_V``
     (foc_controller.protection.protection_block on the controller state cx and protection state px):
@@ -169,28 +233,6 @@ def protect(host, currents, n, k_last, u_dc_V, omega_e_hat, cx, px):
     if px[TRIPPED]:
         return False, int(px[SAFE_STATE])
     return True, safe_state_for(omega_e_hat, u_dc_V, host.protection.psi_f_Wb)
-
-
-@njit(cache=True)
-def fill_inputs(inputs, currents, theta_m, n_p, speed_ref, tau_feedforward, k0, n):
-    """Samples k0 … k0 + n − 1 of a telemetry block into ``inputs`` (DRIVE_INPUT records): the measured
-    ``currents`` (n × 3) [A], the encoder's mechanical ``theta_m`` [rad] as electrical (NaN: none, 0) and
-    the schedule's speed reference [rad/s] and torque feed-forward [N·m] of each sample."""
-    for i in range(n):
-        s = inputs[i]
-        s.i_a_A, s.i_b_A, s.i_c_A = currents[i, 0], currents[i, 1], currents[i, 2]
-        s.theta_e_encoder_rad = 0.0 if math.isnan(theta_m[i]) else n_p * theta_m[i]
-        s.omega_e_encoder_rad_s = 0.0
-        s.omega_m_ref_rad_s, s.tau_feedforward_Nm = speed_ref[k0 + i], tau_feedforward[k0 + i]
-
-
-@njit(cache=True)
-def issue_and_log(line, rows, k0, n, T_s, inputs, estimates, commands):
-    """The commands of samples k0 … k0 + n − 1 into the delay ``line`` and the samples into ``rows``
-    (LOG_COLUMNS) from their records (DRIVE_INPUT, ESTIMATE, COMMAND); T_s [s] the sample period."""
-    for i in range(n):
-        issue_command(line, k0 + i, commands[i].u_alpha_V, commands[i].u_beta_V)
-        write_row(rows[i], (k0 + i) * T_s, NO_TRUTH, inputs[i], estimates[i], commands[i])
 
 
 class _HostAnswer:

@@ -1,0 +1,332 @@
+"""The host bridge's per-frame work on a serial link as numba kernels without the interpreter's lock, for an
+answer compiled whole (drive_tools.runner.compiled_answer): bytes read from the link's descriptor, split at
+0x00 and checked (frame_codec), HELLO taken, telemetry accepted as InverterBridge accepts it (sequence
+unwrapped, gaps, repeats and late frames counted, currents and the encoder's angle in SI units), commands
+encoded and written with the latches a link loss causes cleared once, the link's and the graph's silence
+timed. The state lives in arrays (``BridgeArrays``) that InverterBridge loads and takes back
+(``load_bridge``, ``store_bridge``), so that reconnecting, HELLO's requests and the reports stay in Python."""
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from . import frame_codec as fc
+from .compiled_io import ieee_remainder as remainder
+from .compiled_io import io_scratch, monotonic_s, read_into, wait_readable, write_all
+from .inverter_protocol import (
+    CLEARED_BY_HOST,
+    CONTROL_CLEAR_FAULTS,
+    CONTROL_DISABLE,
+    CONTROL_SEND_HELLO,
+    ENCODER_VALID,
+    HELLO,
+    LAYOUTS,
+    OVERCURRENT,
+    OVERVOLTAGE,
+    TELEMETRY,
+    TELEMETRY_BLOCK,
+    Hello,
+)
+
+COUNTERS = ("samples", "dropped", "duplicated", "reordered", "link_lost", "bus_off", "reconnects", "safe_state",
+            "faults_cleared", "before_hello", "commands", "command_errors", "inverter_faults", "block_mismatch")
+"""InverterBridge.counters in their order; then the frame errors of frame_codec.FRAME_ERROR_KINDS."""
+C = {name: i for i, name in enumerate(COUNTERS)}
+SAMPLES, DROPPED, DUPLICATED, REORDERED, LINK_LOST = (C[k] for k in COUNTERS[:5])
+SAFE_STATE, FAULTS_CLEARED, BEFORE_HELLO, COMMANDS, COMMAND_ERRORS, INVERTER_FAULTS, BLOCK_MISMATCH = (
+    C[k] for k in ("safe_state", "faults_cleared", "before_hello", "commands", "command_errors", "inverter_faults",
+                   "block_mismatch"))
+FRAME_ERRORS = len(COUNTERS)
+"""counters[FRAME_ERRORS + kind]: frames failing frame_codec's check ``kind`` (1-4)."""
+
+STATE = ("fd", "last_seq", "k_offset", "status", "theta_m", "last_telemetry_at", "last_command_at", "lost", "safe",
+         "clear_sent", "hello", "current_lsb_A", "voltage_lsb_V", "block_samples", "link_timeout_s",
+         "command_timeout_s", "rx_bytes")
+S = {name: i for i, name in enumerate(STATE)}
+"""state[S[name]]: InverterBridge's attribute of that name (NaN for its None; hello: 1 taken, 0 none), the
+link's descriptor and the bytes waiting in ``rx`` for their delimiter."""
+FD, LAST_SEQ, K_OFFSET, STATUS, THETA_M, LAST_TELEMETRY_AT, LAST_COMMAND_AT, LOST, SAFE, CLEAR_SENT = range(10)
+HAS_HELLO, CURRENT_LSB, VOLTAGE_LSB, BLOCK_SAMPLES, LINK_TIMEOUT, COMMAND_TIMEOUT, RX_BYTES = range(10, 17)
+READ_BYTES = 4096
+"""One read(2) at most, as SerialLink reads."""
+LINK_DOWN = -1
+
+
+class BridgeArrays(NamedTuple):
+    """An InverterBridge on a serial link as arrays: ``state`` (float64, STATE), ``counters`` (int64,
+    COUNTERS then the frame errors), ``written`` (its ring of command writes), the bytes read and not yet
+    framed (``rx``), a frame's payload and wire bytes, a block's entries and commands in steps, the last
+    HELLO's payload (``hello``) and the calls' scratch (pollfd, timespec)."""
+
+    state: np.ndarray
+    counters: np.ndarray
+    written: np.ndarray
+    rx: np.ndarray
+    raw: np.ndarray
+    wire: np.ndarray
+    entries: np.ndarray
+    steps: np.ndarray
+    hello: np.ndarray
+    pollfd: np.ndarray
+    timespec: np.ndarray
+
+
+def _value(x):
+    return math.nan if x is None else float(x)
+
+
+def load_bridge(bridge):
+    """BridgeArrays holding ``bridge`` (InverterBridge on an open SerialLink) as it is now."""
+    pollfd, timespec = io_scratch()
+    state = np.zeros(len(STATE))
+    for name in ("last_seq", "k_offset", "status", "theta_m", "last_telemetry_at", "last_command_at", "lost",
+                 "safe", "clear_sent", "block_samples", "link_timeout_s", "command_timeout_s"):
+        state[S[name]] = _value(getattr(bridge, name))
+    state[FD] = bridge.link.fd
+    hello = np.zeros(fc.BODY_BYTES[HELLO] + 2, dtype=np.uint8)
+    if bridge.hello is not None:
+        state[HAS_HELLO] = 1.0
+        state[CURRENT_LSB], state[VOLTAGE_LSB] = bridge.hello.current_lsb_A, bridge.hello.voltage_lsb_V
+    counters = np.zeros(FRAME_ERRORS + len(fc.FRAME_ERROR_KINDS), dtype=np.int64)
+    counters[:FRAME_ERRORS] = [bridge.counters[name] for name in COUNTERS]
+    for kind, count in bridge.link.errors.items():
+        counters[FRAME_ERRORS + fc.FRAME_ERROR_KINDS.index(kind)] = count
+    rx = np.zeros(READ_BYTES + 2 * fc.MAX_FRAME + 1, dtype=np.uint8)
+    pending = bytes(bridge.link.reader.buffer)
+    rx[:len(pending)] = np.frombuffer(pending, dtype=np.uint8)
+    state[RX_BYTES] = len(pending)
+    return BridgeArrays(state, counters, bridge.written, rx, np.zeros(fc.MAX_FRAME + 2, dtype=np.uint8),
+                        np.zeros(fc.WIRE_BYTES, dtype=np.uint8), np.zeros((fc.MAX_BLOCK, 4), dtype=np.int64),
+                        np.zeros((fc.MAX_BLOCK, 2), dtype=np.int64), hello, pollfd, timespec)
+
+
+def store_bridge(arrays, bridge):
+    """Give ``bridge`` back what the kernels changed in ``arrays``."""
+    state = arrays.state
+    for name in ("last_seq", "k_offset", "status"):
+        value = state[S[name]]
+        setattr(bridge, name, None if math.isnan(value) else int(value))
+    for name in ("last_telemetry_at", "last_command_at"):
+        value = state[S[name]]
+        setattr(bridge, name, None if math.isnan(value) else float(value))
+    bridge.theta_m = float(state[THETA_M])
+    bridge.lost, bridge.safe, bridge.clear_sent = bool(state[LOST]), bool(state[SAFE]), bool(state[CLEAR_SENT])
+    bridge.counters.update({name: int(arrays.counters[i]) for i, name in enumerate(COUNTERS)})
+    if state[HAS_HELLO] and arrays.hello.any():
+        bridge.hello = Hello(*LAYOUTS[HELLO][1].unpack(arrays.hello[2:].tobytes()))
+    elif not state[HAS_HELLO]:
+        bridge.hello = None
+    errors = bridge.link.reader.errors
+    for kind in range(1, len(fc.FRAME_ERROR_KINDS)):
+        if arrays.counters[FRAME_ERRORS + kind]:
+            errors[fc.FRAME_ERROR_KINDS[kind]] = int(arrays.counters[FRAME_ERRORS + kind])
+    bridge.link.reader.buffer = bytearray(arrays.rx[:int(state[RX_BYTES])].tobytes())
+
+
+@njit(nogil=True)
+def send_control(b, action):
+    """CONTROL(``action``) on the link; False when the write failed."""
+    m = fc.write_control(action, b.raw)
+    return write_all(int(b.state[FD]), b.wire, fc.frame_wire(b.raw, m, b.wire))
+
+
+@njit(cache=True, nogil=True)
+def take_hello(b, raw):
+    """A checked HELLO: taken when it announces this drive's block size, else counted and named by its
+    payload (kept in ``b.hello``) with no HELLO taken."""
+    for i in range(b.hello.shape[0]):
+        b.hello[i] = raw[i]
+    if raw[5] != b.state[BLOCK_SAMPLES]:
+        b.counters[BLOCK_MISMATCH] += 1
+        b.state[HAS_HELLO] = 0.0
+        return
+    b.state[HAS_HELLO] = 1.0
+    b.state[CURRENT_LSB], b.state[VOLTAGE_LSB] = f32(fc.u32(raw, 10)), f32(fc.u32(raw, 14))
+
+
+@njit(cache=True, nogil=True)
+def f32(bits):
+    """The IEEE 754 binary32 value of ``bits`` (u32), exactly, as a float64."""
+    sign = -1.0 if bits >> 31 else 1.0
+    exponent, fraction = (bits >> 23) & 0xFF, bits & 0x7FFFFF
+    if exponent == 0xFF:
+        return sign * math.inf if fraction == 0 else math.nan
+    if exponent == 0:
+        return sign * math.ldexp(float(fraction), -149)
+    return sign * math.ldexp(float(fraction | 0x800000), exponent - 150)
+
+
+@njit(nogil=True)
+def accept_telemetry(b, seq, n, u_dc, status, currents, theta):
+    """Samples seq … seq + n − 1 (their counts in ``b.entries``) as InverterBridge._telemetry takes them:
+    their first k (unwrapped past 2³²), or −1 for samples before HELLO, a repeat or a late frame; every gap
+    counted as dropped. ``currents`` (n × 3) [A], ``theta`` (n) [rad, mechanical; NaN without the encoder]
+    receive them; the bus [V] is u_dc × voltage_lsb_V."""
+    s, c = b.state, b.counters
+    if s[HAS_HELLO] == 0.0:
+        before = c[BEFORE_HELLO]
+        c[BEFORE_HELLO] += n
+        if (before + n - 1) // 100 != (before - 1) // 100:
+            send_control(b, CONTROL_SEND_HELLO)
+        return -1
+    wrap = np.int64(1) << 32
+    if not math.isnan(s[LAST_SEQ]):
+        last = np.int64(s[LAST_SEQ])
+        step = (seq - last) % wrap
+        if step == 0:
+            c[DUPLICATED] += 1
+            return -1
+        if step >= wrap // 2:
+            c[REORDERED] += 1
+            return -1
+        c[DROPPED] += step - 1
+        if seq < last:
+            s[K_OFFSET] += wrap
+    k0 = np.int64(s[K_OFFSET]) + seq
+    if seq + n > wrap:
+        s[K_OFFSET] += wrap
+    s[LAST_SEQ] = (seq + n - 1) % wrap
+    s[LAST_TELEMETRY_AT] = monotonic_s(b.timespec)
+    if s[LOST] != 0.0:
+        s[LOST] = 0.0
+        s[LAST_COMMAND_AT] = np.nan
+    new_faults = status & ~np.int64(s[STATUS]) & (OVERCURRENT | OVERVOLTAGE | CLEARED_BY_HOST)
+    while new_faults:
+        c[INVERTER_FAULTS] += new_faults & 1
+        new_faults >>= 1
+    s[STATUS] = status
+    if not status & CLEARED_BY_HOST:
+        s[CLEAR_SENT] = 0.0
+    c[SAMPLES] += n
+    lsb = s[CURRENT_LSB]
+    previous = s[THETA_M]
+    for i in range(n):
+        for j in range(3):
+            currents[i, j] = np.float64(b.entries[i, j]) * lsb
+        if status & ENCODER_VALID:
+            turn = np.float64(b.entries[i, 3]) * (2.0 * math.pi / 65536.0)
+            previous = turn if math.isnan(previous) else previous + remainder(turn - previous, 2.0 * math.pi)
+            theta[i] = previous
+        else:
+            theta[i] = np.nan
+    s[THETA_M] = theta[n - 1]
+    return k0
+
+
+@njit(cache=True, nogil=True)
+def next_frame(b, start):
+    """The next complete frame in ``b.rx`` from byte ``start``: (the byte after its delimiter, the payload's
+    length in ``b.raw`` or 0 for one dropped and counted); (−1, 0) when no delimiter follows. Bytes with no
+    delimiter beyond two frames' worth are dropped as one framing error, as FrameReader drops them."""
+    end_of_data = np.int64(b.state[RX_BYTES])
+    for end in range(start, end_of_data):
+        if b.rx[end] != 0:
+            continue
+        if end == start:
+            return end + 1, 0
+        m = fc.cobs_decode(b.rx[start:end], end - start, b.raw, b.steps[0])
+        check = fc.FRAME_FRAMING if m < 0 else fc.check_frame(b.raw, m)
+        if check != fc.FRAME_OK:
+            b.counters[FRAME_ERRORS + check] += 1
+            return end + 1, 0
+        return end + 1, m
+    return -1, 0
+
+
+@njit(cache=True, nogil=True)
+def keep_unframed(b, start):
+    """Move the bytes from ``start`` that await their delimiter to the front of ``b.rx``."""
+    left = np.int64(b.state[RX_BYTES]) - start
+    for i in range(left):
+        b.rx[i] = b.rx[start + i]
+    if left > 2 * fc.MAX_FRAME:
+        b.counters[FRAME_ERRORS + fc.FRAME_FRAMING] += 1
+        left = 0
+    b.state[RX_BYTES] = left
+
+
+@njit(nogil=True)
+def read_link(b, timeout_ms):
+    """Wait up to ``timeout_ms`` for bytes and append what one read(2) gives to ``b.rx``: the bytes read (0:
+    none came), LINK_DOWN when the descriptor failed or the device is gone."""
+    fd, have = int(b.state[FD]), np.int64(b.state[RX_BYTES])
+    ready = wait_readable(b.pollfd, fd, timeout_ms)
+    if ready < 0:
+        return LINK_DOWN
+    if ready == 0:
+        return 0
+    got = read_into(fd, b.rx, have, READ_BYTES)
+    if got <= 0:
+        return LINK_DOWN
+    b.state[RX_BYTES] = have + got
+    return got
+
+
+@njit(cache=True, nogil=True)
+def frame_telemetry(b, m):
+    """(seq, n, u_dc, status) of a checked TELEMETRY or TELEMETRY_BLOCK payload ``b.raw[:m]``, its counts in
+    ``b.entries``; a HELLO is taken (n = 0), any other message ignored (n = 0)."""
+    kind = b.raw[1]
+    if kind == HELLO:
+        take_hello(b, b.raw)
+        return 0, 0, 0, 0
+    if kind != TELEMETRY and kind != TELEMETRY_BLOCK:
+        return 0, 0, 0, 0
+    if b.state[HAS_HELLO] == 0.0 and b.counters[BLOCK_MISMATCH] > 0:
+        return 0, 0, 0, 0
+    seq, u_dc, status, n = fc.read_telemetry(b.raw, b.entries)
+    return seq, n, u_dc, status
+
+
+@njit(nogil=True)
+def write_commands(b, k0, u_alpha_V, u_beta_V, n, enable, safe_state):
+    """COMMAND (blocks of one) or COMMAND_BLOCK answering samples k0 … k0 + n − 1, rounded to the inverter's
+    steps (clipped to int16, non-finite as 0) as InverterBridge.command_block rounds, with the flags of
+    inverter_protocol.command_flags; before an enabling one the latches a link loss causes are cleared once.
+    Noted in ``b.written`` when written; False when the link failed."""
+    s, c = b.state, b.counters
+    if s[HAS_HELLO] == 0.0:
+        c[COMMAND_ERRORS] += 1
+        return True
+    lsb = s[VOLTAGE_LSB]
+    for i in range(n):
+        for j, u in enumerate((u_alpha_V[i], u_beta_V[i])):
+            step = np.rint(u / lsb) if math.isfinite(u / lsb) else 0.0
+            b.steps[i, j] = np.int64(min(32767.0, max(-32768.0, step)))
+    flags = (1 if enable else 0) | (safe_state << 1) & 0x06
+    status = np.int64(s[STATUS])
+    if enable and status & CLEARED_BY_HOST and not status & (OVERCURRENT | OVERVOLTAGE) and s[CLEAR_SENT] == 0.0:
+        s[CLEAR_SENT] = 1.0
+        c[FAULTS_CLEARED] += 1
+        if not send_control(b, CONTROL_CLEAR_FAULTS):
+            return False
+    now = monotonic_s(b.timespec)
+    s[LAST_COMMAND_AT] = now
+    s[SAFE] = 0.0 if enable else 1.0
+    N = np.int64(s[BLOCK_SAMPLES])
+    m = fc.write_command(k0 % (np.int64(1) << 32), flags, b.steps, n, N > 1, b.raw)
+    if not write_all(int(s[FD]), b.wire, fc.frame_wire(b.raw, m, b.wire)):
+        c[COMMAND_ERRORS] += N == 1
+        return False
+    slot = (k0 // N) % b.written.shape[0]
+    b.written[slot, 0], b.written[slot, 1] = k0, monotonic_s(b.timespec)
+    c[COMMANDS] += 1
+    return True
+
+
+@njit(nogil=True)
+def check_silence(b):
+    """InverterBridge._check_timeouts: the link lost after ``link_timeout_s`` without telemetry; the safe state
+    (CONTROL 1) after ``command_timeout_s`` without a command while the link is up. False when the link
+    failed."""
+    s, now = b.state, monotonic_s(b.timespec)
+    if not math.isnan(s[LAST_TELEMETRY_AT]) and now - s[LAST_TELEMETRY_AT] > s[LINK_TIMEOUT] and s[LOST] == 0.0:
+        s[LOST] = 1.0
+        b.counters[LINK_LOST] += 1
+    if (s[LOST] == 0.0 and s[SAFE] == 0.0 and not math.isnan(s[LAST_COMMAND_AT])
+            and now - s[LAST_COMMAND_AT] > s[COMMAND_TIMEOUT]):
+        s[SAFE] = 1.0
+        b.counters[SAFE_STATE] += 1
+        return send_control(b, CONTROL_DISABLE)
+    return True

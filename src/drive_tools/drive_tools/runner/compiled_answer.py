@@ -1,0 +1,287 @@
+"""The host's answer through the bridge compiled whole (docs/ros-graph.md, "The compiled answer"): from the
+telemetry read to the command written — the link's bytes read (read/poll on its descriptor), frames checked and
+decoded, the estimator's, protections' and controller's block kernels, the command encoded and written — one
+numba function that does not hold the interpreter's lock, on a thread of its own (SCHED_FIFO where the
+machine allows it). What it produced (per sample: k, the host's time, the log row) goes into a preallocated
+lock-free ring (drive_common.runtime.sample_ring) that a thread that is not real-time reads: the recording
+waits for nothing and a full ring is counted, never silent. Reconnecting, HELLO's requests and the reports
+stay in Python, between calls of the compiled loop. A serial link (a UART, USB CDC, a pty) only."""
+import os
+import threading
+import time
+from typing import Any, NamedTuple
+
+import numpy as np
+from numba import njit
+
+from drive_bridge import compiled_bridge as cb
+from drive_bridge.inverter_protocol import COMMAND_MISSING, MAX_BLOCK, PWM_OFF
+from drive_common.contract.log import LOG_COLUMNS
+from drive_common.math.command_delay import issue_command
+from drive_common.math.safe_state import safe_state_for
+from drive_common.math.winding import R_S_IN_USE
+from drive_common.runtime.sample_ring import drain, free_slot, publish, sample_ring
+from foc_controller.control import controller_block
+from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block
+from hf_estimator.block import EstimatorCore, estimator_block
+
+from .answer_kernels import fill_inputs, issue_and_log
+
+RING_K, RING_HOST_S, RING_LOG = 0, 1, 2
+"""A ring row: the sample k, the host's time from its telemetry read to its command written [s], then its
+log row (LOG_COLUMNS)."""
+RING_ROWS = 1 << 15
+"""The ring's rows by default: 3.3 s of samples at 10 kHz (8 MiB)."""
+STOP, NEXT_K, LAST_ANSWERED, N_SAMPLES, DELAY, DRAINING = range(6)
+"""Fields of the loop's ``run`` array (int64): set by Python (STOP, N_SAMPLES, DELAY, DRAINING: nothing more
+will come), kept by the loop (NEXT_K: the next sample expected, LAST_ANSWERED)."""
+DONE, STOPPED = 1, 2
+POLL_MS = 50
+"""The loop's wait for bytes before it checks the link's and the graph's silence (InverterBridge's 0.05 s)."""
+
+
+class HostCore(NamedTuple):
+    """The drive's cores as the answer steps them (drive_tools.runner.runner.Drive's), the delay line and the
+    block's buffers: the currents and angles as received (MAX_BLOCK rows), the block's currents (N × 3), its
+    records (DRIVE_INPUT, ESTIMATE, COMMAND), its voltages [V] and its log rows; T_s [s]."""
+
+    estimator: EstimatorCore
+    controller: Any
+    controller_x: np.ndarray
+    controller_z: np.ndarray
+    protection: Any
+    protection_x: np.ndarray
+    sensing: Any
+    speed_ref: np.ndarray
+    tau_feedforward: np.ndarray
+    line: np.ndarray
+    received_currents: np.ndarray
+    received_theta: np.ndarray
+    currents: np.ndarray
+    inputs: np.ndarray
+    estimates: np.ndarray
+    commands: np.ndarray
+    voltages: np.ndarray
+    rows: np.ndarray
+    T_s: float
+
+
+@njit(nogil=True, _nrt=False)
+def answer_block(step, h, b, run, block, ring):
+    """Block k0 … k0 + n − 1 (``block``: k0, n, the bus [V], the status, when it was read [s]; its samples
+    accepted into ``h.received_*``) as bridge_loop's host answers it: the commands of
+    samples never received and of periods run at zero volts are zero in the delay line; a whole block (its
+    first sample a multiple of N; N samples, or the run's last ones) is answered by the block kernels and one
+    command message, then each sample goes into ``ring`` (rows, indices). False when the link failed."""
+    k0, n, u_dc_V, status, arrived = block
+    n_total, delay, N = run[N_SAMPLES], run[DELAY], h.currents.shape[0]
+    if k0 >= n_total:
+        return True
+    k_end = min(k0 + n, n_total)
+    for missed in range(run[NEXT_K], k0):
+        issue_command(h.line, missed, 0.0, 0.0)
+    run[NEXT_K] = k_end
+    if status & (COMMAND_MISSING | PWM_OFF):
+        for k in range(max(k0, delay), k_end):
+            issue_command(h.line, k - delay, 0.0, 0.0)
+    m = min(N, n_total - k0)
+    if k0 % N or n < m:
+        return True
+    for i in range(m):
+        for j in range(3):
+            h.currents[i, j] = h.received_currents[i, j]
+    fill_inputs(h.inputs, h.currents, h.received_theta, h.controller.n_p, h.speed_ref, h.tau_feedforward, k0, m)
+    h.estimator.sample[0].R_s_ohm = h.protection_x[R_S_IN_USE]
+    estimator_block(step, h.estimator, k0, m, h.inputs, h.line, h.sensing, h.estimates)
+    omega_e_hat = h.estimates[m - 1].omega_e_hat
+    protection_block(h.protection_x, h.protection, h.currents, m, k0 + m - 1, u_dc_V, omega_e_hat, h.controller_x)
+    enable = h.protection_x[TRIPPED] == 0.0
+    safe = int(h.protection_x[SAFE_STATE]) if not enable else safe_state_for(omega_e_hat, u_dc_V,
+                                                                             h.protection.psi_f_Wb)
+    controller_block(h.controller_x, h.controller_z, h.controller, m, h.inputs, h.estimates, h.sensing, h.commands)
+    issue_and_log(h.line, h.rows, k0, m, h.T_s, h.inputs, h.estimates, h.commands)
+    for i in range(m):
+        h.voltages[0, i], h.voltages[1, i] = h.commands[i].u_alpha_V, h.commands[i].u_beta_V
+    if not cb.write_commands(b, k0, h.voltages[0], h.voltages[1], m, enable, safe):
+        return False
+    host_s = cb.monotonic_s(b.timespec) - arrived
+    rows, indices = ring
+    for i in range(m):
+        slot = free_slot(rows, indices)
+        if slot >= 0:
+            rows[slot, RING_K], rows[slot, RING_HOST_S] = k0 + i, host_s
+            for j in range(h.rows.shape[1]):
+                rows[slot, RING_LOG + j] = h.rows[i, j]
+            publish(indices)
+    run[LAST_ANSWERED] = k0 + m - 1
+    return True
+
+
+@njit(nogil=True, _nrt=False)
+def answer_loop(step, h, b, run, ring):
+    """Answer the inverter on ``b``'s link until the run's last sample is answered (DONE), Python asks to stop
+    or nothing came while it drains (STOPPED), or the link failed (compiled_bridge.LINK_DOWN)."""
+    while True:
+        if run[STOP]:
+            return STOPPED
+        got = cb.read_link(b, POLL_MS)
+        if got == cb.LINK_DOWN:
+            return cb.LINK_DOWN
+        arrived = cb.monotonic_s(b.timespec)
+        start = 0
+        while True:
+            after, m = cb.next_frame(b, start)
+            if after < 0:
+                break
+            start = after
+            if m == 0:
+                continue
+            seq, n, u_dc, status = cb.frame_telemetry(b, m)
+            if n == 0:
+                continue
+            k0 = cb.accept_telemetry(b, seq, n, u_dc, status, h.received_currents, h.received_theta)
+            if k0 < 0:
+                continue
+            if not answer_block(step, h, b, run, (k0, n, u_dc * b.state[cb.VOLTAGE_LSB], status, arrived), ring):
+                cb.keep_unframed(b, start)
+                return cb.LINK_DOWN
+            if run[LAST_ANSWERED] == run[N_SAMPLES] - 1:
+                cb.keep_unframed(b, start)
+                return DONE
+        cb.keep_unframed(b, start)
+        if not cb.check_silence(b):
+            return cb.LINK_DOWN
+        if got == 0 and run[DRAINING]:
+            return STOPPED
+
+
+def host_core(drive, line, block_samples):
+    """HostCore of ``drive`` (runner.Drive) with the delay ``line``, for blocks of ``block_samples``."""
+    from drive_common.contract.drive_records import commands, drive_inputs
+    from drive_common.contract.estimator_records import estimates
+    N = block_samples
+    return HostCore(drive.estimator.core(), drive.controller, drive.controller_x, drive.controller_z,
+                    drive.protection, drive.protection_x, drive.sensing(), drive.speed_ref, drive.tau_feedforward,
+                    line, np.zeros((MAX_BLOCK, 3)), np.full(MAX_BLOCK, np.nan), np.zeros((N, 3)), drive_inputs(N),
+                    estimates(N), commands(N), np.zeros((2, N)), np.zeros((N, len(LOG_COLUMNS))),
+                    drive.scenario.T_s)
+
+
+class AnswerOptions(NamedTuple):
+    """How the compiled answer runs: its thread's SCHED_FIFO ``priority`` (0: normal scheduling), the ring's
+    ``ring_rows``, and ``reader_stall_s``: a pause the ring's reader takes after each read (0: none), the
+    stall of the side that is not real-time a bench injects."""
+
+    priority: int = 0
+    ring_rows: int = RING_ROWS
+    reader_stall_s: float = 0.0
+
+
+class CompiledAnswer:
+    """The compiled answer of ``drive`` (runner.Drive) through ``bridge`` (InverterBridge on a SerialLink),
+    ``n_samples`` samples at the command delay ``delay``: ``start`` its thread and the ring's reader, which
+    hands each sample's row to ``take(k, host_s, log_row)``; ``stop``; ``join``. The answer thread runs the
+    compiled loop, and between its calls reconnects a failed link as InverterBridge does."""
+
+    def __init__(self, drive, bridge, line, run_samples, options=None):
+        n_samples, delay = run_samples
+        self.bridge, self.options = bridge, options or AnswerOptions()
+        options = self.options
+        self.step = drive.estimator.step
+        self.host = host_core(drive, line, bridge.block_samples)
+        self.run = np.zeros(6, dtype=np.int64)
+        self.run[N_SAMPLES], self.run[DELAY], self.run[LAST_ANSWERED] = n_samples, delay, -1
+        self.ring = sample_ring(options.ring_rows, RING_LOG + len(LOG_COLUMNS))
+        self.scheduling = {"applied": [], "refused": []}
+        self.answering = threading.Thread(target=self._answer, name="drive_answer", daemon=True)
+        self.reading = None
+        self.error = None
+        self._warm_up()
+
+    def _warm_up(self):
+        """Compile the loop (not cached: it is specialised on the estimator's step) on copies before the
+        inverter starts: a first call takes seconds."""
+        h = self.host
+        copy = h._replace(estimator=EstimatorCore(h.estimator.params, h.estimator.state.copy(),
+                                                  h.estimator.sample.copy()), controller_x=h.controller_x.copy(),
+                          controller_z=h.controller_z.copy(), protection_x=h.protection_x.copy(), line=h.line.copy())
+        run = self.run.copy()
+        run[STOP] = 1
+        bridge = self.bridge
+        if bridge.open:
+            answer_loop(self.step, copy, cb.load_bridge(bridge), run, sample_ring(1, self.ring.rows.shape[1]))
+
+    def start(self, take):
+        self.reading = threading.Thread(target=self._read, args=(take,), name="drive_answer_reader", daemon=True)
+        self.answering.start()
+        self.reading.start()
+
+    def _answer(self):
+        """The answer thread: SCHED_FIFO where allowed, then the compiled loop, called again after a failed
+        link is reopened."""
+        priority = self.options.priority
+        if priority:
+            try:
+                os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+                self.scheduling["applied"].append(f"SCHED_FIFO priority {priority} (the answer thread)")
+            except OSError as error:
+                self.scheduling["refused"].append(f"SCHED_FIFO priority {priority} refused: {error.strerror}")
+        bridge = self.bridge
+        try:
+            while not self.run[STOP]:
+                if not bridge.open:
+                    if self.run[DRAINING]:
+                        return
+                    time.sleep(max(0.0, min(0.05, bridge.next_open_at - time.monotonic())))
+                    if time.monotonic() >= bridge.next_open_at:
+                        bridge.reopen()
+                    continue
+                arrays = cb.load_bridge(bridge)
+                code = answer_loop(self.step, self.host, arrays, self.run, self.ring)
+                cb.store_bridge(arrays, bridge)
+                if code != cb.LINK_DOWN:
+                    return
+                bridge.link.close()
+                bridge.link_down(f"{bridge.link.port}: the device is gone or failed")
+        except Exception as error:
+            self.error = error
+
+    def _read(self, take):
+        """The ring's reader (not real-time): each row to ``take`` until the answer thread has ended and the
+        ring is empty."""
+        rows = np.zeros((max(1, self.ring.rows.shape[0] // 4), self.ring.rows.shape[1]))
+        stall = self.options.reader_stall_s
+        while True:
+            ended = not self.answering.is_alive()
+            count = drain(self.ring.rows, self.ring.indices, rows)
+            for row in rows[:count]:
+                take(int(row[RING_K]), row[RING_HOST_S], row[RING_LOG:])
+            if count == 0 and ended:
+                return
+            time.sleep(stall if stall > 0 else (0.0 if count else 0.002))
+
+    def drain_then_stop(self):
+        """No more telemetry will come: end the loop once nothing arrives."""
+        self.run[DRAINING] = 1
+
+    def stop(self):
+        self.run[STOP] = 1
+
+    def alive(self):
+        return self.answering.is_alive()
+
+    def join(self, timeout_s=None):
+        """Wait up to ``timeout_s`` for the answer thread to end, then for the reader to have handed over every
+        row (it ends once the answer thread has and the ring is empty); the answer thread's exception, if it
+        died of one, raised here."""
+        self.answering.join(timeout_s)
+        if self.reading is not None and not self.answering.is_alive():
+            self.reading.join()
+        if self.error is not None:
+            raise self.error
+
+    @property
+    def overflow(self):
+        """Rows the ring had no room for (samples answered but not recorded)."""
+        from drive_common.runtime.sample_ring import OVERFLOW
+        return int(self.ring.indices[OVERFLOW])

@@ -1,0 +1,94 @@
+"""The answer through the bridge compiled whole (issue 53): the same samples as the answer in Python to the
+bit, link faults counted alike, and a lossless hand-off through the ring: every sample recorded, or a counted
+overflow when its reader stalls, which leaves the answers themselves untouched. The inverter runs in lock-step
+(docs/architecture.md, "Tests"): no wall clock is asserted."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from drive_common.config.scenario import load_scenario
+from drive_common.runtime.realtime import ROBOT_RT_PRIORITY
+from drive_tools.doubles.faults import FaultPlan, faulty
+from drive_tools.runner.bridge_loop import run_through_bridge
+from drive_tools.runner.compiled_answer import AnswerOptions
+
+SCENARIO = dataclasses.replace(load_scenario("wang_100rpm"), duration_s=0.3)
+TRUTH = slice(1, 8)
+"""The log's columns the virtual inverter fills (the plant's truth): what the host's commands made."""
+
+
+def same_run(python, compiled):
+    """The two runs' samples, what the host received and every counter agree exactly."""
+    assert np.array_equal(python.log, compiled.log)
+    assert np.array_equal(python.received, compiled.received)
+    assert python.counters == {k: v for k, v in compiled.counters.items() if k != "ring_overflow"}
+    assert python.frame_errors == compiled.frame_errors
+    assert python.inverter_counters == compiled.inverter_counters
+
+
+@pytest.mark.parametrize("block_samples, priority", [(1, 0), (10, ROBOT_RT_PRIORITY)])
+def test_the_compiled_answer_gives_the_python_answers_samples_to_the_bit(block_samples, priority):
+    """Also with its thread at SCHED_FIFO where the machine allows it (else one statement says why not)."""
+    scenario = dataclasses.replace(SCENARIO, block_samples=block_samples)
+    python = run_through_bridge(scenario, "pty")
+    compiled = run_through_bridge(scenario, "pty", answer=AnswerOptions(priority=priority))
+    same_run(python, compiled)
+    assert len(compiled.scheduling["applied"] + compiled.scheduling["refused"]) == (1 if priority else 0)
+    assert compiled.received.all() and compiled.counters["ring_overflow"] == 0
+    assert compiled.log.shape[0] == scenario.n_samples
+
+
+def test_link_faults_are_counted_as_the_python_answer_counts_them():
+    """Corrupt, dropped, repeated and reordered telemetry frames, as test_bridge's Python answer meets them:
+    each counted by kind, every lost sample a period without its command. (Not compared sample by sample:
+    a frame lost in lock-step keeps the inverter waiting, whose end against the host's own timeout is the
+    machine's pace.)"""
+    faults = FaultPlan(corrupt_every=97, drop_every=89, duplicate_every=83, reorder_every=101, garbage_every=71)
+    result = run_through_bridge(SCENARIO, "pty", inverter=faulty(faults), answer=AnswerOptions())
+    injected, counters, errors = faults.counts, result.counters, result.frame_errors
+    assert counters["duplicated"] == injected["duplicated"]
+    bad_frames = errors.get("crc", 0) + errors.get("framing", 0)
+    assert injected["corrupted"] + injected["garbage"] <= bad_frames <= 2 * injected["corrupted"] + injected["garbage"]
+    assert counters["samples"] + counters["dropped"] == SCENARIO.n_samples
+    inverter = result.inverter_counters
+    assert inverter["missing"] == counters["dropped"] + inverter["discarded"] - counters["safe_state"]
+    assert injected["reordered"] - 1 <= counters["reordered"] <= injected["reordered"]
+    assert counters["dropped"] == injected["dropped"] + injected["corrupted"] + counters["reordered"]
+    assert counters["ring_overflow"] == 0 and result.received.sum() == counters["samples"]
+
+
+def test_lost_command_blocks_are_zero_volts_the_compiled_answer_pairs_as_the_python_answer_does():
+    """Every 37th command block lost on the way (the inverter hears it, so never waits: the outcome is what
+    the host sent): its 10 periods at zero volts, which the host writes into its estimator's delay line; the
+    same samples as the Python answer's, to the bit."""
+    scenario = dataclasses.replace(SCENARIO, block_samples=10)
+    python_faults, compiled_faults = FaultPlan(lose_command_every=37), FaultPlan(lose_command_every=37)
+    python = run_through_bridge(scenario, "pty", inverter=faulty(python_faults))
+    compiled = run_through_bridge(scenario, "pty", inverter=faulty(compiled_faults), answer=AnswerOptions())
+    lost = compiled_faults.counts["commands_lost"]
+    assert python_faults.counts == compiled_faults.counts and lost == scenario.n_samples // 10 // 37
+    assert compiled.inverter_counters["missing"] == 10 * lost
+    same_run(python, compiled)
+
+
+def test_a_stalled_reader_costs_recorded_samples_counted_never_the_answers():
+    """The ring's reader pauses 50 ms after each read with a ring of 64 rows: the rows it had no room for
+    are counted (recorded + overflow = samples answered), and the commands, hence what the inverter
+    sampled, are those of the run whose reader kept up (the default ring), to the bit; no command missed
+    its period."""
+    scenario = dataclasses.replace(SCENARIO, block_samples=10)
+    kept_up = run_through_bridge(scenario, "pty", answer=AnswerOptions())
+    stalled = run_through_bridge(scenario, "pty", answer=AnswerOptions(ring_rows=64, reader_stall_s=0.05))
+    overflow = stalled.counters["ring_overflow"]
+    assert kept_up.counters["ring_overflow"] == 0 and overflow > 0
+    assert stalled.received.sum() + overflow == scenario.n_samples
+    assert np.array_equal(stalled.log[:, TRUTH], kept_up.log[:, TRUTH])
+    recorded = stalled.received
+    assert np.array_equal(stalled.log[recorded], kept_up.log[recorded])
+    assert stalled.inverter_counters["missing"] == kept_up.inverter_counters["missing"] == 0
+
+
+def test_the_compiled_answer_is_refused_on_a_link_it_does_not_cover():
+    with pytest.raises(ValueError, match="serial link"):
+        run_through_bridge(SCENARIO, "can", answer=AnswerOptions())
