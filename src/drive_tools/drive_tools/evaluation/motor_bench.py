@@ -218,17 +218,16 @@ def _commission(scenario, commissioning, row):
     save_commissioning(commissioning, measured, name, "drive bench motor")
     row["tests"].append("standstill")
     row["identification_error"] = _errors(measured, truth, IDENTIFIED)
-    refusal = "" if scenario.estimator_settings.get("run_refused") else saliency_refusal(
-        dataclasses.replace(scenario, commissioning=str(commissioning)))
-    if refusal:
-        raise RefusedForSaliency(refusal)
-    if not math.isfinite(scenario.motor.nameplate.J_kgm2):
+    if math.isfinite(scenario.motor.nameplate.J_kgm2):
+        _refuse_for_saliency(scenario, commissioning)
+    else:
         row["testing"] = "rotating"
         estimates, rotating_truth, _ = rotating_test_in_process(scenario, commissioning)
         measured = measured._replace(psi_f_Wb=estimates["psi_f_Wb"], J_kgm2=estimates["J_kgm2"])
         save_commissioning(commissioning, measured, name, "drive bench motor")
         row["tests"].append("rotating")
         row["identification_error"].update(_errors(measured, rotating_truth, ROTATING_IDENTIFIED))
+        _refuse_for_saliency(scenario, commissioning)
     row["testing"] = "loaded"
     loaded, _ = loaded_test_in_process(scenario, commissioning)
     measured = with_loaded_test(measured, loaded)
@@ -238,6 +237,17 @@ def _commission(scenario, commissioning, row):
     row["loaded_test"] = {"significant": loaded["significant"], "zero_spread_rad": loaded["zero_spread_rad"],
                           "correction_at_rated_rad": float(np.interp(rated, measured.saliency_shift_i_q_A,
                                                                      loaded["estimator_shift_rad"]))}
+
+
+def _refuse_for_saliency(scenario, commissioning):
+    """RefusedForSaliency where ours refuses the motor for its saliency on what the file ``commissioning``
+    holds so far (the rotating test's J where the nameplate gives none: ours' loops and polarity pulses are
+    sized on the rotor's inertia, so a refusal on an assumed J would refuse motors that run); nothing for a
+    forced scenario."""
+    if not scenario.estimator_settings.get("run_refused"):
+        refusal = saliency_refusal(dataclasses.replace(scenario, commissioning=str(commissioning)))
+        if refusal:
+            raise RefusedForSaliency(refusal)
 
 
 class RefusedForSaliency(Exception):
