@@ -16,7 +16,6 @@ from drive_tools.evaluation.motor_bench import (
     INJECTIONS,
     PEAK_TARGET_RAD,
     RMS_TARGET_RAD,
-    SALIENCY_REFUSAL,
     VERDICTS,
     TrialOptions,
     motor_trial,
@@ -206,15 +205,16 @@ def test_the_predicted_angle_error_holds_within_its_factor_on_drawn_motors(index
     dead time's 0.017 rad bias put at 2.9× its prediction without it): where the motor runs, its measured
     low-speed angle error RMS is within PREDICTION_FACTOR (0.5-2×) of the one predicted before running; the refused
     motor, run anyway (`--force`), misses ours' targets or loses the angle as its prediction said. Every motor that
-    ran says which injection ran and ran the rated load on both."""
+    ran says which injection ran and ran the rated load on both. (A refused motor's verdict is then its I-f
+    trial's, issue 52 item 3.)"""
     path = write_motor_files([draw_motor(2, index)], tmp_path)[0]
     row = motor_trial(str(path), TrialOptions(1e-4, 1, (2, index)))
     predictions = prediction_rows([compact_row(row, {})])
     assert len(predictions) == 1, row["reason"]
     p = predictions[0]
     low, high = PREDICTION_FACTOR
-    if row["verdict"] == "refused up front":
-        assert SALIENCY_REFUSAL in row["reason"] and p["refused"]
+    if p["refused"]:
+        assert row["verdict"] in ("refused up front", "works above a speed", "failure")
         assert p["predicted_rms"] > RMS_TARGET_RAD or p["predicted_peak"] > PEAK_TARGET_RAD
         assert (p["measured_rms"] is None or p["measured_rms"] > RMS_TARGET_RAD
                 or p["measured_peak"] > PEAK_TARGET_RAD)
