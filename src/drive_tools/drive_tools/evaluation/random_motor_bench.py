@@ -55,6 +55,30 @@ def _trial(job):
         return crashed_row(path, trial, error)
 
 
+def each_in_processes(function, jobs, workers, finished):
+    """``finished(i, function(jobs[i]))`` for every job, in this process (``workers`` ≤ 1) or in a pool of
+    ``workers`` spawned processes that leave SIGINT and SIGTERM to this one, in the order they end. → 0, or the
+    signal that stopped it (the pool's queued jobs cancelled; the jobs finished before it handed over)."""
+    try:
+        if workers <= 1:
+            for i, job in enumerate(jobs):
+                finished(i, function(job))
+        else:
+            context = multiprocessing.get_context("spawn")
+            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context,
+                                                        initializer=_worker_ignores_signals) as pool:
+                futures = {pool.submit(function, job): i for i, job in enumerate(jobs)}
+                try:
+                    for future in concurrent.futures.as_completed(futures):
+                        finished(futures[future], future.result())
+                except Interrupted:
+                    pool.shutdown(wait=False, cancel_futures=True)
+                    raise
+    except Interrupted as stop:
+        return stop.signum
+    return 0
+
+
 def random_motor_bench(options, progress=None):
     """Draw, write and try ``options.count`` motors (RandomBenchOptions); ``progress(line)`` hears of each
     motor done. The report: the draw's facts, one compact row per motor, the counts (summary) and
@@ -62,7 +86,7 @@ def random_motor_bench(options, progress=None):
     motors = draw_motors(options.count, options.seed)
     paths = write_motor_files(motors, options.folder)
     jobs = [(str(path), TrialOptions(options.T_s, options.starts, (options.seed, i))) for i, path in enumerate(paths)]
-    rows, interrupted, start = [None] * len(jobs), 0, time.perf_counter()
+    rows, start = [None] * len(jobs), time.perf_counter()
 
     def finished(index, row):
         rows[index] = compact_row(row, motors[index].figures)
@@ -71,23 +95,7 @@ def random_motor_bench(options, progress=None):
             elapsed = time.perf_counter() - start
             progress(f"[{done}/{len(rows)}] {row['motor']}: {row['verdict']} ({elapsed:.0f} s, "
                      f"{elapsed / done:.1f} s per motor, about {elapsed / done * (len(rows) - done):.0f} s left)")
-    try:
-        if options.workers <= 1:
-            for i, job in enumerate(jobs):
-                finished(i, _trial(job))
-        else:
-            context = multiprocessing.get_context("spawn")
-            with concurrent.futures.ProcessPoolExecutor(options.workers, mp_context=context,
-                                                        initializer=_worker_ignores_signals) as pool:
-                futures = {pool.submit(_trial, job): i for i, job in enumerate(jobs)}
-                try:
-                    for future in concurrent.futures.as_completed(futures):
-                        finished(futures[future], future.result())
-                except Interrupted:
-                    pool.shutdown(wait=False, cancel_futures=True)
-                    raise
-    except Interrupted as stop:
-        interrupted = stop.signum
+    interrupted = each_in_processes(_trial, jobs, options.workers, finished)
     done = [r for r in rows if r is not None]
     wall = time.perf_counter() - start
     return {"benchmark": "motors", "random": options.count, "seed": options.seed, "folder": str(options.folder),

@@ -6,10 +6,8 @@ a load, and what a robot's recorder does to the messages (drive_tools.bags.write
 is commissioned at standstill in simulation as a robot builder would, then runs the case (forced past its own
 refusals: a recording of a drive that fails is data too); the plant's truth is in each bag (`rotor_state`).
 ``corpus.json`` lists every bag with the figures it was drawn by."""
-import concurrent.futures
 import dataclasses
 import math
-import multiprocessing
 import tempfile
 import time
 from pathlib import Path
@@ -21,14 +19,13 @@ from drive_common.config.scenario import ScenarioError, parse_scenario
 from drive_common.contract.errors import DriveError
 from drive_common.contract.strict_json import dumps
 from drive_common.motor.commissioning import save_commissioning
-from drive_common.runtime.interrupt import Interrupted
 from drive_tools.bags.writer import RecorderFlaws, write_run_bag
 from drive_tools.runner.commissioning_run import commission_in_process
 from drive_tools.runner.runner import run_scenario
 from hf_estimator.interface import injects
 
 from .metrics import compute_metrics
-from .random_motor_bench import _worker_ignores_signals
+from .random_motor_bench import each_in_processes
 from .random_motors import draw_motor, write_motor_files
 
 RECORDING_ESTIMATORS = (("injection_frame", 0.4), ("conventional", 0.15), ("improved", 0.15),
@@ -216,7 +213,7 @@ def synthetic_corpus(options, progress=None):
     folder = Path(options.folder)
     folder.mkdir(parents=True, exist_ok=True)
     jobs = [(options.seed, i, str(folder), options.duration_s) for i in range(options.count)]
-    rows, interrupted, start = [None] * len(jobs), 0, time.perf_counter()
+    rows, start = [None] * len(jobs), time.perf_counter()
 
     def finished(index, row):
         rows[index] = row
@@ -226,23 +223,7 @@ def synthetic_corpus(options, progress=None):
             progress(f"[{done}/{len(rows)}] {row['bag']} ({row['motor']}): "
                      f"{'written' if row['written'] else row['reason']} ({elapsed:.0f} s, about "
                      f"{elapsed / done * (len(rows) - done):.0f} s left)")
-    try:
-        if options.workers <= 1:
-            for i, job in enumerate(jobs):
-                finished(i, synthetic_bag(job))
-        else:
-            context = multiprocessing.get_context("spawn")
-            with concurrent.futures.ProcessPoolExecutor(options.workers, mp_context=context,
-                                                        initializer=_worker_ignores_signals) as pool:
-                futures = {pool.submit(synthetic_bag, job): i for i, job in enumerate(jobs)}
-                try:
-                    for future in concurrent.futures.as_completed(futures):
-                        finished(futures[future], future.result())
-                except Interrupted:
-                    pool.shutdown(wait=False, cancel_futures=True)
-                    raise
-    except Interrupted as stop:
-        interrupted = stop.signum
+    interrupted = each_in_processes(synthetic_bag, jobs, options.workers, finished)
     done = [r for r in rows if r is not None]
     report = {"corpus": str(folder), "count": options.count, "seed": options.seed, "duration_s": options.duration_s,
               "written": sum(r["written"] for r in done), "not_written": sum(not r["written"] for r in done),
