@@ -162,6 +162,16 @@ def chosen_estimator(scenario, plate, commissioning, inverter):
     return chosen, f"the loops' rule: {'the square wave' if choice.serves else 'the sine carrier'} ({choice.reason})"
 
 
+def drive_estimator(name, nameplate, T_s, settings, commissioning, inverter, controller_settings):
+    """The estimator ``name`` (its checked ``settings``) as the drive builds it, in a run and in a replay of
+    its recording: on the ``nameplate`` refined by the ``commissioning`` record, with the saliency shift of
+    the current path the controller's ``controller_settings`` run (MTPA or i_d = 0), on ``inverter``
+    (InverterRating with the drive's whole delay), sampled every T_s [s]."""
+    plate = commissioning.refined(nameplate)
+    return make_estimator(name, plate, T_s, settings, estimator_commissioning(plate, commissioning,
+                                                                               controller_settings), inverter)
+
+
 def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
@@ -176,8 +186,8 @@ def estimator_for_scenario(scenario, commissioning):
         limit = None
         if injects(scenario.estimator):
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)
-        estimator = make_estimator(scenario.estimator, plate, scenario.T_s, settings,
-                                   estimator_commissioning(plate, commissioning, scenario.controller), inverter)
+        estimator = drive_estimator(scenario.estimator, scenario.motor.nameplate, scenario.T_s, settings,
+                                    commissioning, inverter, scenario.controller)
         notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),
                               below_speed(scenario, estimator, commissioning,
                                           bool(settings.get("run_refused")))) if n]
@@ -193,4 +203,4 @@ def estimator_for_scenario(scenario, commissioning):
     if amplitude is None and notes:
         amplitude = settings.get("amplitude_V")
     return dataclasses.replace(estimator, tracking_current_limit_A=limit, injection_note=note,
-                               injection_amplitude_V=amplitude)
+                               injection_amplitude_V=amplitude, settings=settings)

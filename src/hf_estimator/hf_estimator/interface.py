@@ -56,6 +56,9 @@ class Estimator:
     """The HF amplitude it injects when it chooses it itself (None: the scenario's)."""
     injection_note: str = ""
     """Why it raised the scenario's amplitude ("" when it did not)."""
+    settings: dict = None
+    """The checked settings the drive built it with (the loops scaled to the motor included; None: not
+    built by the drive), stated in drive_config so that a replay of the recording builds it the same."""
 
     def core(self, state=None):
         """What the block kernels step with ``step`` (block.EstimatorCore): its parameters, this estimator's
@@ -67,7 +70,7 @@ class Estimator:
         return {"estimator": self.name, "injection_frequency_Hz": self.injection_frequency_Hz,
                 "injection_amplitude_V": self.injection_amplitude_V, "injection_note": self.injection_note,
                 "tracking_bandwidth_Hz": self.tracking_bandwidth_Hz,
-                "tracking_current_limit_A": self.tracking_current_limit_A}
+                "tracking_current_limit_A": self.tracking_current_limit_A, "estimator_settings": self.settings}
 
 
 class _Registered(NamedTuple):

@@ -141,3 +141,9 @@ def nameplate_from_mapping(data, source, defaults=None, key_prefix=""):
 def contract_motor(plate):
     """The drive_config ``motor`` object of contract v2 for a nameplate: its every field, SI keys."""
     return plate._asdict()
+
+
+def contract_inverter(rating):
+    """The drive_config ``inverter`` object (a project addition to contract v2) of an InverterRating: its
+    every field, SI keys (∞, not stated, as null in the strict JSON)."""
+    return rating._asdict()

@@ -37,7 +37,7 @@ from drive_common.contract.strict_json import dumps
 from drive_common.contract.topics import BLOCK_TOPIC, CLOCK, CONTRACT_VERSION, DIAGNOSTICS, DRIVE_CONFIG, TOPICS
 from drive_common.contract.wire import WireError, decode_block, decoder_of
 from drive_common.motor.commissioning import resolve_commissioning
-from drive_common.motor.nameplate import contract_motor, trip_current_A
+from drive_common.motor.nameplate import contract_inverter, contract_motor, trip_current_A
 from drive_common.runtime.realtime import (
     QUIET_TIME,
     add_scheduling_arguments,
@@ -276,6 +276,7 @@ class DriveNode(Node):
         error, what the node runs (motor, sampling period, blocks, delay) and ``config``."""
         if self.config:
             config = {"motor": contract_motor(self.nameplate()),
+                      "inverter": contract_inverter(self.config.motor.inverter),
                       "scenario": self.config.name, "n_p": self.nameplate().n_p, "T_s_s": self.T_s,
                       "block_samples": self.block_samples,
                       "command_delay_periods": self.config.drive_delay_periods(), **config}

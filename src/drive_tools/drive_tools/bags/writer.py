@@ -37,7 +37,7 @@ from drive_common.contract.topics import (
 )
 from drive_common.math.frames import wrap
 from drive_common.motor.commissioning import commissioning_record
-from drive_common.motor.nameplate import contract_motor
+from drive_common.motor.nameplate import contract_inverter, contract_motor
 from drive_common.runtime.interrupt import deferred
 
 from .common import BagError, BagWriteError, offered_qos, sample_stamp_ns, typestore
@@ -208,8 +208,8 @@ class RecorderFlaws(NamedTuple):
     stamps from a wall clock at ``epoch_s`` [s], each off its sample instant by up to ± ``jitter_s`` [s] (the
     same for every topic of a sample), a share ``lost_share`` of each per-sample topic's messages never
     recorded (drawn per topic from ``seed``); ``scenario_named``: drive_config names the scenario file (a
-    robot's drive runs none: its drive_config then gives the motor, estimator and injection alone). The
-    defaults record as the graph does."""
+    robot's drive runs none: its drive_config then gives the motor, inverter, estimator and its settings,
+    injection and controller settings alone). The defaults record as the graph does."""
 
     epoch_s: float = 0.0
     jitter_s: float = 0.0
@@ -235,6 +235,7 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
         writer.add(full_name(namespace, topic), t.type, offered_qos(topic))
     config = {"contract_version": CONTRACT_VERSION, "node": "drive run", "n_p": n_p, "scenario": scenario.name,
               "source": scenario.source, "motor": contract_motor(scenario.motor.nameplate),
+              "inverter": contract_inverter(scenario.motor.inverter),
               "estimator": result.estimator, "T_s_s": scenario.T_s, "samples": n,
               "injection": result.injection,
               "scenario_injection": scenario.injection, "controller": scenario.controller,
@@ -243,8 +244,10 @@ def write_run_bag(result, path, namespace="/drive", progress=None, chunk_bytes=C
               "command_delay_periods": scenario.drive_delay_periods()}
     if result.commissioning is not None:
         config["commissioning"] = commissioning_record(result.commissioning)
+    if result.estimator_facts and result.estimator_facts.get("estimator_settings") is not None:
+        config["estimator_settings"] = result.estimator_facts["estimator_settings"]
     if not flaws.scenario_named:
-        for key in ("scenario", "source", "scenario_injection", "controller"):
+        for key in ("scenario", "source", "scenario_injection"):
             del config[key]
     rng = np.random.default_rng(flaws.seed)
     jitter_s = rng.uniform(-flaws.jitter_s, flaws.jitter_s, n) if flaws.jitter_s > 0.0 else 0.0

@@ -54,9 +54,15 @@ class Recording:
     nameplate: object
     commissioning: object
     delay_periods: int
+    U_dc_V: float
+    """The recording drive's DC-link voltage [V] (∞ where the bag does not say): an estimator's own test
+    pulses are sized within it, so replay builds it on the same bus."""
     estimator: str
     """The recording drive's estimator ("" when the bag does not say)."""
     estimator_settings: dict
+    controller_settings: dict
+    """The recording controller's settings (its scenario's ``controller:`` or drive_config ``controller``; {}:
+    its defaults): the current path it ran, whose saliency shift the drive's estimator followed."""
     injection: dict
     """{frequency_Hz, amplitude_V} the recording injected, handed to the replayed estimators."""
     excitation: dict
@@ -128,10 +134,11 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
     log, gaps = whole_span(path, log, topics)
     zero_volts = zero_volts[:log.shape[0]]
     delay = _delay(scenario, configs, sources)
+    U_dc_V = _bus_voltage(path, scenario, configs, sources)
     known = _commissioning(path, plate, commissioning, configs, sources)
     recorded = recorded_estimator(configs)
     sources["recorded_estimator"] = "drive_config" if recorded else "not in the bag"
-    settings = dict(scenario.estimator_settings) if scenario and recorded == scenario.estimator else {}
+    settings = _estimator_settings(path, scenario, configs, recorded, sources)
     carrier, excitation = _excitation(log, T_s, sources)
     injection = _injection(scenario, configs, excitation, sources)
     if scenario is not None:
@@ -151,10 +158,14 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
     else:
         chosen, note = automatic_windows(log, T_s, plate)
         if not chosen:
-            raise BagError(f"{path}: no steady interval found to score ({note}); give --windows T0:T1[,...]")
+            named = next((c["scenario"] for c in configs if isinstance(c.get("scenario"), str)), None)
+            why = (f"; drive_config names scenario '{named}' but no source to take its windows from" if named
+                   else "")
+            raise BagError(f"{path}: no steady interval found to score ({note}){why}; give --windows T0:T1[,...]")
         start, sources["windows"] = chosen[0][0], f"automatic: {note}"
-    return Recording(path, log, T_s, plate, known, delay, recorded, settings, injection, excitation, carrier,
-                     chosen, start, scenario, sources, timing, gaps, zero_volts)
+    controller = _controller(path, scenario, configs, sources)
+    return Recording(path, log, T_s, plate, known, delay, U_dc_V, recorded, settings, controller, injection,
+                     excitation, carrier, chosen, start, scenario, sources, timing, gaps, zero_volts)
 
 
 def whole_span(path, log, topics):
@@ -225,6 +236,60 @@ def _delay(scenario, configs, sources):
         return given
     sources["command_delay"] = f"the contract's usual {CONTRACT_DELAY_PERIODS} period (not in the bag)"
     return CONTRACT_DELAY_PERIODS
+
+
+def _estimator_settings(path, scenario, configs, recorded, sources):
+    """The settings the recording drive built its estimator ``recorded`` with: drive_config's
+    ``estimator_settings`` (the drive's checked settings, loops scaled to the motor), else its scenario's
+    (a bag recorded before drives stated them), else {} (its defaults)."""
+    given = next((c for c in configs if c.get("estimator_settings") is not None), None)
+    if given is not None and given.get("estimator", recorded) == recorded:
+        if not isinstance(given["estimator_settings"], dict):
+            raise BagError(f"{path}: drive_config estimator_settings {shown(given['estimator_settings'])} is not "
+                           f"a mapping of estimator settings")
+        sources["estimator_settings"] = "drive_config estimator_settings"
+        return dict(given["estimator_settings"])
+    if scenario is not None and recorded == scenario.estimator:
+        sources["estimator_settings"] = f"scenario {scenario.name}"
+        return dict(scenario.estimator_settings)
+    sources["estimator_settings"] = "not in the bag: the estimator's defaults"
+    return {}
+
+
+def _controller(path, scenario, configs, sources):
+    """The recording controller's settings: its scenario's, else drive_config ``controller``, else {} (its
+    defaults)."""
+    if scenario is not None:
+        sources["controller"] = f"scenario {scenario.name}"
+        return dict(scenario.controller)
+    given = next((c["controller"] for c in configs if "controller" in c and "parameters" not in c), None)
+    if given is None:
+        sources["controller"] = "not in the bag: the controller's defaults"
+        return {}
+    if not isinstance(given, dict):
+        raise BagError(f"{path}: drive_config controller {shown(given)} is not a mapping of controller settings")
+    sources["controller"] = "drive_config controller"
+    return dict(given)
+
+
+def _bus_voltage(path, scenario, configs, sources):
+    """The recording drive's DC-link voltage [V]: its scenario's inverter, else drive_config ``inverter``
+    (``U_dc_V``), else ∞ (a bag recorded before drives stated it)."""
+    if scenario is not None:
+        sources["bus_voltage"] = f"scenario {scenario.name}"
+        return scenario.motor.inverter.U_dc_V
+    given = next((c["inverter"] for c in configs if isinstance(c.get("inverter"), dict)), None)
+    if given is None:
+        sources["bus_voltage"] = "not in the bag: test pulses sized as on an unlimited bus"
+        return math.inf
+    U_dc_V = given.get("U_dc_V")
+    if U_dc_V is None:
+        sources["bus_voltage"] = "drive_config inverter (not stated)"
+        return math.inf
+    if isinstance(U_dc_V, bool) or not isinstance(U_dc_V, (int, float)) or not 0.0 < U_dc_V < math.inf:
+        raise BagError(f"{path}: drive_config inverter.U_dc_V {shown(U_dc_V)} is not a bus voltage in volts")
+    sources["bus_voltage"] = "drive_config inverter.U_dc_V"
+    return float(U_dc_V)
 
 
 def _commissioning(path, plate, given, configs, sources):

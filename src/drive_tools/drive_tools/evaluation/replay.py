@@ -23,7 +23,8 @@ from drive_common.contract.log import COLUMN
 from drive_common.contract.run_result import RunResult
 from drive_common.motor.nameplate import InverterRating
 from drive_tools.runner.loop import replay_samples
-from hf_estimator.interface import excitation_need, injects, make_estimator
+from hf_estimator.build import drive_estimator
+from hf_estimator.interface import excitation_need, injects
 
 from .excitation import MAX_CARRIER_PHASE_RAD, MIN_CARRIER_FRACTION, carrier_match
 from .metrics import _mask, angle_error, angle_scores, reported_losses
@@ -103,8 +104,9 @@ def replayed_estimator(recording, name, forced=False):
             settings["polarity_from_recording"] = True
         if forced:
             settings["run_refused"] = True
-    inverter = InverterRating(U_dc_V=math.inf, delay_periods=recording.delay_periods)
-    return make_estimator(name, recording.nameplate, recording.T_s, settings, recording.commissioning, inverter)
+    inverter = InverterRating(U_dc_V=recording.U_dc_V, delay_periods=recording.delay_periods)
+    return drive_estimator(name, recording.nameplate, recording.T_s, settings, recording.commissioning, inverter,
+                           recording.controller_settings)
 
 
 def applicability(recording, name, frequency, requested, scored):
