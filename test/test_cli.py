@@ -78,6 +78,7 @@ def test_bench_json_reports_samples_per_second_per_estimator():
     report = json.loads(proc.stdout)
     assert set(report["samples_per_second"]) == {"sensored", "injection_frame"}
     assert all(value > 0.0 for value in report["samples_per_second"].values())
+    assert all(row["samples_per_cpu_second"] >= 0.9 * row["samples_per_second"] for row in report["results"])
     assert "motulator" not in report
 
 

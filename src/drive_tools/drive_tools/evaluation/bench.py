@@ -41,17 +41,20 @@ def throughput(estimator, samples=1_000_000, chunk=50_000, repeats=3, scenario_n
     drive = build_drive(scenario)
     log = np.zeros((chunk, len(LOG_COLUMNS)))
     drive.run(0, chunk, log)
-    walls = []
+    walls, cpus = [], []
     for r in range(repeats):
         first = chunk + r * samples
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         for k0 in range(first, first + samples, chunk):
             k1 = min(k0 + chunk, first + samples)
             drive.run(k0, k1, log[:k1 - k0])
         walls.append(time.perf_counter() - start)
+        cpus.append(time.process_time() - start_cpu)
     return {"estimator": estimator, "scenario": scenario_name, "samples": samples, "repeats": repeats,
             "wall_time_s": min(walls), "samples_per_second": samples / min(walls),
-            "samples_per_second_median": samples / float(np.median(walls))}
+            "samples_per_second_median": samples / float(np.median(walls)),
+            "cpu_time_s": min(cpus), "samples_per_cpu_second": samples / min(cpus),
+            "samples_per_cpu_second_median": samples / float(np.median(cpus))}
 
 
 REPOSITORY = Path(__file__).resolve().parents[4]

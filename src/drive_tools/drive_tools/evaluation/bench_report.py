@@ -6,7 +6,8 @@ from .report_text import formatted
 def throughput_line(row):
     """One estimator's closed-loop throughput (drive_tools.evaluation.bench.throughput)."""
     return (f"  {row['estimator']:14s} {row['samples_per_second']:12,.0f} samples/s (best of {row['repeats']} × "
-            f"{row['samples']} samples; median {row['samples_per_second_median']:,.0f})")
+            f"{row['samples']} samples; median {row['samples_per_second_median']:,.0f}; per CPU second "
+            f"{row['samples_per_cpu_second']:,.0f})")
 
 
 def against_lines(report):
@@ -29,8 +30,10 @@ def motulator_lines(report, python):
     if "error" in reference:
         return [f"  motulator: not timed ({reference['error']})"]
     return [f"  motulator      {reference['samples_per_second']:12,.0f} samples/s ({reference['samples']} samples "
-            f"in {reference['wall_time_s']:.2f} s, {python})"] + [
-        f"  {name:14s} {ratio:12,.0f} × motulator" for name, ratio in report["ratio_to_motulator"].items()]
+            f"in {reference['wall_time_s']:.2f} s, {reference['cpu_time_s']:.2f} CPU s, {python})"] + [
+        f"  {name:14s} {ratio:12,.0f} × motulator per CPU second "
+        f"({report['ratio_to_motulator_wall'][name]:,.0f} × on the wall clock)"
+        for name, ratio in report["ratio_to_motulator"].items()]
 
 
 def bridge_lines(report, paced):
