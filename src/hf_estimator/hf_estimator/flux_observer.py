@@ -27,8 +27,8 @@ import numpy as np
 from numba import njit
 
 from drive_common.contract.estimator_states import HOLD, LEADER_BACKEMF, TRACKING
-from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
-from drive_common.math.frames import clarke_contract, inverse_clarke, rotate
+from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, net_of_dead_time
+from drive_common.math.frames import clarke_contract, rotate
 
 from .interface import Estimator, check_settings, register, stator_resistance
 
@@ -65,12 +65,9 @@ def flux_observer_step(x, p, k, sample, out):
     i_alpha, i_beta = clarke_contract(sample.i_a, sample.i_b, sample.i_c)
     u_applied_alpha, u_applied_beta = sample.u_applied_alpha, sample.u_applied_beta
     if x.started > 0.5:
-        if p.dead_time_voltage_V != 0.0:
-            prev_alpha, prev_beta = rotate(x.prev_id, x.prev_iq, x.theta)
-            start_a, start_b, start_c = inverse_clarke(prev_alpha, prev_beta)
-            loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
-            u_applied_alpha -= p.dead_time_voltage_V * loss_alpha
-            u_applied_beta -= p.dead_time_voltage_V * loss_beta
+        prev_alpha, prev_beta = rotate(x.prev_id, x.prev_iq, x.theta)
+        u_applied_alpha, u_applied_beta = net_of_dead_time(u_applied_alpha, u_applied_beta, prev_alpha, prev_beta,
+                                                           p.dead_time_voltage_V, p.dead_time_smoothing_A)
         e_d, w_s = x.e_d, x.omega_s
         u_d, u_q = rotate(u_applied_alpha, u_applied_beta, -(x.theta + 0.5 * p.T_s_s * w_s))
         k_1 = p.sigma_0 + 0.2 * abs(x.omega)

@@ -60,7 +60,7 @@ design).
    below the threshold the loop is held (ε = 0) and the flag says so. A type-2 loop lags a constant
    acceleration a by a/ω_n² (0.1 rad at 4000 rpm/s on `szabo_ipmsm`); with ``pll_type`` 3 an acceleration
    integrator ahead of the speed integrator removes that lag: s³ + k_p s² + k_i s + k_a = (s + p)(s² +
-   2ζω_n s + ω_n²), p = ACCELERATION_POLE_RATIO·ω_n. Its acceleration is zero whenever ours is not
+   2ζω_n s + ω_n²), p = ACCELERATION_POLE_RATIO·ω_n (tracking_loop.py). Its acceleration is zero whenever ours is not
    tracking (start-up, hold): the estimate then coasts at constant speed. ``pll_type`` "auto"
    (tracking_loop_type) takes type 3 where the signal has the noise margin for it.
 6b. ``injection_by_rule`` (the motor's own experiments set it): the loops' rule chooses the square wave in its
@@ -76,8 +76,8 @@ import numpy as np
 from numba import njit
 
 from drive_common.contract.estimator_states import ALIGNING, TRACKING
-from drive_common.math.dead_time import MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT, dead_time_direction
-from drive_common.math.frames import clarke_contract, inverse_clarke, rotate
+from drive_common.math.dead_time import MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT, net_of_dead_time
+from drive_common.math.frames import clarke_contract, rotate
 from drive_common.math.tables import table_value
 
 from .interface import (
@@ -93,7 +93,7 @@ from .outputs import write_injecting_estimate
 from .startup import DEFAULTS as STARTUP_DEFAULTS
 from .startup import fresh_startup, make_startup, startup_code, startup_step
 from .startup_state import STARTUP, StartupParams
-from .tracking_loop import pi_tracking_loop
+from .tracking_loop import tracking_loop, unit_slope_gains
 
 N_SUMS = 10
 """Sliding sums of the fit: a, b, y1, y2, aa, bb, ab, a·y1, b·y2, b·y1 + a·y2."""
@@ -120,8 +120,6 @@ DEFAULTS = {"frequency_Hz": 1000.0, "amplitude_V": 5.0, "dither_rad": math.pi / 
             "pll_bandwidth_Hz": 18.0, "pll_damping": 0.9, "observable_ratio": 0.02,
             "signal_smoothing_Hz": 20.0, "dead_time_model": "auto", "saliency_snr_min": 8.0, "pll_type": 2,
             "injection_by_rule": False, **STARTUP_DEFAULTS}
-ACCELERATION_POLE_RATIO = 0.5
-"""The type-3 loop's third pole, real, at this share of ω_n (item 6)."""
 ALIGN_JUMP_RAD = 0.2
 """While aligning, a measured error beyond this (or 4 × the alignment tolerance) is jumped over at once
 (well above one fit's noise). The commands of d + 1 samples are then still aimed at the old axis: the
@@ -315,13 +313,9 @@ def injection_frame_step(x, p, k, sample, out):
     d_alpha = i_alpha - x.prev_ia
     d_beta = i_beta - x.prev_ib
     R_s = stator_resistance(p.R_s_ohm, sample.R_s_ohm)
-    drive_alpha = sample.u_applied_alpha - R_s * 0.5 * (i_alpha + x.prev_ia)
-    drive_beta = sample.u_applied_beta - R_s * 0.5 * (i_beta + x.prev_ib)
-    if p.dead_time_voltage_V != 0.0:
-        start_a, start_b, start_c = inverse_clarke(x.prev_ia, x.prev_ib)
-        loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
-        drive_alpha -= p.dead_time_voltage_V * loss_alpha
-        drive_beta -= p.dead_time_voltage_V * loss_beta
+    drive_alpha, drive_beta = net_of_dead_time(sample.u_applied_alpha - R_s * 0.5 * (i_alpha + x.prev_ia),
+                                               sample.u_applied_beta - R_s * 0.5 * (i_beta + x.prev_ib),
+                                               x.prev_ia, x.prev_ib, p.dead_time_voltage_V, p.dead_time_smoothing_A)
     x.prev_ia = i_alpha
     x.prev_ib = i_beta
 
@@ -359,10 +353,7 @@ def injection_frame_step(x, p, k, sample, out):
                     eps = 0.0
                     observable = 0.0
 
-    if p.ka != 0.0:
-        x.acceleration += p.T_s_s * p.ka * eps
-        x.omega += p.T_s_s * x.acceleration
-    pi_tracking_loop(x, p.kp, p.ki, p.T_s_s, eps)
+    tracking_loop(x, p.kp, p.ki, p.ka, p.T_s_s, eps)
     omega = x.omega
 
     carrier_now = math.cos(2.0 * math.pi * (k % p.N) / p.N)
@@ -387,8 +378,6 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
     if N < 3:
         raise ValueError(f"frequency_Hz {s['frequency_Hz']} leaves fewer than 3 samples per carrier period")
     ring_capacity(N, inverter.delay_periods)
-    omega_n = 2.0 * math.pi * float(s["pll_bandwidth_Hz"])
-    zeta = float(s["pll_damping"])
     omega_h = 2.0 * math.pi / (N * T_s)
     snr_min = float(s["saliency_snr_min"]) * math.sqrt(max(1.0, float(s["pll_bandwidth_Hz"]) / SNR_REFERENCE_HZ))
     injection_amplitude_V, note = raised_injection_amplitude(float(s["amplitude_V"]), commissioning, nameplate,
@@ -397,14 +386,13 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
     shift_rad, loaded_note = loaded_correction(commissioning, 1.0 / (N * T_s), injection_amplitude_V)
     modelled, dead_time_note = dead_time_modelled(s["dead_time_model"], commissioning, injection_amplitude_V)
     note = "; ".join(n for n in (note, loop_note, loaded_note, dead_time_note) if n)
-    pole = ACCELERATION_POLE_RATIO * omega_n if loop_type == 3 else 0.0
+    kp, ki, ka = unit_slope_gains(float(s["pll_bandwidth_Hz"]), float(s["pll_damping"]), loop_type)
     delay_periods = inverter.delay_periods
     startup = make_startup(nameplate, commissioning, T_s, inverter, 1.0, s)
     params = InjectionFrameParams(
         T_s_s=T_s, N=N, injection_amplitude_V=injection_amplitude_V, R_s_ohm=commissioning.R_s_ohm,
         dither_rad=float(s["dither_rad"]),
-        delay_periods=int(delay_periods), kp=2.0 * zeta * omega_n + pole, ki=omega_n ** 2 + 2.0 * zeta * omega_n * pole,
-        ka=pole * omega_n ** 2,
+        delay_periods=int(delay_periods), kp=kp, ki=ki, ka=ka,
         observable_ratio=float(s["observable_ratio"]),
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
         current_smoothing=1.0 - math.exp(-2.0 / N),

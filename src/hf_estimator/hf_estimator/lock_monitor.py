@@ -6,8 +6,8 @@ import math
 from numba import njit
 
 from drive_common.contract.estimator_states import ALIGNING, HOLD, LOCK_LOST, TRACKING
-from drive_common.math.dead_time import dead_time_direction
-from drive_common.math.frames import inverse_clarke, rotate
+from drive_common.math.dead_time import net_of_dead_time
+from drive_common.math.frames import rotate
 
 from .interface import stator_resistance
 from .startup_state import (
@@ -29,11 +29,8 @@ def backemf_residual(x, p, k, i_alpha, i_beta, u_alpha, u_beta, R_s_tracked_ohm)
     prev_a, prev_b = s.prev_ia, s.prev_ib
     s.prev_ia = i_alpha
     s.prev_ib = i_beta
-    if p.dead_time_voltage_V != 0.0:
-        start_a, start_b, start_c = inverse_clarke(prev_a, prev_b)
-        loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
-        u_alpha -= p.dead_time_voltage_V * loss_alpha
-        u_beta -= p.dead_time_voltage_V * loss_beta
+    u_alpha, u_beta = net_of_dead_time(u_alpha, u_beta, prev_a, prev_b, p.dead_time_voltage_V,
+                                       p.dead_time_smoothing_A)
     s.u_net_alpha = u_alpha
     s.u_net_beta = u_beta
     if k < p.delay_periods + 2:

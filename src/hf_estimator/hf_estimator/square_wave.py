@@ -52,8 +52,8 @@ import numpy as np
 from numba import njit
 
 from drive_common.contract.estimator_states import TRACKING
-from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, dead_time_direction
-from drive_common.math.frames import clarke_contract, inverse_clarke, rotate
+from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, net_of_dead_time
+from drive_common.math.frames import clarke_contract, rotate
 from drive_common.math.tables import table_value
 from drive_common.motor.scaled_loops import (
     ACCELERATION_LAG_RAD,
@@ -63,7 +63,6 @@ from drive_common.motor.scaled_loops import (
 )
 
 from .injection_frame import (
-    ACCELERATION_POLE_RATIO,
     HF_RIPPLE_MAX_PER_RATED,
     HF_VOLTAGE_MAX_PER_LINEAR,
     SNR_REFERENCE_HZ,
@@ -81,7 +80,7 @@ from .pll_model import (
 from .startup import DEFAULTS as STARTUP_DEFAULTS
 from .startup import fresh_startup, make_startup, startup_step
 from .startup_state import STARTUP, StartupParams
-from .tracking_loop import pi_tracking_loop
+from .tracking_loop import tracking_loop, unit_slope_gains
 
 MAX_HALF_PERIOD_SAMPLES = 8
 """The largest ``samples_per_half_period`` (f_h ≥ f_s/16): beyond, the sine carrier serves better."""
@@ -292,13 +291,9 @@ def square_wave_step(x, p, k, sample, out):
     m = p.half_period
     axis_then = x.issued[(k - 1 - p.delay_periods) % depth]
     R_s = stator_resistance(p.R_s_ohm, sample.R_s_ohm)
-    w_alpha = sample.u_applied_alpha - R_s * 0.5 * (i_alpha + x.prev_ia)
-    w_beta = sample.u_applied_beta - R_s * 0.5 * (i_beta + x.prev_ib)
-    if p.dead_time_voltage_V != 0.0:
-        start_a, start_b, start_c = inverse_clarke(x.prev_ia, x.prev_ib)
-        loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, p.dead_time_smoothing_A)
-        w_alpha -= p.dead_time_voltage_V * loss_alpha
-        w_beta -= p.dead_time_voltage_V * loss_beta
+    w_alpha, w_beta = net_of_dead_time(sample.u_applied_alpha - R_s * 0.5 * (i_alpha + x.prev_ia),
+                                       sample.u_applied_beta - R_s * 0.5 * (i_beta + x.prev_ib),
+                                       x.prev_ia, x.prev_ib, p.dead_time_voltage_V, p.dead_time_smoothing_A)
     y_d, y_q = rotate(i_alpha - x.prev_ia, i_beta - x.prev_ib, -axis_then)
     a, b = rotate(w_alpha, w_beta, -axis_then)
     x.prev_ia = i_alpha
@@ -332,10 +327,7 @@ def square_wave_step(x, p, k, sample, out):
     step[2] = a
     step[3] = b
 
-    if p.ka != 0.0:
-        x.acceleration += p.T_s_s * p.ka * eps
-        x.omega += p.T_s_s * x.acceleration
-    pi_tracking_loop(x, p.kp, p.ki, p.T_s_s, eps)
+    tracking_loop(x, p.kp, p.ki, p.ka, p.T_s_s, eps)
 
     sign_now = 1.0 if (k // m) % 2 == 0 else -1.0
     axis_now = x.theta + x.omega * (p.delay_periods + 0.5) * p.T_s_s
@@ -418,15 +410,14 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
         loop_type = 3 if acceleration_sets and snr >= snr_wanted * (1.0 - 1e-9) else 2
     notes.append(f"tracking {bandwidth_Hz:.0f} Hz (type {loop_type}; the square wave's delay allows "
                  f"{limit_Hz:.0f} Hz)")
-    omega_n, zeta = 2.0 * math.pi * bandwidth_Hz, float(s["pll_damping"])
-    pole = ACCELERATION_POLE_RATIO * omega_n if loop_type == 3 else 0.0
+    kp, ki, ka = unit_slope_gains(bandwidth_Hz, float(s["pll_damping"]), loop_type)
     salient = commissioning.salient()
     params = SquareWaveParams(
         T_s_s=T_s, half_period=m, injection_amplitude_V=amplitude_V, R_s_ohm=commissioning.R_s_ohm,
         inverse_L_qh_per_H=1.0 / commissioning.L_qh_H, sigma_per_H=commissioning.sigma,
         delta_abs_per_H=abs(commissioning.delta), saliency_retained=saliency_retained_table(commissioning),
         saliency_sign=math.copysign(1.0, commissioning.delta) if salient else 0.0, delay_periods=delay_periods,
-        kp=2.0 * zeta * omega_n + pole, ki=omega_n ** 2 + 2.0 * zeta * omega_n * pole, ka=pole * omega_n ** 2,
+        kp=kp, ki=ki, ka=ka,
         observable_ratio=float(s["observable_ratio"]),
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
         current_smoothing=1.0 - math.exp(-1.0 / (2.0 * m)),

@@ -6,6 +6,8 @@ modelled loss from the voltage it pairs with each current step. One kernel: numb
 import numpy as np
 from numba import njit
 
+from .frames import inverse_clarke
+
 SQRT3 = 3.0 ** 0.5
 SMOOTHING_PER_RATED_CURRENT = 0.01
 """The sign is smoothed as tanh(i / (this × rated current)): an assumption, the drive cannot resolve it
@@ -26,3 +28,15 @@ def dead_time_direction(i_a, i_b, i_c, smoothing_A):
     else:
         s_a, s_b, s_c = np.sign(i_a), np.sign(i_b), np.sign(i_c)
     return (2.0 * s_a - s_b - s_c) / 3.0, (s_b - s_c) / SQRT3
+
+
+@njit(cache=True)
+def net_of_dead_time(u_alpha, u_beta, i_alpha, i_beta, dead_time_voltage_V, smoothing_A):
+    """The applied voltage (α, β) [V] net of the modelled dead-time loss over a period that started at the
+    currents (i_α, i_β) [A]: each phase's loss ``dead_time_voltage_V`` [V] along its current's sign smoothed
+    over ``smoothing_A`` [A]; the voltage as it is where the loss is not modelled (0 V)."""
+    if dead_time_voltage_V == 0.0:
+        return u_alpha, u_beta
+    start_a, start_b, start_c = inverse_clarke(i_alpha, i_beta)
+    loss_alpha, loss_beta = dead_time_direction(start_a, start_b, start_c, smoothing_A)
+    return u_alpha - dead_time_voltage_V * loss_alpha, u_beta - dead_time_voltage_V * loss_beta
