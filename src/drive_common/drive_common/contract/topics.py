@@ -3,8 +3,9 @@ first field is the sample instant, and the log columns its fields fill. Nodes, t
 recorder, the bag reader and the runner's logs all read this table."""
 from typing import NamedTuple
 
-CONTRACT_VERSION = 2
-"""The drive interface contract this code follows (docs/drive-interface.md); drive_config carries it."""
+CONTRACT_VERSION = 3
+"""The drive interface contract this code follows (docs/drive-interface.md); drive_config carries it. Version 3:
+the block topics in a message type of their own (drive_msgs/msg/SampleBlock) instead of sensor_msgs/JointState."""
 
 
 class QosSpec(NamedTuple):
@@ -45,8 +46,8 @@ class Topic(NamedTuple):
     block_of: str = ""
     """The per-sample topic whose samples it carries in blocks (docs/ros-graph.md, "Block transport")."""
     channels: bool = False
-    """Its JointState messages carry channels of samples (drive_common.contract.wire.decode_block): the block
-    twins and `zero_voltage`."""
+    """Its messages carry channels of samples (drive_common.contract.wire.decode_block): the block twins and
+    `zero_voltage`, drive_msgs/msg/SampleBlock."""
 
 
 CURRENTS, ROTOR_STATE, ROTOR_ESTIMATE, INJECTION, VOLTAGE_COMMAND = (
@@ -61,6 +62,12 @@ ZERO_VOLTAGE = "zero_voltage"
 VECTOR3 = "geometry_msgs/msg/Vector3Stamped"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 FLOAT64 = "std_msgs/msg/Float64"
+SAMPLE_BLOCK = "drive_msgs/msg/SampleBlock"
+"""A block of samples (drive_common/contract/msg/SampleBlock.msg, built by ./setup.sh): header, labels, three
+float64 channels a, b, c; its CDR layout is a JointState's (header, string[], three float64[])."""
+LEGACY_TYPES = {SAMPLE_BLOCK: (JOINT_STATE,)}
+"""Types a topic had in recordings of older contracts, still read: the blocks were sensor_msgs/JointState (its
+position, velocity, effort the channels) up to contract version 2."""
 
 TOPICS = {t.name: t for t in (
     Topic(CURRENTS, VECTOR3, PER_SAMPLE_QOS, True, True, ("i_a_meas", "i_b_meas", "i_c_meas"), frame_id="abc"),
@@ -80,16 +87,17 @@ TOPICS = {t.name: t for t in (
     Topic(TORQUE_FEEDFORWARD, FLOAT64, COMMAND_QOS, False, False),
     Topic(DRIVE_CONFIG, "std_msgs/msg/String", LATCHED_QOS, False, False),
     Topic(DIAGNOSTICS, "diagnostic_msgs/msg/DiagnosticArray", DIAGNOSTICS_QOS, False, False),
-    Topic(ZERO_VOLTAGE, JOINT_STATE, PER_SAMPLE_QOS, False, True, channels=True),
+    Topic(ZERO_VOLTAGE, SAMPLE_BLOCK, PER_SAMPLE_QOS, False, True, channels=True),
 )}
 """`zero_voltage` (behind an inverter, docs/ros-graph.md "Block transport"): the periods of a block (or a
-sample) that ran at zero volts instead of their command, published before that block's currents."""
-TOPICS.update({f"{t.name}_block": t._replace(name=f"{t.name}_block", type=JOINT_STATE, per_sample=False,
+sample) that ran at zero volts instead of their command (1.0 in channel a), published before that block's
+currents."""
+TOPICS.update({f"{t.name}_block": t._replace(name=f"{t.name}_block", type=SAMPLE_BLOCK, per_sample=False,
                                              block_of=t.name, channels=True)
                for t in list(TOPICS.values()) if t.per_sample and t.log_columns})
-"""Each logged per-sample topic has a block twin (``currents_block`` …): sensor_msgs/JointState, stamped
+"""Each logged per-sample topic has a block twin (``currents_block`` …): drive_msgs/msg/SampleBlock, stamped
 with its first sample's instant, the per-sample message's three values as three channels of N samples
-(x, y, z of a Vector3Stamped; position, velocity, effort of a JointState) in position, velocity, effort."""
+(x, y, z of a Vector3Stamped; position, velocity, effort of a JointState) in a, b, c."""
 BLOCK_TOPIC = {t.block_of: t.name for t in TOPICS.values() if t.block_of}
 """Per-sample topic → its block twin."""
 
