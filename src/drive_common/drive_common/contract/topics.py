@@ -16,15 +16,26 @@ class QosSpec(NamedTuple):
 
 
 PER_SAMPLE_QOS = QosSpec(depth=1000)
-"""Lock-step topics: reliable, in order, and deep enough that a slow observer (recorder, echo) loses
-nothing within a second of lag at 1 kHz and far more than the one message in flight."""
+"""The lock-step topics (state, estimates, commands of each sample): read by the next node of the chain (one
+message in flight) and by observers (the recorder, `drive echo`): reliable, volatile (a sample of an earlier run is
+never taken), 1000 deep: an observer that falls up to 0.1 s behind at 10 kHz loses nothing."""
 COMMAND_QOS = QosSpec(depth=100)
-"""speed_command / load_torque / angle_error / joint_states: reliable; volatile so `ros2 topic pub`
-and Foxglove publishers match."""
+"""speed_command / torque_feedforward / load_torque (read by the drive: only the latest counts) and joint_states
+(read by a robot's state consumers, 100 Hz by default): reliable, so a one-shot command arrives and both reliable
+and best-effort readers match; volatile, so a command published before the drive (re)started is never applied
+(`ros2 topic pub` and Foxglove publishers match); 100 deep (1 s of joint_states)."""
+OBSERVED_QOS = QosSpec(depth=10000)
+"""angle_error (read by plots, the live view, evaluations that count every message): reliable, volatile, 10 000
+deep: a reader that falls up to 10 000 messages behind (1 s at 10 kHz, angle_error_decimation 1) loses none of
+those published after it matched."""
 LATCHED_QOS = QosSpec(depth=10, transient_local=True)
 """drive_config: published once per node start, delivered to late joiners (10 deep, so a subscriber
 keeps the configs of all the drive's nodes)."""
-DIAGNOSTICS_QOS = QosSpec(depth=10)
+DIAGNOSTICS_QOS = QosSpec(depth=100, transient_local=True)
+"""/diagnostics (read by supervisors, the launcher, the live view): reliable, transient local, 100 deep per node: a
+reader that joins late gets each node's last 100 statuses at once (their fault counters cumulative, so the last
+holds every count so far), a slow one loses none of a node's statuses while it is fewer than 100 behind (100 s at
+1 Hz, 10 s at the fastest fault reports)."""
 
 
 class Topic(NamedTuple):
@@ -80,7 +91,7 @@ TOPICS = {t.name: t for t in (
     Topic(ESTIMATOR_BLEND, VECTOR3, PER_SAMPLE_QOS, True, True,
           ("injection_amplitude", "observer_weight", "leader")),
     Topic(CLOCK, "rosgraph_msgs/msg/Clock", PER_SAMPLE_QOS, True, True),
-    Topic(ANGLE_ERROR, VECTOR3, COMMAND_QOS, False, True),
+    Topic(ANGLE_ERROR, VECTOR3, OBSERVED_QOS, False, True),
     Topic(JOINT_STATES, JOINT_STATE, COMMAND_QOS, False, True),
     Topic(SPEED_COMMAND, FLOAT64, COMMAND_QOS, False, False, ("omega_m_ref",)),
     Topic(LOAD_TORQUE, FLOAT64, COMMAND_QOS, False, False, ("tau_load",)),
