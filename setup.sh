@@ -21,6 +21,15 @@ done
 packages=()
 for package in src/*/setup.py; do packages+=(-e "$(dirname "$package")"); done
 .venv/bin/python -m pip install --quiet --no-deps "${packages[@]}"
+# The live view's browser test (test/test_live_view.py) drives the system's Chromium: installed when absent and
+# this user may (root with apt-get); otherwise that test says why it skipped.
+if [ ! -x /usr/bin/chromedriver ] && [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null; then
+  { apt-get install -y -q chromium chromium-driver || { apt-get update -q && apt-get install -y -q chromium chromium-driver; }; } \
+    >/dev/null 2>&1 || echo "setup: chromium could not be installed; the browser test will skip" >&2
+fi
+# The drive's own message package (drive_msgs/msg/SampleBlock, the block topics) from the ROS wheels' rosidl
+# generators and the system's C/C++ compilers; skipped when already built from the same files.
+.venv/bin/python src/drive_common/build_messages.py
 # numba's on-disk cache checks only each kernel's own file: a kernel cached before an update of a kernel
 # it calls from another file would keep the old code. Start every setup with a clean cache.
 find src -name "*.nbi" -delete -o -name "*.nbc" -delete

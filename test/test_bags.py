@@ -13,7 +13,7 @@ import pytest
 from drive_common.config.scenario import load_scenario
 from drive_common.contract.log import COLUMN
 from drive_common.contract.run_result import RunResult
-from drive_common.contract.topics import TOPICS
+from drive_common.contract.topics import CONTRACT_VERSION, SAMPLE_BLOCK, TOPICS
 from drive_tools.bags.common import BagCutError, BagError
 from drive_tools.bags.reader import bag_info, bag_log, bag_scenario, recorded_estimator
 from drive_tools.bags.writer import write_run_bag
@@ -95,7 +95,8 @@ def test_every_drive_config_follows_the_v2_schema(bags):
     for bag in bags[:2]:
         _, _, configs = bag_log(bag)
         for config in configs:
-            assert config["contract_version"] == 2 and config["T_s_s"] == pytest.approx(1e-4), config["node"]
+            assert config["contract_version"] == CONTRACT_VERSION, config["node"]
+            assert config["T_s_s"] == pytest.approx(1e-4), config["node"]
             assert config["command_delay_periods"] == 1 and config["motor"]["name"] == "wang_spmsm"
             assert set(NAMEPLATE_REQUIRED) <= set(config["motor"]) and config["scenario"] == "scenario"
         injections = [c["injection"] for c in configs if "injection" in c]
@@ -247,7 +248,8 @@ def test_replay_reproduces_the_recorded_estimator_and_says_who_it_measures(bags,
 def test_a_block_recording_reads_back_sample_by_sample_and_replays_exactly(tmp_path):
     """A graph run in blocks of 10 is recorded on the block twins (`currents_block` …, 50 messages of 10
     samples); read back it holds the samples of the runner with the same N, and replaying its own
-    estimator (the applied voltage lagging by d + 1 = 11 samples) gives the recorded estimate exactly."""
+    estimator (the applied voltage lagging by d + 1 = 11 samples) gives the recorded estimate exactly. The same
+    recording as contract version 2 made it (its blocks sensor_msgs/JointState) reads and replays the same."""
     pytest.importorskip("rclpy")
     from drive_tools.launch.launcher import DriveSpec, launch
     path = tmp_path / "blocks.yaml"
@@ -256,20 +258,44 @@ def test_a_block_recording_reads_back_sample_by_sample_and_replays_exactly(tmp_p
     assert not launch(DriveSpec(str(path), "/blocks", bag=str(bag))).node_faults
     counts = {t["topic"]: (t["type"], t["count"]) for t in bag_info(bag)["topics"]}
     for topic in ("currents", "rotor_state", "rotor_estimate", "injection", "voltage_command", "estimator_state"):
-        assert counts[f"/blocks/{topic}_block"] == ("sensor_msgs/msg/JointState", 50), topic
+        assert counts[f"/blocks/{topic}_block"] == ("drive_msgs/msg/SampleBlock", 50), topic
         assert f"/blocks/{topic}" not in counts or topic == "estimator_state"
     log, T_s, _ = bag_log(bag)
     reference = run_scenario(load_scenario(str(path))).log
     assert log.shape == reference.shape and T_s == pytest.approx(1e-4)
     for name in ("theta_m", "i_a_meas", "theta_e_hat", "u_alpha", "u_inj_beta", "state"):
         np.testing.assert_allclose(log[:, COLUMN[name]], reference[:, COLUMN[name]], atol=1e-9, err_msg=name)
-    out = subprocess.run(DRIVE + ["bench", "replay", str(bag), "--estimators", "injection_frame", "--json",
-                                  "--out", str(tmp_path)], capture_output=True, text=True)
-    assert out.returncode == 0, out.stderr
-    (own,) = json.loads(out.stdout)["results"]
+    legacy = tmp_path / "as_contract_v2"
+    as_contract_v2(bag, legacy)
+    assert {t["type"] for t in bag_info(legacy)["topics"] if t["topic"].endswith("_block")} == {
+        "sensor_msgs/msg/JointState"}
+    np.testing.assert_array_equal(bag_log(legacy)[0], log)
     recorded = compute_metrics(recorded_run(bag))
-    assert own["applicable"]
-    assert own["angle_error_rms"] == pytest.approx(recorded["angle_error_rms"], abs=1e-12)
+    for recording in (bag, legacy):
+        out = subprocess.run(DRIVE + ["bench", "replay", str(recording), "--estimators", "injection_frame", "--json",
+                                      "--out", str(tmp_path / f"replay_{recording.name}")], capture_output=True,
+                             text=True)
+        assert out.returncode == 0, out.stderr
+        (own,) = json.loads(out.stdout)["results"]
+        assert own["applicable"]
+        assert own["angle_error_rms"] == pytest.approx(recorded["angle_error_rms"], abs=1e-12)
+
+
+def as_contract_v2(bag, out):
+    """``bag`` rewritten as contract version 2 recorded it: its blocks typed sensor_msgs/msg/JointState (the same
+    CDR bytes), everything else as it is."""
+    from drive_tools.bags.reader import open_bag
+    from drive_tools.bags.writer import BagWriter
+    reader, writer = open_bag(bag), BagWriter(out)
+    try:
+        for c in reader.connections:
+            writer.add(c.topic, "sensor_msgs/msg/JointState" if c.msgtype == SAMPLE_BLOCK else c.msgtype,
+                       c.ext.offered_qos_profiles[0])
+        for c, t_ns, data in reader.messages():
+            writer.write(c.topic, data, False, t_ns)
+    finally:
+        reader.close()
+        writer.close()
 
 
 def copy_without(source, target, dropped):

@@ -188,7 +188,7 @@ def test_a_recording_of_a_newer_contract_is_refused_and_an_older_one_read(tmp_pa
         _, _, configs = bag_topics(tmp_path / "v1")
     assert configs[0]["contract_version"] == 1
     assert [str(w.message).split(": ")[-1] for w in caught if w.category is FormatMigrated] == [
-        "contract_version 1, read as version 2 (its motor a name, its missing keys from the command line)"]
+        "contract_version 1, read as version 3 (its motor a name, its missing keys from the command line)"]
 
 
 def test_a_typo_in_a_scenario_or_its_drive_file_names_the_key_meant(tmp_path):

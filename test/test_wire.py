@@ -53,16 +53,22 @@ def test_a_joint_state_round_trips_through_rclpy(stamp, name, position, velocity
 @settings(max_examples=100, deadline=None)
 @given(stamps, names, st.integers(1, 40), st.booleans(), st.data())
 def test_a_block_round_trips_through_rclpy(stamp, frame_id, n, with_effort, data):
-    """A block of n samples is a JointState with three float64 channels, read by rclpy and read back."""
+    """A block of n samples is a drive_msgs/SampleBlock with three float64 channels, read by rclpy and read back;
+    a block of contract version 2 (a JointState, its position, velocity, effort the channels: the same CDR
+    layout) is read the same way."""
+    from drive_msgs.msg import SampleBlock
     a, b, c = (np.array(data.draw(st.lists(values, min_size=n, max_size=n))) for _ in range(3))
     encoded = BlockWire(frame_id).encode(*stamp, a, b, c if with_effort else None)
-    msg = serialization.deserialize_message(encoded, JointState)
+    msg = serialization.deserialize_message(encoded, SampleBlock)
     assert (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id) == (*stamp, frame_id)
-    assert list(msg.name) == [] and list(msg.position) == a.tolist() and list(msg.velocity) == b.tolist()
-    assert list(msg.effort) == (c.tolist() if with_effort else [])
-    sec, nanosec, x, y, z = decode_block(serialization.serialize_message(msg))
-    assert (sec, nanosec) == stamp and x.tolist() == a.tolist() and y.tolist() == b.tolist()
-    assert z.tolist() == (c.tolist() if with_effort else [])
+    assert list(msg.labels) == [] and list(msg.a) == a.tolist() and list(msg.b) == b.tolist()
+    assert list(msg.c) == (c.tolist() if with_effort else [])
+    legacy = JointState(position=msg.a, velocity=msg.b, effort=msg.c)
+    legacy.header = msg.header
+    for message in (msg, legacy):
+        sec, nanosec, x, y, z = decode_block(serialization.serialize_message(message))
+        assert (sec, nanosec) == stamp and x.tolist() == a.tolist() and y.tolist() == b.tolist()
+        assert z.tolist() == (c.tolist() if with_effort else [])
 
 
 def test_any_publishers_joint_state_is_read_by_its_first_entries():

@@ -10,7 +10,7 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
     ],
-    package_data={"drive_common": ["motor/motors/*.yaml", "config/scenarios/*.yaml"]},
+    package_data={"drive_common": ["motor/motors/*.yaml", "config/scenarios/*.yaml", "contract/msg/*"]},
     install_requires=["setuptools"],
     zip_safe=False,
     description="What the drive's packages share: motor, configuration, the contract and its records, control math",

@@ -117,9 +117,10 @@ def decode_joint(data):
 
 
 class BlockWire:
-    """A block of samples as sensor_msgs/msg/JointState (docs/ros-graph.md, "Block transport"): header
-    (the first sample's stamp, ``frame_id``), no names, and three float64 channels of n samples in
-    position, velocity and effort. ``encode(sec, nanosec, a, b, c)`` → bytes; a, b, c are float64 arrays
+    """A block of samples as drive_msgs/msg/SampleBlock (docs/ros-graph.md, "Block transport"): header
+    (the first sample's stamp, ``frame_id``), no labels, and three float64 channels of n samples in a, b and c
+    (the CDR layout of a sensor_msgs/msg/JointState without names, the blocks' type up to contract version 2).
+    ``encode(sec, nanosec, a, b, c)`` → bytes; a, b, c are float64 arrays
     of one length (c None: effort empty)."""
 
     def __init__(self, frame_id=""):
@@ -143,8 +144,8 @@ class BlockWire:
 
 
 def decode_block(data):
-    """(sec, nanosec, position, velocity, effort) of a serialized JointState, the arrays as float64
-    numpy arrays (empty where not carried)."""
+    """(sec, nanosec, a, b, c) of a serialized SampleBlock (or position, velocity, effort of a JointState: the
+    same layout), the arrays as float64 numpy arrays (empty where not carried)."""
     sec, nanosec, channels = _joint_channels(data)
     return (sec, nanosec, *(np.frombuffer(data, "<f8", count, offset).copy() for offset, count in channels))
 

@@ -1,7 +1,10 @@
 """What the bag writer, reader and reindexer share: the rosbags typestore, QoS as rosbag2 stores it, the
 sample stamp of a serialized message, and the bag's error."""
+import functools
+from importlib.resources import files
+
 from drive_common.contract.errors import DriveError
-from drive_common.contract.topics import TOPICS
+from drive_common.contract.topics import SAMPLE_BLOCK, TOPICS
 
 
 class BagError(DriveError):
@@ -25,9 +28,14 @@ class BagCompleteError(BagError):
     """A bag asked to be rebuilt is complete already."""
 
 
+@functools.cache
 def typestore():
-    from rosbags.typesys import Stores, get_typestore
-    return get_typestore(Stores.ROS2_JAZZY)
+    """The rosbags typestore of ROS 2 Jazzy with the drive's own drive_msgs/msg/SampleBlock."""
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    definition = files("drive_common.contract").joinpath("msg", "SampleBlock.msg").read_text()
+    store.register(get_types_from_msg(definition, SAMPLE_BLOCK))
+    return store
 
 
 def rosbags_qos(history=1, depth=10, reliability=1, durability=2):

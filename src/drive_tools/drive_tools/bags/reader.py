@@ -18,6 +18,7 @@ from drive_common.contract.topics import (
     CURRENTS,
     DRIVE_CONFIG,
     HELD_LOGGED,
+    LEGACY_TYPES,
     SAMPLE_LOGGED,
     TOPICS,
     ZERO_VOLTAGE,
@@ -174,7 +175,7 @@ def read_topics(path, wanted, namespace=None):
             if name not in connections:
                 continue
             c = connections[name]
-            if c.msgtype != TOPICS[topic].type:
+            if c.msgtype != TOPICS[topic].type and c.msgtype not in LEGACY_TYPES.get(TOPICS[topic].type, ()):
                 raise BagError(f"{path}: {name} is {c.msgtype}, the contract says {TOPICS[topic].type}")
             chosen[c.id] = topic
         out = {topic: [] for topic in chosen.values()}
@@ -214,7 +215,7 @@ def bag_topics(path, namespace=None):
     if newer:
         raise BagError(f"{path}: {full_name(namespace, DRIVE_CONFIG)}: contract_version {max(newer)}: a recording of "
                        f"a newer contract than this drive reads (up to {CONTRACT_VERSION}); update the drive")
-    older = sorted("unstated" if v is None else str(v) for v in versions if v != CONTRACT_VERSION)
+    older = sorted("unstated" if v is None else str(v) for v in versions if v is None or v < NAMEPLATE_KEYS_SINCE)
     if older:
         warnings.warn(f"{path}: {full_name(namespace, DRIVE_CONFIG)}: contract_version {', '.join(older)}, read as "
                       f"version {CONTRACT_VERSION} (its motor a name, its missing keys from the command line)",
@@ -222,6 +223,9 @@ def bag_topics(path, namespace=None):
     return namespace, topics, configs
 
 
+NAMEPLATE_KEYS_SINCE = 2
+"""The contract version from which drive_config carries the nameplate's keys; an older recording is read with a
+warning. Version 2 differs from 3 only in the blocks' message type, which the reader reads either way."""
 SIM_CLOCK_START_MAX_S = 60.0
 """A bag naming a scenario whose first stamp is before this is on sim time (the run's sample 0 at 0 s)."""
 GRID_TOLERANCE = 0.25
@@ -252,7 +256,7 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None, T_s_so
     if not topics.get(currents):
         raise BagError(f"{path}: no {full_name(namespace, CURRENTS)} messages; the contract needs them")
     stamps = np.array([_stamp_ns(m.header.stamp) for _, m in topics[currents]], dtype=np.int64)
-    width = len(topics[currents][0][1].position) if blocks else 1
+    width = len(block_channels(topics[currents][0][1])[0]) if blocks else 1
     if T_s is None:
         T_s = next((float(c["T_s_s"]) for c in configs if "T_s_s" in c), None)
     steps = np.diff(stamps) / width  # per sample [ns]: their median is the sample period the stamps show
@@ -304,20 +308,28 @@ def log_from_topics(path, namespace, topics, configs, T_s=None, n_p=None, T_s_so
         for _, m in topics.get(topic, []):
             k = index(m.header.stamp)
             if k is not None:
-                fill_block(log, k, topic, (m.position, m.velocity, m.effort), n_p)
+                fill_block(log, k, topic, block_channels(m), n_p)
     for topic in HELD_LOGGED:
         _hold(log[:, COLUMN[TOPICS[topic].log_columns[0]]], topics.get(topic, []), T_s, n, log_epoch_ns)
     zero_volts = np.zeros(n, dtype=bool)
     for _, m in topics.get(ZERO_VOLTAGE, []):
         j = index(m.header.stamp)
         if j is not None:
-            periods = np.asarray(m.position[:n - j], dtype=float) == 1.0
+            periods = np.asarray(block_channels(m)[0][:n - j], dtype=float) == 1.0
             zero_volts[j:j + len(periods)] |= periods
     jitter = np.abs(np.asarray(residuals, dtype=float)) * 1e-9
     timing = {"epoch_s": epoch_ns * 1e-9, "jitter_rms_s": float(np.sqrt(np.mean(jitter ** 2))) if jitter.size else 0.0,
               "jitter_max_s": float(jitter.max()) if jitter.size else 0.0, "off_grid_messages": off_grid[0],
               "zero_voltage_periods": int(zero_volts.sum())}
     return log, T_s, timing, zero_volts
+
+
+def block_channels(message):
+    """The three channels of a block message: a, b, c of a drive_msgs/msg/SampleBlock; position, velocity, effort
+    of a sensor_msgs/JointState (the blocks up to contract version 2)."""
+    if hasattr(message, "a"):
+        return message.a, message.b, message.c
+    return message.position, message.velocity, message.effort
 
 
 def _hold(column, messages, T_s, n, epoch_ns=0):

@@ -12,7 +12,7 @@ from drive_common.contract.settings import show_warnings_in_one_line
 from drive_common.runtime import interrupt
 from drive_common.runtime.interrupt import Interrupted
 
-from . import bag, bench_drive, bench_timing, motor, replay, run, tune
+from . import bag, bench_drive, bench_timing, motor, replay, run, tune, view
 from .options import OneLineParser, os_error_line
 from .outcome import fallback_reason, forget_reasons, reasons_said, say_reason
 
@@ -21,6 +21,7 @@ def build_parser():
     parser = OneLineParser(prog="drive", description="Sensorless PMSM drive stack.")
     sub = parser.add_subparsers(dest="command", required=True)
     run.add_commands(sub)
+    view.add_commands(sub)
     motor.add_commands(sub)
     bench = sub.add_parser("bench", help="benchmarks")
     bench_sub = bench.add_subparsers(dest="bench", required=True)
