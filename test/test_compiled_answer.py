@@ -9,9 +9,11 @@ import pytest
 
 from drive_common.config.scenario import load_scenario
 from drive_common.contract.log import COLUMN
+from drive_common.runtime import machine_setting, realtime
 from drive_common.runtime.realtime import ROBOT_RT_PRIORITY
 from drive_tools.doubles.faults import FaultPlan, faulty
-from drive_tools.launch.launcher import DriveSpec, GraphError, GraphOptions, launch
+from drive_tools.doubles.virtual_inverter import VirtualInverter
+from drive_tools.launch.launcher import DriveSpec, GraphError, GraphOptions, RealTime, launch
 from drive_tools.runner.bridge_loop import run_through_bridge
 from drive_tools.runner.compiled_answer import AnswerOptions
 
@@ -137,3 +139,28 @@ def test_the_compiled_answer_in_the_graph_is_refused_where_it_cannot_run():
         launch(dataclasses.replace(GRAPH, link="can"), GraphOptions(answer=AnswerOptions()))
     with pytest.raises(GraphError, match="composed"):
         launch(GRAPH, GraphOptions("separate", answer=AnswerOptions()))
+
+
+class SilentInverter(VirtualInverter):
+    """An inverter that never starts sending: what a drive waits for never comes."""
+
+    def start(self):
+        pass
+
+
+@pytest.mark.parametrize("answer", [None, AnswerOptions()])
+def test_a_run_whose_inverter_never_sends_stops_at_its_deadline_and_gives_the_machine_back(tmp_path, answer):
+    """At SCHED_FIFO with the workqueue mask held (a stand-in file: the holders count works on any file), a
+    run whose inverter never sends ends at its deadline with one error naming it, and the mask is put back:
+    nothing waits at real-time priority for what never comes."""
+    mask, holders = tmp_path / "cpumask", tmp_path / "holders"
+    mask.write_text("3\n")
+    spec = dataclasses.replace(GRAPH, inverter=SilentInverter, paced=True)
+    real_time = RealTime(rt_priority=ROBOT_RT_PRIORITY)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(realtime, "WORKQUEUE_CPUMASK", str(mask))
+        patch.setattr(machine_setting, "HOLDERS_ROOT", str(holders))
+        with pytest.raises(GraphError, match=r"did not end within 3 s of its start \(deadline_s"):
+            launch(spec, GraphOptions(real_time=dataclasses.replace(real_time, workqueue_cpus={0}), deadline_s=3.0,
+                                      answer=answer))
+    assert mask.read_text().strip() == "3" and any(holders.iterdir()), "the mask was taken, then put back"

@@ -44,6 +44,12 @@ DELIVERIES_PER_SAMPLE_INTRA_PROCESS = 4
 estimator_state) are handed over, not delivered."""
 
 
+RUN_DEADLINE_FACTOR = 50.0
+RUN_DEADLINE_MARGIN_S = 60.0
+"""A run's deadline once started (run_deadline_s): its duration × the factor (a lock-step graph runs at a
+real-time factor of 0.1-1.4 here) plus the margin (the final wait, the first kernels' loading)."""
+
+
 class GraphError(DriveError):
     """The graph could not run as asked."""
 
@@ -245,6 +251,8 @@ class GraphOptions:
     startup_timeout_s: float = 60.0
     intra_process: bool = False
     real_time: RealTime = RealTime()
+    deadline_s: float = None
+    """How long the run may take once started [s] (None: run_deadline_s's, from the scenarios' duration)."""
     answer: object = None
     """Behind a virtual inverter over a pty: drive_tools.runner.compiled_answer.AnswerOptions, the drive's whole
     answer in one compiled function off the interpreter's lock on a thread of its own, one step above the
@@ -382,6 +390,10 @@ def launch_many(specs, options=GraphOptions(), progress=None):
             ex.add_node(node)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
+        for driver in drivers:
+            driver.start_allowed = False
+        while not all_done.done() and not all(driver.ready or driver.done.done() for driver in drivers):
+            ex.spin_until_future_complete(all_done, timeout_sec=0.05)
         with real_time_scheduled(real_time.rt_priority, real_time.cpus) as scheduling, \
                 unbound_work_on(real_time.workqueue_cpus) as work, \
                 cpu_wakeup_latency_held(real_time.cpu_dma_latency_us) as idle, \
@@ -393,8 +405,16 @@ def launch_many(specs, options=GraphOptions(), progress=None):
             else:
                 for listener in listeners:
                     ex.add_node(listener)
+            for driver in drivers:
+                driver.start_allowed = True
+            deadline = time.monotonic() + run_deadline_s([driver.scenario for driver in drivers], options)
             while not all_done.done():
-                ex.spin_until_future_complete(all_done, timeout_sec=1.0)
+                ex.spin_until_future_complete(all_done, timeout_sec=min(1.0, max(deadline - time.monotonic(), 0.0)))
+                if time.monotonic() > deadline:
+                    for driver in drivers:
+                        driver.finish(f"the run did not end within {run_deadline_s([driver.scenario], options):g} "
+                                      f"s of its start (deadline_s; its inverter or answer never finished): "
+                                      f"stopped, the machine's settings given back")
             if listening:
                 listening.stop()
         nodes[-1].destroy_timer(watcher)
@@ -454,6 +474,16 @@ class Listening:
             if self.thread.is_alive():
                 self.thread.join(5.0)
             self.executor.shutdown()
+
+
+def run_deadline_s(scenarios, options):
+    """How long a graph's run may take once started, with the machine's settings held (SCHED_FIFO, the
+    workqueue mask): ``options.deadline_s``, else the longest scenario's duration × RUN_DEADLINE_FACTOR +
+    RUN_DEADLINE_MARGIN_S (a lock-step run slower than real time included). Past it the run stops: nothing
+    waits at real-time priority for what may never come."""
+    if options.deadline_s is not None:
+        return options.deadline_s
+    return max(scenario.duration_s for scenario in scenarios) * RUN_DEADLINE_FACTOR + RUN_DEADLINE_MARGIN_S
 
 
 def check_answer(specs, options):

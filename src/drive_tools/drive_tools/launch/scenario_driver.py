@@ -129,6 +129,11 @@ class ScenarioDriver:
         self.ready_since = None
         self.checked_at = 0.0
         self.started_at = self.finished_at = None
+        self.ready = False
+        """Every endpoint matched and settled: the run may start."""
+        self.start_allowed = True
+        """False while the launcher has yet to take the machine's settings (SCHED_FIFO, the workqueue mask): a
+        ready driver waits for it, so that nothing waits for the graph at real-time priority."""
         self.inverter_ran_out = False
         """The inverter's last period went before the host reached the run's last sample: the run ends
         FINAL_WAIT_S later, short of it."""
@@ -286,6 +291,9 @@ class ScenarioDriver:
                 return
             self.ready_since = self.ready_since or now
             if now - self.ready_since >= self.settle_s:
+                self.ready = True
+                if not self.start_allowed:
+                    return
                 self.started_at = now
                 self.load_pub.publish(Float64(data=float(self.load[0])))
                 if self.recorder:
