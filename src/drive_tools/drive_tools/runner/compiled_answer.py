@@ -20,13 +20,12 @@ from drive_bridge.inverter_protocol import COMMAND_MISSING, MAX_BLOCK, PWM_OFF
 from drive_common.contract.log import LOG_COLUMNS
 from drive_common.math.command_delay import issue_command
 from drive_common.math.safe_state import safe_state_for
-from drive_common.math.winding import R_S_IN_USE
 from drive_common.runtime.sample_ring import drain, free_slot, publish, sample_ring
-from foc_controller.control import controller_block
-from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block
-from hf_estimator.block import EstimatorCore, estimator_block
+from foc_controller.protection import SAFE_STATE, TRIPPED
+from hf_estimator.block import EstimatorCore
 
 from .answer_kernels import fill_inputs, issue_and_log
+from .loop import DriveCores, drive_block
 
 RING_K, RING_HOST_S, RING_THETA_M, RING_LOG = 0, 1, 2, 3
 """A ring row: the sample k, the host's time from its telemetry read to its command written [s], the encoder's
@@ -92,14 +91,12 @@ def answer_block(step, h, b, run, block, ring):
         for j in range(3):
             h.currents[i, j] = h.received_currents[i, j]
     fill_inputs(h.inputs, h.currents, h.received_theta, h.controller.n_p, h.speed_ref, h.tau_feedforward, k0, m)
-    h.estimator.sample[0].R_s_ohm = h.protection_x[R_S_IN_USE]
-    estimator_block(step, h.estimator, k0, m, h.inputs, h.line, h.sensing, h.estimates)
-    omega_e_hat = h.estimates[m - 1].omega_e_hat
-    protection_block(h.protection_x, h.protection, h.currents, m, k0 + m - 1, u_dc_V, omega_e_hat, h.controller_x)
+    cores = DriveCores(h.estimator, h.controller, h.controller_x, h.controller_z, h.protection, h.protection_x,
+                       h.sensing)
+    drive_block(step, cores, (k0, m, u_dc_V), h.line, (h.currents, h.inputs, h.estimates, h.commands))
     enable = h.protection_x[TRIPPED] == 0.0
-    safe = int(h.protection_x[SAFE_STATE]) if not enable else safe_state_for(omega_e_hat, u_dc_V,
+    safe = int(h.protection_x[SAFE_STATE]) if not enable else safe_state_for(h.estimates[m - 1].omega_e_hat, u_dc_V,
                                                                              h.protection.psi_f_Wb)
-    controller_block(h.controller_x, h.controller_z, h.controller, m, h.inputs, h.estimates, h.sensing, h.commands)
     issue_and_log(h.line, h.rows, k0, m, h.T_s, h.inputs, h.estimates, h.commands)
     for i in range(m):
         h.voltages[0, i], h.voltages[1, i] = h.commands[i].u_alpha_V, h.commands[i].u_beta_V
