@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from drive_bridge import compiled_bridge as cb
-from drive_bridge.inverter_protocol import COMMAND_MISSING, MAX_BLOCK, PWM_OFF
+from drive_bridge.inverter_protocol import COMMAND_MISSING, CONTROL_SEND_HELLO, MAX_BLOCK, PWM_OFF
 from drive_common.contract.log import LOG_COLUMNS
 from drive_common.math.command_delay import issue_command
 from drive_common.math.safe_state import safe_state_for
@@ -139,6 +139,8 @@ def answer_loop(step, h, b, run, ring):
             if n == 0:
                 continue
             k0 = cb.accept_telemetry(b, seq, n, u_dc, status, h.received_currents, h.received_theta)
+            if k0 == cb.ASK_HELLO:
+                cb.send_control(b, CONTROL_SEND_HELLO)
             if k0 < 0:
                 continue
             if not answer_block(step, h, b, run, (k0, n, u_dc * b.state[cb.VOLTAGE_LSB], status, arrived), ring):
@@ -254,11 +256,8 @@ class CompiledAnswer:
             self.error = error
 
     def counters(self):
-        """The bridge's counters now (InverterBridge.counters), read from the running loop's arrays."""
-        arrays = self.arrays
-        if arrays is None:
-            return dict(self.bridge.counters)
-        return {name: int(arrays.counters[i]) for i, name in enumerate(cb.COUNTERS)}
+        """The bridge's counters now (InverterBridge.counters: the running loop's own arrays)."""
+        return dict(self.bridge.counters)
 
     def _read(self, take):
         """The ring's reader (not real-time): the rows drained to ``take`` until the answer thread has ended
