@@ -8,8 +8,12 @@ import numpy as np
 import pytest
 
 from drive_common.config.scenario import load_scenario
+from drive_common.contract.log import COLUMN
+from drive_common.runtime import machine_setting, realtime
 from drive_common.runtime.realtime import ROBOT_RT_PRIORITY
 from drive_tools.doubles.faults import FaultPlan, faulty
+from drive_tools.doubles.virtual_inverter import VirtualInverter
+from drive_tools.launch.launcher import DriveSpec, GraphError, GraphOptions, RealTime, launch
 from drive_tools.runner.bridge_loop import run_through_bridge
 from drive_tools.runner.compiled_answer import AnswerOptions
 
@@ -92,3 +96,71 @@ def test_a_stalled_reader_costs_recorded_samples_counted_never_the_answers():
 def test_the_compiled_answer_is_refused_on_a_link_it_does_not_cover():
     with pytest.raises(ValueError, match="serial link"):
         run_through_bridge(SCENARIO, "can", answer=AnswerOptions())
+
+
+GRAPH = DriveSpec("wang_100rpm", duration_s=0.3, extra_parameters={"block_samples": 10}, link="pty")
+DRIVE_COLUMNS = ("i_a_meas", "i_b_meas", "i_c_meas", "theta_e_hat", "omega_e_hat", "u_alpha", "u_beta", "u_inj_alpha",
+                 "u_inj_beta", "eps", "signal", "state", "theta_m", "omega_m")
+"""What the graph's nodes log of a drive behind an inverter (the encoder's angle and speed for the truth)."""
+
+
+def test_the_compiled_answer_in_the_graph_gives_the_nodes_samples_to_the_bit_and_records_every_one(tmp_path):
+    """`drive launch --link pty` with the answer compiled (no estimator or controller node: the bridge node
+    publishes what the ring hands over) against the nodes answering on the bridge's link thread (today's robot
+    path), lock-step: every logged column equal to the bit, every sample in the log and in the recording,
+    written from the ring (0 missing, no overflow)."""
+    from drive_tools.bags.reader import bag_log
+    nodes = launch(GRAPH, GraphOptions(intra_process=True))
+    bag = tmp_path / "compiled"
+    compiled = launch(dataclasses.replace(GRAPH, bag=str(bag)), GraphOptions(answer=AnswerOptions()))
+    n = round(GRAPH.duration_s / SCENARIO.T_s)
+    assert compiled.missing_samples == {} and compiled.recording_error is None
+    assert compiled.answer["recorded"] == n and compiled.answer["ring_overflow"] == 0
+    for name in DRIVE_COLUMNS:
+        assert np.array_equal(compiled.log[:, COLUMN[name]], nodes.log[:, COLUMN[name]], equal_nan=True), name
+    recorded, _, _ = bag_log(str(bag))
+    assert recorded.shape[0] == n
+    assert np.array_equal(recorded[:, COLUMN["u_alpha"]], compiled.log[:, COLUMN["u_alpha"]])
+
+
+def test_a_stalled_writer_in_the_graph_is_a_counted_overflow_never_a_late_answer():
+    """The ring's reader (the publisher and the log's writer) pauses 50 ms after each read, the ring 64 rows:
+    the samples it had no room for are missing by name (``ring_overflow``), recorded + overflow = answered,
+    and the inverter missed no command."""
+    stalled = launch(GRAPH, GraphOptions(answer=AnswerOptions(ring_rows=64, reader_stall_s=0.05)))
+    overflow = stalled.answer["ring_overflow"]
+    assert overflow > 0 and stalled.answer["recorded"] + overflow == round(GRAPH.duration_s / SCENARIO.T_s)
+    assert stalled.missing_samples == {"/drive/answer ring_overflow": overflow}
+    assert stalled.timing["missing"] == 0
+
+
+def test_the_compiled_answer_in_the_graph_is_refused_where_it_cannot_run():
+    with pytest.raises(GraphError, match="needs --link pty"):
+        launch(dataclasses.replace(GRAPH, link="can"), GraphOptions(answer=AnswerOptions()))
+    with pytest.raises(GraphError, match="composed"):
+        launch(GRAPH, GraphOptions("separate", answer=AnswerOptions()))
+
+
+class SilentInverter(VirtualInverter):
+    """An inverter that never starts sending: what a drive waits for never comes."""
+
+    def start(self):
+        pass
+
+
+@pytest.mark.parametrize("answer", [None, AnswerOptions()])
+def test_a_run_whose_inverter_never_sends_stops_at_its_deadline_and_gives_the_machine_back(tmp_path, answer):
+    """At SCHED_FIFO with the workqueue mask held (a stand-in file: the holders count works on any file), a
+    run whose inverter never sends ends at its deadline with one error naming it, and the mask is put back:
+    nothing waits at real-time priority for what never comes."""
+    mask, holders = tmp_path / "cpumask", tmp_path / "holders"
+    mask.write_text("3\n")
+    spec = dataclasses.replace(GRAPH, inverter=SilentInverter, paced=True)
+    real_time = RealTime(rt_priority=ROBOT_RT_PRIORITY)
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(realtime, "WORKQUEUE_CPUMASK", str(mask))
+        patch.setattr(machine_setting, "HOLDERS_ROOT", str(holders))
+        with pytest.raises(GraphError, match=r"did not end within 3 s of its start \(deadline_s"):
+            launch(spec, GraphOptions(real_time=dataclasses.replace(real_time, workqueue_cpus={0}), deadline_s=3.0,
+                                      answer=answer))
+    assert mask.read_text().strip() == "3" and any(holders.iterdir()), "the mask was taken, then put back"

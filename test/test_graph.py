@@ -560,7 +560,7 @@ def test_samples_the_launcher_never_received_are_counted_per_topic_and_named_in_
     from drive_tools.launch.launcher import missing_samples_line
     from drive_tools.launch.scenario_driver import FINAL_WAIT_S, ScenarioDriver
     driver = SimpleNamespace(last_sample=599, received={"currents": 597, "rotor_estimate": 600}, n=1000,
-                             inverter_ran_out=False,
+                             inverter_ran_out=False, answer=None,
                              node=SimpleNamespace(resolve_topic_name=lambda topic: f"/drive/{topic}"))
     missing = ScenarioDriver.missing_samples(driver)
     assert missing == {"/drive/currents": 3}

@@ -151,10 +151,11 @@ def test_the_time_the_hypervisor_took_is_read_per_cpu():
 
 def test_a_paced_link_launches_the_robots_configuration_unless_told_otherwise(monkeypatch):
     """`drive launch --link L --paced` fills what its command line left unset with the robot's configuration:
-    SCHED_FIFO 50, the last CPU, over a pty the kernel's unbound workqueues there too, intra-process when
-    composed; given values stay; without --paced none of it."""
+    SCHED_FIFO 50, the last CPU, over a pty the kernel's unbound workqueues there too and the answer compiled,
+    intra-process when composed; given values stay; without --paced none of it; paced separate processes are
+    refused up front."""
     from drive_tools.cli.cli import build_parser
-    from drive_tools.cli.options import robot_real_time
+    from drive_tools.cli.options import CommandLineError, robot_real_time
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0, 1})
 
     def settings(*words):
@@ -163,13 +164,23 @@ def test_a_paced_link_launches_the_robots_configuration_unless_told_otherwise(mo
         return args.rt_priority, args.cpus, args.workqueue_cpus, args.intra_process
     assert settings("--link", "pty", "--paced") == (50, {1}, {1}, True)
     assert settings("--link", "can", "--paced") == (50, {1}, None, True)
-    assert settings("--link", "can", "--paced", "--processes", "separate") == (50, {1}, None, False)
+    with pytest.raises(CommandLineError, match="--paced --processes separate: refused"):
+        settings("--link", "can", "--paced", "--processes", "separate")
     assert settings("--link", "pty", "--paced", "--rt-priority", "0", "--cpus", "0", "--no-intra-process") == \
         (0, {0}, {0}, False)
     assert settings("--link", "pty") == settings() == (0, None, None, False)
     assert settings("--intra-process") == (0, None, None, True)
     monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {0})
     assert settings("--link", "pty", "--paced") == (50, None, None, True)
+
+    def answer(*words):
+        args = build_parser().parse_args(["launch", "wang_100rpm", *words])
+        robot_real_time(args)
+        return args.answer
+    assert answer("--link", "pty", "--paced") == "compiled"
+    assert answer("--link", "can", "--paced") == answer("--link", "pty") == "python"
+    with pytest.raises(CommandLineError, match="--answer compiled: needs --link pty"):
+        answer("--link", "can", "--answer", "compiled")
 
 
 def test_the_platform_probe_wakes_every_period_and_counts_the_late_ones():

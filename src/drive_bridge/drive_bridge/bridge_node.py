@@ -25,12 +25,14 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
+from drive_common.contract.log import COLUMN
 from drive_common.contract.stamps import sample_at, sample_of, stamp_parts
 from drive_common.contract.topics import (
     ANGLE_ERROR,
     CURRENTS,
     ROTOR_ESTIMATE,
     ROTOR_STATE,
+    SAMPLE_LOGGED,
     TOPICS,
     VOLTAGE_COMMAND,
     ZERO_VOLTAGE,
@@ -63,11 +65,14 @@ NO_CHANNEL = np.zeros(0)
 class InverterBridgeNode(DriveNode):
     reads_configuration = False
 
-    def __init__(self, link=None, controller=None, estimator=None, **kwargs):
+    def __init__(self, link=None, controller=None, estimator=None, answered_elsewhere=False, **kwargs):
         """``link``: a link object (composed graphs), else the parameters' link; ``controller``: the
         ControllerNode of this process to take the voltage commands from directly (``drive launch
         --intra-process``), instead of subscribing to them; ``estimator``: the EstimatorNode of this process
-        whose inputs are handed over (EstimatorNode.inputs_handed), on the link thread."""
+        whose inputs are handed over (EstimatorNode.inputs_handed), on the link thread. With
+        ``answered_elsewhere`` the node neither reads the link nor takes commands: a compiled answer of this
+        process (drive_tools.runner.compiled_answer) owns the link, and hands what it answered to
+        ``publish_answered`` from a thread that is not real-time."""
         super().__init__("drive_bridge", **kwargs)
         QUIET_TIME.hold()
         for name, (default, text) in PARAMETERS.items():
@@ -92,7 +97,12 @@ class InverterBridgeNode(DriveNode):
         self.zero_voltage_pub = self.sample_publisher(ZERO_VOLTAGE)
         self.zero_voltage_wire = BlockWire()
         self.zero_voltage_periods = 0
-        if self.block_samples > 1:
+        self.answered_elsewhere = answered_elsewhere
+        self.live_counters = None
+        if answered_elsewhere:
+            self.answered_pubs = {topic: self.sample_publisher(block(topic)) for topic in SAMPLE_LOGGED}
+            self.answered_wires = {topic: BlockWire(TOPICS[topic].frame_id) for topic in SAMPLE_LOGGED}
+        elif self.block_samples > 1:
             self.currents_pub = self.sample_publisher(block(CURRENTS))
             self.rotor_state_pub = self.sample_publisher(block(ROTOR_STATE))
             if controller is None:
@@ -120,7 +130,8 @@ class InverterBridgeNode(DriveNode):
         self.reported = {}
         self.running = True
         self.thread = threading.Thread(target=self.read_link, name="drive_bridge_link", daemon=True)
-        self.thread.start()
+        if not answered_elsewhere:
+            self.thread.start()
 
     def read_link(self):
         """The link thread: poll, publish each sample (each whole block), report new faults."""
@@ -197,6 +208,34 @@ class InverterBridgeNode(DriveNode):
             self.rotor_state_pub.publish(self.rotor_state_wire.encode(sec, nanosec, theta, velocity,
                                                                       np.full(N, np.nan)))
 
+    def publish_answered(self, k0, theta_m, rows):
+        """What a compiled answer produced for samples k0 … k0 + n − 1 (``theta_m``: the encoder's angle as
+        received [rad, mechanical; NaN: none]; ``rows``: their log rows, drive_common.contract.log.LOG_COLUMNS),
+        as the graph's nodes publish it: each logged topic's block twin (`rotor_state_block` from the encoder,
+        where it is valid throughout), then `/clock` at k0. From the ring's reader, never the answer's thread."""
+        n, n_p, T_s = len(theta_m), self.n_p, self.T_s
+        self.k = k0 + n - 1
+        sec, nanosec = stamp_parts(k0, T_s)
+        encoder = not np.isnan(theta_m).any()
+        for topic, publisher in self.answered_pubs.items():
+            t = TOPICS[topic]
+            if topic == ROTOR_STATE:
+                if not encoder:
+                    continue
+                before = self.history.get(k0 - n)
+                previous = before[0][-1] if before is not None else theta_m[0]
+                velocity = np.diff(theta_m, prepend=previous) / T_s
+                self.history[k0] = (theta_m, velocity)
+                self.history.pop(k0 - HISTORY_SAMPLES * n, None)
+                channels = (theta_m, velocity, np.full(n, np.nan))
+            else:
+                scale = 1.0 / n_p if t.electrical else 1.0
+                channels = tuple(scale * rows[:, COLUMN[c]] for c in t.log_columns)
+            publisher.publish(self.answered_wires[topic].encode(sec, nanosec, *channels))
+        if self.clock_pub:
+            self.clock_pub.publish(Clock(clock=stamp(k0, T_s)))
+        self.report_new_faults()
+
     def hand_block(self, sec, nanosec, currents, theta, velocity):
         """The block's currents [A, (N, 3)] and, for the sensored estimator, its encoder angles [rad] and
         speeds [rad/s] (None: not valid throughout) to the estimator, which answers through the controller
@@ -266,13 +305,21 @@ class InverterBridgeNode(DriveNode):
         error.vector.y = velocity[0] - omega_m_hat[0]
         self.angle_error_pub.publish(error)
 
+    def answered_by(self, counters, T_s, n_p):
+        """A compiled answer owns the link (``answered_elsewhere``): its ``counters()`` are the bridge's on
+        /diagnostics; samples of ``T_s`` [s] from a motor of ``n_p`` pole pairs (the inverter's HELLO is read
+        by the answer)."""
+        self.live_counters, self.T_s, self.n_p = counters, T_s, n_p
+        self.publish_config({"T_s_s": T_s, "n_p": n_p, "answer": "compiled"})
+
     def configure(self, hello):
         """The inverter's HELLO sets the sampling period and is published in drive_config."""
         self.n_p, self.T_s = hello.n_p, hello.T_s_ns * 1e-9
         self.publish_config({"T_s_s": self.T_s, "n_p": self.n_p, "inverter": vars(hello)})
 
     def report_new_faults(self):
-        counts = {**self.bridge.counters, **{f"frame_{k}": v for k, v in self.bridge.frame_errors().items()}}
+        counters = self.live_counters() if self.live_counters else self.bridge.counters
+        counts = {**counters, **{f"frame_{k}": v for k, v in self.bridge.frame_errors().items()}}
         for kind in ("dropped", "duplicated", "reordered", "link_lost", "bus_off", "safe_state",
                      "inverter_faults", "command_errors", "frame_crc", "frame_framing", "frame_version",
                      "frame_unknown_type"):
@@ -325,10 +372,11 @@ class InverterBridgeNode(DriveNode):
 
     def status_values(self):
         b = self.bridge
+        counters = self.live_counters() if self.live_counters else b.counters
         return {"link": "lost" if b.lost else "up", "inverter_status": ",".join(b.status_names()) or "ok",
                 "zero_voltage_periods": self.zero_voltage_periods,
                 "last_sample": b.last_seq if b.last_seq is not None else -1,
-                **b.counters, **{f"frame_errors.{k}": v for k, v in b.frame_errors().items()}}
+                **counters, **{f"frame_errors.{k}": v for k, v in b.frame_errors().items()}}
 
     def data_time(self):
         """The stamp of the inverter's latest sample (the data's clock); the node's clock before any."""
@@ -336,7 +384,8 @@ class InverterBridgeNode(DriveNode):
 
     def destroy_node(self):
         self.running = False
-        self.thread.join(timeout=1.0)
+        if self.thread.is_alive():
+            self.thread.join(timeout=1.0)
         self.bridge.close()
         QUIET_TIME.release()
         return super().destroy_node()

@@ -18,7 +18,6 @@ from .inverter_protocol import (
     CLEARED_BY_HOST,
     CONTROL_CLEAR_FAULTS,
     CONTROL_DISABLE,
-    CONTROL_SEND_HELLO,
     ENCODER_VALID,
     HELLO,
     LAYOUTS,
@@ -51,6 +50,36 @@ HAS_HELLO, CURRENT_LSB, VOLTAGE_LSB, BLOCK_SAMPLES, LINK_TIMEOUT, COMMAND_TIMEOU
 READ_BYTES = 4096
 """One read(2) at most, as SerialLink reads."""
 LINK_DOWN = -1
+ASK_HELLO = -2
+"""accept_telemetry's answer to a hundredth sample before HELLO: not taken, and HELLO is to be asked for."""
+
+
+class TelemetryArrays(NamedTuple):
+    """What accept_telemetry reads and changes of a bridge: ``state`` (STATE), ``counters`` (COUNTERS then the
+    frame errors), a frame's ``entries`` (counts: i_a, i_b, i_c, encoder per sample) and a timespec scratch.
+    InverterBridge keeps its own state in these arrays; BridgeArrays holds the same ones."""
+
+    state: np.ndarray
+    counters: np.ndarray
+    entries: np.ndarray
+    timespec: np.ndarray
+
+
+def bridge_state(block_samples, link_timeout_s, command_timeout_s):
+    """(state, counters) of a bridge that has heard nothing: no sequence, no time, the link lost."""
+    state = np.zeros(len(STATE))
+    state[[LAST_SEQ, THETA_M, LAST_TELEMETRY_AT, LAST_COMMAND_AT]] = np.nan
+    state[LOST] = 1.0
+    state[BLOCK_SAMPLES], state[LINK_TIMEOUT], state[COMMAND_TIMEOUT] = block_samples, link_timeout_s, command_timeout_s
+    return state, np.zeros(FRAME_ERRORS + len(fc.FRAME_ERROR_KINDS), dtype=np.int64)
+
+
+def telemetry_arrays(state, counters):
+    """TelemetryArrays over a bridge's ``state`` and ``counters``, with their scratch, its kernel loaded."""
+    arrays = TelemetryArrays(state, counters, np.zeros((fc.MAX_BLOCK, 4), dtype=np.int64), io_scratch()[1])
+    scratch = TelemetryArrays(np.zeros_like(state), np.zeros_like(counters), arrays.entries, arrays.timespec)
+    accept_telemetry(scratch, 0, 1, 0, 0, np.zeros((1, 3)), np.zeros(1))
+    return arrays
 
 
 class BridgeArrays(NamedTuple):
@@ -77,19 +106,15 @@ def _value(x):
 
 
 def load_bridge(bridge):
-    """BridgeArrays holding ``bridge`` (InverterBridge on an open SerialLink) as it is now."""
+    """BridgeArrays holding ``bridge`` (InverterBridge on an open SerialLink) as it is now: its own state and
+    counters arrays (shared: what the kernels change is the bridge's at once), the link's descriptor, frame
+    errors and bytes not yet framed."""
     pollfd, timespec = io_scratch()
-    state = np.zeros(len(STATE))
-    for name in ("last_seq", "k_offset", "status", "theta_m", "last_telemetry_at", "last_command_at", "lost",
-                 "safe", "clear_sent", "block_samples", "link_timeout_s", "command_timeout_s"):
+    state, counters = bridge.state, bridge.counter_array
+    for name in ("block_samples", "link_timeout_s", "command_timeout_s"):
         state[S[name]] = _value(getattr(bridge, name))
     state[FD] = bridge.link.fd
     hello = np.zeros(fc.BODY_BYTES[HELLO] + 2, dtype=np.uint8)
-    if bridge.hello is not None:
-        state[HAS_HELLO] = 1.0
-        state[CURRENT_LSB], state[VOLTAGE_LSB] = bridge.hello.current_lsb_A, bridge.hello.voltage_lsb_V
-    counters = np.zeros(FRAME_ERRORS + len(fc.FRAME_ERROR_KINDS), dtype=np.int64)
-    counters[:FRAME_ERRORS] = [bridge.counters[name] for name in COUNTERS]
     for kind, count in bridge.link.errors.items():
         counters[FRAME_ERRORS + fc.FRAME_ERROR_KINDS.index(kind)] = count
     rx = np.zeros(READ_BYTES + 2 * fc.MAX_FRAME + 1, dtype=np.uint8)
@@ -102,17 +127,9 @@ def load_bridge(bridge):
 
 
 def store_bridge(arrays, bridge):
-    """Give ``bridge`` back what the kernels changed in ``arrays``."""
+    """Give ``bridge`` back what the kernels changed in ``arrays`` beyond its state and counters (shared): the
+    HELLO taken, the frame errors and the bytes not yet framed."""
     state = arrays.state
-    for name in ("last_seq", "k_offset", "status"):
-        value = state[S[name]]
-        setattr(bridge, name, None if math.isnan(value) else int(value))
-    for name in ("last_telemetry_at", "last_command_at"):
-        value = state[S[name]]
-        setattr(bridge, name, None if math.isnan(value) else float(value))
-    bridge.theta_m = float(state[THETA_M])
-    bridge.lost, bridge.safe, bridge.clear_sent = bool(state[LOST]), bool(state[SAFE]), bool(state[CLEAR_SENT])
-    bridge.counters.update({name: int(arrays.counters[i]) for i, name in enumerate(COUNTERS)})
     if state[HAS_HELLO] and arrays.hello.any():
         bridge.hello = Hello(*LAYOUTS[HELLO][1].unpack(arrays.hello[2:].tobytes()))
     elif not state[HAS_HELLO]:
@@ -159,17 +176,17 @@ def f32(bits):
 
 @njit(nogil=True)
 def accept_telemetry(b, seq, n, u_dc, status, currents, theta):
-    """Samples seq … seq + n − 1 (their counts in ``b.entries``) as InverterBridge._telemetry takes them:
-    their first k (unwrapped past 2³²), or −1 for samples before HELLO, a repeat or a late frame; every gap
-    counted as dropped. ``currents`` (n × 3) [A], ``theta`` (n) [rad, mechanical; NaN without the encoder]
-    receive them; the bus [V] is u_dc × voltage_lsb_V."""
+    """Samples seq … seq + n − 1 (their counts in ``b.entries``) taken by the bridge (the one algorithm of the
+    Python bridge, InverterBridge._telemetry, and the compiled answer; ``b``: TelemetryArrays or
+    BridgeArrays): their first k (unwrapped past 2³²), or −1 for samples before HELLO (ASK_HELLO at every
+    hundredth: the caller asks for HELLO), a repeat or a late frame; every gap counted as dropped.
+    ``currents`` (n × 3) [A], ``theta`` (n) [rad, mechanical; NaN without the encoder] receive them; the bus
+    [V] is u_dc × voltage_lsb_V."""
     s, c = b.state, b.counters
     if s[HAS_HELLO] == 0.0:
         before = c[BEFORE_HELLO]
         c[BEFORE_HELLO] += n
-        if (before + n - 1) // 100 != (before - 1) // 100:
-            send_control(b, CONTROL_SEND_HELLO)
-        return -1
+        return ASK_HELLO if (before + n - 1) // 100 != (before - 1) // 100 else -1
     wrap = np.int64(1) << 32
     if not math.isnan(s[LAST_SEQ]):
         last = np.int64(s[LAST_SEQ])

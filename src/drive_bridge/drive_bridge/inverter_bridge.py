@@ -4,10 +4,12 @@ state (docs/inverter-protocol.md, "The host"). The ROS node and the one-process 
 import math
 import threading
 import time
+from collections.abc import MutableMapping
 from dataclasses import dataclass
 
 import numpy as np
 
+from . import compiled_bridge as cb
 from .inverter_link import LinkDown
 from .inverter_protocol import (
     CLEARED_BY_HOST,
@@ -15,7 +17,6 @@ from .inverter_protocol import (
     CONTROL_CLEAR_FAULTS,
     CONTROL_DISABLE,
     CONTROL_SEND_HELLO,
-    ENCODER_VALID,
     OVERCURRENT,
     OVERVOLTAGE,
     PWM_OFF,
@@ -81,6 +82,39 @@ class BridgeBlock:
                 for i, ((i_a, i_b, i_c), theta) in enumerate(zip(self.currents_A.tolist(), self.theta_m.tolist()))]
 
 
+def _state_field(index, kind, unset=math.nan):
+    """An InverterBridge attribute held in its ``state`` array at ``index``, as ``kind`` (``unset`` for NaN)."""
+    def get(self):
+        value = self.state[index]
+        return unset if math.isnan(value) else kind(value)
+
+    def set(self, value):
+        self.state[index] = math.nan if value is None else float(value)
+    return property(get, set)
+
+
+class Counters(MutableMapping):
+    """InverterBridge.counters: its counter array (compiled_bridge.COUNTERS) by name, as ints."""
+
+    def __init__(self, array):
+        self.array = array
+
+    def __getitem__(self, name):
+        return int(self.array[cb.C[name]])
+
+    def __setitem__(self, name, value):
+        self.array[cb.C[name]] = value
+
+    def __delitem__(self, name):
+        raise TypeError("a bridge's counters are fixed")
+
+    def __iter__(self):
+        return iter(cb.COUNTERS)
+
+    def __len__(self):
+        return len(cb.COUNTERS)
+
+
 class InverterBridge:
     """One inverter behind ``link`` (SerialLink or CanLink) that sends blocks of ``block_samples``
     samples (1: TELEMETRY per sample). ``poll`` from one thread, ``command`` and ``command_block`` from
@@ -93,28 +127,44 @@ class InverterBridge:
         self.block_samples = block_samples
         self.link_timeout_s, self.command_timeout_s = link_timeout_s, command_timeout_s
         self.reconnect_s = reconnect_s
-        self.counters = dict.fromkeys(("samples", "dropped", "duplicated", "reordered", "link_lost",
-                                       "bus_off", "reconnects", "safe_state", "faults_cleared",
-                                       "before_hello", "commands", "command_errors", "inverter_faults",
-                                       "block_mismatch"), 0)
-        self.hello = None
+        self.state, self.counter_array = cb.bridge_state(block_samples, link_timeout_s, command_timeout_s)
+        """Its state and counters as arrays (compiled_bridge.STATE, COUNTERS), the attributes below views of
+        them: the telemetry is taken by the kernel the compiled answer runs (compiled_bridge.accept_telemetry),
+        which changes them in place."""
+        self.counters = Counters(self.counter_array)
+        self.telemetry = cb.telemetry_arrays(self.state, self.counter_array)
+        self._hello = None
         self.open = False
-        self.lost = True
         self.last_error = ""
-        self.last_seq = None
-        self.k_offset = 0
-        self.theta_m = math.nan
-        self.status = 0
-        self.last_telemetry_at = None
-        self.last_command_at = None
-        self.safe = False
-        self.clear_sent = False
         self.next_open_at = 0.0
         self.part = None
         """The first samples of a block whose rest has not come yet (CAN FD frames)."""
         self.send_lock = threading.Lock()
         self.written = np.full((WRITES_KEPT, 2), np.nan)
         """[first sample answered, monotonic s] of each command message written to the link (a ring)."""
+
+    last_seq = _state_field(cb.LAST_SEQ, int, None)
+    """The last sequence number taken (None: none yet)."""
+    k_offset = _state_field(cb.K_OFFSET, int)
+    status = _state_field(cb.STATUS, int)
+    theta_m = _state_field(cb.THETA_M, float)
+    last_telemetry_at = _state_field(cb.LAST_TELEMETRY_AT, float, None)
+    last_command_at = _state_field(cb.LAST_COMMAND_AT, float, None)
+    lost = _state_field(cb.LOST, bool)
+    safe = _state_field(cb.SAFE, bool)
+    clear_sent = _state_field(cb.CLEAR_SENT, bool)
+
+    @property
+    def hello(self):
+        """The inverter's HELLO taken (None: none)."""
+        return self._hello
+
+    @hello.setter
+    def hello(self, message):
+        self._hello = message
+        self.state[cb.HAS_HELLO] = message is not None
+        if message is not None:
+            self.state[cb.CURRENT_LSB], self.state[cb.VOLTAGE_LSB] = message.current_lsb_A, message.voltage_lsb_V
 
     def written_at(self, k):
         """When the command answering sample k was written to the link (monotonic s); NaN when it was not,
@@ -219,48 +269,15 @@ class InverterBridge:
         """The BridgeBlock of samples seq … (``entries``: their (i_a, i_b, i_c, encoder) counts), or None
         for one before HELLO, a repeat or a late one; every gap counted as dropped samples."""
         n = len(entries)
-        if self.hello is None:
-            before = self.counters["before_hello"]
-            self.counters["before_hello"] += n
-            if (before + n - 1) // 100 != (before - 1) // 100:
-                self._send(Control(CONTROL_SEND_HELLO))
+        t = self.telemetry
+        t.entries[:n] = entries
+        currents, theta = np.empty((n, 3)), np.empty(n)
+        k0 = cb.accept_telemetry(t, seq, n, u_dc, status, currents, theta)
+        if k0 == cb.ASK_HELLO:
+            self._send(Control(CONTROL_SEND_HELLO))
+        if k0 < 0:
             return None
-        if self.last_seq is not None:
-            step = (seq - self.last_seq) % 2 ** 32
-            if step == 0:
-                self.counters["duplicated"] += 1
-                return None
-            if step >= 2 ** 31:
-                self.counters["reordered"] += 1
-                return None
-            self.counters["dropped"] += step - 1
-            if seq < self.last_seq:
-                self.k_offset += 2 ** 32
-        k0 = self.k_offset + seq
-        if seq + n > 2 ** 32:
-            self.k_offset += 2 ** 32
-        self.last_seq = (seq + n - 1) % 2 ** 32
-        now = time.monotonic()
-        self.last_telemetry_at = now
-        if self.lost:
-            self.lost = False
-            self.last_command_at = None
-        new_faults = status & ~self.status & (OVERCURRENT | OVERVOLTAGE | CLEARED_BY_HOST)
-        self.counters["inverter_faults"] += bin(new_faults).count("1")
-        self.status = status
-        if not status & CLEARED_BY_HOST:
-            self.clear_sent = False
-        self.counters["samples"] += n
-        h = self.hello
-        counts = np.array(entries, dtype=float)
-        theta = np.full(n, math.nan)
-        if status & ENCODER_VALID:
-            previous = self.theta_m
-            for i, turn in enumerate((counts[:, 3] * (2.0 * math.pi / 65536.0)).tolist()):
-                previous = turn if math.isnan(previous) else previous + math.remainder(turn - previous, 2.0 * math.pi)
-                theta[i] = previous
-        self.theta_m = theta[-1]
-        return BridgeBlock(k0, counts[:, :3] * h.current_lsb_A, theta, u_dc * h.voltage_lsb_V, status)
+        return BridgeBlock(int(k0), currents, theta, u_dc * self.hello.voltage_lsb_V, status)
 
     def _check_timeouts(self):
         now = time.monotonic()

@@ -176,13 +176,15 @@ def cpu_mask(cpus):
 
 
 @contextlib.contextmanager
-def unbound_work_on(cpus, mask_file=WORKQUEUE_CPUMASK, holders_dir=None):
-    """The kernel's unbound workqueues on ``cpus`` (None: left as they are) for a run. System-wide: every
+def unbound_work_on(cpus, mask_file=None, holders_dir=None):
+    """The kernel's unbound workqueues on ``cpus`` (None: left as they are) for a run (``mask_file``: None,
+    WORKQUEUE_CPUMASK). System-wide: every
     unbound kernel work item runs there meanwhile; shared by the machine's drive processes
     (machine_setting.SharedSetting, its holders in ``holders_dir``): the last one out puts the mask found
     before the first back, also after a holder was killed. Yields {"applied": [...], "refused": [...]} as
     real_time_scheduled; a refusal (not root, another drive holding other CPUs) is never an exception."""
     applied, refused, setting = [], [], None
+    mask_file = mask_file or WORKQUEUE_CPUMASK
     if cpus:
         text = ",".join(str(c) for c in sorted(cpus))
         shared = SharedSetting(mask_file, holders_dir)

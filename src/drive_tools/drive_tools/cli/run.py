@@ -22,6 +22,8 @@ from .options import (
     MOTOR_HELP,
     UNSET,
     CommandLineError,
+    answer_argument,
+    answer_options,
     block_sizes,
     duration_arg,
     estimator_arg,
@@ -112,9 +114,6 @@ def cmd_launch(args):
     if args.paced and not args.link:
         raise CommandLineError("--paced: needs --link pty|can (the virtual inverter is what keeps the clock)")
     robot_real_time(args)
-    if args.intra_process and args.processes != "composed":
-        raise CommandLineError("--intra-process: needs --processes composed (the estimator hands its answers to "
-                               "the controller in one process)")
     extra = {"commissioning": args.commissioning} if args.commissioning else {}
     if args.motor:
         extra["motor_file"] = motor_reference(args.motor)
@@ -129,18 +128,21 @@ def cmd_launch(args):
                       args.link, args.paced)
     real_time = RealTime(args.rt_priority, args.cpus, args.workqueue_cpus, args.cpu_dma_latency_us)
     options = GraphOptions(args.processes, args.executor, timeout_s=args.timeout, intra_process=args.intra_process,
-                           real_time=real_time)
+                           real_time=real_time, answer=answer_options(args))
     result = launch(drive, options, terminal_progress(f"{scenario.name}/{scenario.estimator} over ROS"))
     for line in result.scheduling["refused"]:
         print(f"drive: warning: {line}", file=sys.stderr)
     faults = result.node_faults
     plant = f"virtual inverter over {args.link} + drive_bridge" if args.link else "pmsm_plant"
-    intra = ", the controller taking the estimator's answers directly" if args.intra_process else ""
+    intra = {"compiled": ", the drive's answer compiled whole on its own thread (estimator and controller not "
+                         "nodes)"}.get(args.answer, ", the controller taking the estimator's answers directly"
+                                       if args.intra_process else "")
     extra = {"graph": f"{args.processes} processes, {args.executor} executor, namespace {args.namespace}, "
                       f"{plant}{intra}",
              "real_time_factor": round(result.scenario.duration_s / result.wall_time_s, 4)
              if result.wall_time_s > 0 else None,
-             "interrupted": bool(result.interrupted), "node_faults": faults, "scheduling": result.scheduling}
+             "interrupted": bool(result.interrupted), "node_faults": faults, "scheduling": result.scheduling,
+             "answer": result.answer}
     if result.timing:
         extra["timing"] = result.timing
     if args.record:
@@ -169,13 +171,10 @@ def cmd_bridge(args):
     args.block_samples = link_block_samples(args.paced, args.block_samples)
     scenario = scenario_arg(args)
     paced = InverterOptions(rate_Hz=1.0 / scenario.T_s if args.paced else None)
-    if args.answer == "compiled" and args.link != "pty":
-        raise CommandLineError(f"--answer compiled: the compiled answer runs on a serial link (pty), not {args.link}")
-    from drive_tools.runner.compiled_answer import AnswerOptions
     result = run_through_bridge(scenario, args.link, paced,
                                 progress=terminal_progress(f"{scenario.name}/{scenario.estimator} through the "
                                                            f"bridge ({args.link})"),
-                                answer=AnswerOptions() if args.answer == "compiled" else None)
+                                answer=answer_options(args))
     extra = {"link": f"virtual inverter over {args.link}, bridge core, estimator and controller cores",
              "samples_per_s": round(result.log.shape[0] / result.wall_time_s) if result.wall_time_s > 0 else None,
              "bridge": result.counters, "frame_errors": result.frame_errors,
@@ -279,11 +278,12 @@ def add_commands(sub):
     launch.add_argument("--paced", action="store_true",
                         help="with --link: the virtual inverter on its own clock at the sampling rate, never "
                              "waiting for the graph: a late command is zero volts, counted")
+    answer_argument(launch, None)
     add_scheduling_arguments(launch, system_wide=True)
     launch.set_defaults(func=cmd_launch, rt_priority=UNSET, cpus=UNSET, workqueue_cpus=UNSET)
     launch.epilog = ("With --link and --paced, the robot's configuration unless given otherwise: --rt-priority "
                      f"{ROBOT_RT_PRIORITY}, --cpus the last CPU (--workqueue-cpus too over a pty), "
-                     "--intra-process (docs/ros-graph.md, \"Real time\")")
+                     "--intra-process, over a pty --answer compiled (docs/ros-graph.md, \"Real time\")")
 
     bridge = sub.add_parser("bridge", help="the sensorless loop through the inverter bridge and the virtual "
                                            "inverter, in one process")
@@ -294,6 +294,5 @@ def add_commands(sub):
                              "late command is zero volts, counted")
     bridge.add_argument("--block-samples", type=int, metavar="N",
                         help=f"samples per frame (default: the scenario's; {PACED_BLOCK_SAMPLES} with --paced)")
-    bridge.add_argument("--answer", choices=("python", "compiled"), default="python",
-                        help="the host's answer in Python, or compiled whole off the interpreter's lock (pty only)")
+    answer_argument(bridge, "python")
     bridge.set_defaults(func=cmd_bridge)

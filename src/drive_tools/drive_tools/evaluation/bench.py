@@ -406,24 +406,60 @@ REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {}, "collec
                     "collector+fifo+cpu1+workqueue1": {**_FIFO_CPU1, "workqueue_cpus": {1}},
                     "collector+fifo+cpu1+workqueue1+intra": _ROBOT,
                     "collector+fifo+cpu1+workqueue1+intra+pmqos": {**_ROBOT, "cpu_dma_latency_us": 0},
-                    "collector+fifo+cpu1+workqueue1+intra+inverter_apart": {**_ROBOT, "inverter_apart": True}}
+                    "collector+fifo+cpu1+workqueue1+intra+inverter_apart": {**_ROBOT, "inverter_apart": True},
+                    "robot": {**_ROBOT, "answer": {}},
+                    "robot+publisher_sleep_50ms": {**_ROBOT, "answer": {"reader_stall_s": 0.05}},
+                    "robot+collect_every_100ms": {**_ROBOT, "answer": {}, "forced_collection_s": 0.1}}
 """The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
 "Real time"): none; the garbage collector held out of the sample path (the default); and the process on
 CPU 1; and SCHED_FIFO priority 50 (on every CPU, or on CPU 1); and the kernel's unbound workqueues (a serial
 link's bytes pass through one) on CPU 1 too; and the controller taking the estimator's answers directly
 (intra_process: four deliveries a block fewer); and the CPUs kept out of idle states slower to leave than
 0 µs (pmqos: PM QoS, /dev/cpu_dma_latency). The virtual inverter runs on a thread of the graph's process
-but in inverter_apart, where it has a process of its own (on the CPU the graph leaves). Each lever's keys
-are launch's: RealTime's fields, GraphOptions' ``intra_process``, DriveSpec's ``inverter_apart``."""
+but in inverter_apart, where it has a process of its own (on the CPU the graph leaves). ``robot``: `drive
+launch --link L --paced` as it runs by default, over a pty the answer compiled (``answer``: its
+AnswerOptions' fields; CAN keeps the nodes' answer); and the stalls of its side that is not real-time: the
+ring's reader (the publisher and the log's writer) sleeping 50 ms after each read, a full garbage collection
+forced every 100 ms on a thread of the drive's process (``forced_collection_s``). Each lever's keys are
+launch's: RealTime's fields, GraphOptions' ``intra_process`` and ``answer``, DriveSpec's
+``inverter_apart``."""
 
 
-def lever_launch(lever):
-    """(real-time levers, intra_process, inverter_apart) of ``lever`` (a REAL_TIME_LEVERS name), as launch
-    takes them (drive_tools.launch.launcher: RealTime, GraphOptions, DriveSpec)."""
-    from drive_tools.launch.launcher import RealTime
+def lever_launch(lever, link):
+    """(GraphOptions, inverter_apart, the period of forced collections [s] or None) of ``lever`` (a
+    REAL_TIME_LEVERS name) on ``link``, as launch takes them (drive_tools.launch.launcher: RealTime,
+    GraphOptions, DriveSpec)."""
+    from drive_tools.launch.launcher import GraphOptions, RealTime
+    from drive_tools.runner.compiled_answer import AnswerOptions
     settings = dict(REAL_TIME_LEVERS[lever])
     intra_process, inverter_apart = settings.pop("intra_process", False), settings.pop("inverter_apart", False)
-    return RealTime(**settings), intra_process, inverter_apart
+    answer, collection_s = settings.pop("answer", None), settings.pop("forced_collection_s", None)
+    answer = AnswerOptions(**answer) if answer is not None and link == "pty" else None
+    return (GraphOptions(intra_process=intra_process, real_time=RealTime(**settings), answer=answer),
+            inverter_apart, collection_s)
+
+
+@contextlib.contextmanager
+def collections_forced(period_s):
+    """A thread of this process forcing a full garbage collection every ``period_s`` [s] (None: none), the
+    interpreter's lock held meanwhile: a stall of the drive's side that is not real-time."""
+    if period_s is None:
+        yield
+        return
+    import gc
+    import threading
+    stop = threading.Event()
+
+    def collect():
+        while not stop.wait(period_s):
+            gc.collect()
+    thread = threading.Thread(target=collect, name="forced_collections", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
 
 
 @dataclass(frozen=True)
@@ -493,7 +529,7 @@ def graph_real_time(scenario_ref, bench=None, progress=None):
     from drive_common.runtime.machine_watch import MachineWatch
     from drive_tools.doubles.faults import FaultPlan, faulty
     from drive_tools.doubles.virtual_inverter import VirtualInverter
-    from drive_tools.launch.launcher import DriveSpec, GraphOptions, launch
+    from drive_tools.launch.launcher import DriveSpec, launch
 
     from .metrics import compute_metrics
     from .speed_range import meets_targets
@@ -508,15 +544,15 @@ def graph_real_time(scenario_ref, bench=None, progress=None):
         for link in bench.links:
             for lever in bench.levers:
                 runs = []
-                real_time, intra_process, inverter_apart = lever_launch(lever)
-                options = GraphOptions(intra_process=intra_process, real_time=real_time)
+                options, inverter_apart, collection_s = lever_launch(lever, link)
+                real_time = options.real_time
                 for _ in range(bench.repeats):
                     stolen_before = stolen_s()
                     inverter = faulty(FaultPlan(lose_command_every=every)) if every else VirtualInverter
                     drive = DriveSpec(scenario_ref, extra_parameters={"block_samples": bench.block_samples},
                                       link=link, paced=True, inverter_apart=inverter_apart, inverter=inverter)
                     with (MachineWatch(real_time.rt_priority + 1, real_time.cpus)
-                          if watch_machine else contextlib.nullcontext()) as watch:
+                          if watch_machine else contextlib.nullcontext()) as watch, collections_forced(collection_s):
                         result = launch(drive, options)
                     report["interrupted"] = result.interrupted or interrupt.requested()
                     if report["interrupted"]:
@@ -529,6 +565,7 @@ def graph_real_time(scenario_ref, bench=None, progress=None):
                                  "angle_error_rms": metrics["angle_error_rms"],
                                  "angle_error_peak": metrics["angle_error_peak"],
                                  "missing_samples": sum(result.missing_samples.values()),
+                                 "answer": result.answer,
                                  **{key: t[key] for key in ("missing_runs", "missing_runs_written_in_time",
                                                             "missing_runs_written_before_due_us", "in_time_by",
                                                             "sent_late_in_time", "read_late_in_time", "hop_us",

@@ -44,6 +44,12 @@ DELIVERIES_PER_SAMPLE_INTRA_PROCESS = 4
 estimator_state) are handed over, not delivered."""
 
 
+RUN_DEADLINE_FACTOR = 50.0
+RUN_DEADLINE_MARGIN_S = 60.0
+"""A run's deadline once started (run_deadline_s): its duration × the factor (a lock-step graph runs at a
+real-time factor of 0.1-1.4 here) plus the margin (the final wait, the first kernels' loading)."""
+
+
 class GraphError(DriveError):
     """The graph could not run as asked."""
 
@@ -175,6 +181,9 @@ class GraphResult(RunResult):
     scheduling: dict = None
     """{"applied": [...], "refused": [...]}: the real-time scheduling of the run (drive_common.runtime.realtime),
     one line each."""
+    answer: dict = None
+    """With the compiled answer: its thread's scheduling, the samples its ring handed over (``recorded``) and
+    those it had no room for (``ring_overflow``, never silent: they are missing samples too)."""
 
 
 def node_parameters(scenario_ref, estimator=None, duration_s=None, timeout_s=1.0, extra=None):
@@ -242,6 +251,14 @@ class GraphOptions:
     startup_timeout_s: float = 60.0
     intra_process: bool = False
     real_time: RealTime = RealTime()
+    deadline_s: float = None
+    """How long the run may take once started [s] (None: run_deadline_s's, from the scenarios' duration)."""
+    answer: object = None
+    """Behind a virtual inverter over a pty: drive_tools.runner.compiled_answer.AnswerOptions, the drive's whole
+    answer in one compiled function off the interpreter's lock on a thread of its own, one step above the
+    process's SCHED_FIFO priority unless its ``priority`` says (its estimator and controller are no nodes
+    then: the bridge node publishes what the answer's ring hands over, and the log and recording are that
+    ring's rows); None: the nodes answer."""
 
 
 def launch(drive, options=GraphOptions(), progress=None):
@@ -277,6 +294,7 @@ def launch_many(specs, options=GraphOptions(), progress=None):
         raise GraphError("drives side by side need distinct namespaces")
     for spec in specs:
         check_namespace(spec.namespace)
+    check_answer(specs, options)
     for spec in specs:
         if spec.link not in (None,) + LINKS:
             raise GraphError(f"unknown virtual link {spec.link!r} (known: {', '.join(LINKS)})")
@@ -295,9 +313,9 @@ def launch_many(specs, options=GraphOptions(), progress=None):
         for lock in locks:
             lock.release()
         raise
-    recorders = [BagWriter(spec.bag) if spec.bag else None for spec in specs]
+    recorders = [BagWriter(spec.bag) if spec.bag and options.answer is None else None for spec in specs]
     workdir = tempfile.TemporaryDirectory(prefix="drive_bridge_")
-    inverters = []
+    inverters, answers = [], []
     children, nodes, drivers, drives, listeners = [], [], [], [], []
     polling = polled()
     polling.__enter__()
@@ -333,7 +351,14 @@ def launch_many(specs, options=GraphOptions(), progress=None):
                             "block_samples": scenario.block_samples}
                 roles["drive_bridge"] = timeouts if processes == "composed" else {**_link_parameters(host_link),
                                                                                   **timeouts}
-            made = {}
+            made, answer = {}, None
+            if options.answer is not None:
+                answer, bridge_node = _compiled_answer(drive, host_link, (context, spec.namespace),
+                                                       roles.pop("drive_bridge"), options)
+                del roles["hf_estimator"], roles["foc_controller"]
+                made["drive_bridge"] = bridge_node
+                nodes.append(bridge_node)
+                answers.append(answer)
             for role, role_parameters in roles.items():
                 if processes == "composed":
                     partners = {"estimator": made.get("hf_estimator"), "controller": made.get("foc_controller")}
@@ -349,12 +374,15 @@ def launch_many(specs, options=GraphOptions(), progress=None):
             listener = Node("drive_recorder", context=context, namespace=spec.namespace)
             listeners.append(listener)
             host_bridge = made["drive_bridge"].bridge if spec.link and processes == "composed" else None
+            host_bridge = answer or host_bridge
             if host_bridge is not None and spec.paced and not spec.inverter_apart:
                 inverter.hear_host_writes(host_bridge.written_at)
             settings = DriverSettings(options.record, 0.1 if processes == "composed" else 0.5,
                                       options.startup_timeout_s, intra_process)
-            driver = ScenarioDriver(driver_node, scenario, settings, progress if i == 0 else None, recorders[i],
-                                    inverter, listener, host_bridge)
+            driver = ScenarioDriver(driver_node, scenario, settings, progress if i == 0 else None,
+                                    None if answer else recorders[i], inverter, listener, host_bridge)
+            if answer is not None:
+                driver.publish_answered = made["drive_bridge"].publish_answered
             driver.done = Future()
             drives.append(drive)
             drivers.append(driver)
@@ -362,6 +390,10 @@ def launch_many(specs, options=GraphOptions(), progress=None):
             ex.add_node(node)
         all_done = Future()
         watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
+        for driver in drivers:
+            driver.start_allowed = False
+        while not all_done.done() and not all(driver.ready or driver.done.done() for driver in drivers):
+            ex.spin_until_future_complete(all_done, timeout_sec=0.05)
         with real_time_scheduled(real_time.rt_priority, real_time.cpus) as scheduling, \
                 unbound_work_on(real_time.workqueue_cpus) as work, \
                 cpu_wakeup_latency_held(real_time.cpu_dma_latency_us) as idle, \
@@ -373,25 +405,39 @@ def launch_many(specs, options=GraphOptions(), progress=None):
             else:
                 for listener in listeners:
                     ex.add_node(listener)
+            for driver in drivers:
+                driver.start_allowed = True
+            deadline = time.monotonic() + run_deadline_s([driver.scenario for driver in drivers], options)
             while not all_done.done():
-                ex.spin_until_future_complete(all_done, timeout_sec=1.0)
+                ex.spin_until_future_complete(all_done, timeout_sec=min(1.0, max(deadline - time.monotonic(), 0.0)))
+                if time.monotonic() > deadline:
+                    for driver in drivers:
+                        driver.finish(f"the run did not end within {run_deadline_s([driver.scenario], options):g} "
+                                      f"s of its start (deadline_s; its inverter or answer never finished): "
+                                      f"stopped, the machine's settings given back")
             if listening:
                 listening.stop()
         nodes[-1].destroy_timer(watcher)
+        _stop_answers(answers)
         results = [_result(driver, drive, options, requested(), hop)
                    for driver, drive in zip(drivers, drives)]
     finally:
         polling.__exit__(None, None, None)
+        _stop_answers(answers)
         _stop_children([child for _, child in children])
         if listening is not None:
             listening.stop()
         tear_down(ex, nodes + listeners, context, inverters, workdir)
         recording_errors = [_close(recorder) for recorder in recorders]
+    for i, (result, drive) in enumerate(zip(results, drives)):
+        if options.answer is not None and specs[i].bag:
+            recording_errors[i] = _record_answered(result, specs[i], drive)
         for lock in locks:
             lock.release()
     for result, error in zip(results, recording_errors):
         result.recording_error = error
-        result.scheduling = scheduling
+        thread = (result.answer or {}).get("scheduling", {"applied": [], "refused": []})
+        result.scheduling = {key: scheduling[key] + thread[key] for key in scheduling}
     return results
 
 
@@ -430,6 +476,77 @@ class Listening:
             self.executor.shutdown()
 
 
+def run_deadline_s(scenarios, options):
+    """How long a graph's run may take once started, with the machine's settings held (SCHED_FIFO, the
+    workqueue mask): ``options.deadline_s``, else the longest scenario's duration × RUN_DEADLINE_FACTOR +
+    RUN_DEADLINE_MARGIN_S (a lock-step run slower than real time included). Past it the run stops: nothing
+    waits at real-time priority for what may never come."""
+    if options.deadline_s is not None:
+        return options.deadline_s
+    return max(scenario.duration_s for scenario in scenarios) * RUN_DEADLINE_FACTOR + RUN_DEADLINE_MARGIN_S
+
+
+def check_answer(specs, options):
+    """GraphError unless ``options.answer`` can answer every drive of ``specs``: the compiled answer needs the
+    nodes composed and a virtual inverter over a pty (its I/O is a serial link's descriptor)."""
+    if options.answer is None:
+        return
+    if options.processes != "composed":
+        raise GraphError("the compiled answer runs in the drive's process: it needs the nodes composed, not "
+                         "--processes separate")
+    for spec in specs:
+        if spec.link != "pty":
+            raise GraphError(f"the compiled answer reads and writes a serial link's descriptor: it needs --link "
+                             f"pty, not {spec.link or 'the plant node'} (python-can's buses are objects of the "
+                             f"interpreter; a CAN frame is no COBS frame)")
+
+
+def _compiled_answer(drive, host_link, where, bridge_parameters, options):
+    """(the compiled answer of ``drive`` on ``host_link`` as ``options.answer`` says, the bridge node that
+    publishes what it answered), ``where``: (context, namespace). Its thread runs one step above the process's
+    SCHED_FIFO priority (none without it) unless ``options.answer.priority`` says: no thread of this process
+    delays it."""
+    from drive_bridge.bridge_node import InverterBridgeNode
+    from drive_common.ros.node import parameter_overrides
+    from drive_tools.runner.compiled_answer import answer_of
+    context, namespace = where
+    node = InverterBridgeNode(link=host_link, answered_elsewhere=True, context=context, namespace=namespace,
+                              parameter_overrides=parameter_overrides(bridge_parameters))
+    scenario = drive.scenario
+    rt_priority = options.real_time.rt_priority
+    answer_options = options.answer
+    if not answer_options.priority and rt_priority:
+        answer_options = answer_options._replace(priority=min(rt_priority + 1, 99))
+    answer = answer_of(drive, node.bridge, answer_options)
+    node.answered_by(answer.counters, scenario.T_s, scenario.motor.nameplate.n_p)
+    return answer, node
+
+
+def _stop_answers(answers):
+    """Stop the compiled answers (each notices within its poll, 50 ms) and wait for them and their readers."""
+    for answer in answers:
+        answer.stop()
+    for answer in answers:
+        answer.join(2.0)
+
+
+def _record_answered(result, spec, drive):
+    """Write the recording of ``drive`` (runner.Drive) that a compiled answer ran from its log (the rows its
+    ring handed over, as the graph records them: drive_tools.bags.writer.write_run_bag); what went wrong, or
+    None."""
+    import dataclasses
+
+    from drive_tools.bags.writer import write_run_bag
+    from hf_estimator.interface import contract_injection
+    facts = drive.estimator.facts()
+    try:
+        write_run_bag(dataclasses.replace(result, injection=contract_injection(facts, result.scenario.injection)),
+                      spec.bag, spec.namespace)
+    except (BagWriteError, OSError) as error:
+        return str(error)
+    return None
+
+
 def tear_down(ex, nodes, context, inverters, workdir):
     """End a graph in order: the virtual inverters stop, the executor shuts down before its nodes are
     destroyed, the context ends, then the inverters' links close and the working directory goes."""
@@ -459,6 +576,7 @@ def _close(recorder):
 def _result(driver, drive, options, interrupted, hop=None):
     """The GraphResult of one drive (``drive``: the runner's composition of the same scenario, for its
     current limit and commissioning record) run as ``options`` (GraphOptions) say."""
+    from .scenario_driver import ANSWER_RING
     scenario = driver.scenario
     if driver.inverter is not None:
         driver.inverter.stop()
@@ -477,7 +595,10 @@ def _result(driver, drive, options, interrupted, hop=None):
                        diagnostics=dict(driver.diagnostics), node_faults=driver.faults(),
                        missing_samples={} if interrupted else driver.missing_samples(),
                        timing=in_hops(timing_report(driver.inverter, scenario.T_s, written_at), hop)
-                       if driver.inverter else None)
+                       if driver.inverter else None,
+                       answer={"by": "compiled", "scheduling": driver.answer.scheduling,
+                               "recorded": driver.received[ANSWER_RING], "ring_overflow": driver.answer.overflow}
+                       if driver.answer else None)
 
 
 def _virtual_inverter(scenario, parameters, spec, where, timeout_s, real_time=RealTime()):

@@ -30,7 +30,10 @@ from drive_common.contract.topics import (
 from drive_common.contract.wire import WireError, decode_block, decoder_of
 from drive_common.ros.node import message_class, topic_qos
 from drive_tools.bags.common import offered_qos
+from drive_tools.runner.compiled_answer import RING_K, RING_LOG, RING_THETA_M, CompiledAnswer
 
+ANSWER_RING = "answer_ring"
+"""With a compiled answer, what the driver counts as received: the rows its ring handed over."""
 ERROR = 2
 """diagnostic_msgs/DiagnosticStatus.ERROR: a fault (WARN, e.g. a bridge waiting for its inverter, is not)."""
 MAX_FAULT_MESSAGES = 5
@@ -76,7 +79,14 @@ class ScenarioDriver:
         self.intra_process = settings.intra_process
         """The controller takes the estimator's answers and the currents directly (no subscriptions)."""
         self.host_bridge = host_bridge
-        """Behind a virtual inverter in this process, the bridge node's InverterBridge (its write times)."""
+        """Behind a virtual inverter in this process, the bridge node's InverterBridge (its write times), or the
+        compiled answer (drive_tools.runner.compiled_answer.CompiledAnswer) that answers on it."""
+        self.answer = host_bridge if isinstance(host_bridge, CompiledAnswer) else None
+        """The compiled answer: the driver starts it with the inverter, and its log is what the answer's ring
+        hands over (``take_answered``), not what it hears on topics."""
+        self.publish_answered = None
+        """With a compiled answer: where each whole block it answered goes to be published, as
+        (k0, encoder angles [rad], log rows) (the bridge node's ``publish_answered``), or None."""
         self.listener = listener or node
         """The node that takes what the graph says (its subscriptions): the launcher spins it on a thread of
         its own, so that what is recorded never waits in the drive's queue of callbacks."""
@@ -101,15 +111,17 @@ class ScenarioDriver:
         """Per-sample topic → the topic that carries it in this drive (itself, or its block twin)."""
         handlers = {DIAGNOSTICS: self.on_diagnostics}
         recorded = tuple(self.carried[topic] for topic in SAMPLE_LOGGED if topic != VOLTAGE_COMMAND)
-        if record:
+        if record and self.answer is None:
             handlers.update({topic: self.logger_of(topic) for topic in recorded})
-        if record or recorder:
+        if (record or recorder) and self.answer is None:
             handlers[self.carried[VOLTAGE_COMMAND]] = self.on_voltage
         self.recorded_commands = {SPEED_COMMAND: self.speed, LOAD_TORQUE: self.load,
                                   TORQUE_FEEDFORWARD: self.feedforward}
         self.last_recorded = {}
         self.received = dict.fromkeys((topic for topic in handlers if topic in self.carried.values()), 0)
-        """Samples received per recorded topic."""
+        """Samples received per recorded topic (with a compiled answer: per the one ring, ANSWER_RING)."""
+        if self.answer is not None:
+            self.received = {ANSWER_RING: 0}
         self.listening = {}
         """Topic → this driver's subscription (what it logs and records)."""
         self.subscribe(handlers)
@@ -117,6 +129,11 @@ class ScenarioDriver:
         self.ready_since = None
         self.checked_at = 0.0
         self.started_at = self.finished_at = None
+        self.ready = False
+        """Every endpoint matched and settled: the run may start."""
+        self.start_allowed = True
+        """False while the launcher has yet to take the machine's settings (SCHED_FIFO, the workqueue mask): a
+        ready driver waits for it, so that nothing waits for the graph at real-time priority."""
         self.inverter_ran_out = False
         """The inverter's last period went before the host reached the run's last sample: the run ends
         FINAL_WAIT_S later, short of it."""
@@ -127,8 +144,9 @@ class ScenarioDriver:
         that killed it). Each is a node fault of the run, which ends there."""
         self.diagnostics = {}
         self.nodes_complete = set()
-        self.lockstep_nodes = 2 if inverter is not None else 3
-        """Nodes that report ``run_complete``: estimator, controller and the plant (not the bridge)."""
+        self.lockstep_nodes = (2 if inverter is not None else 3) if self.answer is None else 0
+        """Nodes that report ``run_complete``: estimator, controller and the plant (not the bridge; none where a
+        compiled answer runs the drive)."""
         self.done = None
         node.create_timer(0.05, self.tick)
 
@@ -204,6 +222,8 @@ class ScenarioDriver:
         an inverter, which keeps its own load and clock, no plant subscribes to load_torque; intra-process,
         the controller subscribes to none of the estimator's answers nor to the currents; with an inverter
         too, the estimator neither to the currents nor to the commands, the bridge not to the commands)."""
+        if self.answer is not None:
+            return []
         r = 1 if self.record or self.recorder else 0
         c = 0 if self.intra_process else 1
         sensored = self.scenario.estimator == "sensored"
@@ -271,10 +291,15 @@ class ScenarioDriver:
                 return
             self.ready_since = self.ready_since or now
             if now - self.ready_since >= self.settle_s:
+                self.ready = True
+                if not self.start_allowed:
+                    return
                 self.started_at = now
                 self.load_pub.publish(Float64(data=float(self.load[0])))
                 if self.recorder:
                     self.record_commands(0)
+                if self.answer is not None:
+                    self.answer.start(self.take_answered)
                 if self.inverter is not None:
                     self.inverter.start()
             return
@@ -283,8 +308,41 @@ class ScenarioDriver:
         if self.finished_at is None and self.inverter is not None and self.inverter.ran_out():
             self.finished_at = now
             self.inverter_ran_out = True
+            if self.answer is not None:
+                self.answer.drain_then_stop()
+        if self.finished_at is None and self.answer is not None and self.answer.finished():
+            self.finished_at = now
         if self.finished_at is not None and (self.complete() or now - self.finished_at > FINAL_WAIT_S):
             self.finish()
+
+    def take_answered(self, rows):
+        """Rows a compiled answer's ring handed over (compiled_answer: RING_K, RING_HOST_S, RING_THETA_M, then
+        the log row), on its reader's thread: the drive's columns into the log, the encoder's angle as the
+        bridge node publishes it (theta_m, omega_m: its difference over a period), each whole block to
+        ``publish_answered``."""
+        k = rows[:, RING_K].astype(np.int64)
+        inside = k < self.n
+        rows, k = rows[inside], k[inside]
+        if not len(k):
+            return
+        theta = rows[:, RING_THETA_M]
+        if self.record:
+            drive = slice(COLUMN["i_a_meas"], len(LOG_COLUMNS))
+            self.log[k, drive] = rows[:, RING_LOG + drive.start:]
+            self.log[k, COLUMN["theta_m"]] = theta
+            before = np.where(k > 0, self.log[np.maximum(k - 1, 0), COLUMN["theta_m"]], theta)
+            before = np.where(np.isnan(before), theta, before)
+            self.log[k, COLUMN["omega_m"]] = (theta - before) / self.scenario.T_s
+        self.received[ANSWER_RING] += len(k)
+        self.last_sample = max(self.last_sample, int(k[-1]))
+        if self.publish_answered is not None:
+            N = self.scenario.block_samples
+            for start in range(0, len(k), N):
+                block = slice(start, start + N)
+                if len(k[block]) == N and k[start] % N == 0 and k[start + N - 1] == k[start] + N - 1:
+                    self.publish_answered(int(k[start]), theta[block], rows[block, RING_LOG:])
+        if self.last_sample == self.n - 1 and self.finished_at is None:
+            self.finished_at = time.monotonic()
 
     def complete(self):
         """Every recorded topic has its last sample and every lock-step node said its run is complete."""
@@ -295,6 +353,11 @@ class ScenarioDriver:
         """{topic: samples of the run's span (up to the last sample reached; all of them when the inverter ran
         out first) never received}, for every logged topic short of them."""
         reached = self.n if self.inverter_ran_out else self.last_sample + 1
+        if self.answer is not None:
+            overflow = self.answer.overflow
+            missing = {"ring_overflow": overflow, "not_answered": reached - self.received[ANSWER_RING] - overflow}
+            return {f"{self.node.get_namespace().rstrip('/')}/answer {kind}": count
+                    for kind, count in missing.items() if count > 0}
         return {self.node.resolve_topic_name(topic): reached - count
                 for topic, count in sorted(self.received.items()) if count < reached}
 

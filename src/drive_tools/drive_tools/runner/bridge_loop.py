@@ -166,7 +166,7 @@ def _run(scenario, link, inverter, bridge, progress):
 def _run_compiled(scenario, link, inverter, bridge, progress_and_options):
     """The host's loop compiled whole (compiled_answer.CompiledAnswer): the same answer as ``_run``, its
     samples recorded from the ring; ``ring_overflow`` counts those the ring had no room for."""
-    from .compiled_answer import CompiledAnswer
+    from .compiled_answer import RING_HOST_S, RING_K, RING_LOG, CompiledAnswer
     progress, answer_options = progress_and_options
     host = build_drive(scenario)
     n = scenario.n_samples
@@ -179,11 +179,12 @@ def _run_compiled(scenario, link, inverter, bridge, progress_and_options):
     answer = CompiledAnswer(host, bridge, line, (n, delay), answer_options)
     reported = [0]
 
-    def take(k, seconds, row):
-        log[k], host_s[k], received[k] = row, seconds, True
-        if progress and k - reported[0] >= n // 100:
-            reported[0] = k
-            progress(k / n)
+    def take(rows):
+        k = rows[:, RING_K].astype(np.int64)
+        log[k], host_s[k], received[k] = rows[:, RING_LOG:], rows[:, RING_HOST_S], True
+        if progress and k[-1] - reported[0] >= n // 100:
+            reported[0] = k[-1]
+            progress(k[-1] / n)
 
     start = time.perf_counter()
     interrupted = 0

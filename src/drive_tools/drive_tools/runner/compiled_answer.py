@@ -6,6 +6,7 @@ machine allows it). What it produced (per sample: k, the host's time, the log ro
 lock-free ring (drive_common.runtime.sample_ring) that a thread that is not real-time reads: the recording
 waits for nothing and a full ring is counted, never silent. Reconnecting, HELLO's requests and the reports
 stay in Python, between calls of the compiled loop. A serial link (a UART, USB CDC, a pty) only."""
+import contextlib
 import os
 import threading
 import time
@@ -15,21 +16,20 @@ import numpy as np
 from numba import njit
 
 from drive_bridge import compiled_bridge as cb
-from drive_bridge.inverter_protocol import COMMAND_MISSING, MAX_BLOCK, PWM_OFF
+from drive_bridge.inverter_protocol import COMMAND_MISSING, CONTROL_SEND_HELLO, MAX_BLOCK, PWM_OFF
 from drive_common.contract.log import LOG_COLUMNS
 from drive_common.math.command_delay import issue_command
 from drive_common.math.safe_state import safe_state_for
-from drive_common.math.winding import R_S_IN_USE
 from drive_common.runtime.sample_ring import drain, free_slot, publish, sample_ring
-from foc_controller.control import controller_block
-from foc_controller.protection import SAFE_STATE, TRIPPED, protection_block
-from hf_estimator.block import EstimatorCore, estimator_block
+from foc_controller.protection import SAFE_STATE, TRIPPED
+from hf_estimator.block import EstimatorCore
 
 from .answer_kernels import fill_inputs, issue_and_log
+from .loop import DriveCores, drive_block
 
-RING_K, RING_HOST_S, RING_LOG = 0, 1, 2
-"""A ring row: the sample k, the host's time from its telemetry read to its command written [s], then its
-log row (LOG_COLUMNS)."""
+RING_K, RING_HOST_S, RING_THETA_M, RING_LOG = 0, 1, 2, 3
+"""A ring row: the sample k, the host's time from its telemetry read to its command written [s], the encoder's
+angle as received [rad, mechanical; NaN: none], then its log row (LOG_COLUMNS)."""
 RING_ROWS = 1 << 15
 """The ring's rows by default: 3.3 s of samples at 10 kHz (8 MiB)."""
 STOP, NEXT_K, LAST_ANSWERED, N_SAMPLES, DELAY, DRAINING = range(6)
@@ -91,14 +91,12 @@ def answer_block(step, h, b, run, block, ring):
         for j in range(3):
             h.currents[i, j] = h.received_currents[i, j]
     fill_inputs(h.inputs, h.currents, h.received_theta, h.controller.n_p, h.speed_ref, h.tau_feedforward, k0, m)
-    h.estimator.sample[0].R_s_ohm = h.protection_x[R_S_IN_USE]
-    estimator_block(step, h.estimator, k0, m, h.inputs, h.line, h.sensing, h.estimates)
-    omega_e_hat = h.estimates[m - 1].omega_e_hat
-    protection_block(h.protection_x, h.protection, h.currents, m, k0 + m - 1, u_dc_V, omega_e_hat, h.controller_x)
+    cores = DriveCores(h.estimator, h.controller, h.controller_x, h.controller_z, h.protection, h.protection_x,
+                       h.sensing)
+    drive_block(step, cores, (k0, m, u_dc_V), h.line, (h.currents, h.inputs, h.estimates, h.commands))
     enable = h.protection_x[TRIPPED] == 0.0
-    safe = int(h.protection_x[SAFE_STATE]) if not enable else safe_state_for(omega_e_hat, u_dc_V,
+    safe = int(h.protection_x[SAFE_STATE]) if not enable else safe_state_for(h.estimates[m - 1].omega_e_hat, u_dc_V,
                                                                              h.protection.psi_f_Wb)
-    controller_block(h.controller_x, h.controller_z, h.controller, m, h.inputs, h.estimates, h.sensing, h.commands)
     issue_and_log(h.line, h.rows, k0, m, h.T_s, h.inputs, h.estimates, h.commands)
     for i in range(m):
         h.voltages[0, i], h.voltages[1, i] = h.commands[i].u_alpha_V, h.commands[i].u_beta_V
@@ -110,6 +108,7 @@ def answer_block(step, h, b, run, block, ring):
         slot = free_slot(rows, indices)
         if slot >= 0:
             rows[slot, RING_K], rows[slot, RING_HOST_S] = k0 + i, host_s
+            rows[slot, RING_THETA_M] = h.received_theta[i]
             for j in range(h.rows.shape[1]):
                 rows[slot, RING_LOG + j] = h.rows[i, j]
             publish(indices)
@@ -140,6 +139,8 @@ def answer_loop(step, h, b, run, ring):
             if n == 0:
                 continue
             k0 = cb.accept_telemetry(b, seq, n, u_dc, status, h.received_currents, h.received_theta)
+            if k0 == cb.ASK_HELLO:
+                cb.send_control(b, CONTROL_SEND_HELLO)
             if k0 < 0:
                 continue
             if not answer_block(step, h, b, run, (k0, n, u_dc * b.state[cb.VOLTAGE_LSB], status, arrived), ring):
@@ -180,8 +181,10 @@ class AnswerOptions(NamedTuple):
 class CompiledAnswer:
     """The compiled answer of ``drive`` (runner.Drive) through ``bridge`` (InverterBridge on a SerialLink),
     ``n_samples`` samples at the command delay ``delay``: ``start`` its thread and the ring's reader, which
-    hands each sample's row to ``take(k, host_s, log_row)``; ``stop``; ``join``. The answer thread runs the
-    compiled loop, and between its calls reconnects a failed link as InverterBridge does."""
+    hands the rows it drains (RING_K, RING_HOST_S, RING_THETA_M, then the log row) to ``take(rows)``, oldest
+    first; ``stop``; ``join``. The answer thread runs the compiled loop, and between its calls reconnects a
+    failed link as InverterBridge does. The reader runs at normal scheduling (SCHED_OTHER) in a process whose
+    threads are SCHED_FIFO: it is not real-time."""
 
     def __init__(self, drive, bridge, line, run_samples, options=None):
         n_samples, delay = run_samples
@@ -195,12 +198,15 @@ class CompiledAnswer:
         self.scheduling = {"applied": [], "refused": []}
         self.answering = threading.Thread(target=self._answer, name="drive_answer", daemon=True)
         self.reading = None
+        self.arrays = None
+        """The bridge's BridgeArrays the running loop holds (its counters live), None between calls."""
         self.error = None
         self._warm_up()
 
     def _warm_up(self):
         """Compile the loop (not cached: it is specialised on the estimator's step) on copies before the
-        inverter starts: a first call takes seconds."""
+        inverter starts: a first call takes seconds. The link is opened for it (and HELLO asked for) if it is
+        not open yet."""
         h = self.host
         copy = h._replace(estimator=EstimatorCore(h.estimator.params, h.estimator.state.copy(),
                                                   h.estimator.sample.copy()), controller_x=h.controller_x.copy(),
@@ -208,6 +214,8 @@ class CompiledAnswer:
         run = self.run.copy()
         run[STOP] = 1
         bridge = self.bridge
+        if not bridge.open:
+            bridge.reopen()
         if bridge.open:
             answer_loop(self.step, copy, cb.load_bridge(bridge), run, sample_ring(1, self.ring.rows.shape[1]))
 
@@ -236,8 +244,9 @@ class CompiledAnswer:
                     if time.monotonic() >= bridge.next_open_at:
                         bridge.reopen()
                     continue
-                arrays = cb.load_bridge(bridge)
+                self.arrays = arrays = cb.load_bridge(bridge)
                 code = answer_loop(self.step, self.host, arrays, self.run, self.ring)
+                self.arrays = None
                 cb.store_bridge(arrays, bridge)
                 if code != cb.LINK_DOWN:
                     return
@@ -246,16 +255,22 @@ class CompiledAnswer:
         except Exception as error:
             self.error = error
 
+    def counters(self):
+        """The bridge's counters now (InverterBridge.counters: the running loop's own arrays)."""
+        return dict(self.bridge.counters)
+
     def _read(self, take):
-        """The ring's reader (not real-time): each row to ``take`` until the answer thread has ended and the
-        ring is empty."""
+        """The ring's reader (not real-time): the rows drained to ``take`` until the answer thread has ended
+        and the ring is empty."""
+        with contextlib.suppress(OSError):
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
         rows = np.zeros((max(1, self.ring.rows.shape[0] // 4), self.ring.rows.shape[1]))
         stall = self.options.reader_stall_s
         while True:
             ended = not self.answering.is_alive()
             count = drain(self.ring.rows, self.ring.indices, rows)
-            for row in rows[:count]:
-                take(int(row[RING_K]), row[RING_HOST_S], row[RING_LOG:])
+            if count:
+                take(rows[:count])
             if count == 0 and ended:
                 return
             time.sleep(stall if stall > 0 else (0.0 if count else 0.002))
@@ -270,18 +285,37 @@ class CompiledAnswer:
     def alive(self):
         return self.answering.is_alive()
 
+    def finished(self):
+        """The answer thread has ended and the reader has handed over every row."""
+        return (self.reading is not None and not self.answering.is_alive() and not self.reading.is_alive())
+
     def join(self, timeout_s=None):
         """Wait up to ``timeout_s`` for the answer thread to end, then for the reader to have handed over every
-        row (it ends once the answer thread has and the ring is empty); the answer thread's exception, if it
-        died of one, raised here."""
+        row (it ends once the answer thread has and the ring is empty: a bounded wait); the answer thread's
+        exception, if it died of one, raised here."""
+        if self.reading is None:
+            return
         self.answering.join(timeout_s)
-        if self.reading is not None and not self.answering.is_alive():
+        if not self.answering.is_alive():
             self.reading.join()
         if self.error is not None:
             raise self.error
+
+    def written_at(self, k):
+        """When the command answering sample k was written (InverterBridge.written_at)."""
+        return self.bridge.written_at(k)
 
     @property
     def overflow(self):
         """Rows the ring had no room for (samples answered but not recorded)."""
         from drive_common.runtime.sample_ring import OVERFLOW
         return int(self.ring.indices[OVERFLOW])
+
+
+def answer_of(drive, bridge, options=None):
+    """The CompiledAnswer of ``drive`` (runner.Drive) through ``bridge`` for its scenario's whole run, at its
+    command delay, as ``options`` (AnswerOptions) say."""
+    from drive_common.math.command_delay import command_line
+    scenario = drive.scenario
+    delay = scenario.drive_delay_periods()
+    return CompiledAnswer(drive, bridge, command_line(delay), (scenario.n_samples, delay), options)

@@ -64,6 +64,40 @@ def block_buffers(block_samples):
                         np.zeros(block_samples, ESTIMATE), np.zeros(block_samples, COMMAND))
 
 
+class DriveCores(NamedTuple):
+    """The drive's cores a block steps, with their states: the estimator (EstimatorCore), the controller's
+    parameters and states (foc_controller.control), the protections' parameters and state
+    (foc_controller.protection) and how the drive reads its currents (CurrentSensing)."""
+
+    estimator: EstimatorCore
+    controller: Any
+    controller_x: np.ndarray
+    controller_z: np.ndarray
+    protection: Any
+    protection_x: np.ndarray
+    sensing: CurrentSensing
+
+
+@njit(_nrt=False, nogil=True, inline='always')
+def drive_block(step, cores, block, line, buffers):
+    """The drive's answer to one block in the contract's order, the one sequence every compiled answer runs
+    (run_blocks, drive_tools.runner.compiled_answer): ``block`` (k0, n, the bus at its last sample [V]),
+    the estimator's ``step`` on ``cores`` (DriveCores) with its resistive drop from the protections' R̂_s,
+    the protections over the measured currents, the bus and the last speed estimate, the controller;
+    ``buffers``: (the measured currents (n × 3) [A], DRIVE_INPUT, ESTIMATE and COMMAND records), the
+    estimates and commands written there; ``line`` the command delay line. The safe state the protections
+    tripped into at this block (0: none)."""
+    k0, n, u_dc_V = block
+    currents, inputs, estimates, commands = buffers
+    cores.estimator.sample[0].R_s_ohm = cores.protection_x[R_S_IN_USE]
+    estimator_block(step, cores.estimator, k0, n, inputs, line, cores.sensing, estimates)
+    safe = protection_block(cores.protection_x, cores.protection, currents, n, k0 + n - 1, u_dc_V,
+                            estimates[n - 1].omega_e_hat, cores.controller_x)
+    controller_block(cores.controller_x, cores.controller_z, cores.controller, n, inputs, estimates, cores.sensing,
+                     commands)
+    return safe
+
+
 class ClosedLoop(NamedTuple):
     """Every core of the one-process loop with its state: the plant, the estimator (EstimatorCore), the
     controller's parameters and states (foc_controller.control), the protections' parameters and state
@@ -138,7 +172,8 @@ def run_blocks(step, loop, k_start, k_end, log):
     """
     px, line, machine, mech, inverter, sensor, seed, T_s, substeps, imposed = loop.plant
     speed_ref, tau_load, tau_ff, brake = loop.schedule
-    cx, cz, cp, ps, pp = loop.controller_x, loop.controller_z, loop.controller, loop.protection_x, loop.protection
+    cores = DriveCores(loop.estimator, loop.controller, loop.controller_x, loop.controller_z, loop.protection,
+                       loop.protection_x, loop.sensing)
     n_p = machine.n_p
     plant_out, inputs, est_out, ctrl_out = loop.buffers
     for k0 in range(k_start, k_end, loop.block_samples):
@@ -153,13 +188,10 @@ def run_blocks(step, loop, k_start, k_end, log):
             s.i_a_A, s.i_b_A, s.i_c_A = p[3], p[4], p[5]
             s.theta_e_encoder_rad, s.omega_e_encoder_rad_s = n_p * p[6], n_p * p[7]
             s.omega_m_ref_rad_s, s.tau_feedforward_Nm = speed_ref[k0 + i], tau_ff[k0 + i]
-        loop.estimator.sample[0].R_s_ohm = ps[R_S_IN_USE]
-        estimator_block(step, loop.estimator, k0, n, inputs, line, loop.sensing, est_out)
-        safe = protection_block(ps, pp, plant_out[:, 3:6], n, k0 + n - 1, bus_voltage(px, inverter),
-                                est_out[n - 1].omega_e_hat, cx)
+        safe = drive_block(step, cores, (k0, n, bus_voltage(px, inverter)), line,
+                           (plant_out[:, 3:6], inputs, est_out, ctrl_out))
         if safe:
             px[INVERTER_MODE] = safe
-        controller_block(cx, cz, cp, n, inputs, est_out, loop.sensing, ctrl_out)
         for i in range(n):
             k = k0 + i
             p, e, c = plant_out[i], est_out[i], ctrl_out[i]
