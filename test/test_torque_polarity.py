@@ -2,6 +2,7 @@
 design over a draw of the random motors, the decision fed by hand, and the whole start on drawn interior rotors
 whose d axis does not saturate (the motors the saturation pulses cannot serve): the right pole from random
 angles, the shaft's motion within the bound the drive states."""
+import dataclasses
 import math
 import tempfile
 from pathlib import Path
@@ -31,6 +32,8 @@ from hf_estimator.torque_polarity import (
 )
 
 T_S = 1e-4
+DURATION_S = 0.6
+"""Each start runs this long: a heavy rotor's doublets, escalated, take longer than the start-up bench's 0.25 s."""
 STATE = np.dtype([("theta", np.float64), ("omega", np.float64), ("startup", STARTUP)])
 
 
@@ -42,9 +45,10 @@ def _motors(seed, count, keep, folder):
 
 
 def _unsaturated_interior(motor):
-    """An interior rotor whose iron does not saturate (no asymmetry for the d-axis pulses), J on its nameplate."""
+    """An interior rotor whose iron does not saturate (no asymmetry for the d-axis pulses), L_q/L_d ≥ 1.3 (the
+    salient motors issue 51 says must not be refused), J on its nameplate."""
     return (motor.figures["rotor"] == "interior" and not motor.figures["saturation"]
-            and "J_kgm2" in motor.document["nameplate"])
+            and motor.figures["L_q_per_L_d"] >= 1.3 and "J_kgm2" in motor.document["nameplate"])
 
 
 @pytest.mark.unit
@@ -107,8 +111,8 @@ def test_the_decision_takes_half_the_difference_of_a_mirrored_pair():
 
 def _starts(motors, angles, seed):
     """Each motor commissioned at standstill from its nameplate (in simulation), then started without load from
-    ``angles`` random angles: per motor (its stated bound [°], rows of (right pole, the shaft's largest turn
-    before torque [°], reached torque))."""
+    ``angles`` random angles, each for DURATION_S: per motor (its stated bound [°], rows of (right pole, the
+    shaft's largest turn from the first doublet to the first torque [°], reached torque))."""
     rng = np.random.default_rng(seed)
     results = []
     with tempfile.TemporaryDirectory() as folder:
@@ -121,13 +125,16 @@ def _starts(motors, angles, seed):
             bound = drive.estimator.params.startup.torque_bound_shaft_deg
             rows = []
             for j in range(angles):
-                scenario = bench_scenario(motor, None, float(rng.uniform(-math.pi, math.pi)), j + 1,
-                                          STANDARD_CASES[0], commissioning=commissioning)
+                scenario = dataclasses.replace(bench_scenario(
+                    motor, None, float(rng.uniform(-math.pi, math.pi)), j + 1, STANDARD_CASES[0],
+                    commissioning=commissioning), duration_s=DURATION_S)
                 result = run_scenario(scenario)
                 log = result.log
                 tracking = np.flatnonzero(log[:, COLUMN["state"]] == 3)
                 end = tracking[0] if tracking.size else len(log)
-                turn = np.max(np.abs(log[:end, COLUMN["theta_m"]] - log[0, COLUMN["theta_m"]]))
+                tested = np.flatnonzero(log[:end, COLUMN["state"]] == 2)
+                first = tested[0] if tested.size else 0
+                turn = np.max(np.abs(log[first:end + 1, COLUMN["theta_m"]] - log[first, COLUMN["theta_m"]]))
                 metrics = startup_metrics(scenario, log, result.n_p)
                 rows.append((bool(metrics["polarity_correct"]), math.degrees(turn), bool(tracking.size)))
             results.append((motor.name, bound, rows))
@@ -137,7 +144,11 @@ def _starts(motors, angles, seed):
 def _check(results, share):
     right = sum(r[0] for _, _, rows in results for r in rows)
     total = sum(len(rows) for _, _, rows in results)
-    assert right >= share * total, results
+    wrong = [(name, j) for name, _, rows in results for j, r in enumerate(rows) if not r[0]]
+    largest = max((max(r[1] for r in rows) / bound, name) for name, bound, rows in results)
+    print(f"{len(results)} motors, {right} of {total} starts right, wrong: {wrong}; the largest turn per bound "
+          f"{largest[0]:.2f} ({largest[1]})")
+    assert right >= share * total, wrong
     for name, bound, rows in results:
         assert all(r[2] for r in rows), name
         assert max(r[1] for r in rows) <= bound, (name, bound, rows)
@@ -155,9 +166,9 @@ def test_unsaturated_interior_rotors_start_on_the_right_pole_with_the_shaft_moti
 
 @pytest.mark.heavy
 def test_unsaturated_interior_rotors_over_a_draw_start_on_the_right_pole(tmp_path):
-    """Every interior rotor without saturation, J on its nameplate, among the first 200 motors of seeds 3, 4 and
-    5 (the docs' seed 1 not among them), commissioned, 12 random angles each: the right pole in ≥ 99.5 % of the
-    starts, every start reaching torque, the shaft's turn before torque within the stated bound."""
+    """Every interior rotor without saturation, L_q/L_d ≥ 1.3, J on its nameplate, among the first 200 motors of
+    seeds 3, 4 and 5 (the docs' seed 1 not among them), commissioned, 12 random angles each: the right pole in
+    ≥ 99.5 % of the starts, every start reaching torque, the shaft's turn before torque within the stated bound."""
     motors = [m for seed in (3, 4, 5) for m in _motors(seed, 200, _unsaturated_interior, tmp_path)]
     assert len(motors) >= 12
     _check(_starts(motors, 12, 7), 0.995)
