@@ -90,11 +90,11 @@ def test_the_expected_ratio_is_the_asymmetrys_on_short_pulses():
         assert ratio == pytest.approx(0.25 * asymmetry * share, rel=0.1)
 
 
-def test_the_expected_ratio_grows_with_the_asymmetry_and_a_weak_one_is_refused_before_torque():
+def test_the_expected_ratio_grows_with_the_asymmetry_and_a_weak_one_takes_the_torque_test():
     """Twice the asymmetry, twice the expected S/T within 10 % (the same pulses and count: on a winding whose
     L/R is as short as its pulses, the first sequence, starting from zero, differs from the later ones, so the
-    ratio depends on the count too); an asymmetry the noise hides is
-    refused by make_startup in one line naming it, unless ``run_refused`` (`drive run --force`)."""
+    ratio depends on the count too); an asymmetry the noise hides gives the pulses a problem naming it, and
+    make_startup then tells the polarity by a torque pulse (torque_polarity.py), a resolved one by the pulses."""
     plate, inverter, record = drawn(5, 1)[0]
     one = polarity_design(plate, record._replace(saturation_asymmetry=0.2), T_S, inverter, TOLERANCE_RAD, 2)
     two = polarity_design(plate, record._replace(saturation_asymmetry=0.4), T_S, inverter, TOLERANCE_RAD, 2)
@@ -102,10 +102,11 @@ def test_the_expected_ratio_grows_with_the_asymmetry_and_a_weak_one_is_refused_b
     assert two.expected_ratio / one.expected_ratio == pytest.approx(2.0, rel=0.1)
     weak = record._replace(saturation_asymmetry=1e-4)
     settings = check_settings("test", {}, DEFAULTS, T_S)
-    with pytest.raises(ValueError, match=r"polarity cannot be told before torque: saturation asymmetry 0\.01 %"):
-        make_startup(plate, weak, T_S, inverter, 1.0, settings)
-    forced = make_startup(plate, weak, T_S, inverter, 1.0, {**settings, "run_refused": True})
-    assert forced.pulse_sequences > 0
+    problem = polarity_design(plate, weak, T_S, inverter, TOLERANCE_RAD, 2).problem
+    assert problem.startswith("saturation asymmetry 0.01 %")
+    assert make_startup(plate, weak, T_S, inverter, 1.0, settings).torque_pulse_A > 0.0
+    assert make_startup(plate, record._replace(saturation_asymmetry=0.2), T_S, inverter, 1.0,
+                        settings).torque_pulse_A == 0.0
 
 
 def test_without_an_asymmetry_or_an_inertia_the_settings_fix_the_pulses():

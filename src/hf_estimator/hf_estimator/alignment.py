@@ -41,6 +41,18 @@ def alignment_step(x, p, k, since, u_inj_alpha, u_inj_beta, eps, observable):
         s.settled = s.settled + 1.0 if abs(s.error) < tolerance else 0.0
     else:
         s.settled = 0.0
+    if s.settled == 1.0:
+        s.axis_ref = x.theta
+        s.axis_sum = 0.0
+        s.axis_count = 0.0
+        s.axis_time = 0.0
+        s.axis_omega = 0.0
+    if s.settled >= 1.0:
+        turned = x.theta - s.axis_ref
+        s.axis_sum += turned - math.pi * math.floor(turned / math.pi + 0.5)
+        s.axis_count += 1.0
+        s.axis_time += k
+        s.axis_omega += x.omega
     if s.settled >= p.settle_samples:
         return True, 0.0, 0.0, float(ALIGNING)
     if since < p.align_timeout_samples:

@@ -20,6 +20,7 @@ from .pll_model import (
 )
 from .registry import make_estimator
 from .square_wave import square_wave_predicted_error, square_wave_serves
+from .torque_polarity import torque_polarity_note
 
 SCALED_TRACKING = ("injection_frame", "full_speed")
 """Ours: the tracking bandwidth, carrier and amplitude follow the motor (scaled_loops) unless set; the
@@ -148,6 +149,12 @@ def below_speed(scenario, estimator, commissioning, run_refused):
     return f"run although refused ({refusal})" if refusal else ""
 
 
+def _polarity_note(estimator):
+    """What the drive says of its polarity test before running: the torque pulses' bounds where it uses them."""
+    startup = getattr(getattr(estimator.params, "hf", estimator.params), "startup", None)
+    return torque_polarity_note(startup) if startup is not None else ""
+
+
 def chosen_estimator(scenario, plate, commissioning, inverter):
     """(the scenario with the estimator the loops' rule chooses, what the drive says of it): where ours runs with
     ``injection_by_rule`` (the motor's own experiments), the square wave where it serves the motor
@@ -197,7 +204,7 @@ def estimator_for_scenario(scenario, commissioning):
         raise ScenarioError(_blamed(scenario, error.args[0] + open_loop_offer(error.args[0], plate, commissioning,
                                                                               scenario.motor.inverter))) from None
     if injects(scenario.estimator):
-        notes += [n for n in (commissioning.weak_saliency_note(),) if n]
+        notes += [n for n in (commissioning.weak_saliency_note(), _polarity_note(estimator)) if n]
     note = "; ".join(n for n in (estimator.injection_note, *notes) if n)
     amplitude = estimator.injection_amplitude_V
     if amplitude is None and notes:

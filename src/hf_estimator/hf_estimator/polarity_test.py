@@ -85,6 +85,10 @@ def polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, theta_e_recorded):
     for the quiet time before the pulses. → (u_α, u_β [V], state code)."""
     s = x.startup
     s.theta_held = x.theta
+    if p.torque_pulse_A > 0.0 and s.axis_count > 0.0:
+        s.theta_held = s.axis_ref + s.axis_sum / s.axis_count
+        s.held_time = s.axis_time / s.axis_count
+        s.held_omega = s.axis_omega / s.axis_count
     s.omega_held = x.omega
     s.held_at = k
     s.score = 0.0
@@ -121,6 +125,7 @@ def quiet_over(x, p, k):
     s.quiet = 0.0
     s.score = 0.0
     s.span = 0.0
+    s.torque_active = 1.0 if p.torque_pulse_A > 0.0 else 0.0
     enter(x, p, k, POLARITY)
     return True
 

@@ -70,6 +70,7 @@ from .polarity_test import (
     winding_step,
 )
 from .startup_state import (
+    NO_MOTION,
     NO_POLARITY,
     NO_SALIENCY,
     NO_SETTLED_AXIS,
@@ -80,6 +81,8 @@ from .startup_state import (
     enter,
     turn,
 )
+from .torque_polarity import SETTLE_S as TORQUE_SETTLE_S
+from .torque_polarity import startup_fields, torque_decide, torque_polarity_design, torque_step
 
 REFUSALS = {NO_SALIENCY: "no saliency found: HF injection cannot tell this rotor's angle (a round rotor?)",
             ROTOR_MOVED: "the rotor turned while aligning (a load driving the shaft?): no still saliency axis "
@@ -87,7 +90,9 @@ REFUSALS = {NO_SALIENCY: "no saliency found: HF injection cannot tell this rotor
             NO_SETTLED_AXIS: "no saliency axis settled while aligning although the motor's L_dh and L_qh differ: too "
                              "weak an angle signal against the sensor noise (the drive's predicted angle error)",
             NO_POLARITY: "no saturation asymmetry on the d axis: the magnet's polarity cannot be told",
-            TOO_MANY_LOSSES: "lock lost too often; holding zero torque"}
+            TOO_MANY_LOSSES: "lock lost too often; holding zero torque",
+            NO_MOTION: "the shaft did not turn under the polarity test's torque pulses (a brake, a held shaft or a "
+                       "load beyond their torque): the magnet's polarity cannot be told; start with the shaft free"}
 DEFAULTS = {"align_tolerance_rad": 0.05, "settle_s": 3e-3, "align_timeout_s": 0.1, "quiet_s": 3e-3,
             "pulse_current_per_rated": 0.7, "pulse_s": 5e-4, "pulse_sequences": 2, "polarity_margin": 0.01,
             "polarity_tries": 3, "flush_s": 6e-3, "lock_filter_Hz": 100.0, "lock_persist_s": 5e-3,
@@ -139,12 +144,16 @@ def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
     s = settings
     design = polarity_design(nameplate, commissioning, T_s, inverter, s["align_tolerance_rad"],
                              int(s["pulse_sequences"]))
+    torque = None
     if design is None:
         n, pulse_V, sequences, margin = _fixed_pulses(nameplate, commissioning, T_s, inverter, s)
     else:
-        if design.problem and not s["run_refused"]:
-            raise ValueError(f"the magnet's polarity cannot be told before torque: {design.problem}; refused "
-                             f"(`drive run --force` runs it anyway)")
+        if design.problem:
+            torque = torque_polarity_design(nameplate, commissioning, T_s, inverter)
+            if torque.problem and not s["run_refused"]:
+                raise ValueError(f"the magnet's polarity cannot be told before torque: {design.problem}; nor by a "
+                                 f"torque pulse: {torque.problem}; refused (`drive run --force` runs it anyway)")
+            torque = None if torque.problem else torque
         n, pulse_V, sequences, margin = design.n, design.pulse_V, design.sequences, design.margin
     other_decay, other_gain = winding_step(commissioning.R_s_ohm, commissioning.L_dh_H, T_s)
     omega_rated = nameplate.n_p * nameplate.rated_speed_rpm * 2.0 * math.pi / 60.0
@@ -156,7 +165,8 @@ def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
         return max(1, int(round(seconds / T_s)))
     return StartupParams(
         T_s_s=T_s, delay_periods=int(inverter.delay_periods), error_gain=float(error_gain),
-        align_tolerance_rad=s["align_tolerance_rad"], settle_samples=samples(s["settle_s"]),
+        align_tolerance_rad=s["align_tolerance_rad"],
+        settle_samples=samples(max(s["settle_s"], TORQUE_SETTLE_S) if torque else s["settle_s"]),
         align_timeout_samples=samples(s["align_timeout_s"]), quiet_samples=samples(s["quiet_s"]),
         error_smoothing=1.0 - math.exp(-1.0 / samples(ALIGN_SMOOTHING_S)),
         pulse_samples=n, pulse_V=pulse_V, pulse_sequences=sequences,
@@ -172,7 +182,8 @@ def make_startup(nameplate, commissioning, T_s, inverter, error_gain, settings):
         lock_threshold_V=threshold, lock_persist_samples=samples(s["lock_persist_s"]),
         lost_hold_samples=samples(s["lost_hold_s"]), max_restarts=int(s["max_restarts"]),
         backemf_polarity_ratio=s["backemf_polarity_ratio"],
-        polarity_from_recording=bool(s["polarity_from_recording"]))
+        polarity_from_recording=bool(s["polarity_from_recording"]),
+        **startup_fields(torque))
 
 
 def fresh_startup(startup):
@@ -223,7 +234,15 @@ def startup_step(x, p, k, sample, i_alpha_beta_A, u_inj_V, eps, observable):
             aligned, u_alpha, u_beta, state = alignment_step(x, p, k, since, u_inj_alpha, u_inj_beta, eps, observable)
             if not aligned:
                 return u_alpha, u_beta, state
-            return polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, sample.theta_e_encoder)
+            if s.moved == 0.0:
+                return polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, sample.theta_e_encoder)
+            decided, state = torque_decide(x, p, k)
+            if not decided:
+                return 0.0, 0.0, state
+            enter(x, p, k, TRACKING)
+            return u_inj_alpha, u_inj_beta, lock_step(x, p, k, residual, observable)
+    if code == POLARITY and s.torque_active > 0.5:
+        return torque_step(x, p, k, since, i_alpha, i_beta, u_inj_alpha, u_inj_beta)
     if code == POLARITY:
         done, u_alpha, u_beta, state = polarity_step(x, p, k, since, i_alpha, i_beta, u_inj_alpha, u_inj_beta)
         if not done:

@@ -15,15 +15,22 @@ STARTUP = np.dtype([(name, np.float64) for name in (
     "settled", "error", "quiet",
     "score", "span", "tries", "polarity_ratio", "flipped", "other_current",
     "residual_d", "residual_q", "prev_ia", "prev_ib", "u_net_alpha", "u_net_beta", "bad", "e_alpha", "e_beta",
-    "fit_n", "fit_t", "fit_p", "fit_tp", "fit_tt", "phi_raw", "phi_unwrapped")])
+    "fit_n", "fit_t", "fit_p", "fit_tp", "fit_tt", "phi_raw", "phi_unwrapped",
+    "axis_ref", "axis_sum", "axis_count", "torque_active", "moved", "pi_d", "pi_q", "charge", "first_turn",
+    "axis_time", "axis_omega", "held_time", "held_omega", "doublet_at")])
 """The supervisor's: the state code, the sample it was entered at, why the start was refused, the lost
 locks counted, θ̂ and ω̂ held (and since when); the alignment's: samples settled, the smoothed error
 [rad], the quiet time's start + 1; the polarity test's: S, T, tries, S/T, whether θ̂ was turned by π and
 the d̂ current the voltage beside its pulses drives (a linear winding's) [A]; the lock monitor's: the
 back-EMF residual (θ̂ frame) [V], the previous currents, the voltage applied before this sample net of the
 dead-time loss [V], samples beyond the threshold, the back-EMF (αβ) [V], and the lost-lock fit of its
-angle (FIT sums, φ raw and unwrapped)."""
-NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES, ROTOR_MOVED, NO_SETTLED_AXIS = 0, 1, 2, 3, 4, 5
+angle (FIT sums, φ raw and unwrapped); the alignment's axis over its settled samples (the first θ̂, the sum of
+θ̂ less it mod π, the count); the torque polarity test's (torque_polarity.py): a doublet under way, one done
+awaiting the alignment after it (1: the first of a pair, 2: the mirrored one), its PI loop's integrators (d̂,
+q̂) [V], the q̂ current summed over the doublet [A·samples], the first doublet's turn [rad]; the alignment's sums
+of the sample index and of ω̂ over its settled samples, the held axis's mean sample and ω̂ [rad/s], the sample
+of the doublet's middle."""
+NOT_REFUSED, NO_SALIENCY, NO_POLARITY, TOO_MANY_LOSSES, ROTOR_MOVED, NO_SETTLED_AXIS, NO_MOTION = 0, 1, 2, 3, 4, 5, 6
 """Why a start-up was refused (its ``refused`` field)."""
 
 
@@ -63,6 +70,20 @@ class StartupParams(NamedTuple):
     max_restarts: int
     backemf_polarity_ratio: float
     polarity_from_recording: bool
+    torque_pulse_A: float
+    """The torque polarity test's first doublet current [A] (torque_polarity.py); 0: the saturation pulses."""
+    torque_pulse_samples: int
+    torque_pulse_max_A: float
+    torque_growth: float
+    torque_tries: int
+    torque_margin_rad: float
+    torque_gain_d: float
+    torque_gain_q: float
+    torque_integral: float
+    torque_tail_samples: int
+    torque_voltage_max_V: float
+    torque_bound_shaft_deg: float
+    torque_max_Nm: float
 
 
 @njit(cache=True)

@@ -228,6 +228,9 @@ def _commission(scenario, commissioning, row):
         row["tests"].append("rotating")
         row["identification_error"].update(_errors(measured, rotating_truth, ROTATING_IDENTIFIED))
         _refuse_for_saliency(scenario, commissioning)
+    if _polarity_by_torque(scenario, commissioning):
+        row["tests"].append("loaded not offered: its shaft is held, and this motor's polarity is told by turning it")
+        return
     row["testing"] = "loaded"
     loaded, _ = loaded_test_in_process(scenario, commissioning)
     measured = with_loaded_test(measured, loaded)
@@ -237,6 +240,17 @@ def _commission(scenario, commissioning, row):
     row["loaded_test"] = {"significant": loaded["significant"], "zero_spread_rad": loaded["zero_spread_rad"],
                           "correction_at_rated_rad": float(np.interp(rated, measured.saliency_shift_i_q_A,
                                                                      loaded["estimator_shift_rad"]))}
+
+
+def _polarity_by_torque(scenario, commissioning):
+    """Whether ours tells this motor's polarity by torque pulses on the free shaft (docs/startup.md), on what the
+    file ``commissioning`` holds: the loaded test, whose shaft is held, cannot start it."""
+    try:
+        drive = build_drive(dataclasses.replace(scenario, commissioning=str(commissioning)))
+    except ScenarioError:
+        return False
+    startup = getattr(getattr(drive.estimator.params, "hf", drive.estimator.params), "startup", None)
+    return startup is not None and startup.torque_pulse_A > 0.0
 
 
 def _refuse_for_saliency(scenario, commissioning):
