@@ -243,10 +243,10 @@ class ControllerNode(DriveNode):
         return SetParametersResult(successful=True)
 
     def on_speed_command(self, msg):
-        self.take_command(msg.data, None, "speed_command")
+        self.take_command(msg.data, None, SPEED_COMMAND)
 
     def on_torque_feedforward(self, msg):
-        self.take_command(None, msg.data, "torque_feedforward")
+        self.take_command(None, msg.data, TORQUE_FEEDFORWARD)
 
     def command_limits(self):
         """(velocity [rad/s], effort [N·m]) a command may not exceed: the parameters', else the speed limit (the

@@ -13,7 +13,6 @@ from drive_common.config.drive_config import ScenarioError
 from drive_common.config.scenario import behind_an_inverter, load_drive_configuration, load_scenario, with_drive
 from drive_common.contract.errors import DriveError
 from drive_common.contract.stamps import sample_at, stamp_parts
-from drive_common.motor.commissioning import resolve_commissioning
 
 from .launcher import DriveSpec, RealTime, make_node
 
@@ -121,11 +120,11 @@ class AxisNode(LifecycleNode):
         return TransitionCallbackReturn.FAILURE
 
     def on_configure(self, state):
-        """The drive configuration and its commissioning loaded, the link open, the inverter disabled."""
+        """The drive configuration loaded, the link open with the inverter disabled, the estimator and the controller
+        built (the commissioning file loaded: a refusal names it)."""
         spec = self.spec
         try:
             self.drive = drive = load_drive_configuration(spec.drive, f"{spec.joint}: drive")
-            resolve_commissioning(drive.motor.nameplate, drive.commissioning, f"{spec.drive}: commissioning")
             n = drive.block_samples
             if n > MAX_BLOCK:
                 raise ScenarioError(f"{spec.drive}: block_samples: {n}: an inverter sends at most {MAX_BLOCK}")
@@ -261,6 +260,12 @@ class AxisNode(LifecycleNode):
             self.bridge.bridge.safe_state(f"axis {why}")
         self.close()
 
+    def inverter_off(self):
+        """Whether the inverter says its PWM is off (its last telemetry's status), or its link is closed."""
+        from drive_bridge.inverter_protocol import PWM_OFF
+        b = self.bridge.bridge if self.bridge is not None else None
+        return b is None or not b.open or b.lost or bool(b.status & PWM_OFF)
+
     def link_lost(self):
         """Whether the axis's link, up before, is lost (no telemetry for the bridge's link timeout)."""
         b = self.bridge.bridge if self.bridge is not None else None
@@ -272,7 +277,7 @@ class AxisNode(LifecycleNode):
         if self.bridge is not None:
             b = self.bridge.bridge
             report.update(link="lost" if b.lost else "up", safe_state_sent=b.counters["safe_state"],
-                          samples=b.counters["samples"])
+                          samples=b.counters["samples"], inverter_off=self.inverter_off())
         if self.inverter is not None:
             report["inverter_enabled"] = self.inverter.enabled
         return report

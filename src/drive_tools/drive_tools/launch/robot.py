@@ -16,8 +16,10 @@ from .launcher import NamespaceLock, RealTime, check_namespace, real_time_held, 
 
 COMMAND_QOS_DEPTH = 10
 JOINT_STATES_QOS_DEPTH = 10
-SAFE_STATE_SETTLE_S = 0.05
-"""After the inverters are told to switch off: time for the telling to reach them before the links close."""
+SAFE_STATE_WAIT_S = 1.0
+SAFE_STATE_RETELL_S = 0.05
+"""At the end, each inverter is told to switch off every SAFE_STATE_RETELL_S until its telemetry says it is off, for
+at most SAFE_STATE_WAIT_S."""
 TRANSITION_IDS = {"configure": 1, "cleanup": 2, "activate": 3, "deactivate": 4, "shutdown": 5}
 """lifecycle_msgs/Transition ids of the transitions `drive axis` asks for (shutdown: from unconfigured)."""
 
@@ -131,7 +133,7 @@ def _lifecycle_label(axis):
     return axis._state_machine.current_state[1]
 
 
-def bring_up(robot, executor_name="events", hold_collector=True, started=None):
+def bring_up(robot, executor_name="events", started=None):
     """Run ``robot`` (robot_file.RobotSpec) until SIGINT/SIGTERM or a lost link: every axis taken to the robot's
     initial state, then the operator's (lifecycle services) and the robot's commands followed. ``started(axes)``
     is called once the axes are in their initial state. Returns a RobotResult; every axis ends in its safe state
@@ -145,8 +147,7 @@ def bring_up(robot, executor_name="events", hold_collector=True, started=None):
 
     for axis in robot.axes:
         check_namespace(axis.namespace)
-    real_time = RealTime(robot.rt_priority, robot.cpus, robot.workqueue_cpus, robot.cpu_dma_latency_us,
-                         hold_collector)
+    real_time = RealTime(robot.rt_priority, robot.cpus, robot.workqueue_cpus, robot.cpu_dma_latency_us)
     context = rclpy.Context()
     rclpy.init(context=context, signal_handler_options=SignalHandlerOptions.NO)
     locks, axes, result = [], [], RobotResult()
@@ -214,12 +215,19 @@ def _run(executor, axes):
 
 
 def _stop(axes, executor):
-    """Every axis disarmed (zero volts, its inverter told), the telling given time to arrive; their reports."""
+    """Every axis disarmed (zero volts, its inverter told to switch off), told again until its telemetry says its PWM
+    is off (commands written before the telling, which act a block or two later, switch it on again) or
+    SAFE_STATE_WAIT_S passed; their reports."""
     for axis in axes:
         axis.handover.disarm()
-        if axis.bridge is not None:
-            axis.bridge.bridge.safe_state("stopped")
-    deadline = time.monotonic() + SAFE_STATE_SETTLE_S
+    deadline, told = time.monotonic() + SAFE_STATE_WAIT_S, 0.0
     while time.monotonic() < deadline:
+        waiting = [axis for axis in axes if not axis.inverter_off() or not told]
+        if not waiting:
+            break
+        if time.monotonic() - told >= SAFE_STATE_RETELL_S:
+            told = time.monotonic()
+            for axis in waiting:
+                axis.bridge.bridge.safe_state("stopped")
         executor.spin_once(timeout_sec=0.01)
     return [{**axis.report(), "state": _lifecycle_label(axis)} for axis in axes]

@@ -22,8 +22,8 @@ ROBOT_KEYS = (
         doc="the lifecycle state every axis is brought to at start"),
 )
 REAL_TIME_KEYS = (
-    Key("rt_priority", "", 0, 99, low_inclusive=True, integer=True, default=ROBOT_RT_PRIORITY,
-        doc="SCHED_FIFO priority of the drive's threads (0: none)"),
+    Key("rt_priority", "", 0, 99, low_inclusive=True, integer=True, default=None, nullable=True,
+        doc="SCHED_FIFO priority of the drive's threads (0: none; default 50, none with a lock-step virtual axis)"),
     Key("cpu_dma_latency_us", "µs", 0, None, low_inclusive=True, integer=True, default=None, nullable=True,
         doc="the CPUs' wake-up latency limit for the run (null: the system's)"),
 )
@@ -149,8 +149,14 @@ def load_robot(path):
         for i, value in enumerate(seen):
             if value in seen[:i]:
                 fail(f"axes[{i}].{what}", f"{value!r} is another axis's already")
-    cpus = _cpus(real_time, "cpus", fail, _last_cpu())
-    serial = any(a.link == "serial" or (a.link == "virtual" and a.virtual_link == "pty") for a in specs)
+    # A virtual inverter in lock-step simulates as fast as it is answered: on SCHED_FIFO it would keep the CPU until
+    # the kernel throttles real-time work (`drive launch` without --paced takes none of the levers either).
+    lock_step = any(a.link == "virtual" and not a.paced for a in specs)
+    if rt["rt_priority"] is None:
+        rt["rt_priority"] = 0 if lock_step else ROBOT_RT_PRIORITY
+    cpus = _cpus(real_time, "cpus", fail, None if lock_step else _last_cpu())
+    serial = not lock_step and any(a.link == "serial" or (a.link == "virtual" and a.virtual_link == "pty")
+                                   for a in specs)
     workqueue = _cpus(real_time, "workqueue_cpus", fail, cpus if serial else None)
     return RobotSpec(source, specs, top["command_topic"], top["joint_states_topic"], top["joint_states_rate_Hz"],
                      top["initial_state"], rt["rt_priority"], cpus, workqueue, rt["cpu_dma_latency_us"])
