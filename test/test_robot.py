@@ -220,6 +220,10 @@ def test_inactive_axes_apply_zero_volts_and_another_process_drives_their_lifecyc
     assert supervisor.returncode == 0, supervisor.stderr
     assert json.loads(supervisor.stdout)["state"] == "active"
     assert client.lifecycle("/wrist", transition=3) == "active"
+    cleanup_while_active = subprocess.run([str(DRIVE), "axis", "wrist", "cleanup"], capture_output=True, text=True,
+                                          timeout=60)
+    assert cleanup_while_active.returncode == 2 and "refused" in cleanup_while_active.stderr
+    assert client.lifecycle("/wrist") == "active" and process.poll() is None
     client.spin(2.0)
     assert client.commands_seen, "armed, the drive answers"
 

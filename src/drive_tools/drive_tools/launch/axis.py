@@ -114,6 +114,19 @@ class AxisNode(LifecycleNode):
         self.error = ""
         """Why the last transition failed, or empty."""
 
+    def _LifecycleNodeMixin__on_change_state(self, request, response):
+        """The `change_state` service: rclpy's, except that a transition the current state does not have (cleanup
+        from active) answers ``success`` false instead of raising in the executor, which ended the process."""
+        from rclpy._rclpy_pybind11 import RCLError
+        try:
+            return super()._LifecycleNodeMixin__on_change_state(request, response)
+        except RCLError as error:
+            reason = str(error).split(", at ")[0]
+            self.error = f"transition {request.transition.id or request.transition.label} refused: {reason}"
+            self.get_logger().error(f"{self.spec.joint}: {self.error}")
+            response.success = False
+            return response
+
     def fail(self, error):
         self.error = str(error)
         self.get_logger().error(f"{self.spec.joint}: {self.error}")
