@@ -25,6 +25,7 @@ import json
 import math
 import sys
 import threading
+import time
 
 import numpy as np
 from rcl_interfaces.msg import SetParametersResult
@@ -34,6 +35,7 @@ from std_msgs.msg import Float64, String
 from drive_common.config.parameters import SCHEDULE_PARAMETER
 from drive_common.contract.drive_records import commands, drive_inputs
 from drive_common.contract.estimator_records import estimates
+from drive_common.contract.estimator_states import HOLD, TRACKING
 from drive_common.contract.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_common.contract.topics import (
     CURRENTS,
@@ -54,13 +56,26 @@ from drive_common.motor.knowledge import motor_knowledge
 from drive_common.ros.node import DriveNode, describe, finite, run_node, stamp, topic_qos
 
 from .build import check_controller_settings, controller_for_scenario, protection_for_scenario, stated_torque
-from .control import OMEGA_FILTERED, controller_block, controller_state, estimated_torque
+from .command_hold import HOLD_GAIN_PER_SPEED_ZERO, STOP_TIME_S, CommandHold, HoldSettings
+from .control import OMEGA_FILTERED, TORQUE_ALLOWED, controller_block, controller_state, estimated_torque
 from .params import check_speed_limit
 from .protection import protection_block, protection_state
 from .supervision import SpeedSupervisor, fault_line
 
 SPEED_LIMIT = "controller.speed_limit_rad_s"
 ESTIMATOR_NODE = "hf_estimator"
+COMMAND_PARAMETERS = {
+    "command_timeout_s": (0.0, "a speed_command or torque_feedforward older than this [s]: the speed ramps to zero "
+                               "and the joint is held there (0: commands never expire)"),
+    "hold_timeout_s": (math.inf, "a command older than this [s]: zero torque (inf: hold for good)"),
+    "brake": (False, "the joint has a holding brake: zero torque once stopped after a command timeout"),
+    "stop_deceleration_rad_s2": (0.0, "the ramp to zero after a command timeout [rad/s²] (0: the velocity "
+                                      "limit in 0.2 s)"),
+    "velocity_limit_rad_s": (0.0, "commands faster than this are refused [rad/s] (0: the speed limit, else the "
+                                  "rated speed)"),
+    "effort_limit_Nm": (0.0, "torque feed-forwards above this are refused [N·m] (0: the drive's stated torque)"),
+}
+"""How the controller takes commands on a robot (`drive up`, docs/robot.md); a scenario's schedule ignores them."""
 
 
 def default_joint_name(namespace):
@@ -69,7 +84,7 @@ def default_joint_name(namespace):
 
 
 class ControllerNode(DriveNode):
-    node_parameters = SCHEDULE_PARAMETER
+    node_parameters = {**SCHEDULE_PARAMETER, **COMMAND_PARAMETERS}
 
     def __init__(self, estimator=None, **kwargs):
         """``estimator``: the EstimatorNode of this process to take the answers from directly
@@ -110,6 +125,8 @@ class ControllerNode(DriveNode):
                       self.sample_subscription(INJECTION, self.on_injection),
                       self.sample_subscription(ESTIMATOR_STATE, self.on_estimator_state)]
         self.open_when_matched(inputs, self.open_outputs, ready=ready)
+        self.hold = None
+        """The command's timeout and hold (foc_controller.command_hold), made with the core."""
         self.create_subscription(Float64, SPEED_COMMAND, self.on_speed_command, topic_qos(SPEED_COMMAND))
         self.create_subscription(Float64, TORQUE_FEEDFORWARD, self.on_torque_feedforward,
                                  topic_qos(TORQUE_FEEDFORWARD))
@@ -179,8 +196,11 @@ class ControllerNode(DriveNode):
         self.n_p = self.params.n_p
         self.trip_A = self.trip_current_A()
         self.sensing = current_sensing(self.calibration, self.trip_A)
-        self.torque_limit = stated_torque(self.config, self.commissioning, self.params,
-                                          config["tracking_current_limit_A"] is not None).line()
+        self.stated_torque = stated_torque(self.config, self.commissioning, self.params,
+                                           config["tracking_current_limit_A"] is not None)
+        self.torque_limit = self.stated_torque.line()
+        self.hold = CommandHold(self.hold_settings(), time.monotonic())
+        self.hold.command(time.monotonic(), self.omega_m_ref, self.tau_feedforward)
         self.supervisor = SpeedSupervisor(self.n_p, self.nameplate().rated_speed_rpm * math.pi / 30.0,
                                           self.params.i_max_A, self.T_s, self.torque_limit)
         self.supervisor.warm_up()
@@ -223,16 +243,62 @@ class ControllerNode(DriveNode):
         return SetParametersResult(successful=True)
 
     def on_speed_command(self, msg):
-        if finite(msg.data):
-            self.omega_m_ref = msg.data
-        else:
-            self.fault("bad_input", f"speed_command: {msg.data} is not a finite speed; ignored")
+        self.take_command(msg.data, None, SPEED_COMMAND)
 
     def on_torque_feedforward(self, msg):
-        if finite(msg.data):
-            self.tau_feedforward = msg.data
-        else:
-            self.fault("bad_input", f"torque_feedforward: {msg.data} is not a finite torque; ignored")
+        self.take_command(None, msg.data, TORQUE_FEEDFORWARD)
+
+    def command_limits(self):
+        """(velocity [rad/s], effort [N·m]) a command may not exceed: the parameters', else the speed limit (the
+        rated speed where it is ∞) and the stated torque; ∞ before the core is built where no parameter says."""
+        velocity = float(self.get_parameter("velocity_limit_rad_s").value)
+        effort = float(self.get_parameter("effort_limit_Nm").value)
+        built = self.params is not None and self.hold is not None
+        if velocity <= 0.0:
+            velocity = math.inf
+            if self.params is not None:
+                velocity = self.params.speed_limit_rad_s
+                velocity = velocity if math.isfinite(velocity) else self.nameplate().rated_speed_rpm * math.pi / 30.0
+        if effort <= 0.0:
+            effort = self.stated_torque.torque_Nm if built else math.inf
+        return velocity, effort
+
+    def refusal(self, velocity, effort):
+        """Why a command of ``velocity`` [rad/s] and ``effort`` [N·m] (None: not given) is refused, as
+        (fault kind, reason), or None."""
+        limits = self.command_limits()
+        for value, limit, what, unit in ((velocity, limits[0], "velocity", "rad/s"), (effort, limits[1], "effort",
+                                                                                   "N·m")):
+            if value is None:
+                continue
+            if not finite(value):
+                return "command_not_finite", f"{what} {value} is not finite"
+            if abs(value) > limit:
+                return "command_over_limit", f"{what} {value:g} {unit} is over the axis's limit {limit:g} {unit}"
+        return None
+
+    def take_command(self, velocity, effort, source):
+        """A command of ``velocity`` [rad/s] and/or ``effort`` [N·m] (None: not given) from ``source``: applied,
+        or refused (counted on /diagnostics, never applied); True when applied."""
+        refused = self.refusal(velocity, effort)
+        if refused:
+            self.fault(refused[0], f"{source}: {refused[1]}; refused, not applied")
+            return False
+        with self.sample_lock:
+            self.omega_m_ref = self.omega_m_ref if velocity is None else float(velocity)
+            self.tau_feedforward = self.tau_feedforward if effort is None else float(effort)
+            if self.hold is not None:
+                self.hold.command(time.monotonic(), self.omega_m_ref, self.tau_feedforward)
+        return True
+
+    def hold_settings(self):
+        """HoldSettings of the parameters and the built core (the speed PI's zero sets the hold's gain)."""
+        velocity = self.command_limits()[0]
+        deceleration = float(self.get_parameter("stop_deceleration_rad_s2").value) or velocity / STOP_TIME_S
+        return HoldSettings(float(self.get_parameter("command_timeout_s").value),
+                            float(self.get_parameter("hold_timeout_s").value), bool(self.get_parameter("brake").value),
+                            deceleration, HOLD_GAIN_PER_SPEED_ZERO * self.params.ki_speed / self.params.kp_speed,
+                            0.1 * velocity)
 
     def on_currents(self, sec, nanosec, i_a, i_b, i_c):
         self.store(self.currents, sec, nanosec, (i_a, i_b, i_c))
@@ -270,6 +336,12 @@ class ControllerNode(DriveNode):
         else:
             self.step(k, currents, estimate, injection, state)
             self.k = k + 1
+
+    def join_at(self, k0):
+        """Join a running inverter's samples at k0 (an axis armed, drive_tools.launch.axis): the first answered."""
+        self.k = self.joined_at = k0
+        for table in (self.currents, self.estimates, self.injections, self.states):
+            table.clear()
 
     def before_joining(self, k, n):
         """True when the inputs of the n samples from k are not to be answered: they came before
@@ -339,11 +411,16 @@ class ControllerNode(DriveNode):
                 speed, feedforward = self.schedule[0][k0:k0 + n], self.schedule[1][k0:k0 + n]
                 self.omega_m_ref, self.tau_feedforward = speed[-1], feedforward[-1]
             else:
-                speed, feedforward = np.full(n, self.omega_m_ref), np.full(n, self.tau_feedforward)
+                reference, ff, torque = self.hold.reference(time.monotonic(), n * self.T_s, float(estimate[0][-1]))
+                speed, feedforward = np.full(n, reference), np.full(n, ff)
             estimated = estimates(n)
             estimated["theta_e_hat"], estimated["omega_e_hat"] = self.n_p * estimate[0], self.n_p * estimate[1]
             estimated["u_inj_alpha"], estimated["u_inj_beta"] = injection
             estimated["eps"], estimated["signal"], estimated["state"] = state
+            released = not self.schedule and not torque
+            if released:
+                self.x[TORQUE_ALLOWED] = 0.0
+                estimated["state"] = np.where(estimated["state"] == TRACKING, HOLD, estimated["state"])
             measured = np.column_stack(currents)
             inputs = drive_inputs(n)
             inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents
@@ -356,7 +433,8 @@ class ControllerNode(DriveNode):
                                         f"the {self.trip_A:g} A trip, or a non-finite estimate; zero voltage there")
             current_ref = np.hypot(out["i_d_ref_A"], out["i_q_ref_A"])
             self.current_limited = bool(current_ref[-1] >= (1.0 - 1e-9) * self.params.i_max_A)
-            self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], current_ref, state[2]))
+            if not released:
+                self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], current_ref, state[2]))
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
             if joint is not None:
                 j = self.joint_msg
@@ -406,6 +484,10 @@ class ControllerNode(DriveNode):
     def status_values(self):
         values = {"sample": self.k, "speed_command_rad_s": self.omega_m_ref,
                   "current_limited": self.current_limited}
+        if self.hold is not None and not self.schedule:
+            values["command"] = self.hold.mode
+            values["command_age_s"] = self.hold.age_s(time.monotonic())
+            values["command_timeouts"] = self.hold.timeouts
         if self.params:
             values["speed_supervision"] = "; ".join(fault_line(f) for f in self.supervisor.open.values()) or "ok"
             values["sensorless_torque_limit"] = self.torque_limit

@@ -181,6 +181,15 @@ class EstimatorNode(DriveNode):
         self.take_commands(self.k, [], [])
         return True
 
+    def join_at(self, k0):
+        """Join a running inverter's samples at k0 (an axis armed, drive_tools.launch.axis): nothing before k0 is
+        answered, and the commands acting before it are zero in the delay line (none was sent)."""
+        self.k = k0
+        self.currents.clear()
+        self.encoder.clear()
+        self.issued = max(self.issued, k0 - self.delay - 2)
+        self.take_commands(k0, [], [])
+
     def on_currents(self, sec, nanosec, i_a, i_b, i_c):
         k = sample_at(sec, nanosec, self.T_s)
         if k is not None and self.before_joining(k, 1):

@@ -468,7 +468,8 @@ def make_executor(name, context):
 
 def run_node(make_node, program, argv=None):
     """A node executable's main: ``[--executor E] --ros-args ...``; spins ``make_node()`` until SIGINT or
-    SIGTERM (exit code 0, as ROS nodes do) or until the node sets ``exit_code`` (its peer is gone)."""
+    SIGTERM (exit code 0, as ROS nodes do) or until the node sets ``exit_code`` (its peer is gone). ``-p NAME:=``,
+    what a shell leaves of ``-p NAME:=''``, sets the empty text (rcl refuses it as written)."""
     import rclpy
     from rclpy._rclpy_pybind11 import RCLError
     from rclpy.exceptions import ParameterException
@@ -478,6 +479,8 @@ def run_node(make_node, program, argv=None):
     show_warnings_in_one_line(program)
     argv = sys.argv[1:] if argv is None else argv
     ros_args = argv[argv.index("--ros-args"):] if "--ros-args" in argv else []
+    ros_args = [f"{arg}''" if arg.endswith(":=") and i and ros_args[i - 1] == "-p" else arg
+                for i, arg in enumerate(ros_args)]
     parser = argparse.ArgumentParser(prog=program)
     parser.add_argument("--executor", choices=EXECUTORS, default="events")
     add_scheduling_arguments(parser)

@@ -12,7 +12,7 @@ from drive_common.contract.settings import show_warnings_in_one_line
 from drive_common.runtime import interrupt
 from drive_common.runtime.interrupt import Interrupted
 
-from . import bag, bench_drive, bench_timing, motor, replay, run, tune, view
+from . import bag, bench_drive, bench_timing, motor, replay, robot, run, tune, view
 from .options import OneLineParser, os_error_line
 from .outcome import fallback_reason, forget_reasons, reasons_said, say_reason
 
@@ -30,6 +30,7 @@ def build_parser():
     replay.add_bench_commands(bench_sub)
     tune.add_commands(sub)
     bag.add_commands(sub)
+    robot.add_commands(sub)
     return parser
 
 

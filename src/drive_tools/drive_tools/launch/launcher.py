@@ -394,12 +394,8 @@ def launch_many(specs, options=GraphOptions(), progress=None):
             driver.start_allowed = False
         while not all_done.done() and not all(driver.ready or driver.done.done() for driver in drivers):
             ex.spin_until_future_complete(all_done, timeout_sec=0.05)
-        with real_time_scheduled(real_time.rt_priority, real_time.cpus) as scheduling, \
-                unbound_work_on(real_time.workqueue_cpus) as work, \
-                cpu_wakeup_latency_held(real_time.cpu_dma_latency_us) as idle, \
-                collector_held() if real_time.hold_collector else contextlib.nullcontext():
-            scheduling = {key: scheduling[key] + work[key] + idle[key] for key in scheduling}
-            if any(line.startswith("SCHED_FIFO") for line in scheduling["applied"]):
+        with real_time_held(real_time) as scheduling:
+            if listeners_apart(scheduling):
                 listening = Listening(make_executor(executor, context), listeners)
                 listening.start()
             else:
@@ -439,6 +435,24 @@ def launch_many(specs, options=GraphOptions(), progress=None):
         thread = (result.answer or {}).get("scheduling", {"applied": [], "refused": []})
         result.scheduling = {key: scheduling[key] + thread[key] for key in scheduling}
     return results
+
+
+@contextlib.contextmanager
+def real_time_held(real_time):
+    """The ``real_time`` levers (RealTime) held for a run: SCHED_FIFO and affinity, the unbound workqueues, the
+    CPUs' wake-up latency, the collector out of the sample path; yields {"applied": [...], "refused": [...]},
+    one line each. `drive launch` and `drive up` run their graphs inside it."""
+    with real_time_scheduled(real_time.rt_priority, real_time.cpus) as scheduling, \
+            unbound_work_on(real_time.workqueue_cpus) as work, \
+            cpu_wakeup_latency_held(real_time.cpu_dma_latency_us) as idle, \
+            collector_held() if real_time.hold_collector else contextlib.nullcontext():
+        yield {key: scheduling[key] + work[key] + idle[key] for key in scheduling}
+
+
+def listeners_apart(scheduling):
+    """Whether the listeners (recorder, /diagnostics) spin apart from the drive (Listening): where the drive
+    got SCHED_FIFO."""
+    return any(line.startswith("SCHED_FIFO") for line in scheduling["applied"])
 
 
 class Listening:

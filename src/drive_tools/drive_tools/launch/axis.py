@@ -1,0 +1,296 @@
+"""One axis of a robot as a managed (lifecycle) node, ``NAMESPACE/drive_axis`` (docs/robot.md): configure opens the
+axis's link (the drive_bridge node; with a virtual device, the virtual inverter behind it) with the inverter
+disabled, zero volts; activate composes the estimator and the controller in this process and hands them the
+bridge's telemetry on its link thread (the real-time configuration of `drive launch --intra-process`, docs/ros-graph.md
+"Real time"): a start-up, then commands; deactivate takes them away and tells the inverter to switch off (zero
+volts); cleanup closes the link. The standard lifecycle services (``change_state``, ``get_state`` ...) drive it."""
+import threading
+
+from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
+
+from drive_bridge.inverter_protocol import MAX_BLOCK
+from drive_common.config.drive_config import ScenarioError
+from drive_common.config.scenario import behind_an_inverter, load_drive_configuration, load_scenario, with_drive
+from drive_common.contract.errors import DriveError
+from drive_common.contract.stamps import sample_at, stamp_parts
+
+from .launcher import DriveSpec, RealTime, make_node
+
+BRIDGE_COMMAND_TIMEOUT_S = 0.1
+"""No command from the armed drive for this long: the bridge tells the inverter to switch off."""
+VIRTUAL_COMMAND_WAIT_S = 0.05
+"""A virtual inverter in lock-step (``paced: false``) waits this long for each command before it applies zero volts:
+a disarmed axis's simulation then runs at 1/50 of real time."""
+LOCKSTEP_TIMEOUT_S = 1.0
+"""The estimator's wait for a command it misses (the controller in this process answers at once)."""
+
+
+class HandOver:
+    """Between an axis's bridge and its estimator and controller: to the bridge it is the estimator its link thread
+    hands each block to and the controller whose commands it takes. Disarmed (inactive), nothing is handed on and
+    nothing commanded; armed, once the estimator answers and the controller offers commands, the drive joins the
+    inverter's samples at the next block and answers from there. The armed drive counts its samples from that block
+    (sample 0 of its start-up, whose phases are timed in samples from the run's first: EstimatorNode.join_at,
+    ControllerNode.join_at): the hand-over shifts the stamps it hands on by the block's sample number, and the
+    commands' back."""
+
+    inputs_handed = True
+
+    def __init__(self):
+        self.sample_lock = threading.Lock()
+        """Held by the bridge's link thread around a block, and while the drive is armed or disarmed."""
+        self.estimator = self.controller = None
+        self.origin = None
+        """The inverter's sample the armed drive counts from (None: not joined yet)."""
+        self.bridge_takes = None
+        """The bridge's ``take_commands`` (registered by the bridge: ``hand_commands_to``)."""
+
+    @property
+    def sensored(self):
+        return self.estimator is not None and self.estimator.sensored
+
+    def hand_commands_to(self, take_commands):
+        self.bridge_takes = take_commands
+
+    def take_commands(self, k, u_alpha, u_beta):
+        """The controller's commands of its sample k: the bridge's of the inverter's sample k + origin."""
+        self.bridge_takes(k + self.origin, u_alpha, u_beta)
+
+    def arm(self, estimator, controller):
+        with self.sample_lock:
+            self.estimator, self.controller, self.origin = estimator, controller, None
+
+    def disarm(self):
+        with self.sample_lock:
+            self.estimator = self.controller = None
+
+    def handed(self, sec, nanosec):
+        """(the estimator, the stamp in the drive's count) to hand the sample (block) stamped (sec, nanosec) on
+        with, joined there if it is the first; None while disarmed or not ready."""
+        e, c = self.estimator, self.controller
+        if e is None or not e.answering or c.voltage_pub is None:
+            return None
+        k = sample_at(sec, nanosec, e.T_s)
+        if self.origin is None:
+            self.origin = k
+            with e.sample_lock:
+                e.join_at(0)
+                c.join_at(0)
+        return e, stamp_parts(k - self.origin, e.T_s)
+
+    def take_currents(self, sec, nanosec, *currents):
+        handed = self.handed(sec, nanosec)
+        if handed is not None:
+            e, stamp = handed
+            with e.sample_lock:
+                e.take_currents(*stamp, *currents)
+
+    def take_rotor_state(self, sec, nanosec, *values):
+        handed = self.handed(sec, nanosec)
+        if handed is not None:
+            e, stamp = handed
+            with e.sample_lock:
+                e.take_rotor_state(*stamp, *values)
+
+    def on_zero_voltage(self, sec, nanosec, *values):
+        handed = self.handed(sec, nanosec)
+        if handed is not None:
+            e, stamp = handed
+            with e.sample_lock:
+                e.on_zero_voltage(*stamp, *values)
+
+
+class AxisNode(LifecycleNode):
+    """The managed node of one axis (``spec``: robot_file.AxisSpec, the ``index``-th of its robot), composing its
+    drive's nodes into ``executor`` (the robot's, in ``context``); ``workdir``: where a virtual link's files go."""
+
+    def __init__(self, spec, index, context, executor, workdir, real_time=None):
+        super().__init__("drive_axis", context=context, namespace=spec.namespace)
+        self.spec, self.index, self.executor, self.workdir = spec, index, executor, workdir
+        self.real_time = real_time or RealTime()
+        self.handover = HandOver()
+        self.bridge = self.inverter = self.estimator = self.controller = None
+        self.drive = None
+        self.error = ""
+        """Why the last transition failed, or empty."""
+
+    def _LifecycleNodeMixin__on_change_state(self, request, response):
+        """The `change_state` service: rclpy's, except that a transition the current state does not have (cleanup
+        from active) answers ``success`` false instead of raising in the executor, which ended the process."""
+        from rclpy._rclpy_pybind11 import RCLError
+        try:
+            return super()._LifecycleNodeMixin__on_change_state(request, response)
+        except RCLError as error:
+            reason = str(error).split(", at ")[0]
+            self.error = f"transition {request.transition.id or request.transition.label} refused: {reason}"
+            self.get_logger().error(f"{self.spec.joint}: {self.error}")
+            response.success = False
+            return response
+
+    def fail(self, error):
+        self.error = str(error)
+        self.get_logger().error(f"{self.spec.joint}: {self.error}")
+        return TransitionCallbackReturn.FAILURE
+
+    def on_configure(self, state):
+        """The drive configuration loaded, the link open with the inverter disabled, the estimator and the controller
+        built (the commissioning file loaded: a refusal names it)."""
+        spec = self.spec
+        try:
+            self.drive = drive = load_drive_configuration(spec.drive, f"{spec.joint}: drive")
+            n = drive.block_samples
+            if n > MAX_BLOCK:
+                raise ScenarioError(f"{spec.drive}: block_samples: {n}: an inverter sends at most {MAX_BLOCK}")
+            host_link = self.open_link(drive)
+        except (DriveError, ValueError, OSError) as error:
+            return self.fail(error)
+        timeouts = {"link_timeout_s": spec.link_timeout_s, "command_timeout_s": BRIDGE_COMMAND_TIMEOUT_S,
+                    "publish_clock": False, "block_samples": n}
+        self.bridge = make_node("drive_bridge", self.context, spec.namespace, timeouts, link=host_link,
+                                controller=self.handover, estimator=self.handover)
+        self.executor.add_node(self.bridge)
+        if self.inverter is not None:
+            if spec.paced:
+                self.inverter.hear_host_writes(self.bridge.bridge.written_at)
+            self.inverter.start()
+        refused = self.compose()
+        if refused:
+            self.close()
+            return self.fail(refused)
+        self.error = ""
+        return TransitionCallbackReturn.SUCCESS
+
+    def open_link(self, drive):
+        """The host's end of the axis's link; with a virtual device, the virtual inverter (paced at the drive's
+        rate, not started yet) runs the scenario's machine at the other end."""
+        from drive_bridge.inverter_link import CanLink, SerialLink
+
+        from .launcher import _virtual_inverter
+        spec = self.spec
+        if spec.link == "serial":
+            return SerialLink(spec.port, spec.baudrate)
+        if spec.link == "can":
+            return CanLink(spec.can_channel, spec.drive_id, spec.can_interface or None)
+        scenario = behind_an_inverter(with_drive(load_scenario(spec.scenario), drive), MAX_BLOCK)
+        where = DriveSpec(scenario=spec.scenario, namespace=spec.namespace, link=spec.virtual_link, paced=spec.paced)
+        self.inverter, host_link = _virtual_inverter(scenario, {}, where, (self.workdir, self.index),
+                                                     VIRTUAL_COMMAND_WAIT_S, self.real_time)
+        return host_link
+
+    def node_parameters(self):
+        """The estimator's and the controller's parameters: the drive configuration, no scenario; the delay of
+        blocks behind an inverter; the joint's name and how it takes commands."""
+        spec, n = self.spec, self.drive.block_samples
+        drive = {"drive_configuration": spec.drive, "scenario": "", "lockstep_timeout_s": LOCKSTEP_TIMEOUT_S,
+                 "block_samples": n, "answer_periods": n + 1 if n > 1 else 0}
+        commands = {"joint_name": spec.joint, "command_timeout_s": spec.command_timeout_s,
+                    "hold_timeout_s": spec.hold_timeout_s, "brake": spec.brake,
+                    "stop_deceleration_rad_s2": spec.stop_deceleration_rad_s2 or 0.0,
+                    "velocity_limit_rad_s": spec.velocity_limit_rad_s or 0.0,
+                    "effort_limit_Nm": spec.effort_limit_Nm or 0.0}
+        return drive, {**drive, **commands}
+
+    def compose(self):
+        """The estimator and the controller built (not armed): their drive configuration loaded, their kernels
+        warmed up, the controller's core built once the estimator's drive_config reaches it (a spin later). Why
+        not, or None."""
+        drive, controller = self.node_parameters()
+        estimator = make_node("hf_estimator", self.context, self.spec.namespace, drive, inputs_handed=True)
+        if not estimator.configured:
+            estimator.destroy_node()
+            return f"the estimator refused its configuration: {estimator.health.latched}"
+        self.estimator = estimator
+        self.controller = make_node("foc_controller", self.context, self.spec.namespace, controller,
+                                    estimator=estimator)
+        self.controller.hand_commands_to(self.handover.take_commands)
+        for node in (estimator, self.controller):
+            self.executor.add_node(node)
+        return None
+
+    def on_activate(self, state):
+        """Armed: the drive joins the inverter's samples as soon as it is ready (its start-up, then its commands;
+        zero speed until one comes)."""
+        self.handover.arm(self.estimator, self.controller)
+        self.error = ""
+        return TransitionCallbackReturn.SUCCESS
+
+    @property
+    def active(self):
+        return self.handover.estimator is not None
+
+    def on_deactivate(self, state):
+        """Disarmed (zero volts, the inverter told), a fresh estimator and controller built for the next
+        activation (a new start-up: the angle is not known after zero volts)."""
+        self.disarm("deactivated")
+        refused = self.compose()
+        return self.fail(refused) if refused else TransitionCallbackReturn.SUCCESS
+
+    def disarm(self, why):
+        """Zero volts: nothing handed on, the inverter told to switch off (its safe state)."""
+        self.handover.disarm()
+        if self.bridge is not None:
+            self.bridge.bridge.safe_state(f"axis {why}")
+        self.discard()
+
+    def discard(self):
+        """The estimator and the controller gone (disarmed first)."""
+        for node in (self.controller, self.estimator):
+            if node is not None:
+                self.executor.remove_node(node)
+                node.destroy_node()
+        self.controller = self.estimator = None
+
+    def on_cleanup(self, state):
+        self.close()
+        return TransitionCallbackReturn.SUCCESS
+
+    def close(self):
+        """The estimator and the controller gone, the link closed (the virtual inverter stopped first)."""
+        self.discard()
+        if self.inverter is not None:
+            self.inverter.stop()
+            self.inverter.join(1.0)
+        if self.bridge is not None:
+            self.executor.remove_node(self.bridge)
+            self.bridge.destroy_node()
+            self.bridge = None
+        if self.inverter is not None:
+            self.inverter.endpoint.close()
+            self.inverter = None
+
+    def on_shutdown(self, state):
+        self.safe_state("shut down")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state):
+        self.safe_state("in error")
+        return TransitionCallbackReturn.SUCCESS
+
+    def safe_state(self, why):
+        """From any state: zero volts, the inverter told, the link closed."""
+        self.handover.disarm()
+        if self.bridge is not None:
+            self.bridge.bridge.safe_state(f"axis {why}")
+        self.close()
+
+    def inverter_off(self):
+        """Whether the inverter says its PWM is off (its last telemetry's status), or its link is closed."""
+        from drive_bridge.inverter_protocol import PWM_OFF
+        b = self.bridge.bridge if self.bridge is not None else None
+        return b is None or not b.open or b.lost or bool(b.status & PWM_OFF)
+
+    def link_lost(self):
+        """Whether the axis's link, up before, is lost (no telemetry for the bridge's link timeout)."""
+        b = self.bridge.bridge if self.bridge is not None else None
+        return b is not None and b.lost and b.counters["samples"] > 0
+
+    def report(self):
+        """What the axis did: its lifecycle state, the bridge's counters, the virtual inverter's state."""
+        report = {"joint": self.spec.joint, "namespace": self.spec.namespace, "error": self.error}
+        if self.bridge is not None:
+            b = self.bridge.bridge
+            report.update(link="lost" if b.lost else "up", safe_state_sent=b.counters["safe_state"],
+                          samples=b.counters["samples"], inverter_off=self.inverter_off())
+        if self.inverter is not None:
+            report["inverter_enabled"] = self.inverter.enabled
+        return report

@@ -1,0 +1,77 @@
+"""What a robot's axis does when its commands stop (issue 54): a command older than ``timeout_s`` ramps the
+speed reference to zero at ``deceleration_rad_s2`` and then holds the joint where it stopped, a position loop
+on the estimated mechanical angle feeding the speed loop (ω* = k_θ (θ_hold − θ̂_m), within ±``hold_speed_rad_s``;
+over the speed PI its integrator carries whatever load there is, so the hold has no steady-state error);
+older than ``hold_timeout_s``, or once stopped where the joint has a ``brake``, zero torque. A fresh command
+takes over at once. No rclpy: the controller node calls it once per sample or block."""
+import math
+from dataclasses import dataclass
+
+FOLLOWING, STOPPING, HOLDING, RELEASED = "following", "stopping", "holding", "released"
+HOLD_GAIN_PER_SPEED_ZERO = 0.25
+"""k_θ as a share of the speed PI's zero ki/kp [1/s]: the position loop well inside the speed loop (for the
+usual ζ = 1 gains the zero is half the speed loop's bandwidth, so k_θ is an eighth of it)."""
+STOP_TIME_S = 0.2
+"""The default ramp takes the speed limit (or the rated speed) to zero in this time."""
+
+
+@dataclass(frozen=True)
+class HoldSettings:
+    """``timeout_s`` [s] (0: commands never expire), ``hold_timeout_s`` [s] (∞: hold for good), ``brake``,
+    ``deceleration_rad_s2`` of the ramp, the position loop's ``gain_per_s`` k_θ and its speed bound
+    ``hold_speed_rad_s``."""
+
+    timeout_s: float
+    hold_timeout_s: float
+    brake: bool
+    deceleration_rad_s2: float
+    gain_per_s: float
+    hold_speed_rad_s: float
+
+
+class CommandHold:
+    """The speed reference and torque feed-forward an axis follows, from its last command and its age."""
+
+    def __init__(self, settings, now_s):
+        self.settings = settings
+        self.mode = FOLLOWING
+        self.omega_m_ref, self.tau_feedforward = 0.0, 0.0
+        self.commanded_at = now_s
+        self.ramp = 0.0
+        self.theta_hold = math.nan
+        self.timeouts = 0
+
+    def command(self, now_s, omega_m_ref=None, tau_feedforward=None):
+        """A fresh command [rad/s, N·m] (None: the last one's); followed from now on."""
+        if omega_m_ref is not None:
+            self.omega_m_ref = omega_m_ref
+        if tau_feedforward is not None:
+            self.tau_feedforward = tau_feedforward
+        self.commanded_at = now_s
+        self.mode = FOLLOWING
+
+    def age_s(self, now_s):
+        return now_s - self.commanded_at
+
+    def reference(self, now_s, dt_s, theta_m_hat):
+        """(ω*_m [rad/s], τ_ff [N·m], torque allowed) for the next ``dt_s`` [s] of samples, at ``now_s`` [s],
+        the estimated mechanical angle being ``theta_m_hat`` [rad]."""
+        s = self.settings
+        age = self.age_s(now_s)
+        if s.timeout_s <= 0.0 or age <= s.timeout_s:
+            return self.omega_m_ref, self.tau_feedforward, True
+        if self.mode == FOLLOWING:
+            self.mode, self.ramp = STOPPING, self.omega_m_ref
+            self.timeouts += 1
+        if self.mode == STOPPING:
+            step = s.deceleration_rad_s2 * dt_s
+            self.ramp = 0.0 if abs(self.ramp) <= step else self.ramp - math.copysign(step, self.ramp)
+            if self.ramp == 0.0:
+                self.mode, self.theta_hold = (RELEASED if s.brake else HOLDING), theta_m_hat
+            return self.ramp, self.tau_feedforward, True
+        if self.mode == HOLDING and age > s.hold_timeout_s:
+            self.mode = RELEASED
+        if self.mode == RELEASED:
+            return 0.0, 0.0, False
+        held = s.gain_per_s * (self.theta_hold - theta_m_hat)
+        return max(-s.hold_speed_rad_s, min(s.hold_speed_rad_s, held)), self.tau_feedforward, True

@@ -1,0 +1,300 @@
+"""`drive up ROBOT.yaml` (issue 54, docs/robot.md): robot files refused in one line; the documented hand-started
+commands as written in a shell; two virtual axes in one process, driven through the lifecycle from this (another)
+process, commanded on the joint command topic, bad commands refused and counted, a command timeout that holds a
+loaded joint and later releases it, and SIGTERM that leaves every inverter switched off."""
+import json
+import math
+import re
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+DRIVE = ROOT / ".venv" / "bin" / "drive"
+LOAD_NM = 0.045
+"""The shoulder's load from LOAD_ON_S of the simulation on (≈ 20 % of wang_spmsm's rated torque): gravity."""
+LOAD_ON_S = 7.0
+HOLD_WITHIN_RAD = 0.25
+"""The held shaft's angle (the simulation's truth) stays within this range while the joint is held."""
+VELOCITY_LIMIT = 20.0
+HOLD_S = 4.0
+"""The shoulder's hold timeout [s]."""
+
+
+def drive_files(folder, duration_s=120.0, load=True):
+    """A drive configuration, the simulated machine (a scenario: the load steps on at LOAD_ON_S) and a robot file."""
+    (folder / "arm_drive.yaml").write_text(
+        "format_version: 1\nmotor: wang_spmsm\n"
+        f"commissioning: {ROOT / 'commissioning' / 'wang_spmsm.yaml'}\n"
+        "estimator: injection_frame\nsampling_period_s: 1.0e-4\nblock_samples: 10\n")
+    load_points = f"[[0.0, 0.0], [{LOAD_ON_S}, {LOAD_NM}]]" if load else "[[0.0, 0.0]]"
+    (folder / "arm_sim.yaml").write_text(
+        f"drive: arm_drive.yaml\nduration_s: {duration_s}\ninitial: {{theta_m_rad: 1.3}}\n"
+        "speed: {unit: rad_s, interpolation: step, points: [[0.0, 0.0]]}\n"
+        f"load: {{unit: Nm, interpolation: step, points: {load_points}}}\n")
+
+
+def robot_file(folder, text):
+    path = folder / "robot.yaml"
+    path.write_text(text)
+    return path
+
+
+ARM = f"""format_version: 1
+axes:
+  - {{joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml,
+     velocity_limit_rad_s: {VELOCITY_LIMIT}, command_timeout_s: 0.1, hold_timeout_s: {HOLD_S}, paced: false}}
+  - {{joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, reversed: true, paced: false}}
+"""
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("text, where", [
+    ("format_version: 1\naxes: []\n", "axes: must be a list"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: serial}\n", "axes[0].port: missing"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: nope.yaml, link: can}\n",
+     "nope.yaml: no such drive configuration"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can, command_timeout_s: -1}\n",
+     "axes[0].command_timeout_s: must"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can}\n  - {joint: a, drive: "
+     "arm_drive.yaml, link: can, namespace: /b}\n", "axes[1].joint: 'a' is another axis's"),
+    ("format_version: 1\nreal_time: {cpus: [99]}\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can}\n",
+     "real_time.cpus: [99]"),
+    ("format_version: 1\ninitial_state: on\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can}\n",
+     "initial_state: must be one of"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: wire}\n", "axes[0].link: must be one"),
+])
+def test_a_bad_robot_file_is_refused_in_one_line_naming_file_key_and_value(tmp_path, text, where):
+    from drive_tools.launch.robot_file import RobotFileError, load_robot
+    drive_files(tmp_path)
+    path = robot_file(tmp_path, text)
+    with pytest.raises(RobotFileError) as error:
+        load_robot(path)
+    line = str(error.value)
+    assert "\n" not in line and line.startswith(f"{path}: ") and where in line
+
+
+def test_the_documented_hand_started_commands_work_as_written_in_a_shell(tmp_path):
+    """docs/ros-graph.md, "A drive without a scenario": the estimator's and the controller's lines, `-p scenario:=''`
+    and all, run through bash as written; each node starts open-ended on the drive configuration."""
+    text = (ROOT / "docs" / "ros-graph.md").read_text()
+    lines = re.findall(r"^\.venv/bin/(?:estimator|controller)_node .*scenario:=''.*$", text, re.M)
+    assert len(lines) == 2
+    (tmp_path / "left_wheel.yaml").write_text(
+        f"format_version: 1\nmotor: wang_spmsm\ncommissioning: {ROOT / 'commissioning' / 'wang_spmsm.yaml'}\n"
+        "estimator: injection_frame\nsampling_period_s: 1.0e-4\n")
+    (tmp_path / ".venv").symlink_to(ROOT / ".venv")
+    for line in lines:
+        line = line.replace("/left_wheel", "/documented_wheel")
+        run = subprocess.run(["bash", "-c", f"timeout -s INT 15 {line}"], cwd=tmp_path, capture_output=True,
+                             text=True)
+        assert "no experiment: until stopped" in run.stderr, (line, run.stderr[-600:])
+        assert "Couldn't parse" not in run.stderr
+
+
+class Client:
+    """An rclpy client in this process (another than the drive's): the lifecycle, joint commands, /joint_states,
+    /diagnostics and the shoulder's encoder (the simulation's truth, `rotor_state_block`)."""
+
+    def __init__(self):
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile
+        from sensor_msgs.msg import JointState
+
+        from drive_common.contract.topics import ROTOR_STATE, block
+        from drive_common.contract.wire import decode_block
+        from drive_common.ros.node import message_class, topic_qos
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node("robot_test_client", context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self.states, self.diagnostics, self.truth, self.zero_voltage, self.commands_seen = [], {}, [], [], []
+        self.command_pub = self.node.create_publisher(JointState, "/joint_commands", 10)
+        self.node.create_subscription(JointState, "/joint_states", self.states.append, QoSProfile(depth=100))
+
+        def on_diagnostics(msg):
+            for status in msg.status:
+                self.diagnostics[status.name] = {v.key: v.value for v in status.values}
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, QoSProfile(depth=100))
+        topic = block(ROTOR_STATE)
+
+        def on_truth(data):
+            sec, nanosec, theta, _, _ = decode_block(data)
+            self.truth.append((sec + 1e-9 * nanosec, float(theta[0]), time.monotonic()))
+        self.node.create_subscription(message_class(topic), f"/shoulder/{topic}", on_truth, topic_qos(topic),
+                                      raw=True)
+        self.node.create_subscription(message_class("zero_voltage"), "/shoulder/zero_voltage",
+                                      lambda data: self.zero_voltage.append(time.monotonic()),
+                                      topic_qos("zero_voltage"), raw=True)
+        self.node.create_subscription(message_class(block("voltage_command")), "/shoulder/voltage_command_block",
+                                      lambda data: self.commands_seen.append(time.monotonic()),
+                                      topic_qos(block("voltage_command")), raw=True)
+
+    def spin(self, seconds, command=None):
+        """Spin ``seconds``, publishing ``command`` (names, velocities, efforts) at 50 Hz if given."""
+        from sensor_msgs.msg import JointState
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:
+            if command:
+                names, velocity, effort = command
+                self.command_pub.publish(JointState(name=names, velocity=velocity, effort=effort))
+            self.executor.spin_once(timeout_sec=0.02)
+
+    def spin_simulated(self, seconds, command=None):
+        """Spin until the shoulder's simulation has run ``seconds`` more (lock-step: its pace is the machine's)."""
+        self.spin(0.1, command)
+        start, deadline = self.truth[-1][0], time.monotonic() + 60.0
+        while self.truth[-1][0] < start + seconds:
+            assert time.monotonic() < deadline, f"the simulation stopped at {self.truth[-1][0]:.3f} s"
+            self.spin(0.1, command)
+
+    def lifecycle(self, namespace, transition=None):
+        """The axis's state after ``transition`` (a lifecycle_msgs Transition id) if given."""
+        from lifecycle_msgs.srv import ChangeState, GetState
+        if transition is not None:
+            client = self.node.create_client(ChangeState, f"{namespace}/drive_axis/change_state")
+            assert client.wait_for_service(timeout_sec=60.0)
+            request = ChangeState.Request()
+            request.transition.id = transition
+            future = client.call_async(request)
+            self.executor.spin_until_future_complete(future, timeout_sec=30.0)
+            assert future.result().success
+        client = self.node.create_client(GetState, f"{namespace}/drive_axis/get_state")
+        assert client.wait_for_service(timeout_sec=60.0)
+        future = client.call_async(GetState.Request())
+        self.executor.spin_until_future_complete(future, timeout_sec=120.0)
+        return future.result().current_state.label
+
+    def joint(self, name, last=10):
+        """The mean (position, velocity) of ``name`` over the last ``last`` /joint_states holding it."""
+        held = [(m.position[m.name.index(name)], m.velocity[m.name.index(name)]) for m in self.states
+                if name in m.name][-last:]
+        if not held:
+            return math.nan, math.nan
+        return sum(p for p, _ in held) / len(held), sum(v for _, v in held) / len(held)
+
+    def robot_faults(self):
+        return {k: int(v) for k, v in self.diagnostics.get("/drive_robot", {}).items() if k.startswith("faults.")}
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+@pytest.fixture(scope="module")
+def arm(tmp_path_factory):
+    """`drive up` of a two-axis arm (shoulder, wrist: virtual inverters) left inactive, and this process's client."""
+    folder = tmp_path_factory.mktemp("arm")
+    drive_files(folder)
+    path = robot_file(folder, ARM)
+    out, err = (folder / "up.json").open("w"), (folder / "up.log").open("w")
+    process = subprocess.Popen([str(DRIVE), "up", str(path), "--json"], cwd=folder, stdout=out, stderr=err)
+    process.folder = folder
+    client = Client()
+    try:
+        assert client.lifecycle("/shoulder") == "inactive"
+        yield process, client
+    finally:
+        client.close()
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+
+
+def test_inactive_axes_apply_zero_volts_and_another_process_drives_their_lifecycle(arm):
+    process, client = arm
+    client.spin(1.0)
+    assert process.poll() is None
+    assert client.lifecycle("/wrist") == "inactive"
+    assert len(client.zero_voltage) >= 10, "the inverter reports every block at zero volts while inactive"
+    assert not client.commands_seen, "no voltage command while inactive"
+    supervisor = subprocess.run([str(DRIVE), "axis", "shoulder", "activate", "--json"], capture_output=True,
+                                text=True, timeout=60)
+    assert supervisor.returncode == 0, supervisor.stderr
+    assert json.loads(supervisor.stdout)["state"] == "active"
+    assert client.lifecycle("/wrist", transition=3) == "active"
+    cleanup_while_active = subprocess.run([str(DRIVE), "axis", "wrist", "cleanup"], capture_output=True, text=True,
+                                          timeout=60)
+    assert cleanup_while_active.returncode == 2 and "refused" in cleanup_while_active.stderr
+    assert client.lifecycle("/wrist") == "active" and process.poll() is None
+    client.spin(2.0)
+    assert client.commands_seen, "armed, the drive answers"
+
+
+def test_joint_commands_move_both_joints_at_their_speed_and_sign(arm):
+    _, client = arm
+    command = (["shoulder", "wrist"], [3.0, -3.0], [])
+    client.spin_simulated(1.0, command)
+    for joint, speed in (("shoulder", 3.0), ("wrist", -3.0)):
+        assert client.joint(joint)[1] == pytest.approx(speed, abs=0.6), (joint, {
+            name: status for name, status in client.diagnostics.items() if name.startswith(f"/{joint}/")})
+
+
+@pytest.mark.parametrize("names, velocity, effort, kind", [
+    (["shoulder", "elbow"], [3.0, 3.0], [], "command_unknown_joint"),
+    (["shoulder", "wrist"], [math.nan, 3.0], [], "command_not_finite"),
+    (["shoulder", "wrist"], [2.0 * VELOCITY_LIMIT, 3.0], [], "command_over_limit"),
+    (["shoulder", "wrist"], [3.0, -3.0], [1e3, 0.0], "command_over_limit"),
+    (["shoulder", "wrist"], [3.0], [], "command_malformed"),
+])
+def test_a_bad_command_is_refused_counted_on_diagnostics_and_never_applied(arm, names, velocity, effort, kind):
+    _, client = arm
+    good = (["shoulder", "wrist"], [3.0, -3.0], [])
+    client.spin(0.5, good)
+    before = client.robot_faults().get(f"faults.{kind}", 0)
+    from sensor_msgs.msg import JointState
+    start, began = client.truth[-1][0], time.monotonic()
+    while (client.truth[-1][0] < start + 0.3 or time.monotonic() < began + 1.0) and time.monotonic() < began + 60.0:
+        client.command_pub.publish(JointState(name=names, velocity=velocity, effort=effort))
+        client.command_pub.publish(JointState(name=good[0], velocity=good[1]))
+        client.spin(0.04)
+    assert client.robot_faults().get(f"faults.{kind}", 0) > before
+    assert client.joint("shoulder")[1] == pytest.approx(3.0, abs=1.0), "the refused command was not applied"
+
+
+def test_a_command_timeout_holds_the_loaded_joint_then_releases_it(arm):
+    """Commands stop with the load on (gravity): the shoulder ramps to zero and is held within HOLD_WITHIN_RAD (the
+    simulation's truth) until its hold timeout (HOLD_S of the host's time), then at zero torque the load turns it."""
+    _, client = arm
+    command = (["shoulder", "wrist"], [3.0, -3.0], [])
+    while not client.truth or client.truth[-1][0] < LOAD_ON_S + 0.5:
+        client.spin_simulated(0.2, command)
+    stopped = time.monotonic()
+    client.spin(HOLD_S - 0.3)
+    held = [theta for _, theta, at in client.truth if stopped + 0.5 <= at <= stopped + HOLD_S - 0.3]
+    assert len(held) > 20
+    assert max(held) - min(held) < HOLD_WITHIN_RAD
+    assert client.diagnostics["/shoulder/foc_controller"]["command"] == "holding"
+    client.spin(1.0)
+    assert client.diagnostics["/shoulder/foc_controller"]["command"] == "released"
+    client.spin_simulated(0.5)
+    assert abs(client.truth[-1][1] - held[-1]) > 0.5, "at zero torque the load turns the shaft"
+
+
+def test_sigterm_brings_every_axis_to_its_safe_state(arm):
+    process, _ = arm
+    process.send_signal(signal.SIGTERM)
+    process.wait(timeout=60)
+    assert process.returncode == 128 + signal.SIGTERM, (process.folder / "up.log").read_text()[-800:]
+    report = json.loads((process.folder / "up.json").read_text())
+    for axis in report["axes"]:
+        assert axis["inverter_off"] and axis["safe_state_sent"] >= 1, axis
+
+
+def test_a_lost_link_brings_every_axis_to_its_safe_state_and_exits_3(tmp_path):
+    """The shoulder's simulation ends after 4 s: its link goes silent, and `drive up` stops every axis."""
+    drive_files(tmp_path, duration_s=4.0, load=False)
+    path = robot_file(tmp_path, ARM.replace("format_version: 1", "format_version: 1\ninitial_state: active"))
+    run = subprocess.run([str(DRIVE), "up", str(path), "--json"], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 3, run.stderr[-800:]
+    assert "link is lost" in run.stderr.splitlines()[-1]
+    for axis in json.loads(run.stdout)["axes"]:
+        assert axis["safe_state_sent"] >= 1, axis
