@@ -298,3 +298,31 @@ def test_a_lost_link_brings_every_axis_to_its_safe_state_and_exits_3(tmp_path):
     assert "link is lost" in run.stderr.splitlines()[-1]
     for axis in json.loads(run.stdout)["axes"]:
         assert axis["safe_state_sent"] >= 1, axis
+
+
+def test_drive_up_with_view_serves_the_robots_axes_live_while_it_runs(tmp_path):
+    """`drive up ROBOT.yaml --view`: a `drive view` process serves the robot's axes while the robot runs; its page
+    answers at the address said on stderr, and the view goes with the robot (here at the lost link's exit 3)."""
+    import re
+    import time
+    import urllib.request
+    drive_files(tmp_path, duration_s=4.0, load=False)
+    path = robot_file(tmp_path, ARM.replace("format_version: 1", "format_version: 1\ninitial_state: active"))
+    err = (tmp_path / "up.log").open("w+")
+    process = subprocess.Popen([str(DRIVE), "up", str(path), "--view", "--view-port", "0", "--json"], cwd=tmp_path,
+                               stdout=subprocess.DEVNULL, stderr=err)
+    try:
+        page, deadline = None, time.monotonic() + 60.0
+        while page is None and process.poll() is None and time.monotonic() < deadline:
+            said = re.search(r"drive: view at (http://\S+)", (tmp_path / "up.log").read_text())
+            if said:
+                with urllib.request.urlopen(said.group(1), timeout=10) as answer:
+                    page = answer.read().decode()
+            time.sleep(0.2)
+        assert page is not None and "<script>" in page, (tmp_path / "up.log").read_text()[-800:]
+        assert process.wait(timeout=120) == 3
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        err.close()

@@ -21,7 +21,6 @@ def build_parser():
     parser = OneLineParser(prog="drive", description="Sensorless PMSM drive stack.")
     sub = parser.add_subparsers(dest="command", required=True)
     run.add_commands(sub)
-    view.add_commands(sub)
     motor.add_commands(sub)
     bench = sub.add_parser("bench", help="benchmarks")
     bench_sub = bench.add_subparsers(dest="bench", required=True)
@@ -31,6 +30,7 @@ def build_parser():
     tune.add_commands(sub)
     bag.add_commands(sub)
     robot.add_commands(sub)
+    view.add_commands(sub)
     return parser
 
 

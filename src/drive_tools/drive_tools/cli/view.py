@@ -55,9 +55,9 @@ def view_options(args):
     return ViewOptions(tuple(args.namespace or ()), args.host, args.port, args.page_port, args.currents_every)
 
 
-def with_view(command):
-    """``command`` (drive launch) with ``--view``: a ``drive view`` process serves the launch's namespace while
-    it runs, its page's address said on stderr."""
+def with_view(command, namespaces):
+    """``command`` (drive launch, drive up) with ``--view``: a ``drive view`` process serves its drives
+    (``namespaces(args)``: their namespaces) while it runs, its page's address said on stderr."""
     def run(args):
         if not args.view:
             return command(args)
@@ -65,7 +65,8 @@ def with_view(command):
             raise CommandLineError(f"--view-port: {args.view_port} is not a TCP port with one after it (0-65534)")
         page_port = args.view_port + 1 if args.view_port else 0
         said = tempfile.TemporaryFile("w+")
-        child = subprocess.Popen([sys.executable, "-m", "drive_tools.cli", "view", "--namespace", args.namespace,
+        served = [word for namespace in namespaces(args) for word in ("--namespace", namespace)]
+        child = subprocess.Popen([sys.executable, "-m", "drive_tools.cli", "view", *served,
                                   "--port", str(args.view_port), "--page-port", str(page_port)],
                                  stdout=subprocess.PIPE, stderr=said, text=True)
         try:
@@ -101,9 +102,16 @@ def add_commands(sub):
                       help="forward every Nth per-sample currents message (default 10; blocks: all)")
     view.add_argument("--duration", type=finite_float, help="stop after this many seconds (default: Ctrl-C)")
     view.set_defaults(func=cmd_view)
-    launch = sub.choices["launch"]
-    launch.add_argument("--view", action="store_true", help="serve the drive live while it runs (drive view)")
-    launch.add_argument("--view-port", type=int, default=8765, metavar="P",
-                        help="with --view: the Foxglove WebSocket port (default 8765); the page on P + 1 "
-                             "(0: any free ports)")
-    launch.set_defaults(func=with_view(launch.get_default("func")))
+    for name, namespaces in (("launch", lambda args: [args.namespace]), ("up", _robot_namespaces)):
+        parser = sub.choices[name]
+        parser.add_argument("--view", action="store_true", help="serve the drives live while they run (drive view)")
+        parser.add_argument("--view-port", type=int, default=8765, metavar="P",
+                            help="with --view: the Foxglove WebSocket port (default 8765); the page on P + 1 "
+                                 "(0: any free ports)")
+        parser.set_defaults(func=with_view(parser.get_default("func"), namespaces))
+
+
+def _robot_namespaces(args):
+    """The namespaces of the robot file's axes (drive up)."""
+    from drive_tools.launch.robot_file import load_robot
+    return [axis.namespace for axis in load_robot(args.robot).axes]
