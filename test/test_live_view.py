@@ -83,7 +83,7 @@ def test_the_page_plots_a_drives_angle_error_as_it_comes_and_counts_its_faults(t
         def settled():
             axis = page_state(browser)["axes"].get(AXIS)
             return axis and axis["plotted"]["angle_error"] >= 0.9 * published and axis["counters"]["late_periods"]
-        wait_for("the page's plots and counters", settled, timeout_s=15.0)
+        wait_for("the page's plots and counters", settled, timeout_s=90.0)
         time.sleep(2.0)
         state = page_state(browser)
         axis = state["axes"][AXIS]

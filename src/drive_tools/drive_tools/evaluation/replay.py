@@ -127,9 +127,9 @@ def applicability(recording, name, frequency, requested, scored):
     if need == "any":
         return True, f"fits any injection whose voltage is known; the recording's: {described}"
     if name == recording.estimator:
-        if recording.scenario is None:
+        if not recording.estimator_settings and recording.scenario is None:
             return True, ("the recording's own estimator on its own excitation (with its default settings: the "
-                          "bag names no scenario that holds the recorded ones)")
+                          "bag states none)")
         return True, "the recording's own estimator on its own excitation (a faithful replay)"
     share, phase = carrier_match(recording.carrier, requested, frequency, recording.T_s, scored)
     if share >= MIN_CARRIER_FRACTION and phase is not None and phase <= MAX_CARRIER_PHASE_RAD:

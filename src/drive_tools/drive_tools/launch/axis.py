@@ -78,26 +78,23 @@ class HandOver:
                 c.join_at(0)
         return e, stamp_parts(k - self.origin, e.T_s)
 
-    def take_currents(self, sec, nanosec, *currents):
+    def hand(self, take, sec, nanosec, values):
+        """Hand the estimator's ``take`` (its method's name) the sample (block) stamped (sec, nanosec) and its
+        ``values``, in the drive's count; nothing while disarmed or not ready."""
         handed = self.handed(sec, nanosec)
         if handed is not None:
             e, stamp = handed
             with e.sample_lock:
-                e.take_currents(*stamp, *currents)
+                getattr(e, take)(*stamp, *values)
+
+    def take_currents(self, sec, nanosec, *currents):
+        self.hand("take_currents", sec, nanosec, currents)
 
     def take_rotor_state(self, sec, nanosec, *values):
-        handed = self.handed(sec, nanosec)
-        if handed is not None:
-            e, stamp = handed
-            with e.sample_lock:
-                e.take_rotor_state(*stamp, *values)
+        self.hand("take_rotor_state", sec, nanosec, values)
 
     def on_zero_voltage(self, sec, nanosec, *values):
-        handed = self.handed(sec, nanosec)
-        if handed is not None:
-            e, stamp = handed
-            with e.sample_lock:
-                e.on_zero_voltage(*stamp, *values)
+        self.hand("on_zero_voltage", sec, nanosec, values)
 
 
 class AxisNode(LifecycleNode):
@@ -268,9 +265,7 @@ class AxisNode(LifecycleNode):
 
     def safe_state(self, why):
         """From any state: zero volts, the inverter told, the link closed."""
-        self.handover.disarm()
-        if self.bridge is not None:
-            self.bridge.bridge.safe_state(f"axis {why}")
+        self.disarm(why)
         self.close()
 
     def inverter_off(self):
