@@ -62,6 +62,7 @@ def wait_for(what, condition, timeout_s=30.0):
         time.sleep(0.1)
 
 
+@pytest.mark.heavy
 def test_the_page_plots_a_drives_angle_error_as_it_comes_and_counts_its_faults(tmp_path):
     """Lock-step, so the count does not hang on the machine's pace: the drive's 1 kHz of angle error (of its
     time) came at about 300 a second of wall time on the 2-core machine (3 s of drive time in about 10 s)."""
