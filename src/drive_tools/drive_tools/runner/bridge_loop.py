@@ -146,21 +146,8 @@ def _run(scenario, link, inverter, bridge, progress):
     wall = time.perf_counter() - start
     if progress and not interrupted:
         progress(1.0)
-    truth = inverter.truth
-    done = inverter.k
-    log = log[:done]
-    for column, name in enumerate(("theta_m", "omega_m", "tau_e", "tau_load", "i_a", "i_b", "i_c")):
-        log[:, COLUMN[name]] = truth[:done, column]
-    log[:, COLUMN["t"]] = np.arange(done) * scenario.T_s
-    e, cp = host.estimator, host.controller
-    return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
-                           e.facts(), protection=protection_summary(host.protection_x, host.protection),
-                           injection=contract_injection(e.facts(), scenario.injection), link=link,
-                           counters=dict(bridge.counters), frame_errors=bridge.frame_errors(),
-                           inverter_counters=dict(inverter.counters),
-                           latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
-                           host_s=host_s[:done][received[:done]],
-                           timing=timing_report(inverter, scenario.T_s, bridge.written_at))
+    return _bridge_result((scenario, link, inverter, bridge, host), log, (wall, interrupted), (received, host_s),
+                          dict(bridge.counters))
 
 
 def _run_compiled(scenario, link, inverter, bridge, progress_and_options):
@@ -207,6 +194,18 @@ def _run_compiled(scenario, link, inverter, bridge, progress_and_options):
     wall = time.perf_counter() - start
     if progress and not interrupted:
         progress(1.0)
+    return _bridge_result((scenario, link, inverter, bridge, host), log, (wall, interrupted), (received, host_s),
+                          {**bridge.counters, "ring_overflow": answer.overflow}, answer.scheduling)
+
+
+def _bridge_result(run, log, ended, samples, counters, scheduling=None):
+    """The BridgeRunResult of a run through the bridge, either answer: ``run`` (scenario, link, inverter, bridge,
+    host), its ``log`` with the inverter's truth filled in up to the last sample it simulated, ``ended`` (wall
+    time [s], the signal that stopped it or 0), ``samples`` (per sample: received, the host's time [s]), the
+    bridge's ``counters`` and the answer thread's ``scheduling`` (None: the answer in Python)."""
+    scenario, link, inverter, bridge, host = run
+    wall, interrupted = ended
+    received, host_s = samples
     truth = inverter.truth
     done = inverter.k
     log = log[:done]
@@ -217,12 +216,11 @@ def _run_compiled(scenario, link, inverter, bridge, progress_and_options):
     return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
                            e.facts(), protection=protection_summary(host.protection_x, host.protection),
                            injection=contract_injection(e.facts(), scenario.injection), link=link,
-                           counters={**bridge.counters, "ring_overflow": answer.overflow},
-                           frame_errors=bridge.frame_errors(), inverter_counters=dict(inverter.counters),
+                           counters=counters, frame_errors=bridge.frame_errors(),
+                           inverter_counters=dict(inverter.counters),
                            latencies_s=np.asarray(inverter.latencies_s), received=received[:done],
                            host_s=host_s[:done][received[:done]],
-                           timing=timing_report(inverter, scenario.T_s, bridge.written_at),
-                           scheduling=answer.scheduling)
+                           timing=timing_report(inverter, scenario.T_s, bridge.written_at), scheduling=scheduling)
 
 
 def protect(host, currents, n, k_last, u_dc_V, omega_e_hat, cx, px):
