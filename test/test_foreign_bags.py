@@ -272,8 +272,9 @@ def test_a_replay_takes_the_recorded_commissioning_wherever_it_runs(conventional
 def test_a_robots_recording_replays_wall_clock_jitter_lost_messages_and_a_cut(tmp_path):
     """Written with rosbags alone, as a robot records: stamps from a wall clock at 1.76e9 s with ±3 µs
     jitter, 0.2 % of every topic's messages lost, drive_config without a scenario. Replay indexes from the
-    first sample, measures the jitter, counts each topic's lost samples, steps ours over them and scores it
-    within 30 % of the clean recording's RMS (0.0124 against 0.0102) and under ours' 0.02 rad. Cut
+    first sample, measures the jitter, counts each topic's lost samples, rebuilds the currents of those the
+    drive answered (all here) and scores ours within 5 % of the clean recording's RMS (0.01029 against
+    0.01022; 0.0124 when replay stepped over them) and under ours' 0.02 rad. Cut
     mid-chunk (a power loss: no metadata.yaml, the .mcap truncated), `drive bag reindex` mends it and ours
     replays up to its last whole sample with the same quality."""
     run = recorded_run(tmp_path, "injection_frame")
@@ -291,8 +292,8 @@ def test_a_robots_recording_replays_wall_clock_jitter_lost_messages_and_a_cut(tm
     assert all(0.0005 * n < missing[t] < 0.005 * n for t in ("currents", "voltage_command", "rotor_state"))
     assert report["samples"] == n - report["cut_samples"] and report["cut_samples"] <= 5
     ours, clean_rms = results["injection_frame"], clean_ours["injection_frame"]["angle_error_rms"]
-    assert ours["samples"] < n and not ours["lost"]
-    assert ours["angle_error_rms"] == pytest.approx(clean_rms, rel=0.3) and ours["angle_error_rms"] < 0.02
+    assert ours["samples"] >= n - 2 and not ours["lost"]
+    assert ours["angle_error_rms"] == pytest.approx(clean_rms, rel=0.05) and ours["angle_error_rms"] < 0.02
 
     mcap = next(robot.glob("*.mcap"))
     data = mcap.read_bytes()
@@ -305,3 +306,55 @@ def test_a_robots_recording_replays_wall_clock_jitter_lost_messages_and_a_cut(tm
     cut, results = replay(robot, "--estimators", "injection_frame", "--windows", "0.3:0.5")
     assert 0.5 * n < cut["samples"] < 0.75 * n
     assert results["injection_frame"]["angle_error_rms"] < 0.02 and not results["injection_frame"]["lost"]
+
+
+def test_currents_the_recorder_lost_are_rebuilt_within_the_measurement_noise():
+    """A salient winding (L_d, L_q, R drawn; the rotor at a drawn angle, turning slowly) driven by a sine
+    carrier of 4-20 samples a period and 0.05-0.5 A ripple per sample and a drifting fundamental, its currents
+    measured with noise σ = 0.01 A: where the recorder lost 20 gaps of 1-3 samples that the drive answered,
+    each is rebuilt within 3 σ of the true current, median within 1.2 σ (measured 0.7-1.0 σ, largest
+    1.5-2.2 σ), where interpolating between its neighbours errs 2.9-7 σ at the median; a sample the drive
+    did not answer stays lost, and so does a gap with a lost voltage in it."""
+    from drive_tools.evaluation.recorded_inputs import rebuilt_currents
+
+    rng = np.random.default_rng(11)
+    for _ in range(5):
+        n, T_s, sigma = 6000, 1.0 / rng.uniform(5e3, 20e3), 0.01
+        L_d = rng.uniform(2e-4, 5e-3)
+        L_q, R = L_d * rng.uniform(1.1, 3.0), rng.uniform(0.05, 2.0)
+        theta = rng.uniform(-np.pi, np.pi) + 2 * np.pi * rng.uniform(0.0, 2.0) * np.arange(n) * T_s
+        k = np.arange(n)
+        ripple_A = rng.uniform(0.05, 0.5)
+        carrier = ripple_A * L_d / T_s * np.sin(2 * np.pi * k / rng.uniform(4.0, 20.0))
+        u = np.column_stack((carrier * np.cos(theta) + 0.3 * np.sin(k * T_s * 7),
+                             carrier * np.sin(theta) + 0.2 * np.cos(k * T_s * 5)))
+        i = np.zeros((n, 2))
+        for j in range(1, n):
+            c, s = np.cos(theta[j - 1]), np.sin(theta[j - 1])
+            rot = np.array([[c, -s], [s, c]])
+            admittance = rot @ np.diag((1 / L_d, 1 / L_q)) @ rot.T
+            i[j] = i[j - 1] + T_s * admittance @ (u[j] - R * i[j - 1])
+        abc = np.column_stack((i[:, 0], -0.5 * i[:, 0] + np.sqrt(3) / 2 * i[:, 1],
+                               -0.5 * i[:, 0] - np.sqrt(3) / 2 * i[:, 1]))
+        measured = abc + rng.normal(0.0, sigma, abc.shape)
+        lost = np.zeros(n, dtype=bool)
+        for start in rng.choice(np.arange(100, n - 100), size=20, replace=False):
+            lost[start:start + rng.integers(1, 4)] = True
+        answered = np.ones(n, dtype=bool)
+        unanswered = rng.choice(np.flatnonzero(lost), size=3, replace=False)
+        answered[unanswered] = False
+        recorded = measured.copy()
+        recorded[lost] = np.nan
+        rebuilt = rebuilt_currents(recorded, u, answered)
+        done = lost & np.isfinite(rebuilt).all(axis=1)
+        assert np.isnan(rebuilt[unanswered]).all()
+        error = np.abs(rebuilt[done] - abc[done]).max(axis=1)
+        assert done.sum() >= lost.sum() - 3 * 3 and error.max() <= 3 * sigma
+        assert np.median(error) <= 1.2 * sigma
+        at = np.flatnonzero(~lost)
+        interpolated = np.column_stack([np.interp(np.flatnonzero(done), at, measured[at, j]) for j in range(3)])
+        assert np.median(np.abs(interpolated - abc[done]).max(axis=1)) > 2.5 * np.median(error)
+        u_lost = u.copy()
+        gap = np.flatnonzero(done)[0]
+        u_lost[gap] = np.nan
+        assert np.isnan(rebuilt_currents(recorded, u_lost, answered)[gap]).all()

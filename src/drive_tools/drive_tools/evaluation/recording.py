@@ -44,6 +44,10 @@ AUTO_KNOWN_SHARE = 0.99
 """...with the speed known in this share of a block's samples (lost messages hold the last one)."""
 
 
+STATED_SETTINGS = "drive_config estimator_settings"
+"""The source of estimator settings a drive stated in its recording's drive_config."""
+
+
 @dataclasses.dataclass
 class Recording:
     """A bag read for scoring; ``sources`` says where each piece came from."""
@@ -80,6 +84,9 @@ class Recording:
     """``missing_samples`` per topic within the replayed span, and ``cut_samples`` left off its end."""
     zero_volts: np.ndarray
     """Per sample: the period from it ran at zero volts, whatever was commanded (the bag's `zero_voltage`)."""
+    settings_stated: bool = False
+    """``estimator_settings`` are the drive's own, whole (drive_config): its injection is in them, so replay
+    builds the recording's estimator on them alone (one that picks its carrier itself keeps its own)."""
 
     @property
     def n_p(self):
@@ -165,7 +172,8 @@ def read_recording(path, motor=None, sample_period_s=None, commissioning=None, w
         start, sources["windows"] = chosen[0][0], f"automatic: {note}"
     controller = _controller(path, scenario, configs, sources)
     return Recording(path, log, T_s, plate, known, delay, U_dc_V, recorded, settings, controller, injection,
-                     excitation, carrier, chosen, start, scenario, sources, timing, gaps, zero_volts)
+                     excitation, carrier, chosen, start, scenario, sources, timing, gaps, zero_volts,
+                     settings_stated=sources["estimator_settings"] == STATED_SETTINGS)
 
 
 def whole_span(path, log, topics):
@@ -247,7 +255,7 @@ def _estimator_settings(path, scenario, configs, recorded, sources):
         if not isinstance(given["estimator_settings"], dict):
             raise BagError(f"{path}: drive_config estimator_settings {shown(given['estimator_settings'])} is not "
                            f"a mapping of estimator settings")
-        sources["estimator_settings"] = "drive_config estimator_settings"
+        sources["estimator_settings"] = STATED_SETTINGS
         return dict(given["estimator_settings"])
     if scenario is not None and recorded == scenario.estimator:
         sources["estimator_settings"] = f"scenario {scenario.name}"

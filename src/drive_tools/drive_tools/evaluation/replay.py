@@ -28,6 +28,7 @@ from hf_estimator.interface import excitation_need, injects
 
 from .excitation import MAX_CARRIER_PHASE_RAD, MIN_CARRIER_FRACTION, carrier_match
 from .metrics import _mask, angle_error, angle_scores, reported_losses
+from .recorded_inputs import replay_inputs
 from .recording import held
 
 TIMED_RUNS = 3
@@ -43,64 +44,18 @@ further (it could not run the drive it is measured for)."""
 SCORED = ("angle_error_rms", "angle_error_bias", "angle_error_peak", "speed_error_rms")
 
 
-def replay_inputs(recording):
-    """(currents n × 3, the voltage applied in the period before each sample n × 2, whole: n booleans) of a
-    Recording (the command of d + 1 samples before, d the recording drive's delay; zero where the inverter
-    reported that period at zero volts)."""
-    return logged_inputs(recording.log, recording.delay_periods, recording.zero_volts)
-
-
-def logged_inputs(log, delay_periods, zero_volts=None):
-    """replay_inputs of a run's ``log`` (LOG_COLUMNS) with the drive's delay. A sample is whole where its
-    currents and the voltage that acted before it are known; replay steps the estimators over the others (a
-    lost message: the estimator meets the next sample, as a drive node would), and the first whole sample
-    after a gap carries the voltage of every period since the last whole one, summed (the voltages of lost
-    periods where known): the current step it sees is the one that voltage drove, so a fit or an integrator
-    of voltage stays consistent across the gap (docs/recordings.md). A lost voltage_command whose injection
-    message arrived is rebuilt: that injection plus the fundamental (command less injection) interpolated
-    between its neighbours. ``zero_volts`` (per sample: the period from it ran at zero volts) zeroes the
-    command that would have acted there, as the drive's estimator node does with `zero_voltage`."""
-    currents = log[:, [COLUMN["i_a_meas"], COLUMN["i_b_meas"], COLUMN["i_c_meas"]]]
-    voltage = rebuilt_voltage(log[:, [COLUMN["u_alpha"], COLUMN["u_beta"]]],
-                              log[:, [COLUMN["u_inj_alpha"], COLUMN["u_inj_beta"]]])
-    if zero_volts is not None and zero_volts.any():
-        commands = np.flatnonzero(zero_volts) - delay_periods
-        voltage[commands[commands >= 0]] = 0.0
-    lag = delay_periods + 1
-    u_applied = np.zeros((len(voltage), 2))
-    u_applied[lag:] = voltage[:-lag]
-    whole = np.isfinite(currents).all(axis=1) & np.isfinite(u_applied).all(axis=1)
-    if not whole.all():
-        summed = np.cumsum(np.nan_to_num(u_applied), axis=0)
-        at = np.nonzero(whole)[0]
-        u_applied[at[1:]] = summed[at[1:]] - summed[at[:-1]]
-    return np.ascontiguousarray(currents), u_applied, whole
-
-
-def rebuilt_voltage(voltage, injection):
-    """``voltage`` (n × 2) with each lost sample (NaN) whose ``injection`` is known rebuilt as that injection
-    plus the fundamental voltage − injection interpolated linearly between the known samples around it."""
-    lost = np.isnan(voltage).any(axis=1) & np.isfinite(injection).all(axis=1)
-    known = np.isfinite(voltage).all(axis=1) & np.isfinite(injection).all(axis=1)
-    if not lost.any() or known.sum() < 2:
-        return voltage
-    voltage = voltage.copy()
-    at, where = np.nonzero(known)[0], np.nonzero(lost)[0]
-    for j in range(2):
-        fundamental = voltage[at, j] - injection[at, j]
-        voltage[where, j] = np.interp(where, at, fundamental) + injection[where, j]
-    return voltage
-
-
-def replayed_estimator(recording, name, forced=False):
+def replayed_estimator(recording, name, forced=False, own_startup=True):
     """The estimator ``name`` built as the recording drive would have built it (its motor, sample period,
-    delay, commissioning and injection); the recording's own estimator keeps its recorded settings and
-    start-up, any other takes the polarity from the recording. ``forced``: built past the drive's refusal to
-    run it on this motor (`drive run --force`)."""
-    settings = dict(recording.estimator_settings) if name == recording.estimator else {}
+    delay, commissioning and injection); the recording's own estimator keeps its recorded settings (the
+    drive's whole settings where its drive_config states them) and start-up (``own_startup`` false: it too
+    takes the polarity from the recording), any other takes the polarity from the recording. ``forced``:
+    built past the drive's refusal to run it on this motor (`drive run --force`)."""
+    own = name == recording.estimator
+    settings = dict(recording.estimator_settings) if own else {}
     if injects(name):
-        settings = {**recording.injection, **settings}
-        if name != recording.estimator:
+        if not (own and recording.settings_stated):
+            settings = {**recording.injection, **settings}
+        if not (own and own_startup):
             settings["polarity_from_recording"] = True
         if forced:
             settings["run_refused"] = True
@@ -198,12 +153,15 @@ def _replay_one(recording, name, inputs, reference):
     if per_sample_s > T_s:
         return failed_entry(name, f"too slow: {1e6 * per_sample_s:.0f} µs per sample, more than the recording's "
                                   f"sampling period of {1e6 * T_s:.0f} µs", 0, 1.0 / per_sample_s), None
-    wall = math.inf
-    for _ in range(TIMED_RUNS):
-        core = e.core(e.state.copy())
-        start = time.perf_counter()
-        replay_samples(e.step, core, currents, u_applied, reference, whole, calibration, out)
-        wall = min(wall, time.perf_counter() - start)
+    wall = _timed_replay(e, inputs, reference, calibration, out)
+    departed = startup_departure(log0[:, COLUMN["state"]], out["state"]) if name == recording.estimator else None
+    if departed is not None and injects(name):
+        e, refused = _built(recording, name, own_startup=False)
+        wall = _timed_replay(e, inputs, reference, calibration, out)
+        lost = int((~np.isfinite(log0[:departed + 1][:, [COLUMN["i_a_meas"], COLUMN["u_alpha"]]]).all(axis=1)).sum())
+        refused += (f"; its replayed start-up left the recorded one at sample {departed} ({lost} of the samples "
+                    f"before it lost in the recording): replayed with the polarity taken from the recording, as "
+                    f"another estimator is")
     injection = np.column_stack((out["u_inj_alpha"], out["u_inj_beta"]))
     applicable, reason = applicability(recording, name, e.injection_frequency_Hz, injection, scored)
     answered = np.column_stack([out[field] for field in ("theta_e_hat", "omega_e_hat", "u_inj_alpha",
@@ -234,18 +192,41 @@ class NotBuilt(Exception):
     outside what the estimator takes): not applicable there, not a failure of the estimator."""
 
 
-def _built(recording, name):
+def _timed_replay(e, inputs, reference, calibration, out):
+    """Seconds of the fastest of TIMED_RUNS replays of the built estimator ``e`` into ``out``."""
+    currents, u_applied, whole = inputs
+    wall = math.inf
+    for _ in range(TIMED_RUNS):
+        core = e.core(e.state.copy())
+        start = time.perf_counter()
+        replay_samples(e.step, core, currents, u_applied, reference, whole, calibration, out)
+        wall = min(wall, time.perf_counter() - start)
+    return wall
+
+
+def startup_departure(recorded, replayed):
+    """The first sample up to the recording's first in tracking where the replayed start-up state code differs
+    from the ``recorded`` one (both known), or None: a start-up's decisions (when to pulse, which pole) act on
+    the voltage it applies, so a replay whose start-up departs from the recorded one meets pulses it did not
+    time."""
+    tracking = np.flatnonzero(recorded == TRACKING)
+    end = tracking[0] + 1 if len(tracking) else len(recorded)
+    differs = np.isfinite(recorded[:end]) & np.isfinite(replayed[:end]) & (recorded[:end] != replayed[:end])
+    return int(np.argmax(differs)) if differs.any() else None
+
+
+def _built(recording, name, own_startup=True):
     """(replayed_estimator of ``name``, "" or the note that the drive refuses it on this motor and it is
     replayed as `drive run --force` runs it): replay measures an estimator, it does not drive the motor.
     NotBuilt where the estimator refuses the recording's motor, sample period or injection (a ValueError or
     KeyError naming its setting, even forced)."""
     try:
-        return replayed_estimator(recording, name), ""
+        return replayed_estimator(recording, name, own_startup=own_startup), ""
     except (ValueError, KeyError) as error:
         first = str(error).strip("'\"").splitlines()[0]
         if injects(name):
             try:
-                forced = replayed_estimator(recording, name, forced=True)
+                forced = replayed_estimator(recording, name, forced=True, own_startup=own_startup)
             except (ValueError, KeyError):
                 pass
             else:

@@ -16,7 +16,7 @@ from drive_tools.runner.runner import run_scenario, scenario_commissioning
 from hf_estimator.registry import make_estimator
 
 from .metrics import _mask, angle_error, compute_metrics, windows
-from .replay import logged_inputs
+from .recorded_inputs import logged_inputs
 
 SPEED_BANDS = ((0.0, 0.02), (0.02, 0.1), (0.1, 0.3), (0.3, 1.1))
 """|ω_m| per rated speed: standstill and through zero; low; the handover region; high speed."""
