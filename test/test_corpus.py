@@ -280,3 +280,18 @@ def test_a_robots_recorder_losing_messages_leaves_ours_replayed_as_the_drive_ran
     (entry,), _ = replay(recording, ["injection_frame"])
     assert "left the recorded one" in entry["reason"] and "polarity taken from the recording" in entry["reason"]
     assert not entry["lost"] and entry["angle_error_rms"] <= 0.01 + 1.3 * rms
+
+
+def test_a_reports_classes_hold_their_bounds_and_come_in_their_order():
+    """Pole pairs 5 are in the band "1-5" and 15 in "6-15"; bands are listed in their order (speed 2-10 %
+    before 10-30 %, not as text), a bag whose figure is unknown last."""
+    from drive_tools.evaluation.corpus_report import POLE_PAIR_BANDS, _band, class_table, speed_band
+
+    rows = [{"bag": f"b{i}", "estimator": "x", "applicable": True, "angle_error_rms": 0.01 * (i + 1), "n_p": n_p,
+             "speed_per_rated": speed} for i, (n_p, speed) in enumerate(((16, 0.5), (5, 0.2), (15, 0.05),
+                                                                          (1, None), (6, 0.01)))]
+    by_pole_pairs = class_table(rows, ["x"], "n_p", lambda v: _band(v, POLE_PAIR_BANDS))
+    assert list(by_pole_pairs) == ["1-5", "6-15", "16+"]
+    assert by_pole_pairs["1-5"]["x"]["bags"] == 2 and by_pole_pairs["6-15"]["x"]["bags"] == 2
+    assert list(class_table(rows, ["x"], "speed_per_rated", speed_band)) == ["0-2 %", "2-10 %", "10-30 %",
+                                                                             "30-110 %", "unknown"]

@@ -156,3 +156,23 @@ def test_a_plugin_reference_that_cannot_load_is_one_line_naming_it(tmp_path):
                      "--no-plot", cwd=tmp_path)
         assert done.returncode == 2 and done.stderr.count("\n") == 1, done.stderr
         assert done.stderr.startswith(f"drive: --estimator: estimator '{reference}': ") and words in done.stderr
+
+
+def test_a_plugin_reference_names_its_factory_by_function_or_by_registered_name(tmp_path):
+    """`module:factory` takes the factory's function name or the name it registered (the example's
+    `rotating_injection.estimator:make_rotating` and `…:rotating_injection` alike); any other name is refused
+    listing what the module registers."""
+    from hf_estimator.interface import describe, known_estimator
+
+    plugin = tmp_path / "renamed.py"
+    plugin.write_text("from hf_estimator.interface import register\n\n\n"
+                      "@register('renamed_plugin', 'a factory named apart', 'none', injects=False, "
+                      "excitation='backemf', injection_kind='none')\n"
+                      "def make_renamed(nameplate, T_s, settings, commissioning, inverter):\n"
+                      "    return None\n")
+    for factory in ("make_renamed", "renamed_plugin"):
+        reference = f"{plugin}:{factory}"
+        assert known_estimator(reference) and describe(reference)["description"] == "a factory named apart"
+    with pytest.raises(KeyError, match="has no factory 'renamed' registered with .* \\(it registers: "
+                                       "renamed_plugin\\)"):
+        known_estimator(f"{plugin}:renamed")

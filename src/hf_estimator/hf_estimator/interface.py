@@ -146,7 +146,8 @@ def _load_installed():
 
 def _load_reference(name):
     """``module:factory`` (a dotted module on the path or a .py file, and its factory registered with
-    ``register``): that estimator, also under this name. KeyError naming what failed."""
+    ``register``, by its function's name or the name it registered): that estimator, also under this name.
+    KeyError naming what failed."""
     import importlib
     import importlib.util
     import sys
@@ -167,9 +168,13 @@ def _load_reference(name):
         raise KeyError(f"estimator '{name}': {type(error).__name__}: {error}") from None
     factory = getattr(module, factory_name, None)
     found = [entry for entry in _REGISTRY.values() if entry.factory is factory and factory is not None]
+    found += [entry for key, entry in _REGISTRY.items()
+              if key == factory_name and getattr(entry.factory, "__module__", None) == module.__name__]
     if not found:
+        registered = sorted(key for key, entry in _REGISTRY.items()
+                            if ":" not in key and getattr(entry.factory, "__module__", None) == module.__name__)
         raise KeyError(f"estimator '{name}': {module_name} has no factory '{factory_name}' registered with "
-                       f"hf_estimator.interface.register")
+                       f"hf_estimator.interface.register (it registers: {', '.join(registered) or 'none'})")
     _REGISTRY[name] = found[0]
 
 

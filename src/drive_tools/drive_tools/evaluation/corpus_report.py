@@ -27,25 +27,30 @@ ALPHA = 0.05
 MIN_PAIRED_BAGS = 6
 """Two estimators are tested only on at least this many common bags (Wilcoxon's smallest two-sided p with
 n = 6 is 0.03)."""
-POLE_PAIR_BANDS = ((5, "1-5"), (15, "6-15"), (10**6, "16+"))
+POLE_PAIR_BANDS = ((6, "1-5"), (16, "6-15"), (math.inf, "16+"))
 SALIENCY_BANDS = ((1.1, "< 1.1"), (1.3, "1.1-1.3"), (math.inf, "≥ 1.3"))
+"""Bands of a motor class: (upper bound, exclusive; label), in order."""
+UNKNOWN = (math.inf, "unknown")
+"""The band of a bag whose figure is not known: after every other."""
 
 
 def _band(value, bands):
+    """(rank, label) of ``value``'s band (a saliency below 1 by its inverse)."""
     if value is None:
-        return "unknown"
+        return UNKNOWN
     ratio = max(value, 1.0 / value) if value > 0 else value
-    return next(label for top, label in bands if ratio < top or top == math.inf)
+    return next((rank, label) for rank, (top, label) in enumerate(bands) if ratio < top)
 
 
 def speed_band(share):
-    """The speed band of a bag's speed per rated speed (speed_range.SPEED_BANDS, as % of rated)."""
+    """(rank, label) of the speed band of a bag's speed per rated speed (speed_range.SPEED_BANDS, as % of
+    rated)."""
     if share is None:
-        return "unknown"
-    for low, high in SPEED_BANDS:
+        return UNKNOWN
+    for rank, (low, high) in enumerate(SPEED_BANDS):
         if low <= share < high:
-            return f"{100 * low:g}-{100 * high:g} %"
-    return f"≥ {100 * SPEED_BANDS[-1][1]:g} %"
+            return rank, f"{100 * low:g}-{100 * high:g} %"
+    return len(SPEED_BANDS), f"≥ {100 * SPEED_BANDS[-1][1]:g} %"
 
 
 def bag_rows(per_bag):
@@ -119,14 +124,15 @@ def estimator_table(rows, names, seed=1):
 
 
 def class_table(rows, names, key, band):
-    """{class label: {estimator: {"bags", "rms_median"}}} over the bags grouped by ``band(row[key])``."""
+    """{class label: {estimator: {"bags", "rms_median"}}} over the bags grouped by ``band(row[key])`` ((rank,
+    label)), the bands in their order."""
     out = {}
     for name in names:
         for row in _scored(rows, name).values():
             cell = out.setdefault(band(row[key]), {}).setdefault(name, [])
             cell.append(row["angle_error_rms"])
     return {label: {name: {"bags": len(v), "rms_median": float(np.median(v))} for name, v in cells.items()}
-            for label, cells in sorted(out.items())}
+            for (_, label), cells in sorted(out.items())}
 
 
 def ranking(rows, table):

@@ -57,8 +57,8 @@ motor kept, at most this many times."""
 
 class SyntheticCase(NamedTuple):
     """One bag's draw: the motor's name, the recording drive's estimator and sampling period [s], the speed
-    profile and its speed [rpm], the load [share of rated torque] and when it steps in [s] (NaN: none), the
-    noise factor, the rotor's initial electrical angle [rad] and the recorder's flaws."""
+    profile and its speed [rpm], the load [share of rated torque] and when it steps in [share of the run] (NaN:
+    none), the noise factor, the rotor's initial electrical angle [rad] and the recorder's flaws."""
 
     motor: str
     estimator: str
@@ -66,7 +66,7 @@ class SyntheticCase(NamedTuple):
     profile: str
     speed_rpm: float
     load_per_rated: float
-    load_at_s: float
+    load_at_share: float
     noise_factor: float
     theta_e_rad: float
     flaws: RecorderFlaws
@@ -125,8 +125,8 @@ def case_document(case, motor_path, n_p, seed, duration_s):
     """The scenario document (drive_common.config.scenario) of ``case`` on the motor file ``motor_path`` (its
     ``n_p`` pole pairs), on the nameplate alone."""
     load = [[0.0, 0.0]]
-    if math.isfinite(case.load_at_s):
-        load += [[case.load_at_s * duration_s, case.load_per_rated]]
+    if math.isfinite(case.load_at_share):
+        load += [[case.load_at_share * duration_s, case.load_per_rated]]
     return {"description": f"synthetic recording: {case.profile} at {case.speed_rpm:.4g} rpm, load "
                            f"{case.load_per_rated:.2f} rated ({case.estimator})",
             "motor": str(motor_path), "estimator": case.estimator, "duration_s": duration_s,
@@ -174,8 +174,8 @@ def synthetic_bag(job):
             bag = Path(folder) / row["bag"]
             write_run_bag(result, bag, flaws=case.flaws)
             metrics = compute_metrics(result)
-            row.update(written=True, case=_case_row(case), commissioned=commissioned, samples=result.log.shape[0],
-                       recording_rms_rad=metrics.get("angle_error_rms"),
+            row.update(written=True, case=_case_row(case, duration_s), commissioned=commissioned,
+                       samples=result.log.shape[0], recording_rms_rad=metrics.get("angle_error_rms"),
                        recording_peak_rad=metrics.get("angle_error_peak"))
             return row
     row["reason"] = f"no case of {ATTEMPTS} draws could run on this motor"
@@ -199,10 +199,13 @@ def _recorded_run(case, motor_path, n_p, seed, duration_s, scratch):
         return run_scenario(scenario), False
 
 
-def _case_row(case):
+def _case_row(case, duration_s):
+    """The corpus row of ``case``: its fields, the load's step also in seconds (None: no load step)."""
     row = case._asdict()
     row["flaws"] = case.flaws._asdict()
-    row["load_at_s"] = None if not math.isfinite(case.load_at_s) else case.load_at_s
+    stepped = math.isfinite(case.load_at_share)
+    row["load_at_share"] = case.load_at_share if stepped else None
+    row["load_at_s"] = case.load_at_share * duration_s if stepped else None
     return row
 
 

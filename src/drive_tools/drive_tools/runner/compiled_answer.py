@@ -10,7 +10,7 @@ import contextlib
 import os
 import threading
 import time
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -22,10 +22,9 @@ from drive_common.math.command_delay import issue_command
 from drive_common.math.safe_state import safe_state_for
 from drive_common.runtime.sample_ring import drain, free_slot, publish, sample_ring
 from foc_controller.protection import SAFE_STATE, TRIPPED
-from hf_estimator.block import EstimatorCore
 
 from .answer_kernels import fill_inputs, issue_and_log
-from .loop import DriveCores, drive_block
+from .loop import DriveCores, copied, drive_block
 
 RING_K, RING_HOST_S, RING_THETA_M, RING_LOG = 0, 1, 2, 3
 """A ring row: the sample k, the host's time from its telemetry read to its command written [s], the encoder's
@@ -41,17 +40,12 @@ POLL_MS = 50
 
 
 class HostCore(NamedTuple):
-    """The drive's cores as the answer steps them (drive_tools.runner.runner.Drive's), the delay line and the
-    block's buffers: the currents and angles as received (MAX_BLOCK rows), the block's currents (N × 3), its
-    records (DRIVE_INPUT, ESTIMATE, COMMAND), its voltages [V] and its log rows; T_s [s]."""
+    """The drive's cores as the answer steps them (DriveCores of drive_tools.runner.runner.Drive), its speed
+    reference and torque feed-forward per sample, the delay line and the block's buffers: the currents and
+    angles as received (MAX_BLOCK rows), the block's currents (N × 3), its records (DRIVE_INPUT, ESTIMATE,
+    COMMAND), its voltages [V] and its log rows; T_s [s]."""
 
-    estimator: EstimatorCore
-    controller: Any
-    controller_x: np.ndarray
-    controller_z: np.ndarray
-    protection: Any
-    protection_x: np.ndarray
-    sensing: Any
+    drive: DriveCores
     speed_ref: np.ndarray
     tau_feedforward: np.ndarray
     line: np.ndarray
@@ -90,13 +84,12 @@ def answer_block(step, h, b, run, block, ring):
     for i in range(m):
         for j in range(3):
             h.currents[i, j] = h.received_currents[i, j]
-    fill_inputs(h.inputs, h.currents, h.received_theta, h.controller.n_p, h.speed_ref, h.tau_feedforward, k0, m)
-    cores = DriveCores(h.estimator, h.controller, h.controller_x, h.controller_z, h.protection, h.protection_x,
-                       h.sensing)
+    cores = h.drive
+    fill_inputs(h.inputs, h.currents, h.received_theta, cores.controller.n_p, h.speed_ref, h.tau_feedforward, k0, m)
     drive_block(step, cores, (k0, m, u_dc_V), h.line, (h.currents, h.inputs, h.estimates, h.commands))
-    enable = h.protection_x[TRIPPED] == 0.0
-    safe = int(h.protection_x[SAFE_STATE]) if not enable else safe_state_for(h.estimates[m - 1].omega_e_hat, u_dc_V,
-                                                                             h.protection.psi_f_Wb)
+    enable = cores.protection_x[TRIPPED] == 0.0
+    safe = int(cores.protection_x[SAFE_STATE]) if not enable else safe_state_for(h.estimates[m - 1].omega_e_hat,
+                                                                                 u_dc_V, cores.protection.psi_f_Wb)
     issue_and_log(h.line, h.rows, k0, m, h.T_s, h.inputs, h.estimates, h.commands)
     for i in range(m):
         h.voltages[0, i], h.voltages[1, i] = h.commands[i].u_alpha_V, h.commands[i].u_beta_V
@@ -161,11 +154,9 @@ def host_core(drive, line, block_samples):
     from drive_common.contract.drive_records import commands, drive_inputs
     from drive_common.contract.estimator_records import estimates
     N = block_samples
-    return HostCore(drive.estimator.core(), drive.controller, drive.controller_x, drive.controller_z,
-                    drive.protection, drive.protection_x, drive.sensing(), drive.speed_ref, drive.tau_feedforward,
-                    line, np.zeros((MAX_BLOCK, 3)), np.full(MAX_BLOCK, np.nan), np.zeros((N, 3)), drive_inputs(N),
-                    estimates(N), commands(N), np.zeros((2, N)), np.zeros((N, len(LOG_COLUMNS))),
-                    drive.scenario.T_s)
+    return HostCore(drive.cores(), drive.speed_ref, drive.tau_feedforward, line, np.zeros((MAX_BLOCK, 3)),
+                    np.full(MAX_BLOCK, np.nan), np.zeros((N, 3)), drive_inputs(N), estimates(N), commands(N),
+                    np.zeros((2, N)), np.zeros((N, len(LOG_COLUMNS))), drive.scenario.T_s)
 
 
 class AnswerOptions(NamedTuple):
@@ -208,9 +199,7 @@ class CompiledAnswer:
         inverter starts: a first call takes seconds. The link is opened for it (and HELLO asked for) if it is
         not open yet."""
         h = self.host
-        copy = h._replace(estimator=EstimatorCore(h.estimator.params, h.estimator.state.copy(),
-                                                  h.estimator.sample.copy()), controller_x=h.controller_x.copy(),
-                          controller_z=h.controller_z.copy(), protection_x=h.protection_x.copy(), line=h.line.copy())
+        copy = h._replace(drive=copied(h.drive), line=h.line.copy())
         run = self.run.copy()
         run[STOP] = 1
         bridge = self.bridge

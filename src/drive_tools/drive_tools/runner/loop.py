@@ -98,20 +98,20 @@ def drive_block(step, cores, block, line, buffers):
     return safe
 
 
+def copied(cores):
+    """DriveCores with copies of every state (a warm-up's or a probe's: the drive's own states untouched)."""
+    e = cores.estimator
+    return cores._replace(estimator=EstimatorCore(e.params, e.state.copy(), e.sample.copy()),
+                          controller_x=cores.controller_x.copy(), controller_z=cores.controller_z.copy(),
+                          protection_x=cores.protection_x.copy())
+
+
 class ClosedLoop(NamedTuple):
-    """Every core of the one-process loop with its state: the plant, the estimator (EstimatorCore), the
-    controller's parameters and states (foc_controller.control), the protections' parameters and state
-    (foc_controller.protection), how the drive reads its currents (CurrentSensing), the schedule, the
-    block size N and the block's buffers."""
+    """Every core of the one-process loop with its state: the plant, the drive's cores (DriveCores), the
+    schedule, the block size N and the block's buffers."""
 
     plant: PlantCore
-    estimator: EstimatorCore
-    controller: Any
-    controller_x: np.ndarray
-    controller_z: np.ndarray
-    protection: Any
-    protection_x: np.ndarray
-    sensing: CurrentSensing
+    drive: DriveCores
     schedule: Schedule
     block_samples: int
     buffers: BlockBuffers
@@ -172,8 +172,7 @@ def run_blocks(step, loop, k_start, k_end, log):
     """
     px, line, machine, mech, inverter, sensor, seed, T_s, substeps, imposed = loop.plant
     speed_ref, tau_load, tau_ff, brake = loop.schedule
-    cores = DriveCores(loop.estimator, loop.controller, loop.controller_x, loop.controller_z, loop.protection,
-                       loop.protection_x, loop.sensing)
+    cores = loop.drive
     n_p = machine.n_p
     plant_out, inputs, est_out, ctrl_out = loop.buffers
     for k0 in range(k_start, k_end, loop.block_samples):

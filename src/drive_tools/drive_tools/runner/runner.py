@@ -21,7 +21,7 @@ from hf_estimator.interface import contract_injection
 from hf_estimator.startup import estimator_startup
 from pmsm_plant.build import plant_for_scenario
 
-from .loop import ClosedLoop, PlantCore, Schedule, block_buffers, run_blocks
+from .loop import ClosedLoop, DriveCores, PlantCore, Schedule, block_buffers, run_blocks
 
 
 @dataclass
@@ -59,10 +59,14 @@ class Drive:
         p = self.plant
         plant = PlantCore(p.x, p.line, p.machine, p.mechanics, p.inverter, p.sensor, p.seed, p.T_s, p.substeps,
                           p.imposed_speed)
-        return ClosedLoop(plant, self.estimator.core(), self.controller, self.controller_x, self.controller_z,
-                          self.protection, self.protection_x, self.sensing(),
-                          Schedule(self.speed_ref, self.tau_load, self.tau_feedforward, self.brake),
-                          self.scenario.block_samples, block_buffers(self.scenario.block_samples))
+        schedule = Schedule(self.speed_ref, self.tau_load, self.tau_feedforward, self.brake)
+        return ClosedLoop(plant, self.cores(), schedule, self.scenario.block_samples,
+                          block_buffers(self.scenario.block_samples))
+
+    def cores(self):
+        """The drive's cores a block steps (drive_tools.runner.loop.DriveCores); the states are this drive's."""
+        return DriveCores(self.estimator.core(), self.controller, self.controller_x, self.controller_z,
+                          self.protection, self.protection_x, self.sensing())
 
     def sensing(self):
         """How this drive reads its currents: the commissioned calibration and the motor's trip current."""
