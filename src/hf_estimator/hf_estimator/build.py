@@ -6,7 +6,7 @@ import math
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE
 from drive_common.motor.open_loop_start import ESTIMATOR as OPEN_LOOP_ESTIMATOR
-from drive_common.motor.scaled_loops import scaled_loops
+from drive_common.motor.scaled_loops import CARRIER_PER_TRACKING, scaled_loops
 from drive_common.motor.torque_limit import estimator_commissioning
 
 from .if_observer import below_speed_refusal, plan_for
@@ -30,6 +30,19 @@ OWN_CARRIER = ("square_wave",)
 carrier is not its."""
 
 
+def scaled_tracking(name, loops, carrier_Hz=math.inf):
+    """The tracking settings of ours (SCALED_TRACKING: ``name``) on the loops scaled to the motor (ScaledLoops):
+    its PLL bandwidth [Hz], within a carrier of ``carrier_Hz`` (CARRIER_PER_TRACKING carrier periods per
+    tracking period), and the acceleration-limited loop where the rotor's rated acceleration outruns it;
+    {} for another estimator (it keeps its paper's)."""
+    if name not in SCALED_TRACKING:
+        return {}
+    scaled = {"pll_bandwidth_Hz": min(loops.tracking_bandwidth_Hz, carrier_Hz / CARRIER_PER_TRACKING)}
+    if name == "injection_frame" and loops.acceleration_limited:
+        scaled["pll_type"] = "auto"
+    return scaled
+
+
 def scaled_injection(scenario, plate):
     """(estimator settings with the loops scaled to the motor known by ``plate`` (its nameplate, refined by
     the commissioning) and the bus cap applied, what the drive says of them: a list of lines)."""
@@ -51,9 +64,7 @@ def scaled_injection(scenario, plate):
     if scenario.estimator in SCALED_TRACKING:
         injection = {"frequency_Hz": loops.injection_frequency_Hz, "amplitude_V": loops.injection_amplitude_V,
                      **injection}
-        settings.setdefault("pll_bandwidth_Hz", loops.tracking_bandwidth_Hz)
-        if scenario.estimator == "injection_frame" and loops.acceleration_limited:
-            settings.setdefault("pll_type", "auto")
+        settings = {**scaled_tracking(scenario.estimator, loops), **settings}
     settings = {**injection, **settings}
     amplitude = settings.get("amplitude_V")
     if isinstance(amplitude, (int, float)) and amplitude > loops.amplitude_cap_V:

@@ -22,8 +22,9 @@ from drive_common.contract.estimator_states import TRACKING
 from drive_common.contract.log import COLUMN
 from drive_common.contract.run_result import RunResult
 from drive_common.motor.nameplate import InverterRating
+from drive_common.motor.scaled_loops import scaled_loops
 from drive_tools.runner.loop import replay_samples
-from hf_estimator.build import drive_estimator
+from hf_estimator.build import drive_estimator, scaled_tracking
 from hf_estimator.interface import excitation_need, injects
 
 from .excitation import MAX_CARRIER_PHASE_RAD, MIN_CARRIER_FRACTION, carrier_match
@@ -48,18 +49,22 @@ def replayed_estimator(recording, name, forced=False, own_startup=True):
     """The estimator ``name`` built as the recording drive would have built it (its motor, sample period,
     delay, commissioning and injection); the recording's own estimator keeps its recorded settings (the
     drive's whole settings where its drive_config states them) and start-up (``own_startup`` false: it too
-    takes the polarity from the recording), any other takes the polarity from the recording. ``forced``:
-    built past the drive's refusal to run it on this motor (`drive run --force`)."""
+    takes the polarity from the recording), any other takes the polarity from the recording and, where the
+    drive scales its loops to the motor (ours), those loops within the recording's carrier. ``forced``: built
+    past the drive's refusal to run it on this motor (`drive run --force`)."""
     own = name == recording.estimator
+    inverter = InverterRating(U_dc_V=recording.U_dc_V, delay_periods=recording.delay_periods)
     settings = dict(recording.estimator_settings) if own else {}
     if injects(name):
         if not (own and recording.settings_stated):
             settings = {**recording.injection, **settings}
+        if not own:
+            loops = scaled_loops(recording.commissioning.refined(recording.nameplate), inverter, recording.T_s)
+            settings.update(scaled_tracking(name, loops, recording.injection.get("frequency_Hz", math.inf)))
         if not (own and own_startup):
             settings["polarity_from_recording"] = True
         if forced:
             settings["run_refused"] = True
-    inverter = InverterRating(U_dc_V=recording.U_dc_V, delay_periods=recording.delay_periods)
     return drive_estimator(name, recording.nameplate, recording.T_s, settings, recording.commissioning, inverter,
                            recording.controller_settings)
 
