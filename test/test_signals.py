@@ -206,6 +206,42 @@ def test_a_signal_during_a_cold_compile_waits_for_its_end(monkeypatch):
     assert unraisable == [] and interrupt.requested() == 0
 
 
+@pytest.mark.parametrize("block", ["deferred", "polled"])
+def test_a_second_signal_during_a_cold_compile_inside_a_held_block_raises_once_it_ends(block):
+    """Inside deferred() or polled() the first signal is recorded and a second raises: sent while numba compiles,
+    the second is held until the compile ends, then raised in the caller, inside the block."""
+    import numba
+    import numpy as np
+    from numba.core import event
+
+    from drive_common.runtime import interrupt
+
+    class SecondSignalAtCompileStart(event.Listener):
+        def on_start(self, _event):
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        def on_end(self, _event):
+            pass
+
+    @numba.njit(cache=False)
+    def kernel(x):
+        return np.sum(np.cos(x))
+
+    import traceback
+    deadline = time.monotonic() + 60.0
+    with pytest.raises(interrupt.Interrupted) as stopped, interrupt.handled():
+        with getattr(interrupt, block)():
+            os.kill(os.getpid(), signal.SIGINT)
+            assert interrupt.requested() == signal.SIGINT
+            with event.install_listener("numba:compile", SecondSignalAtCompileStart()):
+                kernel(np.arange(3.0))
+            while time.monotonic() < deadline:
+                time.sleep(0.01)
+    frames = [frame.f_globals.get("__name__", "") for frame, _ in traceback.walk_tb(stopped.value.__traceback__)]
+    assert stopped.value.signum == signal.SIGINT and len(kernel.overloads) == 1
+    assert frames[-2:] == [__name__, interrupt.__name__], f"raised in {frames}, not in the block"
+
+
 def test_a_signal_swallowed_by_a_c_callback_still_stops_the_command(monkeypatch, capsys):
     """numba's compiler calls back into Python; a signal raised there is swallowed by the callback
     (the run goes on), but it stays recorded: the command ends as interrupted, with one line and no

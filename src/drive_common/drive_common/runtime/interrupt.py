@@ -39,6 +39,8 @@ class _State:
     """A signal was recorded inside deferred() and is raised when the block ends."""
     held = False
     """A raise is due but landed in code that cannot take it; a thread delivers the signal again."""
+    forced = False
+    """The raise held is a second signal's, due inside deferred() and polled() too."""
     redeliveries = 0
     """Deliveries the thread made that the handler has not yet taken."""
 
@@ -58,11 +60,13 @@ def _handler(signum, frame):
     first = not _state.signum
     if first:
         _state.signum = signum
-    if not (_state.raising or (not first and not redelivered)):
+    forced = (not first and not redelivered) or (redelivered and _state.forced)
+    if not (_state.raising or forced):
         _state.pending = True
         _state.held = False
         return
     if frame is not None and not _takes_a_raise(frame):
+        _state.forced = forced
         _hold()
         return
     _state.held = False
