@@ -218,14 +218,21 @@ def test_overcurrent_trips_and_stays_latched(tmp_path):
 
 
 def test_a_can_inverter_off_the_bus_and_back():
-    """Right after sending sample 2000 the inverter's CAN interface goes down for 0.3 s (its frames are lost);
-    the bridge reports the link lost, and when telemetry returns it clears the watchdog and drives on."""
+    """Right after sending sample 2000 the inverter's CAN interface goes down (its frames are lost) until its
+    watchdog has switched PWM off (waiting 0.1 s for each command, as the unplugged pty); the bridge reports the
+    link lost, and when telemetry returns it clears the watchdog and drives on."""
     def off_the_bus(inverter):
         inverter.endpoint.close()
-        threading.Timer(0.3, inverter.endpoint.open).start()
+
+        def back_once_tripped():
+            deadline = time.monotonic() + 60.0
+            while not inverter.counters["watchdog_trips"] and time.monotonic() < deadline:
+                time.sleep(0.01)
+            inverter.endpoint.open()
+        threading.Thread(target=back_once_tripped, daemon=True).start()
 
     scenario = dataclasses.replace(SCENARIO, duration_s=1.0)
-    result = run_through_bridge(scenario, "can", InverterOptions(command_wait_s=0.02),
+    result = run_through_bridge(scenario, "can", InverterOptions(command_wait_s=0.1),
                                 inverter=acting_at(2000, off_the_bus))
     assert result.counters["link_lost"] == 1 and result.counters["faults_cleared"] >= 1
     assert result.inverter_counters["link_down"] > 0 and result.inverter_counters["watchdog_trips"] == 1
