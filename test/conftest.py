@@ -14,9 +14,32 @@ ROOT = Path(__file__).resolve().parent.parent
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 WORKER = int(os.environ.get("PYTEST_XDIST_WORKER", "gw-1")[2:])
 """This process's worker number in a parallel run (pytest-xdist, pyproject's addopts); −1: the run's own."""
-os.environ["ROS_DOMAIN_ID"] = str(30 + ((os.getppid() if WORKER >= 0 else os.getpid()) + WORKER + 1) % 70)
-"""One domain per test process (each worker of a run its own, 30-99), set before any module starts rclpy;
-ROS tests isolate from each other by namespace."""
+TEST_DOMAINS = range(30, 100)
+"""The ROS domains test processes take (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST: shared by the whole machine)."""
+
+
+def _claim_a_domain():
+    """A ROS domain of TEST_DOMAINS no other test process on this machine holds (this run's other workers, another
+    clone's run), held by an exclusive lock on a file until this process ends; (domain, its lock file)."""
+    import fcntl
+    start = (os.getpid() + WORKER + 1) % len(TEST_DOMAINS)
+    for i in range(len(TEST_DOMAINS)):
+        domain = TEST_DOMAINS[(start + i) % len(TEST_DOMAINS)]
+        lock = open(Path(tempfile.gettempdir()) / f"drive_test_ros_domain_{domain}.lock", "a")
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            lock.close()
+            continue
+        return domain, lock
+    raise RuntimeError(f"every ROS domain {TEST_DOMAINS.start}-{TEST_DOMAINS.stop - 1} is held by a test process")
+
+
+DOMAIN, DOMAIN_LOCK = _claim_a_domain()
+os.environ["ROS_DOMAIN_ID"] = str(DOMAIN)
+"""One domain per test process, set before any module starts rclpy: two concurrent runs on one machine (each
+worker of a run, or runs in two clones) never share one (a pid-derived domain had collided). ROS tests isolate
+from each other by namespace."""
 SUITE_BUDGET_S = 9 * 60
 """The default run's time budget on the project's 2-core machine (docs/architecture.md#tests): reported at the
 end of every run beside the time taken, never asserted (a slower machine is not a defect of the change)."""

@@ -85,18 +85,39 @@ def test_can_link_faults_are_counted():
     assert result.counters["dropped"] == faults.counts["dropped"]
 
 
+def test_every_run_through_a_can_link_has_a_bus_of_its_own():
+    """Ten runs' virtual CAN links in one process, one after the other: ten channels. (The channel had been named
+    after the id of the run's working directory's name, which Python reuses once it is gone: every other run shared
+    a bus, and a frame still on its way from an earlier run, late on a loaded machine, reached a later run's
+    inverter, which then ran at zero volts.)"""
+    from drive_tools.runner.bridge_loop import virtual_inverter_link
+    channels = []
+    for _ in range(10):
+        with virtual_inverter_link(dataclasses.replace(SCENARIO, duration_s=0.01), "can") as (_, bridge):
+            channels.append(bridge.link.channel)
+    assert len(set(channels)) == len(channels), channels
+
+
 def test_unplugged_pty_trips_the_inverter_and_the_bridge_recovers():
-    """Right after sending sample 2000 the pty disappears for 0.3 s. The inverter misses commands and its watchdog
-    switches PWM off; the bridge loses the link, reopens the port when it is back, clears the watchdog
-    (never an overcurrent) and drives on; the estimate is back on the rotor within 0.2 s."""
+    """Right after sending sample 2000 the pty disappears until the inverter, missing commands, has switched PWM
+    off by its watchdog (waiting 0.1 s for each command: a host slowed by a loaded machine is not taken for an
+    unplugged one); the bridge loses the link, reopens the port when it is back, clears the watchdog (never an
+    overcurrent) and drives on; the estimate is back on the rotor within 0.2 s."""
     replugged = threading.Event()
 
     def unplug(inverter):
         inverter.endpoint.unplug()
-        threading.Timer(0.3, lambda: (inverter.endpoint.replug(), replugged.set())).start()
+
+        def replug_once_tripped():
+            deadline = time.monotonic() + 60.0
+            while not inverter.counters["watchdog_trips"] and time.monotonic() < deadline:
+                time.sleep(0.01)
+            inverter.endpoint.replug()
+            replugged.set()
+        threading.Thread(target=replug_once_tripped, daemon=True).start()
 
     scenario = dataclasses.replace(SCENARIO, duration_s=1.0)
-    result = run_through_bridge(scenario, "pty", InverterOptions(command_wait_s=0.02), inverter=acting_at(2000, unplug))
+    result = run_through_bridge(scenario, "pty", InverterOptions(command_wait_s=0.1), inverter=acting_at(2000, unplug))
     assert replugged.is_set()
     c = result.counters
     assert c["link_lost"] == 1 and c["reconnects"] >= 1 and c["faults_cleared"] >= 1
@@ -197,14 +218,21 @@ def test_overcurrent_trips_and_stays_latched(tmp_path):
 
 
 def test_a_can_inverter_off_the_bus_and_back():
-    """Right after sending sample 2000 the inverter's CAN interface goes down for 0.3 s (its frames are lost);
-    the bridge reports the link lost, and when telemetry returns it clears the watchdog and drives on."""
+    """Right after sending sample 2000 the inverter's CAN interface goes down (its frames are lost) until its
+    watchdog has switched PWM off (waiting 0.1 s for each command, as the unplugged pty); the bridge reports the
+    link lost, and when telemetry returns it clears the watchdog and drives on."""
     def off_the_bus(inverter):
         inverter.endpoint.close()
-        threading.Timer(0.3, inverter.endpoint.open).start()
+
+        def back_once_tripped():
+            deadline = time.monotonic() + 60.0
+            while not inverter.counters["watchdog_trips"] and time.monotonic() < deadline:
+                time.sleep(0.01)
+            inverter.endpoint.open()
+        threading.Thread(target=back_once_tripped, daemon=True).start()
 
     scenario = dataclasses.replace(SCENARIO, duration_s=1.0)
-    result = run_through_bridge(scenario, "can", InverterOptions(command_wait_s=0.02),
+    result = run_through_bridge(scenario, "can", InverterOptions(command_wait_s=0.1),
                                 inverter=acting_at(2000, off_the_bus))
     assert result.counters["link_lost"] == 1 and result.counters["faults_cleared"] >= 1
     assert result.inverter_counters["link_down"] > 0 and result.inverter_counters["watchdog_trips"] == 1

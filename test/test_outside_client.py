@@ -27,10 +27,24 @@ def client(out, *args):
 
 
 def lines(process, out, timeout_s=120.0):
+    """(the messages the client read, its summary) once it ended."""
     _, err = process.communicate(timeout=timeout_s)
     assert process.returncode == 0, err
     records = [json.loads(line) for line in Path(out).read_text().splitlines()]
-    return records[:-1], records[-1]["summary"]
+    return [r for r in records[:-1] if "topic" in r], records[-1]["summary"]
+
+
+def matched(process, out, topics, timeout_s=120.0):
+    """Wait until the client has started and says each of ``topics`` matched (its reader a writer, its writer a
+    reader)."""
+    end = time.monotonic() + timeout_s
+    while True:
+        records = [json.loads(line) for line in Path(out).read_text().splitlines()]
+        said = {r.get("matched") for r in records}
+        if {"started": True} in records and set(topics) <= said:
+            return
+        assert process.poll() is None and time.monotonic() < end, f"the client matched only {said & set(topics)}"
+        time.sleep(0.05)
 
 
 def test_an_outside_client_reads_a_running_drives_angle_error_and_joint_states(tmp_path):
@@ -41,7 +55,7 @@ def test_an_outside_client_reads_a_running_drives_angle_error_and_joint_states(t
     reader = client(tmp_path / "read.jsonl", "--read", "/outside/angle_error", "Vector3Stamped",
                     "--read", "/outside/joint_states", "JointState", "--duration", "120", "--count", "10100",
                     "--idle", "5")
-    time.sleep(1.0)
+    matched(reader, tmp_path / "read.jsonl", ())
     bag = tmp_path / "run"
     result = launch(DriveSpec("wang_100rpm", "/outside", duration_s=1.0, bag=str(bag)))
     assert not result.node_faults
@@ -102,10 +116,7 @@ def test_an_outside_client_commands_the_speed_of_a_drive_without_a_scenario(tmp_
     executor = make_executor("events", context)
     try:
         assert all(n.configured for n in nodes) and nodes[2].scenario is None and nodes[2].config.open_ended
-        end = time.monotonic() + 60.0
-        while tester.count_publishers(f"{namespace}/speed_command") == 0:
-            assert time.monotonic() < end, "the client's speed_command never appeared in the graph"
-            time.sleep(0.05)
+        matched(commander, tmp_path / "commanded.jsonl", (f"{namespace}/speed_command", f"{namespace}/joint_states"))
         for node in nodes + [tester]:
             executor.add_node(node)
         end = time.monotonic() + 300.0

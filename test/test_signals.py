@@ -28,15 +28,15 @@ PROGRESS = re.compile(r"\r[^\r\n]*%[ \t]*|[^\r\n]*real-time factor[^\r\n]*")
 """A command's progress on a terminal: a line it rewrites ending in a percentage, or a bench's result line."""
 
 
-def stop(tmp_path, args, at_progress, signum, ready=PROGRESS):
+def stop(tmp_path, args, at_progress, signum, ready=PROGRESS, env=None):
     """Run ``drive ARGS`` in its own session with standard error on a terminal (as a user runs it), send
     ``signum`` once its terminal shows ``ready`` (``at_progress``) or after 0.5 s; (code, stdout, stderr
-    without the progress), once every process of the session is gone."""
+    without the progress), once every process of the session is gone. ``env``: variables set for it."""
     import pty
     import threading
     master, slave = pty.openpty()
     process = subprocess.Popen(DRIVE + args, cwd=tmp_path, stdout=subprocess.PIPE, stderr=slave, text=True,
-                               start_new_session=True)
+                               start_new_session=True, env={**os.environ, **(env or {})})
     os.close(slave)
     err, progressed = [], threading.Event()
 
@@ -107,16 +107,20 @@ COMMISSIONING_PARTS = {"standstill": ([], PROGRESS), "rotating": (["--rotating"]
                        "loaded": (["--loaded"], STANDSTILL_DONE)}
 
 
-@pytest.mark.parametrize("part, signum", [("standstill", signal.SIGINT), ("standstill", signal.SIGTERM),
-                                          ("rotating", signal.SIGINT), ("loaded", signal.SIGTERM)])
-def test_a_signal_during_commissioning_writes_nothing(tmp_path, part, signum):
+@pytest.mark.parametrize("part, signum, cold", [("standstill", signal.SIGINT, False),
+                                                ("standstill", signal.SIGTERM, False),
+                                                ("rotating", signal.SIGINT, False), ("loaded", signal.SIGTERM, False),
+                                                ("rotating", signal.SIGINT, True)])
+def test_a_signal_during_commissioning_writes_nothing(tmp_path_factory, tmp_path, part, signum, cold):
     """At standstill, or once it is done, in the rotating or loaded test (held until the chunk in progress
-    ends): exit 128 + N, one line, neither the commissioning file nor its working file left, nothing else
+    ends, or until numba's compile of its kernels ends: ``cold``, an empty kernel cache of its own, as on a
+    first run): exit 128 + N, one line, neither the commissioning file nor its working file left, nothing else
     written."""
     extra, ready = COMMISSIONING_PARTS[part]
     before = sorted(tmp_path.rglob("*"))
+    env = {"NUMBA_CACHE_DIR": str(tmp_path_factory.mktemp("empty_kernel_cache"))} if cold else None
     code, out, err = stop(tmp_path, ["commission", "wang_100rpm", "--out", "joint.yaml", "--json", *extra], True,
-                          signum, ready)
+                          signum, ready, env)
     assert (code, out, err) == (128 + signum, "", f"drive: commission: interrupted by {signal.Signals(signum).name}")
     assert sorted(tmp_path.rglob("*")) == before
 
@@ -161,6 +165,81 @@ def test_a_signal_inside_a_deferred_block_is_raised_when_it_ends():
             time.sleep(0.05)
             finished.append(True)
     assert finished == [True] and stopped.value.signum == signal.SIGTERM
+
+
+def test_a_signal_during_a_cold_compile_waits_for_its_end(monkeypatch):
+    """A signal that lands while numba compiles a kernel (here: sent at the compile's start, no cache) is held
+    until the compile ends and raised in the caller: the kernel compiled whole, no frame of numba or llvmlite in
+    the raise's traceback, nothing unraisable (llvmlite's finalizers had printed tracebacks)."""
+    import traceback
+
+    import numba
+    import numpy as np
+    from numba.core import event
+
+    from drive_common.runtime import interrupt
+
+    class SignalAtCompileStart(event.Listener):
+        def on_start(self, _event):
+            os.kill(os.getpid(), signal.SIGINT)
+
+        def on_end(self, _event):
+            pass
+
+    unraisable = []
+    monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
+
+    @numba.njit(cache=False)
+    def kernel(x):
+        return np.sum(np.sin(x)) + np.cumsum(x)[-1]
+
+    deadline = time.monotonic() + 60.0
+    with pytest.raises(interrupt.Interrupted) as stopped, interrupt.handled():
+        with event.install_listener("numba:compile", SignalAtCompileStart()):
+            kernel(np.arange(3.0))
+        while time.monotonic() < deadline:
+            time.sleep(0.01)
+    frames = [frame.f_globals.get("__name__", "") for frame, _ in traceback.walk_tb(stopped.value.__traceback__)]
+    assert stopped.value.signum == signal.SIGINT and len(kernel.overloads) == 1
+    assert frames[-2:] == [__name__, interrupt.__name__], f"raised in {frames}, not in the compile's caller"
+    assert not [name for name in frames if name.partition(".")[0] in interrupt.CANNOT_TAKE_A_RAISE], frames
+    assert unraisable == [] and interrupt.requested() == 0
+
+
+@pytest.mark.parametrize("block", ["deferred", "polled"])
+def test_a_second_signal_during_a_cold_compile_inside_a_held_block_raises_once_it_ends(block):
+    """Inside deferred() or polled() the first signal is recorded and a second raises: sent while numba compiles,
+    the second is held until the compile ends, then raised in the caller, inside the block."""
+    import numba
+    import numpy as np
+    from numba.core import event
+
+    from drive_common.runtime import interrupt
+
+    class SecondSignalAtCompileStart(event.Listener):
+        def on_start(self, _event):
+            os.kill(os.getpid(), signal.SIGTERM)
+
+        def on_end(self, _event):
+            pass
+
+    @numba.njit(cache=False)
+    def kernel(x):
+        return np.sum(np.cos(x))
+
+    import traceback
+    deadline = time.monotonic() + 60.0
+    with pytest.raises(interrupt.Interrupted) as stopped, interrupt.handled():
+        with getattr(interrupt, block)():
+            os.kill(os.getpid(), signal.SIGINT)
+            assert interrupt.requested() == signal.SIGINT
+            with event.install_listener("numba:compile", SecondSignalAtCompileStart()):
+                kernel(np.arange(3.0))
+            while time.monotonic() < deadline:
+                time.sleep(0.01)
+    frames = [frame.f_globals.get("__name__", "") for frame, _ in traceback.walk_tb(stopped.value.__traceback__)]
+    assert stopped.value.signum == signal.SIGINT and len(kernel.overloads) == 1
+    assert frames[-2:] == [__name__, interrupt.__name__], f"raised in {frames}, not in the block"
 
 
 def test_a_signal_swallowed_by_a_c_callback_still_stops_the_command(monkeypatch, capsys):

@@ -64,3 +64,14 @@ def test_the_unit_tier_reads_no_wall_clock():
                if isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
                and getattr(node.func.value, "id", "") == "time" and node.func.attr in WALL_CLOCKS]
     assert clocked == []
+
+
+def test_two_test_processes_on_one_machine_never_share_a_ros_domain():
+    """This process holds its domain (conftest); another test process started beside it, as another run's worker or
+    another clone's run, takes a different one."""
+    import os
+    import subprocess
+    import sys
+    claimed = subprocess.run([sys.executable, "-c", "import conftest; print(conftest.DOMAIN)"], cwd=TEST_DIR,
+                             capture_output=True, text=True, check=True).stdout.split()[-1]
+    assert os.environ["ROS_DOMAIN_ID"] != claimed and 30 <= int(claimed) <= 99

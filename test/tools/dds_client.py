@@ -8,7 +8,9 @@ of a type on another (a JointState naming joints, a Float64), for as long as ask
 
 TYPE: JointState, Vector3Stamped or Float64; JSON: the message's fields ({"name": ["j1"], "velocity": [1.0]},
 {"data": 4.0}). Prints one JSON line per message read ({"topic", "stamp_s", fields}) and, at the end, one summary
-line {"summary": {"read": N, "published": N}}. The domain is ROS_DOMAIN_ID's; discovery is unicast on the loopback
+line {"summary": {"read": N, "published": N}}; once a reader has matched a writer of its topic (and a writer
+a reader), one line {"matched": TOPIC}; before all, once its readers and writers exist, {"started": true}.
+The domain is ROS_DOMAIN_ID's; discovery is unicast on the loopback
 (as ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST makes Fast DDS do)."""
 import argparse
 import json
@@ -121,7 +123,15 @@ def main(argv=None):
     read = published = 0
     end, next_publish = time.monotonic() + args.duration, time.monotonic()
     last_read = None
+    unmatched = {name: reader.get_subscription_matched_status for name, reader in readers}
+    unmatched.update({name: writer.get_publication_matched_status
+                      for (name, _, _), (writer, _, _) in zip(args.publish, writers)})
+    print(json.dumps({"started": True}), flush=True)
     while time.monotonic() < end and not (args.count and read >= args.count):
+        for name, status in list(unmatched.items()):
+            if status().current_count > 0:
+                print(json.dumps({"matched": name}), flush=True)
+                del unmatched[name]
         if args.idle and last_read is not None and time.monotonic() - last_read > args.idle:
             break
         if writers and time.monotonic() >= next_publish:

@@ -29,6 +29,8 @@ from .inverter_protocol import (
     Telemetry,
     TelemetryBlock,
     command_flags,
+    decode_frame,
+    encode_frame,
 )
 
 LINK_TIMEOUT_S = 0.05
@@ -133,6 +135,9 @@ class InverterBridge:
         which changes them in place."""
         self.counters = Counters(self.counter_array)
         self.telemetry = cb.telemetry_arrays(self.state, self.counter_array)
+        decode_frame(encode_frame(Telemetry(0, 0, 0, 0, 0, 0, 0))[:-1])
+        """The codec's kernels loaded (or compiled, without a cache: seconds) before any inverter runs, not at the
+        first frame read while a lock-step inverter waits for the first command."""
         self._hello = None
         self.open = False
         self.last_error = ""

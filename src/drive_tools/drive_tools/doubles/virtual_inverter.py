@@ -46,6 +46,7 @@ from drive_bridge.inverter_protocol import (
     Hello,
     Telemetry,
     TelemetryBlock,
+    decode_frame,
     encode_frame,
     requested_safe_state,
 )
@@ -267,6 +268,7 @@ class VirtualInverter:
         plant_block(p.x.copy(), line, 1, 1, p.inputs(self.tau_load, self.speed_ref), p.params, out)
         encode_frame(Telemetry(0, 0, 0, 0, 0, 0, 0))
         encode_frame(TelemetryBlock(0, 0, 0, ((0, 0, 0, 0),)))
+        decode_frame(encode_frame(Command(0, 0, 0, 0))[:-1])
 
     def switching(self):
         return self.enabled and not self.latched
@@ -466,8 +468,9 @@ class VirtualInverter:
         """Lock-step: wait until the commands answering samples first … last − 1 came, or a command message
         answering that sample or a later one was heard (the link keeps order: one lost on the way, by a
         faulty double, is not waited for), each at most ``command_wait_s`` after its telemetry was sent; nor is
-        the answer to telemetry lost on the way (``lost_on_the_way``). The outcome then does not depend on
-        the machine's pace, only on what the host sent."""
+        the answer to telemetry lost on the way (``lost_on_the_way``). What arrived by then is taken even when
+        this thread could not run until after it (a loaded machine, another thread holding the interpreter). The
+        outcome then does not depend on the machine's pace, only on what the host sent."""
         N = self.block_samples
         for c in range(max(0, first), min(last, self.k)):
             if c - c % N in self.lost_on_the_way:
@@ -476,6 +479,12 @@ class VirtualInverter:
             while (c not in self.commands and self.heard_up_to < c and self.clock() < until
                    and not self.stopped.is_set()):
                 for message in self.receive(min(until - self.clock(), 0.05)):
+                    self.handle(message)
+            while c not in self.commands and self.heard_up_to < c and not self.stopped.is_set():
+                arrived = self.receive(0.0)
+                if not arrived:
+                    break
+                for message in arrived:
                     self.handle(message)
 
     def handle(self, message):

@@ -88,12 +88,13 @@ class PtyEndpoint:
 
 def make_links(link, workdir, drive_id=0, channel=None):
     """(inverter endpoint, host link) of a fresh virtual link: a pty whose slave the host opens by a
-    symlink in ``workdir``, or a CAN channel (python-can's virtual bus unless SocketCAN has it)."""
+    symlink in ``workdir``, or a CAN channel named after ``workdir`` (python-can's virtual bus unless SocketCAN has
+    it): a link of an earlier run, gone or not, never shares it."""
     if link == "pty":
         endpoint = PtyEndpoint(Path(workdir) / f"inverter{drive_id}")
         return endpoint, SerialLink(endpoint.link_path)
     if link == "can":
-        channel = channel or f"drive_bridge_{id(workdir)}"
+        channel = channel or f"drive_bridge_{Path(workdir).name}"
         endpoint = CanLink(channel, drive_id)
         endpoint.open()
         return endpoint, CanLink(channel, drive_id)

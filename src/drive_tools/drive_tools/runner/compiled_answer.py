@@ -207,6 +207,8 @@ class CompiledAnswer:
             bridge.reopen()
         if bridge.open:
             answer_loop(self.step, copy, cb.load_bridge(bridge), run, sample_ring(1, self.ring.rows.shape[1]))
+        empty = sample_ring(1, self.ring.rows.shape[1])
+        drain(empty.rows, empty.indices, np.zeros((1, self.ring.rows.shape[1])))
 
     def start(self, take):
         self.reading = threading.Thread(target=self._read, args=(take,), name="drive_answer_reader", daemon=True)
