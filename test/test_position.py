@@ -160,3 +160,46 @@ def test_drawn_motors_with_several_pole_pairs_home_and_hold_their_position(tmp_p
 @pytest.mark.heavy
 def test_a_larger_draw_homes_and_holds_its_position(tmp_path):
     check_draw(30, DRAWN_SEED + 1, tmp_path)
+
+
+@pytest.mark.unit
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_a_shaft_pushed_into_its_end_stop_rests_where_the_spring_carries_the_load(side):
+    """The plant's end stop (pmsm_plant.model.end_stop_torque): a constant torque of 0.05 N·m pushes the shaft into
+    the stop; it comes to rest at θ_stop + τ/k (the spring's deflection), within 1 µrad, and never gets further in
+    than the energy it hit with allows (½ k d² ≤ ½ J ω² + τ d at the deepest point d)."""
+    import numpy as np
+
+    from pmsm_plant.build import with_end_stop
+    from pmsm_plant.model import N_STATE, OMEGA_M, THETA_M, plant_advance, plant_reset
+    from pmsm_plant.params import IDEAL_SENSOR, InverterParams, MechanicsParams, PlantParams
+    from pmsm_plant.presets import PRESETS
+    machine = PRESETS["wang_spmsm"].machine
+    stop = {"low_rad": None, "high_rad": None, "stiffness_Nm_rad": 200.0, "damping_Nms_rad": None}
+    stop["high_rad" if side > 0 else "low_rad"] = side * 0.5
+    mechanics = with_end_stop(MechanicsParams(J_kgm2=1e-4, B_Nms=0.0), stop, 1e-4, "test")
+    assert mechanics.stop_damping_Nms_rad == pytest.approx(2.0 * math.sqrt(200.0 * 1e-4)), "critical by default"
+    params = PlantParams(machine, mechanics, InverterParams(1000.0, 0.0, 0.05, 0), IDEAL_SENSOR, 0, 1e-4, 1)
+    x = np.zeros(N_STATE)
+    plant_reset(x, 0.0, 0.0, machine)
+    hit_speed, deepest = 0.0, 0.0
+    for _ in range(30000):
+        omega = abs(x[OMEGA_M])
+        plant_advance(x, 0.0, 0.0, -side * 0.05, False, 0.0, params)
+        depth = side * x[THETA_M] - 0.5
+        if depth > 0.0 and hit_speed == 0.0:
+            hit_speed = omega
+        deepest = max(deepest, depth)
+    assert x[THETA_M] == pytest.approx(side * (0.5 + 0.05 / 200.0), abs=1e-6) and abs(x[OMEGA_M]) < 1e-6
+    assert hit_speed > 1.0
+    assert 0.5 * 200.0 * deepest ** 2 <= 0.5 * 1e-4 * hit_speed ** 2 + 0.05 * deepest + 1e-9
+
+
+@pytest.mark.unit
+def test_an_end_stop_too_stiff_for_the_step_is_refused_naming_the_key():
+    from drive_common.config.drive_config import ScenarioError
+    from pmsm_plant.build import with_end_stop
+    from pmsm_plant.params import MechanicsParams
+    stop = {"low_rad": -1.0, "high_rad": None, "stiffness_Nm_rad": 1e9, "damping_Nms_rad": None}
+    with pytest.raises(ScenarioError, match=r"^arm.yaml: end_stop.stiffness_Nm_rad: 1e\+09 N·m/rad"):
+        with_end_stop(MechanicsParams(J_kgm2=1e-4, B_Nms=0.0), stop, 1e-4, "arm.yaml")

@@ -115,6 +115,7 @@ def winding_resistance(x, m):
 
 @njit(cache=True)
 def _spring_damper(depth_rad, omega_m, mech):
+    """k d + b ω_m [N·m] of the end stops of ``mech`` at a depth ``d`` [rad] into one, at ``omega_m`` [rad/s]."""
     return mech.stop_stiffness_Nm_rad * depth_rad + mech.stop_damping_Nms_rad * omega_m
 
 

@@ -8,6 +8,7 @@ docs/robot.md ("Position").
 import argparse
 import json
 import math
+import re
 import sys
 import tempfile
 from pathlib import Path
@@ -175,11 +176,17 @@ def main(argv=None):
     for r in rows:
         side = "above" if r["direction"] > 0 else "below"
         if r["failed"]:
-            print(f"| {r['motor']} | {r['n_p']} | {side} | {r['failed'][:60]} | | | | |")
+            print(f"| {r['motor']} | {r['n_p']} | {side} | {_short(r['failed'], r['motor'])} | | | | |")
             continue
         print(f"| {r['motor']} | {r['n_p']} | {side} | {r['homed_at_s']:.2f} | {1e3 * r['homing_error_rad']:.1f} | "
               f"{1e3 * r['drift_rad']:.1f} | {1e3 * r['peak_deviation_rad']:.1f} | {1e3 * r['tolerance_rad']:.0f} |")
     return 0
+
+
+def _short(reason, motor):
+    """A table's few words of a refusal: its parts naming the motor or a file dropped, cut at the first number."""
+    parts = [p.strip() for p in reason.split(": ") if motor not in p and "/" not in p]
+    return re.split(r"\d", ": ".join(parts))[0].rstrip(" :(")
 
 
 if __name__ == "__main__":
