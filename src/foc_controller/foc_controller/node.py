@@ -141,6 +141,9 @@ class ControllerNode(DriveNode):
         self.homing = None
         """The joint's homing (foc_controller.position.Homing), made with the core where homing_method says."""
         self.last_i_q = 0.0
+        self.homing_now = False
+        """The last block's speed reference was homing's: a shaft stalled at the stop is what it looks for, not a
+        fault of the speed supervision."""
         self.create_service(Trigger, "~/home", self.on_home)
         self.create_subscription(Float64, SPEED_COMMAND, self.on_speed_command, topic_qos(SPEED_COMMAND))
         self.create_subscription(Float64, TORQUE_FEEDFORWARD, self.on_torque_feedforward,
@@ -511,7 +514,7 @@ class ControllerNode(DriveNode):
             self.last_i_q = float(out["i_q_A"][-1])
             current_ref = np.hypot(out["i_d_ref_A"], out["i_q_ref_A"])
             self.current_limited = bool(current_ref[-1] >= (1.0 - 1e-9) * self.params.i_max_A)
-            if not released:
+            if not released and not self.homing_now:
                 self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], current_ref, state[2]))
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
             if joint is not None:
@@ -546,7 +549,8 @@ class ControllerNode(DriveNode):
         h = self.homing
         if h is not None and h.state == "not_homed" and state[2][-1] == TRACKING:
             h.start()
-        if h is not None and h.active:
+        self.homing_now = h is not None and h.active
+        if self.homing_now:
             speed = h.reference(n * self.T_s, (theta, omega), self.last_i_q)
             if h.homed:
                 self.hold.command(time.monotonic(), 0.0, self.tau_feedforward, h.target)
