@@ -143,10 +143,11 @@ def test_the_shipped_motor_homes_against_a_stop_and_its_position_does_not_drift(
 
 
 def check_draw(count, seed, folder):
-    """Every drawn motor with n_p > 1 is refused by the drive (saying why) or homes and holds its position within
-    the tolerance; at least half of them run."""
+    """Every drawn motor with n_p > 1 is refused by the drive (saying why), or homes and holds its position within
+    the tolerance, or says it lost its lock and with it the homed position (never a silent slip); at least half of
+    them home and hold."""
     rows = drawn_rows(count, seed, folder)
-    ran = [row for row in rows if not row["failed"].startswith("refused: ")]
+    ran = [row for row in rows if not row["failed"].startswith(("refused: ", "lost: "))]
     assert len(ran) >= count / 2, rows
     for row in ran:
         assert row["n_p"] > 1
@@ -203,3 +204,20 @@ def test_an_end_stop_too_stiff_for_the_step_is_refused_naming_the_key():
     stop = {"low_rad": -1.0, "high_rad": None, "stiffness_Nm_rad": 1e9, "damping_Nms_rad": None}
     with pytest.raises(ScenarioError, match=r"^arm.yaml: end_stop.stiffness_Nm_rad: 1e\+09 N·m/rad"):
         with_end_stop(MechanicsParams(J_kgm2=1e-4, B_Nms=0.0), stop, 1e-4, "arm.yaml")
+
+
+@pytest.mark.unit
+def test_a_homed_zero_is_lost_with_the_estimators_lock_and_not_found_again_unasked():
+    """After a lost lock the estimator re-finds the electrical angle, the mechanical one only modulo 2π/n_p: the
+    zero is gone (LOST, the position NaN) until the joint is homed again."""
+    from foc_controller.position import LOST
+    h = homing()
+    for _ in range(25):
+        h.reference(DT_S, (-1.0, 0.0), -2.0)
+    h.reference(DT_S, (h.target, 0.0), 0.0)
+    assert h.homed
+    h.lose("estimator state 4 (not tracking)")
+    assert h.state == LOST and "home again" in h.reason and math.isnan(h.position(0.0))
+    assert h.reference(DT_S, (0.0, 0.0), 0.0) == 0.0 and h.state == LOST
+    h.start()
+    assert h.state == SEEKING

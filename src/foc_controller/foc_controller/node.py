@@ -547,6 +547,13 @@ class ControllerNode(DriveNode):
         (CommandHold); a joint just homed holds where its back-off ended."""
         theta, omega = float(estimate[0][-1]), float(estimate[1][-1])
         h = self.homing
+        lost = [code for code in state[2] if code not in (HOLD, TRACKING)]
+        if h is not None and lost and h.state != "not_homed":
+            was = h.state
+            h.lose(f"estimator state {int(lost[0])} (not tracking)")
+            if h.state != was:
+                self.fault("homing_lost", h.reason)
+                self.hold.command(time.monotonic(), 0.0, self.tau_feedforward)
         if h is not None and h.state == "not_homed" and state[2][-1] == TRACKING:
             h.start()
         self.homing_now = h is not None and h.active

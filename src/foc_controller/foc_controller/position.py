@@ -18,6 +18,10 @@ from dataclasses import dataclass
 HARD_STOP, INDEX = "hard_stop", "index"
 HOMING_METHODS = (HARD_STOP, INDEX)
 NOT_HOMED, SEEKING, BACKING_OFF, HOMED, FAILED = "not_homed", "seeking", "backing_off", "homed", "failed"
+LOST = "lost"
+"""The estimator re-found its angle (a lost lock, a new start-up): the electrical angle again, the mechanical one
+only modulo 2π/n_p, so the zero is gone; the joint is not homed again by itself (it would drive to its stop
+unasked): `~/home` homes it."""
 BACKED_OFF_WITHIN_RAD = 0.05
 """Backing off ends once the estimated angle is this close to its target [rad]."""
 RAMP_CURRENT_SHARE = 0.25
@@ -85,6 +89,13 @@ class Homing:
         self.theta_zero = self.theta_found = self.target = math.nan
         self.elapsed_s = self.pushed_s = self.search_speed = 0.0
         self.index_count = None
+
+    def lose(self, why):
+        """The zero lost (``why``: one line): LOST until started again."""
+        if self.state in (NOT_HOMED, FAILED, LOST):
+            return
+        self.state, self.reason = LOST, f"{why}: the homed zero is lost (home again: ~/home)"
+        self.theta_zero = self.theta_found = self.target = math.nan
 
     def position(self, theta_m_hat):
         """The joint's position [rad] at the estimated mechanical angle ``theta_m_hat`` [rad] (NaN: its zero not

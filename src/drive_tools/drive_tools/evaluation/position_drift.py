@@ -18,7 +18,7 @@ import numpy as np
 
 from drive_common.config.motor_experiments import ExperimentOptions, experiment_document
 from drive_common.config.scenario import parse_scenario
-from drive_common.contract.estimator_states import TRACKING
+from drive_common.contract.estimator_states import HOLD, TRACKING
 from drive_common.contract.log import COLUMN, LOG_COLUMNS
 from drive_common.motor.motor_file import load_motor
 from foc_controller.command_hold import HOLD_GAIN_PER_SPEED_ZERO
@@ -114,6 +114,9 @@ def _run(drive, homing, loop, options, n_p):
                 speed = 0.0
             if homing.state == FAILED:
                 return {"n_p": n_p, "failed": homing.reason}
+        elif row[COLUMN["state"]] not in (HOLD, TRACKING):
+            return {"n_p": n_p, "failed": f"lost: estimator state {int(row[COLUMN['state']])} at {row[0]:.2f} s, the "
+                                          f"homed position with it"}
         else:
             move = min(int((k0 - homed_k) * T_s / settle_s), len(options.moves_rad) - 1)
             target = homing.theta_zero + direction * options.moves_rad[move]
