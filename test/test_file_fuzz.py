@@ -59,7 +59,7 @@ def motor_cases(seed, count):
 def assert_accepted_as_declared(motor, kind, trail, value):
     """Every nameplate value finite (J, B: or not known) and in its declared range, the current-limit and
     bus rules kept, a value changed in the nameplate or inverter taken as written, the plant's truth finite (a DC
-    link's ∞: a stiff bus, no chopper)."""
+    link's ∞: a stiff bus, no chopper; an end stop's ±∞: none)."""
     plate = motor.nameplate
     for key in NAMEPLATE_KEYS:
         v = getattr(plate, key.name)
@@ -73,7 +73,8 @@ def assert_accepted_as_declared(motor, kind, trail, value):
         assert taken == value and type(value) is not bool, (trail, value, taken)
     truth = plant_truth(motor)
     for part in (truth.machine, truth.mechanics, truth.inverter, truth.sensor):
-        assert all(math.isfinite(v) or v == math.inf for v in part), part
+        assert all(math.isfinite(v) or v == math.inf or (k, v) == ("stop_low_rad", -math.inf)
+                   for k, v in zip(part._fields, part)), part
 
 
 @pytest.mark.parametrize("cases", [SAMPLE_CASES, pytest.param(FULL_CASES, marks=pytest.mark.heavy)])

@@ -66,6 +66,12 @@ axes:
     ("format_version: 1\ninitial_state: on\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can}\n",
      "initial_state: must be one of"),
     ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: wire}\n", "axes[0].link: must be one"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can, homing: {method: hard_stop, "
+     "direction: 1}}\n", "axes[0].homing: hard_stop: give current_A or torque_Nm"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can, homing: {method: index, "
+     "direction: 1}}\n", "axes[0].homing.method: index: the inverter link carries no index input"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can, homing: {method: hard_stop, "
+     "direction: 2, current_A: 1.0}}\n", "axes[0].homing.direction: must be"),
 ])
 def test_a_bad_robot_file_is_refused_in_one_line_naming_file_key_and_value(tmp_path, text, where):
     from drive_tools.launch.robot_file import RobotFileError, load_robot
@@ -339,4 +345,53 @@ def test_drive_up_with_view_serves_the_robots_axes_live_while_it_runs(tmp_path):
         if process.poll() is None:
             process.kill()
             process.wait()
+        err.close()
+
+
+HOMED_ARM = """format_version: 1
+initial_state: active
+axes:
+  - {joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false, hold_timeout_s: .inf,
+     homing: {method: hard_stop, direction: 1, current_A: 1.5, offset_rad: -1.0, backoff_rad: 0.3}}
+  - {joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false}
+"""
+STOP_RAD = 2.3
+"""The shoulder's end stop in the simulation (its truth; the drive is not told): 1 rad above its start."""
+
+
+def test_a_joint_homes_against_its_stop_then_follows_position_commands(tmp_path):
+    """The shoulder homes after its start-up (the stop found by current, backed off 0.3 rad: the joint at 0.7 rad
+    with its zero 1 rad below the stop) and is published on /joint_states only once homed; a position command moves
+    it there (the simulation's truth); position commands to the wrist, which has no homing, are refused and counted."""
+    from sensor_msgs.msg import JointState
+    drive_files(tmp_path, load=False)
+    sim = (tmp_path / "arm_sim.yaml").read_text()
+    (tmp_path / "arm_sim.yaml").write_text(sim + f"end_stop: {{high_rad: {STOP_RAD}}}\n")
+    path = robot_file(tmp_path, HOMED_ARM)
+    err = (tmp_path / "up.log").open("w")
+    process = subprocess.Popen([str(DRIVE), "up", str(path)], cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=err)
+    client = Client()
+    try:
+        deadline = time.monotonic() + 120.0
+        while client.diagnostics.get("/shoulder/foc_controller", {}).get("homing") != "homed":
+            assert time.monotonic() < deadline and process.poll() is None, (tmp_path / "up.log").read_text()[-800:]
+            client.spin(0.2)
+        assert client.truth[-1][1] == pytest.approx(STOP_RAD - 0.3, abs=0.06)
+        client.spin(0.5)
+        assert client.joint("shoulder")[0] == pytest.approx(0.7, abs=0.06)
+        assert all(math.isfinite(m.position[m.name.index("shoulder")]) for m in client.states if "shoulder" in m.name)
+        target = 0.2
+        start = client.truth[-1][0]
+        while client.truth[-1][0] < start + 1.5:
+            assert time.monotonic() < deadline + 60.0
+            client.command_pub.publish(JointState(name=["shoulder"], position=[target]))
+            client.command_pub.publish(JointState(name=["wrist"], position=[0.0]))
+            client.spin(0.04)
+        assert client.truth[-1][1] == pytest.approx(STOP_RAD - 1.0 + target, abs=0.06)
+        assert client.joint("shoulder")[0] == pytest.approx(target, abs=0.06)
+        assert client.robot_faults().get("faults.command_not_homed", 0) > 0
+    finally:
+        client.close()
+        process.send_signal(signal.SIGTERM)
+        process.wait(timeout=60)
         err.close()

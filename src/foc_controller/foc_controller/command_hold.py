@@ -3,9 +3,13 @@ speed reference to zero at ``deceleration_rad_s2`` and then holds the joint wher
 on the estimated mechanical angle feeding the speed loop (ω* = k_θ (θ_hold − θ̂_m), within ±``hold_speed_rad_s``;
 over the speed PI its integrator carries whatever load there is, so the hold has no steady-state error);
 older than ``hold_timeout_s``, or once stopped where the joint has a ``brake``, zero torque. A fresh command
-takes over at once. No rclpy: the controller node calls it once per sample or block."""
+takes over at once. A position command (a homed joint's, foc_controller.position) drives the same position loop
+to its target, its velocity a feed-forward, within ±``velocity_limit_rad_s``; older than ``timeout_s`` the joint is
+held at that target. No rclpy: the controller node calls it once per sample or block."""
 import math
 from dataclasses import dataclass
+
+from .position import position_speed
 
 FOLLOWING, STOPPING, HOLDING, RELEASED = "following", "stopping", "holding", "released"
 HOLD_GAIN_PER_SPEED_ZERO = 0.25
@@ -19,7 +23,7 @@ STOP_TIME_S = 0.2
 class HoldSettings:
     """``timeout_s`` [s] (0: commands never expire), ``hold_timeout_s`` [s] (∞: hold for good), ``brake``,
     ``deceleration_rad_s2`` of the ramp, the position loop's ``gain_per_s`` k_θ and its speed bound
-    ``hold_speed_rad_s``."""
+    ``hold_speed_rad_s`` while holding, ``velocity_limit_rad_s`` while following a position command."""
 
     timeout_s: float
     hold_timeout_s: float
@@ -27,6 +31,7 @@ class HoldSettings:
     deceleration_rad_s2: float
     gain_per_s: float
     hold_speed_rad_s: float
+    velocity_limit_rad_s: float = math.inf
 
 
 class CommandHold:
@@ -39,10 +44,17 @@ class CommandHold:
         self.commanded_at = now_s
         self.ramp = 0.0
         self.theta_hold = math.nan
+        self.theta_ref = math.nan
+        """The position command's target [rad, the estimated mechanical angle's], NaN: a speed command."""
         self.timeouts = 0
 
-    def command(self, now_s, omega_m_ref=None, tau_feedforward=None):
-        """A fresh command [rad/s, N·m] (None: the last one's); followed from now on."""
+    def command(self, now_s, omega_m_ref=None, tau_feedforward=None, theta_ref=None):
+        """A fresh command [rad/s, N·m] (None: the last one's); followed from now on. With ``theta_ref`` [rad]
+        the position loop's target, ``omega_m_ref`` its feed-forward (None: 0); a command without one is a speed
+        command."""
+        if theta_ref is not None:
+            self.omega_m_ref = 0.0
+        self.theta_ref = math.nan if theta_ref is None else theta_ref
         if omega_m_ref is not None:
             self.omega_m_ref = omega_m_ref
         if tau_feedforward is not None:
@@ -58,8 +70,15 @@ class CommandHold:
         the estimated mechanical angle being ``theta_m_hat`` [rad]."""
         s = self.settings
         age = self.age_s(now_s)
+        positioned = not math.isnan(self.theta_ref)
         if s.timeout_s <= 0.0 or age <= s.timeout_s:
+            if positioned:
+                return position_speed(self.theta_ref, self.omega_m_ref, theta_m_hat, s.gain_per_s,
+                                      s.velocity_limit_rad_s), self.tau_feedforward, True
             return self.omega_m_ref, self.tau_feedforward, True
+        if self.mode == FOLLOWING and positioned:
+            self.mode, self.theta_hold = (RELEASED if s.brake else HOLDING), self.theta_ref
+            self.timeouts += 1
         if self.mode == FOLLOWING:
             self.mode, self.ramp = STOPPING, self.omega_m_ref
             self.timeouts += 1

@@ -31,6 +31,7 @@ import numpy as np
 from rcl_interfaces.msg import SetParametersResult
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64, String
+from std_srvs.srv import Trigger
 
 from drive_common.config.parameters import SCHEDULE_PARAMETER
 from drive_common.contract.drive_records import commands, drive_inputs
@@ -59,6 +60,7 @@ from .build import check_controller_settings, controller_for_scenario, protectio
 from .command_hold import HOLD_GAIN_PER_SPEED_ZERO, STOP_TIME_S, CommandHold, HoldSettings
 from .control import OMEGA_FILTERED, TORQUE_ALLOWED, controller_block, controller_state, estimated_torque
 from .params import check_speed_limit
+from .position import HARD_STOP, HOMING_METHODS, Homing, HomingSettings, search_acceleration
 from .protection import protection_block, protection_state
 from .supervision import SpeedSupervisor, fault_line
 
@@ -74,6 +76,15 @@ COMMAND_PARAMETERS = {
     "velocity_limit_rad_s": (0.0, "commands faster than this are refused [rad/s] (0: the speed limit, else the "
                                   "rated speed)"),
     "effort_limit_Nm": (0.0, "torque feed-forwards above this are refused [N·m] (0: the drive's stated torque)"),
+    "homing_method": ("", "how the joint finds its zero: hard_stop, index, or empty (no homing: position commands "
+                          "refused); foc_controller.position"),
+    "homing_direction": (1.0, "the search's direction, +1 or -1 (the motor's sign)"),
+    "homing_speed_rad_s": (0.0, "the search's speed [rad/s] (0: 3 % of rated speed)"),
+    "homing_current_A": (0.0, "hard_stop: the stop is found where the pushing q current exceeds this [A]"),
+    "homing_torque_Nm": (0.0, "hard_stop: or where the pushing torque exceeds this [N·m] (the drive's k_t)"),
+    "homing_offset_rad": (0.0, "the joint's zero from the stop or index [rad, the motor's sign]"),
+    "homing_backoff_rad": (0.2, "hard_stop: how far the joint backs off the stop once found [rad]"),
+    "homing_timeout_s": (30.0, "no stop or index found within this [s]: homing failed"),
 }
 """How the controller takes commands on a robot (`drive up`, docs/robot.md); a scenario's schedule ignores them."""
 
@@ -127,6 +138,13 @@ class ControllerNode(DriveNode):
         self.open_when_matched(inputs, self.open_outputs, ready=ready)
         self.hold = None
         """The command's timeout and hold (foc_controller.command_hold), made with the core."""
+        self.homing = None
+        """The joint's homing (foc_controller.position.Homing), made with the core where homing_method says."""
+        self.last_i_q = 0.0
+        self.homing_now = False
+        """The last block's speed reference was homing's: a shaft stalled at the stop is what it looks for, not a
+        fault of the speed supervision."""
+        self.create_service(Trigger, "~/home", self.on_home)
         self.create_subscription(Float64, SPEED_COMMAND, self.on_speed_command, topic_qos(SPEED_COMMAND))
         self.create_subscription(Float64, TORQUE_FEEDFORWARD, self.on_torque_feedforward,
                                  topic_qos(TORQUE_FEEDFORWARD))
@@ -201,6 +219,13 @@ class ControllerNode(DriveNode):
         self.torque_limit = self.stated_torque.line()
         self.hold = CommandHold(self.hold_settings(), time.monotonic())
         self.hold.command(time.monotonic(), self.omega_m_ref, self.tau_feedforward)
+        try:
+            self.homing = self.make_homing()
+        except ValueError as error:
+            self.configured = False
+            self.reject(error)
+            self.publish_config({})
+            return
         self.supervisor = SpeedSupervisor(self.n_p, self.nameplate().rated_speed_rpm * math.pi / 30.0,
                                           self.params.i_max_A, self.T_s, self.torque_limit)
         self.supervisor.warm_up()
@@ -242,6 +267,40 @@ class ControllerNode(DriveNode):
                 self.health.latched = None
         return SetParametersResult(successful=True)
 
+    def make_homing(self):
+        """The Homing of the parameters (None without a homing_method): the stop's current, the search's speed (3 %
+        of rated speed by default) and ramp, the position loop's gain and bound as the hold's."""
+        method = str(self.get_parameter("homing_method").value)
+        if not method:
+            return None
+        if method not in HOMING_METHODS:
+            raise ValueError(f"homing_method: must be one of {', '.join(HOMING_METHODS)} or empty, not {method!r}")
+        value = {name: float(self.get_parameter(f"homing_{name}").value) for name in
+                 ("direction", "speed_rad_s", "current_A", "torque_Nm", "offset_rad", "backoff_rad", "timeout_s")}
+        known = self.commissioning.refined(self.nameplate())
+        speed = value["speed_rad_s"] or 0.03 * known.rated_speed_rpm * math.pi / 30.0
+        k_t = 1.5 * known.n_p * known.psi_f_Wb
+        current = (value["current_A"] or value["torque_Nm"] / k_t) if method == HARD_STOP else math.inf
+        if method == HARD_STOP and not 0.0 < current < self.params.i_max_A:
+            raise ValueError(f"homing_current_A: {current:g} A must be above 0 and below the current limit "
+                             f"{self.params.i_max_A:g} A (the speed loop pushes the stop with at most that)")
+        settings = HomingSettings(method, math.copysign(1.0, value["direction"]), speed, current, value["offset_rad"],
+                                  value["backoff_rad"], timeout_s=value["timeout_s"])
+        acceleration = search_acceleration(known.J_kgm2, k_t, current if method == HARD_STOP else
+                                           0.25 * self.params.i_max_A)
+        hold = self.hold.settings
+        return Homing(settings, hold.gain_per_s, hold.hold_speed_rad_s, acceleration)
+
+    def on_home(self, _, response):
+        """The `~/home` service (std_srvs/Trigger): home the joint again from now (it must be tracking)."""
+        with self.sample_lock:
+            if self.homing is None:
+                response.success, response.message = False, "this joint has no homing (homing_method)"
+            else:
+                self.homing.start()
+                response.success, response.message = True, "homing"
+        return response
+
     def on_speed_command(self, msg):
         self.take_command(msg.data, None, SPEED_COMMAND)
 
@@ -277,18 +336,39 @@ class ControllerNode(DriveNode):
                 return "command_over_limit", f"{what} {value:g} {unit} is over the axis's limit {limit:g} {unit}"
         return None
 
-    def take_command(self, velocity, effort, source):
-        """A command of ``velocity`` [rad/s] and/or ``effort`` [N·m] (None: not given) from ``source``: applied,
-        or refused (counted on /diagnostics, never applied); True when applied."""
-        refused = self.refusal(velocity, effort)
+    def position_refusal(self, position):
+        """Why a position command [rad, the joint's position in the motor's sign] is refused, as (fault kind,
+        reason), or None."""
+        if position is None:
+            return None
+        if not finite(position):
+            return "command_not_finite", f"position {position} is not finite"
+        if self.homing is None:
+            return "command_not_homed", "position commands need homing (no homing_method)"
+        if not self.homing.homed:
+            return "command_not_homed", f"the joint is not homed ({self.homing.state})"
+        return None
+
+    def take_command(self, velocity, effort, source, position=None):
+        """A command of ``velocity`` [rad/s], ``effort`` [N·m] and/or ``position`` [rad, the homed joint's] (None:
+        not given) from ``source``: applied, or refused (counted on /diagnostics, never applied); True when
+        applied. With a position the velocity is the position loop's feed-forward; a command of effort alone
+        keeps the last velocity or position."""
+        refused = self.refusal(velocity, effort) or self.position_refusal(position)
         if refused:
             self.fault(refused[0], f"{source}: {refused[1]}; refused, not applied")
             return False
         with self.sample_lock:
+            theta_ref = None
+            if position is not None:
+                theta_ref = self.homing.theta_zero + float(position)
+            elif velocity is None and self.hold is not None and not math.isnan(self.hold.theta_ref):
+                theta_ref = self.hold.theta_ref
             self.omega_m_ref = self.omega_m_ref if velocity is None else float(velocity)
             self.tau_feedforward = self.tau_feedforward if effort is None else float(effort)
             if self.hold is not None:
-                self.hold.command(time.monotonic(), self.omega_m_ref, self.tau_feedforward)
+                self.hold.command(time.monotonic(), self.omega_m_ref if theta_ref is None or velocity is not None
+                                  else 0.0, self.tau_feedforward, theta_ref)
         return True
 
     def hold_settings(self):
@@ -298,7 +378,7 @@ class ControllerNode(DriveNode):
         return HoldSettings(float(self.get_parameter("command_timeout_s").value),
                             float(self.get_parameter("hold_timeout_s").value), bool(self.get_parameter("brake").value),
                             deceleration, HOLD_GAIN_PER_SPEED_ZERO * self.params.ki_speed / self.params.kp_speed,
-                            0.1 * velocity)
+                            0.1 * velocity, velocity)
 
     def on_currents(self, sec, nanosec, i_a, i_b, i_c):
         self.store(self.currents, sec, nanosec, (i_a, i_b, i_c))
@@ -411,7 +491,7 @@ class ControllerNode(DriveNode):
                 speed, feedforward = self.schedule[0][k0:k0 + n], self.schedule[1][k0:k0 + n]
                 self.omega_m_ref, self.tau_feedforward = speed[-1], feedforward[-1]
             else:
-                reference, ff, torque = self.hold.reference(time.monotonic(), n * self.T_s, float(estimate[0][-1]))
+                reference, ff, torque = self.reference(n, estimate, state)
                 speed, feedforward = np.full(n, reference), np.full(n, ff)
             estimated = estimates(n)
             estimated["theta_e_hat"], estimated["omega_e_hat"] = self.n_p * estimate[0], self.n_p * estimate[1]
@@ -431,15 +511,16 @@ class ControllerNode(DriveNode):
             if bad:
                 self.fault("bad_input", f"currents at samples {k0}..{k0 + n - 1}: {bad} of {n} not finite or beyond "
                                         f"the {self.trip_A:g} A trip, or a non-finite estimate; zero voltage there")
+            self.last_i_q = float(out["i_q_A"][-1])
             current_ref = np.hypot(out["i_d_ref_A"], out["i_q_ref_A"])
             self.current_limited = bool(current_ref[-1] >= (1.0 - 1e-9) * self.params.i_max_A)
-            if not released:
+            if not released and not self.homing_now:
                 self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], current_ref, state[2]))
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
             if joint is not None:
                 j = self.joint_msg
                 j.header.stamp = stamp(k0 + joint, self.T_s)
-                j.position = [float(estimate[0][joint])]
+                j.position = [self.joint_position(float(estimate[0][joint]))]
                 j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
                 j.effort = [estimated_torque(self.params, out[joint]["i_d_A"], out[joint]["i_q_A"])]
                 self.joint_pub.publish(j)
@@ -459,6 +540,34 @@ class ControllerNode(DriveNode):
         self.voltage_pub.publish(message)
         self.sample_handled(k0 + n - 1)
         return k0 + n
+
+    def reference(self, n, estimate, state):
+        """(ω*_m [rad/s], τ_ff [N·m], torque allowed) for a block of ``n`` samples from its estimates (θ̂_m, ω̂_m) and
+        estimator states: homing's once the estimator tracks (started then, the first time), else the command's
+        (CommandHold); a joint just homed holds where its back-off ended."""
+        theta, omega = float(estimate[0][-1]), float(estimate[1][-1])
+        h = self.homing
+        lost = [code for code in state[2] if code not in (HOLD, TRACKING)]
+        if h is not None and lost and h.state != "not_homed":
+            was = h.state
+            h.lose(f"estimator state {int(lost[0])} (not tracking)")
+            if h.state != was:
+                self.fault("homing_lost", h.reason)
+                self.hold.command(time.monotonic(), 0.0, self.tau_feedforward)
+        if h is not None and h.state == "not_homed" and state[2][-1] == TRACKING:
+            h.start()
+        self.homing_now = h is not None and h.active
+        if self.homing_now:
+            speed = h.reference(n * self.T_s, (theta, omega), self.last_i_q)
+            if h.homed:
+                self.hold.command(time.monotonic(), 0.0, self.tau_feedforward, h.target)
+            return speed, self.tau_feedforward, True
+        return self.hold.reference(time.monotonic(), n * self.T_s, theta)
+
+    def joint_position(self, theta_m_hat):
+        """The joint's position [rad]: the estimated mechanical angle ``theta_m_hat`` [rad] from the homed zero
+        (NaN before), or from wherever the start-up found the rotor where the joint has no homing."""
+        return theta_m_hat if self.homing is None else self.homing.position(theta_m_hat)
 
     def resynchronise(self, k):
         """Currents of a later sample mean the plant gave up on samples self.k..k−1 (they never completed
@@ -488,6 +597,9 @@ class ControllerNode(DriveNode):
             values["command"] = self.hold.mode
             values["command_age_s"] = self.hold.age_s(time.monotonic())
             values["command_timeouts"] = self.hold.timeouts
+        if self.homing is not None:
+            values["homing"] = self.homing.reason or self.homing.state
+            values["homed_zero_rad"] = self.homing.theta_zero
         if self.params:
             values["speed_supervision"] = "; ".join(fault_line(f) for f in self.supervisor.open.values()) or "ok"
             values["sensorless_torque_limit"] = self.torque_limit

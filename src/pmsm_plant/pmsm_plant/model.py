@@ -114,6 +114,24 @@ def winding_resistance(x, m):
 
 
 @njit(cache=True)
+def _spring_damper(depth_rad, omega_m, mech):
+    """k d + b ω_m [N·m] of the end stops of ``mech`` at a depth ``d`` [rad] into one, at ``omega_m`` [rad/s]."""
+    return mech.stop_stiffness_Nm_rad * depth_rad + mech.stop_damping_Nms_rad * omega_m
+
+
+@njit(cache=True)
+def end_stop_torque(theta_m, omega_m, mech):
+    """The torque [N·m] an end stop of ``mech`` (MechanicsParams) opposes the shaft with at angle ``theta_m`` [rad]
+    and speed ``omega_m`` [rad/s]: k (θ_m − θ_stop) + b ω_m beyond a stop, the damper only pushing back (a stop
+    does not pull the shaft back onto itself); 0 between the stops."""
+    if theta_m > mech.stop_high_rad:
+        return max(0.0, _spring_damper(theta_m - mech.stop_high_rad, omega_m, mech))
+    if theta_m < mech.stop_low_rad:
+        return min(0.0, _spring_damper(theta_m - mech.stop_low_rad, omega_m, mech))
+    return 0.0
+
+
+@njit(cache=True)
 def _derivatives(s, drive, m, mech, R_s):
     """Time derivatives of the state s = (ψ_α, ψ_β [Wb], ω_m [rad/s], θ_m [rad]) under drive = (u_α, u_β
     [V], τ_load [N·m], imposed, ω_imposed [rad/s]): dψ/dt = u − R_s i (R_s [Ω]), the shaft's torque
@@ -132,6 +150,8 @@ def _derivatives_at(s, i, drive, m, mech, R_s):
         d_omega = 0.0
         d_theta = omega_imposed
     else:
+        if theta_m > mech.stop_high_rad or theta_m < mech.stop_low_rad:
+            tau_load = tau_load + end_stop_torque(theta_m, omega_m, mech)
         d_omega = (tau_e - tau_load - mech.B_Nms * omega_m) / mech.J_kgm2
         d_theta = omega_m
     return u_a - R_s * i_a, u_b - R_s * i_b, d_omega, d_theta

@@ -55,12 +55,21 @@ class MachineParams(NamedTuple):
 
 
 class MechanicsParams(NamedTuple):
-    """Rigid shaft: J dω_m/dt = τ_e − τ_L − B ω_m (Szabó Eq. 4)."""
+    """Rigid shaft: J dω_m/dt = τ_e − τ_L − τ_stop − B ω_m (Szabó Eq. 4, with end stops: a spring-damper
+    τ_stop = k (θ_m − θ_stop) + b ω_m while θ_m is beyond one)."""
 
     J_kgm2: float
     """Total inertia of rotor and coupled load."""
     B_Nms: float
     """Viscous friction coefficient."""
+    stop_low_rad: float = -math.inf
+    """The shaft's lower end stop [rad, mechanical] (−∞: none)."""
+    stop_high_rad: float = math.inf
+    """Its upper end stop [rad] (∞: none)."""
+    stop_stiffness_Nm_rad: float = 0.0
+    """The stops' spring k."""
+    stop_damping_Nms_rad: float = 0.0
+    """The stops' damper b."""
 
 
 class InverterParams(NamedTuple):

@@ -20,7 +20,7 @@ MAX_TABLE_POINTS = 10_000
 MAX_SUBSTEPS = 100
 MODES = ("speed_control", "imposed_speed")
 EXPERIMENT_KEYS = ("duration_s", "mode", "speed", "load", "torque_feedforward", "non_idealities", "initial",
-                   "metrics", "seed", "substeps", "plant_deviation", "brake")
+                   "metrics", "seed", "substeps", "plant_deviation", "brake", "end_stop")
 """An experiment's keys in a scenario file (beside the drive's, drive_config.DRIVE_KEYS)."""
 EXPERIMENT_VALUE_KEYS = (
     Key("duration_s", "s", 0.0),
@@ -36,6 +36,16 @@ METRICS_KEYS = (Key("settle_s", "s", 0.0, low_inclusive=True, default=0.3),
 """``metrics:``: the settling time after a transient, and where the metrics start."""
 BRAKE_KEYS = (Key("release_s", "s", 0.0, low_inclusive=True, default=BRAKE_RELEASE_S),)
 """``brake:`` as a mapping (else true or false)."""
+END_STOP_KEYS = (
+    Key("low_rad", "rad", default=None, nullable=True, doc="the shaft cannot turn below this angle (null: no stop)"),
+    Key("high_rad", "rad", default=None, nullable=True, doc="the shaft cannot turn above this angle (null: no stop)"),
+    Key("stiffness_Nm_rad", "N·m/rad", 0.0, None, default=None, nullable=True,
+        doc="the stop's spring (null: stiff as the simulation's step allows, pmsm_plant.build)"),
+    Key("damping_Nms_rad", "N·m·s/rad", 0.0, None, low_inclusive=True, default=None, nullable=True,
+        doc="the stop's damper (null: critical with the shaft's inertia)"),
+)
+"""``end_stop:``: a mechanical hard stop on the shaft (the simulation's truth: a robot joint's end of travel), a
+spring-damper acting beyond ``low_rad`` or ``high_rad`` [rad, mechanical, the plant's angle]."""
 NON_IDEALITY_KEYS = tuple(Key(name, "", choices=(True, False), default=True) for name in NON_IDEALITIES)
 """``non_idealities:``: each on (the default) or off."""
 DEVIATION_KEYS = (
@@ -98,6 +108,8 @@ class Experiment:
     torque_feedforward: Table = None
     """The torque the robot expects the motor to deliver [N·m] (its gravity model), sent to the drive's
     `torque_feedforward`; None: none."""
+    end_stop: dict = None
+    """END_STOP_KEYS: the shaft's mechanical end stops (None: it turns freely)."""
 
     def events_s(self):
         """Instants where a table changes (transient starts), sorted."""
@@ -152,8 +164,20 @@ def read_experiment(data, T_s, rated_torque_Nm, fail):
         initial_theta_m_rad=initial["theta_m_rad"], initial_omega_m_rad_s=RPM * initial["omega_m_rpm"],
         settle_s=settle, metrics_start_s=start, seed=values["seed"], substeps=values["substeps"],
         plant_deviation=_section(data, "plant_deviation", DEVIATION_KEYS, fail), brake=brake,
-        brake_release_s=brake_release, torque_feedforward=feedforward)
+        brake_release_s=brake_release, torque_feedforward=feedforward, end_stop=_end_stop(data, fail))
 
+
+
+def _end_stop(data, fail):
+    """The ``end_stop:`` section (END_STOP_KEYS), or None where there is none."""
+    if data.get("end_stop") is None:
+        return None
+    stop = _section(data, "end_stop", END_STOP_KEYS, fail)
+    if stop["low_rad"] is None and stop["high_rad"] is None:
+        fail("end_stop", "give low_rad, high_rad or both")
+    if None not in (stop["low_rad"], stop["high_rad"]) and stop["low_rad"] >= stop["high_rad"]:
+        fail("end_stop.high_rad", f"{shown(stop['high_rad'])} is not above low_rad {shown(stop['low_rad'])}")
+    return stop
 
 
 def _section(data, key, keys, fail):

@@ -25,6 +25,18 @@ LOCKSTEP_TIMEOUT_S = 1.0
 """The estimator's wait for a command it misses (the controller in this process answers at once)."""
 
 
+def homing_parameters(spec):
+    """The controller's homing parameters of an axis (robot_file.AxisSpec): its direction and offset turned into the
+    motor's sign; none where the axis has no homing."""
+    h = spec.homing
+    if h is None:
+        return {}
+    return {"homing_method": h["method"], "homing_direction": spec.sign * h["direction"],
+            "homing_speed_rad_s": h["speed_rad_s"] or 0.0, "homing_current_A": h["current_A"] or 0.0,
+            "homing_torque_Nm": h["torque_Nm"] or 0.0, "homing_offset_rad": spec.sign * h["offset_rad"],
+            "homing_backoff_rad": h["backoff_rad"], "homing_timeout_s": h["timeout_s"]}
+
+
 class HandOver:
     """Between an axis's bridge and its estimator and controller: to the bridge it is the estimator its link thread
     hands each block to and the controller whose commands it takes. Disarmed (inactive), nothing is handed on and
@@ -184,7 +196,7 @@ class AxisNode(LifecycleNode):
                     "hold_timeout_s": spec.hold_timeout_s, "brake": spec.brake,
                     "stop_deceleration_rad_s2": spec.stop_deceleration_rad_s2 or 0.0,
                     "velocity_limit_rad_s": spec.velocity_limit_rad_s or 0.0,
-                    "effort_limit_Nm": spec.effort_limit_Nm or 0.0}
+                    "effort_limit_Nm": spec.effort_limit_Nm or 0.0, **homing_parameters(spec)}
         return drive, {**drive, **commands}
 
     def compose(self):

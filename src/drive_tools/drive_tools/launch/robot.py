@@ -45,8 +45,9 @@ def robot_node_class():
     class RobotNode(DriveNode):
         """``/drive_robot``: the robot's joints on ``/joint_states`` and its joint command topic, dispatched to
         the active axes' controllers. A command message is taken whole or not at all: an unknown joint, a
-        NaN, a value over an axis's limits, or arrays that do not match the names refuse it (counted on
-        /diagnostics, never applied); a joint whose axis is not active is left out (counted, not a fault)."""
+        NaN, a value over an axis's limits, a position for a joint not homed, or arrays that do not match the names
+        refuse it (counted on /diagnostics, never applied); a joint whose axis is not active is left out (counted,
+        not a fault). A joint with homing is published only once homed (its position is unknown before)."""
 
         reads_configuration = False
 
@@ -70,7 +71,7 @@ def robot_node_class():
             for joint, axis in self.axes.items():
                 c = axis.controller if axis.active else None
                 latest = c.joint_msg if c is not None else None
-                if latest is None or not latest.position:
+                if latest is None or not latest.position or math.isnan(latest.position[0]):
                     continue
                 sign = axis.spec.sign
                 msg.name.append(joint)
@@ -86,31 +87,35 @@ def robot_node_class():
                 return
             for i, joint in enumerate(msg.name):
                 axis = self.axes[joint]
-                velocity, effort = _values(msg, i, axis.spec.sign)
+                velocity, effort, position = _values(msg, i, axis.spec.sign)
                 if not axis.active:
                     self.not_active += 1
                 else:
-                    axis.controller.take_command(velocity, effort, f"{self.robot.command_topic} {joint}")
+                    axis.controller.take_command(velocity, effort, f"{self.robot.command_topic} {joint}", position)
             self.commands_taken += 1
 
         def refusal(self, msg):
             """(fault kind, reason) of a command message that may not be applied, else None."""
             n = len(msg.name)
-            if len(msg.velocity) not in (0, n) or len(msg.effort) not in (0, n) or not (msg.velocity or msg.effort):
-                return "command_malformed", (f"{n} names with {len(msg.velocity)} velocities and {len(msg.effort)} "
-                                             f"efforts (each none or one per name, at least one of them)")
-            if msg.position:
-                return "command_malformed", "position commands are not taken (velocity and effort are)"
+            arrays = (msg.position, msg.velocity, msg.effort)
+            if any(len(a) not in (0, n) for a in arrays) or not any(arrays):
+                return "command_malformed", (f"{n} names with {len(msg.position)} positions, {len(msg.velocity)} "
+                                             f"velocities and {len(msg.effort)} efforts (each none or one per name, "
+                                             f"at least one of them)")
             if len(set(msg.name)) != n:
                 return "command_malformed", "a joint named twice"
             for i, joint in enumerate(msg.name):
                 axis = self.axes.get(joint)
                 if axis is None:
                     return "command_unknown_joint", f"unknown joint {joint!r} (known: {', '.join(self.axes)})"
-                velocity, effort = _values(msg, i, axis.spec.sign)
-                if any(v is not None and not math.isfinite(v) for v in (velocity, effort)):
-                    return "command_not_finite", f"joint {joint}: velocity {velocity}, effort {effort}"
-                refused = axis.controller.refusal(velocity, effort) if axis.controller is not None else None
+                velocity, effort, position = _values(msg, i, axis.spec.sign)
+                if any(v is not None and not math.isfinite(v) for v in (velocity, effort, position)):
+                    return "command_not_finite", (f"joint {joint}: position {position}, velocity {velocity}, "
+                                                  f"effort {effort}")
+                c = axis.controller
+                refused = c.refusal(velocity, effort) if c is not None else None
+                if refused is None and axis.active:
+                    refused = c.position_refusal(position)
                 if refused:
                     return refused[0], f"joint {joint}: {refused[1]}"
             return None
@@ -123,10 +128,11 @@ def robot_node_class():
 
 
 def _values(msg, i, sign):
-    """(velocity, effort) of name i of a command message in the motor's sign (None where not given)."""
+    """(velocity, effort, position) of name i of a command message in the motor's sign (None where not given)."""
     velocity = sign * msg.velocity[i] if msg.velocity else None
     effort = sign * msg.effort[i] if msg.effort else None
-    return velocity, effort
+    position = sign * msg.position[i] if msg.position else None
+    return velocity, effort, position
 
 
 def _lifecycle_label(axis):

@@ -50,10 +50,26 @@ AXIS_KEYS = (
     Key("baudrate", "baud", 0, None, integer=True, default=3_000_000),
     Key("drive_id", "", 0, 15, low_inclusive=True, integer=True, default=0, doc="CAN drive number"),
 )
+HOMING_KEYS = (
+    Key("method", "", choices=("hard_stop", "index"), doc="how the joint finds its zero (foc_controller.position)"),
+    Key("direction", "", choices=(1, -1), doc="the search's direction in the joint's sign"),
+    Key("speed_rad_s", "rad/s", 0.0, None, default=None, nullable=True,
+        doc="the search's speed (null: 3 % of the motor's rated speed)"),
+    Key("current_A", "A", 0.0, None, default=None, nullable=True,
+        doc="hard_stop: the stop is where the pushing current exceeds this (or give torque_Nm)"),
+    Key("torque_Nm", "N·m", 0.0, None, default=None, nullable=True,
+        doc="hard_stop: the stop is where the pushing torque exceeds this (or give current_A)"),
+    Key("offset_rad", "rad", default=0.0, doc="the joint's zero from the stop or index, in the joint's sign"),
+    Key("backoff_rad", "rad", 0.0, None, low_inclusive=True, default=0.2,
+        doc="hard_stop: how far the joint backs off the stop once found"),
+    Key("timeout_s", "s", 0.0, None, default=30.0, doc="no stop found within this: homing failed"),
+)
+"""An axis's ``homing:`` (docs/robot.md "Position"): without it the joint refuses position commands."""
 TOPIC_DEFAULTS = {"command_topic": "/joint_commands", "joint_states_topic": "/joint_states"}
 """The robot's topics (absolute names) and their defaults."""
 AXIS_WORDS = ("joint", "drive", "link", "namespace", "port", "can_channel", "can_interface", "scenario",
               "virtual_link")
+AXIS_SECTIONS = ("homing",)
 
 
 class RobotFileError(DriveError):
@@ -87,6 +103,8 @@ class AxisSpec:
     velocity_limit_rad_s: float = None
     effort_limit_Nm: float = None
     stop_deceleration_rad_s2: float = None
+    homing: dict = None
+    """HOMING_KEYS' values, or None: no homing (position commands refused)."""
 
     @property
     def sign(self):
@@ -167,7 +185,7 @@ def _axis(entry, where, folder, fail):
     if not isinstance(entry, dict):
         fail(where, f"must be a mapping of keys, not {shown(entry)}")
     try:
-        values = read_keys(entry, AXIS_KEYS, f"{where}.", known_extra=AXIS_WORDS)
+        values = read_keys(entry, AXIS_KEYS, f"{where}.", known_extra=AXIS_WORDS + AXIS_SECTIONS)
     except ValueError as error:
         key, problem = str(error).split(": ", 1)
         fail(key, problem)
@@ -199,7 +217,26 @@ def _axis(entry, where, folder, fail):
         scenario = str(folder / scenario)
     words = {w: entry[w] for w in ("port", "can_channel", "can_interface", "virtual_link") if w in entry}
     return AxisSpec(joint=joint, drive=str(drive), namespace=namespace, link=link, scenario=scenario,
-                    **words, **values)
+                    homing=_homing(entry.get("homing"), f"{where}.homing", fail), **words, **values)
+
+
+def _homing(section, where, fail):
+    """The values of an axis's ``homing:`` section (HOMING_KEYS), None where it has none."""
+    if section is None:
+        return None
+    if not isinstance(section, dict):
+        fail(where, f"must be a mapping of keys, not {shown(section)}")
+    try:
+        values = read_keys(section, HOMING_KEYS, f"{where}.")
+    except ValueError as error:
+        key, problem = str(error).split(": ", 1)
+        fail(key, problem)
+    if values["method"] == "index":
+        fail(f"{where}.method", "index: the inverter link carries no index input yet (docs/robot.md \"Position\"); "
+                                "home against a hard stop (hard_stop)")
+    if (values["current_A"] is None) == (values["torque_Nm"] is None):
+        fail(where, "hard_stop: give current_A or torque_Nm (one of them): where the stop is found")
+    return values
 
 
 def _cpus(section, key, fail, default):
