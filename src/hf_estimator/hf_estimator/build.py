@@ -30,14 +30,14 @@ OWN_CARRIER = ("square_wave",)
 carrier is not its."""
 
 
-def scaled_tracking(name, loops, carrier_Hz=math.inf):
+def scaled_tracking(name, loops, injection_frequency_Hz=math.inf):
     """The tracking settings of ours (SCALED_TRACKING: ``name``) on the loops scaled to the motor (ScaledLoops):
-    its PLL bandwidth [Hz], within a carrier of ``carrier_Hz`` (CARRIER_PER_TRACKING carrier periods per
+    its PLL bandwidth [Hz], within a carrier of ``injection_frequency_Hz`` (CARRIER_PER_TRACKING carrier periods per
     tracking period), and the acceleration-limited loop where the rotor's rated acceleration outruns it;
     {} for another estimator (it keeps its paper's)."""
     if name not in SCALED_TRACKING:
         return {}
-    scaled = {"pll_bandwidth_Hz": min(loops.tracking_bandwidth_Hz, carrier_Hz / CARRIER_PER_TRACKING)}
+    scaled = {"pll_bandwidth_Hz": min(loops.tracking_bandwidth_Hz, injection_frequency_Hz / CARRIER_PER_TRACKING)}
     if name == "injection_frame" and loops.acceleration_limited:
         scaled["pll_type"] = "auto"
     return scaled

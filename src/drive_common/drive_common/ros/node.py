@@ -453,6 +453,20 @@ def parameter_overrides(values):
     return [Parameter(name, value=value) for name, value in values.items()]
 
 
+def acknowledged(nodes, timeout_s):
+    """Wait until every reader matched to the ``nodes``' publishers has acknowledged what they published (a
+    reliable reader that fell behind gets the rest before the publishers go), at most ``timeout_s`` [s] in all;
+    whether all were."""
+    from rclpy.duration import Duration
+    deadline = time.monotonic() + timeout_s
+    done = True
+    for node in nodes:
+        for publisher in node.publishers:
+            left = deadline - time.monotonic()
+            done = left > 0.0 and publisher.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))) and done
+    return done
+
+
 def make_executor(name, context):
     """``events``: rclpy.experimental.EventsExecutor (≈ 10× less overhead per message here; its
     spin_until_future_complete without a timeout never returns in this rclpy, so callers pass one);

@@ -561,13 +561,22 @@ def _record_answered(result, spec, drive):
     return None
 
 
+ACKNOWLEDGE_WAIT_S = 2.0
+"""At the end of a graph, how long its publishers wait at most for slow reliable readers (an outside client, a
+recorder in another process) to acknowledge what was published: what a reader was promised (its topic's depth) is
+delivered before the publishers go."""
+
+
 def tear_down(ex, nodes, context, inverters, workdir):
-    """End a graph in order: the virtual inverters stop, the executor shuts down before its nodes are
-    destroyed, the context ends, then the inverters' links close and the working directory goes."""
+    """End a graph in order: the virtual inverters stop, the executor shuts down, every reader is given what
+    was published to it (acknowledged, at most ACKNOWLEDGE_WAIT_S) before the nodes are destroyed, the context
+    ends, then the inverters' links close and the working directory goes."""
+    from drive_common.ros.node import acknowledged
     for inverter in inverters:
         inverter.stop()
     if ex is not None:
         ex.shutdown()
+    acknowledged(nodes, ACKNOWLEDGE_WAIT_S)
     for node in nodes:
         node.destroy_node()
     context.try_shutdown()
