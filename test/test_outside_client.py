@@ -56,6 +56,7 @@ def test_an_outside_client_reads_a_running_drives_angle_error_and_joint_states(t
                     "--read", "/outside/joint_states", "JointState", "--duration", "120", "--count", "10100",
                     "--idle", "5")
     matched(reader, tmp_path / "read.jsonl", ())
+    time.sleep(1.0)  # the drive's writers are made by the launch; the client's participant known to the graph first
     bag = tmp_path / "run"
     result = launch(DriveSpec("wang_100rpm", "/outside", duration_s=1.0, bag=str(bag)))
     assert not result.node_faults
