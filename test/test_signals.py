@@ -167,24 +167,34 @@ def test_a_signal_inside_a_deferred_block_is_raised_when_it_ends():
     assert finished == [True] and stopped.value.signum == signal.SIGTERM
 
 
+def signal_at_compile_start(signum):
+    """A numba event listener that sends this process ``signum`` as a compile starts."""
+    from numba.core import event
+
+    class SignalAtCompileStart(event.Listener):
+        def on_start(self, _event):
+            os.kill(os.getpid(), signum)
+
+        def on_end(self, _event):
+            pass
+    return SignalAtCompileStart()
+
+
+def raised_in(error):
+    """The module of each frame an exception's traceback passed through, outermost first."""
+    import traceback
+    return [frame.f_globals.get("__name__", "") for frame, _ in traceback.walk_tb(error.__traceback__)]
+
+
 def test_a_signal_during_a_cold_compile_waits_for_its_end(monkeypatch):
     """A signal that lands while numba compiles a kernel (here: sent at the compile's start, no cache) is held
     until the compile ends and raised in the caller: the kernel compiled whole, no frame of numba or llvmlite in
     the raise's traceback, nothing unraisable (llvmlite's finalizers had printed tracebacks)."""
-    import traceback
-
     import numba
     import numpy as np
     from numba.core import event
 
     from drive_common.runtime import interrupt
-
-    class SignalAtCompileStart(event.Listener):
-        def on_start(self, _event):
-            os.kill(os.getpid(), signal.SIGINT)
-
-        def on_end(self, _event):
-            pass
 
     unraisable = []
     monkeypatch.setattr(sys, "unraisablehook", unraisable.append)
@@ -195,11 +205,11 @@ def test_a_signal_during_a_cold_compile_waits_for_its_end(monkeypatch):
 
     deadline = time.monotonic() + 60.0
     with pytest.raises(interrupt.Interrupted) as stopped, interrupt.handled():
-        with event.install_listener("numba:compile", SignalAtCompileStart()):
+        with event.install_listener("numba:compile", signal_at_compile_start(signal.SIGINT)):
             kernel(np.arange(3.0))
         while time.monotonic() < deadline:
             time.sleep(0.01)
-    frames = [frame.f_globals.get("__name__", "") for frame, _ in traceback.walk_tb(stopped.value.__traceback__)]
+    frames = raised_in(stopped.value)
     assert stopped.value.signum == signal.SIGINT and len(kernel.overloads) == 1
     assert frames[-2:] == [__name__, interrupt.__name__], f"raised in {frames}, not in the compile's caller"
     assert not [name for name in frames if name.partition(".")[0] in interrupt.CANNOT_TAKE_A_RAISE], frames
@@ -216,28 +226,20 @@ def test_a_second_signal_during_a_cold_compile_inside_a_held_block_raises_once_i
 
     from drive_common.runtime import interrupt
 
-    class SecondSignalAtCompileStart(event.Listener):
-        def on_start(self, _event):
-            os.kill(os.getpid(), signal.SIGTERM)
-
-        def on_end(self, _event):
-            pass
-
     @numba.njit(cache=False)
     def kernel(x):
         return np.sum(np.cos(x))
 
-    import traceback
     deadline = time.monotonic() + 60.0
     with pytest.raises(interrupt.Interrupted) as stopped, interrupt.handled():
         with getattr(interrupt, block)():
             os.kill(os.getpid(), signal.SIGINT)
             assert interrupt.requested() == signal.SIGINT
-            with event.install_listener("numba:compile", SecondSignalAtCompileStart()):
+            with event.install_listener("numba:compile", signal_at_compile_start(signal.SIGTERM)):
                 kernel(np.arange(3.0))
             while time.monotonic() < deadline:
                 time.sleep(0.01)
-    frames = [frame.f_globals.get("__name__", "") for frame, _ in traceback.walk_tb(stopped.value.__traceback__)]
+    frames = raised_in(stopped.value)
     assert stopped.value.signum == signal.SIGINT and len(kernel.overloads) == 1
     assert frames[-2:] == [__name__, interrupt.__name__], f"raised in {frames}, not in the block"
 

@@ -2,11 +2,11 @@
 each sample, with the samples the recorder lost told from those the drive lost (docs/recordings.md, "A
 robot's recording").
 """
-import math
 
 import numpy as np
 
 from drive_common.contract.log import COLUMN
+from drive_common.math.frames import clarke
 
 ANSWER_COLUMNS = ("theta_e_hat", "u_inj_alpha", "state", "injection_amplitude")
 """Log columns of the recording estimator's answer to a sample (rotor_estimate, injection, estimator_state,
@@ -84,12 +84,10 @@ def rebuilt_currents(currents, u_applied, answered):
     if not rebuild.any():
         return currents
     currents = currents.copy()
-    alpha_beta = np.column_stack(((2.0 * currents[:, 0] - currents[:, 1] - currents[:, 2]) / 3.0,
-                                  (currents[:, 1] - currents[:, 2]) / math.sqrt(3.0)))
-    regressors = np.column_stack((u_applied, alpha_beta, np.ones(len(currents))))
+    alpha_beta = np.column_stack(clarke.py_func(*currents.T))
     steps = np.full_like(currents, np.nan)
     steps[1:] = currents[1:] - currents[:-1]
-    fit_at = np.isfinite(steps).all(axis=1) & np.isfinite(regressors).all(axis=1)
+    fit_at = np.isfinite(steps).all(axis=1) & np.isfinite(u_applied).all(axis=1)
     fit_at[1:] &= np.isfinite(alpha_beta[:-1]).all(axis=1)
     for first, end in _gaps(rebuild):
         before, after = first - 1, end
@@ -106,8 +104,7 @@ def rebuilt_currents(currents, u_applied, answered):
         level = currents[before].copy()
         predicted = []
         for k in range(first, after + 1):
-            ab = ((2.0 * level[0] - level[1] - level[2]) / 3.0, (level[1] - level[2]) / math.sqrt(3.0))
-            step = np.concatenate((u_applied[k], ab, (1.0,))) @ model
+            step = np.concatenate((u_applied[k], clarke.py_func(*level), (1.0,))) @ model
             predicted.append(step)
             level = level + step
         predicted = np.array(predicted)

@@ -24,7 +24,7 @@ from drive_common.contract.run_result import RunResult
 from drive_common.motor.nameplate import InverterRating
 from drive_common.motor.scaled_loops import scaled_loops
 from drive_tools.runner.loop import replay_samples
-from hf_estimator.build import drive_estimator, scaled_tracking
+from hf_estimator.build import SCALED_TRACKING, drive_estimator, scaled_tracking
 from hf_estimator.interface import excitation_need, injects
 
 from .excitation import MAX_CARRIER_PHASE_RAD, MIN_CARRIER_FRACTION, carrier_match
@@ -58,7 +58,7 @@ def replayed_estimator(recording, name, forced=False, own_startup=True):
     if injects(name):
         if not (own and recording.settings_stated):
             settings = {**recording.injection, **settings}
-        if not own:
+        if not own and name in SCALED_TRACKING:
             loops = scaled_loops(recording.commissioning.refined(recording.nameplate), inverter, recording.T_s)
             settings.update(scaled_tracking(name, loops, recording.injection.get("frequency_Hz", math.inf)))
         if not (own and own_startup):
