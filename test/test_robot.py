@@ -208,7 +208,8 @@ def arm(tmp_path_factory):
     drive_files(folder)
     path = robot_file(folder, ARM)
     out, err = (folder / "up.json").open("w"), (folder / "up.log").open("w")
-    process = subprocess.Popen([str(DRIVE), "up", str(path), "--json"], cwd=folder, stdout=out, stderr=err)
+    process = subprocess.Popen([str(DRIVE), "up", str(path), "--json", "--record", "arm_bag"], cwd=folder, stdout=out,
+                               stderr=err)
     process.folder = folder
     client = Client()
     try:
@@ -306,18 +307,46 @@ def test_sigterm_brings_every_axis_to_its_safe_state(arm):
     report = json.loads((process.folder / "up.json").read_text())
     for axis in report["axes"]:
         assert axis["inverter_off"] and axis["safe_state_sent"] >= 1, axis
+    assert report["recording"]["error"] is None
+    recorded_whole(process.folder / "arm_bag", report)
+
+
+def recorded_whole(bag, report):
+    """`drive up --record`'s bag is closed and holds every sample each axis's bridge took, and each armed axis's
+    estimate lies on its truth (the drive's topics stamped in the inverter's count, as the bridge's: an axis armed at
+    sample k0 counts from 0 inside, and a shift of k0 samples would put the estimate radians off its truth)."""
+    import numpy as np
+
+    from drive_common.contract.log import COLUMN
+    from drive_tools.bags.reader import bag_log, bag_topics, read_topics
+    assert (bag / "metadata.yaml").exists(), "the bag is closed"
+    for axis in report["axes"]:
+        namespace = axis["namespace"]
+        _, topics = read_topics(str(bag), ["currents_block"], namespace)
+        assert sum(len(msg.a) for _, msg in topics["currents_block"]) == axis["samples"], axis
+        n_p = next(config["n_p"] for config in bag_topics(str(bag), namespace)[2] if "n_p" in config)
+        log = bag_log(str(bag), namespace=namespace)[0]
+        theta_e = log[:, COLUMN["theta_m"]] * n_p
+        estimate = log[:, COLUMN["theta_e_hat"]]
+        armed = np.flatnonzero(np.isfinite(estimate))
+        assert armed.size > 5000, f"{namespace}: the armed drive's estimates are in the bag"
+        last = armed[-5000:]
+        error = np.angle(np.exp(1j * (estimate[last] - theta_e[last])))
+        assert np.sqrt(np.mean(error ** 2)) < 0.1, (namespace, np.sqrt(np.mean(error ** 2)))
 
 
 def test_a_lost_link_brings_every_axis_to_its_safe_state_and_exits_3(tmp_path):
     """The shoulder's simulation ends after 4 s: its link goes silent, and `drive up` stops every axis."""
     drive_files(tmp_path, duration_s=4.0, load=False)
     path = robot_file(tmp_path, ARM.replace("format_version: 1", "format_version: 1\ninitial_state: active"))
-    run = subprocess.run([str(DRIVE), "up", str(path), "--json"], cwd=tmp_path, capture_output=True, text=True,
-                         timeout=120)
+    run = subprocess.run([str(DRIVE), "up", str(path), "--json", "--record", "robot_bag"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=120)
     assert run.returncode == 3, run.stderr[-800:]
     assert "link is lost" in run.stderr.splitlines()[-1]
-    for axis in json.loads(run.stdout)["axes"]:
+    report = json.loads(run.stdout)
+    for axis in report["axes"]:
         assert axis["safe_state_sent"] >= 1, axis
+    recorded_whole(tmp_path / "robot_bag", report)
 
 
 def test_drive_up_with_view_serves_the_robots_axes_live_while_it_runs(tmp_path):

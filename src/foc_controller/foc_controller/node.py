@@ -519,7 +519,7 @@ class ControllerNode(DriveNode):
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
             if joint is not None:
                 j = self.joint_msg
-                j.header.stamp = stamp(k0 + joint, self.T_s)
+                j.header.stamp = stamp(k0 + joint + self.stamp_origin, self.T_s)
                 j.position = [self.joint_position(float(estimate[0][joint]))]
                 j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
                 j.effort = [estimated_torque(self.params, out[joint]["i_d_A"], out[joint]["i_q_A"])]
@@ -527,7 +527,7 @@ class ControllerNode(DriveNode):
         elif self.params and not self.health.latched:
             self.fault("bad_input", f"block {k0}: inputs of unequal length; zero voltage")
         u_alpha, u_beta = out["u_alpha_V"], out["u_beta_V"]
-        sec, nanosec = stamp_parts(k0, self.T_s)
+        sec, nanosec = stamp_parts(k0 + self.stamp_origin, self.T_s)
         if self.block_samples > 1:
             message = self.block_wire.encode(sec, nanosec, u_alpha, u_beta)
         else:

@@ -356,7 +356,7 @@ class EstimatorNode(DriveNode):
         if self.hand_over:
             self.hand_over(k0, currents.T, (theta_m, omega_m), (r["u_inj_alpha"], r["u_inj_beta"]),
                            (r["eps"], r["signal"], state))
-        sec, nanosec = stamp_parts(k0, self.T_s)
+        sec, nanosec = stamp_parts(k0 + self.stamp_origin, self.T_s)
         self.injection_pub.publish(wire.encode(sec, nanosec, r["u_inj_alpha"], r["u_inj_beta"]))
         self.estimate_pub.publish(wire.encode(sec, nanosec, theta_m, omega_m))
         self.state_block_pub.publish(wire.encode(sec, nanosec, r["eps"], r["signal"], state))
@@ -370,7 +370,7 @@ class EstimatorNode(DriveNode):
         if self.hand_over:
             self.hand_over(k, tuple(currents.tolist()), (theta_m, omega_m), (e["u_inj_alpha"], e["u_inj_beta"]),
                            e["state"])
-        sec, nanosec = stamp_parts(k, self.T_s)
+        sec, nanosec = stamp_parts(k + self.stamp_origin, self.T_s)
         self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, e["u_inj_alpha"], e["u_inj_beta"], 0.0))
         self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, theta_m, omega_m))
         self.state_pub.publish(self.state_wire.encode(sec, nanosec, e["eps"], e["signal"], e["state"]))

@@ -160,6 +160,9 @@ class DriveNode(Node):
     """False for the bridge node: its parameters are its link's, its inverter tells it the sampling period."""
     node_parameters = {}
     """The node's own parameters beyond NODE_PARAMETERS: name → (default, description)."""
+    stamp_origin = 0
+    """Samples added to the stamps of the samples this node publishes: a drive armed on a running inverter counts
+    its samples from 0 (drive_tools.launch.axis.HandOver), its topics stay in the inverter's count."""
 
     def __init__(self, node_name, **kwargs):
         super().__init__(node_name, **kwargs)

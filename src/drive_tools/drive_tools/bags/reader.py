@@ -167,7 +167,8 @@ def read_topics(path, wanted, namespace=None):
             namespaces = sorted({t.rsplit("/", 1)[0] or "/" for t in connections
                                  if t.endswith(("/currents", "/currents_block"))})
             if len(namespaces) > 1:
-                raise BagError(f"{path}: drives in {', '.join(namespaces)}; which one is ambiguous")
+                raise BagError(f"{path}: drives in {', '.join(namespaces)}; which one is ambiguous "
+                               f"(--namespace names it)")
             namespace = namespaces[0] if namespaces else "/drive"
         chosen = {}
         for topic in wanted:

@@ -219,6 +219,8 @@ def recording_options(parser):
     parser.add_argument("--windows", metavar="T0:T1[,T0:T1...]",
                         help="score these intervals [s] (default: the scenario's steady windows, else found "
                              "automatically where the recorded speed is steady)")
+    parser.add_argument("--namespace", metavar="NS",
+                        help="the drive's namespace, for a bag holding several (a robot's: `drive up --record`)")
 
 
 def warn_if_nameplate_only(source, motor, scenario_name):

@@ -18,7 +18,7 @@ def _recording(bag, args):
     """A bag read for scoring with the command line's --motor, --sample-period, --commissioning, --windows."""
     from drive_tools.evaluation.recording import read_recording
     return read_recording(bag, motor=args.motor, sample_period_s=args.sample_period,
-                          commissioning=args.commissioning, windows=windows_arg(args.windows))
+                          commissioning=args.commissioning, windows=windows_arg(args.windows), namespace=args.namespace)
 
 
 def _bags(pattern):

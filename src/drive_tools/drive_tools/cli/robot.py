@@ -3,10 +3,10 @@ NAME TRANSITION``: the supervisor's side, one lifecycle transition of a running 
 import sys
 
 from drive_common.contract.errors import DriveError
-from drive_common.contract.exit_codes import EXIT_OK
+from drive_common.contract.exit_codes import EXIT_OK, EXIT_RECORDING_FAILED
 from drive_common.contract.graph import EXECUTORS
 
-from .options import finite_float, print_json
+from .options import finite_float, print_json, record_arg
 from .outcome import say_reason
 
 AXIS_TRANSITIONS = ("configure", "activate", "deactivate", "cleanup", "shutdown", "state")
@@ -23,22 +23,30 @@ def cmd_up(args):
                            for a in axes)
         print(f"drive up: {len(axes)} axes: {states}; joint commands on {robot.command_topic}, states on "
               f"{robot.joint_states_topic}; Ctrl-C stops every axis", file=sys.stderr, flush=True)
-    result = bring_up(robot, args.executor, started=started)
+    record_arg(args.record)
+    result = bring_up(robot, args.executor, started=started, record=args.record)
     for line in result.scheduling["applied"] if result.scheduling else ():
         print(f"drive: {line}", file=sys.stderr)
     for line in result.scheduling["refused"] if result.scheduling else ():
         print(f"drive: warning: {line}", file=sys.stderr)
-    report = {"robot": robot.source, "exit_code": result.exit_code, "reason": result.reason, "axes": result.axes,
-              "faults": result.faults, "scheduling": result.scheduling}
+    exit_code, reason = result.exit_code, result.reason
+    recording = result.recording
+    if recording and recording["error"] and exit_code == EXIT_OK:
+        exit_code, reason = EXIT_RECORDING_FAILED, recording["error"]
+    report = {"robot": robot.source, "exit_code": exit_code, "reason": reason, "axes": result.axes,
+              "faults": result.faults, "scheduling": result.scheduling, "recording": recording}
     if args.json:
         print_json(report)
     else:
         for axis in result.axes:
             print(f"{axis['joint']}: {axis['state']}, link {axis.get('link', 'closed')}, inverter told to switch off "
                   f"{axis.get('safe_state_sent', 0)} time(s)")
-    if result.reason:
-        say_reason(result.reason)
-    return result.exit_code
+        if recording:
+            print(f"recording: {recording['path']}, {recording['messages']} messages"
+                  + (f" ({recording['error']})" if recording["error"] else ""))
+    if reason:
+        say_reason(reason)
+    return exit_code
 
 
 def cmd_axis(args):
@@ -105,6 +113,8 @@ def add_commands(sub):
     up = sub.add_parser("up", help="run a robot's axes (a robot file) until stopped, commanded over ROS")
     up.add_argument("robot", help="the robot file (docs/robot.md)")
     up.add_argument("--executor", choices=EXECUTORS, default="events")
+    up.add_argument("--record", metavar="BAG", help="record every axis's topics, /joint_states, the joint commands "
+                    "and /diagnostics into this new bag directory while the robot runs (closed when it stops)")
     up.add_argument("--json", action="store_true")
     up.set_defaults(func=cmd_up)
     axis = sub.add_parser("axis", help="a lifecycle transition of a running axis (drive up), or its state")

@@ -120,14 +120,15 @@ class Recording:
         return {"n_p": int(plate.n_p), "saliency": float(c.L_qh_H / c.L_dh_H), "speed_per_rated": share}
 
 
-def read_recording(path, motor=None, sample_period_s=None, commissioning=None, windows=None):
+def read_recording(path, motor=None, sample_period_s=None, commissioning=None, windows=None, namespace=None):
     """A Recording of the bag at ``path``. The command line's pieces: ``motor`` (a shipped motor or a
     motor file, --motor) and ``sample_period_s`` (--sample-period) supply what the bag does not say (a
     bag's own is used where it has one, so one command serves a corpus); ``commissioning`` (a file or
-    'nameplate', --commissioning) and ``windows`` ((t0, t1) [s], --windows) replace the bag's. BagError
-    names the bag and the option that supplies a missing piece."""
+    'nameplate', --commissioning) and ``windows`` ((t0, t1) [s], --windows) replace the bag's; ``namespace``
+    (--namespace) picks one drive of a bag holding several. BagError names the bag and the option that supplies a
+    missing piece."""
     path = str(path)
-    namespace, topics, configs = bag_topics(path)
+    namespace, topics, configs = bag_topics(path, namespace)
     sources = {}
     T_s = _sample_period(path, sample_period_s, configs, sources)
     scenario, unloadable = _scenario(path, configs)

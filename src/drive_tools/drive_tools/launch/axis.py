@@ -44,7 +44,8 @@ class HandOver:
     inverter's samples at the next block and answers from there. The armed drive counts its samples from that block
     (sample 0 of its start-up, whose phases are timed in samples from the run's first: EstimatorNode.join_at,
     ControllerNode.join_at): the hand-over shifts the stamps it hands on by the block's sample number, and the
-    commands' back."""
+    commands' back; what the drive's nodes publish is stamped in the inverter's count (DriveNode.stamp_origin), as
+    the bridge's topics are."""
 
     inputs_handed = True
 
@@ -88,6 +89,7 @@ class HandOver:
             with e.sample_lock:
                 e.join_at(0)
                 c.join_at(0)
+                e.stamp_origin = c.stamp_origin = k
         return e, stamp_parts(k - self.origin, e.T_s)
 
     def hand(self, take, sec, nanosec, values):
@@ -111,12 +113,14 @@ class HandOver:
 
 class AxisNode(LifecycleNode):
     """The managed node of one axis (``spec``: robot_file.AxisSpec, the ``index``-th of its robot), composing its
-    drive's nodes into ``executor`` (the robot's, in ``context``); ``workdir``: where a virtual link's files go."""
+    drive's nodes into ``executor`` (the robot's, in ``context``); ``workdir``: where a virtual link's files go;
+    ``recording`` (robot_recording.RobotRecording or None) hears each of its nodes before it publishes."""
 
-    def __init__(self, spec, index, context, executor, workdir, real_time=None):
+    def __init__(self, spec, index, context, executor, workdir, real_time=None, recording=None):
         super().__init__("drive_axis", context=context, namespace=spec.namespace)
         self.spec, self.index, self.executor, self.workdir = spec, index, executor, workdir
         self.real_time = real_time or RealTime()
+        self.recording = recording
         self.handover = HandOver()
         self.bridge = self.inverter = self.estimator = self.controller = None
         self.drive = None
@@ -158,6 +162,8 @@ class AxisNode(LifecycleNode):
         self.bridge = make_node("drive_bridge", self.context, spec.namespace, timeouts, link=host_link,
                                 controller=self.handover, estimator=self.handover)
         self.executor.add_node(self.bridge)
+        if self.recording is not None:
+            self.recording.heard(self.bridge)
         if self.inverter is not None:
             if spec.paced:
                 self.inverter.hear_host_writes(self.bridge.bridge.written_at)
@@ -214,7 +220,13 @@ class AxisNode(LifecycleNode):
         self.controller.hand_commands_to(self.handover.take_commands)
         for node in (estimator, self.controller):
             self.executor.add_node(node)
+        if self.recording is not None:
+            self.recording.heard(estimator, self.controller)
         return None
+
+    def drive_nodes(self):
+        """The axis's drive nodes now (bridge, estimator, controller: those that exist)."""
+        return [node for node in (self.bridge, self.estimator, self.controller) if node is not None]
 
     def on_activate(self, state):
         """Armed: the drive joins the inverter's samples as soon as it is ready (its start-up, then its commands;

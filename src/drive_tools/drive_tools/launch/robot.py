@@ -27,13 +27,15 @@ TRANSITION_IDS = {"configure": 1, "cleanup": 2, "activate": 3, "deactivate": 4, 
 @dataclass
 class RobotResult:
     """How `drive up` ended: ``exit_code``, ``reason`` (one line, empty when stopped by the operator), per axis its
-    report (axis.AxisNode.report), the robot node's fault counters and the real-time ``scheduling``."""
+    report (axis.AxisNode.report), the robot node's fault counters, the real-time ``scheduling`` and the recording."""
 
     exit_code: int = EXIT_OK
     reason: str = ""
     axes: list = field(default_factory=list)
     faults: dict = field(default_factory=dict)
     scheduling: dict = None
+    recording: dict = None
+    """With ``record``: robot_recording.RobotRecording.close's report (path, messages, error)."""
 
 
 def robot_node_class():
@@ -139,11 +141,12 @@ def _lifecycle_label(axis):
     return axis._state_machine.current_state[1]
 
 
-def bring_up(robot, executor_name="events", started=None):
+def bring_up(robot, executor_name="events", started=None, record=None):
     """Run ``robot`` (robot_file.RobotSpec) until SIGINT/SIGTERM or a lost link: every axis taken to the robot's
     initial state, then the operator's (lifecycle services) and the robot's commands followed. ``started(axes)``
-    is called once the axes are in their initial state. Returns a RobotResult; every axis ends in its safe state
-    (zero volts, the inverter told, the link closed)."""
+    is called once the axes are in their initial state; ``record``: a new bag directory every topic is recorded into
+    (robot_recording). Returns a RobotResult; every axis ends in its safe state (zero volts, the inverter told, the
+    link closed), then the recording is closed."""
     import rclpy
     from rclpy.signals import SignalHandlerOptions
 
@@ -160,13 +163,17 @@ def bring_up(robot, executor_name="events", started=None):
     workdir = tempfile.TemporaryDirectory(prefix="drive_up_")
     polling = polled()
     polling.__enter__()
-    executor = robot_node = None
+    executor = robot_node = recording = None
     try:
         for axis in robot.axes:
             locks.append(NamespaceLock(axis.namespace))
         refuse_occupied(context, [axis.namespace for axis in robot.axes])
         executor = make_executor(executor_name, context)
-        axes = [AxisNode(spec, i, context, executor, workdir.name, real_time) for i, spec in enumerate(robot.axes)]
+        if record is not None:
+            from .robot_recording import RobotRecording
+            recording = RobotRecording(robot, record, context, make_executor(executor_name, context))
+        axes = [AxisNode(spec, i, context, executor, workdir.name, real_time, recording)
+                for i, spec in enumerate(robot.axes)]
         robot_node = robot_node_class()(robot, axes, context=context)
         for node in (*axes, robot_node):
             executor.add_node(node)
@@ -178,11 +185,15 @@ def bring_up(robot, executor_name="events", started=None):
                     started(axes)
                 result.exit_code, result.reason = _run(executor, axes)
             result.axes = _stop(axes, executor)
+            if recording is not None:
+                result.recording = recording.close([robot_node, *(n for axis in axes for n in axis.drive_nodes())])
         result.faults = dict(robot_node.health.counters)
     finally:
         polling.__exit__(None, None, None)
         for axis in axes:
             axis.safe_state("stopped")
+        if recording is not None:
+            result.recording = recording.close()
         if executor is not None:
             executor.shutdown()
         for node in (*axes, robot_node):
