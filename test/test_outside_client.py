@@ -2,8 +2,6 @@
 drive's Fast DDS over the loopback): it reads a running drive's `angle_error` and `joint_states`, and commands
 `speed_command` on a drive without a scenario (docs/ros-graph.md, "A drive without a scenario")."""
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -13,38 +11,10 @@ import pytest
 from drive_common.contract.estimator_states import TRACKING
 
 pytest.importorskip("cyclonedds")
-CLIENT = Path(__file__).resolve().parent / "tools" / "dds_client.py"
+from tools.dds_process import client, lines, matched  # noqa: E402
+
 COMMISSIONING = Path(__file__).resolve().parent.parent / "commissioning" / "wang_spmsm.yaml"
 SPEED_RAD_PER_S = 4.0
-
-
-def client(out, *args):
-    """The client in a process of its own, its lines into the file ``out`` (a pipe nobody reads while the drive
-    runs would stop it once full)."""
-    with open(out, "w") as stream:
-        return subprocess.Popen([sys.executable, str(CLIENT), *args], stdout=stream, stderr=subprocess.PIPE,
-                                text=True)
-
-
-def lines(process, out, timeout_s=120.0):
-    """(the messages the client read, its summary) once it ended."""
-    _, err = process.communicate(timeout=timeout_s)
-    assert process.returncode == 0, err
-    records = [json.loads(line) for line in Path(out).read_text().splitlines()]
-    return [r for r in records[:-1] if "topic" in r], records[-1]["summary"]
-
-
-def matched(process, out, topics, timeout_s=120.0):
-    """Wait until the client has started and says each of ``topics`` matched (its reader a writer, its writer a
-    reader)."""
-    end = time.monotonic() + timeout_s
-    while True:
-        records = [json.loads(line) for line in Path(out).read_text().splitlines()]
-        said = {r.get("matched") for r in records}
-        if {"started": True} in records and set(topics) <= said:
-            return
-        assert process.poll() is None and time.monotonic() < end, f"the client matched only {said & set(topics)}"
-        time.sleep(0.05)
 
 
 def test_an_outside_client_reads_a_running_drives_angle_error_and_joint_states(tmp_path):

@@ -251,6 +251,30 @@ def test_joint_commands_move_both_joints_at_their_speed_and_sign(arm):
             name: status for name, status in client.diagnostics.items() if name.startswith(f"/{joint}/")})
 
 
+def test_an_outside_client_without_rclpy_commands_both_joints_and_reads_their_states(arm, tmp_path):
+    """A Cyclone DDS client (no rclpy, test/tools/dds_client.py) publishes the joint command topic for both joints at
+    20 Hz and reads `/joint_states`: what it reads shows each joint at its commanded speed and sign."""
+    pytest.importorskip("cyclonedds")
+    from tools.dds_process import client as outside_client
+    from tools.dds_process import matched, read_so_far
+    _, client = arm
+    out = tmp_path / "outside.jsonl"
+    command = json.dumps({"name": ["shoulder", "wrist"], "velocity": [-2.0, 2.5]})
+    outside = outside_client(out, "--publish", "/joint_commands", "JointState", command, "--read", "/joint_states",
+                             "JointState", "--rate", "20", "--duration", "600")
+    try:
+        matched(outside, out, ("/joint_commands", "/joint_states"))
+        client.spin_simulated(1.0)
+        read = [r for r in read_so_far(out) if set(r["name"]) == {"shoulder", "wrist"}][-10:]
+    finally:
+        outside.terminate()
+        outside.wait(timeout=30)
+    assert len(read) == 10
+    for joint, speed in (("shoulder", -2.0), ("wrist", 2.5)):
+        speeds = [r["velocity"][r["name"].index(joint)] for r in read]
+        assert sum(speeds) / len(speeds) == pytest.approx(speed, abs=0.6), (joint, speeds)
+
+
 @pytest.mark.parametrize("names, velocity, effort, kind", [
     (["shoulder", "elbow"], [3.0, 3.0], [], "command_unknown_joint"),
     (["shoulder", "wrist"], [math.nan, 3.0], [], "command_not_finite"),
