@@ -373,6 +373,21 @@ def test_a_lost_link_brings_every_axis_to_its_safe_state_and_exits_3(tmp_path):
     recorded_whole(tmp_path / "robot_bag", report)
 
 
+def test_an_axis_whose_drive_refuses_its_configuration_ends_the_start_in_one_line(tmp_path):
+    """Blocks of 20 samples delay the answer past what ours' targets allow on this motor: the estimator refuses its
+    configuration, `drive up` exits 3 naming the axis and the reason (no traceback), the other axis told to stop."""
+    drive_files(tmp_path, duration_s=4.0, load=False)
+    drive = tmp_path / "arm_drive.yaml"
+    drive.write_text(drive.read_text().replace("block_samples: 10", "block_samples: 20"))
+    path = robot_file(tmp_path, ARM.replace("format_version: 1", "format_version: 1\ninitial_state: active"))
+    run = subprocess.run([str(DRIVE), "up", str(path), "--json"], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=120)
+    assert run.returncode == 3 and "Traceback" not in run.stderr, run.stderr[-800:]
+    reason = run.stderr.splitlines()[-1]
+    assert "axis shoulder: configure failed: the estimator refused its configuration" in reason, reason
+    assert json.loads(run.stdout)["axes"][0]["error"]
+
+
 def test_drive_up_with_view_serves_the_robots_axes_live_while_it_runs(tmp_path):
     """`drive up ROBOT.yaml --view`: a `drive view` process serves the robot's axes while the robot runs; its page
     answers at the address said on stderr, and the view goes with the robot (here at the lost link's exit 3)."""

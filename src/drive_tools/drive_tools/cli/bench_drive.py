@@ -10,6 +10,7 @@ from hf_estimator.interface import injects
 from hf_estimator.registry import estimator_names
 
 from .bench_motors import add_random_motors_command
+from .bench_robot import add_robot_bench_command
 from .options import (
     CommandLineError,
     estimator_arg,
@@ -171,6 +172,7 @@ def add_bench_commands(bench_sub):
     motor_bench.set_defaults(func=cmd_bench_motor)
 
     add_random_motors_command(bench_sub)
+    add_robot_bench_command(bench_sub)
 
     full = bench_sub.add_parser("full-speed", help="the whole speed range: the blended estimator, injection only "
                                                    "and the observer only, angle error and HF current per speed band")

@@ -34,7 +34,8 @@ def cmd_up(args):
     if recording and recording["error"] and exit_code == EXIT_OK:
         exit_code, reason = EXIT_RECORDING_FAILED, recording["error"]
     report = {"robot": robot.source, "exit_code": exit_code, "reason": reason, "axes": result.axes,
-              "faults": result.faults, "scheduling": result.scheduling, "recording": recording}
+              "faults": result.faults, "scheduling": result.scheduling, "recording": recording,
+              "running": result.running}
     if args.json:
         print_json(report)
     else:

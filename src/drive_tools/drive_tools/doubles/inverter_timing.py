@@ -46,12 +46,23 @@ def timing_report(inverter, T_s, written_at=None):
                                     "counts": [int(c) for c in counts]},
               "watchdog_trips": inverter.counters["watchdog_trips"], "overruns": inverter.counters["overruns"],
               "host_silent_trips": inverter.counters["host_silent_trips"],
-              "periods_before_start": inverter.before_start,
+              "periods_before_start": inverter.before_start, **since_start(inverter),
               "in_time_by": "host write + wire" if getattr(inverter, "host_written_at", None) else "inverter read",
               "sent_late_in_time": inverter.counters.get("sent_late", 0),
               "read_late_in_time": inverter.counters.get("read_late", 0),
               "missing_runs": missing_runs(inverter.missing_runs, T_s),
               **written_before_due(inverter.missing_runs, written_at, getattr(inverter, "command_wire_s", 0.0))}
+
+
+def since_start(inverter):
+    """Periods from the drive's first command in time on, and the share of them without a command in time (a
+    drive armed on a running inverter: the periods before it are not its); 1.0 when none ever came in time."""
+    started_at = getattr(inverter, "started_at", None)
+    if started_at is None:
+        return {"periods_since_start": 0, "late_fraction_since_start": 1.0}
+    periods = inverter.k - started_at
+    missing = inverter.counters["missing"] - getattr(inverter, "missing_at_start", 0)
+    return {"periods_since_start": periods, "late_fraction_since_start": missing / max(periods, 1)}
 
 
 def written_before_due(runs, written_at, wire_s=0.0):

@@ -162,6 +162,9 @@ class VirtualInverter:
         send them in time."""
         self.started = False
         """A command came in time: the drive runs, and the watchdog counts."""
+        self.started_at, self.missing_at_start = None, 0
+        """The period of the first command in time, and the commands missing before it (a drive armed on a running
+        inverter, drive_tools.launch.axis, starts after many)."""
         self.before_start = 0
         """Periods without a command before the drive started (PWM off; docs/inverter-protocol.md)."""
         self.missing_runs = []
@@ -338,6 +341,8 @@ class VirtualInverter:
             self.before_start += 1
             return 0.0, 0.0
         if in_time:
+            if not self.started:
+                self.started_at, self.missing_at_start = j, self.counters["missing"]
             self.started = True
             self.missing = 0
             self.enabled = bool(flags & ENABLE)

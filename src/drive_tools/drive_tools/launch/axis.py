@@ -303,6 +303,16 @@ class AxisNode(LifecycleNode):
         b = self.bridge.bridge if self.bridge is not None else None
         return b is not None and b.lost and b.counters["samples"] > 0
 
+    def inverter_timing(self):
+        """How the armed drive kept pace with its virtual inverter, paced (drive_tools.doubles.inverter_timing, from
+        its first command in time on); None for a real inverter or a lock-step one."""
+        from drive_tools.doubles.inverter_timing import timing_report
+        if None in (self.inverter, self.bridge) or not self.spec.paced or not hasattr(self.inverter, "counters"):
+            return None
+        t = timing_report(self.inverter, self.drive.T_s, self.bridge.bridge.written_at)
+        return {key: t[key] for key in ("periods_since_start", "late_fraction_since_start", "watchdog_trips",
+                                        "answer_p50_us", "answer_p99_us", "overruns")}
+
     def report(self):
         """What the axis did: its lifecycle state, the bridge's counters, the virtual inverter's state."""
         report = {"joint": self.spec.joint, "namespace": self.spec.namespace, "error": self.error}

@@ -36,6 +36,8 @@ class RobotResult:
     scheduling: dict = None
     recording: dict = None
     """With ``record``: robot_recording.RobotRecording.close's report (path, messages, error)."""
+    running: dict = None
+    """The wall and CPU time of the process [s] from the axes' initial state to the run's end."""
 
 
 def robot_node_class():
@@ -183,7 +185,9 @@ def bring_up(robot, executor_name="events", started=None, record=None):
             if not result.exit_code:
                 if started:
                     started(axes)
+                wall, cpu = time.monotonic(), time.process_time()
                 result.exit_code, result.reason = _run(executor, axes)
+                result.running = {"wall_s": time.monotonic() - wall, "cpu_s": time.process_time() - cpu}
             result.axes = _stop(axes, executor)
             if recording is not None:
                 result.recording = recording.close([robot_node, *(n for axis in axes for n in axis.drive_nodes())])
@@ -232,14 +236,16 @@ def _run(executor, axes):
 
 
 def _stop(axes, executor):
-    """Every axis disarmed (zero volts, its inverter told to switch off), told again until its telemetry says its PWM
-    is off (commands written before the telling, which act a block or two later, switch it on again) or
-    SAFE_STATE_WAIT_S passed; their reports."""
+    """Every axis disarmed (zero volts, its inverter told to switch off; an axis whose configuration failed has no link
+    open), told again until its telemetry says its PWM is off (commands written before the telling, which act a block
+    or two later, switch it on again) or SAFE_STATE_WAIT_S passed; their reports."""
+    timings = [axis.inverter_timing() for axis in axes]
     for axis in axes:
         axis.handover.disarm()
+    linked = [axis for axis in axes if axis.bridge is not None]
     deadline, told = time.monotonic() + SAFE_STATE_WAIT_S, 0.0
     while time.monotonic() < deadline:
-        waiting = [axis for axis in axes if not axis.inverter_off() or not told]
+        waiting = [axis for axis in linked if not axis.inverter_off() or not told]
         if not waiting:
             break
         if time.monotonic() - told >= SAFE_STATE_RETELL_S:
@@ -247,4 +253,5 @@ def _stop(axes, executor):
             for axis in waiting:
                 axis.bridge.bridge.safe_state("stopped")
         executor.spin_once(timeout_sec=0.01)
-    return [{**axis.report(), "state": _lifecycle_label(axis)} for axis in axes]
+    return [{**axis.report(), "state": _lifecycle_label(axis), **({"inverter_timing": timing} if timing else {})}
+            for axis, timing in zip(axes, timings)]
