@@ -285,7 +285,7 @@ def test_an_outside_client_without_rclpy_commands_both_joints_and_reads_their_st
 def test_a_bad_command_is_refused_counted_on_diagnostics_and_never_applied(arm, names, velocity, effort, kind):
     _, client = arm
     good = (["shoulder", "wrist"], [3.0, -3.0], [])
-    client.spin(0.5, good)
+    client.spin_simulated(1.0, good)
     before = client.robot_faults().get(f"faults.{kind}", 0)
     from sensor_msgs.msg import JointState
     start, began = client.truth[-1][0], time.monotonic()
@@ -336,18 +336,23 @@ def test_sigterm_brings_every_axis_to_its_safe_state(arm):
 
 
 def recorded_whole(bag, report):
-    """`drive up --record`'s bag is closed and holds every sample each axis's bridge took, and each armed axis's
+    """`drive up --record`'s bag is closed and holds every sample each axis's bridge took (from the first, without a
+    gap, at least as many as its report counted: the bridge takes more until its link closes), and each armed axis's
     estimate lies on its truth (the drive's topics stamped in the inverter's count, as the bridge's: an axis armed at
     sample k0 counts from 0 inside, and a shift of k0 samples would put the estimate radians off its truth)."""
     import numpy as np
 
     from drive_common.contract.log import COLUMN
+    from drive_common.contract.stamps import sample_at
     from drive_tools.bags.reader import bag_log, bag_topics, read_topics
     assert (bag / "metadata.yaml").exists(), "the bag is closed"
     for axis in report["axes"]:
         namespace = axis["namespace"]
         _, topics = read_topics(str(bag), ["currents_block"], namespace)
-        assert sum(len(msg.a) for _, msg in topics["currents_block"]) == axis["samples"], axis
+        blocks = [(sample_at(msg.header.stamp.sec, msg.header.stamp.nanosec, 1e-4), len(msg.a))
+                  for _, msg in topics["currents_block"]]
+        assert all(k + n == k_next for (k, n), (k_next, _) in zip(blocks, blocks[1:])), f"{namespace}: a gap"
+        assert blocks[0][0] == 0 and sum(n for _, n in blocks) >= axis["samples"], (axis, blocks[-1])
         n_p = next(config["n_p"] for config in bag_topics(str(bag), namespace)[2] if "n_p" in config)
         log = bag_log(str(bag), namespace=namespace)[0]
         theta_e = log[:, COLUMN["theta_m"]] * n_p
@@ -444,7 +449,7 @@ def test_a_joint_homes_against_its_stop_then_follows_position_commands(tmp_path)
         while client.diagnostics.get("/shoulder/foc_controller", {}).get("homing") != "homed":
             assert time.monotonic() < deadline and process.poll() is None, (tmp_path / "up.log").read_text()[-800:]
             client.spin(0.2)
-        client.spin(0.5)
+        client.spin_simulated(0.5)
         assert client.truth[-1][1] == pytest.approx(STOP_RAD - 0.3, abs=0.06)
         assert client.joint("shoulder")[0] == pytest.approx(0.7, abs=0.06)
         assert all(math.isfinite(m.position[m.name.index("shoulder")]) for m in client.states if "shoulder" in m.name)

@@ -327,7 +327,8 @@ def write_commands(b, k0, u_alpha_V, u_beta_V, n, enable, safe_state):
         c[COMMAND_ERRORS] += N == 1
         return False
     slot = (k0 // N) % b.written.shape[0]
-    b.written[slot, 0], b.written[slot, 1] = k0, monotonic_s(b.timespec)
+    b.written[slot, 1] = monotonic_s(b.timespec)
+    b.written[slot, 0] = k0
     c[COMMANDS] += 1
     return True
 

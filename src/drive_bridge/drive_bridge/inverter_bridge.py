@@ -84,6 +84,14 @@ class BridgeBlock:
                 for i, ((i_a, i_b, i_c), theta) in enumerate(zip(self.currents_A.tolist(), self.theta_m.tolist()))]
 
 
+def written_at(written, block_samples, k):
+    """When the command answering sample k was written to the link (monotonic s) by the ring of writes ``written``
+    (InverterBridge.written) of blocks of ``block_samples``; NaN when it was not, or is no longer kept."""
+    k0 = k - k % block_samples
+    first, at = written[(k0 // block_samples) % written.shape[0]]
+    return at if first == k0 else math.nan
+
+
 def _state_field(index, kind, unset=math.nan):
     """An InverterBridge attribute held in its ``state`` array at ``index``, as ``kind`` (``unset`` for NaN)."""
     def get(self):
@@ -146,7 +154,10 @@ class InverterBridge:
         """The first samples of a block whose rest has not come yet (CAN FD frames)."""
         self.send_lock = threading.Lock()
         self.written = np.full((WRITES_KEPT, 2), np.nan)
-        """[first sample answered, monotonic s] of each command message written to the link (a ring)."""
+        """[first sample answered, monotonic s] of each command message written to the link (a ring; the time is
+        stored before the sample, so a reader that finds the sample finds its time)."""
+        self.shared = None
+        """The shared memory holding ``written`` once shared (share_written)."""
 
     last_seq = _state_field(cb.LAST_SEQ, int, None)
     """The last sequence number taken (None: none yet)."""
@@ -174,12 +185,29 @@ class InverterBridge:
     def written_at(self, k):
         """When the command answering sample k was written to the link (monotonic s); NaN when it was not,
         or is no longer kept."""
-        k0 = k - k % self.block_samples
-        first, at = self.written[(k0 // self.block_samples) % WRITES_KEPT]
-        return at if first == k0 else math.nan
+        return written_at(self.written, self.block_samples, k)
 
     def note_written(self, k0):
-        self.written[(k0 // self.block_samples) % WRITES_KEPT] = k0, time.monotonic()
+        slot = (k0 // self.block_samples) % WRITES_KEPT
+        self.written[slot, 1] = time.monotonic()
+        self.written[slot, 0] = k0
+
+    def share_written(self):
+        """Move the ring of writes into shared memory, for an inverter in another process of this machine to read
+        when each command was written (CLOCK_MONOTONIC is the machine's); its name. The host unlinks the name once
+        the reader has mapped it (``unlink_written``)."""
+        from multiprocessing import shared_memory
+        if self.shared is None:
+            self.shared = shared_memory.SharedMemory(create=True, size=self.written.nbytes)
+            shared = np.ndarray(self.written.shape, dtype=self.written.dtype, buffer=self.shared.buf)
+            shared[:] = self.written
+            self.written = shared
+        return self.shared.name
+
+    def unlink_written(self):
+        """Remove the shared ring's name (the memory stays while it is mapped)."""
+        if self.shared is not None:
+            self.shared.unlink()
 
     def frame_errors(self):
         """CRC, framing, version and unknown-type counts of the link's decoder."""

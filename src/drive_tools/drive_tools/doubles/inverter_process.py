@@ -52,6 +52,9 @@ class InverterProcess:
         self.counters = {"missing": 0, "watchdog_trips": 0, "overruns": 0, "host_silent_trips": 0}
         self.latencies_s, self.late_latencies_s, self.missing_runs = [], [], []
         self.before_start = 0
+        self.answers_s, self.never_answered = [], 0
+        self.host_written_at = None
+        self.started_at, self.missing_at_start = None, 0
         self.scheduling = {"applied": [], "refused": []}
         self.stopped = False
         self.report = None
@@ -67,6 +70,20 @@ class InverterProcess:
     def _read_line(self, timeout_s):
         ready, _, _ = select.select([self.process.stdout], [], [], timeout_s)
         return self.process.stdout.readline().strip() if ready else None
+
+    def hear_writes_of(self, bridge):
+        """Judge commands by when the host wrote them (VirtualInverter.hear_host_writes), across processes: the
+        host ``bridge``'s (InverterBridge) ring of writes in shared memory, mapped by the child before its clock
+        starts, then the name unlinked. InverterProcessError when the child does not take it."""
+        self._tell(f"host_writes {bridge.share_written()} {bridge.block_samples}")
+        heard = self._read_line(READY_TIMEOUT_S)
+        bridge.unlink_written()
+        if heard != "heard":
+            raise InverterProcessError(f"the virtual inverter's process did not map the host's writes ({heard!r})")
+        self.host_written_at = bridge.written_at
+
+    def note_answers(self, final=False):
+        """The child noted its answers itself (its report's ``answers_s``)."""
 
     def start(self):
         """Start the inverter's clock."""
@@ -110,6 +127,8 @@ class InverterProcess:
                 self.late_latencies_s = self.report["late_latencies_s"]
                 self.missing_runs = self.report["missing_runs"]
                 self.before_start = self.report["before_start"]
+                self.answers_s, self.never_answered = self.report["answers_s"], self.report["never_answered"]
+                self.started_at, self.missing_at_start = self.report["started_at"], self.report["missing_at_start"]
                 self.scheduling = self.report["scheduling"]
         return self.report is not None
 
@@ -143,6 +162,21 @@ def _arguments(argv):
     return parser.parse_args(argv)
 
 
+def _hear_host_writes(inverter, name, block_samples):
+    """Map the host's ring of writes (InverterBridge.share_written) named ``name`` and judge commands by it; the
+    mapping (kept while the inverter runs). The host unlinks the name: this process's resource tracker is told to
+    leave it alone."""
+    from multiprocessing import resource_tracker, shared_memory
+
+    from drive_bridge.inverter_bridge import WRITES_KEPT, written_at
+    shared = shared_memory.SharedMemory(name=name)
+    resource_tracker.unregister(shared._name, "shared_memory")
+    written = np.ndarray((WRITES_KEPT, 2), dtype=np.float64, buffer=shared.buf)
+    n = int(block_samples)
+    inverter.hear_host_writes(lambda k: written_at(written, n, k))
+    return shared
+
+
 def main(argv=None):
     from drive_bridge.inverter_link import CanLink
     from drive_common.config.parameters import all_parameters, scenario_from_parameters
@@ -171,17 +205,25 @@ def main(argv=None):
     cpus = {int(c) for c in args.cpus.split(",")} if args.cpus else None
     applied, refused = real_time_scheduling(args.rt_priority, cpus)
     print("ready", flush=True)
-    if sys.stdin.readline().strip() != "start":
+    line, shared = sys.stdin.readline().strip(), None
+    if line.startswith("host_writes "):
+        shared = _hear_host_writes(inverter, *line.split()[1:])
+        print("heard", flush=True)
+        line = sys.stdin.readline().strip()
+    if line != "start":
         endpoint.close()
         return 0
     listener = threading.Thread(target=lambda: (sys.stdin.readline(), inverter.stop()), daemon=True)
     listener.start()
     with collector_held():
         inverter.run()
+    if shared is not None:
+        inverter.note_answers(final=True)
     report = {"k": inverter.k, "counters": inverter.counters, "latencies_s": inverter.latencies_s,
               "late_latencies_s": inverter.late_latencies_s, "missing_runs": inverter.missing_runs,
-              "before_start": inverter.before_start,
-              "scheduling": {"applied": applied, "refused": refused}}
+              "before_start": inverter.before_start, "answers_s": inverter.answers_s,
+              "never_answered": inverter.never_answered, "started_at": inverter.started_at,
+              "missing_at_start": inverter.missing_at_start, "scheduling": {"applied": applied, "refused": refused}}
     try:
         print(json.dumps(report), flush=True)
     except BrokenPipeError:

@@ -64,13 +64,15 @@ HOST_SILENCE_S = 0.1
 @dataclass(frozen=True)
 class InverterOptions:
     """How a virtual inverter runs: ``rate_Hz`` its clock (None: lock-step, waiting up to ``command_wait_s``
-    [s] for each command), ``watchdog_periods`` missing commands in a row that switch PWM off (None: 10
+    [s] for each command; ``disabled_wait_s`` instead while the host keeps PWM disabled, where it sends no
+    command: None, the same), ``watchdog_periods`` missing commands in a row that switch PWM off (None: 10
     periods, three blocks with blocks), ``trip_current_A`` its overcurrent trip (None: the nameplate's),
     ``drive_id`` on the link, ``encoder`` whether it has one, ``clock`` its clock [s] (a test's virtual
     clock paces it without the machine's pace)."""
 
     rate_Hz: float = None
     command_wait_s: float = 0.5
+    disabled_wait_s: float = None
     watchdog_periods: int = None
     trip_current_A: float = None
     drive_id: int = 0
@@ -102,6 +104,7 @@ class VirtualInverter:
         self.delay = scenario.drive_delay_periods()
         self.endpoint = endpoint
         self.rate_Hz, self.command_wait_s = options.rate_Hz, options.command_wait_s
+        self.disabled_wait_s = options.disabled_wait_s
         self.watchdog_periods = options.watchdog_periods or max(10, 3 * self.block_samples)
         """Missing commands in a row that switch PWM off (default 10 periods, three blocks with blocks)."""
         self.trip_current_A = options.trip_current_A or default_trip_current_A(scenario.motor.nameplate)
@@ -475,15 +478,16 @@ class VirtualInverter:
         faulty double, is not waited for), each at most ``command_wait_s`` after its telemetry was sent; nor is
         the answer to telemetry lost on the way (``lost_on_the_way``). What arrived by then is taken even when
         this thread could not run until after it (a loaded machine, another thread holding the interpreter). The
-        outcome then does not depend on the machine's pace, only on what the host sent."""
+        outcome then does not depend on the machine's pace, only on what the host sent. While the host keeps PWM
+        disabled (no command in time enabled it yet, or it said CONTROL disable) the wait is ``disabled_wait_s``
+        where given: the simulation of a disarmed drive goes on at that pace."""
         N = self.block_samples
         for c in range(max(0, first), min(last, self.k)):
             if c - c % N in self.lost_on_the_way:
                 continue
-            until = self.sent_at[c] + self.command_wait_s
-            while (c not in self.commands and self.heard_up_to < c and self.clock() < until
+            while (c not in self.commands and self.heard_up_to < c and self.clock() < self.waits_until(c)
                    and not self.stopped.is_set()):
-                for message in self.receive(min(until - self.clock(), 0.05)):
+                for message in self.receive(min(self.waits_until(c) - self.clock(), 0.05)):
                     self.handle(message)
             while c not in self.commands and self.heard_up_to < c and not self.stopped.is_set():
                 arrived = self.receive(0.0)
@@ -491,6 +495,13 @@ class VirtualInverter:
                     break
                 for message in arrived:
                     self.handle(message)
+
+    def waits_until(self, c):
+        """Lock-step: until when the command answering sample c is waited for [s of the clock]: ``command_wait_s``
+        after its telemetry was sent, ``disabled_wait_s`` (where given) while PWM is disabled (a CONTROL disable
+        heard meanwhile ends a longer wait)."""
+        wait = self.command_wait_s if self.enabled or self.disabled_wait_s is None else self.disabled_wait_s
+        return self.sent_at[c] + wait
 
     def handle(self, message):
         """A message from the host: a command stored for its period with when it was read (whether in

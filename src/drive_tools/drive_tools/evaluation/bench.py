@@ -408,6 +408,7 @@ REAL_TIME_LEVERS = {"plain": {"hold_collector": False}, "collector": {}, "collec
                     "collector+fifo+cpu1+workqueue1+intra+pmqos": {**_ROBOT, "cpu_dma_latency_us": 0},
                     "collector+fifo+cpu1+workqueue1+intra+inverter_apart": {**_ROBOT, "inverter_apart": True},
                     "robot": {**_ROBOT, "answer": {}},
+                    "robot+inverter_apart": {**_ROBOT, "answer": {}, "inverter_apart": True},
                     "robot+publisher_sleep_50ms": {**_ROBOT, "answer": {"reader_stall_s": 0.05}},
                     "robot+collect_every_100ms": {**_ROBOT, "answer": {}, "forced_collection_s": 0.1}}
 """The soft real-time levers `drive bench bridge --paced --graph` measures one at a time (docs/ros-graph.md,
@@ -418,7 +419,9 @@ link's bytes pass through one) on CPU 1 too; and the controller taking the estim
 0 µs (pmqos: PM QoS, /dev/cpu_dma_latency). The virtual inverter runs on a thread of the graph's process
 but in inverter_apart, where it has a process of its own (on the CPU the graph leaves). ``robot``: `drive
 launch --link L --paced` as it runs by default, over a pty the answer compiled (``answer``: its
-AnswerOptions' fields; CAN keeps the nodes' answer); and the stalls of its side that is not real-time: the
+AnswerOptions' fields; CAN keeps the nodes' answer); ``robot+inverter_apart``: the same with the virtual inverter in
+a process of its own, judged by the host's write and the wire as on a thread (the host's ring of writes in shared
+memory); and the stalls of its side that is not real-time: the
 ring's reader (the publisher and the log's writer) sleeping 50 ms after each read, a full garbage collection
 forced every 100 ms on a thread of the drive's process (``forced_collection_s``). Each lever's keys are
 launch's: RealTime's fields, GraphOptions' ``intra_process`` and ``answer``, DriveSpec's

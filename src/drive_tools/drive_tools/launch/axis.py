@@ -18,11 +18,13 @@ from .launcher import DriveSpec, RealTime, make_node
 
 BRIDGE_COMMAND_TIMEOUT_S = 0.1
 """No command from the armed drive for this long: the bridge tells the inverter to switch off."""
-VIRTUAL_COMMAND_WAIT_S = 0.05
-"""A virtual inverter in lock-step (``paced: false``) waits this long for each command before it applies zero volts:
-a disarmed axis's simulation then runs at 1/50 of real time."""
 LOCKSTEP_TIMEOUT_S = 1.0
-"""The estimator's wait for a command it misses (the controller in this process answers at once)."""
+"""The estimator's wait for a command it misses (the controller in this process answers at once), and a virtual
+inverter's in lock-step (``paced: false``) while the drive has PWM enabled: the simulation waits for the drive, so
+its outcome does not depend on the machine's pace (a loaded machine holding the drive for less)."""
+DISABLED_WAIT_S = 0.05
+"""A virtual inverter in lock-step waits this long for each command while PWM is disabled (a disarmed axis sends
+none): its simulation then runs at 1/50 of real time."""
 
 
 def homing_parameters(spec):
@@ -157,7 +159,9 @@ class AxisNode(LifecycleNode):
             host_link = self.open_link(drive)
         except (DriveError, ValueError, OSError) as error:
             return self.fail(error)
-        timeouts = {"link_timeout_s": spec.link_timeout_s, "command_timeout_s": BRIDGE_COMMAND_TIMEOUT_S,
+        lock_step = spec.link == "virtual" and not spec.paced
+        wait = LOCKSTEP_TIMEOUT_S if lock_step else 0.0
+        timeouts = {"link_timeout_s": spec.link_timeout_s + wait, "command_timeout_s": BRIDGE_COMMAND_TIMEOUT_S + wait,
                     "publish_clock": False, "block_samples": n}
         self.bridge = make_node("drive_bridge", self.context, spec.namespace, timeouts, link=host_link,
                                 controller=self.handover, estimator=self.handover)
@@ -189,7 +193,7 @@ class AxisNode(LifecycleNode):
         scenario = behind_an_inverter(with_drive(load_scenario(spec.scenario), drive), MAX_BLOCK)
         where = DriveSpec(scenario=spec.scenario, namespace=spec.namespace, link=spec.virtual_link, paced=spec.paced)
         self.inverter, host_link = _virtual_inverter(scenario, {}, where, (self.workdir, self.index),
-                                                     VIRTUAL_COMMAND_WAIT_S, self.real_time)
+                                                     LOCKSTEP_TIMEOUT_S, self.real_time, DISABLED_WAIT_S)
         return host_link
 
     def node_parameters(self):

@@ -375,7 +375,9 @@ def launch_many(specs, options=GraphOptions(), progress=None):
             listeners.append(listener)
             host_bridge = made["drive_bridge"].bridge if spec.link and processes == "composed" else None
             host_bridge = answer or host_bridge
-            if host_bridge is not None and spec.paced and not spec.inverter_apart:
+            if host_bridge is not None and spec.paced and spec.inverter_apart:
+                inverter.hear_writes_of(answer.bridge if answer is not None else host_bridge)
+            elif host_bridge is not None and spec.paced:
                 inverter.hear_host_writes(host_bridge.written_at)
             settings = DriverSettings(options.record, 0.1 if processes == "composed" else 0.5,
                                       options.startup_timeout_s, intra_process)
@@ -624,10 +626,11 @@ def _result(driver, drive, options, interrupted, hop=None):
                        if driver.answer else None)
 
 
-def _virtual_inverter(scenario, parameters, spec, where, timeout_s, real_time=RealTime()):
+def _virtual_inverter(scenario, parameters, spec, where, timeout_s, real_time=RealTime(), disabled_wait_s=None):
     """The virtual inverter of ``spec``'s link for ``scenario`` (not yet running) and the host's end of its link,
     ``where``: (working directory, drive id). Paced (``spec.paced``), it runs on its own clock, else it waits
-    for each of the graph's commands as long as a plant node would (``timeout_s``). Apart
+    for each of the graph's commands as long as a plant node would (``timeout_s``; ``disabled_wait_s`` while the
+    host keeps PWM disabled, InverterOptions). Apart
     (``spec.inverter_apart``): in a process of its own, as a real inverter is a device of its own (on the CPUs
     ``real_time.cpus`` leave, if any; CAN then on a cable between processes, drive_bridge.can_cable). Not apart,
     it is ``spec.inverter`` (a double) on a thread of the host's process."""
@@ -638,6 +641,7 @@ def _virtual_inverter(scenario, parameters, spec, where, timeout_s, real_time=Re
     from drive_tools.doubles.virtual_links import make_links
     workdir, drive_id = where
     options = InverterOptions(rate_Hz=1.0 / scenario.T_s if spec.paced else None, command_wait_s=timeout_s,
+                              disabled_wait_s=disabled_wait_s,
                               drive_id=drive_id)
     if not spec.inverter_apart:
         endpoint, host_link = make_links(spec.link, workdir, drive_id)

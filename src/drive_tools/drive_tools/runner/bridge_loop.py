@@ -74,14 +74,17 @@ def virtual_inverter_link(scenario, link, options=None, inverter=VirtualInverter
     directory, the inverter made by ``inverter`` (a class or factory called as VirtualInverter) with
     ``options`` (InverterOptions; None: lock-step); the inverter is not started. Both and the link are
     stopped and closed on exit. In lock-step the inverter is silent while it waits for the host (up to its
-    ``command_wait_s``), so the bridge's link and command timeouts count from then: a host slowed by its
-    machine is not a lost link."""
+    ``command_wait_s``), and a link it lost stays silent until its watchdog trips (``watchdog_periods`` such
+    waits): the bridge takes the link for lost, or the host (this loop) for silent, after half that silence (at
+    least a wait and LINK_TIMEOUT_S or COMMAND_TIMEOUT_S), so a host slowed by its machine for less is neither, on
+    any machine."""
     scenario = behind_an_inverter(scenario, MAX_BLOCK)
     with tempfile.TemporaryDirectory(prefix="drive_bridge_") as workdir:
         endpoint, host_link = make_links(link, workdir)
         virtual = inverter(scenario, endpoint, options or InverterOptions())
-        timeouts = {} if virtual.rate_Hz else {"link_timeout_s": virtual.command_wait_s + LINK_TIMEOUT_S,
-                                               "command_timeout_s": virtual.command_wait_s + COMMAND_TIMEOUT_S}
+        wait, silence = virtual.command_wait_s, 0.5 * virtual.watchdog_periods * virtual.command_wait_s
+        timeouts = {} if virtual.rate_Hz else {"link_timeout_s": max(wait + LINK_TIMEOUT_S, silence),
+                                               "command_timeout_s": max(wait + COMMAND_TIMEOUT_S, silence)}
         bridge = InverterBridge(host_link, block_samples=scenario.block_samples, **timeouts)
         if virtual.rate_Hz:
             virtual.hear_host_writes(bridge.written_at)
