@@ -144,6 +144,13 @@ class Client:
             self.truth.append((sec + 1e-9 * nanosec, float(theta[0]), time.monotonic()))
         self.node.create_subscription(message_class(topic), f"/shoulder/{topic}", on_truth, topic_qos(topic),
                                       raw=True)
+        self.wrist_at = [0.0]
+        """The wrist's simulated time [s] (its own lock-step simulation runs at its own pace)."""
+
+        def on_wrist(data):
+            sec, nanosec, *_ = decode_block(data)
+            self.wrist_at[0] = sec + 1e-9 * nanosec
+        self.node.create_subscription(message_class(topic), f"/wrist/{topic}", on_wrist, topic_qos(topic), raw=True)
         self.node.create_subscription(message_class("zero_voltage"), "/shoulder/zero_voltage",
                                       lambda data: self.zero_voltage.append(time.monotonic()),
                                       topic_qos("zero_voltage"), raw=True)
@@ -163,11 +170,13 @@ class Client:
             self.executor.spin_once(timeout_sec=0.02)
 
     def spin_simulated(self, seconds, command=None):
-        """Spin until the shoulder's simulation has run ``seconds`` more (lock-step: its pace is the machine's)."""
+        """Spin until both joints' simulations have run ``seconds`` more (lock-step: each one's pace is the
+        machine's)."""
         self.spin(0.1, command)
-        start, deadline = self.truth[-1][0], time.monotonic() + 60.0
-        while self.truth[-1][0] < start + seconds:
-            assert time.monotonic() < deadline, f"the simulation stopped at {self.truth[-1][0]:.3f} s"
+        start, wrist, deadline = self.truth[-1][0], self.wrist_at[0], time.monotonic() + 60.0
+        while self.truth[-1][0] < start + seconds or self.wrist_at[0] < wrist + seconds:
+            assert time.monotonic() < deadline, (f"the simulations stopped at {self.truth[-1][0]:.3f} s (shoulder), "
+                                                 f"{self.wrist_at[0]:.3f} s (wrist)")
             self.spin(0.1, command)
 
     def lifecycle(self, namespace, transition=None):
@@ -349,6 +358,7 @@ def recorded_whole(bag, report):
     from drive_common.contract.stamps import sample_at
     from drive_tools.bags.reader import bag_log, bag_topics, read_topics
     assert (bag / "metadata.yaml").exists(), "the bag is closed"
+    assert report["recording"]["not_heard_from_the_start"] == []
     for axis in report["axes"]:
         namespace = axis["namespace"]
         _, topics = read_topics(str(bag), ["currents_block"], namespace)
@@ -428,6 +438,7 @@ HOMED_ARM = """format_version: 1
 initial_state: active
 axes:
   - {joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false, hold_timeout_s: .inf,
+     command_timeout_s: 0.5,
      homing: {method: hard_stop, direction: 1, current_A: 1.5, offset_rad: -1.0, backoff_rad: 0.3}}
   - {joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false}
 """

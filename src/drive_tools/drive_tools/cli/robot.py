@@ -43,8 +43,10 @@ def cmd_up(args):
             print(f"{axis['joint']}: {axis['state']}, link {axis.get('link', 'closed')}, inverter told to switch off "
                   f"{axis.get('safe_state_sent', 0)} time(s)")
         if recording:
+            unheard = recording["not_heard_from_the_start"]
             print(f"recording: {recording['path']}, {recording['messages']} messages"
-                  + (f" ({recording['error']})" if recording["error"] else ""))
+                  + (f" ({recording['error']})" if recording["error"] else "")
+                  + (f"; not heard from their start (the machine was slow): {', '.join(unheard)}" if unheard else ""))
     if reason:
         say_reason(reason)
     return exit_code

@@ -64,8 +64,9 @@ HOST_SILENCE_S = 0.1
 @dataclass(frozen=True)
 class InverterOptions:
     """How a virtual inverter runs: ``rate_Hz`` its clock (None: lock-step, waiting up to ``command_wait_s``
-    [s] for each command; ``disabled_wait_s`` instead while the host keeps PWM disabled, where it sends no
-    command: None, the same), ``watchdog_periods`` missing commands in a row that switch PWM off (None: 10
+    [s] for each command; ``disabled_wait_s`` instead until the host's first command and after it said CONTROL
+    disable, until it commands again: None, the same), ``watchdog_periods`` missing commands in a row that switch
+    PWM off (None: 10
     periods, three blocks with blocks), ``trip_current_A`` its overcurrent trip (None: the nameplate's),
     ``drive_id`` on the link, ``encoder`` whether it has one, ``clock`` its clock [s] (a test's virtual
     clock paces it without the machine's pace)."""
@@ -105,6 +106,8 @@ class VirtualInverter:
         self.endpoint = endpoint
         self.rate_Hz, self.command_wait_s = options.rate_Hz, options.command_wait_s
         self.disabled_wait_s = options.disabled_wait_s
+        self.commanding = False
+        """Lock-step: the host commands (a command message heard since its last CONTROL disable)."""
         self.watchdog_periods = options.watchdog_periods or max(10, 3 * self.block_samples)
         """Missing commands in a row that switch PWM off (default 10 periods, three blocks with blocks)."""
         self.trip_current_A = options.trip_current_A or default_trip_current_A(scenario.motor.nameplate)
@@ -478,9 +481,9 @@ class VirtualInverter:
         faulty double, is not waited for), each at most ``command_wait_s`` after its telemetry was sent; nor is
         the answer to telemetry lost on the way (``lost_on_the_way``). What arrived by then is taken even when
         this thread could not run until after it (a loaded machine, another thread holding the interpreter). The
-        outcome then does not depend on the machine's pace, only on what the host sent. While the host keeps PWM
-        disabled (no command in time enabled it yet, or it said CONTROL disable) the wait is ``disabled_wait_s``
-        where given: the simulation of a disarmed drive goes on at that pace."""
+        outcome then does not depend on the machine's pace, only on what the host sent. While the host does not
+        command (none heard yet, or none since it said CONTROL disable) the wait is ``disabled_wait_s`` where
+        given: the simulation of a disarmed drive goes on at that pace."""
         N = self.block_samples
         for c in range(max(0, first), min(last, self.k)):
             if c - c % N in self.lost_on_the_way:
@@ -498,9 +501,9 @@ class VirtualInverter:
 
     def waits_until(self, c):
         """Lock-step: until when the command answering sample c is waited for [s of the clock]: ``command_wait_s``
-        after its telemetry was sent, ``disabled_wait_s`` (where given) while PWM is disabled (a CONTROL disable
-        heard meanwhile ends a longer wait)."""
-        wait = self.command_wait_s if self.enabled or self.disabled_wait_s is None else self.disabled_wait_s
+        after its telemetry was sent, ``disabled_wait_s`` (where given) while the host does not command (a CONTROL
+        disable heard meanwhile ends a longer wait)."""
+        wait = self.command_wait_s if self.commanding or self.disabled_wait_s is None else self.disabled_wait_s
         return self.sent_at[c] + wait
 
     def handle(self, message):
@@ -509,6 +512,7 @@ class VirtualInverter:
         period already decided is discarded), a CONTROL carried out."""
         now = self.last_heard = self.clock()
         if isinstance(message, (Command, CommandBlock)):
+            self.commanding = True
             if isinstance(message, Command):
                 seq, values = message.seq, ((message.u_alpha, message.u_beta),)
             else:
@@ -525,7 +529,7 @@ class VirtualInverter:
                 self.missing = 0
                 self.shorting = False
             elif message.action == CONTROL_DISABLE:
-                self.enabled = False
+                self.enabled = self.commanding = False
             elif message.action == CONTROL_SEND_HELLO:
                 self.send(self.hello)
 

@@ -11,9 +11,14 @@ from drive_common.contract.topics import CLOCK, DIAGNOSTICS, JOINT_STATES, TOPIC
 RECORDED_TOPICS = tuple(topic for topic in TOPICS if topic not in (CLOCK, DIAGNOSTICS))
 """Each axis's contract topics a recording holds: all but the simulation clock (a robot has none) and /diagnostics
 (one topic for the whole robot, recorded once)."""
-HEARD_WAIT_S = 2.0
-"""How long a node's publishers may take to be matched by the recorder before they publish (in one process: at
-once; the bound keeps a start from hanging)."""
+HEARD_WAIT_S = 10.0
+"""How long a node's publishers may take to be matched by the recorder before they publish (in one process: within
+milliseconds on a quiet machine, over 2 s at a load of 15 on two cores; the bound keeps a start from hanging, and
+a topic not heard within it is reported)."""
+
+
+DRAIN_QUIET_SPINS, DRAIN_LIMIT_S = 5, 5.0
+"""At the end, the recorder takes what its readers hold until 5 spins of 20 ms write nothing (at most 5 s)."""
 
 
 class RobotRecording:
@@ -32,7 +37,7 @@ class RobotRecording:
         self.path = Path(path)
         self.writer = BagWriter(self.path)
         self.node = Node("drive_recorder", context=context)
-        self.names = set()
+        self.subscriptions = {}
         for axis in robot.axes:
             for topic in RECORDED_TOPICS:
                 self._subscribe(full_name(axis.namespace, topic), message_class(topic), topic_qos(topic),
@@ -50,6 +55,9 @@ class RobotRecording:
         self.listening = Listening(executor, [self.node])
         self.listening.start()
         self.closed = None
+        self.unheard = []
+        """Topics whose publisher the recorder had not matched within HEARD_WAIT_S (their first messages may be
+        missing)."""
 
     def _subscribe(self, name, cls, qos, recorded):
         """Record ``name`` (``recorded``: its type, offered QoS as the bag stores it, whether its first field is the
@@ -57,23 +65,43 @@ class RobotRecording:
         msgtype, offered, stamped = recorded
         self.writer.add(name, msgtype, offered)
         write = self.writer.write
-        self.node.create_subscription(cls, name, lambda data: write(name, data, stamped), qos, raw=True)
-        self.names.add(name)
+        self.subscriptions[name] = self.node.create_subscription(cls, name, lambda data: write(name, data, stamped),
+                                                                 qos, raw=True)
 
     def heard(self, *nodes):
-        """Wait (at most HEARD_WAIT_S in all) until every publisher of ``nodes`` on a recorded topic is matched by
-        the recorder: nothing they publish from then on is missed."""
+        """Wait (at most HEARD_WAIT_S in all) until every publisher of ``nodes`` on a recorded topic and the
+        recorder's reader of it have matched each other (both sides: a reader that has not matched its writer yet
+        drops what the writer already sends it): nothing they publish from then on is missed."""
         deadline = time.monotonic() + HEARD_WAIT_S
         for node in nodes:
             for publisher in node.publishers:
-                while (publisher.topic_name in self.names and publisher.get_subscription_count() == 0
+                reader = self.subscriptions.get(publisher.topic_name)
+                if reader is None:
+                    continue
+                while ((publisher.get_subscription_count() == 0 or reader.get_publisher_count() == 0)
                        and time.monotonic() < deadline):
                     time.sleep(0.001)
+                if publisher.get_subscription_count() == 0 or reader.get_publisher_count() == 0:
+                    self.unheard.append(publisher.topic_name)
+
+    def _drain(self):
+        """Stop the recorder's thread, then take on this one every message its readers hold (acknowledged is
+        received, not yet written): spun until nothing more is written for DRAIN_QUIET_SPINS spins (at most
+        DRAIN_LIMIT_S)."""
+        listening = self.listening
+        listening.stopped.set()
+        if listening.thread.is_alive():
+            listening.thread.join(5.0)
+        quiet, deadline = 0, time.monotonic() + DRAIN_LIMIT_S
+        while quiet < DRAIN_QUIET_SPINS and time.monotonic() < deadline:
+            before = sum(self.writer.counts.values())
+            listening.executor.spin_once(timeout_sec=0.02)
+            quiet = quiet + 1 if sum(self.writer.counts.values()) == before else 0
 
     def close(self, nodes=()):
         """End the recording: what ``nodes`` published acknowledged by the recorder (at most the launcher's
-        ACKNOWLEDGE_WAIT_S), its thread stopped, the bag closed. The recording's report: path, messages written
-        and, where a write failed, the error (BagWriteError's one line)."""
+        ACKNOWLEDGE_WAIT_S), its thread stopped, the bag closed. The recording's report: path, messages written,
+        where a write failed the error (BagWriteError's one line), and the topics not heard from their start."""
         from drive_common.ros.node import acknowledged
         from drive_tools.bags.common import BagWriteError
 
@@ -81,12 +109,14 @@ class RobotRecording:
         if self.closed is not None:
             return self.closed
         acknowledged(nodes, ACKNOWLEDGE_WAIT_S)
-        self.listening.stop()
+        self._drain()
+        self.listening.executor.shutdown()
         error = None
         try:
             self.writer.close()
         except BagWriteError as failure:
             error = str(failure)
         self.node.destroy_node()
-        self.closed = {"path": str(self.path), "messages": sum(self.writer.counts.values()), "error": error}
+        self.closed = {"path": str(self.path), "messages": sum(self.writer.counts.values()), "error": error,
+                       "not_heard_from_the_start": sorted(set(self.unheard))}
         return self.closed
