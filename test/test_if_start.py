@@ -12,11 +12,14 @@ import pytest
 
 from drive_common.config.motor_experiments import ExperimentOptions
 from drive_common.config.scenario import motor_experiment
+from drive_common.contract.estimator_states import OPEN_LOOP
 from drive_common.contract.log import COLUMN
+from drive_common.math.dead_time import MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT
 from drive_common.motor.commissioning import resolve_commissioning, save_commissioning
 from drive_common.motor.motor_file import load_motor, motor_from_mapping
 from drive_common.motor.open_loop_start import (
     ACCELERATION_SHARE,
+    COMMUTATION_MARGIN,
     HANDBACK_PER_HANDOVER,
     MIN_HANDOVER_PER_RATED,
     OBSERVER_ERROR_BOUND_RAD,
@@ -38,6 +41,8 @@ from drive_tools.evaluation.above_speed_bench import (
 from drive_tools.evaluation.random_motors import draw_motor, draw_motors, write_motor_files
 from drive_tools.runner.commissioning_run import commission_in_process
 from drive_tools.runner.runner import run_scenario
+from foc_controller.control import IF_THETA, controller_state, open_loop_step
+from foc_controller.params import make_controller_params
 
 ROUND_ROTORS = ((5, 54), (5, 20))
 """(seed, index) of drawn surface-magnet motors without saturation, J on the nameplate: a light 28-pole-pair
@@ -73,9 +78,45 @@ def test_the_start_is_stated_from_the_nameplate_and_commissioning_over_a_random_
         assert plan.handover_rad_s >= u_err / (OBSERVER_ERROR_BOUND_RAD * plate.psi_f_Wb) * (1 - 1e-9)
         assert plan.handover_rad_s >= MIN_HANDOVER_PER_RATED * rated_e * (1 - 1e-9)
         assert plan.handback_rad_s == pytest.approx(HANDBACK_PER_HANDOVER * plan.handover_rad_s)
+        band = max(MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT * plate.rated_current_A)
+        if plan.current_A < COMMUTATION_MARGIN * band:
+            assert plan.refused, "an I-f current near the switches' commutation band is refused"
         if not plan.refused:
             assert "works above" in plan.statement(plate.n_p) and "no standstill torque" in plan.statement(plate.n_p)
     assert checked > 100
+
+
+def test_the_lock_turns_its_quarter_turn_smoothly_over_a_random_draw():
+    """Over 40 drawn motors whose I-f start is accepted (nameplate and a measured dead time, the controller's lock
+    from rest with the observer at rest): the current's angle holds for the lock's first half, then turns by
+    π/2 with no step, its rate at most (π/4)·π/T per second (T a quarter of the lock: ¼π·(1 − cos(π·t/T))),
+    and holds again."""
+    tried = 0
+    for motor in draw_motors(200, 13):
+        whole = motor_from_mapping(motor.document, motor.name, whole_file=True)
+        plate = whole.nameplate
+        # a measured dead time (0.5 % of U_dc, the drawn switches'): the nameplate-only 2 % refuses most starts
+        commissioning = resolve_commissioning(plate, "nameplate")._replace(
+            dead_time_voltage_V=0.005 * whole.inverter.U_dc_V)
+        if not math.isfinite(plate.J_kgm2) or open_loop_start(plate, commissioning, whole.inverter.U_dc_V,
+                                                              2.0 * math.pi * 250.0).refused:
+            continue
+        c = make_controller_params(plate, whole.inverter, 1e-4, commissioning=commissioning, open_loop=True)
+        x, _ = controller_state(c)
+        angles = []
+        for _ in range(c.if_align_samples):
+            assert open_loop_step(x, c, OPEN_LOOP, 0.0, 0.0, 0.0)[0]
+            angles.append(x[IF_THETA])
+        steps = np.abs(np.diff(np.concatenate(([0.0], angles))))
+        half, turn = c.if_align_samples // 2, max(c.if_align_samples // 4, 1)
+        assert np.all(steps[:half] == 0.0)
+        assert angles[-1] == pytest.approx(0.5 * math.pi, abs=1e-9)
+        assert np.max(steps) <= 0.25 * math.pi * math.pi / turn * (1 + 1e-9)
+        assert np.all(steps[half + turn + 1:] == 0.0)
+        tried += 1
+        if tried == 40:
+            break
+    assert tried == 40
 
 
 @pytest.fixture(scope="module")
