@@ -12,11 +12,15 @@ import pytest
 
 from drive_common.config.motor_experiments import ExperimentOptions
 from drive_common.config.scenario import motor_experiment
+from drive_common.contract.estimator_records import ESTIMATE, SAMPLE
+from drive_common.contract.estimator_states import OPEN_LOOP
 from drive_common.contract.log import COLUMN
+from drive_common.math.dead_time import MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT, net_of_dead_time
 from drive_common.motor.commissioning import resolve_commissioning, save_commissioning
 from drive_common.motor.motor_file import load_motor, motor_from_mapping
 from drive_common.motor.open_loop_start import (
     ACCELERATION_SHARE,
+    COMMUTATION_MARGIN,
     HANDBACK_PER_HANDOVER,
     MIN_HANDOVER_PER_RATED,
     OBSERVER_ERROR_BOUND_RAD,
@@ -38,6 +42,9 @@ from drive_tools.evaluation.above_speed_bench import (
 from drive_tools.evaluation.random_motors import draw_motor, draw_motors, write_motor_files
 from drive_tools.runner.commissioning_run import commission_in_process
 from drive_tools.runner.runner import run_scenario
+from foc_controller.control import IF_THETA, controller_state, open_loop_step
+from foc_controller.params import make_controller_params
+from hf_estimator.if_observer import make_if_observer
 
 ROUND_ROTORS = ((5, 54), (5, 20))
 """(seed, index) of drawn surface-magnet motors without saturation, J on the nameplate: a light 28-pole-pair
@@ -73,9 +80,45 @@ def test_the_start_is_stated_from_the_nameplate_and_commissioning_over_a_random_
         assert plan.handover_rad_s >= u_err / (OBSERVER_ERROR_BOUND_RAD * plate.psi_f_Wb) * (1 - 1e-9)
         assert plan.handover_rad_s >= MIN_HANDOVER_PER_RATED * rated_e * (1 - 1e-9)
         assert plan.handback_rad_s == pytest.approx(HANDBACK_PER_HANDOVER * plan.handover_rad_s)
+        band = max(MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT * plate.rated_current_A)
+        if plan.current_A < COMMUTATION_MARGIN * band:
+            assert plan.refused, "an I-f current near the switches' commutation band is refused"
         if not plan.refused:
             assert "works above" in plan.statement(plate.n_p) and "no standstill torque" in plan.statement(plate.n_p)
     assert checked > 100
+
+
+def test_the_lock_turns_its_quarter_turn_smoothly_over_a_random_draw():
+    """Over 40 drawn motors whose I-f start is accepted (nameplate and a measured dead time, the controller's lock
+    from rest with the observer at rest): the current's angle holds for the lock's first half, then turns by
+    π/2 with no step, its rate at most (π/4)·π/T per second (T a quarter of the lock: ¼π·(1 − cos(π·t/T))),
+    and holds again."""
+    tried = 0
+    for motor in draw_motors(200, 13):
+        whole = motor_from_mapping(motor.document, motor.name, whole_file=True)
+        plate = whole.nameplate
+        # a measured dead time (0.5 % of U_dc, the drawn switches'): the nameplate-only 2 % refuses most starts
+        commissioning = resolve_commissioning(plate, "nameplate")._replace(
+            dead_time_voltage_V=0.005 * whole.inverter.U_dc_V)
+        if not math.isfinite(plate.J_kgm2) or open_loop_start(plate, commissioning, whole.inverter.U_dc_V,
+                                                              2.0 * math.pi * 250.0).refused:
+            continue
+        c = make_controller_params(plate, whole.inverter, 1e-4, commissioning=commissioning, open_loop=True)
+        x, _ = controller_state(c)
+        angles = []
+        for _ in range(c.if_align_samples):
+            assert open_loop_step(x, c, OPEN_LOOP, 0.0, 0.0, 0.0)[0]
+            angles.append(x[IF_THETA])
+        steps = np.abs(np.diff(np.concatenate(([0.0], angles))))
+        half, turn = c.if_align_samples // 2, max(c.if_align_samples // 4, 1)
+        assert np.all(steps[:half] == 0.0)
+        assert angles[-1] == pytest.approx(0.5 * math.pi, abs=1e-9)
+        assert np.max(steps) <= 0.25 * math.pi * math.pi / turn * (1 + 1e-9)
+        assert np.all(steps[half + turn + 1:] == 0.0)
+        tried += 1
+        if tried == 40:
+            break
+    assert tried == 40
 
 
 @pytest.fixture(scope="module")
@@ -153,3 +196,41 @@ def test_ours_refusal_for_saliency_offers_the_start(round_rotors, capsys):
     assert code == 2 and len(err) == 1
     assert f"`estimator: if_observer` runs it without injection: works above " \
            f"{plan.handover_rpm(motor.nameplate.n_p):.0f} rpm, no standstill torque" in err[0]
+
+
+def test_the_observer_is_set_to_the_measured_current_angle_in_the_lock_over_a_random_draw():
+    """Over 20 drawn motors whose I-f start is accepted: with the rotor at rest on the lock's axis (the current at
+    I_f along a random angle, the voltage R_s·i and the dead time's), the observer is at that angle within 1e-9 rad
+    and at zero speed from SETTLED_PER_LOCK of the lock on, and set once only."""
+    rng = np.random.default_rng(3)
+    tried = 0
+    for motor in draw_motors(200, 17):
+        whole = motor_from_mapping(motor.document, motor.name, whole_file=True)
+        plate = whole.nameplate
+        commissioning = resolve_commissioning(plate, "nameplate")._replace(
+            dead_time_voltage_V=0.005 * whole.inverter.U_dc_V)
+        if not math.isfinite(plate.J_kgm2):
+            continue
+        plan = open_loop_start(plate, commissioning, whole.inverter.U_dc_V, math.inf)
+        if plan.refused:
+            continue
+        estimator = make_if_observer(plate, 1e-4, {}, commissioning, whole.inverter)
+        x, p = estimator.state.view(np.recarray)[0], estimator.params
+        angle = rng.uniform(-math.pi, math.pi)
+        s = np.zeros(1, SAMPLE).view(np.recarray)[0]
+        s.i_a, s.i_b, s.i_c = plan.current_A * np.cos(angle - np.array([0.0, 2.0, 4.0]) * math.pi / 3.0)
+        i_alpha, i_beta = plan.current_A * math.cos(angle), plan.current_A * math.sin(angle)
+        lost = net_of_dead_time(0.0, 0.0, i_alpha, i_beta, p.obs.dead_time_voltage_V, p.obs.dead_time_smoothing_A)
+        s.u_applied_alpha = commissioning.R_s_ohm * i_alpha - lost[0]
+        s.u_applied_beta = commissioning.R_s_ohm * i_beta - lost[1]
+        out = np.zeros(1, ESTIMATE).view(np.recarray)[0]
+        for k in range(p.settled_samples):
+            estimator.step(x, p, k, s, out)
+        assert abs(math.remainder(x.theta - angle, 2.0 * math.pi)) < 1e-9 and x.omega == 0.0
+        x.observer.theta += 0.5
+        estimator.step(x, p, p.settled_samples, s, out)
+        assert abs(math.remainder(x.theta - angle, 2.0 * math.pi)) > 0.4, "set once only"
+        tried += 1
+        if tried == 20:
+            break
+    assert tried == 20

@@ -107,8 +107,9 @@ def within(x, y, limit):
 def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
     """The I-f start (Fatu et al. 2008, drive_common.motor.open_loop_start) for one period: → (whether the
     current is turned open loop, its angle [rad], the frame's speed [rad/s]). Entered when the estimator says
-    OPEN_LOOP: from rest with a lock at θ̂ for ``if_align_samples``, its second half a quarter turn further
-    (a rotor at the first lock's unstable point, its d axis against the current, is pulled off it); from
+    OPEN_LOOP: from rest with a lock at θ̂ for ``if_align_samples``, its second half a quarter turn further,
+    turned smoothly over a quarter of the lock (open_loop_start.ALIGN_SWINGS; a rotor at the first lock's
+    unstable point, its d axis against the current, is pulled off it); from
     closed loop with the load angle that keeps the torque current (asin(∫speed/I_f)). The ramp slews its
     speed to ``omega_e_ref`` at ``if_acceleration_rad_s2``. During the lock the stabilising loop turns the
     current's angle by φ = −k·ṽ (ṽ the rotor's speed by the observer, the back-EMF of its swing, through
@@ -136,8 +137,11 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
         x[TORQUE_ALLOWED] = 0.0
     if x[IF_ALIGN_LEFT] > 0.0:
         x[IF_ALIGN_LEFT] -= 1.0
-        if x[IF_ALIGN_LEFT] == c.if_align_samples // 2:
-            x[IF_THETA] += 0.5 * math.pi
+        turned = c.if_align_samples // 2 - x[IF_ALIGN_LEFT]
+        turn = max(c.if_align_samples // 4, 1)
+        if 0.0 < turned <= turn:
+            x[IF_THETA] += 0.25 * math.pi * (math.cos(math.pi * (turned - 1.0) / turn)
+                                              - math.cos(math.pi * turned / turn))
     else:
         step = c.if_acceleration_rad_s2 * c.T_s_s
         x[IF_RAMP] += min(max(omega_e_ref - x[IF_RAMP], -step), step)

@@ -15,10 +15,11 @@ import numpy as np
 from numba import njit
 
 from drive_common.contract.estimator_states import OPEN_LOOP, TRACKING
+from drive_common.math.frames import clarke_contract
 from drive_common.motor.open_loop_start import ESTIMATOR, open_loop_start
 
 from .flux_observer import DEFAULTS as OBSERVER_DEFAULTS
-from .flux_observer import FluxObserverParams, flux_observer_step, make_flux_observer
+from .flux_observer import FluxObserverParams, flux_observer_follow, flux_observer_step, make_flux_observer
 from .interface import Estimator, check_settings, register
 
 OBSERVER_BANDWIDTH_HZ = 2.0 * OBSERVER_DEFAULTS["speed_bandwidth_Hz"]
@@ -41,6 +42,12 @@ With a ψ_f off by Δψ its correction 2k_1·e_d holds θ̂ off by asin(2k_1·Δ
 with e_d driven to zero only the voltage model's error stays, the bound the minimum speed is stated from."""
 FLUX_RANGE = (0.7, 1.3)
 """The adapted ψ_f stays within these shares of the nameplate's."""
+SETTLED_PER_LOCK = 0.45
+"""At this share of the I-f start's first lock (open_loop_start's align_s; its quarter turn starts at ½) the rotor,
+pulled onto the current's axis and damped, sits there at rest: the observer is set to the measured current's angle
+and zero speed (flux_observer_follow). At rest the back-EMF carries no angle and the observer had drifted
+(0.8-0.9 rad on seed 11 motors 1 and 39): moved by the turn from there, it read the rotor's speed with the wrong
+sign, and the stabilising loop fed that speed pulled the rotor out of the lock."""
 
 
 class IfObserverParams(NamedTuple):
@@ -51,15 +58,29 @@ class IfObserverParams(NamedTuple):
     """FLUX_ADAPTATION_RAD_S × T_s."""
     psi_f_low_Wb: float
     psi_f_high_Wb: float
+    settled_samples: int
+    """SETTLED_PER_LOCK of the first lock [samples] (0: never set)."""
+    current_A: float
+    """The I-f current [A]: the measured current's angle is taken where it is at least half of it."""
 
 
 @njit(cache=True, _nrt=False)
 def if_observer_step(x, p, k, sample, out):
     """One sample (interface.py) → ``out``: the observer's θ̂_e, ω̂_e, ε, signal (its back-EMF [V]), no
     injection; the state TRACKING above the hand-over speed (hysteresis to the hand-back speed), else
-    OPEN_LOOP; above it the observer's ψ_f adapts (FLUX_ADAPTATION_RAD_S). State x: ``observer``
-    (flux_observer's), ``tracking`` (1 above the speed)."""
+    OPEN_LOOP; above it the observer's ψ_f adapts (FLUX_ADAPTATION_RAD_S); once, SETTLED_PER_LOCK into the first
+    lock, the observer is set to the measured current's angle at rest. State x: ``observer`` (flux_observer's),
+    ``tracking`` (1 above the speed), ``lock_samples`` (samples into the first lock; −1 once past it)."""
     flux_observer_step(x.observer, p.obs, k, sample, out)
+    if x.lock_samples >= 0.0:
+        x.lock_samples += 1.0
+        if p.settled_samples <= 0:
+            x.lock_samples = -1.0
+        elif x.lock_samples >= p.settled_samples:
+            i_alpha, i_beta = clarke_contract(sample.i_a, sample.i_b, sample.i_c)
+            if i_alpha * i_alpha + i_beta * i_beta >= (0.5 * p.current_A) ** 2:
+                flux_observer_follow(x.observer, p.obs, math.atan2(i_beta, i_alpha), 0.0)
+            x.lock_samples = -1.0
     if x.tracking > 0.5:
         psi_f = x.observer.psi_f - p.flux_step * x.observer.e_d
         x.observer.psi_f = min(max(psi_f, p.psi_f_low_Wb), p.psi_f_high_Wb)
@@ -89,10 +110,12 @@ def make_if_observer(nameplate, T_s, settings, commissioning, inverter):
     observer = make_flux_observer(measured, T_s, {"speed_bandwidth_Hz": s["speed_bandwidth_Hz"]}, commissioning,
                                   inverter)
     state = np.zeros(1, np.dtype([("theta", np.float64), ("omega", np.float64), ("tracking", np.float64),
-                                  ("observer", observer.state.dtype)]))
+                                  ("lock_samples", np.float64), ("observer", observer.state.dtype)]))
     state["observer"] = observer.state
+    settled = int(round(SETTLED_PER_LOCK * plan.align_s / T_s)) if math.isfinite(plan.align_s) else 0
     params = IfObserverParams(observer.params, plan.handover_rad_s, plan.handback_rad_s, FLUX_ADAPTATION_RAD_S * T_s,
-                              FLUX_RANGE[0] * nameplate.psi_f_Wb, FLUX_RANGE[1] * nameplate.psi_f_Wb)
+                              FLUX_RANGE[0] * nameplate.psi_f_Wb, FLUX_RANGE[1] * nameplate.psi_f_Wb, settled,
+                              plan.current_A)
     return Estimator(ESTIMATOR, if_observer_step, params, state, 0.0,
                      SPEED_ESTIMATE_PER_BANDWIDTH * s["speed_bandwidth_Hz"],
                      injection_note="" if plan.refused else plan.statement(nameplate.n_p))

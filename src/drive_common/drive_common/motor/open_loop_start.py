@@ -16,7 +16,8 @@ rotating test measured it), never from the plant:
   or of the observer's speed estimate, and where the reluctance torque would soften the lock: its stiffness
   1.5·n_p·I_f·(ψ_f − (L_q − L_d)·I_f) kept at least 1 − RELUCTANCE_SHARE of the magnet's (an interior
   magnet's current along d meets the q axis' larger inductance);
-- the lock: ALIGN_SWINGS swing periods 2π/Ω at a fixed angle (half of it a quarter turn further), the
+- the lock: ALIGN_SWINGS swing periods 2π/Ω at a fixed angle (its second half a quarter turn further, turned
+  smoothly over the first swing period of that half), the
   stabilising loop damping the rotor's swing from the observer's speed (the back-EMF of the swing);
 - the ramp's acceleration: ACCELERATION_SHARE of τ_f over J (electrical rad/s²), the rest of τ_f the
   stated load margin for friction and load while open loop (load angle asin(ACCELERATION_SHARE) ≈ 17°; the
@@ -26,10 +27,15 @@ rotating test measured it), never from the plant:
   U_err what its voltage model can be wrong by (hf_estimator.full_speed's: the dead-time voltage ×4/3, 2 % of
   U_dc where never measured, plus 10 % of R_s·I_f), and its angle noise L_q·σ_i/ψ_f (σ_i the commissioned
   sensor noise) within ours' RMS target; at least MIN_HANDOVER_PER_RATED of rated speed. Hand back to I-f
-  below HANDBACK_PER_HANDOVER of it.
+  below HANDBACK_PER_HANDOVER of it;
+- refused where the I-f current lies too close to the switches' commutation band (COMMUTATION_MARGIN): there
+  the inverter's voltage error is unknown and turns with the current's sign, and the current vector the start
+  turns is not the one it commands.
 """
 import math
 from typing import NamedTuple
+
+from drive_common.math.dead_time import MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT
 
 ESTIMATOR = "if_observer"
 """The estimator of such a start (hf_estimator.if_observer): the back-EMF observer, open loop below its speed."""
@@ -58,13 +64,24 @@ RESISTANCE_ERROR = 0.1
 UNMEASURED_DEAD_TIME_PER_U_DC = 0.02
 ALIGN_SWINGS = 4.0
 """The first lock lasts this many swing periods 2π/Ω (the stabilising loop settles it), half at a fixed
-angle, half a quarter turn further."""
+angle, half a quarter turn further, turned as ¼π·(1 − cos(π·t/T)) over T = a quarter of the lock: a step of a
+quarter turn swung a heavy rotor (seed 11 motor 1, acceleration time 2.6 s) ±1.5 rad about the new angle, the
+observer, drifted at rest, read the swing's speed with the wrong sign and the stabilising loop pulled the rotor
+out of the lock; turned so, the rotor followed the turn within 0.15 rad and the load angle stayed within 1 rad
+through the lock and the ramp."""
 DAMPING_FILTER_PER_SWING = 3.0
 DAMPING_GAIN = 4.0
 """The stabilising loop during the lock: the current's angle retarded by φ = −k·ṽ, ṽ the rotor's speed
 through 1/(s + c), c = DAMPING_FILTER_PER_SWING·Ω, k = DAMPING_GAIN: the linearised swing's characteristic
 polynomial s³ + c·s² + Ω²(1 + k)·s + Ω²·c = (s + Ω)(s² + 2Ω·s + 3Ω²), damping 0.58, for any Ω. (From the q
 voltage of the current's frame instead of the observer, the swing of a heavy rotor did not decay.)"""
+COMMUTATION_MARGIN = 4.0
+"""The I-f current at least this many times the switches' commutation band (drive_common.math.dead_time: the
+larger of MIN_SMOOTHING_A and SMOOTHING_PER_RATED_CURRENT of rated current, the band the drive assumes for its
+dead-time model): each phase current then lies within the band for at most 2·asin(1/4)/π ≈ 16 % of the
+period. Measured on seeds 11 and 29 (every motor the I-f start ran, 2026-11-28): the five at 0.1-2.5 × the band
+failed (light rotors whose swing rule cut I_f to 1-2 % of rated current: the true current fell to half of I_f,
+the load angle past π/2, or the observer over target); the nine that worked lay at 7 × or more."""
 AGREEMENT_PER_SPEED = 0.2
 """The hand-over waits for the observer's speed within this share of the ramp's."""
 
@@ -130,6 +147,11 @@ def open_loop_start(plate, commissioning, U_dc_V, current_bandwidth_rad_s):
     if not refused and noise > OBSERVER_NOISE_RMS_RAD:
         refused = (f"the back-EMF observer's angle noise L_q·σ_i/ψ_f {noise:.3f} rad exceeds ours' target "
                    f"{OBSERVER_NOISE_RMS_RAD:g} rad at any speed")
+    band = max(MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT * plate.rated_current_A)
+    if not refused and current < COMMUTATION_MARGIN * band:
+        refused = (f"the I-f current {current:.3g} A (the most the rotor's swing, the current limit and the reluctance "
+                   f"torque allow) lies within {COMMUTATION_MARGIN:g} × the switches' commutation band {band:.3g} A, "
+                   f"where the inverter's voltage error is unknown: the current vector cannot be turned reliably")
     if not refused and handover > MAX_HANDOVER_PER_RATED * omega_rated:
         refused = (f"the back-EMF observer needs {handover / omega_rated:.0%} of rated speed for an angle error "
                    f"within {OBSERVER_ERROR_BOUND_RAD:g} rad ({u_err:.3g} V of voltage error against ψ_f "
