@@ -18,8 +18,11 @@ SPEED_RAD_PER_S = 4.0
 
 
 def test_an_outside_client_reads_a_running_drives_angle_error_and_joint_states(tmp_path):
-    """1 s of wang_100rpm over the graph, recorded: the client, started first, reads at least 90 % of its
-    angle error (10 kHz of the drive's time) and joint states (100 Hz), each the recorded value to the bit."""
+    """1 s of wang_100rpm over the graph, recorded: the client, started first, reads its angle error (10 kHz of the
+    drive's time) and joint states (100 Hz) as their QoS promises a reliable, volatile reader: every message
+    published from the first it got on (the drive's new writers and the client's reader find each other by
+    discovery, which takes its time: 0-12 % of the run went before on this machine), each the recorded value to the
+    bit; and discovery within the first half of the run."""
     from drive_tools.bags.reader import read_topics
     from drive_tools.launch.launcher import DriveSpec, launch
     reader = client(tmp_path / "read.jsonl", "--read", "/outside/angle_error", "Vector3Stamped",
@@ -36,7 +39,9 @@ def test_an_outside_client_reads_a_running_drives_angle_error_and_joint_states(t
         truth = {(m.header.stamp.sec, m.header.stamp.nanosec): m for _, m in recorded[topic]}
         assert len(truth) == n
         mine = [r for r in got if r["topic"] == f"/outside/{topic}"]
-        assert len(mine) >= 0.9 * n, (topic, len(mine))
+        first = min((r["header"]["stamp"]["sec"], r["header"]["stamp"]["nanosec"]) for r in mine)
+        promised = [stamp for stamp in truth if stamp >= first]
+        assert len(mine) == len(promised) >= 0.5 * n, (topic, len(mine), len(promised))
         for r in mine:
             m = truth[(r["header"]["stamp"]["sec"], r["header"]["stamp"]["nanosec"])]
             if topic == "angle_error":
