@@ -12,11 +12,9 @@ RECORDED_TOPICS = tuple(topic for topic in TOPICS if topic not in (CLOCK, DIAGNO
 """Each axis's contract topics a recording holds: all but the simulation clock (a robot has none) and /diagnostics
 (one topic for the whole robot, recorded once)."""
 HEARD_WAIT_S = 10.0
-"""How long a node's publishers may take to be matched by the recorder before they publish (in one process: within
-milliseconds on a quiet machine, over 2 s at a load of 15 on two cores; the bound keeps a start from hanging, and
-a topic not heard within it is reported)."""
-
-
+"""How long a node's publishers and the recorder's readers may take to match each other before the node publishes
+(in one process: milliseconds on a quiet machine, longer on a loaded one); the bound keeps a start from hanging, and
+a topic not heard within it is reported."""
 DRAIN_QUIET_SPINS, DRAIN_LIMIT_S = 5, 5.0
 """At the end, the recorder takes what its readers hold until 5 spins of 20 ms write nothing (at most 5 s)."""
 
