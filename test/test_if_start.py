@@ -88,20 +88,25 @@ def test_the_start_is_stated_from_the_nameplate_and_commissioning_over_a_random_
     assert checked > 100
 
 
+def drawn_with_inertia(seed):
+    """(motor file, nameplate, commissioning) of the motors 0-199 of ``seed`` whose nameplate states J, each with a
+    measured dead time (0.5 % of U_dc, the drawn switches': the nameplate-only 2 % refuses most starts)."""
+    for motor in draw_motors(200, seed):
+        whole = motor_from_mapping(motor.document, motor.name, whole_file=True)
+        plate = whole.nameplate
+        if math.isfinite(plate.J_kgm2):
+            yield whole, plate, resolve_commissioning(plate, "nameplate")._replace(
+                dead_time_voltage_V=0.005 * whole.inverter.U_dc_V)
+
+
 def test_the_lock_turns_its_quarter_turn_smoothly_over_a_random_draw():
     """Over 40 drawn motors whose I-f start is accepted (nameplate and a measured dead time, the controller's lock
     from rest with the observer at rest): the current's angle holds for the lock's first half, then turns by
     π/2 with no step, its rate at most (π/4)·π/T per second (T a quarter of the lock: ¼π·(1 − cos(π·t/T))),
     and holds again."""
     tried = 0
-    for motor in draw_motors(200, 13):
-        whole = motor_from_mapping(motor.document, motor.name, whole_file=True)
-        plate = whole.nameplate
-        # a measured dead time (0.5 % of U_dc, the drawn switches'): the nameplate-only 2 % refuses most starts
-        commissioning = resolve_commissioning(plate, "nameplate")._replace(
-            dead_time_voltage_V=0.005 * whole.inverter.U_dc_V)
-        if not math.isfinite(plate.J_kgm2) or open_loop_start(plate, commissioning, whole.inverter.U_dc_V,
-                                                              2.0 * math.pi * 250.0).refused:
+    for whole, plate, commissioning in drawn_with_inertia(13):
+        if open_loop_start(plate, commissioning, whole.inverter.U_dc_V, 2.0 * math.pi * 250.0).refused:
             continue
         c = make_controller_params(plate, whole.inverter, 1e-4, commissioning=commissioning, open_loop=True)
         x, _ = controller_state(c)
@@ -204,13 +209,7 @@ def test_the_observer_is_set_to_the_measured_current_angle_in_the_lock_over_a_ra
     and at zero speed from SETTLED_PER_LOCK of the lock on, and set once only."""
     rng = np.random.default_rng(3)
     tried = 0
-    for motor in draw_motors(200, 17):
-        whole = motor_from_mapping(motor.document, motor.name, whole_file=True)
-        plate = whole.nameplate
-        commissioning = resolve_commissioning(plate, "nameplate")._replace(
-            dead_time_voltage_V=0.005 * whole.inverter.U_dc_V)
-        if not math.isfinite(plate.J_kgm2):
-            continue
+    for whole, plate, commissioning in drawn_with_inertia(17):
         plan = open_loop_start(plate, commissioning, whole.inverter.U_dc_V, math.inf)
         if plan.refused:
             continue
