@@ -19,10 +19,11 @@ SPEED_RAD_PER_S = 4.0
 
 def test_an_outside_client_reads_a_running_drives_angle_error_and_joint_states(tmp_path):
     """1 s of wang_100rpm over the graph, recorded: the client, started first, reads its angle error (10 kHz of the
-    drive's time) and joint states (100 Hz) as their QoS promises a reliable, volatile reader: every message
-    published from the first it got on (the drive's new writers and the client's reader find each other by
-    discovery, which takes its time: 0-12 % of the run went before on this machine), each the recorded value to the
-    bit; and discovery within the first half of the run."""
+    drive's time) and joint states (100 Hz) as their QoS promises a reliable, volatile reader: once the drive's
+    new writers and the client's reader have found each other (discovery takes its time, and a reader may get a few
+    messages before its writer has matched it: on this machine the run's first 0-12 % went before, once with 128
+    messages read ahead of a gap of 761), every message to the run's end, each the recorded value to the bit; and
+    that within the first fifth of the run."""
     from drive_tools.bags.reader import read_topics
     from drive_tools.launch.launcher import DriveSpec, launch
     reader = client(tmp_path / "read.jsonl", "--read", "/outside/angle_error", "Vector3Stamped",
@@ -39,9 +40,12 @@ def test_an_outside_client_reads_a_running_drives_angle_error_and_joint_states(t
         truth = {(m.header.stamp.sec, m.header.stamp.nanosec): m for _, m in recorded[topic]}
         assert len(truth) == n
         mine = [r for r in got if r["topic"] == f"/outside/{topic}"]
-        first = min((r["header"]["stamp"]["sec"], r["header"]["stamp"]["nanosec"]) for r in mine)
-        promised = [stamp for stamp in truth if stamp >= first]
-        assert len(mine) == len(promised) >= 0.5 * n, (topic, len(mine), len(promised))
+        read = sorted((r["header"]["stamp"]["sec"], r["header"]["stamp"]["nanosec"]) for r in mine)
+        stamps = sorted(truth)
+        tail = 0
+        while tail < len(read) and read[-1 - tail] == stamps[-1 - tail]:
+            tail += 1
+        assert tail >= 0.8 * n, f"{topic}: {len(read)} read, the last {tail} of the run without a gap"
         for r in mine:
             m = truth[(r["header"]["stamp"]["sec"], r["header"]["stamp"]["nanosec"])]
             if topic == "angle_error":

@@ -323,7 +323,8 @@ class AxisNode(LifecycleNode):
         if self.bridge is not None:
             b = self.bridge.bridge
             report.update(link="lost" if b.lost else "up", safe_state_sent=b.counters["safe_state"],
-                          samples=b.counters["samples"], inverter_off=self.inverter_off())
+                          samples=b.counters["samples"], before_hello=b.counters["before_hello"],
+                          inverter_off=self.inverter_off())
         if self.inverter is not None:
             report["inverter_enabled"] = self.inverter.enabled
         return report
