@@ -12,8 +12,9 @@ from pathlib import Path
 from drive_common.contract.errors import DriveError
 from drive_common.contract.exit_codes import EXIT_NODE_FAULTS
 
-ROOT = Path(__file__).resolve().parents[4]
-COMMISSIONING = ROOT / "commissioning" / "wang_spmsm.yaml"
+from .bench import REPOSITORY
+
+COMMISSIONING = REPOSITORY / "commissioning" / "wang_spmsm.yaml"
 LATE_BOUND = 0.001
 """An axis keeps pace when at most this share of its periods had no command in time (issue 54's bound)."""
 
