@@ -1,5 +1,6 @@
 """Controller and tuning: the bandwidth/damping rule, Szabó Table 2, sensored speed control on both
 presets, the voltage limit and the back-EMF seen by the current loop."""
+import dataclasses
 import math
 
 import numpy as np
@@ -7,7 +8,7 @@ import pytest
 
 from drive_common.contract.log import COLUMN
 from foc_controller.tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
-from helpers import run, scenario
+from helpers import run, scenario, shipped
 
 pytestmark = pytest.mark.unit
 
@@ -133,3 +134,51 @@ def test_with_blocks_of_ten_the_speed_loop_does_not_ring():
     omega_m = result.log[:, COLUMN["omega_m"]]
     assert omega_m[len(omega_m) // 2:].std() <= 0.5
     assert compute_metrics(result)["angle_error_rms"] <= 0.016
+
+
+def test_a_speed_ramp_bounds_the_shafts_acceleration_and_the_supervision_follows_it():
+    """With ``speed_ramp_rad_s2`` a commanded step 0 → 100 rpm is taken at that slope: the shaft's mean acceleration
+    from 10 % to 90 % of the step is the ramp's within 15 %, it is within 5 % of the step by the ramp's end + 0.15 s,
+    and the log keeps the command (the step). The speed supervision judges the shaft against the command slewed at
+    the same ramp: a shaft that follows a step beyond its tolerance at the ramp's slope is no fault with the ramp
+    given, stalled then "not following" without it."""
+    from foc_controller.supervision import speed_supervision
+    ramp = 200.0
+    s = scenario(duration_s=0.4, controller={"speed_ramp_rad_s2": ramp},
+                 speed=dict(unit="rpm", points=[[0.0, 0.0], [0.05, 100.0]]))
+    result, _ = run(s)
+    log, T_s = result.log, s.T_s
+    target = 100.0 * math.pi / 30.0
+    assert result.speed_ramp_rad_s2 == ramp
+    assert np.max(np.diff(log[:, COLUMN["omega_m_ref"]])) == pytest.approx(target), "the log keeps the command"
+    omega = log[:, COLUMN["omega_m"]]
+    t10, t90 = (np.argmax(omega > share * target) * T_s for share in (0.1, 0.9))
+    assert 0.8 * target / (t90 - t10) == pytest.approx(ramp, rel=0.15)
+    settled = int(round((0.05 + target / ramp + 0.15) / T_s))
+    assert np.all(np.abs(omega[settled:] - target) < 0.05 * target)
+
+    t = np.arange(20000) * 1e-4
+    command = np.where(t < 0.1, 0.0, 50.0)
+    shaft = np.clip((t - 0.1) * 20.0, 0.0, 50.0)
+    tracking = np.full(t.size, 3.0)
+    drive = (1, 100.0, 10.0, "")
+    assert speed_supervision(t, command, shaft, np.zeros(t.size), tracking, (*drive, 20.0)) == []
+    assert "not following" in [f["kind"] for f in speed_supervision(t, command, shaft, np.zeros(t.size), tracking,
+                                                                     (*drive, math.inf))]
+
+
+def test_ours_ramps_the_speed_reference_within_what_its_tracking_follows():
+    """Rule 4 of drive_common.motor.scaled_loops: ours on the sine carrier or the square wave states the
+    acceleration its tracking follows within 0.05 rad, (2π f_track)²·0.05 (electrical), and the controller ramps
+    the speed reference within it per pole pair; the papers' estimators and full_speed (whose observer leads
+    at speed) are not ramped; a scenario's own ramp is kept."""
+    from drive_common.motor.scaled_loops import SPEED_RAMP_LAG_RAD
+    from drive_tools.runner.runner import build_drive
+    for estimator, ramped in (("injection_frame", True), ("square_wave", True), ("full_speed", False),
+                              ("conventional", False)):
+        drive = build_drive(shipped("wang_100rpm", estimator, 0.01))
+        f = drive.estimator.tracking_bandwidth_Hz
+        expected = (2.0 * math.pi * f) ** 2 * SPEED_RAMP_LAG_RAD / drive.controller.n_p if ramped else math.inf
+        assert drive.controller.speed_ramp_rad_s2 == pytest.approx(expected), estimator
+    own = dataclasses.replace(shipped("wang_100rpm", None, 0.01), controller={"speed_ramp_rad_s2": 5.0})
+    assert build_drive(own).controller.speed_ramp_rad_s2 == 5.0

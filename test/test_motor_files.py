@@ -120,7 +120,7 @@ def test_ours_holds_a_motor_file_at_5_percent_rated_speed_under_rated_load(joint
     log = result.log
     assert speed_supervision(log[:, COLUMN["t"]], log[:, COLUMN["omega_m_ref"]], log[:, COLUMN["omega_e_hat"]],
                              log[:, COLUMN["i_q_ref"]], log[:, COLUMN["state"]],
-                             (12, 1200.0 * math.pi / 30.0, result.current_limit_A, "")) == []
+                             (12, 1200.0 * math.pi / 30.0, result.current_limit_A, "", result.speed_ramp_rad_s2)) == []
 
 
 def test_the_graph_runs_a_motor_file_given_as_the_motor_file_parameter(joint, tmp_path):
@@ -236,7 +236,7 @@ def test_the_supervision_names_what_the_shaft_does():
     def faults(omega_m, i_q):
         """(kind, start rounded to 10 ms: the 20 ms filter's lag) of each fault."""
         return [(f["kind"], round(f["start_s"], 2)) for f in speed_supervision(
-            t, ref, 4 * omega_m, i_q, tracking, (4, 100.0, 10.0, ""))]
+            t, ref, 4 * omega_m, i_q, tracking, (4, 100.0, 10.0, "", math.inf))]
     backwards = np.where(t < 0.5, 10.0, -20.0)
     assert faults(backwards, np.zeros(t.size)) == [("dragged backwards", 0.51)]
     assert faults(np.where(t < 0.5, 10.0, 0.0), np.zeros(t.size)) == [("stalled", 0.53)]
@@ -291,7 +291,7 @@ def test_the_controller_node_reports_the_shaft_dragged_backwards_on_diagnostics(
     log = result.log
     faults = speed_supervision(log[:, COLUMN["t"]], log[:, COLUMN["omega_m_ref"]], log[:, COLUMN["omega_e_hat"]],
                                log[:, COLUMN["i_q_ref"]], log[:, COLUMN["state"]],
-                               (12, 1200.0 * math.pi / 30.0, result.current_limit_A, ""))
+                               (12, 1200.0 * math.pi / 30.0, result.current_limit_A, "", result.speed_ramp_rad_s2))
     assert "dragged backwards" in {f["kind"] for f in faults}
 
 

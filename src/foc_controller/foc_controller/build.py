@@ -20,13 +20,15 @@ def check_controller_settings(scenario):
 
 
 def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth_Hz, tracking_current_limit_A,
-                            commissioning):
+                            commissioning, tracking_acceleration_rad_s2=math.inf):
     """ControllerParams for ``scenario`` with an estimator that injects at ``injection_frequency_Hz`` (0:
     none), tracks with ``tracking_bandwidth_Hz`` and holds its angle up to ``tracking_current_limit_A``
     (None: no limit of its own); the scenario's current_limit_A overrides that limit. The current loops
     use the ``commissioning`` record's R_s; ψ_f and J are the rotating test's where it ran; its delay is the
     answer delay plus the blocks' N − 1; the speed loop's bandwidth is scaled to the motor
-    (drive_common.motor.scaled_loops) unless the scenario sets it."""
+    (drive_common.motor.scaled_loops) unless the scenario sets it, and the speed reference ramped within the
+    electrical acceleration ``tracking_acceleration_rad_s2`` the estimator follows (rule 4 there; ∞: none) unless
+    the scenario sets its ``speed_ramp_rad_s2``."""
     plate = commissioning.refined(scenario.motor.nameplate)
     if not math.isfinite(plate.J_kgm2):
         raise ScenarioError(f"{scenario.motor.given_by}: {scenario.motor.source}: nameplate.J_kgm2: unknown, and the "
@@ -37,6 +39,7 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
                         scaled_loops(plate, scenario.motor.inverter, scenario.T_s).speed_bandwidth_rad_s)
     if tracking_current_limit_A is not None:
         settings.setdefault("current_limit_A", tracking_current_limit_A)
+    settings.setdefault("speed_ramp_rad_s2", tracking_acceleration_rad_s2 / plate.n_p)
     inverter = scenario.motor.inverter._replace(
         delay_periods=scenario.answer_delay_periods() + scenario.block_samples - 1)
     try:

@@ -24,7 +24,7 @@ from numba import njit
 from drive_common.contract import numba_records  # noqa: F401  (controller_block takes records: cached safely)
 from drive_common.contract.estimator_states import ALIGNING, LOCK_LOST, OPEN_LOOP, POLARITY, TRACKING
 from drive_common.math.current_sensing import bad_currents, corrected_currents
-from drive_common.math.filters import sos_step
+from drive_common.math.filters import slew, sos_step
 from drive_common.math.frames import SQRT3, clarke_contract, rotate, wrap
 from drive_common.math.pi import pi_limited
 from drive_common.math.tables import table_value
@@ -33,10 +33,10 @@ from drive_common.math.tables import table_value
 # protections set: the current limit's foldback [A], the share of braking current cut, foc_controller.protection;
 # 0: none; then the I-f start's: open loop on, the ramp's angle and speed, the stabilising loop's filtered speed,
 # the lock samples left, the samples the observer agreed, a mode switch pending (+1 to closed loop, −1 to open
-# loop)); the notch states (d, q) live in a separate array.
+# loop); the ramped speed reference [rad/s, mechanical]); the notch states (d, q) live in a separate array.
 (INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, TORQUE_ALLOWED, LAST_THETA, STARTED, FOLDBACK_A, REGEN_CUT,
- IF_MODE, IF_THETA, IF_RAMP, IF_FILTERED, IF_ALIGN_LEFT, IF_AGREED, IF_SWITCH) = range(16)
-N_STATE = 16
+ IF_MODE, IF_THETA, IF_RAMP, IF_FILTERED, IF_ALIGN_LEFT, IF_AGREED, IF_SWITCH, SPEED_RAMPED) = range(17)
+N_STATE = 17
 IF_ANGLE_LIMIT_RAD = math.pi / 2.0
 """The stabilising loop turns the I-f current by at most this (π/4 held a rotor's swing from 2 rad at the lock
 to a 10 % decay per period on a heavy rotor); a hand-back sets the load angle within IF_HANDBACK_ANGLE_RAD."""
@@ -80,6 +80,9 @@ class ControllerParams(NamedTuple):
     """First-order smoothing per sample of the estimated speed before any use (1 = no filter)."""
     speed_limit_rad_s: float
     """The mechanical speed reference is clamped to ±this (∞: no limit)."""
+    speed_ramp_rad_s2: float
+    """While the speed loop runs, its reference moves by at most this slope [rad/s², mechanical] from the shaft's
+    estimated speed at torque's start (∞: no ramp)."""
     mtpa_current_A: np.ndarray
     """Current magnitudes of the MTPA table [A] (drive_common.motor.torque_limit); empty: i_d* = 0."""
     mtpa_d_current_A: np.ndarray
@@ -101,6 +104,18 @@ class ControllerParams(NamedTuple):
 def within(x, y, limit):
     """|(x, y)| ≤ limit, compared in squares (no root)."""
     return limit > 0.0 and x * x + y * y <= limit * limit
+
+
+@njit(cache=True, _nrt=False)
+def ramped_reference(x, c, omega_m_ref, omega_m_hat, torque):
+    """The speed reference [rad/s, mechanical] the speed loop follows: ``omega_m_ref`` reached at most at
+    ``c.speed_ramp_rad_s2`` from x[SPEED_RAMPED]; without ``torque`` the ramp waits at the shaft's estimated speed
+    ``omega_m_hat`` (torque starts from where the shaft is) and the reference is returned as it is."""
+    if not torque:
+        x[SPEED_RAMPED] = omega_m_hat
+        return omega_m_ref
+    x[SPEED_RAMPED] = slew(x[SPEED_RAMPED], omega_m_ref, c.speed_ramp_rad_s2 * c.T_s_s)
+    return x[SPEED_RAMPED]
 
 
 @njit(cache=True, _nrt=False)
@@ -183,7 +198,8 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
     protections' foldback x[FOLDBACK_A]; a braking current (i_q* against ω̂_e, regenerating) at most
     (1 − x[REGEN_CUT]) of it (the DC-link over-voltage controller). The speed loop's output is a current
     magnitude: with an MTPA table it is split into i_d* (the table's) and i_q* of the same magnitude
-    (drive_common.motor.torque_limit), else it is i_q* (i_d* = 0).
+    (drive_common.motor.torque_limit), else it is i_q* (i_d* = 0). With a speed ramp (c.speed_ramp_rad_s2
+    finite) the speed loop follows ω*_m through ramped_reference.
 
     The estimated speed is low-pass filtered once and that value feeds the speed loop, the back-EMF
     decoupling and the delay compensation: a raw PLL speed in the feed-forward closes a fast loop
@@ -229,6 +245,8 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
         # the back-EMF feed-forward starts (+1) or stops (−1): the integrators take it over, the voltage stays
         x[INT_D] += x[IF_SWITCH] * omega_e_hat * c.L_q_H * i_q
         x[INT_Q] -= x[IF_SWITCH] * omega_e_hat * (c.L_d_H * i_d + c.psi_f_Wb)
+    if math.isfinite(c.speed_ramp_rad_s2):
+        omega_m_ref = ramped_reference(x, c, omega_m_ref, omega_m_hat, torque)
     if torque:
         i_limit = max(c.i_max_A - x[FOLDBACK_A], 0.0)
         if x[IF_SWITCH] > 0.0:

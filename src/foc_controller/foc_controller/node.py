@@ -205,7 +205,8 @@ class ControllerNode(DriveNode):
             bandwidth = config["tracking_bandwidth_Hz"]
             self.params = controller_for_scenario(self.config, config["injection_frequency_Hz"],
                                                   math.inf if bandwidth is None else bandwidth,
-                                                  config["tracking_current_limit_A"], self.commissioning)
+                                                  config["tracking_current_limit_A"], self.commissioning,
+                                                  config.get("tracking_acceleration_rad_s2") or math.inf)
         except ValueError as error:
             self.configured = False
             self.reject(error)
@@ -227,7 +228,8 @@ class ControllerNode(DriveNode):
             self.publish_config({})
             return
         self.supervisor = SpeedSupervisor(self.n_p, self.nameplate().rated_speed_rpm * math.pi / 30.0,
-                                          self.params.i_max_A, self.T_s, self.torque_limit)
+                                          self.params.i_max_A, self.T_s, self.torque_limit,
+                                          self.params.speed_ramp_rad_s2)
         self.supervisor.warm_up()
         self.x, self.z = controller_state(self.params)
         self.protection = self.protection._replace(current_limit_A=self.params.i_max_A)

@@ -30,6 +30,8 @@ SETTINGS = (
     Key("hf_notch_quality", "", 0.0, default=1.0),
     Key("speed_filter_Hz", "Hz", 0.0, low_inclusive=True, default=100.0, doc="below Nyquist; 0: none"),
     Key("speed_limit_rad_s", "rad/s", 0.0, infinite=True, default=math.inf),
+    Key("speed_ramp_rad_s2", "rad/s²", 0.0, infinite=True, default=math.inf,
+        doc="the speed reference's largest slope (mechanical; ∞: none); unset, the estimator's tracked acceleration"),
     Key("mtpa", "", choices=(True, False), default=True,
         doc="the most torque per ampere where it gains (drive_common.motor.torque_limit); false: i_d = 0"),
 )
@@ -76,7 +78,8 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     current_damping, speed_bandwidth_rad_s, speed_to_estimator_ratio, speed_damping, current_limit_A,
     decoupling, delay_compensation, hf_notch_quality, speed_filter_Hz (0: none; unset, at least
     SPEED_FILTER_PER_TRACKING × the estimator's bandwidth), speed_limit_rad_s
-    (mechanical, clamps the speed reference; ∞: none), mtpa (the MTPA table up to the current
+    (mechanical, clamps the speed reference; ∞: none), speed_ramp_rad_s2 (mechanical, the speed reference's
+    largest slope while the speed loop runs; ∞: none), mtpa (the MTPA table up to the current
     limit from the ``commissioning`` record, drive_common.motor.torque_limit.controller_path; false or
     none: i_d = 0). With 'rule' gains the current bandwidth is capped
     for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and the speed bandwidth a cascade step below it
@@ -134,7 +137,7 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos),
         speed_filter_gain=(1.0 - math.exp(-2.0 * math.pi * s["speed_filter_Hz"] * T_s)
                            if s["speed_filter_Hz"] > 0.0 else 1.0),
-        speed_limit_rad_s=float(s["speed_limit_rad_s"]),
+        speed_limit_rad_s=float(s["speed_limit_rad_s"]), speed_ramp_rad_s2=float(s["speed_ramp_rad_s2"]),
         mtpa_current_A=np.ascontiguousarray(path.current_A if path else np.zeros(0)),
         mtpa_d_current_A=np.ascontiguousarray(path.d_current_A if path else np.zeros(0)), **start)
 

@@ -9,6 +9,9 @@ tracks:
 - the speed error e = ω*_m − ω̂_m, low-passed over FILTER_S, beyond SPEED_TOLERANCE_PER_RATED of rated
   speed plus FOLLOW_TOLERANCE of |ω*|, for longer than PERSIST_S: "dragged backwards" where ω̂ runs
   against a non-zero ω*, "stalled" where |ω̂| stays within the tolerance, else "not following";
+- where the controller ramps its speed reference (ControllerParams.speed_ramp_rad_s2), e is taken against the
+  command slewed the same way (drive_common.math.filters.slew, from the shaft's estimated speed where tracking
+  starts): a commanded step the drive takes at its stated slope is followed, not a fault;
 - the current reference's magnitude |i*| at LIMIT_SHARE of the current limit for longer than
   CURRENT_LIMIT_PERSIST_S: "at the current limit" (a speed ramp at full torque lasts a few tenths of a
   second; a held overload does not end).
@@ -19,6 +22,8 @@ import math
 
 import numpy as np
 from numba import njit
+
+from drive_common.math.filters import slew
 
 FILTER_S = 0.02
 SPEED_TOLERANCE_PER_RATED = 0.05
@@ -31,9 +36,9 @@ CURRENT_LIMIT_PERSIST_S = 1.0
 TRACKING = 3.0
 KINDS = ("dragged backwards", "stalled", "not following", "at the current limit")
 
-SMOOTH, COUNTS = 0, 1
+SMOOTH, RAMPED, COUNTS = 0, 1, 2
 STATE_SIZE = COUNTS + len(KINDS)
-GAIN, TOLERANCE, FOLLOW, N_P, LIMIT, NEED_SPEED, NEED_LIMIT = range(7)
+GAIN, TOLERANCE, FOLLOW, N_P, LIMIT, NEED_SPEED, NEED_LIMIT, RAMP_STEP = range(8)
 
 
 @njit(cache=True)
@@ -41,8 +46,11 @@ def supervision_step(s, p, omega_m_ref, omega_e_hat, i_q_ref, state):
     """One sample: update the supervision state ``s`` (params ``p``); return a bit mask, bit i: fault
     KINDS[i] raised at this sample, bit i + 4: fault KINDS[i] ended at this sample."""
     omega_hat = omega_e_hat / p[N_P]
-    s[SMOOTH] += p[GAIN] * (omega_m_ref - omega_hat - s[SMOOTH])
     tracking = state == TRACKING
+    s[RAMPED] = slew(s[RAMPED], omega_m_ref, p[RAMP_STEP]) if tracking else omega_hat
+    if tracking:
+        omega_m_ref = s[RAMPED]
+    s[SMOOTH] += p[GAIN] * (omega_m_ref - omega_hat - s[SMOOTH])
     away = tracking and abs(s[SMOOTH]) > p[TOLERANCE] + p[FOLLOW] * abs(omega_m_ref)
     moving = abs(omega_hat) > p[TOLERANCE]
     backwards = away and moving and omega_m_ref != 0.0 and omega_hat * omega_m_ref < 0.0
@@ -71,18 +79,19 @@ def supervision_block(s, p, omega_m_ref, omega_e_hat, i_q_ref, state, events):
 
 
 class SpeedSupervisor:
-    """The supervision of one drive: n_p, rated speed [rad/s mech.], current limit [A], sample period
-    [s], the line stating its torque limit ("": none stated). ``update`` takes the samples from ``k0`` on (the
-    current reference as its magnitude) and returns the faults raised in them; ``faults`` holds every fault,
-    {kind, start_s, duration_s (None while it lasts), speed_reference_rad_s, speed_estimate_rad_s,
-    torque_limit}."""
+    """The supervision of one drive: n_p, rated speed [rad/s mech.], current limit [A], sample period [s], the line
+    stating its torque limit ("": none stated), its speed reference's ramp [rad/s² mech.; ∞: none]. ``update`` takes
+    the samples from ``k0`` on (the current reference as its magnitude) and returns the faults raised in them;
+    ``faults`` holds every fault, {kind, start_s, duration_s (None while it lasts), speed_reference_rad_s,
+    speed_estimate_rad_s, torque_limit}."""
 
-    def __init__(self, n_p, rated_speed_rad_s, current_limit_A, T_s, torque_limit=""):
+    def __init__(self, n_p, rated_speed_rad_s, current_limit_A, T_s, torque_limit="", speed_ramp_rad_s2=math.inf):
         self.T_s = T_s
         self.torque_limit = torque_limit
         self.params = np.array([1.0 - math.exp(-T_s / FILTER_S), SPEED_TOLERANCE_PER_RATED * rated_speed_rad_s,
                                 FOLLOW_TOLERANCE, n_p, LIMIT_SHARE * current_limit_A,
-                                max(1, round(PERSIST_S / T_s)), max(1, round(CURRENT_LIMIT_PERSIST_S / T_s))])
+                                max(1, round(PERSIST_S / T_s)), max(1, round(CURRENT_LIMIT_PERSIST_S / T_s)),
+                                speed_ramp_rad_s2 * T_s])
         self.state = np.zeros(STATE_SIZE)
         self.faults = []
         self.open = {}
@@ -135,13 +144,14 @@ class SpeedSupervisor:
 def speed_supervision(t_s, omega_m_ref, omega_e_hat, current_ref, state, drive):
     """Faults of a run's samples (arrays per sample: time [s], mechanical speed reference [rad/s],
     electrical speed estimate [rad/s], current reference magnitude [A], estimator state code), in order;
-    ``drive``: (n_p, rated speed [rad/s mech.], current limit [A], the torque limit's line)."""
+    ``drive``: (n_p, rated speed [rad/s mech.], current limit [A], the torque limit's line, the speed reference's
+    ramp [rad/s² mech.; ∞: none])."""
     if len(t_s) < 2:
         return []
     T_s = float(t_s[1] - t_s[0])
     k0 = int(round(t_s[0] / T_s))
-    n_p, rated_speed_rad_s, current_limit_A, torque_limit = drive
-    supervisor = SpeedSupervisor(n_p, rated_speed_rad_s, current_limit_A, T_s, torque_limit)
+    n_p, rated_speed_rad_s, current_limit_A, torque_limit, ramp = drive
+    supervisor = SpeedSupervisor(n_p, rated_speed_rad_s, current_limit_A, T_s, torque_limit, ramp)
     supervisor.update(k0, omega_m_ref, omega_e_hat, current_ref, state)
     supervisor.finish(k0 + len(t_s))
     return sorted(supervisor.faults, key=lambda f: f["start_s"])

@@ -6,7 +6,7 @@ import math
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE
 from drive_common.motor.open_loop_start import ESTIMATOR as OPEN_LOOP_ESTIMATOR
-from drive_common.motor.scaled_loops import CARRIER_PER_TRACKING, scaled_loops
+from drive_common.motor.scaled_loops import CARRIER_PER_TRACKING, scaled_loops, tracked_acceleration_e_rad_s2
 from drive_common.motor.torque_limit import estimator_commissioning
 
 from .if_observer import below_speed_refusal, plan_for
@@ -28,6 +28,9 @@ papers' estimators keep their papers' carrier and loop unless set (only the bus 
 OWN_CARRIER = ("square_wave",)
 """Its carrier, amplitude and tracking follow its own rules (hf_estimator.square_wave); a scenario's sine
 carrier is not its."""
+RAMPED = ("injection_frame", "square_wave")
+"""Ours whose injection leads over the whole speed range: the controller ramps the speed reference within the
+acceleration its tracking follows (drive_common.motor.scaled_loops, rule 4)."""
 
 
 def scaled_tracking(name, loops, injection_frequency_Hz=math.inf):
@@ -220,5 +223,8 @@ def estimator_for_scenario(scenario, commissioning):
     amplitude = estimator.injection_amplitude_V
     if amplitude is None and notes:
         amplitude = settings.get("amplitude_V")
+    acceleration = (tracked_acceleration_e_rad_s2(estimator.tracking_bandwidth_Hz)
+                    if scenario.estimator in RAMPED else math.inf)
     return dataclasses.replace(estimator, tracking_current_limit_A=limit, injection_note=note,
-                               injection_amplitude_V=amplitude, settings=settings)
+                               injection_amplitude_V=amplitude, settings=settings,
+                               tracking_acceleration_rad_s2=acceleration)

@@ -52,6 +52,10 @@ class Estimator:
     """Natural frequency of the angle-tracking loop (∞ for a sensor): the speed loop is kept below it."""
     tracking_current_limit_A: float = None
     """The largest current at which its angle information holds (injecting estimators; None: no limit)."""
+    tracking_acceleration_rad_s2: float = math.inf
+    """The electrical acceleration its tracking follows within its lag budget where its injection leads over the
+    whole speed range (drive_common.motor.scaled_loops.tracked_acceleration_e_rad_s2; ∞: no bound): the
+    controller ramps the speed reference within it."""
     injection_amplitude_V: float = None
     """The HF amplitude it injects when it chooses it itself (None: the scenario's)."""
     injection_note: str = ""
@@ -70,7 +74,8 @@ class Estimator:
         return {"estimator": self.name, "injection_frequency_Hz": self.injection_frequency_Hz,
                 "injection_amplitude_V": self.injection_amplitude_V, "injection_note": self.injection_note,
                 "tracking_bandwidth_Hz": self.tracking_bandwidth_Hz,
-                "tracking_current_limit_A": self.tracking_current_limit_A, "estimator_settings": self.settings}
+                "tracking_current_limit_A": self.tracking_current_limit_A,
+                "tracking_acceleration_rad_s2": self.tracking_acceleration_rad_s2, "estimator_settings": self.settings}
 
 
 class _Registered(NamedTuple):

@@ -1,5 +1,6 @@
 """The record of one run of the drive, however it ran (one process, the ROS graph, the bridge, a recording
 read back): its scenario, its log in the contract's layout and what the drive said of itself."""
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,6 +37,8 @@ class RunResult:
     sensorless_torque: dict = None
     """The torque the drive stated it holds at its current limit (drive_common.motor.torque_limit
     SensorlessTorque.as_dict: N·m, share of rated, current, why), when known."""
+    speed_ramp_rad_s2: float = math.inf
+    """The controller's ramp of the speed reference [rad/s², mechanical] (ControllerParams; ∞: none or unknown)."""
 
     @property
     def n_p(self):

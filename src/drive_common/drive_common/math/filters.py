@@ -1,9 +1,11 @@
-"""Digital filters shared by the controller and the estimators.
+"""Digital filters and the slew limiter shared by the controller, its supervision and the estimators.
 
 Filters are second-order sections (rows b0 b1 b2 1 a1 a2, as scipy's ``sos``) run in transposed
 direct form II by one numba kernel; they are designed once in Python with scipy, imported where a filter
 is designed (scipy.signal takes over a second to import, which every `drive` command would pay).
 """
+import math
+
 import numpy as np
 from numba import njit
 
@@ -39,3 +41,11 @@ def sos_step(sos, z, x):
         z[s, 1] = sos[s, 2] * x - sos[s, 5] * y
         x = y
     return x
+
+
+@njit(cache=True, _nrt=False)
+def slew(value, target, step):
+    """``value`` moved toward ``target`` by at most ``step`` (≥ 0; ∞: ``target`` itself)."""
+    if step == math.inf:
+        return target
+    return value + min(max(target - value, -step), step)

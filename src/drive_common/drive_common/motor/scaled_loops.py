@@ -15,7 +15,11 @@ acceleration by a_e/ω_n². The rule:
 3. Speed loop: ω_s = √(a_e / EXCURSION_RAD) (a load step then turns the rotor by about EXCURSION_RAD
    electrical before the loop holds it), at least MIN_SPEED_BANDWIDTH_RAD_S; the controller keeps it a
    cascade step below the tracking loop and the current loops (foc_controller.params).
-4. Amplitude: the HF current ripple U_h·Σ/ω_h at HF_RIPPLE_PER_RATED of rated current (nameplate Σ), at
+4. Speed ramp: where ours' injection leads over the whole speed range, the speed reference's slope is held to
+   the acceleration its tracking loop follows within SPEED_RAMP_LAG_RAD, ω_n²·SPEED_RAMP_LAG_RAD (electrical;
+   tracked_acceleration_e_rad_s2): a speed step would otherwise drive the speed loop to the current limit and
+   accelerate the rotor far beyond what the loop was sized for (a rated-torque step), as long as the step lasts.
+5. Amplitude: the HF current ripple U_h·Σ/ω_h at HF_RIPPLE_PER_RATED of rated current (nameplate Σ), at
    most HF_VOLTAGE_PER_LINEAR of the linear voltage range U_dc/√3; a requested amplitude is held to the
    same cap.
 
@@ -32,6 +36,10 @@ SAMPLES_PER_CARRIER = 10
 MIN_SAMPLES_PER_CARRIER = 5
 EXCURSION_RAD = 2.0
 MIN_SPEED_BANDWIDTH_RAD_S = 40.0
+SPEED_RAMP_LAG_RAD = 0.05
+"""The tracking lag a ramped speed reference may cost [rad, electrical]: a third of ours' peak target (0.15 rad),
+as the speed PI following a ramp's start accelerates the rotor for a moment at about twice the ramp's slope, and
+the noise takes the rest (on drawn motors a lag budget of 0.075 rad still peaked at 0.141 rad)."""
 HF_RIPPLE_PER_RATED = 0.2
 HF_VOLTAGE_PER_LINEAR = 0.8
 
@@ -85,3 +93,11 @@ def scaled_loops(nameplate, inverter, T_s):
                     cap)
     return ScaledLoops(a_e, tracking_Hz, injection_frequency_Hz, amplitude, speed, cap, tracked_step,
                        wanted_Hz > MIN_TRACKING_HZ, tuple(notes))
+
+
+def tracked_acceleration_e_rad_s2(tracking_bandwidth_Hz):
+    """The electrical acceleration [rad/s²] a type-2 tracking loop of ``tracking_bandwidth_Hz`` (its ω_n / 2π)
+    follows within SPEED_RAMP_LAG_RAD (its lag a_e/ω_n²); ∞ for a loop without a bandwidth (a sensor)."""
+    if not math.isfinite(tracking_bandwidth_Hz):
+        return math.inf
+    return (2.0 * math.pi * tracking_bandwidth_Hz) ** 2 * SPEED_RAMP_LAG_RAD

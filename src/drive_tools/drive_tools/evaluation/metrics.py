@@ -231,13 +231,15 @@ def compute_metrics(result, steady_windows=None):
 
 def supervision_faults(result):
     """The speed supervision's faults of a run (foc_controller.supervision), from what the drive knows: the
-    current reference's magnitude against its limit, each fault naming the torque limit it stated."""
+    current reference's magnitude against its limit, the command against the shaft at the drive's speed ramp,
+    each fault naming the torque limit it stated."""
     from foc_controller.supervision import speed_supervision
     log, plate = result.log, result.scenario.motor.nameplate
     stated = (result.sensorless_torque or {}).get("line", "")
     return speed_supervision(log[:, COLUMN["t"]], log[:, COLUMN["omega_m_ref"]], log[:, COLUMN["omega_e_hat"]],
                              np.hypot(log[:, COLUMN["i_d_ref"]], log[:, COLUMN["i_q_ref"]]), log[:, COLUMN["state"]],
-                             (result.n_p, plate.rated_speed_rpm * math.pi / 30.0, result.current_limit_A, stated))
+                             (result.n_p, plate.rated_speed_rpm * math.pi / 30.0, result.current_limit_A, stated,
+                              result.speed_ramp_rad_s2))
 
 
 def configuration_warnings(result):

@@ -96,7 +96,7 @@ def stated_torque_report(scenario):
         estimator = estimator_for_scenario(scenario, commissioning)
         controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz,
                                              estimator.tracking_bandwidth_Hz, estimator.tracking_current_limit_A,
-                                             commissioning)
+                                             commissioning, estimator.tracking_acceleration_rad_s2)
     except DriveError as error:
         return {"line": f"sensorless torque limit not stated: the drive refuses to run it ({error})"}
     return stated_torque(scenario, commissioning, controller, estimator.tracking_current_limit_A is not None).as_dict()
@@ -106,7 +106,7 @@ def drive_loops(scenario):
     """What a run of ``scenario`` uses, built as drive_tools.runner.runner.build_drive builds it (the same
     commissioning, estimator and controller builders): {scenario, sample_period_s, commissioning, the
     estimator's facts (carrier, amplitude, tracking bandwidth and current, note), current_limit_A, the speed
-    loop's kp and ki}."""
+    loop's kp and ki, the speed reference's ramp [rad/s², ∞: none]}."""
     from drive_tools.runner.runner import scenario_commissioning
     from foc_controller.build import controller_for_scenario
     from hf_estimator.build import estimator_for_scenario
@@ -114,16 +114,18 @@ def drive_loops(scenario):
     commissioning = scenario_commissioning(scenario)
     estimator = estimator_for_scenario(scenario, commissioning)
     controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz, estimator.tracking_bandwidth_Hz,
-                                         estimator.tracking_current_limit_A, commissioning)
+                                         estimator.tracking_current_limit_A, commissioning,
+                                         estimator.tracking_acceleration_rad_s2)
     return {"scenario": scenario.name, "sample_period_s": scenario.T_s, "commissioning": commissioning.source,
             **estimator.facts(), "current_limit_A": controller.i_max_A, "speed_kp": controller.kp_speed,
-            "speed_ki": controller.ki_speed}
+            "speed_ki": controller.ki_speed, "speed_ramp_rad_s2": controller.speed_ramp_rad_s2}
 
 
 RUN_ROWS = (("injection frequency", "injection_frequency_Hz", "Hz"),
             ("injection amplitude", "injection_amplitude_V", "V"),
             ("tracking bandwidth", "tracking_bandwidth_Hz", "Hz"), ("current limit", "current_limit_A", "A"),
-            ("speed loop kp", "speed_kp", "A·s/rad"), ("speed loop ki", "speed_ki", "A/rad"))
+            ("speed loop kp", "speed_kp", "A·s/rad"), ("speed loop ki", "speed_ki", "A/rad"),
+            ("speed ramp", "speed_ramp_rad_s2", "rad/s²"))
 """What motor_lines prints of drive_loops: label, key, unit."""
 
 

@@ -119,7 +119,7 @@ def _run(drive, homing, loop, options, n_p):
                                           f"homed position with it"}
         else:
             move = min(int((k0 - homed_k) * T_s / settle_s), len(options.moves_rad) - 1)
-            target = homing.theta_zero + direction * options.moves_rad[move]
+            target = homing.theta_zero - direction * options.moves_rad[move]
             speed = position_speed(target, 0.0, estimate[0], gain, limit)
         drive.speed_ref[k1:k1 + N] = speed
     if homed_k is None:

@@ -615,6 +615,7 @@ def _result(driver, drive, options, interrupted, hop=None):
     scenario = cut(scenario, driver.last_sample + 1)
     return GraphResult(scenario, scenario.estimator, log, wall, drive.controller.i_max_A,
                        commissioning=drive.commissioning, estimator_facts=drive.estimator.facts(),
+                       speed_ramp_rad_s2=drive.controller.speed_ramp_rad_s2,
                        processes=options.processes, executor=options.executor,
                        interrupted=interrupted,
                        diagnostics=dict(driver.diagnostics), node_faults=driver.faults(),

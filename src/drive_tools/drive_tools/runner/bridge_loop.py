@@ -218,6 +218,7 @@ def _bridge_result(run, log, ended, samples, counters, scheduling=None):
     e, cp = host.estimator, host.controller
     return BridgeRunResult(cut(scenario, done), e.name, log, wall, cp.i_max_A, interrupted, host.commissioning,
                            e.facts(), protection=protection_summary(host.protection_x, host.protection),
+                           speed_ramp_rad_s2=cp.speed_ramp_rad_s2,
                            injection=contract_injection(e.facts(), scenario.injection), link=link,
                            counters=counters, frame_errors=bridge.frame_errors(),
                            inverter_counters=dict(inverter.counters),

@@ -93,7 +93,7 @@ def build_drive(scenario):
     estimator = estimator_for_scenario(scenario, commissioning)
     controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz,
                                          estimator.tracking_bandwidth_Hz, estimator.tracking_current_limit_A,
-                                         commissioning)
+                                         commissioning, estimator.tracking_acceleration_rad_s2)
     controller_x, controller_z = controller_state(controller)
     speed_ref, tau_load = scenario.schedule()
     return Drive(scenario, plant, estimator, controller, controller_x, controller_z, speed_ref, tau_load,
@@ -128,7 +128,8 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
                      protection=protection_summary(drive.protection_x, drive.protection),
                      injection=contract_injection(drive.estimator.facts(), scenario.injection),
                      sensorless_torque=stated_torque(scenario, drive.commissioning, drive.controller,
-                                                     drive.estimator.tracking_current_limit_A is not None).as_dict())
+                                                     drive.estimator.tracking_current_limit_A is not None).as_dict(),
+                     speed_ramp_rad_s2=drive.controller.speed_ramp_rad_s2)
 
 
 def cut(scenario, samples):
