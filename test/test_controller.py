@@ -171,7 +171,8 @@ def test_ours_ramps_the_speed_reference_within_what_its_tracking_follows():
     """Rule 4 of drive_common.motor.scaled_loops: ours on the sine carrier or the square wave states the
     acceleration its tracking follows within 0.05 rad, (2π f_track)²·0.05 (electrical), and the controller ramps
     the speed reference within it per pole pair; the papers' estimators and full_speed (whose observer leads
-    at speed) are not ramped; a scenario's own ramp is kept."""
+    at speed) are not ramped; the drive says so (its injection note: the ramp, against the rotor's acceleration at
+    rated torque); a scenario's own ramp is kept."""
     from drive_common.motor.scaled_loops import SPEED_RAMP_LAG_RAD
     from drive_tools.runner.runner import build_drive
     for estimator, ramped in (("injection_frame", True), ("square_wave", True), ("full_speed", False),
@@ -180,5 +181,6 @@ def test_ours_ramps_the_speed_reference_within_what_its_tracking_follows():
         f = drive.estimator.tracking_bandwidth_Hz
         expected = (2.0 * math.pi * f) ** 2 * SPEED_RAMP_LAG_RAD / drive.controller.n_p if ramped else math.inf
         assert drive.controller.speed_ramp_rad_s2 == pytest.approx(expected), estimator
+        assert ("speed commands ramped at" in drive.estimator.injection_note) == ramped, "said where it binds"
     own = dataclasses.replace(shipped("wang_100rpm", None, 0.01), controller={"speed_ramp_rad_s2": 5.0})
     assert build_drive(own).controller.speed_ramp_rad_s2 == 5.0

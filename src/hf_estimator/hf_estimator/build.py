@@ -6,7 +6,12 @@ import math
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE
 from drive_common.motor.open_loop_start import ESTIMATOR as OPEN_LOOP_ESTIMATOR
-from drive_common.motor.scaled_loops import CARRIER_PER_TRACKING, scaled_loops, tracked_acceleration_e_rad_s2
+from drive_common.motor.scaled_loops import (
+    CARRIER_PER_TRACKING,
+    SPEED_RAMP_LAG_RAD,
+    scaled_loops,
+    tracked_acceleration_e_rad_s2,
+)
 from drive_common.motor.torque_limit import estimator_commissioning
 
 from .if_observer import below_speed_refusal, plan_for
@@ -193,6 +198,17 @@ def drive_estimator(name, nameplate, T_s, settings, commissioning, inverter, con
                                                                                controller_settings), inverter)
 
 
+def _ramp_note(scenario, plate, tracking_bandwidth_Hz, acceleration_e_rad_s2):
+    """What the drive says of its speed ramp (scaled_loops rule 4) where it binds below the rotor's acceleration at
+    rated torque (``plate``: the nameplate refined by the commissioning), unless the scenario sets its own; "" else."""
+    rated_e = plate.n_p * plate.rated_torque_Nm / plate.J_kgm2
+    if "speed_ramp_rad_s2" in scenario.controller or not acceleration_e_rad_s2 < rated_e:
+        return ""
+    return (f"speed commands ramped at {acceleration_e_rad_s2 / plate.n_p:.3g} rad/s² (ours' "
+            f"{tracking_bandwidth_Hz:.3g} Hz tracking follows that within {SPEED_RAMP_LAG_RAD:g} rad, where rated "
+            f"torque would accelerate this rotor at {rated_e / plate.n_p:.3g} rad/s²)")
+
+
 def estimator_for_scenario(scenario, commissioning):
     """A fresh Estimator for ``scenario`` (its estimator, settings and injection; θ̂ = 0) on a
     motor with this ``commissioning`` record; an injecting estimator carries the current up to which its
@@ -219,12 +235,13 @@ def estimator_for_scenario(scenario, commissioning):
                                                                               scenario.motor.inverter))) from None
     if injects(scenario.estimator):
         notes += [n for n in (commissioning.weak_saliency_note(), _polarity_note(estimator)) if n]
+    acceleration = (tracked_acceleration_e_rad_s2(estimator.tracking_bandwidth_Hz)
+                    if scenario.estimator in RAMPED else math.inf)
+    notes += [n for n in (_ramp_note(scenario, plate, estimator.tracking_bandwidth_Hz, acceleration),) if n]
     note = "; ".join(n for n in (estimator.injection_note, *notes) if n)
     amplitude = estimator.injection_amplitude_V
     if amplitude is None and notes:
         amplitude = settings.get("amplitude_V")
-    acceleration = (tracked_acceleration_e_rad_s2(estimator.tracking_bandwidth_Hz)
-                    if scenario.estimator in RAMPED else math.inf)
     return dataclasses.replace(estimator, tracking_current_limit_A=limit, injection_note=note,
                                injection_amplitude_V=amplitude, settings=settings,
                                tracking_acceleration_rad_s2=acceleration)
