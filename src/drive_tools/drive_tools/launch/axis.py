@@ -183,6 +183,7 @@ class AxisNode(LifecycleNode):
         """The host's end of the axis's link; with a virtual device, the virtual inverter (paced at the drive's
         rate, not started yet) runs the scenario's machine at the other end."""
         from drive_bridge.inverter_link import CanLink, SerialLink
+        from drive_tools.doubles.virtual_inverter import InverterOptions
 
         from .launcher import _virtual_inverter
         spec = self.spec
@@ -192,8 +193,9 @@ class AxisNode(LifecycleNode):
             return CanLink(spec.can_channel, spec.drive_id, spec.can_interface or None)
         scenario = behind_an_inverter(with_drive(load_scenario(spec.scenario), drive), MAX_BLOCK)
         where = DriveSpec(scenario=spec.scenario, namespace=spec.namespace, link=spec.virtual_link, paced=spec.paced)
-        self.inverter, host_link = _virtual_inverter(scenario, {}, where, (self.workdir, self.index),
-                                                     LOCKSTEP_TIMEOUT_S, self.real_time, DISABLED_WAIT_S)
+        waits = InverterOptions(command_wait_s=LOCKSTEP_TIMEOUT_S, disabled_wait_s=DISABLED_WAIT_S)
+        self.inverter, host_link = _virtual_inverter(scenario, {}, where, (self.workdir, self.index), waits,
+                                                     self.real_time)
         return host_link
 
     def node_parameters(self):

@@ -7,6 +7,7 @@ import time
 from drive_common.config.parameters import all_parameters, scenario_from_parameters
 from drive_common.contract.graph import DEFAULT_NAMESPACE
 from drive_common.runtime.interrupt import Interrupted, polled, requested
+from drive_tools.doubles.virtual_inverter import InverterOptions
 from hf_estimator.commissioning.procedure import procedure_for_scenario
 
 from .launcher import (
@@ -50,7 +51,8 @@ def commission_over_ros(scenario_ref, namespace=DEFAULT_NAMESPACE, link=None, ti
         ex = make_executor("events", context)
         if link:
             apart = DriveSpec(scenario_ref, namespace, link=link, inverter_apart=True)
-            inverter, host_link = _virtual_inverter(scenario, parameters, apart, (workdir.name, 0), timeout_s)
+            inverter, host_link = _virtual_inverter(scenario, parameters, apart, (workdir.name, 0),
+                                                    InverterOptions(command_wait_s=timeout_s))
             nodes.append(make_node("drive_bridge", context, namespace, {"link_timeout_s": timeout_s,
                                                                         "command_timeout_s": timeout_s},
                                    link=host_link))

@@ -6,6 +6,7 @@ The estimator and controller nodes load the commissioning record the one-process
 scenario's ``commissioning``, a --commissioning override, or the default file in the working
 directory, else the nameplate alone)."""
 import contextlib
+import dataclasses
 import signal
 import subprocess
 import sys
@@ -341,8 +342,8 @@ def launch_many(specs, options=GraphOptions(), progress=None):
             roles = {"pmsm_plant": plant, "hf_estimator": estimator, "foc_controller": scheduled}
             inverter = None
             if spec.link:
-                inverter, host_link = _virtual_inverter(scenario, parameters, spec, (workdir.name, i), timeout_s,
-                                                        real_time)
+                inverter, host_link = _virtual_inverter(scenario, parameters, spec, (workdir.name, i),
+                                                        InverterOptions(command_wait_s=timeout_s), real_time)
                 inverters.append(inverter)
                 del roles["pmsm_plant"]
                 period = float(all_parameters(parameters)["diagnostics_period_s"])
@@ -550,8 +551,6 @@ def _record_answered(result, spec, drive):
     """Write the recording of ``drive`` (runner.Drive) that a compiled answer ran from its log (the rows its
     ring handed over, as the graph records them: drive_tools.bags.writer.write_run_bag); what went wrong, or
     None."""
-    import dataclasses
-
     from drive_tools.bags.writer import write_run_bag
     from hf_estimator.interface import contract_injection
     facts = drive.estimator.facts()
@@ -627,11 +626,11 @@ def _result(driver, drive, options, interrupted, hop=None):
                        if driver.answer else None)
 
 
-def _virtual_inverter(scenario, parameters, spec, where, timeout_s, real_time=RealTime(), disabled_wait_s=None):
+def _virtual_inverter(scenario, parameters, spec, where, waits, real_time=RealTime()):
     """The virtual inverter of ``spec``'s link for ``scenario`` (not yet running) and the host's end of its link,
     ``where``: (working directory, drive id). Paced (``spec.paced``), it runs on its own clock, else it waits
-    for each of the graph's commands as long as a plant node would (``timeout_s``; ``disabled_wait_s`` while the
-    host keeps PWM disabled, InverterOptions). Apart
+    for each of the graph's commands as ``waits`` (InverterOptions: ``command_wait_s`` as long as a plant node
+    would, ``disabled_wait_s`` while the host keeps PWM disabled) say. Apart
     (``spec.inverter_apart``): in a process of its own, as a real inverter is a device of its own (on the CPUs
     ``real_time.cpus`` leave, if any; CAN then on a cable between processes, drive_bridge.can_cable). Not apart,
     it is ``spec.inverter`` (a double) on a thread of the host's process."""
@@ -641,9 +640,7 @@ def _virtual_inverter(scenario, parameters, spec, where, timeout_s, real_time=Re
     from drive_tools.doubles.inverter_process import InverterProcess, InverterProcessError
     from drive_tools.doubles.virtual_links import make_links
     workdir, drive_id = where
-    options = InverterOptions(rate_Hz=1.0 / scenario.T_s if spec.paced else None, command_wait_s=timeout_s,
-                              disabled_wait_s=disabled_wait_s,
-                              drive_id=drive_id)
+    options = dataclasses.replace(waits, rate_Hz=1.0 / scenario.T_s if spec.paced else None, drive_id=drive_id)
     if not spec.inverter_apart:
         endpoint, host_link = make_links(spec.link, workdir, drive_id)
         return spec.inverter(scenario, endpoint, options), host_link
