@@ -158,8 +158,7 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
             x[IF_THETA] += 0.25 * math.pi * (math.cos(math.pi * (turned - 1.0) / turn)
                                               - math.cos(math.pi * turned / turn))
     else:
-        step = c.if_acceleration_rad_s2 * c.T_s_s
-        x[IF_RAMP] += min(max(omega_e_ref - x[IF_RAMP], -step), step)
+        x[IF_RAMP] = slew(x[IF_RAMP], omega_e_ref, c.if_acceleration_rad_s2 * c.T_s_s)
     ramp = x[IF_RAMP]
     lead = wrap(x[IF_THETA] + ramp * c.T_s_s - theta_e_hat)
     observed = x[IF_ALIGN_LEFT] > 0.0 or (abs(ramp) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s and abs(
