@@ -86,6 +86,23 @@ def test_a_bad_robot_file_is_refused_in_one_line_naming_file_key_and_value(tmp_p
     assert "\n" not in line and line.startswith(f"{path}: ") and where in line
 
 
+@pytest.mark.unit
+def test_a_callback_defect_ends_drive_up_in_one_line_naming_where_it_was_raised():
+    """A callback that raises (a defect: once a race tore a joint state) ends `drive up`'s spin with exit 3 and one
+    line naming the exception and its file:line; bring_up then stops every axis."""
+    from drive_common.contract.exit_codes import EXIT_NODE_FAULTS
+    from drive_tools.launch.robot import _run
+
+    class Raising:
+        def spin_once(self, timeout_sec):
+            raise IndexError("array index out of range")
+
+    code, reason = _run(Raising(), [])
+    assert code == EXIT_NODE_FAULTS
+    assert "\n" not in reason and "IndexError: array index out of range at test_robot.py:" in reason
+    assert "safe state" in reason
+
+
 def test_the_documented_hand_started_commands_work_as_written_in_a_shell(tmp_path):
     """docs/ros-graph.md, "A drive without a scenario": the estimator's and the controller's lines, `-p scenario:=''`
     and all, run through bash as written; each node starts open-ended on the drive configuration."""
@@ -129,7 +146,13 @@ class Client:
         self.shoulder_modes = []
         """(host time, mode) of each /diagnostics the shoulder's controller sent with its command mode."""
         self.command_pub = self.node.create_publisher(JointState, "/joint_commands", 10)
-        self.node.create_subscription(JointState, "/joint_states", self.states.append, QoSProfile(depth=100))
+        self.states_at = []
+        """(shoulder's, wrist's simulated time [s]) when each of self.states came."""
+
+        def on_states(msg):
+            self.states.append(msg)
+            self.states_at.append((self.truth[-1][0] if self.truth else math.nan, self.wrist_at[0]))
+        self.node.create_subscription(JointState, "/joint_states", on_states, QoSProfile(depth=100))
 
         def on_diagnostics(msg):
             for status in msg.status:
@@ -196,10 +219,17 @@ class Client:
         self.executor.spin_until_future_complete(future, timeout_sec=120.0)
         return future.result().current_state.label
 
-    def joint(self, name, last=10):
-        """The mean (position, velocity) of ``name`` over the last ``last`` /joint_states holding it."""
+    def joint(self, name, last=10, over_s=None):
+        """The mean (position, velocity) of ``name`` over the last ``last`` /joint_states holding it, or with
+        ``over_s`` over those that came in the joint's last ``over_s`` of simulated time (a mean over a span of the
+        simulation: a handful of states may come within a fraction of one period of the speed loop's ripple)."""
         held = [(m.position[m.name.index(name)], m.velocity[m.name.index(name)]) for m in self.states
                 if name in m.name][-last:]
+        if over_s is not None:
+            side = 1 if name == "wrist" else 0
+            end = self.states_at[-1][side] if self.states_at else math.nan
+            held = [(m.position[m.name.index(name)], m.velocity[m.name.index(name)])
+                    for m, at in zip(self.states, self.states_at) if name in m.name and at[side] >= end - over_s]
         if not held:
             return math.nan, math.nan
         return sum(p for p, _ in held) / len(held), sum(v for _, v in held) / len(held)
@@ -259,7 +289,7 @@ def test_joint_commands_move_both_joints_at_their_speed_and_sign(arm):
     command = (["shoulder", "wrist"], [3.0, -3.0], [])
     client.spin_simulated(1.0, command)
     for joint, speed in (("shoulder", 3.0), ("wrist", -3.0)):
-        assert client.joint(joint)[1] == pytest.approx(speed, abs=0.6), (joint, {
+        assert client.joint(joint, over_s=0.5)[1] == pytest.approx(speed, abs=0.6), (joint, {
             name: status for name, status in client.diagnostics.items() if name.startswith(f"/{joint}/")})
 
 
@@ -276,12 +306,14 @@ def test_an_outside_client_without_rclpy_commands_both_joints_and_reads_their_st
                              "JointState", "--rate", "20", "--duration", "600")
     try:
         matched(outside, out, ("/joint_commands", "/joint_states"))
-        client.spin_simulated(1.0)
-        read = [r for r in read_so_far(out) if set(r["name"]) == {"shoulder", "wrist"}][-10:]
+        client.spin_simulated(0.7)
+        settled = len(read_so_far(out))
+        client.spin_simulated(0.8)
+        read = [r for r in read_so_far(out)[settled:] if set(r["name"]) == {"shoulder", "wrist"}]
     finally:
         outside.terminate()
         outside.wait(timeout=30)
-    assert len(read) == 10
+    assert len(read) >= 5, read
     for joint, speed in (("shoulder", -2.0), ("wrist", 2.5)):
         speeds = [r["velocity"][r["name"].index(joint)] for r in read]
         assert sum(speeds) / len(speeds) == pytest.approx(speed, abs=0.6), (joint, speeds)
@@ -306,7 +338,7 @@ def test_a_bad_command_is_refused_counted_on_diagnostics_and_never_applied(arm, 
         client.command_pub.publish(JointState(name=good[0], velocity=good[1]))
         client.spin(0.04)
     assert client.robot_faults().get(f"faults.{kind}", 0) > before
-    assert client.joint("shoulder")[1] == pytest.approx(3.0, abs=1.0), "the refused command was not applied"
+    assert client.joint("shoulder", over_s=0.3)[1] == pytest.approx(3.0, abs=1.0), "the refused command was not applied"
 
 
 def test_a_command_timeout_holds_the_loaded_joint_then_releases_it(arm):

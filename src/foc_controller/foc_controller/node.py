@@ -520,11 +520,11 @@ class ControllerNode(DriveNode):
                 self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], current_ref, state[2]))
             joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
             if joint is not None:
-                j = self.joint_msg
+                j = JointState(name=self.joint_msg.name, position=[self.joint_position(float(estimate[0][joint]))],
+                               velocity=[self.x[OMEGA_FILTERED] / self.n_p],
+                               effort=[estimated_torque(self.params, out[joint]["i_d_A"], out[joint]["i_q_A"])])
                 j.header.stamp = stamp(k0 + joint + self.stamp_origin, self.T_s)
-                j.position = [self.joint_position(float(estimate[0][joint]))]
-                j.velocity = [self.x[OMEGA_FILTERED] / self.n_p]
-                j.effort = [estimated_torque(self.params, out[joint]["i_d_A"], out[joint]["i_q_A"])]
+                self.joint_msg = j
                 self.joint_pub.publish(j)
         elif self.params and not self.health.latched:
             self.fault("bad_input", f"block {k0}: inputs of unequal length; zero voltage")

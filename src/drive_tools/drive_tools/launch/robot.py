@@ -8,6 +8,7 @@ import math
 import tempfile
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 from drive_common.contract.exit_codes import EXIT_NODE_FAULTS, EXIT_OK, EXIT_SIGNAL_BASE
 from drive_common.runtime.interrupt import polled, requested
@@ -224,9 +225,14 @@ def _initial_state(robot, axes):
 
 
 def _run(executor, axes):
-    """Spin until a signal or a lost link; (exit code, reason)."""
+    """Spin until a signal, a lost link or a callback's defect (every axis then brought to its safe state by the
+    caller, the defect said in one line: where it was raised and what); (exit code, reason)."""
     while True:
-        executor.spin_once(timeout_sec=0.05)
+        try:
+            executor.spin_once(timeout_sec=0.05)
+        except Exception as error:
+            return EXIT_NODE_FAULTS, f"a defect in a callback stopped the robot ({where_raised(error)}); every axis " \
+                                     "put in its safe state"
         if requested():
             return EXIT_SIGNAL_BASE + requested(), ""
         for axis in axes:
@@ -235,10 +241,19 @@ def _run(executor, axes):
                                           f"({axis.bridge.bridge.last_error}); every axis put in its safe state")
 
 
+def where_raised(error):
+    """``error``'s type, text and the file:line it was raised at (its innermost frame), in one line."""
+    import traceback
+    frame = traceback.extract_tb(error.__traceback__)[-1] if error.__traceback__ else None
+    at = f" at {Path(frame.filename).name}:{frame.lineno} {frame.name}" if frame else ""
+    return f"{type(error).__name__}: {error}{at}"
+
+
 def _stop(axes, executor):
     """Every axis disarmed (zero volts, its inverter told to switch off; an axis whose configuration failed has no link
     open), told again until its telemetry says its PWM is off (commands written before the telling, which act a block
-    or two later, switch it on again) or SAFE_STATE_WAIT_S passed; their reports."""
+    or two later, switch it on again) or SAFE_STATE_WAIT_S passed (a callback's defect raised meanwhile does not stop
+    the telling: _run said the first); their reports."""
     timings = [axis.inverter_timing() for axis in axes]
     for axis in axes:
         axis.handover.disarm()
@@ -252,6 +267,9 @@ def _stop(axes, executor):
             told = time.monotonic()
             for axis in waiting:
                 axis.bridge.bridge.safe_state("stopped")
-        executor.spin_once(timeout_sec=0.01)
+        try:
+            executor.spin_once(timeout_sec=0.01)
+        except Exception:
+            continue
     return [{**axis.report(), "state": _lifecycle_label(axis), **({"inverter_timing": timing} if timing else {})}
             for axis, timing in zip(axes, timings)]
