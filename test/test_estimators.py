@@ -193,24 +193,27 @@ def test_injection_frame_locks_at_100_rpm_closed_loop():
     assert m["observable_fraction"] == 1.0
 
 
-LOCK_CASES = [("injection_frame", "wang_spmsm", 900.0, 5.0, 0.05),
-              ("conventional", "wang_spmsm", 900.0, 5.0, 0.15),
-              ("improved", "wang_spmsm", 900.0, 5.0, 0.2),
-              ("synchronous", "szabo_ipmsm", 1500.0, 40.0, 0.05),
-              ("injection_frame", "szabo_ipmsm", 1500.0, 40.0, 0.05)]
+LOCK_CASES = [("injection_frame", "wang_spmsm", 900.0, 5.0, 0.05, 0.05),
+              ("conventional", "wang_spmsm", 900.0, 5.0, 0.05, 0.15),
+              ("improved", "wang_spmsm", 900.0, 5.0, 0.05, 0.2),
+              ("improved_aligned", "wang_spmsm", 900.0, 5.0, 0.05, 0.2),
+              ("synchronous", "szabo_ipmsm", 1500.0, 40.0, 0.05, 0.05),
+              ("injection_frame", "szabo_ipmsm", 1500.0, 40.0, 0.05, 0.05)]
 
 
-@pytest.mark.parametrize("name, motor, f_h, U_h, peak_rad", LOCK_CASES)
-def test_each_estimator_locks_from_half_a_radian(name, motor, f_h, U_h, peak_rad):
+@pytest.mark.parametrize("name, motor, f_h, U_h, bias_rad, peak_rad", LOCK_CASES)
+def test_each_estimator_locks_from_half_a_radian(name, motor, f_h, U_h, bias_rad, peak_rad):
     """Speed-controlled standstill, rotor 0.5 rad from the estimate's start, all non-idealities: locked
     (start-up done) within 0.25 s
-    (|bias| < 0.05 rad and |error| < peak_rad over 0.25-0.4 s: 0.05 rad for ours and the synchronous
-    method, the Wang methods' leaked ripple allows 0.15 and 0.2) and observable throughout."""
+    (|bias| < bias_rad and |error| < peak_rad over 0.25-0.4 s: 0.05 rad for ours and the synchronous
+    method, the Wang methods' leaked ripple allows peaks of 0.15 and 0.2) and observable throughout. `improved` as
+    printed holds about +0.03 rad at standstill once its speed loop no longer hunts (its carrier's phase; aligned,
+    0.01), which a speed loop hunting at ±2 rad/s had averaged away (foc_controller.speed_margin)."""
     s = scenario(motor=motor, estimator=name, injection={"frequency_Hz": f_h, "amplitude_V": U_h},
                  duration_s=0.4, initial={"theta_m_rad": 0.5 / PRESETS[motor].nameplate.n_p},
                  metrics={"settle_s": 0.25})
     _, m = run(s)
-    assert abs(m["angle_error_bias"]) < 0.05
+    assert abs(m["angle_error_bias"]) < bias_rad
     assert m["angle_error_peak"] < peak_rad
     assert m["observable_fraction"] == 1.0
 

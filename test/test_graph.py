@@ -92,13 +92,15 @@ def test_graph_gives_the_runners_samples(tmp_path, processes, block_samples, int
 
 @pytest.mark.parametrize("block_samples", [1, 7])
 def test_the_graphs_drive_runs_the_protections_the_runner_does(tmp_path, block_samples):
-    """A winding told to heat fast (τ 10 ms, 200 K at rated current, folding back from 60 °C): its estimate
-    passes the warning, the current limit folds back and R̂_s steps in the estimators' resistive drop, in
-    the graph (the controller node's protections, the estimator node's winding estimate on the same
-    currents) as in one process, to the bit; the graph's bus is the rated one (no C_dc_F)."""
+    """A winding told to heat fast (τ 10 ms, 200 K at rated current, folding back from 60 °C) under the load step,
+    its torque fed forward (the current flows at once, whatever the speed loop's pace): its estimate passes the
+    warning, the current limit folds back and R̂_s steps in the estimators' resistive drop, in the graph (the
+    controller node's protections, the estimator node's winding estimate on the same currents) as in one process, to
+    the bit; the graph's bus is the rated one (no C_dc_F)."""
     path = scenario_file(tmp_path, block_samples=block_samples)
     with open(path, "a") as file:
-        file.write("protection: {thermal_time_constant_s: 0.01, rise_at_rated_K: 200.0, warning_degC: 60.0, "
+        file.write("torque_feedforward: {unit: rated, points: [[0.0, 0.0], [0.03, 0.5]]}\n"
+                   "protection: {thermal_time_constant_s: 0.01, rise_at_rated_K: 200.0, warning_degC: 60.0, "
                    "limit_degC: 90.0}\n")
     reference = run_scenario(load_scenario(path))
     assert reference.protection["winding_peak_degC"] > 70.0 and reference.protection["trip"] is None

@@ -228,6 +228,10 @@ def _exit_cases(tmp_path):
         "tripped": GOOD.replace("motor: wang_spmsm", f"motor: {linked}").replace("duration_s: 0.3", "duration_s: 0.25")
                    .replace("points: [[0.0, 50.0]]", "interpolation: step, points: [[0.0, 2000.0], [0.05, 0.0]]")
                    + "initial: {omega_m_rpm: 2000.0}\n",
+        "lock_lost": f"motor: {joint}\nestimator: injection_frame\ncommissioning: nameplate\nduration_s: 1.0\n"
+                     "sampling_period_s: 1.0e-4\ninjection: {frequency_Hz: 900.0, amplitude_V: 5.0}\n"
+                     "speed: {unit: rpm, points: [[0.0, 100.0]]}\n"
+                     "load: {unit: rated, points: [[0.0, 0.0], [0.3, 1.0]]}\n",
     }
     paths = {name: _file(tmp_path, f"{name}.yaml", text) for name, text in files.items()}
     (tmp_path / "not_a_dir").write_text("")
@@ -237,8 +241,7 @@ def _exit_cases(tmp_path):
             ("run plot unwritable", ["run", str(paths["good"]), "--out", str(tmp_path / "not_a_dir")],
              EXIT_RECORDING_FAILED),
             ("run start refused", ["run", str(paths["refused_start"]), "--no-plot"], EXIT_NOT_TRACKING),
-            ("run lock lost", ["run", "wang_100rpm", "--motor", str(joint), "--commissioning", "nameplate",
-                               "--duration", "1.0", "--no-plot"], EXIT_NOT_TRACKING),
+            ("run lock lost", ["run", str(paths["lock_lost"]), "--no-plot"], EXIT_NOT_TRACKING),
             ("run dragged", ["run", str(paths["dragged"]), "--no-plot"], EXIT_NOT_FOLLOWING),
             ("run tripped", ["run", str(paths["tripped"]), "--no-plot"], EXIT_TRIPPED),
             ("commission refused", ["commission", "wang_100rpm", "--motor", str(bus), "--out", "c.yaml"],

@@ -295,3 +295,21 @@ def test_a_long_loop_stops_at_its_next_pass_after_a_swallowed_signal(loop):
     assert result.interrupted == signal.SIGTERM
     assert 0 < len(result.log) <= {"runner": 2000, "bridge": 1000}[loop]
     assert interrupt.requested() == 0
+
+
+@pytest.mark.unit
+def test_a_signal_during_an_import_is_the_commands_interruption(monkeypatch, capsys):
+    """A signal that comes while a C extension is imported (rclpy's, at a command's start) reaches the command line
+    as that import's ImportError, caused by the interruption: exit 128 + N and one line, no traceback."""
+    from drive_common.runtime.interrupt import Interrupted
+    from drive_tools.cli import cli, motor
+
+    def importing(args):
+        try:
+            raise Interrupted(signal.SIGINT)
+        except Interrupted as stop:
+            raise ImportError("initialization failed") from stop
+    monkeypatch.setattr(motor, "cmd_presets", importing)
+    assert cli.main(["presets"]) == 128 + signal.SIGINT
+    err = capsys.readouterr().err
+    assert err == "drive: presets: interrupted by SIGINT\n"

@@ -8,6 +8,7 @@ from drive_common.motor.torque_limit import MtpaPath, current_bound, sensorless_
 
 from .params import check_settings, make_controller_params
 from .protection import make_protection_params
+from .speed_margin import SpeedEstimate, TrackingLoop
 
 
 def check_controller_settings(scenario):
@@ -20,7 +21,7 @@ def check_controller_settings(scenario):
 
 
 def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth_Hz, tracking_current_limit_A,
-                            commissioning, tracking_acceleration_rad_s2=math.inf):
+                            commissioning, tracking_acceleration_rad_s2=math.inf, tracking_loop=None):
     """ControllerParams for ``scenario`` with an estimator that injects at ``injection_frequency_Hz`` (0:
     none), tracks with ``tracking_bandwidth_Hz`` and holds its angle up to ``tracking_current_limit_A``
     (None: no limit of its own); the scenario's current_limit_A overrides that limit. The current loops
@@ -28,7 +29,8 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
     answer delay plus the blocks' N − 1; the speed loop's bandwidth is scaled to the motor
     (drive_common.motor.scaled_loops) unless the scenario sets it, and the speed reference ramped within the
     electrical acceleration ``tracking_acceleration_rad_s2`` the estimator follows (rule 4 there; ∞: none) unless
-    the scenario sets its ``speed_ramp_rad_s2``."""
+    the scenario sets its ``speed_ramp_rad_s2``; the speed loop keeps its margins on the estimator's
+    ``tracking_loop`` (hf_estimator.interface.Estimator.tracking_loop; None: assumed from its bandwidth)."""
     plate = commissioning.refined(scenario.motor.nameplate)
     if not math.isfinite(plate.J_kgm2):
         raise ScenarioError(f"{scenario.motor.given_by}: {scenario.motor.source}: nameplate.J_kgm2: unknown, and the "
@@ -43,9 +45,10 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
     inverter = scenario.motor.inverter._replace(
         delay_periods=scenario.answer_delay_periods() + scenario.block_samples - 1)
     try:
-        return make_controller_params(plate, inverter, scenario.T_s,
-                                      settings, injection_frequency_Hz, tracking_bandwidth_Hz, commissioning,
-                                      scenario.estimator == OPEN_LOOP_ESTIMATOR)
+        return make_controller_params(plate, inverter, scenario.T_s, settings, injection_frequency_Hz,
+                                      SpeedEstimate(tracking_bandwidth_Hz,
+                                                    None if tracking_loop is None else TrackingLoop(*tracking_loop)),
+                                      commissioning, scenario.estimator == OPEN_LOOP_ESTIMATOR)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source_of('controller')}: {error.args[0]}") from None
 

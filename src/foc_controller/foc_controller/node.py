@@ -206,7 +206,8 @@ class ControllerNode(DriveNode):
             self.params = controller_for_scenario(self.config, config["injection_frequency_Hz"],
                                                   math.inf if bandwidth is None else bandwidth,
                                                   config["tracking_current_limit_A"], self.commissioning,
-                                                  config.get("tracking_acceleration_rad_s2") or math.inf)
+                                                  config.get("tracking_acceleration_rad_s2") or math.inf,
+                                                  config.get("tracking_loop"))
         except ValueError as error:
             self.configured = False
             self.reject(error)

@@ -15,6 +15,13 @@ from drive_common.motor.open_loop_start import (
 from drive_common.motor.torque_limit import controller_path
 
 from .control import ControllerParams
+from .speed_margin import (
+    SPEED_GAIN_MARGIN_DB,
+    SPEED_PHASE_MARGIN_DEG,
+    SpeedEstimate,
+    SpeedLoopPlant,
+    margins,
+)
 from .tuning import SZABO_TABLE2, current_pi_gains_any_bandwidth, speed_pi_gains
 
 SETTINGS = (
@@ -61,12 +68,17 @@ at 20 kHz, tracking 116 Hz and its speed loop at 182 rad/s, hunted at 55 Hz behi
 to 80 Hz."""
 
 
+SENSED_SPEED = SpeedEstimate()
+"""The speed estimate of a sensor: no tracking loop."""
+MARGIN_SEARCH_FLOOR = 0.05
+MARGIN_SEARCH_STEPS = 24
+"""speed_gains_within_margins bisects the bandwidth's logarithm this many times (to 0.01 % of it)."""
 IF_AGREEMENT_S = 0.01
 """The I-f start hands over once the observer's speed has agreed with the ramp's this long."""
 
 
 def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
-                           tracking_bandwidth_Hz=math.inf, commissioning=None, open_loop=False):
+                           speed_estimate=SENSED_SPEED, commissioning=None, open_loop=False):
     """ControllerParams for a motor with this ``nameplate`` (drive_common.motor.nameplate.Nameplate) on an
     ``inverter`` (InverterRating; its delay_periods the whole delay d from sample to applied command,
     blocks included) at sampling period T_s; R_s of the current loops comes from the
@@ -85,12 +97,16 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     for the loop delay (DELAY_LAG_AT_BANDWIDTH_RAD) and the speed bandwidth a cascade step below it
     (CURRENT_TO_SPEED_RATIO) and within the current loops' lag (CURRENT_LAG_AT_SPEED_CROSSOVER_RAD). The
     notch sits at the estimator's injection frequency. With 'rule' gains the speed loop is kept a cascade
-    step below the angle estimator: its bandwidth is at most speed_to_estimator_ratio · 2π · tracking_bandwidth_Hz
-    (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag).
+    step below the angle estimator (``speed_estimate``, speed_margin.SpeedEstimate): its bandwidth is at most
+    speed_to_estimator_ratio · 2π · its tracking bandwidth
+    (a speed loop faster than the estimate it is fed makes the drive chase its own estimation lag), and at most
+    the bandwidth whose loop, the current loop, the rotor and the estimator's tracking loop included, keeps its
+    phase and gain margins (speed_margin).
     ``open_loop``: with the I-f start of drive_common.motor.open_loop_start (an estimator that says OPEN_LOOP
     below its speed); ValueError where that start refuses the motor.
     """
     s = check_settings(settings, T_s)
+    tracking_bandwidth_Hz = speed_estimate.bandwidth_Hz
     if "speed_filter_Hz" not in (settings or {}) and math.isfinite(tracking_bandwidth_Hz):
         s["speed_filter_Hz"] = max(s["speed_filter_Hz"], SPEED_FILTER_PER_TRACKING * tracking_bandwidth_Hz)
     m = nameplate
@@ -108,8 +124,10 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         speed_bandwidth = min(_capped_speed_bandwidth(s, tracking_bandwidth_Hz),
                               current_bandwidth / CURRENT_TO_SPEED_RATIO,
                               CURRENT_LAG_AT_SPEED_CROSSOVER_RAD / (2.0 * s["speed_damping"] * current_lag_s))
-        w = speed_pi_gains(m.J_kgm2, m.B_Nms if math.isfinite(m.B_Nms) else 0.0, k_t, speed_bandwidth,
-                           s["speed_damping"])
+        plant = SpeedLoopPlant(q.kp, q.ki, m.R_s_ohm, m.L_q_H, (inverter.delay_periods + 0.5) * T_s, k_t, m.J_kgm2,
+                               m.B_Nms if math.isfinite(m.B_Nms) else 0.0,
+                               speed_estimate.tracking_loop(), speed_filter_gain(s["speed_filter_Hz"], T_s), T_s)
+        w = speed_gains_within_margins(plant, speed_bandwidth, s["speed_damping"])
     i_max = s["current_limit_A"] if s["current_limit_A"] is not None else m.current_limit_A
     if i_max > m.current_limit_A:
         raise ValueError(f"controller: current_limit_A: {i_max:g} A exceeds the motor's limit "
@@ -135,11 +153,40 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         U_dc_V=inverter.U_dc_V, kp_d=d.kp, ki_d=d.ki, kp_q=q.kp, ki_q=q.ki,
         kp_speed=w.kp, ki_speed=w.ki, i_max_A=float(i_max), decoupling=bool(s["decoupling"]),
         delay_compensation_periods=float(delay), hf_notch_sos=np.ascontiguousarray(sos),
-        speed_filter_gain=(1.0 - math.exp(-2.0 * math.pi * s["speed_filter_Hz"] * T_s)
-                           if s["speed_filter_Hz"] > 0.0 else 1.0),
+        speed_filter_gain=speed_filter_gain(s["speed_filter_Hz"], T_s),
         speed_limit_rad_s=float(s["speed_limit_rad_s"]), speed_ramp_rad_s2=float(s["speed_ramp_rad_s2"]),
         mtpa_current_A=np.ascontiguousarray(path.current_A if path else np.zeros(0)),
         mtpa_d_current_A=np.ascontiguousarray(path.d_current_A if path else np.zeros(0)), **start)
+
+
+def speed_filter_gain(speed_filter_Hz, T_s):
+    """The speed estimate's first-order filter as a per-sample gain (1: none, at 0 Hz)."""
+    return 1.0 - math.exp(-2.0 * math.pi * speed_filter_Hz * T_s) if speed_filter_Hz > 0.0 else 1.0
+
+
+def speed_gains_within_margins(plant, speed_bandwidth_rad_s, damping):
+    """speed_pi_gains at ``speed_bandwidth_rad_s`` (ζ ``damping``) on ``plant`` (speed_margin.SpeedLoopPlant), or at
+    the largest bandwidth below it whose loop keeps SPEED_PHASE_MARGIN_DEG and SPEED_GAIN_MARGIN_DB (bisected on a
+    log scale down to MARGIN_SEARCH_FLOOR of it, or to where friction alone would give the PI's k_p; that floor where
+    none does)."""
+    def gains(bandwidth):
+        return speed_pi_gains(plant.J_kgm2, plant.B_Nms, plant.k_t_Nm_per_A, bandwidth, damping)
+
+    def kept(bandwidth):
+        g = gains(bandwidth)
+        found = margins(plant, g.kp, g.ki)
+        return found.phase_margin_deg >= SPEED_PHASE_MARGIN_DEG and found.gain_margin_db >= SPEED_GAIN_MARGIN_DB
+
+    if kept(speed_bandwidth_rad_s):
+        return gains(speed_bandwidth_rad_s)
+    floor = max(MARGIN_SEARCH_FLOOR * speed_bandwidth_rad_s, 1.01 * plant.B_Nms / (2.0 * damping * plant.J_kgm2))
+    if floor >= speed_bandwidth_rad_s:
+        return gains(speed_bandwidth_rad_s)
+    low, high = math.log(floor), math.log(speed_bandwidth_rad_s)
+    for _ in range(MARGIN_SEARCH_STEPS):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if kept(math.exp(middle)) else (low, middle)
+    return gains(math.exp(low))
 
 
 def check_settings(settings, T_s=None):

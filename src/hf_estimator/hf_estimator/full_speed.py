@@ -224,4 +224,4 @@ def make_full_speed(nameplate, T_s, settings, commissioning, inverter):
     state["observer"] = observer.state
     return Estimator("full_speed", full_speed_step, params, state, ours.injection_frequency_Hz,
                      ours.tracking_bandwidth_Hz, injection_amplitude_V=ours.injection_amplitude_V,
-                     injection_note=ours.injection_note)
+                     injection_note=ours.injection_note, tracking_loop=ours.tracking_loop)

@@ -403,4 +403,4 @@ def make_injection_frame(nameplate, T_s, settings, commissioning, inverter):
         saliency_sign=1.0 if commissioning.delta >= 0.0 else -1.0, startup=startup)
     return Estimator("injection_frame", injection_frame_step, params, injection_frame_state(),
                      1.0 / (N * T_s), float(s["pll_bandwidth_Hz"]), injection_amplitude_V=injection_amplitude_V,
-                     injection_note=note)
+                     injection_note=note, tracking_loop=(kp, ki, ka, (N + 0.5) * T_s))

@@ -56,6 +56,10 @@ class Estimator:
     """The electrical acceleration its tracking follows within its lag budget where its injection leads over the
     whole speed range (drive_common.motor.scaled_loops.tracked_acceleration_e_rad_s2; ∞: no bound): the
     controller ramps the speed reference within it."""
+    tracking_loop: tuple = None
+    """(k_p [1/s], k_i [1/s²], k_a [1/s³], delay [s]) of its tracking loop on an error of unit slope, the delay that
+    of its error path, where its speed estimate is that loop's integrator (foc_controller.speed_margin.TrackingLoop:
+    the speed loop keeps its margins on it); None: a type-2 loop at tracking_bandwidth_Hz is assumed."""
     injection_amplitude_V: float = None
     """The HF amplitude it injects when it chooses it itself (None: the scenario's)."""
     injection_note: str = ""
@@ -75,7 +79,9 @@ class Estimator:
                 "injection_amplitude_V": self.injection_amplitude_V, "injection_note": self.injection_note,
                 "tracking_bandwidth_Hz": self.tracking_bandwidth_Hz,
                 "tracking_current_limit_A": self.tracking_current_limit_A,
-                "tracking_acceleration_rad_s2": self.tracking_acceleration_rad_s2, "estimator_settings": self.settings}
+                "tracking_acceleration_rad_s2": self.tracking_acceleration_rad_s2,
+                "tracking_loop": None if self.tracking_loop is None else [float(v) for v in self.tracking_loop],
+                "estimator_settings": self.settings}
 
 
 class _Registered(NamedTuple):

@@ -426,4 +426,5 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
         startup=make_startup(nameplate, commissioning, T_s, inverter, 1.0 if salient else 0.0, s))
     return Estimator("square_wave", square_wave_step, params, square_wave_state(), 0.5 / (m * T_s), bandwidth_Hz,
-                     injection_amplitude_V=amplitude_V, injection_note="; ".join(notes))
+                     injection_amplitude_V=amplitude_V, injection_note="; ".join(notes),
+                     tracking_loop=(kp, ki, ka, demodulation_delay_s(T_s, delay_periods, m)))

@@ -14,7 +14,8 @@ acceleration by a_e/ω_n². The rule:
    the noise margin (hf_estimator.injection_frame.tracking_loop_type).
 3. Speed loop: ω_s = √(a_e / EXCURSION_RAD) (a load step then turns the rotor by about EXCURSION_RAD
    electrical before the loop holds it), at least MIN_SPEED_BANDWIDTH_RAD_S; the controller keeps it a
-   cascade step below the tracking loop and the current loops (foc_controller.params).
+   cascade step below the tracking loop and the current loops, and within its margins on the estimator's own
+   loop (foc_controller.params, foc_controller.speed_margin).
 4. Speed ramp: where ours' injection leads over the whole speed range, the speed reference's slope is held to
    the acceleration its tracking loop follows within SPEED_RAMP_LAG_RAD, ω_n²·SPEED_RAMP_LAG_RAD (electrical;
    tracked_acceleration_e_rad_s2): a speed step would otherwise drive the speed loop to the current limit and

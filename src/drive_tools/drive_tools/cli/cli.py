@@ -48,6 +48,15 @@ def _remedy(error, args):
     return ""
 
 
+def _interrupted_cause(error):
+    """The Interrupted that caused ``error`` (a signal that came while a C extension was being imported turns into
+    that import's ImportError), or None."""
+    seen = error.__cause__ or error.__context__
+    while seen is not None and not isinstance(seen, Interrupted):
+        seen = seen.__cause__ or seen.__context__
+    return seen
+
+
 def main(argv=None, early_signals=()):
     """Run the command ``argv``; ``early_signals``: SIGINT/SIGTERM noted before this was called (by
     drive_tools.cli.entry), so that the command stops at once as interrupted."""
@@ -69,6 +78,12 @@ def main(argv=None, early_signals=()):
         print(f"drive: {text}", file=sys.stderr)
         return EXIT_REFUSED
     except Interrupted as stop:
+        print(f"drive: {args.command}: interrupted by {stop}", file=sys.stderr)
+        return EXIT_SIGNAL_BASE + stop.signum
+    except ImportError as error:
+        stop = _interrupted_cause(error)
+        if stop is None:
+            raise
         print(f"drive: {args.command}: interrupted by {stop}", file=sys.stderr)
         return EXIT_SIGNAL_BASE + stop.signum
     except BrokenPipeError:

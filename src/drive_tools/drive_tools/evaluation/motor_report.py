@@ -1,5 +1,6 @@
 """Reports of motors (drive presets, motor show, commission): what the drive is told of a motor beside the
 simulated plant's truth, the loops scaled to it, and what commissioning identified; each as text lines."""
+import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -96,7 +97,8 @@ def stated_torque_report(scenario):
         estimator = estimator_for_scenario(scenario, commissioning)
         controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz,
                                              estimator.tracking_bandwidth_Hz, estimator.tracking_current_limit_A,
-                                             commissioning, estimator.tracking_acceleration_rad_s2)
+                                             commissioning, estimator.tracking_acceleration_rad_s2,
+                                             estimator.tracking_loop)
     except DriveError as error:
         return {"line": f"sensorless torque limit not stated: the drive refuses to run it ({error})"}
     return stated_torque(scenario, commissioning, controller, estimator.tracking_current_limit_A is not None).as_dict()
@@ -106,25 +108,32 @@ def drive_loops(scenario):
     """What a run of ``scenario`` uses, built as drive_tools.runner.runner.build_drive builds it (the same
     commissioning, estimator and controller builders): {scenario, sample_period_s, commissioning, the
     estimator's facts (carrier, amplitude, tracking bandwidth and current, note), current_limit_A, the speed
-    loop's kp and ki, the speed reference's ramp [rad/s², ∞: none]}."""
+    loop's kp, ki and ω_n [rad/s], the speed reference's ramp [rad/s², ∞: none]}."""
     from drive_tools.runner.runner import scenario_commissioning
     from foc_controller.build import controller_for_scenario
+    from foc_controller.tuning import PIGains, speed_bandwidth_damping
     from hf_estimator.build import estimator_for_scenario
 
     commissioning = scenario_commissioning(scenario)
     estimator = estimator_for_scenario(scenario, commissioning)
     controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz, estimator.tracking_bandwidth_Hz,
                                          estimator.tracking_current_limit_A, commissioning,
-                                         estimator.tracking_acceleration_rad_s2)
+                                         estimator.tracking_acceleration_rad_s2, estimator.tracking_loop)
+    plate = commissioning.refined(scenario.motor.nameplate)
+    omega_n, _ = speed_bandwidth_damping(plate.J_kgm2, plate.B_Nms if math.isfinite(plate.B_Nms) else 0.0,
+                                         1.5 * controller.n_p * controller.psi_f_Wb,
+                                         PIGains(controller.kp_speed, controller.ki_speed))
     return {"scenario": scenario.name, "sample_period_s": scenario.T_s, "commissioning": commissioning.source,
             **estimator.facts(), "current_limit_A": controller.i_max_A, "speed_kp": controller.kp_speed,
-            "speed_ki": controller.ki_speed, "speed_ramp_rad_s2": controller.speed_ramp_rad_s2}
+            "speed_ki": controller.ki_speed, "speed_bandwidth_rad_s": omega_n,
+            "speed_ramp_rad_s2": controller.speed_ramp_rad_s2}
 
 
 RUN_ROWS = (("injection frequency", "injection_frequency_Hz", "Hz"),
             ("injection amplitude", "injection_amplitude_V", "V"),
             ("tracking bandwidth", "tracking_bandwidth_Hz", "Hz"), ("current limit", "current_limit_A", "A"),
             ("speed loop kp", "speed_kp", "A·s/rad"), ("speed loop ki", "speed_ki", "A/rad"),
+            ("speed loop ω_n", "speed_bandwidth_rad_s", "rad/s"),
             ("speed ramp", "speed_ramp_rad_s2", "rad/s²"))
 """What motor_lines prints of drive_loops: label, key, unit."""
 

@@ -18,10 +18,11 @@ from .launcher import DriveSpec, RealTime, make_node
 
 BRIDGE_COMMAND_TIMEOUT_S = 0.1
 """No command from the armed drive for this long: the bridge tells the inverter to switch off."""
-LOCKSTEP_TIMEOUT_S = 1.0
+LOCKSTEP_TIMEOUT_S = 10.0
 """The estimator's wait for a command it misses (the controller in this process answers at once), and a virtual
 inverter's in lock-step (``paced: false``) while the drive commands: the simulation waits for the drive, so its
-outcome does not depend on the machine's pace (a loaded machine holding the drive for less)."""
+outcome does not depend on the machine's pace. The wait guards against a dead drive, not a slow one: at 1 s a
+machine running two test suites at once held a drive longer and its axis stopped on a lost link (stop 63)."""
 DISABLED_WAIT_S = 0.05
 """A virtual inverter in lock-step waits this long for each command while the drive does not command (before it is
 armed; disarmed, its bridge says CONTROL disable): its simulation then runs at 1/50 of real time."""

@@ -93,7 +93,7 @@ def build_drive(scenario):
     estimator = estimator_for_scenario(scenario, commissioning)
     controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz,
                                          estimator.tracking_bandwidth_Hz, estimator.tracking_current_limit_A,
-                                         commissioning, estimator.tracking_acceleration_rad_s2)
+                                         commissioning, estimator.tracking_acceleration_rad_s2, estimator.tracking_loop)
     controller_x, controller_z = controller_state(controller)
     speed_ref, tau_load = scenario.schedule()
     return Drive(scenario, plant, estimator, controller, controller_x, controller_z, speed_ref, tau_load,
