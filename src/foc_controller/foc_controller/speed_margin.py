@@ -7,8 +7,9 @@ the controller's first-order speed filter. The open loop, cut at the speed error
     L(jω) = (k_pω + k_iω/jω) · T_i(jω) · k_t/(J jω + B) · H_ω̂(jω) · F(jω).
 
 Its phase margin at the crossover and its gain margin where its phase reaches −180° say how far the loop rings: the
-robot arm's speed loop in blocks of 10 at 10 kHz had 13.5° and 2.9 dB and hunted at 7.7 Hz (predicted crossover
-7.6 Hz), its shaft's speed ±1 rad/s about its command. No rclpy."""
+robot arm's speed loop in blocks of 10 at 10 kHz had 13° and 2.9 dB and hunted at 8.0 Hz (predicted crossover
+7.6 Hz), its shaft's speed ±1 rad/s about its command. A small-signal model: it reads a type-3 loop's margins low
+(1.5° where a joint's loop rang at 50 Hz without diverging). No rclpy."""
 import math
 from typing import NamedTuple
 
@@ -17,7 +18,8 @@ import numpy as np
 SPEED_PHASE_MARGIN_DEG = 35.0
 SPEED_GAIN_MARGIN_DB = 6.0
 """With 'rule' gains the speed loop's ω_n is the largest, at most the other rules', whose loop keeps these margins
-(foc_controller.params)."""
+(foc_controller.params): 45° halved the ripple in blocks again but slowed a rated load step's recovery past the
+paper's (docs/motors-and-control.md "The speed loop's margin")."""
 GENERIC_TRACKING_DAMPING = 0.9
 """An estimator that states its bandwidth but not its loop is taken as a type-2 loop of this damping without
 delay: the mildest reading of its bandwidth."""
