@@ -166,6 +166,7 @@ class ControllerNode(DriveNode):
             "the joint's name in joint_states (empty: the namespace's last part, e.g. left_wheel)"))
         self.joint_msg = JointState(name=[self.get_parameter("joint_name").value or default_joint_name(
             self.get_namespace())])
+        """The last joint state published, replaced whole each time (a robot node reads it from another thread)."""
         if not self.configured:
             self.publish_config({})
 
