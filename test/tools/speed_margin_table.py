@@ -18,8 +18,8 @@ import numpy as np
 from drive_common.config.scenario import load_scenario
 from drive_common.contract.log import COLUMN
 from drive_tools.runner.runner import build_drive, run_scenario
-from foc_controller.speed_margin import SpeedLoopPlant, TrackingLoop, margins
-from foc_controller.tuning import PIGains, speed_bandwidth_damping
+from foc_controller.build import speed_loop
+from foc_controller.speed_margin import margins
 
 ROOT = Path(__file__).resolve().parents[2]
 DRIVE = ("format_version: 1\nmotor: wang_spmsm\ncommissioning: {commissioning}\nestimator: injection_frame\n"
@@ -32,13 +32,9 @@ SCENARIO = ("drive: drive.yaml\nduration_s: 6.0\ninitial: {{theta_m_rad: 1.3}}\n
 def case(path, block_samples):
     scenario = dataclasses.replace(load_scenario(str(path)), block_samples=block_samples)
     drive = build_drive(scenario)
-    c, plate = drive.controller, drive.commissioning.refined(scenario.motor.nameplate)
-    k_t, B = 1.5 * c.n_p * c.psi_f_Wb, plate.B_Nms if math.isfinite(plate.B_Nms) else 0.0
-    plant = SpeedLoopPlant(c.kp_q, c.ki_q, c.R_s_ohm, c.L_q_H, c.delay_compensation_periods * c.T_s_s, k_t,
-                           plate.J_kgm2, B, TrackingLoop(*drive.estimator.tracking_loop), c.speed_filter_gain,
-                           c.T_s_s)
-    predicted = margins(plant, c.kp_speed, c.ki_speed)
-    omega_n, _ = speed_bandwidth_damping(plate.J_kgm2, B, k_t, PIGains(c.kp_speed, c.ki_speed))
+    c = drive.controller
+    loop = speed_loop(scenario, drive.commissioning, c, drive.estimator.facts())
+    predicted = margins(loop.plant, c.kp_speed, c.ki_speed)
     log = run_scenario(scenario).log
     t = log[:, COLUMN["t"]]
     last = t >= t[-1] - 3.0
@@ -46,7 +42,7 @@ def case(path, block_samples):
     frequency = np.fft.rfftfreq(ripple.size, c.T_s_s)
     spectrum = np.abs(np.fft.rfft(ripple * np.hanning(ripple.size))) * ((frequency > 1.0) & (frequency < 100.0))
     error = np.angle(np.exp(1j * (c.n_p * log[last, COLUMN["theta_m"]] - log[last, COLUMN["theta_e_hat"]])))
-    return {"blocks": block_samples, "omega_n_rad_s": round(omega_n, 1),
+    return {"blocks": block_samples, "omega_n_rad_s": round(loop.omega_n_rad_s, 1),
             "crossover_Hz": round(predicted.crossover_rad_s / (2.0 * math.pi), 2),
             "phase_margin_deg": round(predicted.phase_margin_deg, 1),
             "gain_margin_dB": round(predicted.gain_margin_db, 1),

@@ -1,14 +1,16 @@
 """The controller a scenario configures, for its motor's nameplate and the estimator it runs with."""
 import math
+from typing import NamedTuple
 
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.open_loop_start import ESTIMATOR as OPEN_LOOP_ESTIMATOR
 from drive_common.motor.scaled_loops import scaled_loops
 from drive_common.motor.torque_limit import MtpaPath, current_bound, sensorless_torque
 
-from .params import check_settings, make_controller_params
+from .params import check_settings, make_controller_params, speed_loop_plant
 from .protection import make_protection_params
-from .speed_margin import SpeedEstimate, TrackingLoop
+from .speed_margin import SpeedEstimate, SpeedLoopPlant, TrackingLoop
+from .tuning import PIGains, speed_bandwidth_damping
 
 
 def check_controller_settings(scenario):
@@ -42,15 +44,43 @@ def controller_for_scenario(scenario, injection_frequency_Hz, tracking_bandwidth
     if tracking_current_limit_A is not None:
         settings.setdefault("current_limit_A", tracking_current_limit_A)
     settings.setdefault("speed_ramp_rad_s2", tracking_acceleration_rad_s2 / plate.n_p)
-    inverter = scenario.motor.inverter._replace(
-        delay_periods=scenario.answer_delay_periods() + scenario.block_samples - 1)
     try:
-        return make_controller_params(plate, inverter, scenario.T_s, settings, injection_frequency_Hz,
-                                      SpeedEstimate(tracking_bandwidth_Hz,
-                                                    None if tracking_loop is None else TrackingLoop(*tracking_loop)),
-                                      commissioning, scenario.estimator == OPEN_LOOP_ESTIMATOR)
+        return make_controller_params(plate, loop_inverter(scenario), scenario.T_s, settings, injection_frequency_Hz,
+                                      speed_estimate(tracking_bandwidth_Hz, tracking_loop), commissioning,
+                                      scenario.estimator == OPEN_LOOP_ESTIMATOR)
     except (KeyError, ValueError) as error:
         raise ScenarioError(f"{scenario.source_of('controller')}: {error.args[0]}") from None
+
+
+def loop_inverter(scenario):
+    """``scenario``'s inverter with the whole delay its loops see: the answer delay plus the blocks' N − 1."""
+    return scenario.motor.inverter._replace(delay_periods=scenario.answer_delay_periods() + scenario.block_samples - 1)
+
+
+def speed_estimate(tracking_bandwidth_Hz, tracking_loop):
+    """speed_margin.SpeedEstimate of an estimator's tracking bandwidth [Hz] and its stated ``tracking_loop`` (the
+    four numbers of its facts, None where it states none)."""
+    return SpeedEstimate(tracking_bandwidth_Hz, None if tracking_loop is None else TrackingLoop(*tracking_loop))
+
+
+class SpeedLoop(NamedTuple):
+    """A built drive's speed loop: its ``plant`` (speed_margin.SpeedLoopPlant), its PI's ω_n [rad/s] and ζ."""
+
+    plant: SpeedLoopPlant
+    omega_n_rad_s: float
+    damping: float
+
+
+def speed_loop(scenario, commissioning, controller, estimator_facts):
+    """The SpeedLoop ``controller`` (ControllerParams, built by controller_for_scenario for ``scenario`` and
+    ``commissioning``) closes on the estimator of ``estimator_facts`` (Estimator.facts(), as the nodes read them)."""
+    motor = commissioning.refined(scenario.motor.nameplate)._replace(R_s_ohm=controller.R_s_ohm)
+    plant = speed_loop_plant(motor, loop_inverter(scenario), scenario.T_s, PIGains(controller.kp_q, controller.ki_q),
+                             controller.speed_filter_gain, speed_estimate(estimator_facts["tracking_bandwidth_Hz"],
+                                                                          estimator_facts["tracking_loop"]))
+    omega_n, damping = speed_bandwidth_damping(plant.J_kgm2, plant.B_Nms, plant.k_t_Nm_per_A,
+                                               PIGains(controller.kp_speed, controller.ki_speed))
+    return SpeedLoop(plant, omega_n, damping)
 
 
 def stated_torque(scenario, commissioning, controller, injecting):

@@ -112,7 +112,6 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
     m = nameplate
     if commissioning is not None:
         m = m._replace(R_s_ohm=commissioning.R_s_ohm)
-    k_t = 1.5 * m.n_p * m.psi_f_Wb
     current_bandwidth = min(s["current_bandwidth_rad_s"],
                             DELAY_LAG_AT_BANDWIDTH_RAD / ((inverter.delay_periods + 0.5) * T_s))
     if s["gains"] == "szabo_table2":
@@ -124,9 +123,7 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
         speed_bandwidth = min(_capped_speed_bandwidth(s, tracking_bandwidth_Hz),
                               current_bandwidth / CURRENT_TO_SPEED_RATIO,
                               CURRENT_LAG_AT_SPEED_CROSSOVER_RAD / (2.0 * s["speed_damping"] * current_lag_s))
-        plant = SpeedLoopPlant(q.kp, q.ki, m.R_s_ohm, m.L_q_H, (inverter.delay_periods + 0.5) * T_s, k_t, m.J_kgm2,
-                               m.B_Nms if math.isfinite(m.B_Nms) else 0.0,
-                               speed_estimate.tracking_loop(), speed_filter_gain(s["speed_filter_Hz"], T_s), T_s)
+        plant = speed_loop_plant(m, inverter, T_s, q, speed_filter_gain(s["speed_filter_Hz"], T_s), speed_estimate)
         w = speed_gains_within_margins(plant, speed_bandwidth, s["speed_damping"])
     i_max = s["current_limit_A"] if s["current_limit_A"] is not None else m.current_limit_A
     if i_max > m.current_limit_A:
@@ -162,6 +159,16 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
 def speed_filter_gain(speed_filter_Hz, T_s):
     """The speed estimate's first-order filter as a per-sample gain (1: none, at 0 Hz)."""
     return 1.0 - math.exp(-2.0 * math.pi * speed_filter_Hz * T_s) if speed_filter_Hz > 0.0 else 1.0
+
+
+def speed_loop_plant(motor, inverter, T_s, current_gains, filter_gain, speed_estimate):
+    """speed_margin.SpeedLoopPlant of the speed loop of ``motor`` (a Nameplate: R_s, L_q, n_p, ψ_f, J, B) behind
+    ``inverter``'s delay (d + ½)·T_s, its q current loop's ``current_gains`` (PIGains), the speed filter's per-sample
+    ``filter_gain`` and the ``speed_estimate`` (speed_margin.SpeedEstimate) it is fed."""
+    return SpeedLoopPlant(current_gains.kp, current_gains.ki, motor.R_s_ohm, motor.L_q_H,
+                          (inverter.delay_periods + 0.5) * T_s, 1.5 * motor.n_p * motor.psi_f_Wb, motor.J_kgm2,
+                          motor.B_Nms if math.isfinite(motor.B_Nms) else 0.0, speed_estimate.tracking_loop(),
+                          filter_gain, T_s)
 
 
 def speed_gains_within_margins(plant, speed_bandwidth_rad_s, damping):

@@ -77,11 +77,8 @@ def main(argv=None, early_signals=()):
         text = " ".join(f"{error}{_remedy(error, args)}".split())
         print(f"drive: {text}", file=sys.stderr)
         return EXIT_REFUSED
-    except Interrupted as stop:
-        print(f"drive: {args.command}: interrupted by {stop}", file=sys.stderr)
-        return EXIT_SIGNAL_BASE + stop.signum
-    except ImportError as error:
-        stop = _interrupted_cause(error)
+    except (Interrupted, ImportError) as error:
+        stop = error if isinstance(error, Interrupted) else _interrupted_cause(error)
         if stop is None:
             raise
         print(f"drive: {args.command}: interrupted by {stop}", file=sys.stderr)

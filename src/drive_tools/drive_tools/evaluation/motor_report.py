@@ -1,6 +1,5 @@
 """Reports of motors (drive presets, motor show, commission): what the drive is told of a motor beside the
 simulated plant's truth, the loops scaled to it, and what commissioning identified; each as text lines."""
-import math
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -110,8 +109,7 @@ def drive_loops(scenario):
     estimator's facts (carrier, amplitude, tracking bandwidth and current, note), current_limit_A, the speed
     loop's kp, ki and ω_n [rad/s], the speed reference's ramp [rad/s², ∞: none]}."""
     from drive_tools.runner.runner import scenario_commissioning
-    from foc_controller.build import controller_for_scenario
-    from foc_controller.tuning import PIGains, speed_bandwidth_damping
+    from foc_controller.build import controller_for_scenario, speed_loop
     from hf_estimator.build import estimator_for_scenario
 
     commissioning = scenario_commissioning(scenario)
@@ -119,10 +117,7 @@ def drive_loops(scenario):
     controller = controller_for_scenario(scenario, estimator.injection_frequency_Hz, estimator.tracking_bandwidth_Hz,
                                          estimator.tracking_current_limit_A, commissioning,
                                          estimator.tracking_acceleration_rad_s2, estimator.tracking_loop)
-    plate = commissioning.refined(scenario.motor.nameplate)
-    omega_n, _ = speed_bandwidth_damping(plate.J_kgm2, plate.B_Nms if math.isfinite(plate.B_Nms) else 0.0,
-                                         1.5 * controller.n_p * controller.psi_f_Wb,
-                                         PIGains(controller.kp_speed, controller.ki_speed))
+    omega_n = speed_loop(scenario, commissioning, controller, estimator.facts()).omega_n_rad_s
     return {"scenario": scenario.name, "sample_period_s": scenario.T_s, "commissioning": commissioning.source,
             **estimator.facts(), "current_limit_A": controller.i_max_A, "speed_kp": controller.kp_speed,
             "speed_ki": controller.ki_speed, "speed_bandwidth_rad_s": omega_n,
