@@ -202,12 +202,12 @@ def test_the_architecture_page_states_the_graph_the_code_has():
 
 
 def test_the_bridge_package_holds_only_the_inverter_link():
-    """The protocol, the links (a serial port, a CAN bus, the CAN cable between processes), the bridge and
-    its node, on the library alone: the virtual inverter that stands in for a real one lives with the test
-    doubles (drive_tools.doubles)."""
+    """The protocol (its serial and CAN codecs' kernels), the links (a serial port, a CAN bus, the CAN cable
+    between processes), the bridge and its node, on the library alone: the virtual inverter that stands in for
+    a real one lives with the test doubles (drive_tools.doubles)."""
     names = {p.stem for p in (SRC / "drive_bridge" / "drive_bridge").glob("*.py")}
-    assert names == {"__init__", "inverter_protocol", "frame_codec", "inverter_link", "can_cable", "compiled_io",
-                     "inverter_bridge", "compiled_bridge", "bridge_node"}
+    assert names == {"__init__", "inverter_protocol", "frame_codec", "can_codec", "inverter_link", "can_cable",
+                     "compiled_io", "inverter_bridge", "compiled_bridge", "bridge_node"}
     assert package_graph()["drive_bridge"] == {LIBRARY}
 
 

@@ -20,12 +20,14 @@ from drive_bridge.inverter_protocol import (
     Hello,
     Telemetry,
     TelemetryBlock,
+    can_base,
     cobs_decode,
     cobs_encode,
     command_flags,
     crc16,
     decode_frame,
     encode_frame,
+    payload_message,
     requested_safe_state,
     to_can,
     to_canfd,
@@ -247,3 +249,73 @@ def test_can_fd_decoder_takes_any_frame(identifier, data):
     else:
         assert isinstance(block, (TelemetryBlock, CommandBlock)) and 1 <= len(block.samples) <= MAX_BLOCK
         assert decoder.errors == {}
+
+
+def _compiled_can_bridge(kind, fd=-1, drive=3):
+    """compiled_bridge's arrays of a bridge on a CAN link of ``kind`` (CABLE, SOCKETCAN) writing to ``fd``, with
+    HELLO taken (voltage step 1 V)."""
+    import numpy as np
+
+    from drive_bridge import can_codec
+    from drive_bridge import compiled_bridge as cb
+    state, counters = cb.bridge_state(10, 1.0, 1.0)
+    state[cb.FD], state[cb.LINK_KIND], state[cb.CAN_BASE] = fd, kind, can_base(drive)
+    state[cb.HAS_HELLO], state[cb.VOLTAGE_LSB], state[cb.CURRENT_LSB] = 1.0, 1.0, 1.0
+    rx = np.zeros(cb.READ_BYTES, dtype=np.uint8)
+    return cb.bridge_arrays(state, counters, np.full((8, 2), np.nan), rx, can_codec.can_decoder())
+
+
+def test_the_compiled_answer_writes_socketcan_frames_as_python_can_builds_them():
+    """SocketCAN's frame layout (no PF_CAN on this machine to run it): what the compiled answer writes for a
+    COMMAND_BLOCK of 20 samples (two CAN FD frames) and a CONTROL (a classic frame), byte for byte python-can's
+    SocketCAN frames of the same messages (to_canfd, to_can)."""
+    import os
+
+    import can
+    import numpy as np
+    from can.interfaces.socketcan.socketcan import build_can_frame
+
+    from drive_bridge import compiled_bridge as cb
+    from drive_bridge.inverter_protocol import CONTROL_DISABLE
+    read_end, write_end = os.pipe()
+    try:
+        b = _compiled_can_bridge(cb.SOCKETCAN, write_end)
+        u_alpha, u_beta = np.arange(20) * 3.0 - 30.0, 7.0 - np.arange(20)
+        assert cb.write_commands(b, 40, u_alpha, u_beta, 20, True, 0)
+        assert cb.send_control(b, CONTROL_DISABLE)
+        written = os.read(read_end, 4096)
+    finally:
+        os.close(read_end)
+        os.close(write_end)
+    block = CommandBlock(40, command_flags(True), tuple(zip(u_alpha.astype(int).tolist(), u_beta.astype(int).tolist())))
+    frames = [can.Message(arbitration_id=i, data=d, is_extended_id=False, is_fd=True, bitrate_switch=True)
+              for i, d in to_canfd(block, 3)]
+    frames += [can.Message(arbitration_id=i, data=d, is_extended_id=False)
+               for i, d in to_can(Control(CONTROL_DISABLE), 3)]
+    assert written == b"".join(build_can_frame(frame) for frame in frames)
+
+
+def test_the_compiled_answer_reads_socketcan_frames_as_the_python_codec_does():
+    """python-can's SocketCAN frames of a TELEMETRY_BLOCK of 10 samples (two CAN FD frames) and of a HELLO (three
+    classic frames): the compiled reader gives the payloads the Python codec decodes to the same messages."""
+    import can
+    from can.interfaces.socketcan.socketcan import build_can_frame
+
+    from drive_bridge import compiled_bridge as cb
+    b = _compiled_can_bridge(cb.SOCKETCAN)
+    block = TelemetryBlock(70000, 812, 0x80, tuple((i, -i, 2 * i, 100 * i) for i in range(10)))
+    hello = Hello(3, 1, 4, 10, 100000, 0.01, 0.02, 20.0, 30)
+    messages = []
+    for identifier, data in to_canfd(block, 3) + to_can(hello, 3):
+        frame = can.Message(arbitration_id=identifier, data=data, is_extended_id=False, is_fd=len(data) > 8,
+                            bitrate_switch=len(data) > 8)
+        raw = build_can_frame(frame)
+        b.rx[:len(raw)] = list(raw)
+        b.state[cb.RX_BYTES] = len(raw)
+        after, m = cb.next_payload(b, 0)
+        assert after == len(raw) and cb.next_payload(b, after) == (-1, 0)
+        if m:
+            messages.append(payload_message(b.raw[:m].tobytes()))
+    decoder = CanDecoder(3)
+    expected = [decoder.feed(i, d) for i, d in to_canfd(block, 3) + to_can(hello, 3)]
+    assert messages == [m for m in expected if m is not None] and len(messages) == 3

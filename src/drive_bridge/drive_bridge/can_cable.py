@@ -35,13 +35,18 @@ class CableBus(can.BusABC):
         self.directory_fd = os.open(self.directory, os.O_RDONLY | os.O_DIRECTORY)
         self.name = f"member-{os.getpid()}-{id(self):x}.sock"
         self.path = os.path.join(self.directory, self.name)
-        self.socket = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-        self.socket.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, SOCKET_BUFFER_BYTES)
-        self.socket.bind(self._address(self.name))
-        self.socket.setblocking(False)
+        self.socket = self._bound()
         self.members, self.members_at = [], 0.0
         self.connected = None
         self._open = True
+
+    def _bound(self):
+        """A new datagram socket bound to this member's name."""
+        member = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        member.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, SOCKET_BUFFER_BYTES)
+        member.bind(self._address(self.name))
+        member.setblocking(False)
+        return member
 
     def fileno(self):
         return self.socket.fileno()
@@ -60,9 +65,35 @@ class CableBus(can.BusABC):
                             if name.endswith(".sock") and name != self.name]
         return self.members
 
+    def connect_peer(self):
+        """Connect the socket to the bus's other member, for a writer of the socket itself (the compiled answer,
+        drive_bridge.compiled_bridge): True when connected; False while no other member is there, the socket
+        then bound anew, unconnected (a socket connected to a member gone hears no other: a member that joins
+        again is heard); ValueError when there are several (a frame then goes to each, which only ``send``
+        does). The socket's descriptor may change: read ``fileno()`` after it."""
+        self.members_at = 0.0
+        peers = self._peers()
+        if len(peers) > 1:
+            raise ValueError(f"{self.channel_info}: {len(peers)} other members; a writer of the socket reaches "
+                             f"one")
+        if peers:
+            try:
+                self.socket.connect(peers[0])
+                self.connected = peers[0]
+                return True
+            except (ConnectionRefusedError, FileNotFoundError):
+                pass
+        if self.connected is not None:
+            self.socket.close()
+            os.unlink(self.name, dir_fd=self.directory_fd)
+            self.socket, self.connected = self._bound(), None
+        return False
+
     def send(self, msg, timeout=None):
         """To every other member; with one other member, on a socket connected both ways (so that the
-        kernel's small queue limit of unconnected datagrams, net.unix.max_dgram_qlen, does not apply)."""
+        kernel's small queue limit of unconnected datagrams, net.unix.max_dgram_qlen, does not apply). A frame
+        no member takes (the member gone, or one whose socket still hears only a member gone) is lost, as on a
+        bus with no other node."""
         if not self._open:
             raise can.CanOperationError(f"{self.channel_info}: closed")
         flags = (EXTENDED if msg.is_extended_id else 0) | (FD if msg.is_fd else 0) | (BRS if msg.bitrate_switch else 0)
@@ -77,12 +108,14 @@ class CableBus(can.BusABC):
             else:
                 for peer in peers:
                     self.socket.sendto(frame, peer)
-        except (ConnectionRefusedError, ConnectionResetError, FileNotFoundError):
+        except (ConnectionRefusedError, ConnectionResetError, FileNotFoundError, PermissionError):
             self.connected, self.members_at = None, 0.0
         except BlockingIOError:
             raise can.CanOperationError(f"{self.channel_info}: a member's receive queue is full") from None
 
     def _recv_internal(self, timeout):
+        """One frame within ``timeout``; None for none, and for the error a frame sent earlier to a member since
+        gone leaves on the socket (the bus is not down: the member is looked for again)."""
         if not self._open:
             raise can.CanOperationError(f"{self.channel_info}: closed")
         ready, _, _ = select.select([self.socket], [], [], timeout)
@@ -91,6 +124,9 @@ class CableBus(can.BusABC):
         try:
             frame = self.socket.recv(HEADER.size + 64)
         except BlockingIOError:
+            return None, False
+        except (ConnectionRefusedError, ConnectionResetError):
+            self.connected, self.members_at = None, 0.0
             return None, False
         identifier, flags = HEADER.unpack_from(frame)
         data = frame[HEADER.size:]

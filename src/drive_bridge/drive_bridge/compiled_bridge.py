@@ -1,16 +1,19 @@
-"""The host bridge's per-frame work on a serial link as numba kernels without the interpreter's lock, for an
-answer compiled whole (drive_tools.runner.compiled_answer): bytes read from the link's descriptor, split at
-0x00 and checked (frame_codec), HELLO taken, telemetry accepted as InverterBridge accepts it (sequence
-unwrapped, gaps, repeats and late frames counted, currents and the encoder's angle in SI units), commands
-encoded and written with the latches a link loss causes cleared once, the link's and the graph's silence
-timed. The state lives in arrays (``BridgeArrays``) that InverterBridge loads and takes back
-(``load_bridge``, ``store_bridge``), so that reconnecting, HELLO's requests and the reports stay in Python."""
+"""The host bridge's per-frame work on a serial link or a CAN bus as numba kernels without the interpreter's
+lock, for an answer compiled whole (drive_tools.runner.compiled_answer): bytes read from the link's
+descriptor, split at 0x00 and checked (frame_codec), or one CAN frame read from a socket (drive_bridge.can_cable's
+datagram, or SocketCAN's can_frame / canfd_frame) and mapped to its payload (can_codec), HELLO taken, telemetry
+accepted as InverterBridge accepts it (sequence unwrapped, gaps, repeats and late frames counted, currents and
+the encoder's angle in SI units), commands encoded and written with the latches a link loss causes cleared once,
+the link's and the graph's silence timed. The state lives in arrays (``BridgeArrays``) that InverterBridge loads
+and takes back (``load_bridge``, ``store_bridge``), so that reconnecting, HELLO's requests and the reports stay in
+Python."""
 import math
 from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
+from . import can_codec as cc
 from . import frame_codec as fc
 from .compiled_io import ieee_remainder as remainder
 from .compiled_io import io_scratch, monotonic_s, read_into, wait_readable, write_all
@@ -41,12 +44,27 @@ FRAME_ERRORS = len(COUNTERS)
 
 STATE = ("fd", "last_seq", "k_offset", "status", "theta_m", "last_telemetry_at", "last_command_at", "lost", "safe",
          "clear_sent", "hello", "current_lsb_A", "voltage_lsb_V", "block_samples", "link_timeout_s",
-         "command_timeout_s", "rx_bytes")
+         "command_timeout_s", "rx_bytes", "link_kind", "can_base", "peer_lost")
 S = {name: i for i, name in enumerate(STATE)}
 """state[S[name]]: InverterBridge's attribute of that name (NaN for its None; hello: 1 taken, 0 none), the
-link's descriptor and the bytes waiting in ``rx`` for their delimiter."""
+link's descriptor, the bytes waiting in ``rx`` for their delimiter (serial) or the CAN frame read (CAN), the
+link's kind (SERIAL, CABLE, SOCKETCAN), the drive's base CAN identifier and, on a cable, whether its other
+member is missing (0: connected; PEER_GONE, PEER_NONE)."""
 FD, LAST_SEQ, K_OFFSET, STATUS, THETA_M, LAST_TELEMETRY_AT, LAST_COMMAND_AT, LOST, SAFE, CLEAR_SENT = range(10)
 HAS_HELLO, CURRENT_LSB, VOLTAGE_LSB, BLOCK_SAMPLES, LINK_TIMEOUT, COMMAND_TIMEOUT, RX_BYTES = range(10, 17)
+LINK_KIND, CAN_BASE, PEER_LOST = range(17, 20)
+SERIAL, CABLE, SOCKETCAN = 0, 1, 2
+"""The link's kind: a serial port (COBS frames in a byte stream); drive_bridge.can_cable's datagrams (a 5-byte
+header: identifier u32 LE, flags; then the data); a SocketCAN raw socket (struct can_frame, 16 bytes, or struct
+canfd_frame, 72: identifier u32 in host order, length, flags, a reserved byte, the length again (classic
+frames: len8_dlc), then the data; as python-can's SocketCAN bus writes them)."""
+PEER_GONE, PEER_NONE = 1.0, 2.0
+"""PEER_LOST: a frame found no member (Python looks for one at once); Python found none (it looks again when
+the link is quiet for a poll, or at the next frame written)."""
+CAN_FRAME_BYTES, CANFD_FRAME_BYTES = 16, 72
+CAN_EFF_FLAG, CAN_RTR_FLAG, CAN_ERR_FLAG = 0x80000000, 0x40000000, 0x20000000
+CAN_EFF_MASK, CAN_SFF_MASK = 0x1FFFFFFF, 0x7FF
+CANFD_BRS, CANFD_FDF = 0x01, 0x04
 READ_BYTES = 4096
 """One read(2) at most, as SerialLink reads."""
 LINK_DOWN = -1
@@ -83,10 +101,12 @@ def telemetry_arrays(state, counters):
 
 
 class BridgeArrays(NamedTuple):
-    """An InverterBridge on a serial link as arrays: ``state`` (float64, STATE), ``counters`` (int64,
+    """An InverterBridge on a serial link or a CAN bus as arrays: ``state`` (float64, STATE), ``counters`` (int64,
     COUNTERS then the frame errors), ``written`` (its ring of command writes), the bytes read and not yet
-    framed (``rx``), a frame's payload and wire bytes, a block's entries and commands in steps, the last
-    HELLO's payload (``hello``) and the calls' scratch (pollfd, timespec)."""
+    framed or the CAN frame read (``rx``), a frame's payload and wire bytes, a block's entries and commands in
+    steps, the last HELLO's payload (``hello``), the calls' scratch (pollfd, timespec), and on CAN the link's
+    decoder (``can_state``, ``can_hello``: can_codec's, shared with CanLink's decoder) and the frames of a
+    payload to write (``can_ids``, ``can_lengths``, ``can_data``)."""
 
     state: np.ndarray
     counters: np.ndarray
@@ -99,53 +119,131 @@ class BridgeArrays(NamedTuple):
     hello: np.ndarray
     pollfd: np.ndarray
     timespec: np.ndarray
+    can_state: np.ndarray
+    can_hello: np.ndarray
+    can_ids: np.ndarray
+    can_lengths: np.ndarray
+    can_data: np.ndarray
 
 
 def _value(x):
     return math.nan if x is None else float(x)
 
 
+def link_kind(link):
+    """(SERIAL, CABLE or SOCKETCAN, the descriptor the compiled answer reads and writes) of an open ``link``
+    (SerialLink or CanLink); ValueError for a bus that has no socket (python-can's in-process virtual bus)."""
+    if hasattr(link, "port"):
+        return SERIAL, link.fd
+    from .can_cable import CableBus
+    bus = link.bus
+    if isinstance(bus, CableBus):
+        return CABLE, bus.fileno()
+    if type(bus).__name__ == "SocketcanBus":
+        return SOCKETCAN, bus.socket.fileno()
+    raise ValueError(f"the compiled answer reads and writes a CAN bus through its socket: {bus.channel_info} "
+                     f"has none (SocketCAN, or the cable between processes: interface 'cable')")
+
+
 def load_bridge(bridge):
-    """BridgeArrays holding ``bridge`` (InverterBridge on an open SerialLink) as it is now: its own state and
-    counters arrays (shared: what the kernels change is the bridge's at once), the link's descriptor, frame
-    errors and bytes not yet framed."""
-    pollfd, timespec = io_scratch()
+    """BridgeArrays holding ``bridge`` (InverterBridge on an open SerialLink or CanLink) as it is now: its own
+    state and counters arrays (shared: what the kernels change is the bridge's at once), the link's kind and
+    descriptor, frame errors, bytes not yet framed (serial) or the decoder's state (CAN, shared); on a cable,
+    connected to the bus's other member (PEER_LOST while there is none)."""
     state, counters = bridge.state, bridge.counter_array
+    link = bridge.link
     for name in ("block_samples", "link_timeout_s", "command_timeout_s"):
         state[S[name]] = _value(getattr(bridge, name))
-    state[FD] = bridge.link.fd
-    hello = np.zeros(fc.BODY_BYTES[HELLO] + 2, dtype=np.uint8)
-    for kind, count in bridge.link.errors.items():
-        counters[FRAME_ERRORS + fc.FRAME_ERROR_KINDS.index(kind)] = count
+    kind, fd = link_kind(link)
+    state[FD], state[LINK_KIND] = fd, kind
+    for error, count in link.errors.items():
+        counters[FRAME_ERRORS + fc.FRAME_ERROR_KINDS.index(error)] = count
     rx = np.zeros(READ_BYTES + 2 * fc.MAX_FRAME + 1, dtype=np.uint8)
-    pending = bytes(bridge.link.reader.buffer)
-    rx[:len(pending)] = np.frombuffer(pending, dtype=np.uint8)
-    state[RX_BYTES] = len(pending)
-    return BridgeArrays(state, counters, bridge.written, rx, np.zeros(fc.MAX_FRAME + 2, dtype=np.uint8),
+    state[RX_BYTES] = 0
+    if kind == SERIAL:
+        can_state, can_hello = cc.can_decoder()
+        pending = bytes(link.reader.buffer)
+        rx[:len(pending)] = np.frombuffer(pending, dtype=np.uint8)
+        state[RX_BYTES] = len(pending)
+    else:
+        can_state, can_hello = link.decoder.state, link.decoder.hello
+        state[CAN_BASE] = link.decoder.base
+        state[PEER_LOST] = PEER_NONE if kind == CABLE and not link.bus.connect_peer() else 0.0
+        state[FD] = link_kind(link)[1]
+    return bridge_arrays(state, counters, bridge.written, rx, (can_state, can_hello))
+
+
+def bridge_arrays(state, counters, written, rx, decoder):
+    """BridgeArrays over a bridge's ``state``, ``counters``, ring of writes ``written``, bytes received ``rx`` and
+    CAN ``decoder`` (can_codec's state and hello), with fresh buffers and scratch."""
+    pollfd, timespec = io_scratch()
+    return BridgeArrays(state, counters, written, rx, np.zeros(fc.MAX_FRAME + 2, dtype=np.uint8),
                         np.zeros(fc.WIRE_BYTES, dtype=np.uint8), np.zeros((fc.MAX_BLOCK, 4), dtype=np.int64),
-                        np.zeros((fc.MAX_BLOCK, 2), dtype=np.int64), hello, pollfd, timespec)
+                        np.zeros((fc.MAX_BLOCK, 2), dtype=np.int64), np.zeros(fc.BODY_BYTES[HELLO] + 2, dtype=np.uint8),
+                        pollfd, timespec, *decoder, np.zeros(cc.MAX_FRAMES, dtype=np.int64),
+                        np.zeros(cc.MAX_FRAMES, dtype=np.int64), np.zeros((cc.MAX_FRAMES, 64), dtype=np.uint8))
 
 
 def store_bridge(arrays, bridge):
-    """Give ``bridge`` back what the kernels changed in ``arrays`` beyond its state and counters (shared): the
-    HELLO taken, the frame errors and the bytes not yet framed."""
+    """Give ``bridge`` back what the kernels changed in ``arrays`` beyond its state, counters and CAN decoder
+    (shared): the HELLO taken, the frame errors and the bytes not yet framed."""
     state = arrays.state
     if state[HAS_HELLO] and arrays.hello.any():
         bridge.hello = Hello(*LAYOUTS[HELLO][1].unpack(arrays.hello[2:].tobytes()))
     elif not state[HAS_HELLO]:
         bridge.hello = None
-    errors = bridge.link.reader.errors
+    errors = bridge.link.errors
     for kind in range(1, len(fc.FRAME_ERROR_KINDS)):
         if arrays.counters[FRAME_ERRORS + kind]:
             errors[fc.FRAME_ERROR_KINDS[kind]] = int(arrays.counters[FRAME_ERRORS + kind])
-    bridge.link.reader.buffer = bytearray(arrays.rx[:int(state[RX_BYTES])].tobytes())
+    if state[LINK_KIND] == SERIAL:
+        bridge.link.reader.buffer = bytearray(arrays.rx[:int(state[RX_BYTES])].tobytes())
+
+
+@njit(cache=True, nogil=True)
+def follows_part(part_k0, part_n, k0, N):
+    """True when samples from ``k0`` continue the part of a block held (``part_n`` samples from ``part_k0``; 0:
+    none) within its block of N: the one rule by which InverterBridge and the compiled answer put a block's
+    CAN FD frames together."""
+    return part_n > 0 and k0 == part_k0 + part_n and k0 // N == part_k0 // N
+
+
+@njit(nogil=True)
+def send_payload(b, m):
+    """The payload ``b.raw[:m]`` (version, type, body) written on the link: a serial frame, or its CAN frames
+    (can_codec) as cable datagrams or SocketCAN frames. False when the link failed; on a cable a frame no member
+    takes (none connected, the member gone, its queue full) is lost, as on a bus with no other node, and
+    PEER_LOST set to PEER_GONE (Python looks for the member again)."""
+    s = b.state
+    fd, kind = int(s[FD]), s[LINK_KIND]
+    if kind == SERIAL:
+        return write_all(fd, b.wire, fc.frame_wire(b.raw, m, b.wire))
+    frames = cc.frames_of_payload(b.raw, m, np.int64(s[CAN_BASE]), True, b.can_ids, b.can_lengths, b.can_data)
+    for i in range(frames):
+        length, block = b.can_lengths[i], b.raw[1] == fc.TELEMETRY_BLOCK or b.raw[1] == fc.COMMAND_BLOCK
+        if kind == CABLE:
+            fc.put_u32(b.wire, 0, b.can_ids[i])
+            b.wire[4] = 6 if block else 0
+            at, size = 5, 5 + length
+        else:
+            fc.put_u32(b.wire, 0, b.can_ids[i])
+            b.wire[4], b.wire[5], b.wire[6], b.wire[7] = length, CANFD_BRS | CANFD_FDF if block else 0, 0, length
+            at, size = 8, CANFD_FRAME_BYTES if block else CAN_FRAME_BYTES
+        for j in range(size - at):
+            b.wire[at + j] = b.can_data[i, j] if j < length else 0
+        if kind == CABLE and s[PEER_LOST] != 0.0:
+            s[PEER_LOST] = PEER_GONE
+        elif not write_all(fd, b.wire, size):
+            if kind != CABLE:
+                return False
+            s[PEER_LOST] = PEER_GONE
+    return True
 
 
 @njit(nogil=True)
 def send_control(b, action):
     """CONTROL(``action``) on the link; False when the write failed."""
-    m = fc.write_control(action, b.raw)
-    return write_all(int(b.state[FD]), b.wire, fc.frame_wire(b.raw, m, b.wire))
+    return send_payload(b, fc.write_control(action, b.raw))
 
 
 @njit(cache=True, nogil=True)
@@ -265,19 +363,58 @@ def keep_unframed(b, start):
 
 @njit(nogil=True)
 def read_link(b, timeout_ms):
-    """Wait up to ``timeout_ms`` for bytes and append what one read(2) gives to ``b.rx``: the bytes read (0:
-    none came), LINK_DOWN when the descriptor failed or the device is gone."""
-    fd, have = int(b.state[FD]), np.int64(b.state[RX_BYTES])
+    """Wait up to ``timeout_ms`` for the link: on a serial link append what one read(2) gives to ``b.rx``, on CAN
+    read one frame into it (``b.rx`` holds only that frame then). The bytes read (0: none came), LINK_DOWN when
+    the descriptor failed or the device is gone; on a cable the error a frame written to a member since gone
+    leaves on the socket is read (cleared) and PEER_LOST set, as CableBus takes it."""
+    fd, have, cable = int(b.state[FD]), np.int64(b.state[RX_BYTES]), b.state[LINK_KIND] == CABLE
     ready = wait_readable(b.pollfd, fd, timeout_ms)
-    if ready < 0:
+    if ready < 0 and not cable:
         return LINK_DOWN
     if ready == 0:
         return 0
+    if b.state[LINK_KIND] != SERIAL:
+        have = 0
     got = read_into(fd, b.rx, have, READ_BYTES)
+    if got <= 0 and cable:
+        b.state[PEER_LOST] = PEER_GONE
+        return 0
     if got <= 0:
         return LINK_DOWN
     b.state[RX_BYTES] = have + got
     return got
+
+
+@njit(cache=True, nogil=True)
+def next_payload(b, start):
+    """The next payload in ``b.rx`` from byte ``start``, into ``b.raw``: (where the next one starts, its length
+    or 0 for none: a frame dropped and counted, a CAN frame of another drive or one that completes no
+    message); (−1, 0) when none is left. Serial: the next complete frame (next_frame). CAN: the frame read, once,
+    mapped to its payload by the link's decoder (can_codec.payload_of_frame); error frames, remote requests and
+    identifiers beyond the drive's 32 ignored, frames that are no protocol frame counted."""
+    end = np.int64(b.state[RX_BYTES])
+    if b.state[LINK_KIND] == SERIAL:
+        return next_frame(b, start)
+    if start >= end:
+        return -1, 0
+    if b.state[LINK_KIND] == CABLE:
+        if end < 5:
+            return end, 0
+        identifier, at, n = fc.u32(b.rx, 0), 5, end - 5
+    else:
+        head = fc.u32(b.rx, 0)
+        if end < CAN_FRAME_BYTES or head & (CAN_ERR_FLAG | CAN_RTR_FLAG):
+            return end, 0
+        identifier = head & (CAN_EFF_MASK if head & CAN_EFF_FLAG else CAN_SFF_MASK)
+        at, n = 8, min(np.int64(b.rx[4]), end - 8)
+    offset = identifier - np.int64(b.state[CAN_BASE])
+    if not 0 <= offset < cc.IDS_PER_DRIVE:
+        return end, 0
+    m = cc.payload_of_frame(offset, b.rx[at:at + n], n, b.can_state, b.can_hello, b.raw)
+    if m < 0:
+        b.counters[FRAME_ERRORS - m] += 1
+        return end, 0
+    return end, m
 
 
 @njit(cache=True, nogil=True)
@@ -323,7 +460,7 @@ def write_commands(b, k0, u_alpha_V, u_beta_V, n, enable, safe_state):
     s[SAFE] = 0.0 if enable else 1.0
     N = np.int64(s[BLOCK_SAMPLES])
     m = fc.write_command(k0 % (np.int64(1) << 32), flags, b.steps, n, N > 1, b.raw)
-    if not write_all(int(s[FD]), b.wire, fc.frame_wire(b.raw, m, b.wire)):
+    if not send_payload(b, m):
         c[COMMAND_ERRORS] += N == 1
         return False
     slot = (k0 // N) % b.written.shape[0]

@@ -258,7 +258,7 @@ class InverterBridge:
         """The whole blocks ``block`` completes (with the part held before it), in order."""
         N, part, done = self.block_samples, self.part, []
         self.part = None
-        if part is not None and block.k0 == part.k0 + len(part) and block.k0 // N == part.k0 // N:
+        if part is not None and cb.follows_part(part.k0, len(part), block.k0, N):
             block = BridgeBlock(part.k0, np.vstack((part.currents_A, block.currents_A)),
                                 np.concatenate((part.theta_m, block.theta_m)), block.u_dc_V, block.status)
         elif part is not None:

@@ -1,13 +1,12 @@
 """Inverter wire protocol, version 2 (docs/inverter-protocol.md): messages (per sample, and blocks of
 samples), the serial framing (COBS + CRC-16/CCITT-FALSE, 0x00-delimited), the classic-CAN mapping and
 blocks on CAN FD. No I/O; the serial framing and the telemetry and command bodies are frame_codec's kernels."""
-import dataclasses
 import struct
 from dataclasses import dataclass
 
 import numpy as np
 
-from . import frame_codec
+from . import can_codec, frame_codec
 
 VERSION = frame_codec.VERSION
 MAX_BLOCK = frame_codec.MAX_BLOCK
@@ -251,9 +250,18 @@ def decode_frame(encoded):
     if check == frame_codec.FRAME_OK and payload[1] == TELEMETRY:
         i_a, i_b, i_c, encoder = entries[0].tolist()
         return Telemetry(seq, i_a, i_b, i_c, u_dc, encoder, status)
-    if payload[1] in BLOCK_LAYOUTS:
+    return payload_message(payload)
+
+
+def payload_message(payload):
+    """The message of a serial payload (version, type, body) of a known type; FrameError for a body whose
+    length is not its type's."""
+    kind = payload[1]
+    if kind == TELEMETRY and len(payload) == 2 + LAYOUTS[TELEMETRY][1].size:
+        return _telemetry(np.frombuffer(payload, dtype=np.uint8), False)
+    if kind in BLOCK_LAYOUTS:
         return _decode_block(payload)
-    cls, body = LAYOUTS[payload[1]]
+    cls, body = LAYOUTS[kind]
     if len(payload) - 2 != body.size:
         raise FrameError("framing", f"{cls.__name__} body of {len(payload) - 2} bytes, expected {body.size}")
     return cls(*body.unpack(payload[2:]))
@@ -316,122 +324,84 @@ class FrameReader:
         self.last_error = str(error)
 
 
-CAN_COMMAND, CAN_CONTROL, CAN_HEARTBEAT, CAN_COMMAND_BLOCK = 0x00, 0x01, 0x02, 0x03
-CAN_TELEMETRY_B, CAN_TELEMETRY_A, CAN_HELLO_A, CAN_HELLO_B, CAN_HELLO_C = 0x08, 0x09, 0x0A, 0x0B, 0x0C
-CAN_TELEMETRY_BLOCK = 0x0D
-CANFD_CHUNK = {TELEMETRY_BLOCK: (CAN_TELEMETRY_BLOCK, 6), COMMAND_BLOCK: (CAN_COMMAND_BLOCK, 14)}
+CAN_COMMAND, CAN_CONTROL, CAN_HEARTBEAT, CAN_COMMAND_BLOCK = (can_codec.CAN_COMMAND, can_codec.CAN_CONTROL,
+                                                             can_codec.CAN_HEARTBEAT, can_codec.CAN_COMMAND_BLOCK)
+CAN_TELEMETRY_B, CAN_TELEMETRY_A = can_codec.CAN_TELEMETRY_B, can_codec.CAN_TELEMETRY_A
+CAN_HELLO_A, CAN_HELLO_B, CAN_HELLO_C = can_codec.CAN_HELLO_A, can_codec.CAN_HELLO_B, can_codec.CAN_HELLO_C
+CAN_TELEMETRY_BLOCK = can_codec.CAN_TELEMETRY_BLOCK
+CANFD_CHUNK = {TELEMETRY_BLOCK: (CAN_TELEMETRY_BLOCK, can_codec.TELEMETRY_CHUNK),
+               COMMAND_BLOCK: (CAN_COMMAND_BLOCK, can_codec.COMMAND_CHUNK)}
 """Block type → (identifier offset, most samples in one 64-byte CAN FD frame)."""
-CANFD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
+CANFD_LENGTHS = tuple(can_codec.CANFD_LENGTHS.tolist())
 
 
 def can_base(drive_id):
     if not 0 <= drive_id <= 15:
         raise ValueError(f"drive_id {drive_id}: CAN drives are numbered 0 to 15")
-    return 0x100 + 0x20 * drive_id
+    return 0x100 + can_codec.IDS_PER_DRIVE * drive_id
+
+
+def _can_frames(message, drive_id, with_status=True):
+    """The (identifier, data) CAN frames of a message (can_codec.frames_of_payload)."""
+    payload = pack(message)
+    raw = np.zeros(MAX_FRAME + 2, dtype=np.uint8)
+    raw[:len(payload)] = np.frombuffer(payload, dtype=np.uint8)
+    ids, lengths = np.zeros(can_codec.MAX_FRAMES, dtype=np.int64), np.zeros(can_codec.MAX_FRAMES, dtype=np.int64)
+    data = np.zeros((can_codec.MAX_FRAMES, 64), dtype=np.uint8)
+    count = can_codec.frames_of_payload(raw, len(payload), can_base(drive_id), with_status, ids, lengths, data)
+    return [(int(ids[i]), data[i, :lengths[i]].tobytes()) for i in range(count)]
 
 
 def to_can(message, drive_id, with_status=True):
     """The (identifier, data) CAN frames of a message; TELEMETRY gives B (if ``with_status``), then A,
     which completes the sample."""
-    base = can_base(drive_id)
-    m = message
-    if isinstance(m, Command):
-        return [(base + CAN_COMMAND, struct.pack("<HhhBx", m.seq & 0xFFFF, m.u_alpha, m.u_beta, m.flags))]
-    if isinstance(m, Control):
-        return [(base + CAN_CONTROL, struct.pack("<B", m.action))]
-    if isinstance(m, Heartbeat):
-        return [(base + CAN_HEARTBEAT, struct.pack("<I", m.counter))]
-    if isinstance(m, Telemetry):
-        frames = [(base + CAN_TELEMETRY_A, struct.pack("<Hhhh", m.seq & 0xFFFF, m.i_a, m.i_b, m.i_c))]
-        if with_status:
-            frames.insert(0, (base + CAN_TELEMETRY_B, struct.pack("<HHHH", m.seq & 0xFFFF, m.u_dc, m.encoder,
-                                                                  m.status)))
-        return frames
-    if isinstance(m, Hello):
-        return [(base + CAN_HELLO_A, struct.pack("<BBBBI", VERSION, m.drive_id, m.flags, m.n_p, m.T_s_ns)),
-                (base + CAN_HELLO_B, struct.pack("<ff", m.current_lsb_A, m.voltage_lsb_V)),
-                (base + CAN_HELLO_C, struct.pack("<fHBx", m.trip_current_A, m.watchdog_periods, m.block_samples))]
-    raise TypeError(f"not a classic-CAN message: {message!r} (blocks travel as CAN FD frames: to_canfd)")
+    if isinstance(message, (TelemetryBlock, CommandBlock)):
+        raise TypeError(f"not a classic-CAN message: {message!r} (blocks travel as CAN FD frames: to_canfd)")
+    return _can_frames(message, drive_id, with_status)
 
 
 def to_canfd(message, drive_id):
     """The (identifier, data) CAN FD frames of a block message: chunks of at most 6 telemetry or 14
     command samples, each the block message of its own samples (the serial body: no version, type or
     CRC), zero-padded to a CAN FD length."""
-    base = can_base(drive_id)
-    offset, chunk = CANFD_CHUNK[TYPE_OF[type(message)]]
-    frames = []
-    for start in range(0, len(message.samples), chunk):
-        part = dataclasses.replace(message, seq=(message.seq + start) % 2 ** 32,
-                                   samples=message.samples[start:start + chunk])
-        body = pack(part)[2:]
-        length = next(n for n in CANFD_LENGTHS if n >= len(body))
-        frames.append((base + offset, body + bytes(length - len(body))))
-    return frames
+    if not isinstance(message, (TelemetryBlock, CommandBlock)):
+        raise TypeError(f"not a block: {message!r} (classic CAN frames: to_can)")
+    return _can_frames(message, drive_id)
 
 
 def unwrap16(low, last):
     """The u32 sequence number whose low 16 bits are ``low``, nearest to ``last``."""
-    delta = ((low - last) + 0x8000) % 0x10000 - 0x8000
-    return (last + delta) % 0x100000000
+    return int(can_codec.unwrap16(low, last))
 
 
 class CanDecoder:
-    """Messages from one drive's CAN frames: TELEMETRY_A with the latest B, HELLO_A/B/C assembled,
-    COMMAND/CONTROL/HEARTBEAT; 16-bit sequence numbers unwrapped against the last one; a CAN FD block
-    frame as the block message of its samples."""
+    """Messages from one drive's CAN frames (can_codec.payload_of_frame): TELEMETRY_A with the latest B,
+    HELLO_A/B/C assembled, COMMAND/CONTROL/HEARTBEAT; 16-bit sequence numbers unwrapped against the last one;
+    a CAN FD block frame as the block message of its samples."""
 
     def __init__(self, drive_id):
         self.base = can_base(drive_id)
-        self.last_seq = 0
-        self.status = (0, 0, 0)
-        self.hello = {}
+        self.state, self.hello = can_codec.can_decoder()
+        self.raw = np.zeros(MAX_FRAME + 2, dtype=np.uint8)
         self.errors = {}
         self.last_error = ""
 
+    @property
+    def last_seq(self):
+        return int(self.state[can_codec.LAST_SEQ])
+
     def feed(self, identifier, data):
         """The message a frame completes, or None."""
-        offset = identifier - self.base
-        try:
-            return self._decode(offset, bytes(data))
-        except (struct.error, FrameError) as error:
-            kind = error.kind if isinstance(error, FrameError) else "framing"
+        frame = np.frombuffer(bytes(data), dtype=np.uint8)
+        m = can_codec.payload_of_frame(identifier - self.base, frame, len(frame), self.state, self.hello, self.raw)
+        if m < 0:
+            kind = frame_codec.FRAME_ERROR_KINDS[-m]
             self.errors[kind] = self.errors.get(kind, 0) + 1
-            self.last_error = f"CAN {identifier:#05x}: {error}"
+            what = {"framing": f"{len(frame)} data bytes are no protocol frame there",
+                    "version": f"protocol version {self.hello[0]}, this host speaks {VERSION}",
+                    "unknown_type": f"identifier offset {identifier - self.base:#04x} is not a protocol frame"}
+            self.last_error = f"CAN {identifier:#05x}: {what[kind]}"
             return None
-
-    def _decode(self, offset, data):
-        if offset == CAN_TELEMETRY_A:
-            low, i_a, i_b, i_c = struct.unpack("<Hhhh", data)
-            self.last_seq = unwrap16(low, self.last_seq)
-            return Telemetry(self.last_seq, i_a, i_b, i_c, *self.status)
-        if offset == CAN_TELEMETRY_B:
-            low, u_dc, encoder, status = struct.unpack("<HHHH", data)
-            self.status = (u_dc, encoder, status)
+        if m == 0:
             return None
-        if offset == CAN_COMMAND:
-            low, u_alpha, u_beta, flags = struct.unpack("<HhhBx", data)
-            self.last_seq = unwrap16(low, self.last_seq)
-            return Command(self.last_seq, u_alpha, u_beta, flags)
-        if offset in (CAN_TELEMETRY_BLOCK, CAN_COMMAND_BLOCK):
-            kind = TELEMETRY_BLOCK if offset == CAN_TELEMETRY_BLOCK else COMMAND_BLOCK
-            _, head, entry = BLOCK_LAYOUTS[kind]
-            count = data[head.size - 1] if len(data) >= head.size else 0
-            if count > CANFD_CHUNK[kind][1]:
-                raise FrameError("framing", f"a CAN FD block frame of {count} samples (at most {CANFD_CHUNK[kind][1]})")
-            return _decode_block(bytes((VERSION, kind)) + data[:head.size + count * entry.size])
-        if offset == CAN_CONTROL:
-            return Control(*struct.unpack("<B", data))
-        if offset == CAN_HEARTBEAT:
-            return Heartbeat(*struct.unpack("<I", data))
-        if offset in (CAN_HELLO_A, CAN_HELLO_B, CAN_HELLO_C):
-            self.hello[offset] = data
-            if len(self.hello) < 3:
-                return None
-            version, drive_id, flags, n_p, T_s_ns = struct.unpack("<BBBBI", self.hello.pop(CAN_HELLO_A))
-            current_lsb, voltage_lsb = struct.unpack("<ff", self.hello.pop(CAN_HELLO_B))
-            trip, watchdog, block_samples = struct.unpack("<fHBx", self.hello.pop(CAN_HELLO_C))
-            if version != VERSION:
-                raise FrameError("version", f"protocol version {version}, this host speaks {VERSION}")
-            return Hello(drive_id, flags, n_p, block_samples, T_s_ns, current_lsb, voltage_lsb, trip, watchdog)
-        raise FrameError("unknown_type", f"identifier offset {offset:#04x} is not a protocol frame")
+        return payload_message(self.raw[:m].tobytes())

@@ -240,10 +240,10 @@ def robot_real_time(args):
     """Fill in what `drive launch`'s command line left unset. With --link and --paced, the robot's
     configuration (docs/ros-graph.md, "Real time"): SCHED_FIFO ROBOT_RT_PRIORITY, the process on the last
     CPU of two or more and, over a pty, the kernel's unbound workqueues there too (a serial link's bytes pass
-    through one), and composed, the controller taking the estimator's answers directly, over a pty the
-    answer compiled whole (--answer compiled). Otherwise none of it. Where the system refuses a setting, the
-    run says so in one line and goes on without it. Refused: --paced with --processes separate, an answer
-    compiled elsewhere than composed over a pty, --intra-process with separate processes."""
+    through one), and composed, the controller taking the estimator's answers directly, the answer compiled
+    whole (--answer compiled). Otherwise none of it. Where the system refuses a setting, the run says so in one
+    line and goes on without it. Refused: --paced with --processes separate, an answer compiled elsewhere than
+    composed behind a link, --intra-process with separate processes."""
     if args.paced and args.processes == "separate":
         raise CommandLineError("--paced --processes separate: refused: each block would cross three processes "
                                "over DDS within its window, and every period ran at zero volts (measured, "
@@ -263,10 +263,10 @@ def robot_real_time(args):
         raise CommandLineError("--intra-process: needs --processes composed (the estimator hands its answers to "
                                "the controller in one process)")
     if args.answer is None:
-        args.answer = "compiled" if robot and args.link == "pty" and args.processes == "composed" else "python"
-    if args.answer == "compiled" and (args.link != "pty" or args.processes != "composed"):
-        raise CommandLineError(f"--answer compiled: needs --link pty and --processes composed (it reads and "
-                               f"writes the serial link's descriptor in the drive's process), not --link "
+        args.answer = "compiled" if robot and args.processes == "composed" else "python"
+    if args.answer == "compiled" and (not args.link or args.processes != "composed"):
+        raise CommandLineError(f"--answer compiled: needs --link pty|can and --processes composed (it reads and "
+                               f"writes the link's descriptor in the drive's process), not --link "
                                f"{args.link or '(none)'} --processes {args.processes}")
 
 
@@ -275,16 +275,13 @@ def answer_argument(parser, default):
     chooses)."""
     parser.add_argument("--answer", choices=("python", "compiled"), default=default,
                         help="the drive's answer in Python (its nodes in `drive launch`), or compiled whole off the "
-                             "interpreter's lock on a thread of its own (pty only; `drive launch`'s default with "
-                             "--link pty --paced)")
+                             "interpreter's lock on a thread of its own (`drive launch`'s default with --link and "
+                             "--paced)")
 
 
 def answer_options(args):
-    """The AnswerOptions of ``--answer compiled`` (its thread's priority from --rt-priority), else None; refused
-    on a link other than a pty."""
+    """The AnswerOptions of ``--answer compiled`` (its thread's priority from --rt-priority), else None."""
     if args.answer != "compiled":
         return None
-    if args.link != "pty":
-        raise CommandLineError(f"--answer compiled: the compiled answer runs on a serial link (pty), not {args.link}")
     from drive_tools.runner.compiled_answer import AnswerOptions
     return AnswerOptions()

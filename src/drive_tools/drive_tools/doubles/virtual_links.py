@@ -86,16 +86,17 @@ class PtyEndpoint:
             os.unlink(self.link_path)
 
 
-def make_links(link, workdir, drive_id=0, channel=None):
-    """(inverter endpoint, host link) of a fresh virtual link: a pty whose slave the host opens by a
-    symlink in ``workdir``, or a CAN channel named after ``workdir`` (python-can's virtual bus unless SocketCAN has
-    it): a link of an earlier run, gone or not, never shares it."""
+def make_links(link, workdir, drive_id=0):
+    """(inverter endpoint, host link) of a fresh virtual link in ``workdir``: a pty whose slave the host opens
+    by a symlink there, or a CAN bus on a cable there (drive_bridge.can_cable: sockets, as SocketCAN is, so that
+    the compiled answer reads and writes it as it would a real bus); a link of an earlier run, gone or not,
+    never shares it."""
     if link == "pty":
         endpoint = PtyEndpoint(Path(workdir) / f"inverter{drive_id}")
         return endpoint, SerialLink(endpoint.link_path)
     if link == "can":
-        channel = channel or f"drive_bridge_{Path(workdir).name}"
-        endpoint = CanLink(channel, drive_id)
+        channel = str(Path(workdir) / f"can_cable{drive_id}")
+        endpoint = CanLink(channel, drive_id, "cable")
         endpoint.open()
-        return endpoint, CanLink(channel, drive_id)
+        return endpoint, CanLink(channel, drive_id, "cable")
     raise ValueError(f"unknown virtual link '{link}' (known: {', '.join(LINKS)})")

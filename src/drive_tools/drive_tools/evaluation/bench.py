@@ -368,7 +368,7 @@ def bridge_rates(scenario_ref, links, duration_s, repeats=3, paced=False, block_
     rows = []
     hop_us = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN)["us_per_hop"]
     for link in links:
-        compiled = answer if link == "pty" else None
+        compiled = answer
         run_through_bridge(dataclasses.replace(linked, duration_s=min(scenario.duration_s, 0.05)), link,
                            answer=compiled)
         best = None
@@ -418,8 +418,8 @@ link's bytes pass through one) on CPU 1 too; and the controller taking the estim
 (intra_process: four deliveries a block fewer); and the CPUs kept out of idle states slower to leave than
 0 µs (pmqos: PM QoS, /dev/cpu_dma_latency). The virtual inverter runs on a thread of the graph's process
 but in inverter_apart, where it has a process of its own (on the CPU the graph leaves). ``robot``: `drive
-launch --link L --paced` as it runs by default, over a pty the answer compiled (``answer``: its
-AnswerOptions' fields; CAN keeps the nodes' answer); ``robot+inverter_apart``: the same with the virtual inverter in
+launch --link L --paced` as it runs by default, the answer compiled (``answer``: its AnswerOptions'
+fields); ``robot+inverter_apart``: the same with the virtual inverter in
 a process of its own, judged by the host's write and the wire as on a thread (the host's ring of writes in shared
 memory); and the stalls of its side that is not real-time: the
 ring's reader (the publisher and the log's writer) sleeping 50 ms after each read, a full garbage collection
@@ -437,7 +437,7 @@ def lever_launch(lever, link):
     settings = dict(REAL_TIME_LEVERS[lever])
     intra_process, inverter_apart = settings.pop("intra_process", False), settings.pop("inverter_apart", False)
     answer, collection_s = settings.pop("answer", None), settings.pop("forced_collection_s", None)
-    answer = AnswerOptions(**answer) if answer is not None and link == "pty" else None
+    answer = AnswerOptions(**answer) if answer is not None else None
     return (GraphOptions(intra_process=intra_process, real_time=RealTime(**settings), answer=answer),
             inverter_apart, collection_s)
 

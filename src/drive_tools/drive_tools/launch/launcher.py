@@ -255,7 +255,7 @@ class GraphOptions:
     deadline_s: float = None
     """How long the run may take once started [s] (None: run_deadline_s's, from the scenarios' duration)."""
     answer: object = None
-    """Behind a virtual inverter over a pty: drive_tools.runner.compiled_answer.AnswerOptions, the drive's whole
+    """Behind a virtual inverter: drive_tools.runner.compiled_answer.AnswerOptions, the drive's whole
     answer in one compiled function off the interpreter's lock on a thread of its own, one step above the
     process's SCHED_FIFO priority unless its ``priority`` says (its estimator and controller are no nodes
     then: the bridge node publishes what the answer's ring hands over, and the log and recording are that
@@ -505,17 +505,16 @@ def run_deadline_s(scenarios, options):
 
 def check_answer(specs, options):
     """GraphError unless ``options.answer`` can answer every drive of ``specs``: the compiled answer needs the
-    nodes composed and a virtual inverter over a pty (its I/O is a serial link's descriptor)."""
+    nodes composed and a virtual inverter behind a link (it reads and writes the link's descriptor)."""
     if options.answer is None:
         return
     if options.processes != "composed":
         raise GraphError("the compiled answer runs in the drive's process: it needs the nodes composed, not "
                          "--processes separate")
     for spec in specs:
-        if spec.link != "pty":
-            raise GraphError(f"the compiled answer reads and writes a serial link's descriptor: it needs --link "
-                             f"pty, not {spec.link or 'the plant node'} (python-can's buses are objects of the "
-                             f"interpreter; a CAN frame is no COBS frame)")
+        if not spec.link:
+            raise GraphError("the compiled answer reads and writes an inverter's link: it needs --link pty|can, "
+                             "not the plant node")
 
 
 def _compiled_answer(drive, host_link, where, bridge_parameters, options):

@@ -57,11 +57,8 @@ def run_through_bridge(scenario, link="pty", options=None, progress=None, invert
     None: lock-step): the inverter's clock and wait; ``inverter``: the double to run behind (a class or factory
     called as VirtualInverter: a faulty one of drive_tools.doubles.faults for the tests); ``answer``
     (compiled_answer.AnswerOptions; None: the answer in Python, the reference): the answer compiled whole, off
-    the interpreter's lock, on a serial link ('pty'). The garbage collector is held off during the loop
-    (``collector_held``)."""
+    the interpreter's lock. The garbage collector is held off during the loop (``collector_held``)."""
     scenario = behind_an_inverter(scenario, MAX_BLOCK)
-    if answer is not None and link != "pty":
-        raise ValueError(f"the compiled answer runs on a serial link ('pty'), not {link!r}")
     with virtual_inverter_link(scenario, link, options, inverter) as (virtual, bridge):
         if answer is not None:
             return _run_compiled(scenario, link, virtual, bridge, (progress, answer))

@@ -5,7 +5,9 @@ numba function that does not hold the interpreter's lock, on a thread of its own
 machine allows it). What it produced (per sample: k, the host's time, the log row) goes into a preallocated
 lock-free ring (drive_common.runtime.sample_ring) that a thread that is not real-time reads: the recording
 waits for nothing and a full ring is counted, never silent. Reconnecting, HELLO's requests and the reports
-stay in Python, between calls of the compiled loop. A serial link (a UART, USB CDC, a pty) only."""
+stay in Python, between calls of the compiled loop. On a serial link (a UART, USB CDC, a pty) or a CAN bus
+through its socket (SocketCAN, or drive_bridge.can_cable between processes); blocks that come as several CAN FD
+frames are put together as InverterBridge puts them."""
 import contextlib
 import os
 import threading
@@ -16,6 +18,7 @@ import numpy as np
 from numba import njit
 
 from drive_bridge import compiled_bridge as cb
+from drive_bridge.can_cable import MEMBERS_REFRESH_S
 from drive_bridge.inverter_protocol import COMMAND_MISSING, CONTROL_SEND_HELLO, MAX_BLOCK, PWM_OFF
 from drive_common.contract.log import LOG_COLUMNS
 from drive_common.math.command_delay import issue_command
@@ -34,7 +37,10 @@ RING_ROWS = 1 << 15
 STOP, NEXT_K, LAST_ANSWERED, N_SAMPLES, DELAY, DRAINING = range(6)
 """Fields of the loop's ``run`` array (int64): set by Python (STOP, N_SAMPLES, DELAY, DRAINING: nothing more
 will come), kept by the loop (NEXT_K: the next sample expected, LAST_ANSWERED)."""
-DONE, STOPPED = 1, 2
+DONE, STOPPED, RECONNECT = 1, 2, 3
+PART_K0, PART_N, PART_STATUS = range(3)
+"""Fields of HostCore.part (int64): the first sample of the part of a block held, its samples (0: none held),
+its status; HostCore.part_at holds its bus [V] and when it was read [s]."""
 POLL_MS = 50
 """The loop's wait for bytes before it checks the link's and the graph's silence (InverterBridge's 0.05 s)."""
 
@@ -43,7 +49,8 @@ class HostCore(NamedTuple):
     """The drive's cores as the answer steps them (DriveCores of drive_tools.runner.runner.Drive), its speed
     reference and torque feed-forward per sample, the delay line and the block's buffers: the currents and
     angles as received (MAX_BLOCK rows), the block's currents (N × 3), its records (DRIVE_INPUT, ESTIMATE,
-    COMMAND), its voltages [V] and its log rows; T_s [s]."""
+    COMMAND), its voltages [V] and its log rows; T_s [s]; the currents and angles of one telemetry message
+    (``chunk_*``: a CAN FD frame carries part of a block) and the part of a block held (``part``, ``part_at``)."""
 
     drive: DriveCores
     speed_ref: np.ndarray
@@ -58,6 +65,10 @@ class HostCore(NamedTuple):
     voltages: np.ndarray
     rows: np.ndarray
     T_s: float
+    chunk_currents: np.ndarray
+    chunk_theta: np.ndarray
+    part: np.ndarray
+    part_at: np.ndarray
 
 
 @njit(nogil=True, _nrt=False)
@@ -110,9 +121,46 @@ def answer_block(step, h, b, run, block, ring):
 
 
 @njit(nogil=True, _nrt=False)
+def take_part(step, h, b, run, chunk, ring):
+    """Samples k0 … k0 + n − 1 (``chunk``: k0, n, the bus [V], the status, when it was read [s]; in
+    ``h.chunk_*``) put into blocks as InverterBridge._assemble puts them: after the part of a block held
+    before it when they follow on in one block (else that part is given as it is first), the whole block
+    answered, or held as the part until the rest comes. False when the link failed."""
+    k0, n, u_dc_V, status, arrived = chunk
+    N, part = h.currents.shape[0], h.part
+    at = 0
+    if cb.follows_part(part[PART_K0], part[PART_N], k0, N):
+        at, k0 = part[PART_N], part[PART_K0]
+    elif part[PART_N]:
+        if not give_part(step, h, b, run, ring):
+            return False
+    part[PART_N] = 0
+    for i in range(n):
+        for j in range(3):
+            h.received_currents[at + i, j] = h.chunk_currents[i, j]
+        h.received_theta[at + i] = h.chunk_theta[i]
+    n += at
+    if (k0 + n) % N:
+        part[PART_K0], part[PART_N], part[PART_STATUS] = k0, n, status
+        h.part_at[0], h.part_at[1] = u_dc_V, arrived
+        return True
+    return answer_block(step, h, b, run, (k0, n, u_dc_V, status, arrived), ring)
+
+
+@njit(nogil=True, _nrt=False)
+def give_part(step, h, b, run, ring):
+    """The part of a block held (its rest never came) given as it is."""
+    part = h.part
+    n, part[PART_N] = part[PART_N], 0
+    return answer_block(step, h, b, run, (part[PART_K0], n, h.part_at[0], part[PART_STATUS], h.part_at[1]), ring)
+
+
+@njit(nogil=True, _nrt=False)
 def answer_loop(step, h, b, run, ring):
     """Answer the inverter on ``b``'s link until the run's last sample is answered (DONE), Python asks to stop
-    or nothing came while it drains (STOPPED), or the link failed (compiled_bridge.LINK_DOWN)."""
+    or nothing came while it drains (STOPPED), the link failed (compiled_bridge.LINK_DOWN) or, on a CAN cable,
+    a frame found no member to take it, or the cable is quiet for a poll with no member found or the link
+    lost (RECONNECT: Python looks for the member again; one that left and joined anew has a new socket)."""
     while True:
         if run[STOP]:
             return STOPPED
@@ -122,7 +170,7 @@ def answer_loop(step, h, b, run, ring):
         arrived = cb.monotonic_s(b.timespec)
         start = 0
         while True:
-            after, m = cb.next_frame(b, start)
+            after, m = cb.next_payload(b, start)
             if after < 0:
                 break
             start = after
@@ -131,22 +179,33 @@ def answer_loop(step, h, b, run, ring):
             seq, n, u_dc, status = cb.frame_telemetry(b, m)
             if n == 0:
                 continue
-            k0 = cb.accept_telemetry(b, seq, n, u_dc, status, h.received_currents, h.received_theta)
+            k0 = cb.accept_telemetry(b, seq, n, u_dc, status, h.chunk_currents, h.chunk_theta)
             if k0 == cb.ASK_HELLO:
                 cb.send_control(b, CONTROL_SEND_HELLO)
             if k0 < 0:
                 continue
-            if not answer_block(step, h, b, run, (k0, n, u_dc * b.state[cb.VOLTAGE_LSB], status, arrived), ring):
+            if not take_part(step, h, b, run, (k0, n, u_dc * b.state[cb.VOLTAGE_LSB], status, arrived), ring):
                 cb.keep_unframed(b, start)
                 return cb.LINK_DOWN
             if run[LAST_ANSWERED] == run[N_SAMPLES] - 1:
                 cb.keep_unframed(b, start)
                 return DONE
         cb.keep_unframed(b, start)
+        lost = b.state[cb.PEER_LOST]
+        cable_silent = got == 0 and b.state[cb.LINK_KIND] == cb.CABLE and (lost or b.state[cb.LOST])
+        if lost == cb.PEER_GONE or cable_silent:
+            return RECONNECT
+        if got == 0 and h.part[PART_N] and not give_part(step, h, b, run, ring):
+            return cb.LINK_DOWN
         if not cb.check_silence(b):
             return cb.LINK_DOWN
         if got == 0 and run[DRAINING]:
             return STOPPED
+
+
+def link_name(link):
+    """The port or CAN channel of ``link`` (SerialLink, CanLink), as its errors name it."""
+    return getattr(link, "port", None) or f"CAN {link.channel}"
 
 
 def host_core(drive, line, block_samples):
@@ -156,7 +215,8 @@ def host_core(drive, line, block_samples):
     N = block_samples
     return HostCore(drive.cores(), drive.speed_ref, drive.tau_feedforward, line, np.zeros((MAX_BLOCK, 3)),
                     np.full(MAX_BLOCK, np.nan), np.zeros((N, 3)), drive_inputs(N), estimates(N), commands(N),
-                    np.zeros((2, N)), np.zeros((N, len(LOG_COLUMNS))), drive.scenario.T_s)
+                    np.zeros((2, N)), np.zeros((N, len(LOG_COLUMNS))), drive.scenario.T_s, np.zeros((MAX_BLOCK, 3)),
+                    np.full(MAX_BLOCK, np.nan), np.zeros(3, dtype=np.int64), np.zeros(2))
 
 
 class AnswerOptions(NamedTuple):
@@ -170,12 +230,13 @@ class AnswerOptions(NamedTuple):
 
 
 class CompiledAnswer:
-    """The compiled answer of ``drive`` (runner.Drive) through ``bridge`` (InverterBridge on a SerialLink),
-    ``n_samples`` samples at the command delay ``delay``: ``start`` its thread and the ring's reader, which
-    hands the rows it drains (RING_K, RING_HOST_S, RING_THETA_M, then the log row) to ``take(rows)``, oldest
-    first; ``stop``; ``join``. The answer thread runs the compiled loop, and between its calls reconnects a
-    failed link as InverterBridge does. The reader runs at normal scheduling (SCHED_OTHER) in a process whose
-    threads are SCHED_FIFO: it is not real-time."""
+    """The compiled answer of ``drive`` (runner.Drive) through ``bridge`` (InverterBridge on a SerialLink, or a
+    CanLink on SocketCAN or the cable), ``n_samples`` samples at the command delay ``delay``: ``start`` its
+    thread and the ring's reader, which hands the rows it drains (RING_K, RING_HOST_S, RING_THETA_M, then the
+    log row) to ``take(rows)``, oldest first; ``stop``; ``join``. The answer thread runs the compiled loop, and
+    between its calls reconnects a failed link as InverterBridge does (on a cable, looks for the other
+    member). The reader runs at normal scheduling (SCHED_OTHER) in a process whose threads are SCHED_FIFO: it
+    is not real-time."""
 
     def __init__(self, drive, bridge, line, run_samples, options=None):
         n_samples, delay = run_samples
@@ -199,7 +260,7 @@ class CompiledAnswer:
         inverter starts: a first call takes seconds. The link is opened for it (and HELLO asked for) if it is
         not open yet."""
         h = self.host
-        copy = h._replace(drive=copied(h.drive), line=h.line.copy())
+        copy = h._replace(drive=copied(h.drive), line=h.line.copy(), part=h.part.copy())
         run = self.run.copy()
         run[STOP] = 1
         bridge = self.bridge
@@ -239,10 +300,13 @@ class CompiledAnswer:
                 code = answer_loop(self.step, self.host, arrays, self.run, self.ring)
                 self.arrays = None
                 cb.store_bridge(arrays, bridge)
+                if code == RECONNECT:
+                    time.sleep(MEMBERS_REFRESH_S)
+                    continue
                 if code != cb.LINK_DOWN:
                     return
                 bridge.link.close()
-                bridge.link_down(f"{bridge.link.port}: the device is gone or failed")
+                bridge.link_down(f"{link_name(bridge.link)}: the device is gone or failed")
         except Exception as error:
             self.error = error
 
