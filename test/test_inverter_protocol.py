@@ -319,3 +319,9 @@ def test_the_compiled_answer_reads_socketcan_frames_as_the_python_codec_does():
     decoder = CanDecoder(3)
     expected = [decoder.feed(i, d) for i, d in to_canfd(block, 3) + to_can(hello, 3)]
     assert messages == [m for m in expected if m is not None] and len(messages) == 3
+
+
+def test_the_compiled_answer_flags_a_cable_frame_as_the_cable_does():
+    from drive_bridge import can_cable
+    from drive_bridge import compiled_bridge as cb
+    assert cb.CABLE_FD_BRS == can_cable.FD | can_cable.BRS

@@ -65,6 +65,9 @@ CAN_FRAME_BYTES, CANFD_FRAME_BYTES = 16, 72
 CAN_EFF_FLAG, CAN_RTR_FLAG, CAN_ERR_FLAG = 0x80000000, 0x40000000, 0x20000000
 CAN_EFF_MASK, CAN_SFF_MASK = 0x1FFFFFFF, 0x7FF
 CANFD_BRS, CANFD_FDF = 0x01, 0x04
+CABLE_FD_BRS = 6
+"""A cable datagram's flags of a CAN FD frame with bit-rate switch (drive_bridge.can_cable's FD | BRS; not
+imported: that module brings python-can with it)."""
 READ_BYTES = 4096
 """One read(2) at most, as SerialLink reads."""
 LINK_DOWN = -1
@@ -219,14 +222,14 @@ def send_payload(b, m):
     if kind == SERIAL:
         return write_all(fd, b.wire, fc.frame_wire(b.raw, m, b.wire))
     frames = cc.frames_of_payload(b.raw, m, np.int64(s[CAN_BASE]), True, b.can_ids, b.can_lengths, b.can_data)
+    block = b.raw[1] == fc.TELEMETRY_BLOCK or b.raw[1] == fc.COMMAND_BLOCK
     for i in range(frames):
-        length, block = b.can_lengths[i], b.raw[1] == fc.TELEMETRY_BLOCK or b.raw[1] == fc.COMMAND_BLOCK
+        length = b.can_lengths[i]
+        fc.put_u32(b.wire, 0, b.can_ids[i])
         if kind == CABLE:
-            fc.put_u32(b.wire, 0, b.can_ids[i])
-            b.wire[4] = 6 if block else 0
+            b.wire[4] = CABLE_FD_BRS if block else 0
             at, size = 5, 5 + length
         else:
-            fc.put_u32(b.wire, 0, b.can_ids[i])
             b.wire[4], b.wire[5], b.wire[6], b.wire[7] = length, CANFD_BRS | CANFD_FDF if block else 0, 0, length
             at, size = 8, CANFD_FRAME_BYTES if block else CAN_FRAME_BYTES
         for j in range(size - at):

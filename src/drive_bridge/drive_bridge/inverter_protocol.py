@@ -324,17 +324,6 @@ class FrameReader:
         self.last_error = str(error)
 
 
-CAN_COMMAND, CAN_CONTROL, CAN_HEARTBEAT, CAN_COMMAND_BLOCK = (can_codec.CAN_COMMAND, can_codec.CAN_CONTROL,
-                                                             can_codec.CAN_HEARTBEAT, can_codec.CAN_COMMAND_BLOCK)
-CAN_TELEMETRY_B, CAN_TELEMETRY_A = can_codec.CAN_TELEMETRY_B, can_codec.CAN_TELEMETRY_A
-CAN_HELLO_A, CAN_HELLO_B, CAN_HELLO_C = can_codec.CAN_HELLO_A, can_codec.CAN_HELLO_B, can_codec.CAN_HELLO_C
-CAN_TELEMETRY_BLOCK = can_codec.CAN_TELEMETRY_BLOCK
-CANFD_CHUNK = {TELEMETRY_BLOCK: (CAN_TELEMETRY_BLOCK, can_codec.TELEMETRY_CHUNK),
-               COMMAND_BLOCK: (CAN_COMMAND_BLOCK, can_codec.COMMAND_CHUNK)}
-"""Block type → (identifier offset, most samples in one 64-byte CAN FD frame)."""
-CANFD_LENGTHS = tuple(can_codec.CANFD_LENGTHS.tolist())
-
-
 def can_base(drive_id):
     if not 0 <= drive_id <= 15:
         raise ValueError(f"drive_id {drive_id}: CAN drives are numbered 0 to 15")
