@@ -389,6 +389,28 @@ def test_record_types_are_mangled_alike_in_every_process():
     assert names[0] == names[1] and names[0][0] != names[0][1]
 
 
+def test_a_kernel_taking_a_step_is_loaded_from_the_cache_in_the_next_process():
+    """The runner's loop bound to an estimator's step (drive_common.runtime.bound_kernels) compiles in one process
+    at most and loads from numba's cache in the next (a kernel passed as an argument would compile in every one);
+    a step from outside the project's packages (a plugin's) is passed as an argument, never cached."""
+    program = ("import dataclasses; from drive_common.config.scenario import load_scenario; "
+               "from drive_common.runtime.bound_kernels import bound; from drive_tools.runner.loop import run_blocks; "
+               "from drive_tools.runner.runner import run_scenario; "
+               "run_scenario(dataclasses.replace(load_scenario('wang_100rpm'), duration_s=0.002)); "
+               "from hf_estimator.injection_frame import injection_frame_step as step; "
+               "print(sum(bound(run_blocks, step).stats.cache_hits.values()))")
+    hits = [int(subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
+                               check=True).stdout.split()[-1]) for _ in range(2)]
+    assert hits[1] == 1, hits
+    from drive_common.runtime.bound_kernels import bound
+    from drive_tools.runner.loop import run_blocks
+
+    def plugin_step():
+        pass
+    plugin_step.__module__ = "my_estimators.step"
+    assert bound(run_blocks, plugin_step).args == (plugin_step,)
+
+
 def test_topic_names_come_only_from_the_topic_table():
     """Nodes, the launcher and the bags name a contract topic by drive_common.contract.topics' constants, never
     by a string of their own (a JSON key of drive_config that happens to share a topic's name is not one)."""

@@ -1,4 +1,4 @@
-"""Corrupted bags (60; 220 under the `heavy` marker: flipped bits, zeroed ranges, truncations, duplicated
+"""Corrupted bags (40; 220 under the `heavy` marker: flipped bits, zeroed ranges, truncations, duplicated
 chunks, inserted garbage, broken or missing metadata, extra files) through `bag info`, `bench replay`,
 `bench compare` and `bag reindex`: no traceback, the bag untouched by all but reindex, and reindex keeps
 every message that survived the corruption. Bags whose metadata.yaml or drive_config is mutated key by
@@ -28,7 +28,7 @@ from drive_tools.cli.cli import main
 from drive_tools.runner.runner import run_scenario
 from helpers import blames, mutate
 
-SAMPLE_CASES, FULL_CASES = 60, 220
+SAMPLE_CASES, FULL_CASES = 40, 220
 """Corrupted bags in the default run, and under the `heavy` marker."""
 
 

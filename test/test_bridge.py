@@ -679,3 +679,33 @@ def test_through_the_bridge_the_host_trips_on_the_inverters_bus_into_the_safe_st
     assert trip["safe_state"] == "freewheel" and trip["cause"] == "DC-link over-voltage"
     after = round(trip["at_s"] / scenario.T_s) + 3
     assert 0 < after < len(modes) - 100 and set(modes[after:]) == {FREEWHEEL} and set(modes[:after - 4]) == {PWM}
+
+
+def test_a_lock_step_link_is_lost_only_once_the_drive_has_answered_and_the_inverter_stays_silent(monkeypatch):
+    """An inverter in lock-step (``answer_wait_s``) sends once answered: while the host owes the last block's answer
+    a slow drive is not a silent link (lost only after link_timeout_s + answer_wait_s); once answered, the link is
+    lost link_timeout_s after the answer (a simulation that ended). Time is a virtual clock."""
+    import types
+    now = [100.0]
+    monkeypatch.setattr("drive_bridge.inverter_bridge.time", types.SimpleNamespace(monotonic=lambda: now[0]))
+    bridge = InverterBridge(None, link_timeout_s=0.5, command_timeout_s=20.0, block_samples=10, answer_wait_s=10.0)
+    bridge.lost, bridge.last_telemetry_at, bridge.received_k0 = False, 100.0, 20
+    now[0] = 109.0
+    bridge._check_timeouts()
+    assert not bridge.lost, "the drive still computing its answer is not a lost link"
+    bridge.last_command_at, bridge.answered_k0 = 109.0, 20
+    now[0] = 109.4
+    bridge._check_timeouts()
+    assert not bridge.lost
+    now[0] = 109.6
+    bridge._check_timeouts()
+    assert bridge.lost and bridge.last_error == "no telemetry for 500 ms after its answer"
+    never_answered = InverterBridge(None, link_timeout_s=0.5, command_timeout_s=20.0, block_samples=10,
+                                    answer_wait_s=10.0)
+    never_answered.lost, never_answered.last_telemetry_at, never_answered.received_k0 = False, 100.0, 0
+    now[0] = 110.4
+    never_answered._check_timeouts()
+    assert not never_answered.lost
+    now[0] = 110.6
+    never_answered._check_timeouts()
+    assert never_answered.lost and never_answered.last_error == "no telemetry for 10500 ms"

@@ -4,6 +4,7 @@ process, commanded on the joint command topic, bad commands refused and counted,
 loaded joint and later releases it, and SIGTERM that leaves every inverter switched off."""
 import json
 import math
+import os
 import re
 import signal
 import subprocess
@@ -17,11 +18,18 @@ DRIVE = ROOT / ".venv" / "bin" / "drive"
 LOAD_NM = 0.045
 """The shoulder's load from LOAD_ON_S of the simulation on (≈ 20 % of wang_spmsm's rated torque): gravity."""
 LOAD_ON_S = 7.0
+LOAD_SETTLE_S = 1.0
+"""Simulated time after the load steps on within which the shoulder's speed may still be off its command (the
+speed loop's recovery from the step)."""
 HOLD_WITHIN_RAD = 0.25
 """The held shaft's angle (the simulation's truth) stays within this range while the joint is held."""
 VELOCITY_LIMIT = 20.0
-HOLD_S = 4.0
-"""The shoulder's hold timeout [s]."""
+HOLD_S = 6.0
+"""The shoulder's hold timeout [s of the host's time]: lock-step, the two axes' simulations run at a fraction of real
+time (≈ 0.1-0.2 on a loaded 2-core machine), and the hold must last STOP_SETTLE_S of simulated time and more."""
+STOP_SETTLE_S = 0.3
+"""Simulated time from the command timeout until the shoulder is held: the ramp to zero (at most 0.2 s from the
+velocity limit, docs/robot.md) and the hold's settling."""
 COMMAND_TIMEOUT_S = 0.5
 """The shoulder's command timeout [s]: the test's clients publish every 20-50 ms, and a loaded machine held one for
 over 0.1 s (the shoulder then held its joint between two commands)."""
@@ -113,12 +121,25 @@ def test_the_documented_hand_started_commands_work_as_written_in_a_shell(tmp_pat
         f"format_version: 1\nmotor: wang_spmsm\ncommissioning: {ROOT / 'commissioning' / 'wang_spmsm.yaml'}\n"
         "estimator: injection_frame\nsampling_period_s: 1.0e-4\n")
     (tmp_path / ".venv").symlink_to(ROOT / ".venv")
-    for line in lines:
-        line = line.replace("/left_wheel", "/documented_wheel")
-        run = subprocess.run(["bash", "-c", f"timeout -s INT 15 {line}"], cwd=tmp_path, capture_output=True,
-                             text=True)
-        assert "no experiment: until stopped" in run.stderr, (line, run.stderr[-600:])
-        assert "Couldn't parse" not in run.stderr
+    started = []
+    for i, line in enumerate(lines):
+        err = tmp_path / f"node_{i}.log"
+        started.append((line, err, subprocess.Popen(["bash", "-c", line.replace("/left_wheel", "/documented_wheel")],
+                                                    cwd=tmp_path, stderr=err.open("w"), start_new_session=True)))
+    try:
+        for line, err, process in started:
+            deadline = time.monotonic() + 60.0
+            while "no experiment: until stopped" not in err.read_text() and process.poll() is None:
+                assert time.monotonic() < deadline, (line, err.read_text()[-600:])
+                time.sleep(0.2)
+    finally:
+        for _, _, process in started:
+            if process.poll() is None:
+                os.killpg(process.pid, signal.SIGINT)
+            process.wait(timeout=60)
+    for line, err, _ in started:
+        assert "no experiment: until stopped" in err.read_text(), (line, err.read_text()[-600:])
+        assert "Couldn't parse" not in err.read_text()
 
 
 class Client:
@@ -327,25 +348,34 @@ def test_an_outside_client_without_rclpy_commands_both_joints_and_reads_their_st
     (["shoulder", "wrist"], [3.0], [], "command_malformed"),
 ])
 def test_a_bad_command_is_refused_counted_on_diagnostics_and_never_applied(arm, names, velocity, effort, kind):
+    """The bad command and a good one are sent in turns: the refusal is counted and the joints follow the good one
+    alone (judged over the last 0.3 s of simulated time, clear of the load's step: test_a_command_timeout_...)."""
     _, client = arm
     good = (["shoulder", "wrist"], [3.0, -3.0], [])
     client.spin_simulated(1.0, good)
     before = client.robot_faults().get(f"faults.{kind}", 0)
     from sensor_msgs.msg import JointState
     start, began = client.truth[-1][0], time.monotonic()
-    while (client.truth[-1][0] < start + 0.3 or time.monotonic() < began + 1.0) and time.monotonic() < began + 60.0:
+
+    def judged():
+        clear = all(now - 0.3 > LOAD_ON_S + LOAD_SETTLE_S or now < LOAD_ON_S
+                    for now in (client.truth[-1][0], client.wrist_at[0]))
+        return client.truth[-1][0] >= start + 0.3 and time.monotonic() >= began + 1.0 and clear
+    while not judged() and time.monotonic() < began + 60.0:
         client.command_pub.publish(JointState(name=names, velocity=velocity, effort=effort))
         client.command_pub.publish(JointState(name=good[0], velocity=good[1]))
         client.spin(0.04)
     assert client.robot_faults().get(f"faults.{kind}", 0) > before
-    assert client.joint("shoulder", over_s=0.3)[1] == pytest.approx(3.0, abs=1.0), "the refused command was not applied"
+    for joint, speed in zip(*good[:2]):
+        assert client.joint(joint, over_s=0.3)[1] == pytest.approx(speed, abs=1.0), f"{joint} took the refused one"
 
 
 def test_a_command_timeout_holds_the_loaded_joint_then_releases_it(arm):
     """Commands stop with the load on (gravity): the shoulder ramps to zero and is held within HOLD_WITHIN_RAD (the
-    simulation's truth) until its hold timeout (HOLD_S of the host's time), then at zero torque the load turns it.
-    The test waits for the controller's own word (/diagnostics, once a second) on each step: the ramp and the hold's
-    settling take simulated time, which a loaded machine stretches."""
+    simulation's truth, from STOP_SETTLE_S of simulated time after the command timed out) until its hold timeout
+    (HOLD_S of the host's time), then at zero torque the load turns it. The test waits for the controller's own word
+    (/diagnostics, once a second of simulated time) on each step: the ramp and the hold's settling take simulated
+    time, which a loaded machine stretches."""
     _, client = arm
     command = (["shoulder", "wrist"], [3.0, -3.0], [])
     while not client.truth or client.truth[-1][0] < LOAD_ON_S + 0.5:
@@ -357,11 +387,11 @@ def test_a_command_timeout_holds_the_loaded_joint_then_releases_it(arm):
         client.spin(0.1)
         modes = [mode for at, mode in client.shoulder_modes if at > stopped]
     assert "holding" in modes, modes
-    holding_at = min(at for at, mode in client.shoulder_modes if at > stopped and mode == "holding")
     released_at = min(at for at, mode in client.shoulder_modes if at > stopped and mode == "released")
     assert released_at > stopped + HOLD_S, "released before its hold timeout (counted from the last command)"
-    held = [theta for _, theta, at in client.truth if max(holding_at, stopped + 0.5) <= at <= stopped + HOLD_S - 0.1]
-    assert len(held) > 20
+    timed_out = next(t for t, _, at in client.truth if at >= stopped + COMMAND_TIMEOUT_S)
+    held = [theta for t, theta, at in client.truth if t >= timed_out + STOP_SETTLE_S and at <= stopped + HOLD_S - 0.1]
+    assert len(held) > 20, f"{len(held)} states held: the simulation ran {client.truth[-1][0] - timed_out:.2f} s"
     assert max(held) - min(held) < HOLD_WITHIN_RAD
     client.spin_simulated(0.5)
     assert abs(client.truth[-1][1] - held[-1]) > 0.5, "at zero torque the load turns the shaft"

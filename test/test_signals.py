@@ -18,7 +18,7 @@ COMMANDS = {
     "run": (["run", "wang_100rpm", "--duration", "600", "--no-plot", "--json"], True),
     "bridge": (["bridge", "wang_100rpm", "--duration", "60", "--no-plot", "--json"], True),
     "tune_check": (["tune", "pll", "--check", "--no-plot", "--json"], True),
-    "bench_graph": (["bench", "graph", "--duration", "2", "--repeats", "1", "--json"], True),
+    "bench_graph": (["bench", "graph", "--duration", "0.5", "--repeats", "1", "--json"], True),
     "echo": (["echo", "currents", "--namespace", "/nobody_here"], False),
 }
 """Each command's arguments, and whether the signal waits for its first progress on a terminal (its job has

@@ -56,6 +56,8 @@ PARAMETERS = {
     "drive_id": (0, "CAN drive number 0-15"),
     "link_timeout_s": (LINK_TIMEOUT_S, "no telemetry for this long: link lost [s]"),
     "command_timeout_s": (COMMAND_TIMEOUT_S, "no voltage_command for this long: safe state [s]"),
+    "answer_wait_s": (0.0, "an inverter in lock-step (it sends once answered): the longest the drive may take to "
+                           "answer before its silence counts against the link [s]; 0: the inverter keeps its own pace"),
     "block_samples": (1, "samples per TELEMETRY_BLOCK the inverter announces, N (1: a frame per sample)"),
 }
 HISTORY_SAMPLES = 64
@@ -90,7 +92,7 @@ class InverterBridgeNode(DriveNode):
         if not 1 <= self.block_samples <= MAX_BLOCK:
             raise ValueError(f"parameter block_samples: from 1 to {MAX_BLOCK}, not {self.block_samples}")
         self.bridge = InverterBridge(link, float(p["link_timeout_s"]), float(p["command_timeout_s"]),
-                                     block_samples=self.block_samples)
+                                     block_samples=self.block_samples, answer_wait_s=float(p["answer_wait_s"]))
         self.offer_clock()
         self.clock_pub = self.claim_clock()
         self.angle_error_pub = self.create_publisher(Vector3Stamped, ANGLE_ERROR, topic_qos(ANGLE_ERROR))

@@ -211,7 +211,7 @@ def follows_part(part_k0, part_n, k0, N):
     return part_n > 0 and k0 == part_k0 + part_n and k0 // N == part_k0 // N
 
 
-@njit(nogil=True)
+@njit(cache=True, nogil=True)
 def send_payload(b, m):
     """The payload ``b.raw[:m]`` (version, type, body) written on the link: a serial frame, or its CAN frames
     (can_codec) as cable datagrams or SocketCAN frames. False when the link failed; on a cable a frame no member
@@ -243,7 +243,7 @@ def send_payload(b, m):
     return True
 
 
-@njit(nogil=True)
+@njit(cache=True, nogil=True)
 def send_control(b, action):
     """CONTROL(``action``) on the link; False when the write failed."""
     return send_payload(b, fc.write_control(action, b.raw))
@@ -275,7 +275,7 @@ def f32(bits):
     return sign * math.ldexp(float(fraction | 0x800000), exponent - 150)
 
 
-@njit(nogil=True)
+@njit(cache=True, nogil=True)
 def accept_telemetry(b, seq, n, u_dc, status, currents, theta):
     """Samples seq … seq + n − 1 (their counts in ``b.entries``) taken by the bridge (the one algorithm of the
     Python bridge, InverterBridge._telemetry, and the compiled answer; ``b``: TelemetryArrays or
@@ -364,7 +364,7 @@ def keep_unframed(b, start):
     b.state[RX_BYTES] = left
 
 
-@njit(nogil=True)
+@njit(cache=True, nogil=True)
 def read_link(b, timeout_ms):
     """Wait up to ``timeout_ms`` for the link: on a serial link append what one read(2) gives to ``b.rx``, on CAN
     read one frame into it (``b.rx`` holds only that frame then). The bytes read (0: none came), LINK_DOWN when
@@ -436,7 +436,7 @@ def frame_telemetry(b, m):
     return seq, n, u_dc, status
 
 
-@njit(nogil=True)
+@njit(cache=True, nogil=True)
 def write_commands(b, k0, u_alpha_V, u_beta_V, n, enable, safe_state):
     """COMMAND (blocks of one) or COMMAND_BLOCK answering samples k0 … k0 + n − 1, rounded to the inverter's
     steps (clipped to int16, non-finite as 0) as InverterBridge.command_block rounds, with the flags of
@@ -473,7 +473,7 @@ def write_commands(b, k0, u_alpha_V, u_beta_V, n, enable, safe_state):
     return True
 
 
-@njit(nogil=True)
+@njit(cache=True, nogil=True)
 def check_silence(b):
     """InverterBridge._check_timeouts: the link lost after ``link_timeout_s`` without telemetry; the safe state
     (CONTROL 1) after ``command_timeout_s`` without a command while the link is up. False when the link

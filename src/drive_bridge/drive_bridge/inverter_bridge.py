@@ -129,15 +129,23 @@ class InverterBridge:
     """One inverter behind ``link`` (SerialLink or CanLink) that sends blocks of ``block_samples``
     samples (1: TELEMETRY per sample). ``poll`` from one thread, ``command`` and ``command_block`` from
     any; they never raise on link trouble, they count it. An inverter announcing another block size is
-    counted (``block_mismatch``) and named, and its telemetry not taken."""
+    counted (``block_mismatch``) and named, and its telemetry not taken. ``answer_wait_s`` > 0: an inverter in
+    lock-step (a virtual one that sends its next block only once answered): while the host owes an answer (telemetry
+    taken after its last command) the link is lost only after link_timeout_s + answer_wait_s (a slow drive is not a
+    silent link); once it has answered, after link_timeout_s from its answer (a simulation that ended is seen at
+    once). The compiled answer's check keeps the longer timeout throughout."""
 
     def __init__(self, link, link_timeout_s=LINK_TIMEOUT_S, command_timeout_s=COMMAND_TIMEOUT_S,
-                 reconnect_s=RECONNECT_S, block_samples=1):
+                 reconnect_s=RECONNECT_S, block_samples=1, answer_wait_s=0.0):
         self.link = link
         self.block_samples = block_samples
         self.link_timeout_s, self.command_timeout_s = link_timeout_s, command_timeout_s
+        self.answer_wait_s = answer_wait_s
+        self.received_k0 = self.answered_k0 = -1
+        """The first sample of the last telemetry block taken, and of the last block answered."""
         self.reconnect_s = reconnect_s
-        self.state, self.counter_array = cb.bridge_state(block_samples, link_timeout_s, command_timeout_s)
+        self.state, self.counter_array = cb.bridge_state(block_samples, link_timeout_s + answer_wait_s,
+                                                         command_timeout_s)
         """Its state and counters as arrays (compiled_bridge.STATE, COUNTERS), the attributes below views of
         them: the telemetry is taken by the kernel the compiled answer runs (compiled_bridge.accept_telemetry),
         which changes them in place."""
@@ -188,6 +196,7 @@ class InverterBridge:
         return written_at(self.written, self.block_samples, k)
 
     def note_written(self, k0):
+        self.answered_k0 = max(self.answered_k0, k0)
         slot = (k0 // self.block_samples) % WRITES_KEPT
         self.written[slot, 1] = time.monotonic()
         self.written[slot, 0] = k0
@@ -310,15 +319,22 @@ class InverterBridge:
             self._send(Control(CONTROL_SEND_HELLO))
         if k0 < 0:
             return None
+        self.received_k0 = max(self.received_k0, int(k0) - int(k0) % self.block_samples)
         return BridgeBlock(int(k0), currents, theta, u_dc * self.hello.voltage_lsb_V, status)
 
     def _check_timeouts(self):
         now = time.monotonic()
-        silent = self.last_telemetry_at is not None and now - self.last_telemetry_at > self.link_timeout_s
+        since, timeout, answered = self.last_telemetry_at, self.link_timeout_s, ""
+        if self.answer_wait_s and since is not None:
+            if self.last_command_at is not None and self.answered_k0 >= self.received_k0:
+                since, answered = max(since, self.last_command_at), " after its answer"
+            else:
+                timeout += self.answer_wait_s
+        silent = since is not None and now - since > timeout
         if silent and not self.lost:
             self.lost = True
             self.counters["link_lost"] += 1
-            self.last_error = f"no telemetry for {self.link_timeout_s * 1e3:g} ms"
+            self.last_error = f"no telemetry for {timeout * 1e3:g} ms{answered}"
         if (not self.lost and not self.safe and self.last_command_at is not None
                 and now - self.last_command_at > self.command_timeout_s):
             self.safe_state(f"no voltage_command for {self.command_timeout_s * 1e3:g} ms")

@@ -35,8 +35,8 @@ def estimator_block(step, core, k0, n, inputs, line, sensing, out):
     θ_e, ω_e, read only by `sensored`; line: the drive's delay line (drive_common.math.command_delay) holding
     the commands of earlier samples. A sample whose currents are not finite or exceed the trip is not fed to
     the core: its record repeats the last estimate, signal, weight and leader with no injection and state 0.
-    ``out``: n ESTIMATE records. Returns the number of such bad samples. Not cached: specialised on each
-    estimator's step function (as drive_tools.runner.loop's kernels)."""
+    ``out``: n ESTIMATE records. Returns the number of such bad samples. Called bound to the step
+    (drive_common.runtime.bound_kernels: cached on disk per step) or inlined into a kernel that is."""
     p, x = core.params, core.state[0]
     record = core.sample[0]
     bad = 0

@@ -49,6 +49,7 @@ from drive_common.math.winding import R_S_IN_USE, winding_block, winding_params,
 from drive_common.motor.commissioning import commissioning_record
 from drive_common.motor.knowledge import motor_knowledge
 from drive_common.ros.node import DriveNode, finite, run_node
+from drive_common.runtime.bound_kernels import bound
 
 from .block import estimator_block
 from .build import estimator_for_scenario
@@ -167,7 +168,7 @@ class EstimatorNode(DriveNode):
     def warm_up(self):
         e = self.estimator
         issue_command(command_line(1), 0, 0.0, 0.0)
-        estimator_block(e.step, e.core(e.state.copy()), 0, 1, drive_inputs(1), command_line(1),
+        bound(estimator_block, e.step)(e.core(e.state.copy()), 0, 1, drive_inputs(1), command_line(1),
                         current_sensing(self.calibration, 1.0), estimates(1))
         winding_block(self.winding_x.copy(), self.winding, np.zeros((1, 3)), 1)
 
@@ -328,7 +329,7 @@ class EstimatorNode(DriveNode):
         inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents.T
         inputs["theta_e_encoder_rad"], inputs["omega_e_encoder_rad_s"] = encoder.T
         self.core.sample[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
-        bad = estimator_block(self.estimator.step, self.core, k0, n, inputs, self.line, self.sensing, records)
+        bad = bound(estimator_block, self.estimator.step)(self.core, k0, n, inputs, self.line, self.sensing, records)
         winding_block(self.winding_x, self.winding, currents, n)
         if bad:
             self.fault("bad_input", f"currents at samples {k0}..{k0 + n - 1}: {bad} of {n} not finite or beyond "

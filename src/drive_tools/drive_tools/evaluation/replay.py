@@ -23,6 +23,7 @@ from drive_common.contract.log import COLUMN
 from drive_common.contract.run_result import RunResult
 from drive_common.motor.nameplate import InverterRating
 from drive_common.motor.scaled_loops import scaled_loops
+from drive_common.runtime.bound_kernels import bound
 from drive_tools.runner.loop import replay_samples
 from hf_estimator.build import SCALED_TRACKING, drive_estimator, scaled_tracking
 from hf_estimator.interface import excitation_need, injects
@@ -147,11 +148,11 @@ def _replay_one(recording, name, inputs, reference):
     calibration = recording.commissioning.calibration()
     e, refused = _built(recording, name)
     out = estimates(len(currents))
-    replay_samples(e.step, e.core(e.state.copy()), currents[:2], u_applied[:2], reference[:2], whole[:2],
+    bound(replay_samples, e.step)(e.core(e.state.copy()), currents[:2], u_applied[:2], reference[:2], whole[:2],
                    calibration, out[:2])
     probe = min(len(currents), PROBE_SAMPLES)
     start = time.perf_counter()
-    replay_samples(e.step, e.core(e.state.copy()), currents[:probe], u_applied[:probe], reference[:probe],
+    bound(replay_samples, e.step)(e.core(e.state.copy()), currents[:probe], u_applied[:probe], reference[:probe],
                    whole[:probe], calibration, out[:probe])
     per_sample_s = (time.perf_counter() - start) / probe
     T_s = recording.T_s
@@ -204,7 +205,7 @@ def _timed_replay(e, inputs, reference, calibration, out):
     for _ in range(TIMED_RUNS):
         core = e.core(e.state.copy())
         start = time.perf_counter()
-        replay_samples(e.step, core, currents, u_applied, reference, whole, calibration, out)
+        bound(replay_samples, e.step)(core, currents, u_applied, reference, whole, calibration, out)
         wall = min(wall, time.perf_counter() - start)
     return wall
 

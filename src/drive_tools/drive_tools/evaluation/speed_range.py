@@ -11,6 +11,7 @@ import numpy as np
 from drive_common.contract.estimator_records import ESTIMATE_FIELDS, estimates
 from drive_common.contract.estimator_states import LEADER_BACKEMF
 from drive_common.contract.log import COLUMN
+from drive_common.runtime.bound_kernels import bound
 from drive_tools.runner.loop import replay_samples
 from drive_tools.runner.runner import run_scenario, scenario_commissioning
 from hf_estimator.registry import make_estimator
@@ -102,7 +103,7 @@ def observer_on_run(result, scenario):
     e = make_estimator("flux_observer", scenario.motor.nameplate, scenario.T_s, {}, commissioning, inverter)
     currents, u_applied, whole = logged_inputs(result.log, scenario.drive_delay_periods())
     out = estimates(len(currents))
-    replay_samples(e.step, e.core(e.state.copy()), currents, u_applied, np.zeros((len(currents), 2)), whole,
+    bound(replay_samples, e.step)(e.core(e.state.copy()), currents, u_applied, np.zeros((len(currents), 2)), whole,
                    commissioning.calibration(), out)
     log = result.log.copy()
     for field in ESTIMATE_FIELDS:

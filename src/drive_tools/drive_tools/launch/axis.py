@@ -162,8 +162,8 @@ class AxisNode(LifecycleNode):
             return self.fail(error)
         lock_step = spec.link == "virtual" and not spec.paced
         wait = LOCKSTEP_TIMEOUT_S if lock_step else 0.0
-        timeouts = {"link_timeout_s": spec.link_timeout_s + wait, "command_timeout_s": BRIDGE_COMMAND_TIMEOUT_S + wait,
-                    "publish_clock": False, "block_samples": n}
+        timeouts = {"link_timeout_s": spec.link_timeout_s, "answer_wait_s": wait,
+                    "command_timeout_s": BRIDGE_COMMAND_TIMEOUT_S + wait, "publish_clock": False, "block_samples": n}
         self.bridge = make_node("drive_bridge", self.context, spec.namespace, timeouts, link=host_link,
                                 controller=self.handover, estimator=self.handover)
         self.executor.add_node(self.bridge)

@@ -314,130 +314,132 @@ def launch_many(specs, options=GraphOptions(), progress=None):
         for lock in locks:
             lock.release()
         raise
-    recorders = [BagWriter(spec.bag) if spec.bag and options.answer is None else None for spec in specs]
-    workdir = tempfile.TemporaryDirectory(prefix="drive_bridge_")
-    inverters, answers = [], []
-    children, nodes, drivers, drives, listeners = [], [], [], [], []
-    polling = polled()
-    polling.__enter__()
-    ex = listening = None
     try:
-        hop = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN) if any(spec.link for spec in specs) else None
-        ex = make_executor(executor, context)
-        for i, spec in enumerate(specs):
-            parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
-                                         spec.extra_parameters)
-            scenario = scenario_from_parameters(all_parameters(parameters))
-            if spec.link:
-                scenario = behind_an_inverter(scenario, MAX_BLOCK)
-                parameters["answer_periods"] = scenario.answer_periods
-            drive = build_drive(scenario)
-            protection_for_scenario(scenario, drive.commissioning, bus_measured=False)
-            scheduled = {**parameters, "scenario_schedule": True}
-            estimator = parameters
-            if scenario.drive_file:
-                estimator = {**parameters, "drive_configuration": scenario.drive_file, "scenario": "",
-                             "duration_s": scenario.duration_s}
-            plant = {**scheduled, "publish_clock": i == 0, "currents_readers": 1 if intra_process else 2}
-            roles = {"pmsm_plant": plant, "hf_estimator": estimator, "foc_controller": scheduled}
-            inverter = None
-            if spec.link:
-                inverter, host_link = _virtual_inverter(scenario, parameters, spec, (workdir.name, i),
-                                                        InverterOptions(command_wait_s=timeout_s), real_time)
-                inverters.append(inverter)
-                del roles["pmsm_plant"]
-                period = float(all_parameters(parameters)["diagnostics_period_s"])
-                timeouts = {"link_timeout_s": timeout_s, "command_timeout_s": timeout_s,
-                            "diagnostics_period_s": period, "publish_clock": i == 0,
-                            "block_samples": scenario.block_samples}
-                roles["drive_bridge"] = timeouts if processes == "composed" else {**_link_parameters(host_link),
-                                                                                  **timeouts}
-            made, answer = {}, None
-            if options.answer is not None:
-                answer, bridge_node = _compiled_answer(drive, host_link, (context, spec.namespace),
-                                                       roles.pop("drive_bridge"), options)
-                del roles["hf_estimator"], roles["foc_controller"]
-                made["drive_bridge"] = bridge_node
-                nodes.append(bridge_node)
-                answers.append(answer)
-            for role, role_parameters in roles.items():
-                if processes == "composed":
-                    partners = {"estimator": made.get("hf_estimator"), "controller": made.get("foc_controller")}
-                    made[role] = make_node(role, context, spec.namespace, role_parameters,
-                                           link=host_link if spec.link else None,
-                                           inputs_handed=intra_process and bool(spec.link),
-                                           **(partners if intra_process else {}))
-                    nodes.append(made[role])
-                else:
-                    children.append((role, _spawn(role, spec.namespace, role_parameters, executor, real_time)))
-            driver_node = Node("drive_launcher", context=context, namespace=spec.namespace)
-            nodes.append(driver_node)
-            listener = Node("drive_recorder", context=context, namespace=spec.namespace)
-            listeners.append(listener)
-            host_bridge = made["drive_bridge"].bridge if spec.link and processes == "composed" else None
-            host_bridge = answer or host_bridge
-            if host_bridge is not None and spec.paced and spec.inverter_apart:
-                inverter.hear_writes_of(answer.bridge if answer is not None else host_bridge)
-            elif host_bridge is not None and spec.paced:
-                inverter.hear_host_writes(host_bridge.written_at)
-            settings = DriverSettings(options.record, 0.1 if processes == "composed" else 0.5,
-                                      options.startup_timeout_s, intra_process)
-            driver = ScenarioDriver(driver_node, scenario, settings, progress if i == 0 else None,
-                                    None if answer else recorders[i], inverter, listener, host_bridge)
-            if answer is not None:
-                driver.publish_answered = made["drive_bridge"].publish_answered
-            driver.done = Future()
-            drives.append(drive)
-            drivers.append(driver)
-        for node in nodes:
-            ex.add_node(node)
-        all_done = Future()
-        watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
-        for driver in drivers:
-            driver.start_allowed = False
-        while not all_done.done() and not all(driver.ready or driver.done.done() for driver in drivers):
-            ex.spin_until_future_complete(all_done, timeout_sec=0.05)
-        with real_time_held(real_time) as scheduling:
-            if listeners_apart(scheduling):
-                listening = Listening(make_executor(executor, context), listeners)
-                listening.start()
-            else:
-                for listener in listeners:
-                    ex.add_node(listener)
+        recorders = [BagWriter(spec.bag) if spec.bag and options.answer is None else None for spec in specs]
+        workdir = tempfile.TemporaryDirectory(prefix="drive_bridge_")
+        inverters, answers = [], []
+        children, nodes, drivers, drives, listeners = [], [], [], [], []
+        polling = polled()
+        polling.__enter__()
+        ex = listening = None
+        try:
+            hop = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN) if any(spec.link for spec in specs) else None
+            ex = make_executor(executor, context)
+            for i, spec in enumerate(specs):
+                parameters = node_parameters(spec.scenario, spec.estimator, spec.duration_s, timeout_s,
+                                             spec.extra_parameters)
+                scenario = scenario_from_parameters(all_parameters(parameters))
+                if spec.link:
+                    scenario = behind_an_inverter(scenario, MAX_BLOCK)
+                    parameters["answer_periods"] = scenario.answer_periods
+                drive = build_drive(scenario)
+                protection_for_scenario(scenario, drive.commissioning, bus_measured=False)
+                scheduled = {**parameters, "scenario_schedule": True}
+                estimator = parameters
+                if scenario.drive_file:
+                    estimator = {**parameters, "drive_configuration": scenario.drive_file, "scenario": "",
+                                 "duration_s": scenario.duration_s}
+                plant = {**scheduled, "publish_clock": i == 0, "currents_readers": 1 if intra_process else 2}
+                roles = {"pmsm_plant": plant, "hf_estimator": estimator, "foc_controller": scheduled}
+                inverter = None
+                if spec.link:
+                    inverter, host_link = _virtual_inverter(scenario, parameters, spec, (workdir.name, i),
+                                                            InverterOptions(command_wait_s=timeout_s), real_time)
+                    inverters.append(inverter)
+                    del roles["pmsm_plant"]
+                    period = float(all_parameters(parameters)["diagnostics_period_s"])
+                    timeouts = {"link_timeout_s": timeout_s, "command_timeout_s": timeout_s,
+                                "diagnostics_period_s": period, "publish_clock": i == 0,
+                                "block_samples": scenario.block_samples}
+                    roles["drive_bridge"] = timeouts if processes == "composed" else {**_link_parameters(host_link),
+                                                                                      **timeouts}
+                made, answer = {}, None
+                if options.answer is not None:
+                    answer, bridge_node = _compiled_answer(drive, host_link, (context, spec.namespace),
+                                                           roles.pop("drive_bridge"), options)
+                    del roles["hf_estimator"], roles["foc_controller"]
+                    made["drive_bridge"] = bridge_node
+                    nodes.append(bridge_node)
+                    answers.append(answer)
+                for role, role_parameters in roles.items():
+                    if processes == "composed":
+                        partners = {"estimator": made.get("hf_estimator"), "controller": made.get("foc_controller")}
+                        made[role] = make_node(role, context, spec.namespace, role_parameters,
+                                               link=host_link if spec.link else None,
+                                               inputs_handed=intra_process and bool(spec.link),
+                                               **(partners if intra_process else {}))
+                        nodes.append(made[role])
+                    else:
+                        children.append((role, _spawn(role, spec.namespace, role_parameters, executor, real_time)))
+                driver_node = Node("drive_launcher", context=context, namespace=spec.namespace)
+                nodes.append(driver_node)
+                listener = Node("drive_recorder", context=context, namespace=spec.namespace)
+                listeners.append(listener)
+                host_bridge = made["drive_bridge"].bridge if spec.link and processes == "composed" else None
+                host_bridge = answer or host_bridge
+                if host_bridge is not None and spec.paced and spec.inverter_apart:
+                    inverter.hear_writes_of(answer.bridge if answer is not None else host_bridge)
+                elif host_bridge is not None and spec.paced:
+                    inverter.hear_host_writes(host_bridge.written_at)
+                settings = DriverSettings(options.record, 0.1 if processes == "composed" else 0.5,
+                                          options.startup_timeout_s, intra_process)
+                driver = ScenarioDriver(driver_node, scenario, settings, progress if i == 0 else None,
+                                        None if answer else recorders[i], inverter, listener, host_bridge)
+                if answer is not None:
+                    driver.publish_answered = made["drive_bridge"].publish_answered
+                driver.done = Future()
+                drives.append(drive)
+                drivers.append(driver)
+            for node in nodes:
+                ex.add_node(node)
+            all_done = Future()
+            watcher = nodes[-1].create_timer(0.05, lambda: _watch(drivers, children, all_done))
             for driver in drivers:
-                driver.start_allowed = True
-            deadline = time.monotonic() + run_deadline_s([driver.scenario for driver in drivers], options)
-            while not all_done.done():
-                ex.spin_until_future_complete(all_done, timeout_sec=min(1.0, max(deadline - time.monotonic(), 0.0)))
-                if time.monotonic() > deadline:
-                    for driver in drivers:
-                        driver.finish(f"the run did not end within {run_deadline_s([driver.scenario], options):g} "
-                                      f"s of its start (deadline_s; its inverter or answer never finished): "
-                                      f"stopped, the machine's settings given back")
-            if listening:
+                driver.start_allowed = False
+            while not all_done.done() and not all(driver.ready or driver.done.done() for driver in drivers):
+                ex.spin_until_future_complete(all_done, timeout_sec=0.05)
+            with real_time_held(real_time) as scheduling:
+                if listeners_apart(scheduling):
+                    listening = Listening(make_executor(executor, context), listeners)
+                    listening.start()
+                else:
+                    for listener in listeners:
+                        ex.add_node(listener)
+                for driver in drivers:
+                    driver.start_allowed = True
+                deadline = time.monotonic() + run_deadline_s([driver.scenario for driver in drivers], options)
+                while not all_done.done():
+                    ex.spin_until_future_complete(all_done, timeout_sec=min(1.0, max(deadline - time.monotonic(), 0.0)))
+                    if time.monotonic() > deadline:
+                        for driver in drivers:
+                            driver.finish(f"the run did not end within {run_deadline_s([driver.scenario], options):g} "
+                                          f"s of its start (deadline_s; its inverter or answer never finished): "
+                                          f"stopped, the machine's settings given back")
+                if listening:
+                    listening.stop()
+            nodes[-1].destroy_timer(watcher)
+            _stop_answers(answers)
+            results = [_result(driver, drive, options, requested(), hop)
+                       for driver, drive in zip(drivers, drives)]
+        finally:
+            polling.__exit__(None, None, None)
+            _stop_answers(answers)
+            _stop_children([child for _, child in children])
+            if listening is not None:
                 listening.stop()
-        nodes[-1].destroy_timer(watcher)
-        _stop_answers(answers)
-        results = [_result(driver, drive, options, requested(), hop)
-                   for driver, drive in zip(drivers, drives)]
+            tear_down(ex, nodes + listeners, context, inverters, workdir)
+            recording_errors = [_close(recorder) for recorder in recorders]
+        for i, (result, drive) in enumerate(zip(results, drives)):
+            if options.answer is not None and specs[i].bag:
+                recording_errors[i] = _record_answered(result, specs[i], drive)
+        for result, error in zip(results, recording_errors):
+            result.recording_error = error
+            thread = (result.answer or {}).get("scheduling", {"applied": [], "refused": []})
+            result.scheduling = {key: scheduling[key] + thread[key] for key in scheduling}
+        return results
     finally:
-        polling.__exit__(None, None, None)
-        _stop_answers(answers)
-        _stop_children([child for _, child in children])
-        if listening is not None:
-            listening.stop()
-        tear_down(ex, nodes + listeners, context, inverters, workdir)
-        recording_errors = [_close(recorder) for recorder in recorders]
-    for i, (result, drive) in enumerate(zip(results, drives)):
-        if options.answer is not None and specs[i].bag:
-            recording_errors[i] = _record_answered(result, specs[i], drive)
         for lock in locks:
             lock.release()
-    for result, error in zip(results, recording_errors):
-        result.recording_error = error
-        thread = (result.answer or {}).get("scheduling", {"applied": [], "refused": []})
-        result.scheduling = {key: scheduling[key] + thread[key] for key in scheduling}
-    return results
 
 
 @contextlib.contextmanager

@@ -19,6 +19,7 @@ from drive_common.contract.run_result import RunResult
 from drive_common.math.command_delay import command_line, issue_command
 from drive_common.math.safe_state import safe_state_for
 from drive_common.math.winding import R_S_IN_USE
+from drive_common.runtime.bound_kernels import bound
 from drive_common.runtime.interrupt import Interrupted, checkpoint
 from drive_common.runtime.realtime import collector_held
 from drive_tools.doubles.inverter_timing import timing_report
@@ -254,7 +255,7 @@ class _HostAnswer:
         host, N = self.host, self.scenario.block_samples
         e = host.estimator
         fill_inputs(self.inputs, self.currents, np.zeros(N), 1, host.speed_ref, host.tau_feedforward, 0, N)
-        estimator_block(e.step, e.core(e.state.copy()), 0, N, self.inputs, self.line.copy(), self.sensing,
+        bound(estimator_block, e.step)(e.core(e.state.copy()), 0, N, self.inputs, self.line.copy(), self.sensing,
                         self.est_out)
         controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.inputs,
                          self.est_out, self.sensing, self.ctrl_out)
@@ -274,7 +275,7 @@ class _HostAnswer:
         fill_inputs(self.inputs, self.currents, b.theta_m, host.controller.n_p, host.speed_ref, host.tau_feedforward,
                     k0, n)
         self.core.sample[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
-        estimator_block(host.estimator.step, self.core, k0, n, self.inputs, line, self.sensing, self.est_out)
+        bound(estimator_block, host.estimator.step)(self.core, k0, n, self.inputs, line, self.sensing, self.est_out)
         enable, safe = protect(host, self.currents, n, k0 + n - 1, b.u_dc_V, self.est_out[n - 1]["omega_e_hat"],
                                host.controller_x, host.protection_x)
         controller_block(host.controller_x, host.controller_z, host.controller, n, self.inputs, self.est_out,

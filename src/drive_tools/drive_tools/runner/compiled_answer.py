@@ -23,6 +23,7 @@ from drive_bridge.inverter_protocol import COMMAND_MISSING, CONTROL_SEND_HELLO, 
 from drive_common.contract.log import LOG_COLUMNS
 from drive_common.math.command_delay import issue_command
 from drive_common.math.safe_state import safe_state_for
+from drive_common.runtime.bound_kernels import bound
 from drive_common.runtime.sample_ring import drain, free_slot, publish, sample_ring
 from foc_controller.protection import SAFE_STATE, TRIPPED
 
@@ -71,7 +72,7 @@ class HostCore(NamedTuple):
     part_at: np.ndarray
 
 
-@njit(nogil=True, _nrt=False)
+@njit(nogil=True, _nrt=False, inline='always')
 def answer_block(step, h, b, run, block, ring):
     """Block k0 … k0 + n − 1 (``block``: k0, n, the bus [V], the status, when it was read [s]; its samples
     accepted into ``h.received_*``) as bridge_loop's host answers it: the commands of
@@ -120,7 +121,7 @@ def answer_block(step, h, b, run, block, ring):
     return True
 
 
-@njit(nogil=True, _nrt=False)
+@njit(nogil=True, _nrt=False, inline='always')
 def take_part(step, h, b, run, chunk, ring):
     """Samples k0 … k0 + n − 1 (``chunk``: k0, n, the bus [V], the status, when it was read [s]; in
     ``h.chunk_*``) put into blocks as InverterBridge._assemble puts them: after the part of a block held
@@ -147,7 +148,7 @@ def take_part(step, h, b, run, chunk, ring):
     return answer_block(step, h, b, run, (k0, n, u_dc_V, status, arrived), ring)
 
 
-@njit(nogil=True, _nrt=False)
+@njit(nogil=True, _nrt=False, inline='always')
 def give_part(step, h, b, run, ring):
     """The part of a block held (its rest never came) given as it is."""
     part = h.part
@@ -155,7 +156,7 @@ def give_part(step, h, b, run, ring):
     return answer_block(step, h, b, run, (part[PART_K0], n, h.part_at[0], part[PART_STATUS], h.part_at[1]), ring)
 
 
-@njit(nogil=True, _nrt=False)
+@njit(nogil=True, _nrt=False, inline='always')
 def answer_loop(step, h, b, run, ring):
     """Answer the inverter on ``b``'s link until the run's last sample is answered (DONE), Python asks to stop
     or nothing came while it drains (STOPPED), the link failed (compiled_bridge.LINK_DOWN) or, on a CAN cable,
@@ -256,7 +257,7 @@ class CompiledAnswer:
         self._warm_up()
 
     def _warm_up(self):
-        """Compile the loop (not cached: it is specialised on the estimator's step) on copies before the
+        """Load the loop (compiled on a first run, then cached: bound_kernels) on copies before the
         inverter starts: a first call takes seconds. The link is opened for it (and HELLO asked for) if it is
         not open yet."""
         h = self.host
@@ -267,7 +268,7 @@ class CompiledAnswer:
         if not bridge.open:
             bridge.reopen()
         if bridge.open:
-            answer_loop(self.step, copy, cb.load_bridge(bridge), run, sample_ring(1, self.ring.rows.shape[1]))
+            bound(answer_loop, self.step)(copy, cb.load_bridge(bridge), run, sample_ring(1, self.ring.rows.shape[1]))
         empty = sample_ring(1, self.ring.rows.shape[1])
         drain(empty.rows, empty.indices, np.zeros((1, self.ring.rows.shape[1])))
 
@@ -297,7 +298,7 @@ class CompiledAnswer:
                         bridge.reopen()
                     continue
                 self.arrays = arrays = cb.load_bridge(bridge)
-                code = answer_loop(self.step, self.host, arrays, self.run, self.ring)
+                code = bound(answer_loop, self.step)(self.host, arrays, self.run, self.ring)
                 self.arrays = None
                 cb.store_bridge(arrays, bridge)
                 if code == RECONNECT:

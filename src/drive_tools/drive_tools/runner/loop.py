@@ -147,7 +147,7 @@ def write_row(row, t_s, truth, inputs, estimate, command):
     row[27] = estimate.leader
 
 
-@njit(_nrt=False)
+@njit(_nrt=False, inline='always')
 def run_blocks(step, loop, k_start, k_end, log):
     """Run samples k_start..k_end−1 (k_start a multiple of the block size N) of ``loop`` (ClosedLoop), its
     estimator's step kernel ``step``, in blocks of N samples; row k − k_start of ``log`` receives sample k
@@ -163,8 +163,8 @@ def run_blocks(step, loop, k_start, k_end, log):
     bus at its last sample and the speed estimate there; a trip switches the inverter to the safe state
     they chose from the next period on; the estimator's resistive drop takes their R̂_s (R_S_IN_USE) from
     the next block on.
-    Not cached on disk: numba cannot re-save a cache index whose entries are specialised on other
-    processes' step functions ("underlying object has vanished"); the kernels it calls are cached. Like
+    Called bound to the step (drive_common.runtime.bound_kernels: cached on disk per step), inlined into the
+    bound caller so that the step is only ever called, never passed on as a value (which numba cannot cache). Like
     every kernel on the per-sample path it allocates nothing and is compiled without reference counting
     (``_nrt=False``: the counts' atomic updates at each call cost a tenth of a sample's time with N = 1); the
     block kernels are inlined into it (``inline='always'``: a call copies its parameters, flattened, onto the
@@ -200,7 +200,7 @@ def run_blocks(step, loop, k_start, k_end, log):
             write_row(log[k - k_start], k * T_s, (p[6], p[7], p[8], p[9], p[0], p[1], p[2]), inputs[i], e, c)
 
 
-@njit
+@njit(inline='always')
 def replay_samples(step, core, currents, u_applied, encoder, whole, calibration, out):
     """Run an estimator's ``step`` on ``core`` (hf_estimator.block.EstimatorCore) over recorded samples:
     ``currents`` (n × 3, measured a, b, c; corrected by the commissioned ``calibration`` as in the drive),

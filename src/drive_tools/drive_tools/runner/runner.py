@@ -12,6 +12,7 @@ from drive_common.contract.run_result import RunResult
 from drive_common.math.current_sensing import current_sensing
 from drive_common.motor.commissioning import resolve_commissioning
 from drive_common.motor.nameplate import trip_current_A
+from drive_common.runtime.bound_kernels import bound
 from drive_common.runtime.interrupt import Interrupted, checkpoint, deferred
 from foc_controller.build import controller_for_scenario, protection_for_scenario, stated_torque
 from foc_controller.control import controller_state
@@ -52,7 +53,7 @@ class Drive:
     def run(self, k_start, k_end, log):
         """Run samples k_start..k_end−1 of the compiled loop (k_start a multiple of the scenario's
         block_samples); ``log`` receives one row per sample."""
-        run_blocks(self.estimator.step, self.closed_loop(), k_start, k_end, log)
+        bound(run_blocks, self.estimator.step)(self.closed_loop(), k_start, k_end, log)
 
     def closed_loop(self):
         """The loop's cores and states (drive_tools.runner.loop.ClosedLoop); the states are this drive's."""
