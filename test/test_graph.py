@@ -876,8 +876,8 @@ def test_a_late_echo_gets_every_sample_from_its_first(tmp_path):
                                          "1.0", "--no-plot", "--record", str(bag)],
                                 cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=stderr.open("w"))
     wait_for_bag_data(bag, launcher, stderr)
-    echo = subprocess.run(DRIVE + ["echo", "currents", "--namespace", "/late_echo_test", "--json", "--timeout",
-                                   "5"], cwd=tmp_path, capture_output=True, text=True, timeout=60)
+    echo = subprocess.run(DRIVE + ["echo", "currents", "--namespace", "/late_echo_test", "--json", "--count", "1500",
+                                   "--timeout", "60"], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     launcher.wait(timeout=120)
     samples = [round(1e4 * (s["sec"] + 1e-9 * s["nanosec"]))
                for s in (json.loads(line)["header"]["stamp"] for line in echo.stdout.splitlines())]
