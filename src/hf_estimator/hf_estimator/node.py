@@ -169,7 +169,7 @@ class EstimatorNode(DriveNode):
         e = self.estimator
         issue_command(command_line(1), 0, 0.0, 0.0)
         bound(estimator_block, e.step)(e.core(e.state.copy()), 0, 1, drive_inputs(1), command_line(1),
-                        current_sensing(self.calibration, 1.0), estimates(1))
+                                       current_sensing(self.calibration, 1.0), estimates(1))
         winding_block(self.winding_x.copy(), self.winding, np.zeros((1, 3)), 1)
 
     def before_joining(self, k, n):

@@ -149,11 +149,11 @@ def _replay_one(recording, name, inputs, reference):
     e, refused = _built(recording, name)
     out = estimates(len(currents))
     bound(replay_samples, e.step)(e.core(e.state.copy()), currents[:2], u_applied[:2], reference[:2], whole[:2],
-                   calibration, out[:2])
+                                  calibration, out[:2])
     probe = min(len(currents), PROBE_SAMPLES)
     start = time.perf_counter()
     bound(replay_samples, e.step)(e.core(e.state.copy()), currents[:probe], u_applied[:probe], reference[:probe],
-                   whole[:probe], calibration, out[:probe])
+                                  whole[:probe], calibration, out[:probe])
     per_sample_s = (time.perf_counter() - start) / probe
     T_s = recording.T_s
     if per_sample_s > T_s:

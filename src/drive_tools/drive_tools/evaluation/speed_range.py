@@ -104,7 +104,7 @@ def observer_on_run(result, scenario):
     currents, u_applied, whole = logged_inputs(result.log, scenario.drive_delay_periods())
     out = estimates(len(currents))
     bound(replay_samples, e.step)(e.core(e.state.copy()), currents, u_applied, np.zeros((len(currents), 2)), whole,
-                   commissioning.calibration(), out)
+                                  commissioning.calibration(), out)
     log = result.log.copy()
     for field in ESTIMATE_FIELDS:
         log[:, COLUMN[field]] = out[field]

@@ -256,7 +256,7 @@ class _HostAnswer:
         e = host.estimator
         fill_inputs(self.inputs, self.currents, np.zeros(N), 1, host.speed_ref, host.tau_feedforward, 0, N)
         bound(estimator_block, e.step)(e.core(e.state.copy()), 0, N, self.inputs, self.line.copy(), self.sensing,
-                        self.est_out)
+                                       self.est_out)
         controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.inputs,
                          self.est_out, self.sensing, self.ctrl_out)
         protect(host, self.currents, N, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
