@@ -349,7 +349,7 @@ def test_an_outside_client_without_rclpy_commands_both_joints_and_reads_their_st
 ])
 def test_a_bad_command_is_refused_counted_on_diagnostics_and_never_applied(arm, names, velocity, effort, kind):
     """The bad command and a good one are sent in turns: the refusal is counted and the joints follow the good one
-    alone (judged over the last 0.3 s of simulated time, clear of the load's step: test_a_command_timeout_...)."""
+    alone (judged over the last 0.3 s of simulated time, LOAD_SETTLE_S clear of the load stepping on at LOAD_ON_S)."""
     _, client = arm
     good = (["shoulder", "wrist"], [3.0, -3.0], [])
     client.spin_simulated(1.0, good)
