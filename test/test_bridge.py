@@ -688,24 +688,21 @@ def test_a_lock_step_link_is_lost_only_once_the_drive_has_answered_and_the_inver
     import types
     now = [100.0]
     monkeypatch.setattr("drive_bridge.inverter_bridge.time", types.SimpleNamespace(monotonic=lambda: now[0]))
-    bridge = InverterBridge(None, link_timeout_s=0.5, command_timeout_s=20.0, block_samples=10, answer_wait_s=10.0)
-    bridge.lost, bridge.last_telemetry_at, bridge.received_k0 = False, 100.0, 20
-    now[0] = 109.0
-    bridge._check_timeouts()
-    assert not bridge.lost, "the drive still computing its answer is not a lost link"
+
+    def heard_at_100_s(received_k0):
+        bridge = InverterBridge(None, link_timeout_s=0.5, command_timeout_s=20.0, block_samples=10, answer_wait_s=10.0)
+        bridge.lost, bridge.last_telemetry_at, bridge.received_k0 = False, 100.0, received_k0
+        return bridge
+
+    def lost_at(bridge, t):
+        now[0] = t
+        bridge._check_timeouts()
+        return bridge.lost
+    bridge = heard_at_100_s(20)
+    assert not lost_at(bridge, 109.0), "the drive still computing its answer is not a lost link"
     bridge.last_command_at, bridge.answered_k0 = 109.0, 20
-    now[0] = 109.4
-    bridge._check_timeouts()
-    assert not bridge.lost
-    now[0] = 109.6
-    bridge._check_timeouts()
-    assert bridge.lost and bridge.last_error == "no telemetry for 500 ms after its answer"
-    never_answered = InverterBridge(None, link_timeout_s=0.5, command_timeout_s=20.0, block_samples=10,
-                                    answer_wait_s=10.0)
-    never_answered.lost, never_answered.last_telemetry_at, never_answered.received_k0 = False, 100.0, 0
-    now[0] = 110.4
-    never_answered._check_timeouts()
-    assert not never_answered.lost
-    now[0] = 110.6
-    never_answered._check_timeouts()
-    assert never_answered.lost and never_answered.last_error == "no telemetry for 10500 ms"
+    assert not lost_at(bridge, 109.4)
+    assert lost_at(bridge, 109.6) and bridge.last_error == "no telemetry for 500 ms after its answer"
+    never_answered = heard_at_100_s(0)
+    assert not lost_at(never_answered, 110.4)
+    assert lost_at(never_answered, 110.6) and never_answered.last_error == "no telemetry for 10500 ms"

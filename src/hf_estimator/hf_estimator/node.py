@@ -136,6 +136,8 @@ class EstimatorNode(DriveNode):
         self.calibration = self.commissioning.calibration()
         self.estimator = estimator_for_scenario(scenario, self.commissioning)
         self.core = self.estimator.core()
+        self.estimator_block = bound(estimator_block, self.estimator.step)
+        """The estimator's block kernel bound to its step (drive_common.runtime.bound_kernels)."""
         self.winding = winding_params(scenario.motor.nameplate.rated_current_A, self.commissioning.R_s_ohm,
                                       scenario.T_s, scenario.protection)
         self.winding_x = winding_state()
@@ -168,8 +170,8 @@ class EstimatorNode(DriveNode):
     def warm_up(self):
         e = self.estimator
         issue_command(command_line(1), 0, 0.0, 0.0)
-        bound(estimator_block, e.step)(e.core(e.state.copy()), 0, 1, drive_inputs(1), command_line(1),
-                                       current_sensing(self.calibration, 1.0), estimates(1))
+        self.estimator_block(e.core(e.state.copy()), 0, 1, drive_inputs(1), command_line(1),
+                             current_sensing(self.calibration, 1.0), estimates(1))
         winding_block(self.winding_x.copy(), self.winding, np.zeros((1, 3)), 1)
 
     def before_joining(self, k, n):
@@ -329,7 +331,7 @@ class EstimatorNode(DriveNode):
         inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents.T
         inputs["theta_e_encoder_rad"], inputs["omega_e_encoder_rad_s"] = encoder.T
         self.core.sample[0]["R_s_ohm"] = self.winding_x[R_S_IN_USE]
-        bad = bound(estimator_block, self.estimator.step)(self.core, k0, n, inputs, self.line, self.sensing, records)
+        bad = self.estimator_block(self.core, k0, n, inputs, self.line, self.sensing, records)
         winding_block(self.winding_x, self.winding, currents, n)
         if bad:
             self.fault("bad_input", f"currents at samples {k0}..{k0 + n - 1}: {bad} of {n} not finite or beyond "

@@ -247,6 +247,7 @@ class _HostAnswer:
         N = scenario.block_samples
         self.currents, self.inputs = np.zeros((N, 3)), drive_inputs(N)
         self.est_out, self.ctrl_out, self.core = estimates(N), commands(N), host.estimator.core()
+        self.estimator_block = bound(estimator_block, host.estimator.step)
         self.warm_up()
 
     def warm_up(self):
@@ -255,8 +256,7 @@ class _HostAnswer:
         host, N = self.host, self.scenario.block_samples
         e = host.estimator
         fill_inputs(self.inputs, self.currents, np.zeros(N), 1, host.speed_ref, host.tau_feedforward, 0, N)
-        bound(estimator_block, e.step)(e.core(e.state.copy()), 0, N, self.inputs, self.line.copy(), self.sensing,
-                                       self.est_out)
+        self.estimator_block(e.core(e.state.copy()), 0, N, self.inputs, self.line.copy(), self.sensing, self.est_out)
         controller_block(host.controller_x.copy(), host.controller_z.copy(), host.controller, N, self.inputs,
                          self.est_out, self.sensing, self.ctrl_out)
         protect(host, self.currents, N, 0, 0.0, 0.0, host.controller_x.copy(), host.protection_x.copy())
@@ -275,7 +275,7 @@ class _HostAnswer:
         fill_inputs(self.inputs, self.currents, b.theta_m, host.controller.n_p, host.speed_ref, host.tau_feedforward,
                     k0, n)
         self.core.sample[0]["R_s_ohm"] = host.protection_x[R_S_IN_USE]
-        bound(estimator_block, host.estimator.step)(self.core, k0, n, self.inputs, line, self.sensing, self.est_out)
+        self.estimator_block(self.core, k0, n, self.inputs, line, self.sensing, self.est_out)
         enable, safe = protect(host, self.currents, n, k0 + n - 1, b.u_dc_V, self.est_out[n - 1]["omega_e_hat"],
                                host.controller_x, host.protection_x)
         controller_block(host.controller_x, host.controller_z, host.controller, n, self.inputs, self.est_out,
