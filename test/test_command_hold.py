@@ -68,3 +68,41 @@ def test_no_timeout_keeps_a_command_for_good():
     hold = CommandHold(HoldSettings(0.0, math.inf, False, 50.0, 5.0, 2.0), 0.0)
     hold.command(0.0, 2.0)
     assert run(hold, 0.0, 5.0)[-1][1:] == (2.0, 0.0, True)
+
+
+def test_the_compiled_answer_follows_the_command_it_is_given_as_the_node_would():
+    """What a compiled answer follows (command_now's speed command, evaluated block by block from its own reference by
+    speed_command.commanded_speed) is what ``reference`` gives the nodes' answer, through a timeout, the ramp and
+    the hold, a position command included; and the live command's rows are written before their index."""
+    import numpy as np
+
+    from drive_tools.launch.axis_answer import LiveCommand
+    from drive_tools.runner.compiled_answer import COMMAND_SLOT, COMMAND_SLOTS, RUN_FIELDS
+    from foc_controller.speed_command import commanded_speed, speed_command
+    nodes, compiled = CommandHold(SETTINGS, 0.0), CommandHold(SETTINGS, 0.0)
+    for hold in (nodes, compiled):
+        hold.command(0.0, 1.5, 0.1)
+    live = LiveCommand(np.tile(speed_command(0.0), (COMMAND_SLOTS, 1)), np.zeros(1), np.zeros(RUN_FIELDS, np.int64))
+    speed, slots = 0.0, set()
+    for i in range(600):
+        t, theta = i * DT_S, 0.3 * math.sin(i * DT_S)
+        if i == 400:
+            for hold in (nodes, compiled):
+                hold.command(t, None, None, theta_ref=0.2)
+        expected = nodes.reference(t, DT_S, theta)
+        command, feedforward, torque = compiled.command_now(t, DT_S, theta)
+        live.write(command, feedforward)
+        slots.add(int(live.run[COMMAND_SLOT]))
+        speed = commanded_speed(live.commands[live.run[COMMAND_SLOT]], speed, theta, DT_S)
+        assert (speed, live.tau_feedforward[0], torque) == pytest.approx(expected), i
+    assert nodes.mode == compiled.mode and slots == set(range(COMMAND_SLOTS))
+
+
+def test_a_speed_command_steps_or_ramps_and_a_position_command_is_bounded():
+    from foc_controller.speed_command import commanded_speed, position_command, speed_command
+    assert commanded_speed(speed_command(3.0), -1.0, 0.0, DT_S) == 3.0, "a rate of ∞ steps"
+    assert commanded_speed(speed_command(3.0, 100.0), 1.0, 0.0, DT_S) == pytest.approx(1.1)
+    assert commanded_speed(speed_command(1.05, 100.0), 1.0, 0.0, DT_S) == 1.05, "within a step: the target"
+    assert commanded_speed(speed_command(0.0, 100.0), math.nan, 0.0, DT_S) == 0.0, "no reference yet: the target"
+    assert commanded_speed(position_command(1.0, 0.5, 4.0, 2.0), 0.0, 0.8, DT_S) == pytest.approx(1.3)
+    assert commanded_speed(position_command(1.0, 0.5, 4.0, 2.0), 0.0, -5.0, DT_S) == 2.0

@@ -318,3 +318,18 @@ def test_the_sample_ring_hands_over_every_row_in_order_and_counts_what_a_full_ri
     head, tail, dropped = ring.indices[HEAD], ring.indices[TAIL], ring.indices[OVERFLOW]
     assert read == accepted[:len(read)] and dropped > 0
     assert value == head + dropped and head - tail == len(accepted) - len(read) <= 16
+
+
+@pytest.mark.unit
+def test_the_rings_rows_are_put_back_into_whole_blocks_however_they_were_drained():
+    """A block of N samples whose rows the ring's reader drained in two parts is handed on whole and in order; rows
+    that start no whole block (a gap in the samples) are left out (drive_tools.runner.compiled_answer.RingBlocks)."""
+    import numpy as np
+
+    from drive_tools.runner.compiled_answer import RING_K, RingBlocks
+    N, rows = 10, np.zeros((60, 4))
+    rows[:, RING_K] = np.r_[0:30, 35:45, 50:60, 60:70]
+    assembled = RingBlocks(N, 4)
+    handed = [b for part in np.split(rows, [7, 13, 29, 41, 58]) for b in assembled.blocks(part)]
+    assert [int(b[0, RING_K]) for b in handed] == [0, 10, 20, 50, 60]
+    assert all(len(b) == N and np.array_equal(b[:, RING_K], b[0, RING_K] + np.arange(N)) for b in handed)

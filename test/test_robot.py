@@ -77,6 +77,10 @@ axes:
     ("format_version: 1\ninitial_state: on\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can}\n",
      "initial_state: must be one of"),
     ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: wire}\n", "axes[0].link: must be one"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can, inverter_apart: true}\n",
+     "axes[0].inverter_apart: a virtual inverter apart needs link: virtual and paced: true"),
+    ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can, answer: python}\n",
+     "axes[0].answer: must be one of"),
     ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can, homing: {method: hard_stop, "
      "direction: 1}}\n", "axes[0].homing: hard_stop: give current_A or torque_Nm"),
     ("format_version: 1\naxes:\n  - {joint: a, drive: arm_drive.yaml, link: can, homing: {method: index, "
@@ -264,6 +268,20 @@ class Client:
         self.context.try_shutdown()
 
 
+UP_WAIT_S = 300.0
+"""The longest `drive up` may take to say it is up: its axes' compiled answer is compiled once after an install or an
+edit (tens of seconds, longer with the suite's other worker compiling too)."""
+
+
+def wait_until_up(process, log):
+    """Wait until `drive up` said its axes are in their initial state (its "drive up: N axes: ..." line on ``log``)."""
+    deadline = time.monotonic() + UP_WAIT_S
+    while not re.search(r"^drive up: \d+ axes?:", log.read_text(), re.MULTILINE):
+        assert process.poll() is None, log.read_text()[-2000:]
+        assert time.monotonic() < deadline, f"not up within {UP_WAIT_S:g} s: {log.read_text()[-2000:]}"
+        time.sleep(0.2)
+
+
 @pytest.fixture(scope="module")
 def arm(tmp_path_factory):
     """`drive up` of a two-axis arm (shoulder, wrist: virtual inverters) left inactive, and this process's client."""
@@ -276,6 +294,7 @@ def arm(tmp_path_factory):
     process.folder = folder
     client = Client()
     try:
+        wait_until_up(process, folder / "up.log")
         assert client.lifecycle("/shoulder") == "inactive"
         yield process, client
     finally:
@@ -443,14 +462,17 @@ def recorded_whole(bag, report):
         assert np.sqrt(np.mean(error ** 2)) < 0.1, (namespace, np.sqrt(np.mean(error ** 2)))
 
 
-def test_a_lost_link_brings_every_axis_to_its_safe_state_and_exits_3(tmp_path):
-    """The shoulder's simulation ends after 4 s: its link goes silent, and `drive up` stops every axis."""
+@pytest.mark.parametrize("answer", ["compiled", "nodes"])
+def test_a_lost_link_brings_every_axis_to_its_safe_state_and_exits_3(tmp_path, answer):
+    """The shoulder's simulation ends after 4 s: its link goes silent, and `drive up` stops every axis; either answer
+    (the other tests arm the default, compiled)."""
     drive_files(tmp_path, duration_s=4.0, load=False)
-    path = robot_file(tmp_path, ARM.replace("format_version: 1", "format_version: 1\ninitial_state: active"))
+    text = ARM.replace("format_version: 1", "format_version: 1\ninitial_state: active")
+    path = robot_file(tmp_path, text.replace("paced: false", f"paced: false, answer: {answer}"))
     run = subprocess.run([str(DRIVE), "up", str(path), "--json", "--record", "robot_bag"], cwd=tmp_path,
-                         capture_output=True, text=True, timeout=120)
+                         capture_output=True, text=True, timeout=300)
     assert run.returncode == 3, run.stderr[-800:]
-    assert "link is lost" in run.stderr.splitlines()[-1]
+    assert "link is lost (no telemetry for" in run.stderr.splitlines()[-1]
     report = json.loads(run.stdout)
     for axis in report["axes"]:
         assert axis["safe_state_sent"] >= 1, axis

@@ -15,6 +15,7 @@ faults are counted and reported, never raised (docs/inverter-protocol.md, "The h
 import math
 import sys
 import threading
+import time
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticStatus
@@ -131,16 +132,29 @@ class InverterBridgeNode(DriveNode):
         self.history = {}
         self.reported = {}
         self.running = True
+        self.currents_msg, self.rotor_msg, self.clock_msg = Vector3Stamped(), JointState(name=["rotor"]), Clock()
+        self.currents_msg.header.frame_id = TOPICS[CURRENTS].frame_id
+        self.previous_encoder = None
+        """(k, θ_m) of the last sample with a valid encoder angle (per-sample topics: its speed by difference)."""
+        self.link_handed_over = False
+        self.link_idle = threading.Event()
+        """Set by the link thread while the link is handed over and it does not poll."""
         self.thread = threading.Thread(target=self.read_link, name="drive_bridge_link", daemon=True)
         if not answered_elsewhere:
             self.thread.start()
 
     def read_link(self):
-        """The link thread: poll, publish each sample (each whole block), report new faults."""
-        currents, rotor, clock = Vector3Stamped(), JointState(name=["rotor"]), Clock()
-        currents.header.frame_id = TOPICS[CURRENTS].frame_id
-        previous, logged = None, ""
+        """The link thread: poll, publish each sample (each whole block), report new faults; while a compiled
+        answer owns the link (hand_link_over), nothing."""
+        logged = ""
         while self.running:
+            if self.link_handed_over:
+                self.link_idle.set()
+                time.sleep(0.02)
+                continue
+            self.link_idle.clear()
+            if self.link_handed_over:
+                continue
             blocks = self.bridge.poll_blocks(0.02)
             if not self.bridge.open and self.bridge.last_error not in ("", logged):
                 logged = self.bridge.last_error
@@ -149,36 +163,54 @@ class InverterBridgeNode(DriveNode):
             hello = self.bridge.hello
             if hello is not None and self.T_s is None:
                 self.configure(hello)
-            if self.block_samples > 1:
-                for b in blocks:
-                    self.publish_block(b, clock)
-                self.report_new_faults()
-                continue
+            self.publish_blocks(blocks)
+
+    def hand_link_over(self):
+        """From now on a compiled answer of this process reads and writes the link (drive_tools.launch.axis_answer):
+        the link thread stops polling; returns once it has (within a poll)."""
+        self.link_idle.clear()
+        self.link_handed_over = True
+        if self.thread.is_alive():
+            self.link_idle.wait(1.0)
+
+    def take_link_back(self):
+        """The link thread polls the link again."""
+        self.link_handed_over = False
+
+    def publish_blocks(self, blocks):
+        """Publish each sample (each whole block) of ``blocks`` (BridgeBlocks), then report new faults."""
+        if self.block_samples > 1:
             for b in blocks:
-                self.report_zero_volts(b)
-            for s in (s for b in blocks for s in b.samples()):
-                self.k = s.k
-                velocity = None
-                if not math.isnan(s.theta_m):
-                    velocity = (s.theta_m - previous[1]) / ((s.k - previous[0]) * self.T_s) \
-                        if previous and s.k > previous[0] else 0.0
-                    self.history[s.k] = (s.theta_m, velocity)
-                    self.history.pop(s.k - HISTORY_SAMPLES, None)
-                    previous = (s.k, s.theta_m)
-                if self.estimator is not None:
-                    self.hand_sample(s, velocity)
-                t = stamp(s.k, self.T_s)
-                if self.clock_pub:
-                    clock.clock = t
-                    self.clock_pub.publish(clock)
-                if velocity is not None:
-                    rotor.header.stamp = t
-                    rotor.position, rotor.velocity, rotor.effort = [s.theta_m], [velocity], [math.nan]
-                    self.rotor_state_pub.publish(rotor)
-                currents.header.stamp = t
-                currents.vector.x, currents.vector.y, currents.vector.z = s.i_a, s.i_b, s.i_c
-                self.currents_pub.publish(currents)
+                self.publish_block(b, self.clock_msg)
             self.report_new_faults()
+            return
+        currents, rotor, clock = self.currents_msg, self.rotor_msg, self.clock_msg
+        for b in blocks:
+            self.report_zero_volts(b)
+        for s in (s for b in blocks for s in b.samples()):
+            self.k = s.k
+            velocity = None
+            previous = self.previous_encoder
+            if not math.isnan(s.theta_m):
+                velocity = (s.theta_m - previous[1]) / ((s.k - previous[0]) * self.T_s) \
+                    if previous and s.k > previous[0] else 0.0
+                self.history[s.k] = (s.theta_m, velocity)
+                self.history.pop(s.k - HISTORY_SAMPLES, None)
+                self.previous_encoder = (s.k, s.theta_m)
+            if self.estimator is not None:
+                self.hand_sample(s, velocity)
+            t = stamp(s.k, self.T_s)
+            if self.clock_pub:
+                clock.clock = t
+                self.clock_pub.publish(clock)
+            if velocity is not None:
+                rotor.header.stamp = t
+                rotor.position, rotor.velocity, rotor.effort = [s.theta_m], [velocity], [math.nan]
+                self.rotor_state_pub.publish(rotor)
+            currents.header.stamp = t
+            currents.vector.x, currents.vector.y, currents.vector.z = s.i_a, s.i_b, s.i_c
+            self.currents_pub.publish(currents)
+        self.report_new_faults()
 
     def publish_block(self, b, clock):
         """A whole block (its first sample a multiple of N, N samples; a part of one is dropped):
@@ -298,9 +330,10 @@ class InverterBridgeNode(DriveNode):
         if self.T_s is None:
             return
         k0 = sample_at(sec, nanosec, self.T_s)
-        if k0 not in self.history or not len(theta_m_hat) or not finite(theta_m_hat[0], omega_m_hat[0]):
+        encoder = self.history.get(k0)
+        if encoder is None or not len(theta_m_hat) or not finite(theta_m_hat[0], omega_m_hat[0]):
             return
-        theta, velocity = self.history[k0]
+        theta, velocity = encoder
         error = Vector3Stamped()
         error.header.stamp = stamp(k0, self.T_s)
         error.vector.x = wrap(self.n_p * (theta[0] - theta_m_hat[0]))
@@ -363,9 +396,10 @@ class InverterBridgeNode(DriveNode):
         if self.T_s is None:
             return
         k = sample_of(msg.header, self.T_s)
-        if k not in self.history or not finite(*msg.position, *msg.velocity):
+        encoder = self.history.get(k)
+        if encoder is None or not finite(*msg.position, *msg.velocity):
             return
-        theta_m, omega_m = self.history[k]
+        theta_m, omega_m = encoder
         error = Vector3Stamped()
         error.header.stamp = msg.header.stamp
         error.vector.x = wrap(self.n_p * (theta_m - msg.position[0]))

@@ -44,7 +44,7 @@ FRAME_ERRORS = len(COUNTERS)
 
 STATE = ("fd", "last_seq", "k_offset", "status", "theta_m", "last_telemetry_at", "last_command_at", "lost", "safe",
          "clear_sent", "hello", "current_lsb_A", "voltage_lsb_V", "block_samples", "link_timeout_s",
-         "command_timeout_s", "rx_bytes", "link_kind", "can_base", "peer_lost")
+         "command_timeout_s", "rx_bytes", "link_kind", "can_base", "peer_lost", "answer_wait_s")
 S = {name: i for i, name in enumerate(STATE)}
 """state[S[name]]: InverterBridge's attribute of that name (NaN for its None; hello: 1 taken, 0 none), the
 link's descriptor, the bytes waiting in ``rx`` for their delimiter (serial) or the CAN frame read (CAN), the
@@ -52,7 +52,7 @@ link's kind (SERIAL, CABLE, SOCKETCAN), the drive's base CAN identifier and, on 
 member is missing (0: connected; PEER_GONE, PEER_NONE)."""
 FD, LAST_SEQ, K_OFFSET, STATUS, THETA_M, LAST_TELEMETRY_AT, LAST_COMMAND_AT, LOST, SAFE, CLEAR_SENT = range(10)
 HAS_HELLO, CURRENT_LSB, VOLTAGE_LSB, BLOCK_SAMPLES, LINK_TIMEOUT, COMMAND_TIMEOUT, RX_BYTES = range(10, 17)
-LINK_KIND, CAN_BASE, PEER_LOST = range(17, 20)
+LINK_KIND, CAN_BASE, PEER_LOST, ANSWER_WAIT = range(17, 21)
 SERIAL, CABLE, SOCKETCAN = 0, 1, 2
 """The link's kind: a serial port (COBS frames in a byte stream); drive_bridge.can_cable's datagrams (a 5-byte
 header: identifier u32 LE, flags; then the data); a SocketCAN raw socket (struct can_frame, 16 bytes, or struct
@@ -86,12 +86,13 @@ class TelemetryArrays(NamedTuple):
     timespec: np.ndarray
 
 
-def bridge_state(block_samples, link_timeout_s, command_timeout_s):
+def bridge_state(block_samples, link_timeout_s, command_timeout_s, answer_wait_s=0.0):
     """(state, counters) of a bridge that has heard nothing: no sequence, no time, the link lost."""
     state = np.zeros(len(STATE))
     state[[LAST_SEQ, THETA_M, LAST_TELEMETRY_AT, LAST_COMMAND_AT]] = np.nan
     state[LOST] = 1.0
     state[BLOCK_SAMPLES], state[LINK_TIMEOUT], state[COMMAND_TIMEOUT] = block_samples, link_timeout_s, command_timeout_s
+    state[ANSWER_WAIT] = answer_wait_s
     return state, np.zeros(FRAME_ERRORS + len(fc.FRAME_ERROR_KINDS), dtype=np.int64)
 
 
@@ -155,7 +156,7 @@ def load_bridge(bridge):
     connected to the bus's other member (PEER_LOST while there is none)."""
     state, counters = bridge.state, bridge.counter_array
     link = bridge.link
-    for name in ("block_samples", "link_timeout_s", "command_timeout_s"):
+    for name in ("block_samples", "link_timeout_s", "command_timeout_s", "answer_wait_s"):
         state[S[name]] = _value(getattr(bridge, name))
     kind, fd = link_kind(link)
     state[FD], state[LINK_KIND] = fd, kind
@@ -475,11 +476,18 @@ def write_commands(b, k0, u_alpha_V, u_beta_V, n, enable, safe_state):
 
 @njit(cache=True, nogil=True)
 def check_silence(b):
-    """InverterBridge._check_timeouts: the link lost after ``link_timeout_s`` without telemetry; the safe state
-    (CONTROL 1) after ``command_timeout_s`` without a command while the link is up. False when the link
-    failed."""
+    """InverterBridge._check_timeouts: the link lost after ``link_timeout_s`` without telemetry (an inverter in
+    lock-step, ``answer_wait_s`` > 0: while telemetry taken after the last command is owed an answer, after
+    ``answer_wait_s`` more; once answered, ``link_timeout_s`` after the answer); the safe state (CONTROL 1)
+    after ``command_timeout_s`` without a command while the link is up. False when the link failed."""
     s, now = b.state, monotonic_s(b.timespec)
-    if not math.isnan(s[LAST_TELEMETRY_AT]) and now - s[LAST_TELEMETRY_AT] > s[LINK_TIMEOUT] and s[LOST] == 0.0:
+    since, timeout = s[LAST_TELEMETRY_AT], s[LINK_TIMEOUT]
+    if s[ANSWER_WAIT] > 0.0 and not math.isnan(since):
+        if not math.isnan(s[LAST_COMMAND_AT]) and s[LAST_COMMAND_AT] >= since:
+            since = s[LAST_COMMAND_AT]
+        else:
+            timeout += s[ANSWER_WAIT]
+    if not math.isnan(since) and now - since > timeout and s[LOST] == 0.0:
         s[LOST] = 1.0
         b.counters[LINK_LOST] += 1
     if (s[LOST] == 0.0 and s[SAFE] == 0.0 and not math.isnan(s[LAST_COMMAND_AT])

@@ -133,7 +133,8 @@ class InverterBridge:
     lock-step (a virtual one that sends its next block only once answered): while the host owes an answer (telemetry
     taken after its last command) the link is lost only after link_timeout_s + answer_wait_s (a slow drive is not a
     silent link); once it has answered, after link_timeout_s from its answer (a simulation that ended is seen at
-    once). The compiled answer's check keeps the longer timeout throughout."""
+    once); the compiled answer's check (compiled_bridge.check_silence) keeps the same rule by the times of the last
+    telemetry and the last command."""
 
     def __init__(self, link, link_timeout_s=LINK_TIMEOUT_S, command_timeout_s=COMMAND_TIMEOUT_S,
                  reconnect_s=RECONNECT_S, block_samples=1, answer_wait_s=0.0):
@@ -144,8 +145,8 @@ class InverterBridge:
         self.received_k0 = self.answered_k0 = -1
         """The first sample of the last telemetry block taken, and of the last block answered."""
         self.reconnect_s = reconnect_s
-        self.state, self.counter_array = cb.bridge_state(block_samples, link_timeout_s + answer_wait_s,
-                                                         command_timeout_s)
+        self.state, self.counter_array = cb.bridge_state(block_samples, link_timeout_s, command_timeout_s,
+                                                         answer_wait_s)
         """Its state and counters as arrays (compiled_bridge.STATE, COUNTERS), the attributes below views of
         them: the telemetry is taken by the kernel the compiled answer runs (compiled_bridge.accept_telemetry),
         which changes them in place."""
@@ -177,6 +178,11 @@ class InverterBridge:
     lost = _state_field(cb.LOST, bool)
     safe = _state_field(cb.SAFE, bool)
     clear_sent = _state_field(cb.CLEAR_SENT, bool)
+
+    @property
+    def lost_reason(self):
+        """Why the link is lost, in a few words (the compiled answer's check counts a silence but keeps no words)."""
+        return self.last_error or f"no telemetry for {self.link_timeout_s * 1e3:g} ms"
 
     @property
     def hello(self):

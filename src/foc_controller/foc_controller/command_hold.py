@@ -9,7 +9,7 @@ held at that target. No rclpy: the controller node calls it once per sample or b
 import math
 from dataclasses import dataclass
 
-from .position import position_speed
+from .speed_command import commanded_speed, position_command, speed_command
 
 FOLLOWING, STOPPING, HOLDING, RELEASED = "following", "stopping", "holding", "released"
 HOLD_GAIN_PER_SPEED_ZERO = 0.25
@@ -46,6 +46,8 @@ class CommandHold:
         self.theta_hold = math.nan
         self.theta_ref = math.nan
         """The position command's target [rad, the estimated mechanical angle's], NaN: a speed command."""
+        self.speed = 0.0
+        """The last speed reference ``reference`` gave [rad/s]."""
         self.timeouts = 0
 
     def command(self, now_s, omega_m_ref=None, tau_feedforward=None, theta_ref=None):
@@ -67,15 +69,23 @@ class CommandHold:
 
     def reference(self, now_s, dt_s, theta_m_hat):
         """(ω*_m [rad/s], τ_ff [N·m], torque allowed) for the next ``dt_s`` [s] of samples, at ``now_s`` [s],
-        the estimated mechanical angle being ``theta_m_hat`` [rad]."""
+        the estimated mechanical angle being ``theta_m_hat`` [rad]: ``command_now``'s command followed from the last
+        reference given."""
+        command, tau_feedforward, torque = self.command_now(now_s, dt_s, theta_m_hat)
+        self.speed = commanded_speed(command, self.speed, theta_m_hat, dt_s)
+        return self.speed, tau_feedforward, torque
+
+    def command_now(self, now_s, dt_s, theta_m_hat):
+        """(the speed command to follow for the next ``dt_s`` [s] of samples (foc_controller.speed_command), τ_ff
+        [N·m], torque allowed), at ``now_s`` [s], the estimated mechanical angle being ``theta_m_hat`` [rad]."""
         s = self.settings
         age = self.age_s(now_s)
         positioned = not math.isnan(self.theta_ref)
         if s.timeout_s <= 0.0 or age <= s.timeout_s:
             if positioned:
-                return position_speed(self.theta_ref, self.omega_m_ref, theta_m_hat, s.gain_per_s,
-                                      s.velocity_limit_rad_s), self.tau_feedforward, True
-            return self.omega_m_ref, self.tau_feedforward, True
+                return position_command(self.theta_ref, self.omega_m_ref, s.gain_per_s,
+                                        s.velocity_limit_rad_s), self.tau_feedforward, True
+            return speed_command(self.omega_m_ref), self.tau_feedforward, True
         if self.mode == FOLLOWING and positioned:
             self.mode, self.theta_hold = (RELEASED if s.brake else HOLDING), self.theta_ref
             self.timeouts += 1
@@ -83,14 +93,12 @@ class CommandHold:
             self.mode, self.ramp = STOPPING, self.omega_m_ref
             self.timeouts += 1
         if self.mode == STOPPING:
-            step = s.deceleration_rad_s2 * dt_s
-            self.ramp = 0.0 if abs(self.ramp) <= step else self.ramp - math.copysign(step, self.ramp)
+            self.ramp = commanded_speed(speed_command(0.0, s.deceleration_rad_s2), self.ramp, theta_m_hat, dt_s)
             if self.ramp == 0.0:
                 self.mode, self.theta_hold = (RELEASED if s.brake else HOLDING), theta_m_hat
-            return self.ramp, self.tau_feedforward, True
+            return speed_command(0.0, s.deceleration_rad_s2), self.tau_feedforward, True
         if self.mode == HOLDING and age > s.hold_timeout_s:
             self.mode = RELEASED
         if self.mode == RELEASED:
-            return 0.0, 0.0, False
-        held = s.gain_per_s * (self.theta_hold - theta_m_hat)
-        return max(-s.hold_speed_rad_s, min(s.hold_speed_rad_s, held)), self.tau_feedforward, True
+            return speed_command(0.0), 0.0, False
+        return position_command(self.theta_hold, 0.0, s.gain_per_s, s.hold_speed_rad_s), self.tau_feedforward, True

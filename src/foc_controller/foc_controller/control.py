@@ -33,10 +33,13 @@ from drive_common.math.tables import table_value
 # protections set: the current limit's foldback [A], the share of braking current cut, foc_controller.protection;
 # 0: none; then the I-f start's: open loop on, the ramp's angle and speed, the stabilising loop's filtered speed,
 # the lock samples left, the samples the observer agreed, a mode switch pending (+1 to closed loop, −1 to open
-# loop); the ramped speed reference [rad/s, mechanical]); the notch states (d, q) live in a separate array.
+# loop); the ramped speed reference [rad/s, mechanical]; torque released (1: the robot's command hold let the
+# joint go, foc_controller.command_hold: no torque although the estimator tracks; written by the caller); the
+# notch states (d, q) live in a separate array.
 (INT_D, INT_Q, INT_SPEED, OMEGA_FILTERED, TORQUE_ALLOWED, LAST_THETA, STARTED, FOLDBACK_A, REGEN_CUT,
- IF_MODE, IF_THETA, IF_RAMP, IF_FILTERED, IF_ALIGN_LEFT, IF_AGREED, IF_SWITCH, SPEED_RAMPED) = range(17)
-N_STATE = 17
+ IF_MODE, IF_THETA, IF_RAMP, IF_FILTERED, IF_ALIGN_LEFT, IF_AGREED, IF_SWITCH, SPEED_RAMPED,
+ TORQUE_RELEASED) = range(18)
+N_STATE = 18
 IF_ANGLE_LIMIT_RAD = math.pi / 2.0
 """The stabilising loop turns the I-f current by at most this (π/4 held a rotor's swing from 2 rad at the lock
 to a 10 % decay per period on a heavy rotor); a hand-back sets the load angle within IF_HANDBACK_ANGLE_RAD."""
@@ -219,7 +222,7 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
     if open_loop:
         pass
     elif state == TRACKING:
-        x[TORQUE_ALLOWED] = 1.0
+        x[TORQUE_ALLOWED] = 1.0 - x[TORQUE_RELEASED]
     elif state == ALIGNING or state == POLARITY or state == LOCK_LOST:
         x[TORQUE_ALLOWED] = 0.0
     jump = theta_e_hat - x[LAST_THETA] - omega_frame * c.T_s_s

@@ -37,6 +37,7 @@ from drive_common.config.parameters import SCHEDULE_PARAMETER
 from drive_common.contract.drive_records import commands, drive_inputs
 from drive_common.contract.estimator_records import estimates
 from drive_common.contract.estimator_states import HOLD, TRACKING
+from drive_common.contract.log import COLUMN
 from drive_common.contract.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_common.contract.topics import (
     CURRENTS,
@@ -58,7 +59,14 @@ from drive_common.ros.node import DriveNode, describe, finite, run_node, stamp, 
 
 from .build import check_controller_settings, controller_for_scenario, protection_for_scenario, stated_torque
 from .command_hold import HOLD_GAIN_PER_SPEED_ZERO, STOP_TIME_S, CommandHold, HoldSettings
-from .control import OMEGA_FILTERED, TORQUE_ALLOWED, controller_block, controller_state, estimated_torque
+from .control import (
+    OMEGA_FILTERED,
+    TORQUE_ALLOWED,
+    TORQUE_RELEASED,
+    controller_block,
+    controller_state,
+    estimated_torque,
+)
 from .params import check_speed_limit
 from .position import HARD_STOP, HOMING_METHODS, Homing, HomingSettings, search_acceleration
 from .protection import protection_block, protection_state
@@ -502,9 +510,7 @@ class ControllerNode(DriveNode):
             estimated["u_inj_alpha"], estimated["u_inj_beta"] = injection
             estimated["eps"], estimated["signal"], estimated["state"] = state
             released = not self.schedule and not torque
-            if released:
-                self.x[TORQUE_ALLOWED] = 0.0
-                estimated["state"] = np.where(estimated["state"] == TRACKING, HOLD, estimated["state"])
+            self.release_torque(released)
             measured = np.column_stack(currents)
             inputs = drive_inputs(n)
             inputs["i_a_A"], inputs["i_b_A"], inputs["i_c_A"] = currents
@@ -515,40 +521,90 @@ class ControllerNode(DriveNode):
             if bad:
                 self.fault("bad_input", f"currents at samples {k0}..{k0 + n - 1}: {bad} of {n} not finite or beyond "
                                         f"the {self.trip_A:g} A trip, or a non-finite estimate; zero voltage there")
-            self.last_i_q = float(out["i_q_A"][-1])
-            current_ref = np.hypot(out["i_d_ref_A"], out["i_q_ref_A"])
-            self.current_limited = bool(current_ref[-1] >= (1.0 - 1e-9) * self.params.i_max_A)
-            if not released and not self.homing_now:
-                self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], current_ref, state[2]))
-            joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
-            if joint is not None:
-                j = JointState(name=self.joint_msg.name, position=[self.joint_position(float(estimate[0][joint]))],
-                               velocity=[self.x[OMEGA_FILTERED] / self.n_p],
-                               effort=[estimated_torque(self.params, out[joint]["i_d_A"], out[joint]["i_q_A"])])
-                j.header.stamp = stamp(k0 + joint + self.stamp_origin, self.T_s)
-                self.joint_msg = j
-                self.joint_pub.publish(j)
+            self.note_block(k0, (speed, estimate, state[2]), out, released)
         elif self.params and not self.health.latched:
             self.fault("bad_input", f"block {k0}: inputs of unequal length; zero voltage")
         u_alpha, u_beta = out["u_alpha_V"], out["u_beta_V"]
-        sec, nanosec = stamp_parts(k0 + self.stamp_origin, self.T_s)
-        if self.block_samples > 1:
-            message = self.block_wire.encode(sec, nanosec, u_alpha, u_beta)
-        else:
+        if self.block_samples == 1:
             u_alpha, u_beta = float(u_alpha[0]), float(u_beta[0])
-            message = self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0)
         if self.hand_commands:
             self.hand_commands(k0, u_alpha, u_beta)
         if self.commands_to_estimator:
             self.commands_to_estimator(k0, u_alpha, u_beta)
-        self.voltage_pub.publish(message)
+        self.publish_voltages(k0, u_alpha, u_beta)
         self.sample_handled(k0 + n - 1)
         return k0 + n
 
-    def reference(self, n, estimate, state):
+    def publish_voltages(self, k0, u_alpha, u_beta):
+        """The voltage commands of the samples from k0 (arrays: a block, on the block twin; floats: one sample)."""
+        sec, nanosec = stamp_parts(k0 + self.stamp_origin, self.T_s)
+        if self.block_samples > 1:
+            self.voltage_pub.publish(self.block_wire.encode(sec, nanosec, u_alpha, u_beta))
+        else:
+            self.voltage_pub.publish(self.voltage_wire.encode(sec, nanosec, u_alpha, u_beta, 0.0))
+
+    def note_block(self, k0, inputs, out, released):
+        """What the controller tells of the n samples from k0 it answered: ``inputs`` (the speed reference per
+        sample [rad/s], the estimate (θ̂_m [rad], ω̂_m [rad/s]) and the estimator's state code per sample), ``out``
+        its COMMAND records; the speed supervision (not while the torque is released or the joint homes) and,
+        every ``joint_states_decimation`` samples, `joint_states`."""
+        speed, estimate, codes = inputs
+        n = len(out)
+        self.last_i_q = float(out["i_q_A"][-1])
+        current_ref = np.hypot(out["i_d_ref_A"], out["i_q_ref_A"])
+        self.current_limited = bool(current_ref[-1] >= (1.0 - 1e-9) * self.params.i_max_A)
+        if not released and not self.homing_now:
+            self.supervise(self.supervisor.update(k0, speed, self.n_p * estimate[1], current_ref, codes))
+        joint = next((i for i in range(n) if (k0 + i) % self.decimation == 0), None)
+        if joint is not None:
+            j = JointState(name=self.joint_msg.name, position=[self.joint_position(float(estimate[0][joint]))],
+                           velocity=[self.x[OMEGA_FILTERED] / self.n_p],
+                           effort=[estimated_torque(self.params, out[joint]["i_d_A"], out[joint]["i_q_A"])])
+            j.header.stamp = stamp(k0 + joint + self.stamp_origin, self.T_s)
+            self.joint_msg = j
+            self.joint_pub.publish(j)
+
+    def take_answered(self, k0, rows, live):
+        """What a compiled answer (drive_tools.launch.axis_answer) answered for the drive's samples k0 … k0 + n − 1,
+        from their log rows (drive_common.contract.log.LOG_COLUMNS), on the answer's ring reader (not real-time):
+        what the joint is told for the blocks to come (homing, the command hold, the position loop: ``reference``'s
+        speed command) written into ``live`` (axis_answer.LiveCommand), the torque released or not
+        (control.TORQUE_RELEASED, read by the answer's next sample), then what note_block tells and the voltage
+        commands published."""
+        n = len(rows)
+        estimate = (rows[:, COLUMN["theta_e_hat"]] / self.n_p, rows[:, COLUMN["omega_e_hat"]] / self.n_p)
+        codes = rows[:, COLUMN["state"]]
+        with self.sample_lock:
+            if not self.params or self.health.latched:
+                return
+            command, feedforward, torque = self.reference(n, estimate, (None, None, codes), followed=False)
+            live.write(command, feedforward)
+            self.x[TORQUE_RELEASED] = 0.0 if torque else 1.0
+            self.k = k0 + n
+            out = commands(n)
+            for column, name in (("u_alpha", "u_alpha_V"), ("u_beta", "u_beta_V"), ("i_d", "i_d_A"),
+                                 ("i_q", "i_q_A"), ("i_d_ref", "i_d_ref_A"), ("i_q_ref", "i_q_ref_A")):
+                out[name] = rows[:, COLUMN[column]]
+            self.note_block(k0, (rows[:, COLUMN["omega_m_ref"]], estimate, codes), out, not torque)
+            if self.block_samples > 1:
+                self.publish_voltages(k0, out["u_alpha_V"], out["u_beta_V"])
+            else:
+                for i in range(n):
+                    self.publish_voltages(k0 + i, float(out[i]["u_alpha_V"]), float(out[i]["u_beta_V"]))
+            self.sample_handled(k0 + n - 1)
+
+    def release_torque(self, released):
+        """The command hold's release (zero torque although the estimator tracks: control.TORQUE_RELEASED) on or
+        off from the next sample the core steps."""
+        self.x[TORQUE_RELEASED] = 1.0 if released else 0.0
+        if released:
+            self.x[TORQUE_ALLOWED] = 0.0
+
+    def reference(self, n, estimate, state, followed=True):
         """(ω*_m [rad/s], τ_ff [N·m], torque allowed) for a block of ``n`` samples from its estimates (θ̂_m, ω̂_m) and
         estimator states: homing's once the estimator tracks (started then, the first time), else the command's
-        (CommandHold); a joint just homed holds where its back-off ended."""
+        (CommandHold); a joint just homed holds where its back-off ended. With ``followed`` false, the speed command
+        itself (foc_controller.speed_command) in ω*_m's place, for a compiled answer to follow."""
         theta, omega = float(estimate[0][-1]), float(estimate[1][-1])
         h = self.homing
         lost = [code for code in state[2] if code not in (HOLD, TRACKING)]
@@ -562,11 +618,11 @@ class ControllerNode(DriveNode):
             h.start()
         self.homing_now = h is not None and h.active
         if self.homing_now:
-            speed = h.reference(n * self.T_s, (theta, omega), self.last_i_q)
+            speed = (h.reference if followed else h.command_now)(n * self.T_s, (theta, omega), self.last_i_q)
             if h.homed:
                 self.hold.command(time.monotonic(), 0.0, self.tau_feedforward, h.target)
             return speed, self.tau_feedforward, True
-        return self.hold.reference(time.monotonic(), n * self.T_s, theta)
+        return (self.hold.reference if followed else self.hold.command_now)(time.monotonic(), n * self.T_s, theta)
 
     def joint_position(self, theta_m_hat):
         """The joint's position [rad]: the estimated mechanical angle ``theta_m_hat`` [rad] from the homed zero

@@ -15,6 +15,8 @@ rclpy: the controller node calls it once per sample or block, in the motor's sig
 import math
 from dataclasses import dataclass
 
+from .speed_command import commanded_speed, position_command, speed_command
+
 HARD_STOP, INDEX = "hard_stop", "index"
 HOMING_METHODS = (HARD_STOP, INDEX)
 NOT_HOMED, SEEKING, BACKING_OFF, HOMED, FAILED = "not_homed", "seeking", "backing_off", "homed", "failed"
@@ -57,7 +59,7 @@ class HomingSettings:
 def position_speed(theta_ref, omega_ff, theta_m_hat, gain_per_s, limit_rad_s):
     """The speed reference ω* [rad/s] of the position loop: ω_ff + k_θ (θ* − θ̂_m) within ±``limit_rad_s``
     (angles [rad], ``gain_per_s`` k_θ [1/s], feed-forward ω_ff [rad/s])."""
-    return max(-limit_rad_s, min(limit_rad_s, omega_ff + gain_per_s * (theta_ref - theta_m_hat)))
+    return commanded_speed(position_command(theta_ref, omega_ff, gain_per_s, limit_rad_s), 0.0, theta_m_hat, 0.0)
 
 
 class Homing:
@@ -105,7 +107,15 @@ class Homing:
     def reference(self, dt_s, estimate, i_q_A, index_count=0):
         """The speed reference ω* [rad/s] for the next ``dt_s`` [s] of samples, the estimated mechanical angle and
         speed being ``estimate`` (θ̂_m [rad], ω̂_m [rad/s]), the measured q current ``i_q_A`` [A] (hard_stop) and
-        the inverter's count of index pulses ``index_count`` (index); 0 once failed."""
+        the inverter's count of index pulses ``index_count`` (index); 0 once failed: ``command_now``'s command
+        followed from the last reference given (0 at the search's start)."""
+        command = self.command_now(dt_s, estimate, i_q_A, index_count)
+        self.search_speed = commanded_speed(command, self.search_speed, estimate[0], dt_s)
+        return self.search_speed
+
+    def command_now(self, dt_s, estimate, i_q_A, index_count=0):
+        """The speed command (foc_controller.speed_command) for the next ``dt_s`` [s] of samples, as ``reference``
+        takes its arguments: the search's speed reached at its ramp, the back-off's position loop, else zero."""
         s = self.settings
         theta_m_hat, omega_m_hat = estimate
         if self.state == SEEKING:
@@ -124,13 +134,12 @@ class Homing:
                 self.state, self.reason = FAILED, (f"no {'stop' if s.method == HARD_STOP else 'index'} found "
                                                    f"in {s.timeout_s:g} s")
             else:
-                self.search_speed = min(s.speed_rad_s, self.search_speed + self.acceleration_rad_s2 * dt_s)
-                return s.direction * self.search_speed
+                return speed_command(s.direction * s.speed_rad_s, self.acceleration_rad_s2)
         if self.state == BACKING_OFF:
             if abs(self.target - theta_m_hat) <= BACKED_OFF_WITHIN_RAD:
                 self.state = HOMED
-            return position_speed(self.target, 0.0, theta_m_hat, self.gain_per_s, self.limit_rad_s)
-        return 0.0
+            return position_command(self.target, 0.0, self.gain_per_s, self.limit_rad_s)
+        return speed_command(0.0)
 
     def found(self, theta_m_hat):
         """The stop or the index at ``theta_m_hat`` [rad]: the zero set, the back-off begun (at an index, the

@@ -29,6 +29,7 @@ import numpy as np
 from drive_common.contract.drive_records import drive_inputs
 from drive_common.contract.estimator_records import estimates
 from drive_common.contract.estimator_states import LEADER_NAMES, LOCK_LOST, STATE_NAMES
+from drive_common.contract.log import COLUMN
 from drive_common.contract.stamps import RESYNC_SAMPLES, sample_at, stamp_parts
 from drive_common.contract.topics import (
     CURRENTS,
@@ -337,12 +338,7 @@ class EstimatorNode(DriveNode):
             self.fault("bad_input", f"currents at samples {k0}..{k0 + n - 1}: {bad} of {n} not finite or beyond "
                                     f"the {self.trip_A:g} A trip; estimate held, no injection there")
         self.k = k0 + n
-        state = records["state"]
-        for i in np.flatnonzero(state != np.concatenate(([self.state], state[:-1]))):
-            self.note_state(k0 + i, state[i])
-        last = records[-1]
-        self.theta_hat, self.omega_hat, self.signal = last["theta_e_hat"], last["omega_e_hat"], last["signal"]
-        self.blend = (last["injection_amplitude"], last["observer_weight"], last["leader"])
+        self.note_records(k0, records)
         if self.block_samples > 1:
             self.publish_block(k0, records, currents)
         else:
@@ -350,15 +346,48 @@ class EstimatorNode(DriveNode):
         self.sample_handled(k0 + n - 1)
         return True
 
+    def note_records(self, k0, records):
+        """The ESTIMATE records of samples k0 …: each change of state noted (note_state), the last values kept for
+        /diagnostics."""
+        state = records["state"]
+        for i in np.flatnonzero(state != np.concatenate(([self.state], state[:-1]))):
+            self.note_state(k0 + i, state[i])
+        last = records[-1]
+        self.theta_hat, self.omega_hat, self.signal = last["theta_e_hat"], last["omega_e_hat"], last["signal"]
+        self.blend = (last["injection_amplitude"], last["observer_weight"], last["leader"])
+
+    def publish_answered(self, k0, rows):
+        """What a compiled answer (drive_tools.launch.axis_answer) answered for the drive's samples k0 … k0 + n − 1,
+        from their log rows (drive_common.contract.log.LOG_COLUMNS), as try_block publishes its own answers: the
+        state's changes noted, the block twins (or each sample's topics). From the answer's ring reader, a thread
+        that is not real-time; nothing is handed over (the answer ran the controller)."""
+        records = estimates(len(rows))
+        for name in records.dtype.names:
+            records[name] = rows[:, COLUMN[name]]
+        with self.sample_lock:
+            self.k = k0 + len(rows)
+            self.note_records(k0, records)
+            if self.block_samples > 1:
+                self.publish_records(k0, records)
+            else:
+                for i in range(len(rows)):
+                    self.publish_sample_record(k0 + i, records[i])
+            self.sample_handled(k0 + len(rows) - 1)
+
     def publish_block(self, k0, records, currents):
         """Publish a block's ESTIMATE records on the block twins, and `estimator_state` of its first sample
         (handed over first, with the block's ``currents``, where hand_answers_to said so)."""
+        r = records
+        if self.hand_over:
+            self.hand_over(k0, currents.T, (r["theta_e_hat"] / self.n_p, r["omega_e_hat"] / self.n_p),
+                           (r["u_inj_alpha"], r["u_inj_beta"]), (r["eps"], r["signal"], r["state"]))
+        self.publish_records(k0, records)
+
+    def publish_records(self, k0, records):
+        """A block's ESTIMATE records on the block twins, and `estimator_state` of its first sample."""
         r, wire = records, self.block_wire
         state = r["state"]
         theta_m, omega_m = r["theta_e_hat"] / self.n_p, r["omega_e_hat"] / self.n_p
-        if self.hand_over:
-            self.hand_over(k0, currents.T, (theta_m, omega_m), (r["u_inj_alpha"], r["u_inj_beta"]),
-                           (r["eps"], r["signal"], state))
         sec, nanosec = stamp_parts(k0 + self.stamp_origin, self.T_s)
         self.injection_pub.publish(wire.encode(sec, nanosec, r["u_inj_alpha"], r["u_inj_beta"]))
         self.estimate_pub.publish(wire.encode(sec, nanosec, theta_m, omega_m))
@@ -369,10 +398,15 @@ class EstimatorNode(DriveNode):
     def publish_sample(self, k, e, currents):
         """Publish sample k's ESTIMATE record on the per-sample topics (handed over first, with the sample's
         ``currents``, where hand_answers_to said so)."""
-        theta_m, omega_m = e["theta_e_hat"] / self.n_p, e["omega_e_hat"] / self.n_p
         if self.hand_over:
-            self.hand_over(k, tuple(currents.tolist()), (theta_m, omega_m), (e["u_inj_alpha"], e["u_inj_beta"]),
-                           e["state"])
+            self.hand_over(k, tuple(currents.tolist()), (e["theta_e_hat"] / self.n_p, e["omega_e_hat"] / self.n_p),
+                           (e["u_inj_alpha"], e["u_inj_beta"]), e["state"])
+        self.publish_sample_record(k, e)
+
+    def publish_sample_record(self, k, e):
+        """Sample k's ESTIMATE record on the per-sample topics."""
+        theta_m, omega_m = e["theta_e_hat"] / self.n_p, e["omega_e_hat"] / self.n_p
+        self.blend = (e["injection_amplitude"], e["observer_weight"], e["leader"])
         sec, nanosec = stamp_parts(k + self.stamp_origin, self.T_s)
         self.injection_pub.publish(self.injection_wire.encode(sec, nanosec, e["u_inj_alpha"], e["u_inj_beta"], 0.0))
         self.estimate_pub.publish(self.estimate_wire.encode(sec, nanosec, theta_m, omega_m))

@@ -27,12 +27,17 @@ def cmd_bench_robot(args):
         raise CommandLineError(f"--duration: between 0.5 and 60 s, not {args.duration:g}")
     if args.repeats < 1:
         raise CommandLineError(f"--repeats: at least 1, not {args.repeats}")
+    answers = args.answer.split(",")
+    if not answers or any(a not in ("compiled", "nodes") for a in answers):
+        raise CommandLineError(f"--answer: compiled, nodes or both comma-separated, not {args.answer!r}")
     drive = str(Path(sys.executable).with_name("drive"))
     hop = hop_latency(HOP_ROUND_TRIPS_BESIDE_A_RUN)
     with core_kept_busy(args.load):
         rows = robot_bench(axes, blocks, args.duration, args.repeats, drive,
-                           lambda line: print(f"drive bench robot: {line}", file=sys.stderr, flush=True))
+                           lambda line: print(f"drive bench robot: {line}", file=sys.stderr, flush=True), answers,
+                           args.inverter_apart)
     report = {"benchmark": "robot_axes", "duration_s": args.duration, "load": bool(args.load),
+              "inverter_apart": args.inverter_apart,
               "late_bound": LATE_BOUND, "hop_us": hop["us_per_hop"], "rows": rows}
     if args.json:
         print_json(report)
@@ -44,7 +49,7 @@ def cmd_bench_robot(args):
         late = "; ".join(", ".join("-" if s is None else f"{100 * s:.2f}" for s in r["late_fractions"]) for r in runs)
         cpu = ", ".join("-" if r["cpu_us_per_period_and_axis"] is None else f"{r['cpu_us_per_period_and_axis']:.0f}"
                         for r in runs)
-        print(f"  {row['axes']} axes, blocks of {row['block_samples']}: every axis within "
+        print(f"  {row['answer']}, {row['axes']} axes, blocks of {row['block_samples']}: every axis within "
               f"{100 * LATE_BOUND:g} % late in {row['runs_every_axis_kept_pace']} of {len(runs)} runs; late % per "
               f"axis {late}; CPU µs per period and axis {cpu}")
         for reason in sorted({r["reason"] for r in runs if not r["ended_as_expected"]}):
@@ -61,5 +66,9 @@ def add_robot_bench_command(bench_sub):
     robot.add_argument("--duration", type=finite_float, default=3.0, help="seconds of each run (default 3)")
     robot.add_argument("--repeats", type=int, default=2, help="runs per axis count and block size (default 2)")
     robot.add_argument("--load", action="store_true", help="another process keeps one core busy meanwhile")
+    robot.add_argument("--answer", default="compiled", help="how each axis answers: compiled, nodes, or both "
+                                                            "comma-separated (default compiled; docs/robot.md)")
+    robot.add_argument("--inverter-apart", action="store_true",
+                       help="each virtual inverter in a process of its own, as a real inverter is a device of its own")
     robot.add_argument("--json", action="store_true")
     robot.set_defaults(func=cmd_bench_robot)

@@ -57,6 +57,8 @@ from drive_common.motor.nameplate import trip_current_A as default_trip_current_
 from pmsm_plant.build import plant_for_scenario
 from pmsm_plant.model import INVERTER_MODE, bus_voltage, plant_block
 
+CAUGHT_UP_POLL_S = 0.0005
+"""Lock-step: how often the host's catching up is looked at (hear_host_caught_up)."""
 HOST_SILENCE_S = 0.1
 """Nothing from the host for this long: PWM off, HEARTBEAT_LOST latched (the protocol's 100 ms)."""
 
@@ -153,6 +155,7 @@ class VirtualInverter:
         read_late: periods whose command this thread read after its deadline, but that had arrived in time
         by the host's write time (``hear_host_writes``)."""
         self.host_written_at = None
+        self.host_caught_up = None
         """k → when the host finished writing the command answering sample k (monotonic s, NaN: unknown),
         or None: a command arrives when this thread reads it."""
         wire_time_s = getattr(endpoint, "wire_time_s", None)
@@ -498,6 +501,17 @@ class VirtualInverter:
                     break
                 for message in arrived:
                     self.handle(message)
+        if self.host_caught_up is not None and last > first:
+            deadline = self.clock() + self.command_wait_s
+            while not self.host_caught_up(last - 1) and self.clock() < deadline and not self.stopped.is_set():
+                time.sleep(CAUGHT_UP_POLL_S)
+
+    def hear_host_caught_up(self, caught_up):
+        """Lock-step: wait also until ``caught_up(c)`` says the host has done all it does with the sample c its
+        command answers (a compiled answer's reader: the topics published, the next command decided), at most
+        ``command_wait_s``: the simulation waits for the whole drive, whose outcome then does not depend on how far
+        the side that is not real-time lags on this machine."""
+        self.host_caught_up = caught_up
 
     def waits_until(self, c):
         """Lock-step: until when the command answering sample c is waited for [s of the clock]: ``command_wait_s``

@@ -1,10 +1,13 @@
 """One axis of a robot as a managed (lifecycle) node, ``NAMESPACE/drive_axis`` (docs/robot.md): configure opens the
 axis's link (the drive_bridge node; with a virtual device, the virtual inverter behind it) with the inverter
-disabled, zero volts; activate composes the estimator and the controller in this process and hands them the
-bridge's telemetry on its link thread (the real-time configuration of `drive launch --intra-process`, docs/ros-graph.md
-"Real time"): a start-up, then commands; deactivate takes them away and tells the inverter to switch off (zero
-volts); cleanup closes the link. The standard lifecycle services (``change_state``, ``get_state`` ...) drive it."""
+disabled, zero volts, and composes the estimator and the controller in this process; activate arms them: a start-up,
+then commands. Armed, the axis answers each telemetry block either compiled whole (``answer: compiled``, the default:
+drive_tools.launch.axis_answer, the link handed to a loop off the interpreter's lock on a thread of its own) or by its
+nodes on the bridge's link thread (``answer: nodes``: the configuration of `drive launch --intra-process`,
+docs/ros-graph.md "Real time"). Deactivate disarms (zero volts, the inverter told to switch off); cleanup closes the
+link. The standard lifecycle services (``change_state``, ``get_state`` ...) drive it."""
 import threading
+import time
 
 from rclpy.lifecycle import LifecycleNode, TransitionCallbackReturn
 
@@ -23,6 +26,12 @@ LOCKSTEP_TIMEOUT_S = 10.0
 inverter's in lock-step (``paced: false``) while the drive commands: the simulation waits for the drive, so its
 outcome does not depend on the machine's pace. The wait guards against a dead drive, not a slow one: at 1 s a
 machine running two test suites at once held a drive longer and its axis stopped on a lost link (stop 63)."""
+TIMING_REPORT_WAIT_S = 5.0
+"""A virtual inverter apart (its own process) is stopped and its report waited for this long at most."""
+ARM_WAIT_S = 30.0
+"""Activated with the compiled answer: the estimator and the controller must be ready (the controller's core built from
+the estimator's facts, a spin or two) within this [s], or the axis is not armed (the loop's first compile after an
+edit included)."""
 DISABLED_WAIT_S = 0.05
 """A virtual inverter in lock-step waits this long for each command while the drive does not command (before it is
 armed; disarmed, its bridge says CONTROL disable): its simulation then runs at 1/50 of real time."""
@@ -125,6 +134,14 @@ class AxisNode(LifecycleNode):
         self.real_time = real_time or RealTime()
         self.recording = recording
         self.handover = HandOver()
+        self.answer = None
+        """The armed axis's compiled answer (axis_answer.AxisAnswer), or None."""
+        self.arming = None
+        """The thread that arms the compiled answer once the nodes are ready (None: not arming)."""
+        self.armed = False
+        """Activated with the compiled answer (arming or answering)."""
+        self.warming = None
+        """The thread that loads the compiled answer's loop while the axis is inactive (None: none)."""
         self.bridge = self.inverter = self.estimator = self.controller = None
         self.drive = None
         self.error = ""
@@ -158,6 +175,13 @@ class AxisNode(LifecycleNode):
             if n > MAX_BLOCK:
                 raise ScenarioError(f"{spec.drive}: block_samples: {n}: an inverter sends at most {MAX_BLOCK}")
             host_link = self.open_link(drive)
+            if spec.answer == "compiled":
+                from drive_bridge.compiled_bridge import link_kind
+                try:
+                    link_kind(host_link)
+                except ValueError as error:
+                    host_link.close()
+                    raise ValueError(f"{spec.joint}: answer: compiled: {error}; or answer: nodes") from None
         except (DriveError, ValueError, OSError) as error:
             return self.fail(error)
         lock_step = spec.link == "virtual" and not spec.paced
@@ -170,8 +194,12 @@ class AxisNode(LifecycleNode):
         if self.recording is not None:
             self.recording.heard(self.bridge)
         if self.inverter is not None:
-            if spec.paced:
+            if spec.paced and spec.inverter_apart:
+                self.inverter.hear_writes_of(self.bridge.bridge)
+            elif spec.paced:
                 self.inverter.hear_host_writes(self.bridge.bridge.written_at)
+            else:
+                self.inverter.hear_host_caught_up(self.caught_up)
             self.inverter.start()
         refused = self.compose()
         if refused:
@@ -186,16 +214,18 @@ class AxisNode(LifecycleNode):
         from drive_bridge.inverter_link import CanLink, SerialLink
         from drive_tools.doubles.virtual_inverter import InverterOptions
 
-        from .launcher import _virtual_inverter
+        from .launcher import _virtual_inverter, node_parameters
         spec = self.spec
         if spec.link == "serial":
             return SerialLink(spec.port, spec.baudrate)
         if spec.link == "can":
             return CanLink(spec.can_channel, spec.drive_id, spec.can_interface or None)
         scenario = behind_an_inverter(with_drive(load_scenario(spec.scenario), drive), MAX_BLOCK)
-        where = DriveSpec(scenario=spec.scenario, namespace=spec.namespace, link=spec.virtual_link, paced=spec.paced)
+        where = DriveSpec(scenario=spec.scenario, namespace=spec.namespace, link=spec.virtual_link, paced=spec.paced,
+                          inverter_apart=spec.inverter_apart)
         waits = InverterOptions(command_wait_s=LOCKSTEP_TIMEOUT_S, disabled_wait_s=DISABLED_WAIT_S)
-        self.inverter, host_link = _virtual_inverter(scenario, {}, where, (self.workdir, self.index), waits,
+        parameters = node_parameters(spec.scenario) if spec.inverter_apart else {}
+        self.inverter, host_link = _virtual_inverter(scenario, parameters, where, (self.workdir, self.index), waits,
                                                      self.real_time)
         return host_link
 
@@ -229,7 +259,36 @@ class AxisNode(LifecycleNode):
             self.executor.add_node(node)
         if self.recording is not None:
             self.recording.heard(estimator, self.controller)
+        if self.spec.answer == "compiled":
+            self.warming = threading.Thread(target=self.warm_compiled, name=f"{self.spec.joint}_warming", daemon=True)
+            self.warming.start()
         return None
+
+    def ready(self):
+        """The controller's core is built (from the estimator's facts, a spin or two after compose) and it answers."""
+        e, c = self.estimator, self.controller
+        return e is not None and c is not None and e.answering and c.params and c.voltage_pub is not None
+
+    def wait_ready(self, until):
+        """Wait until ready() while ``until()`` holds, at most ARM_WAIT_S; whether it is ready."""
+        deadline = time.monotonic() + ARM_WAIT_S
+        while until() and not self.ready():
+            if time.monotonic() > deadline:
+                return False
+            time.sleep(0.01)
+        return self.ready()
+
+    def warm_compiled(self):
+        """While inactive: the compiled answer's loop loaded for the nodes just composed (its first compile after an
+        edit takes tens of seconds; arming then takes none)."""
+        from .axis_answer import warm_axis_answer
+        e, c, bridge = self.estimator, self.controller, self.bridge
+        if self.wait_ready(lambda: self.estimator is e):
+            try:
+                warm_axis_answer(bridge, e, c)
+            except Exception as error:
+                self.error = f"{self.spec.joint}: the compiled answer could not be loaded: {error}"
+                self.get_logger().error(self.error)
 
     def drive_nodes(self):
         """The axis's drive nodes now (bridge, estimator, controller: those that exist)."""
@@ -238,13 +297,65 @@ class AxisNode(LifecycleNode):
     def on_activate(self, state):
         """Armed: the drive joins the inverter's samples as soon as it is ready (its start-up, then its commands;
         zero speed until one comes)."""
-        self.handover.arm(self.estimator, self.controller)
         self.error = ""
+        if self.spec.answer == "compiled":
+            self.armed = True
+            self.arming = threading.Thread(target=self.arm_compiled, name=f"{self.spec.joint}_arming", daemon=True)
+            self.arming.start()
+        else:
+            self.handover.arm(self.estimator, self.controller)
         return TransitionCallbackReturn.SUCCESS
+
+    def arm_compiled(self):
+        """Once the controller's core is built and the estimator answers: the link handed to the compiled answer,
+        started. Not within ARM_WAIT_S, or a failed build: said on the axis's error, the axis left disarmed."""
+        from .axis_answer import AxisAnswer
+        e, c = self.estimator, self.controller
+        if self.warming is not None:
+            self.warming.join()
+        ready = self.wait_ready(lambda: self.armed)
+        if not self.armed:
+            return
+        if not ready:
+            self.error = f"{self.spec.joint}: the drive was not ready within {ARM_WAIT_S:g} s; not armed"
+            self.get_logger().error(self.error)
+            return
+        priority = min(self.real_time.rt_priority + 1, 99) if self.real_time.rt_priority else 0
+        self.bridge.hand_link_over()
+        try:
+            answer = AxisAnswer(self.bridge, e, c, priority)
+        except Exception as error:
+            self.bridge.take_link_back()
+            self.error = f"{self.spec.joint}: the compiled answer could not be built: {error}"
+            self.get_logger().error(self.error)
+            return
+        if self.armed:
+            self.answer = answer
+            answer.start()
+        else:
+            self.bridge.take_link_back()
+
+    def caught_up(self, k):
+        """Whether the drive has done all it does with the inverter's sample k (the compiled answer's reader has handed
+        its row on); always, without a compiled answer (the nodes' answer is written once they are done)."""
+        answer = self.answer
+        return answer is None or answer.caught_up(k)
 
     @property
     def active(self):
-        return self.handover.estimator is not None
+        return self.handover.estimator is not None or self.armed
+
+    def stop_answering(self):
+        """Nothing answers the inverter any more (the bridge's link thread reads it again): its commands stop."""
+        self.handover.disarm()
+        self.armed = False
+        if self.arming is not None:
+            self.arming.join(ARM_WAIT_S + 5.0)
+            self.arming = None
+        if self.answer is not None:
+            self.answer.stop()
+            self.answer = None
+            self.bridge.take_link_back()
 
     def on_deactivate(self, state):
         """Disarmed (zero volts, the inverter told), a fresh estimator and controller built for the next
@@ -255,7 +366,7 @@ class AxisNode(LifecycleNode):
 
     def disarm(self, why):
         """Zero volts: nothing handed on, the inverter told to switch off (its safe state)."""
-        self.handover.disarm()
+        self.stop_answering()
         if self.bridge is not None:
             self.bridge.bridge.safe_state(f"axis {why}")
         self.discard()
@@ -316,6 +427,8 @@ class AxisNode(LifecycleNode):
         from drive_tools.doubles.inverter_timing import timing_report
         if None in (self.inverter, self.bridge) or not self.spec.paced or not hasattr(self.inverter, "counters"):
             return None
+        if self.spec.inverter_apart:
+            self.inverter.join(TIMING_REPORT_WAIT_S)
         t = timing_report(self.inverter, self.drive.T_s, self.bridge.bridge.written_at)
         return {key: t[key] for key in ("periods_since_start", "late_fraction_since_start", "watchdog_trips",
                                         "answer_p50_us", "answer_p99_us", "overruns")}
@@ -328,6 +441,6 @@ class AxisNode(LifecycleNode):
             report.update(link="lost" if b.lost else "up", safe_state_sent=b.counters["safe_state"],
                           samples=b.counters["samples"], before_hello=b.counters["before_hello"],
                           inverter_off=self.inverter_off())
-        if self.inverter is not None:
+        if self.inverter is not None and hasattr(self.inverter, "enabled"):
             report["inverter_enabled"] = self.inverter.enabled
         return report

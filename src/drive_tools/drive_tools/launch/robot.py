@@ -5,6 +5,7 @@ robot node ``/drive_robot`` publishes every joint's state on ``/joint_states`` a
 (sensor_msgs/JointState, the convention of ros-controls' topic_based_ros2_control), until SIGINT/SIGTERM or a
 link lost, which bring every axis to its safe state (docs/robot.md)."""
 import math
+import sys
 import tempfile
 import time
 from dataclasses import dataclass, field
@@ -184,6 +185,8 @@ def bring_up(robot, executor_name="events", started=None, record=None):
             result.scheduling = scheduling
             result.exit_code, result.reason = _initial_state(robot, axes)
             if not result.exit_code:
+                result.exit_code, result.reason = _warmed(executor, axes)
+            if not result.exit_code:
                 if started:
                     started(axes)
                 wall, cpu = time.monotonic(), time.process_time()
@@ -209,6 +212,24 @@ def bring_up(robot, executor_name="events", started=None, record=None):
         for lock in locks:
             lock.release()
     return result
+
+
+def _warmed(executor, axes):
+    """Spin until every axis composed with the compiled answer has loaded its loop (axis.AxisNode.warm_compiled: a
+    first compile after an install or an update takes tens of seconds, said on stderr), so that arming is at once;
+    (exit code, reason)."""
+    said = False
+    started = time.monotonic()
+    while any(axis.warming is not None and axis.warming.is_alive() for axis in axes):
+        if requested():
+            return EXIT_SIGNAL_BASE + requested(), ""
+        if not said and time.monotonic() - started > 2.0:
+            said = True
+            sys.stderr.write("drive up: loading the axes' compiled answer (compiled once after an install or an "
+                             "update: up to a minute)\n")
+            sys.stderr.flush()
+        executor.spin_once(timeout_sec=0.05)
+    return EXIT_OK, ""
 
 
 def _initial_state(robot, axes):
@@ -238,7 +259,7 @@ def _run(executor, axes):
         for axis in axes:
             if axis.link_lost():
                 return EXIT_NODE_FAULTS, (f"axis {axis.spec.joint}: its inverter link is lost "
-                                          f"({axis.bridge.bridge.last_error}); every axis put in its safe state")
+                                          f"({axis.bridge.bridge.lost_reason}); every axis put in its safe state")
 
 
 def where_raised(error):
@@ -256,7 +277,7 @@ def _stop(axes, executor):
     the telling: _run said the first); their reports."""
     timings = [axis.inverter_timing() for axis in axes]
     for axis in axes:
-        axis.handover.disarm()
+        axis.stop_answering()
     linked = [axis for axis in axes if axis.bridge is not None]
     deadline, told = time.monotonic() + SAFE_STATE_WAIT_S, 0.0
     while time.monotonic() < deadline:

@@ -47,6 +47,13 @@ AXIS_KEYS = (
     Key("paced", "", choices=(True, False), default=True,
         doc="virtual: the inverter keeps its own clock (as hardware does); false: it waits for each command up to "
             "50 ms (lock-step: simulation at the machine's pace, for tests)"),
+    Key("answer", "", choices=("compiled", "nodes"), default="compiled",
+        doc="compiled: the armed axis's answer (estimator, protections, controller, the link read and written) is "
+            "one compiled function off the interpreter's lock on a thread of its own; nodes: its nodes answer on "
+            "the bridge's link thread"),
+    Key("inverter_apart", "", choices=(True, False), default=False,
+        doc="virtual, paced: the virtual inverter in a process of its own, as a real inverter is a device of its own "
+            "(its simulation then never holds the drive's interpreter lock)"),
     Key("baudrate", "baud", 0, None, integer=True, default=3_000_000),
     Key("drive_id", "", 0, 15, low_inclusive=True, integer=True, default=0, doc="CAN drive number"),
 )
@@ -95,6 +102,8 @@ class AxisSpec:
     scenario: str = ""
     virtual_link: str = "pty"
     paced: bool = True
+    answer: str = "compiled"
+    inverter_apart: bool = False
     command_timeout_s: float = 0.1
     link_timeout_s: float = 0.5
     hold_timeout_s: float = 2.0
@@ -203,6 +212,8 @@ def _axis(entry, where, folder, fail):
         fail(f"{where}.{needed}", f"missing (a {link} axis names its {needed})")
     if entry.get("virtual_link", "pty") not in VIRTUAL_LINKS:
         fail(f"{where}.virtual_link", f"must be one of {', '.join(VIRTUAL_LINKS)}, not {shown(entry['virtual_link'])}")
+    if values.get("inverter_apart") and (link != "virtual" or not values.get("paced", True)):
+        fail(f"{where}.inverter_apart", "a virtual inverter apart needs link: virtual and paced: true")
     drive = Path(entry["drive"])
     drive = drive if drive.is_absolute() else folder / drive
     try:

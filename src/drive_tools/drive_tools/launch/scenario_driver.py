@@ -30,7 +30,7 @@ from drive_common.contract.topics import (
 from drive_common.contract.wire import WireError, decode_block, decoder_of
 from drive_common.ros.node import message_class, topic_qos
 from drive_tools.bags.common import offered_qos
-from drive_tools.runner.compiled_answer import RING_K, RING_LOG, RING_THETA_M, CompiledAnswer
+from drive_tools.runner.compiled_answer import RING_K, RING_LOG, RING_THETA_M, CompiledAnswer, RingBlocks
 
 ANSWER_RING = "answer_ring"
 """With a compiled answer, what the driver counts as received: the rows its ring handed over."""
@@ -122,6 +122,8 @@ class ScenarioDriver:
         """Samples received per recorded topic (with a compiled answer: per the one ring, ANSWER_RING)."""
         if self.answer is not None:
             self.received = {ANSWER_RING: 0}
+            self.ring_blocks = RingBlocks(scenario.block_samples, RING_LOG + len(LOG_COLUMNS))
+            """The ring's rows put back into whole blocks to publish (a block drained in two parts is published)."""
         self.listening = {}
         """Topic → this driver's subscription (what it logs and records)."""
         self.subscribe(handlers)
@@ -336,11 +338,8 @@ class ScenarioDriver:
         self.received[ANSWER_RING] += len(k)
         self.last_sample = max(self.last_sample, int(k[-1]))
         if self.publish_answered is not None:
-            N = self.scenario.block_samples
-            for start in range(0, len(k), N):
-                block = slice(start, start + N)
-                if len(k[block]) == N and k[start] % N == 0 and k[start + N - 1] == k[start] + N - 1:
-                    self.publish_answered(int(k[start]), theta[block], rows[block, RING_LOG:])
+            for block in self.ring_blocks.blocks(rows):
+                self.publish_answered(int(block[0, RING_K]), block[:, RING_THETA_M], block[:, RING_LOG:])
         if self.last_sample == self.n - 1 and self.finished_at is None:
             self.finished_at = time.monotonic()
 

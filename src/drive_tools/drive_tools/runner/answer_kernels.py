@@ -17,13 +17,15 @@ NO_TRUTH = (0.0,) * 7
 def fill_inputs(inputs, currents, theta_m, n_p, speed_ref, tau_feedforward, k0, n):
     """Samples k0 … k0 + n − 1 of a telemetry block into ``inputs`` (DRIVE_INPUT records): the measured
     ``currents`` (n × 3) [A], the encoder's mechanical ``theta_m`` [rad] as electrical (NaN: none, 0) and
-    the schedule's speed reference [rad/s] and torque feed-forward [N·m] of each sample."""
+    the schedule's speed reference [rad/s] and torque feed-forward [N·m] of each sample (arrays of one: the
+    live value, for every sample)."""
+    last = len(speed_ref) - 1
     for i in range(n):
         s = inputs[i]
         s.i_a_A, s.i_b_A, s.i_c_A = currents[i, 0], currents[i, 1], currents[i, 2]
         s.theta_e_encoder_rad = 0.0 if math.isnan(theta_m[i]) else n_p * theta_m[i]
         s.omega_e_encoder_rad_s = 0.0
-        s.omega_m_ref_rad_s, s.tau_feedforward_Nm = speed_ref[k0 + i], tau_feedforward[k0 + i]
+        s.omega_m_ref_rad_s, s.tau_feedforward_Nm = speed_ref[min(k0 + i, last)], tau_feedforward[min(k0 + i, last)]
 
 
 @njit(cache=True)

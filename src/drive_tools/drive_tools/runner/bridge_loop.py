@@ -154,7 +154,7 @@ def _run(scenario, link, inverter, bridge, progress):
 def _run_compiled(scenario, link, inverter, bridge, progress_and_options):
     """The host's loop compiled whole (compiled_answer.CompiledAnswer): the same answer as ``_run``, its
     samples recorded from the ring; ``ring_overflow`` counts those the ring had no room for."""
-    from .compiled_answer import RING_HOST_S, RING_K, RING_LOG, CompiledAnswer
+    from .compiled_answer import RING_HOST_S, RING_K, RING_LOG, CompiledAnswer, drive_parts
     progress, answer_options = progress_and_options
     host = build_drive(scenario)
     n = scenario.n_samples
@@ -164,7 +164,7 @@ def _run_compiled(scenario, link, inverter, bridge, progress_and_options):
     received = np.zeros(n, dtype=bool)
     host_s = np.zeros(n)
     bridge.poll(0.0)
-    answer = CompiledAnswer(host, bridge, line, (n, delay), answer_options)
+    answer = CompiledAnswer(drive_parts(host), bridge, line, (n, delay), answer_options)
     reported = [0]
 
     def take(rows):

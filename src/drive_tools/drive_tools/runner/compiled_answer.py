@@ -17,6 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from drive_bridge import can_codec as cc
 from drive_bridge import compiled_bridge as cb
 from drive_bridge.can_cable import MEMBERS_REFRESH_S
 from drive_bridge.inverter_protocol import COMMAND_MISSING, CONTROL_SEND_HELLO, MAX_BLOCK, PWM_OFF
@@ -26,6 +27,7 @@ from drive_common.math.safe_state import safe_state_for
 from drive_common.runtime.bound_kernels import bound
 from drive_common.runtime.sample_ring import drain, free_slot, publish, sample_ring
 from foc_controller.protection import SAFE_STATE, TRIPPED
+from foc_controller.speed_command import N_FIELDS, commanded_speed
 
 from .answer_kernels import fill_inputs, issue_and_log
 from .loop import DriveCores, copied, drive_block
@@ -35,9 +37,17 @@ RING_K, RING_HOST_S, RING_THETA_M, RING_LOG = 0, 1, 2, 3
 angle as received [rad, mechanical; NaN: none], then its log row (LOG_COLUMNS)."""
 RING_ROWS = 1 << 15
 """The ring's rows by default: 3.3 s of samples at 10 kHz (8 MiB)."""
-STOP, NEXT_K, LAST_ANSWERED, N_SAMPLES, DELAY, DRAINING = range(6)
+(STOP, NEXT_K, LAST_ANSWERED, N_SAMPLES, DELAY, DRAINING, ORIGIN, COMMAND_SLOT, COMMAND_AT_NS,
+ STALE_NS) = range(10)
 """Fields of the loop's ``run`` array (int64): set by Python (STOP, N_SAMPLES, DELAY, DRAINING: nothing more
-will come), kept by the loop (NEXT_K: the next sample expected, LAST_ANSWERED)."""
+will come; with a live command, COMMAND_SLOT: the row of HostCore.live_commands to follow, COMMAND_AT_NS: when
+Python last wrote it [ns, CLOCK_MONOTONIC], STALE_NS: older than this, the loop holds zero speed (0: never)), kept by
+the loop (NEXT_K: the next sample expected, LAST_ANSWERED), and ORIGIN: the inverter's sample the drive counts from
+(its sample 0), set by Python (0: a run from the inverter's start) or, at −1, by the loop at the first whole block
+it takes (an axis armed on a running inverter). NEXT_K, LAST_ANSWERED and N_SAMPLES count the drive's samples."""
+RUN_FIELDS = 10
+OPEN_ENDED = 1 << 62
+"""N_SAMPLES of an answer that runs until it is stopped (a robot's axis)."""
 DONE, STOPPED, RECONNECT = 1, 2, 3
 PART_K0, PART_N, PART_STATUS = range(3)
 """Fields of HostCore.part (int64): the first sample of the part of a block held, its samples (0: none held),
@@ -46,12 +56,40 @@ POLL_MS = 50
 """The loop's wait for bytes before it checks the link's and the graph's silence (InverterBridge's 0.05 s)."""
 
 
+class AnswerParts(NamedTuple):
+    """What the answer steps: the drive's ``cores`` (drive_tools.runner.loop.DriveCores, their states the
+    drive's), its estimator's ``step`` kernel, the speed reference [rad/s] and torque feed-forward [N·m] per
+    sample of the run (a scenario's schedule) or each an array of one (a robot's axis: drive_tools.launch.axis_answer:
+    the feed-forward written by a thread that is not real-time, the speed reference the loop's own, following the live
+    ``live_commands``), the live commands (COMMAND_SLOTS rows of foc_controller.speed_command's fields; none: the
+    schedule's speed) and the sample period ``T_s`` [s]."""
+
+    cores: object
+    step: object
+    speed_ref: np.ndarray
+    tau_feedforward: np.ndarray
+    live_commands: np.ndarray
+    T_s: float
+
+
+COMMAND_SLOTS = 4
+"""Rows of a live command: Python writes a new command into the row after the one followed, then COMMAND_SLOT (one
+store), so the loop never reads a row being written unless Python writes three more within one of its reads."""
+
+
+def drive_parts(drive):
+    """AnswerParts of a runner.Drive built for a scenario: its schedule per sample."""
+    return AnswerParts(drive.cores(), drive.estimator.step, drive.speed_ref, drive.tau_feedforward,
+                       np.zeros((0, N_FIELDS)), drive.scenario.T_s)
+
+
 class HostCore(NamedTuple):
-    """The drive's cores as the answer steps them (DriveCores of drive_tools.runner.runner.Drive), its speed
-    reference and torque feed-forward per sample, the delay line and the block's buffers: the currents and
+    """The drive's cores as the answer steps them (AnswerParts.cores), its speed reference and torque
+    feed-forward (per sample, or live), the delay line and the block's buffers: the currents and
     angles as received (MAX_BLOCK rows), the block's currents (N × 3), its records (DRIVE_INPUT, ESTIMATE,
     COMMAND), its voltages [V] and its log rows; T_s [s]; the currents and angles of one telemetry message
-    (``chunk_*``: a CAN FD frame carries part of a block) and the part of a block held (``part``, ``part_at``)."""
+    (``chunk_*``: a CAN FD frame carries part of a block), the part of a block held (``part``, ``part_at``) and
+    the live commands (AnswerParts.live_commands)."""
 
     drive: DriveCores
     speed_ref: np.ndarray
@@ -70,6 +108,7 @@ class HostCore(NamedTuple):
     chunk_theta: np.ndarray
     part: np.ndarray
     part_at: np.ndarray
+    live_commands: np.ndarray
 
 
 @njit(nogil=True, _nrt=False, inline='always')
@@ -78,10 +117,17 @@ def answer_block(step, h, b, run, block, ring):
     accepted into ``h.received_*``) as bridge_loop's host answers it: the commands of
     samples never received and of periods run at zero volts are zero in the delay line; a whole block (its
     first sample a multiple of N; N samples, or the run's last ones) is answered by the block kernels and one
-    command message, then each sample goes into ``ring`` (rows, indices). False when the link failed."""
-    k0, n, u_dc_V, status, arrived = block
+    command message, then each sample goes into ``ring`` (rows, indices). ``block`` counts the inverter's
+    samples, the cores and the log the drive's (from ORIGIN on; nothing before it is answered). False when the
+    link failed."""
+    k_inverter, n, u_dc_V, status, arrived = block
     n_total, delay, N = run[N_SAMPLES], run[DELAY], h.currents.shape[0]
-    if k0 >= n_total:
+    if run[ORIGIN] < 0:
+        if k_inverter % N or n < N:
+            return True
+        run[ORIGIN] = k_inverter
+    k0 = k_inverter - run[ORIGIN]
+    if k0 < 0 or k0 >= n_total:
         return True
     k_end = min(k0 + n, n_total)
     for missed in range(run[NEXT_K], k0):
@@ -97,6 +143,11 @@ def answer_block(step, h, b, run, block, ring):
         for j in range(3):
             h.currents[i, j] = h.received_currents[i, j]
     cores = h.drive
+    if h.live_commands.shape[0] > 0:
+        n_p = cores.controller.n_p
+        stale = run[STALE_NS] > 0 and cb.monotonic_s(b.timespec) * 1e9 - run[COMMAND_AT_NS] > run[STALE_NS]
+        h.speed_ref[0] = 0.0 if stale else commanded_speed(h.live_commands[run[COMMAND_SLOT]], h.speed_ref[0],
+                                                           h.estimates[m - 1].theta_e_hat / n_p, m * h.T_s)
     fill_inputs(h.inputs, h.currents, h.received_theta, cores.controller.n_p, h.speed_ref, h.tau_feedforward, k0, m)
     drive_block(step, cores, (k0, m, u_dc_V), h.line, (h.currents, h.inputs, h.estimates, h.commands))
     enable = cores.protection_x[TRIPPED] == 0.0
@@ -105,14 +156,14 @@ def answer_block(step, h, b, run, block, ring):
     issue_and_log(h.line, h.rows, k0, m, h.T_s, h.inputs, h.estimates, h.commands)
     for i in range(m):
         h.voltages[0, i], h.voltages[1, i] = h.commands[i].u_alpha_V, h.commands[i].u_beta_V
-    if not cb.write_commands(b, k0, h.voltages[0], h.voltages[1], m, enable, safe):
+    if not cb.write_commands(b, k_inverter, h.voltages[0], h.voltages[1], m, enable, safe):
         return False
     host_s = cb.monotonic_s(b.timespec) - arrived
     rows, indices = ring
     for i in range(m):
         slot = free_slot(rows, indices)
         if slot >= 0:
-            rows[slot, RING_K], rows[slot, RING_HOST_S] = k0 + i, host_s
+            rows[slot, RING_K], rows[slot, RING_HOST_S] = k_inverter + i, host_s
             rows[slot, RING_THETA_M] = h.received_theta[i]
             for j in range(h.rows.shape[1]):
                 rows[slot, RING_LOG + j] = h.rows[i, j]
@@ -204,20 +255,66 @@ def answer_loop(step, h, b, run, ring):
             return STOPPED
 
 
+class RingBlocks:
+    """The ring's rows (RING_K, …: ``columns`` each) as whole blocks of ``block_samples``, in order: a block whose rows
+    the reader drained in two parts is handed on whole; rows that start no whole block (a gap) are left out."""
+
+    def __init__(self, block_samples, columns):
+        self.N = block_samples
+        self.pending = np.zeros((0, columns))
+        """The first rows of a block whose rest the ring has not handed over yet."""
+
+    def blocks(self, rows):
+        """Each whole block (an array of N rows) among the rows held and ``rows``; the first rows of one to come
+        held."""
+        rows = np.concatenate((self.pending, rows)) if len(self.pending) else rows
+        self.pending = rows[:0]
+        N, k = self.N, rows[:, RING_K].astype(np.int64)
+        whole, start = [], 0
+        while start < len(k):
+            if k[start] % N:
+                start += 1
+            elif start + N > len(k):
+                self.pending = rows[start:].copy()
+                break
+            elif k[start + N - 1] != k[start] + N - 1:
+                start += 1
+            else:
+                whole.append(rows[start:start + N])
+                start += N
+        return whole
+
+
 def link_name(link):
     """The port or CAN channel of ``link`` (SerialLink, CanLink), as its errors name it."""
     return getattr(link, "port", None) or f"CAN {link.channel}"
 
 
-def host_core(drive, line, block_samples):
-    """HostCore of ``drive`` (runner.Drive) with the delay ``line``, for blocks of ``block_samples``."""
+def host_core(parts, line, block_samples):
+    """HostCore of ``parts`` (AnswerParts) with the delay ``line``, for blocks of ``block_samples``."""
     from drive_common.contract.drive_records import commands, drive_inputs
     from drive_common.contract.estimator_records import estimates
     N = block_samples
-    return HostCore(drive.cores(), drive.speed_ref, drive.tau_feedforward, line, np.zeros((MAX_BLOCK, 3)),
+    return HostCore(parts.cores, parts.speed_ref, parts.tau_feedforward, line, np.zeros((MAX_BLOCK, 3)),
                     np.full(MAX_BLOCK, np.nan), np.zeros((N, 3)), drive_inputs(N), estimates(N), commands(N),
-                    np.zeros((2, N)), np.zeros((N, len(LOG_COLUMNS))), drive.scenario.T_s, np.zeros((MAX_BLOCK, 3)),
-                    np.full(MAX_BLOCK, np.nan), np.zeros(3, dtype=np.int64), np.zeros(2))
+                    np.zeros((2, N)), np.zeros((N, len(LOG_COLUMNS))), parts.T_s, np.zeros((MAX_BLOCK, 3)),
+                    np.full(MAX_BLOCK, np.nan), np.zeros(3, dtype=np.int64), np.zeros(2), parts.live_commands)
+
+
+def warm_answer(host, step, bridge, ring_columns):
+    """Load the loop of ``host`` (HostCore) and its estimator's ``step`` for ``bridge`` (InverterBridge) and a ring of
+    ``ring_columns``, compiled on a first run (then cached on disk: bound_kernels; a first compile takes tens of
+    seconds), by a call on copies of every state that stops at once: the drive, the bridge and its link untouched."""
+    copy = host._replace(drive=copied(host.drive), line=host.line.copy(), part=host.part.copy(),
+                         speed_ref=host.speed_ref.copy(), live_commands=host.live_commands.copy())
+    run = np.zeros(RUN_FIELDS, dtype=np.int64)
+    run[STOP] = 1
+    rx = np.zeros(cb.READ_BYTES + 2 * cb.fc.MAX_FRAME + 1, dtype=np.uint8)
+    arrays = cb.bridge_arrays(bridge.state.copy(), bridge.counter_array.copy(), bridge.written.copy(), rx,
+                              cc.can_decoder())
+    bound(answer_loop, step)(copy, arrays, run, sample_ring(1, ring_columns))
+    empty = sample_ring(1, ring_columns)
+    drain(empty.rows, empty.indices, np.zeros((1, ring_columns)))
 
 
 class AnswerOptions(NamedTuple):
@@ -231,22 +328,24 @@ class AnswerOptions(NamedTuple):
 
 
 class CompiledAnswer:
-    """The compiled answer of ``drive`` (runner.Drive) through ``bridge`` (InverterBridge on a SerialLink, or a
-    CanLink on SocketCAN or the cable), ``n_samples`` samples at the command delay ``delay``: ``start`` its
+    """The compiled answer of ``parts`` (AnswerParts) through ``bridge`` (InverterBridge on a SerialLink, or a
+    CanLink on SocketCAN or the cable), ``n_samples`` samples (OPEN_ENDED: until stopped) at the command delay
+    ``delay``, the drive's sample 0 at the inverter's ``origin`` (−1: the first whole block taken): ``start`` its
     thread and the ring's reader, which hands the rows it drains (RING_K, RING_HOST_S, RING_THETA_M, then the
     log row) to ``take(rows)``, oldest first; ``stop``; ``join``. The answer thread runs the compiled loop, and
     between its calls reconnects a failed link as InverterBridge does (on a cable, looks for the other
     member). The reader runs at normal scheduling (SCHED_OTHER) in a process whose threads are SCHED_FIFO: it
     is not real-time."""
 
-    def __init__(self, drive, bridge, line, run_samples, options=None):
+    def __init__(self, parts, bridge, line, run_samples, options=None, origin=0):
         n_samples, delay = run_samples
         self.bridge, self.options = bridge, options or AnswerOptions()
         options = self.options
-        self.step = drive.estimator.step
-        self.host = host_core(drive, line, bridge.block_samples)
-        self.run = np.zeros(6, dtype=np.int64)
+        self.step = parts.step
+        self.host = host_core(parts, line, bridge.block_samples)
+        self.run = np.zeros(RUN_FIELDS, dtype=np.int64)
         self.run[N_SAMPLES], self.run[DELAY], self.run[LAST_ANSWERED] = n_samples, delay, -1
+        self.run[ORIGIN] = origin
         self.ring = sample_ring(options.ring_rows, RING_LOG + len(LOG_COLUMNS))
         self.scheduling = {"applied": [], "refused": []}
         self.answering = threading.Thread(target=self._answer, name="drive_answer", daemon=True)
@@ -257,20 +356,11 @@ class CompiledAnswer:
         self._warm_up()
 
     def _warm_up(self):
-        """Load the loop (compiled on a first run, then cached: bound_kernels) on copies before the
-        inverter starts: a first call takes seconds. The link is opened for it (and HELLO asked for) if it is
-        not open yet."""
-        h = self.host
-        copy = h._replace(drive=copied(h.drive), line=h.line.copy(), part=h.part.copy())
-        run = self.run.copy()
-        run[STOP] = 1
-        bridge = self.bridge
-        if not bridge.open:
-            bridge.reopen()
-        if bridge.open:
-            bound(answer_loop, self.step)(copy, cb.load_bridge(bridge), run, sample_ring(1, self.ring.rows.shape[1]))
-        empty = sample_ring(1, self.ring.rows.shape[1])
-        drain(empty.rows, empty.indices, np.zeros((1, self.ring.rows.shape[1])))
+        """Load the loop before the inverter starts (warm_answer); the link is opened (and HELLO asked for) if
+        it is not open yet."""
+        if not self.bridge.open:
+            self.bridge.reopen()
+        warm_answer(self.host, self.step, self.bridge, self.ring.rows.shape[1])
 
     def start(self, take):
         self.reading = threading.Thread(target=self._read, args=(take,), name="drive_answer_reader", daemon=True)
@@ -374,4 +464,4 @@ def answer_of(drive, bridge, options=None):
     from drive_common.math.command_delay import command_line
     scenario = drive.scenario
     delay = scenario.drive_delay_periods()
-    return CompiledAnswer(drive, bridge, command_line(delay), (scenario.n_samples, delay), options)
+    return CompiledAnswer(drive_parts(drive), bridge, command_line(delay), (scenario.n_samples, delay), options)
