@@ -26,18 +26,22 @@ switching (SAFE_AUTO: the inverter's own choice; drive_common.math.safe_state's 
 SAFE_AUTO = 0
 HELLO_ENCODER_PRESENT = 0x01
 HELLO_SAFE_STATES = 0x02
+HELLO_INDEX_INPUT = 0x04
+"""HELLO flags bit 2: the inverter has an index input (status INDEX_TOGGLE)."""
 """The inverter takes the safe state of the flags and reports OVERVOLTAGE, FREEWHEELING, SHORT_CIRCUIT."""
 
 OVERCURRENT, WATCHDOG, PWM_OFF, COMMAND_MISSING = 1 << 0, 1 << 1, 1 << 2, 1 << 3
 HEARTBEAT_LOST, BAD_FRAME, UNDERVOLTAGE, ENCODER_VALID = 1 << 4, 1 << 5, 1 << 6, 1 << 7
 OVERVOLTAGE, FREEWHEELING, SHORT_CIRCUIT = 1 << 8, 1 << 9, 1 << 10
+INDEX_TOGGLE = 1 << 11
+"""Toggles at each pulse of the inverter's index input (once per turn; a block's: as at its last sample)."""
 CLEARED_BY_HOST = WATCHDOG | HEARTBEAT_LOST
 """Latched faults a link loss or a silent host causes; the host clears them when the link is back,
 never an overcurrent or an over-voltage."""
 STATUS_NAMES = {OVERCURRENT: "overcurrent", WATCHDOG: "watchdog", PWM_OFF: "pwm_off",
                 COMMAND_MISSING: "command_missing", HEARTBEAT_LOST: "heartbeat_lost", BAD_FRAME: "bad_frame",
                 UNDERVOLTAGE: "undervoltage", ENCODER_VALID: "encoder_valid", OVERVOLTAGE: "overvoltage",
-                FREEWHEELING: "freewheeling", SHORT_CIRCUIT: "short_circuit"}
+                FREEWHEELING: "freewheeling", SHORT_CIRCUIT: "short_circuit", INDEX_TOGGLE: "index_toggle"}
 
 
 def command_flags(enable, safe_state=SAFE_AUTO):

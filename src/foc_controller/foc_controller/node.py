@@ -68,7 +68,7 @@ from .control import (
     estimated_torque,
 )
 from .params import check_speed_limit
-from .position import HARD_STOP, HOMING_METHODS, Homing, HomingSettings, search_acceleration
+from .position import HARD_STOP, HOMING_METHODS, INDEX, Homing, HomingSettings, search_acceleration
 from .protection import protection_block, protection_state
 from .supervision import SpeedSupervisor, fault_line
 
@@ -149,6 +149,10 @@ class ControllerNode(DriveNode):
         self.homing = None
         """The joint's homing (foc_controller.position.Homing), made with the core where homing_method says."""
         self.last_i_q = 0.0
+        self.index_input = None
+        """The inverter's index input (index_from), or None: none known."""
+        self.index_count = 0
+        """The index input's count or parity at the last block answered."""
         self.homing_now = False
         """The last block's speed reference was homing's: a shaft stalled at the stop is what it looks for, not a
         fault of the speed supervision."""
@@ -309,9 +313,24 @@ class ControllerNode(DriveNode):
             if self.homing is None:
                 response.success, response.message = False, "this joint has no homing (homing_method)"
             else:
-                self.homing.start()
-                response.success, response.message = True, "homing"
+                self.start_homing()
+                response.success = self.homing.active
+                response.message = "homing" if self.homing.active else self.homing.reason
         return response
+
+    def index_from(self, index_input):
+        """The inverter's index input: ``index_input()`` gives (whether the inverter has one, its count or parity now:
+        a change is a pulse), read at each block the nodes answer (a compiled answer hands it with its rows)."""
+        self.index_input = index_input
+
+    def start_homing(self):
+        """Homing started (again); where it looks for an index the inverter has none, failed at once (said on
+        /diagnostics)."""
+        h = self.homing
+        h.start()
+        if h.settings.method == INDEX and (self.index_input is None or not self.index_input()[0]):
+            h.fail("the inverter reports no index input (its HELLO); home against a stop (hard_stop) instead")
+            self.fault("homing_failed", h.reason)
 
     def on_speed_command(self, msg):
         self.take_command(msg.data, None, SPEED_COMMAND)
@@ -503,6 +522,8 @@ class ControllerNode(DriveNode):
                 speed, feedforward = self.schedule[0][k0:k0 + n], self.schedule[1][k0:k0 + n]
                 self.omega_m_ref, self.tau_feedforward = speed[-1], feedforward[-1]
             else:
+                if self.index_input is not None:
+                    self.index_count = self.index_input()[1]
                 reference, ff, torque = self.reference(n, estimate, state)
                 speed, feedforward = np.full(n, reference), np.full(n, ff)
             estimated = estimates(n)
@@ -564,14 +585,16 @@ class ControllerNode(DriveNode):
             self.joint_msg = j
             self.joint_pub.publish(j)
 
-    def take_answered(self, k0, rows, live):
+    def take_answered(self, k0, rows, live, index_count=0):
         """What a compiled answer (drive_tools.launch.axis_answer) answered for the drive's samples k0 … k0 + n − 1,
         from their log rows (drive_common.contract.log.LOG_COLUMNS), on the answer's ring reader (not real-time):
         what the joint is told for the blocks to come (homing, the command hold, the position loop: ``reference``'s
         speed command) written into ``live`` (axis_answer.LiveCommand), the torque released or not
         (control.TORQUE_RELEASED, read by the answer's next sample), then what note_block tells and the voltage
-        commands published."""
+        commands published; ``index_count``: the inverter's index input at the last of them (a count or its parity:
+        a change is a pulse)."""
         n = len(rows)
+        self.index_count = index_count
         estimate = (rows[:, COLUMN["theta_e_hat"]] / self.n_p, rows[:, COLUMN["omega_e_hat"]] / self.n_p)
         codes = rows[:, COLUMN["state"]]
         with self.sample_lock:
@@ -615,10 +638,11 @@ class ControllerNode(DriveNode):
                 self.fault("homing_lost", h.reason)
                 self.hold.command(time.monotonic(), 0.0, self.tau_feedforward)
         if h is not None and h.state == "not_homed" and state[2][-1] == TRACKING:
-            h.start()
+            self.start_homing()
         self.homing_now = h is not None and h.active
         if self.homing_now:
-            speed = (h.reference if followed else h.command_now)(n * self.T_s, (theta, omega), self.last_i_q)
+            speed = (h.reference if followed else h.command_now)(n * self.T_s, (theta, omega), self.last_i_q,
+                                                                 self.index_count)
             if h.homed:
                 self.hold.command(time.monotonic(), 0.0, self.tau_feedforward, h.target)
             return speed, self.tau_feedforward, True

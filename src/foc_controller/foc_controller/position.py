@@ -92,6 +92,11 @@ class Homing:
         self.elapsed_s = self.pushed_s = self.search_speed = 0.0
         self.index_count = None
 
+    def fail(self, why):
+        """Homing failed (``why``: one line): FAILED until started again."""
+        self.state, self.reason = FAILED, why
+        self.theta_zero = self.theta_found = self.target = math.nan
+
     def lose(self, why):
         """The zero lost (``why``: one line): LOST until started again."""
         if self.state in (NOT_HOMED, FAILED, LOST):

@@ -32,7 +32,9 @@ from drive_bridge.inverter_protocol import (
     FREEWHEELING,
     HEARTBEAT_LOST,
     HELLO_ENCODER_PRESENT,
+    HELLO_INDEX_INPUT,
     HELLO_SAFE_STATES,
+    INDEX_TOGGLE,
     MAX_BLOCK,
     OVERCURRENT,
     OVERVOLTAGE,
@@ -117,10 +119,13 @@ class VirtualInverter:
         drive_id = options.drive_id
         self.current_lsb = float(np.float32(2.0 * self.trip_current_A / 32767.0))
         self.voltage_lsb = float(np.float32(2.0 * self.plant.inverter.U_dc_V / 32767.0))
-        self.hello = Hello(drive_id, (HELLO_ENCODER_PRESENT if encoder else 0) | HELLO_SAFE_STATES,
+        self.hello = Hello(drive_id, (HELLO_ENCODER_PRESENT if encoder else 0) | HELLO_SAFE_STATES | HELLO_INDEX_INPUT,
                            self.plant.machine.n_p, self.block_samples, round(scenario.T_s * 1e9), self.current_lsb,
                            self.voltage_lsb, float(np.float32(self.trip_current_A)), self.watchdog_periods)
         self.k = 0
+        self.index_turn, self.index_pulses = None, 0
+        """The index input: a pulse each time the shaft's true mechanical angle passes a whole turn (θ_m ≡ 0 mod 2π);
+        the turn of the last sample sent and the pulses so far (the status's INDEX_TOGGLE: their parity)."""
         self.clock_start = 0.0
         self.enabled = False
         self.latched = 0
@@ -434,6 +439,7 @@ class VirtualInverter:
         bad_frames = sum(self.endpoint.errors.values())
         status |= BAD_FRAME if bad_frames > self.bad_frames else 0
         self.bad_frames = bad_frames
+        status |= INDEX_TOGGLE if self.index_pulses % 2 else 0
         return status | (ENCODER_VALID if self.encoder else 0)
 
     def send_samples(self, k0, n, out):
@@ -445,6 +451,10 @@ class VirtualInverter:
             encoder = round((row[6] % (2.0 * math.pi)) / (2.0 * math.pi) * 65536.0) % 65536 if self.encoder else 0
             samples.append((_clip16(row[3] / lsb), _clip16(row[4] / lsb), _clip16(row[5] / lsb), encoder))
             self.truth[k0 + i] = (row[6], row[7], row[8], row[9], row[0], row[1], row[2])
+            turn = math.floor(row[6] / (2.0 * math.pi))
+            if self.index_turn is not None:
+                self.index_pulses += abs(turn - self.index_turn)
+            self.index_turn = turn
         self.modes[k0:k0 + n] = self.plant.x[INVERTER_MODE]
         u_dc = min(65535, round(bus_voltage(self.plant.x, self.plant.inverter) / self.voltage_lsb))
         status = self.status()

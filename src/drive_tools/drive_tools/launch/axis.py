@@ -255,6 +255,7 @@ class AxisNode(LifecycleNode):
         self.controller = make_node("foc_controller", self.context, self.spec.namespace, controller,
                                     estimator=estimator)
         self.controller.hand_commands_to(self.handover.take_commands)
+        self.controller.index_from(self.index_input)
         for node in (estimator, self.controller):
             self.executor.add_node(node)
         if self.recording is not None:
@@ -289,6 +290,15 @@ class AxisNode(LifecycleNode):
             except Exception as error:
                 self.error = f"{self.spec.joint}: the compiled answer could not be loaded: {error}"
                 self.get_logger().error(self.error)
+
+    def index_input(self):
+        """(whether the inverter has an index input, by its HELLO; the parity of its index pulses now, by its
+        status)."""
+        from drive_bridge.inverter_protocol import HELLO_INDEX_INPUT, INDEX_TOGGLE
+        b = self.bridge.bridge if self.bridge is not None else None
+        if b is None or b.hello is None:
+            return False, 0
+        return bool(b.hello.flags & HELLO_INDEX_INPUT), int(bool(b.status & INDEX_TOGGLE))
 
     def drive_nodes(self):
         """The axis's drive nodes now (bridge, estimator, controller: those that exist)."""
@@ -334,6 +344,21 @@ class AxisNode(LifecycleNode):
             answer.start()
         else:
             self.bridge.take_link_back()
+
+    def answer_failure(self):
+        """Why the armed axis's compiled answer is not answering (it could not be armed, its loop or its reader
+        raised), in one line; None while it answers, is being armed, or the axis is not armed with it."""
+        if not self.armed:
+            return None
+        answer = self.answer
+        if answer is None:
+            arming = self.arming
+            return self.error or None if arming is not None and not arming.is_alive() else None
+        if answer.error is not None:
+            return f"its compiled answer's reader stopped ({answer.error!r})"
+        if answer.answer.error is not None:
+            return f"its compiled answer stopped ({answer.answer.error!r})"
+        return None
 
     def caught_up(self, k):
         """Whether the drive has done all it does with the inverter's sample k (the compiled answer's reader has handed

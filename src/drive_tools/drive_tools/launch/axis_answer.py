@@ -12,6 +12,7 @@ from typing import NamedTuple
 import numpy as np
 
 from drive_bridge.inverter_bridge import BridgeBlock
+from drive_bridge.inverter_protocol import INDEX_TOGGLE
 from drive_common.contract.log import COLUMN, LOG_COLUMNS
 from drive_common.math.command_delay import command_line
 from drive_tools.runner.compiled_answer import (
@@ -23,6 +24,7 @@ from drive_tools.runner.compiled_answer import (
     ORIGIN,
     RING_K,
     RING_LOG,
+    RING_STATUS,
     RING_THETA_M,
     STALE_NS,
     AnswerOptions,
@@ -120,10 +122,10 @@ class AxisAnswer:
         return self.answer.overflow
 
     def take(self, rows):
-        """Rows the ring handed over (compiled_answer's RING_K, RING_HOST_S, RING_THETA_M, then the log row), on its
-        reader: each whole block to the bridge node (`currents`, `rotor_state`, the link's faults), the estimator
-        node (its topics, its state's changes) and the controller node (the reference for the blocks to come, the
-        supervision, `joint_states`, `voltage_command`)."""
+        """Rows the ring handed over (compiled_answer's RING_K, RING_HOST_S, RING_THETA_M, RING_STATUS, then the log
+        row), on its reader: each whole block to the bridge node (`currents`, `rotor_state`, the link's faults), the
+        estimator node (its topics, its state's changes) and the controller node (the command for the blocks to come,
+        the index input's state, the supervision, `joint_states`, `voltage_command`)."""
         if self.error is not None:
             return
         try:
@@ -146,7 +148,8 @@ class AxisAnswer:
             theta = np.ascontiguousarray(here[:, RING_THETA_M])
             self.bridge_node.publish_blocks([BridgeBlock(int(here[0, RING_K]), currents, theta, np.nan, 0)])
             e.publish_answered(k_drive, here[:, RING_LOG:])
-            c.take_answered(k_drive, here[:, RING_LOG:], self.live)
+            index = int(bool(int(here[-1, RING_STATUS]) & INDEX_TOGGLE))
+            c.take_answered(k_drive, here[:, RING_LOG:], self.live, index)
             self.handed_up_to = int(here[-1, RING_K])
 
     def caught_up(self, k):

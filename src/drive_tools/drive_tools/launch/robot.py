@@ -246,8 +246,9 @@ def _initial_state(robot, axes):
 
 
 def _run(executor, axes):
-    """Spin until a signal, a lost link or a callback's defect (every axis then brought to its safe state by the
-    caller, the defect said in one line: where it was raised and what); (exit code, reason)."""
+    """Spin until a signal, a lost link, an armed axis whose compiled answer stopped or a callback's defect (every
+    axis then brought to its safe state by the caller, the defect said in one line: where it was raised and what);
+    (exit code, reason)."""
     while True:
         try:
             executor.spin_once(timeout_sec=0.05)
@@ -260,6 +261,9 @@ def _run(executor, axes):
             if axis.link_lost():
                 return EXIT_NODE_FAULTS, (f"axis {axis.spec.joint}: its inverter link is lost "
                                           f"({axis.bridge.bridge.lost_reason}); every axis put in its safe state")
+            failure = axis.answer_failure()
+            if failure:
+                return EXIT_NODE_FAULTS, f"axis {axis.spec.joint}: {failure}; every axis put in its safe state"
 
 
 def where_raised(error):

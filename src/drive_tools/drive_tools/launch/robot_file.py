@@ -242,10 +242,7 @@ def _homing(section, where, fail):
     except ValueError as error:
         key, problem = str(error).split(": ", 1)
         fail(key, problem)
-    if values["method"] == "index":
-        fail(f"{where}.method", "index: the inverter link carries no index input yet (docs/robot.md \"Position\"); "
-                                "home against a hard stop (hard_stop)")
-    if (values["current_A"] is None) == (values["torque_Nm"] is None):
+    if values["method"] == "hard_stop" and (values["current_A"] is None) == (values["torque_Nm"] is None):
         fail(where, "hard_stop: give current_A or torque_Nm (one of them): where the stop is found")
     return values
 

@@ -32,9 +32,10 @@ from foc_controller.speed_command import N_FIELDS, commanded_speed
 from .answer_kernels import fill_inputs, issue_and_log
 from .loop import DriveCores, copied, drive_block
 
-RING_K, RING_HOST_S, RING_THETA_M, RING_LOG = 0, 1, 2, 3
+RING_K, RING_HOST_S, RING_THETA_M, RING_STATUS, RING_LOG = 0, 1, 2, 3, 4
 """A ring row: the sample k, the host's time from its telemetry read to its command written [s], the encoder's
-angle as received [rad, mechanical; NaN: none], then its log row (LOG_COLUMNS)."""
+angle as received [rad, mechanical; NaN: none], the inverter's status word of its block, then its log row
+(LOG_COLUMNS)."""
 RING_ROWS = 1 << 15
 """The ring's rows by default: 3.3 s of samples at 10 kHz (8 MiB)."""
 (STOP, NEXT_K, LAST_ANSWERED, N_SAMPLES, DELAY, DRAINING, ORIGIN, COMMAND_SLOT, COMMAND_AT_NS,
@@ -164,7 +165,7 @@ def answer_block(step, h, b, run, block, ring):
         slot = free_slot(rows, indices)
         if slot >= 0:
             rows[slot, RING_K], rows[slot, RING_HOST_S] = k_inverter + i, host_s
-            rows[slot, RING_THETA_M] = h.received_theta[i]
+            rows[slot, RING_THETA_M], rows[slot, RING_STATUS] = h.received_theta[i], status
             for j in range(h.rows.shape[1]):
                 rows[slot, RING_LOG + j] = h.rows[i, j]
             publish(indices)
