@@ -512,6 +512,20 @@ def test_a_lost_link_brings_every_axis_to_its_safe_state_and_exits_3(tmp_path, a
     recorded_whole(tmp_path / "robot_bag", report)
 
 
+def test_a_paced_axis_with_its_inverter_apart_runs_to_the_end_of_its_simulation(tmp_path):
+    """`inverter_apart: true`: the paced virtual inverter runs in a process of its own (as `drive bench robot
+    --inverter-apart` measures it), judges the compiled answer's commands by the host's writes across processes, and
+    reports its timing; its simulation's end is a lost link (exit 3). Lateness is the bench's, not judged here."""
+    drive_files(tmp_path, duration_s=1.5, load=False)
+    path = robot_file(tmp_path, "format_version: 1\ninitial_state: active\naxes:\n  - {joint: shoulder, drive: "
+                                "arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, inverter_apart: true}\n")
+    run = subprocess.run([str(DRIVE), "up", str(path), "--json"], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=300)
+    assert run.returncode == 3 and "link is lost" in run.stderr.splitlines()[-1], run.stderr[-800:]
+    timing = json.loads(run.stdout)["axes"][0]["inverter_timing"]
+    assert timing["periods_since_start"] > 5000, timing
+
+
 def test_an_axis_whose_drive_refuses_its_configuration_ends_the_start_in_one_line(tmp_path):
     """Blocks of 20 samples delay the answer past what ours' targets allow on this motor: the estimator refuses its
     configuration, `drive up` exits 3 naming the axis and the reason (no traceback), the other axis told to stop."""
