@@ -143,6 +143,27 @@ def test_an_armed_axis_whose_compiled_answer_stopped_ends_drive_up_in_one_line()
                       "state")
 
 
+@pytest.mark.unit
+def test_stopping_an_axis_whose_compiled_loop_died_goes_on_to_its_safe_state():
+    """The loop's exception is reported by the axis (answer_failure), not raised again when the axis is stopped: the
+    stop goes on to tell the inverter (drive up's _stop and safe_state)."""
+    from drive_tools.launch.axis_answer import AxisAnswer
+
+    class Died:
+        stopped = False
+
+        def stop(self):
+            self.stopped = True
+
+        def join(self, timeout_s=None):
+            raise RuntimeError("the loop died")
+
+    answer = object.__new__(AxisAnswer)
+    answer.answer = Died()
+    answer.stop()
+    assert answer.answer.stopped
+
+
 def test_the_documented_hand_started_commands_work_as_written_in_a_shell(tmp_path):
     """docs/ros-graph.md, "A drive without a scenario": the estimator's and the controller's lines, `-p scenario:=''`
     and all, run through bash as written; each node starts open-ended on the drive configuration."""

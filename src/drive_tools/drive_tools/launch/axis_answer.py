@@ -110,9 +110,14 @@ class AxisAnswer:
         self.answer.start(self.take)
 
     def stop(self, timeout_s=2.0):
-        """The loop stopped (within its poll, 50 ms) and its rows handed over."""
+        """The loop stopped (within its poll, 50 ms) and its rows handed over. A loop that died of an exception is
+        not raised again here (it is the answer's ``error``, which AxisNode.answer_failure reports): stopping an axis
+        always goes on to its safe state."""
         self.answer.stop()
-        self.answer.join(timeout_s)
+        try:
+            self.answer.join(timeout_s)
+        except Exception:
+            pass
 
     def alive(self):
         return self.answer.alive()
