@@ -2,6 +2,7 @@
 commands as written in a shell; two virtual axes in one process, driven through the lifecycle from this (another)
 process, commanded on the joint command topic, bad commands refused and counted, a command timeout that holds a
 loaded joint and later releases it, and SIGTERM that leaves every inverter switched off."""
+import contextlib
 import json
 import math
 import os
@@ -602,42 +603,56 @@ STOP_RAD = 2.3
 """The shoulder's end stop in the simulation (its truth; the drive is not told): 1 rad above its start."""
 
 
-def test_a_joint_homes_against_its_stop_then_follows_position_commands(tmp_path):
-    """The shoulder homes after its start-up (the stop found by current, backed off 0.3 rad: the joint at 0.7 rad
-    with its zero 1 rad below the stop) and is published on /joint_states only once homed; a position command moves
-    it there (the simulation's truth); position commands to the wrist, which has no homing, are refused and counted."""
-    from sensor_msgs.msg import JointState
-    drive_files(tmp_path, load=False)
-    sim = (tmp_path / "arm_sim.yaml").read_text()
-    (tmp_path / "arm_sim.yaml").write_text(sim + f"end_stop: {{high_rad: {STOP_RAD}}}\n")
-    path = robot_file(tmp_path, HOMED_ARM)
-    err = (tmp_path / "up.log").open("w")
-    process = subprocess.Popen([str(DRIVE), "up", str(path)], cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=err)
+@contextlib.contextmanager
+def homed_robot(folder, text, wait_s):
+    """`drive up` of robot file ``text`` in ``folder`` and this process's client, yielded (client, deadline) once the
+    shoulder's controller says it is homed (within ``wait_s``; the deadline is that bound); the robot stopped after."""
+    path = robot_file(folder, text)
+    err = (folder / "up.log").open("w")
+    process = subprocess.Popen([str(DRIVE), "up", str(path)], cwd=folder, stdout=subprocess.DEVNULL, stderr=err)
     client = Client()
     try:
-        deadline = time.monotonic() + 120.0
+        deadline = time.monotonic() + wait_s
         while client.diagnostics.get("/shoulder/foc_controller", {}).get("homing") != "homed":
-            assert time.monotonic() < deadline and process.poll() is None, (tmp_path / "up.log").read_text()[-800:]
+            assert time.monotonic() < deadline and process.poll() is None, (folder / "up.log").read_text()[-800:]
             client.spin(0.2)
-        client.spin_simulated(0.5)
-        assert client.truth[-1][1] == pytest.approx(STOP_RAD - 0.3, abs=0.06)
-        assert client.joint("shoulder")[0] == pytest.approx(0.7, abs=0.06)
-        assert all(math.isfinite(m.position[m.name.index("shoulder")]) for m in client.states if "shoulder" in m.name)
-        target = 0.2
-        start = client.truth[-1][0]
-        while client.truth[-1][0] < start + 1.5:
-            assert time.monotonic() < deadline + 60.0
-            client.command_pub.publish(JointState(name=["shoulder"], position=[target]))
-            client.command_pub.publish(JointState(name=["wrist"], position=[0.0]))
-            client.spin(0.04)
-        assert client.truth[-1][1] == pytest.approx(STOP_RAD - 1.0 + target, abs=0.06)
-        assert client.joint("shoulder")[0] == pytest.approx(target, abs=0.06)
-        assert client.robot_faults().get("faults.command_not_homed", 0) > 0
+        yield client, deadline
     finally:
         client.close()
         process.send_signal(signal.SIGTERM)
         process.wait(timeout=60)
         err.close()
+
+
+def command_positions(client, positions, simulated_s, deadline):
+    """Publish ``positions`` ({joint: rad}) as joint commands every 40 ms until the shoulder's simulation ran
+    ``simulated_s`` more (before ``deadline``)."""
+    from sensor_msgs.msg import JointState
+    start = client.truth[-1][0]
+    while client.truth[-1][0] < start + simulated_s:
+        assert time.monotonic() < deadline
+        for joint, position in positions.items():
+            client.command_pub.publish(JointState(name=[joint], position=[position]))
+        client.spin(0.04)
+
+
+def test_a_joint_homes_against_its_stop_then_follows_position_commands(tmp_path):
+    """The shoulder homes after its start-up (the stop found by current, backed off 0.3 rad: the joint at 0.7 rad
+    with its zero 1 rad below the stop) and is published on /joint_states only once homed; a position command moves
+    it there (the simulation's truth); position commands to the wrist, which has no homing, are refused and counted."""
+    drive_files(tmp_path, load=False)
+    sim = (tmp_path / "arm_sim.yaml").read_text()
+    (tmp_path / "arm_sim.yaml").write_text(sim + f"end_stop: {{high_rad: {STOP_RAD}}}\n")
+    with homed_robot(tmp_path, HOMED_ARM, 120.0) as (client, deadline):
+        client.spin_simulated(0.5)
+        assert client.truth[-1][1] == pytest.approx(STOP_RAD - 0.3, abs=0.06)
+        assert client.joint("shoulder")[0] == pytest.approx(0.7, abs=0.06)
+        assert all(math.isfinite(m.position[m.name.index("shoulder")]) for m in client.states if "shoulder" in m.name)
+        target = 0.2
+        command_positions(client, {"shoulder": target, "wrist": 0.0}, 1.5, deadline + 60.0)
+        assert client.truth[-1][1] == pytest.approx(STOP_RAD - 1.0 + target, abs=0.06)
+        assert client.joint("shoulder")[0] == pytest.approx(target, abs=0.06)
+        assert client.robot_faults().get("faults.command_not_homed", 0) > 0
 
 
 INDEXED_ARM = """format_version: 1
@@ -656,28 +671,10 @@ def test_a_joint_homes_at_its_index_pulse_then_follows_position_commands(tmp_pat
     """The shoulder searches upward after its start-up until the inverter's index input pulses (status INDEX_TOGGLE),
     holds there with its zero 0.4 rad above it, and a position command moves it to its zero (the simulation's truth):
     the homed frame is the index's, whatever mechanical angle the start-up took for the rotor's."""
-    from sensor_msgs.msg import JointState
     drive_files(tmp_path, load=False)
-    path = robot_file(tmp_path, INDEXED_ARM)
-    err = (tmp_path / "up.log").open("w")
-    process = subprocess.Popen([str(DRIVE), "up", str(path)], cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=err)
-    client = Client()
-    try:
-        deadline = time.monotonic() + 180.0
-        while client.diagnostics.get("/shoulder/foc_controller", {}).get("homing") != "homed":
-            assert time.monotonic() < deadline and process.poll() is None, (tmp_path / "up.log").read_text()[-800:]
-            client.spin(0.2)
+    with homed_robot(tmp_path, INDEXED_ARM, 180.0) as (client, deadline):
         client.spin_simulated(0.5)
         assert client.truth[-1][1] == pytest.approx(INDEX_RAD, abs=0.06)
         assert client.joint("shoulder")[0] == pytest.approx(-0.4, abs=0.06)
-        start = client.truth[-1][0]
-        while client.truth[-1][0] < start + 1.5:
-            assert time.monotonic() < deadline + 60.0
-            client.command_pub.publish(JointState(name=["shoulder"], position=[0.0]))
-            client.spin(0.04)
+        command_positions(client, {"shoulder": 0.0}, 1.5, deadline + 60.0)
         assert client.truth[-1][1] == pytest.approx(INDEX_RAD + 0.4, abs=0.06)
-    finally:
-        client.close()
-        process.send_signal(signal.SIGTERM)
-        process.wait(timeout=60)
-        err.close()

@@ -162,7 +162,7 @@ def load_bridge(bridge):
     state[FD], state[LINK_KIND] = fd, kind
     for error, count in link.errors.items():
         counters[FRAME_ERRORS + fc.FRAME_ERROR_KINDS.index(error)] = count
-    rx = np.zeros(READ_BYTES + 2 * fc.MAX_FRAME + 1, dtype=np.uint8)
+    rx = rx_buffer()
     state[RX_BYTES] = 0
     if kind == SERIAL:
         can_state, can_hello = cc.can_decoder()
@@ -175,6 +175,18 @@ def load_bridge(bridge):
         state[PEER_LOST] = PEER_NONE if kind == CABLE and not link.bus.connect_peer() else 0.0
         state[FD] = link_kind(link)[1]
     return bridge_arrays(state, counters, bridge.written, rx, (can_state, can_hello))
+
+
+def rx_buffer():
+    """The bytes received and not yet framed: a read's worth and two frames."""
+    return np.zeros(READ_BYTES + 2 * fc.MAX_FRAME + 1, dtype=np.uint8)
+
+
+def copied_bridge(bridge):
+    """BridgeArrays over copies of ``bridge``'s (InverterBridge) state, counters and ring of writes, nothing received
+    and a fresh CAN decoder: the kernels loaded on them leave the bridge and its link untouched."""
+    return bridge_arrays(bridge.state.copy(), bridge.counter_array.copy(), bridge.written.copy(), rx_buffer(),
+                         cc.can_decoder())
 
 
 def bridge_arrays(state, counters, written, rx, decoder):

@@ -17,7 +17,6 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from drive_bridge import can_codec as cc
 from drive_bridge import compiled_bridge as cb
 from drive_bridge.can_cable import MEMBERS_REFRESH_S
 from drive_bridge.inverter_protocol import COMMAND_MISSING, CONTROL_SEND_HELLO, MAX_BLOCK, PWM_OFF
@@ -310,10 +309,7 @@ def warm_answer(host, step, bridge, ring_columns):
                          speed_ref=host.speed_ref.copy(), live_commands=host.live_commands.copy())
     run = np.zeros(RUN_FIELDS, dtype=np.int64)
     run[STOP] = 1
-    rx = np.zeros(cb.READ_BYTES + 2 * cb.fc.MAX_FRAME + 1, dtype=np.uint8)
-    arrays = cb.bridge_arrays(bridge.state.copy(), bridge.counter_array.copy(), bridge.written.copy(), rx,
-                              cc.can_decoder())
-    bound(answer_loop, step)(copy, arrays, run, sample_ring(1, ring_columns))
+    bound(answer_loop, step)(copy, cb.copied_bridge(bridge), run, sample_ring(1, ring_columns))
     empty = sample_ring(1, ring_columns)
     drain(empty.rows, empty.indices, np.zeros((1, ring_columns)))
 
