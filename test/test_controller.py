@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from drive_common.contract.log import COLUMN
+from foc_controller.control import fundamental_scale
 from foc_controller.tuning import SZABO_TABLE2, current_pi_gains, speed_pi_gains
 from helpers import run, scenario, shipped
 
@@ -68,6 +69,29 @@ def test_voltage_command_respects_inverter_limit():
     limit = result.scenario.motor.inverter.U_dc_V / math.sqrt(3.0)
     assert u.max() <= limit * (1.0 + 1e-12)
     assert np.mean(u > 0.999 * limit) > 0.01
+
+
+def test_the_fundamental_takes_the_room_the_injection_leaves_as_vectors_add():
+    """Over random fundamentals and injections (αβ, V): the share s of the fundamental kept is the largest in
+    [0, 1] with |s·u + u_inj| within the limit (on the bound where it is below 1, to 1e-9); a q-axis
+    fundamental beside a d-axis carrier keeps √(limit² − U_h²), not limit − U_h; an injection at the limit
+    leaves none."""
+    rng = np.random.default_rng(51)
+    limit = 48.0
+    for _ in range(2000):
+        u = rng.normal(0.0, 40.0, 2)
+        injection = rng.normal(0.0, 1.0, 2) * rng.uniform(0.0, 0.99 * limit) / math.sqrt(2.0)
+        if np.hypot(*injection) >= limit:
+            continue
+        s = fundamental_scale(u[0], u[1], injection[0], injection[1], limit)
+        assert 0.0 <= s <= 1.0
+        total = np.hypot(*(s * u + injection))
+        assert total <= limit * (1.0 + 1e-12)
+        if s < 1.0:
+            assert total == pytest.approx(limit, rel=1e-9)
+    room = fundamental_scale(0.0, 100.0, 38.0, 0.0, limit) * 100.0
+    assert room == pytest.approx(math.sqrt(limit ** 2 - 38.0 ** 2), rel=1e-12)
+    assert fundamental_scale(0.0, 5.0, limit, 0.0, limit) == 0.0
 
 
 def test_back_emf_amplitude_at_no_load():

@@ -161,3 +161,55 @@ def test_the_stated_limit_names_what_sets_it_and_a_fault_names_the_limit():
     ones = np.ones(2000)
     faults = supervisor.update(0, 10.0 * ones, -40.0 * plate.n_p * ones, plate.current_limit_A * ones, 3.0 * ones)
     assert faults and all(stated.line() in fault_line(f) for f in faults)
+
+
+def test_ours_keeps_its_predicted_error_within_its_share_up_to_the_current_it_states(tmp_path):
+    """Over a fixed draw of surface-magnet motors (their saliency the magnet's saturation, which load takes away),
+    each with an exact commissioning and its sensors' noise: up to the current ours states, its predicted angle
+    error under load (the no-load prediction over the saliency and slope kept there) stays within its share of
+    the RMS target, and where that, not the tables, sets the current, it reaches the share there (within the
+    search's grid) and the stated torque names it."""
+    from drive_common.config.motor_experiments import ExperimentOptions
+    from drive_common.config.scenario import ScenarioError, motor_experiment
+    from drive_common.motor.motor_file import load_motor
+    from drive_tools.evaluation.random_motors import write_motor_files
+    from hf_estimator.build import (
+        LOADED_ERROR_SHARE,
+        PREDICTION_POINTS,
+        TARGET_RMS_RAD,
+        estimator_for_scenario,
+        loaded_predicted_rms,
+        predicted_error,
+    )
+    bound_by_prediction = 0
+    for index in range(40):
+        drawn = draw_motor(54, index)
+        if drawn.figures["rotor"] != "surface" or not drawn.figures["saturation"]:
+            continue
+        path, = write_motor_files([drawn], tmp_path)
+        motor = load_motor(str(path), "test")
+        machine = plant_truth(motor).machine
+        record = exact_commissioning(motor.nameplate, machine)._replace(
+            sensor_noise_A=drawn.document["plant"]["sensor"]["noise_std_A"])
+        scenario = motor_experiment("rated_load", motor, "test",
+                                    options=ExperimentOptions(1e-4, commissioning="nameplate"))
+        try:
+            estimator = estimator_for_scenario(scenario, record)
+        except ScenarioError:
+            continue
+        predicted = predicted_error(estimator, record)
+        if predicted is None or predicted[0] > LOADED_ERROR_SHARE * TARGET_RMS_RAD:
+            continue
+        allowed = LOADED_ERROR_SHARE * TARGET_RMS_RAD
+        limit = estimator.tracking_current_limit_A
+        step = limit / (PREDICTION_POINTS - 1)
+        for current in np.linspace(0.0, limit - step, 50):
+            assert loaded_predicted_rms(predicted[0], record, current) <= allowed * (1.0 + 1e-9)
+        if estimator.tracking_current_bound is not None:
+            bound_by_prediction += 1
+            assert estimator.tracking_current_bound[2] == limit
+            assert loaded_predicted_rms(predicted[0], record, limit) == pytest.approx(allowed, rel=0.05)
+            inverter = motor.inverter
+            assert current_bound(motor.nameplate, record, inverter, limit, True,
+                                 estimator.tracking_current_bound)[0] == BOUNDS[7]
+    assert bound_by_prediction >= 2, bound_by_prediction

@@ -83,14 +83,16 @@ def speed_loop(scenario, commissioning, controller, estimator_facts):
     return SpeedLoop(plant, omega_n, damping)
 
 
-def stated_torque(scenario, commissioning, controller, injecting):
+def stated_torque(scenario, commissioning, controller, injecting, estimator_bound=None):
     """The SensorlessTorque the drive of ``scenario`` states before it runs (drive_common.motor.torque_limit): the
     torque at the ``controller``'s (ControllerParams) current limit on its current path, and what set that
-    limit (the ``commissioning``'s tables where the estimator is ``injecting``, the bus, the nameplate)."""
+    limit (the estimator's own ``estimator_bound``, its facts' tracking_current_bound; the ``commissioning``'s
+    tables where the estimator is ``injecting``; the bus; the nameplate)."""
     plate = commissioning.refined(scenario.motor.nameplate)
     path = (MtpaPath(controller.mtpa_current_A, controller.mtpa_d_current_A, math.nan)
             if controller.mtpa_current_A.shape[0] else None)
-    bound = current_bound(plate, commissioning, scenario.motor.inverter, controller.i_max_A, injecting)
+    bound = current_bound(plate, commissioning, scenario.motor.inverter, controller.i_max_A, injecting,
+                          estimator_bound)
     return sensorless_torque(plate, commissioning, controller.i_max_A, path, bound)
 
 

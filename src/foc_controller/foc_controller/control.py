@@ -52,8 +52,8 @@ hand-over speed on the loop turned a light rotor's load angle to 3 rad at 0.4 of
 JUMP_RAD = 0.25
 """A change of θ̂ beyond ω̂·T_s by more than this in one sample is a jump, not tracking."""
 ROUNDING_SPARE = 1e-9
-"""A voltage this share of the linear range inside a limiter's bound (the injection's |u_α| + |u_β| taken off
-for the fundamental's) cannot reach it whatever the rounding: the limiter then skips its root."""
+"""The fundamental is limited to this share of the linear range inside it (fundamental_scale), so that the sum
+with the injection does not reach the range's bound whatever the rounding."""
 
 
 class ControllerParams(NamedTuple):
@@ -107,6 +107,22 @@ class ControllerParams(NamedTuple):
 def within(x, y, limit):
     """|(x, y)| ≤ limit, compared in squares (no root)."""
     return limit > 0.0 and x * x + y * y <= limit * limit
+
+
+@njit(cache=True)
+def fundamental_scale(u_alpha, u_beta, u_inj_alpha, u_inj_beta, limit):
+    """The largest s in [0, 1] with |s·u + u_inj| ≤ ``limit`` [V]: the share of the fundamental voltage u (αβ
+    [V]) the linear range leaves beside this period's injection u_inj (αβ [V]), the two added as vectors (a
+    q-axis fundamental beside a d-axis carrier has √(limit² − |u_inj|²), not limit − |u_inj|); 0 where the
+    injection alone reaches the limit."""
+    if within(u_alpha + u_inj_alpha, u_beta + u_inj_beta, limit):
+        return 1.0
+    a = u_alpha * u_alpha + u_beta * u_beta
+    b = u_alpha * u_inj_alpha + u_beta * u_inj_beta
+    c = u_inj_alpha * u_inj_alpha + u_inj_beta * u_inj_beta - limit * limit
+    if c >= 0.0 or a <= 0.0:
+        return 0.0
+    return min(max((math.sqrt(b * b - a * c) - b) / a, 0.0), 1.0)
 
 
 @njit(cache=True, _nrt=False)
@@ -284,20 +300,13 @@ def controller_step(x, z_notch, c, inputs, estimate, calibration, out):
 
     u_max = c.U_dc_V / SQRT3
     inside = (1.0 - ROUNDING_SPARE) * u_max
-    scale = 1.0
-    if not within(u_d, u_q, inside - (abs(u_inj_alpha) + abs(u_inj_beta))):
-        u_fund_max = max(u_max - math.hypot(u_inj_alpha, u_inj_beta), 0.0)
-        magnitude = math.hypot(u_d, u_q)
-        scale = 1.0 if magnitude <= u_fund_max else u_fund_max / magnitude
-    x[INT_D] += c.T_s_s * c.ki_d * e_d + (scale - 1.0) * u_d
-    x[INT_Q] += c.T_s_s * c.ki_q * e_q + (scale - 1.0) * u_q
-    u_d *= scale
-    u_q *= scale
-
     theta_v = theta_e_hat + c.delay_compensation_periods * omega_e_hat * c.T_s_s
     u_alpha, u_beta = rotate(u_d, u_q, theta_v)
-    u_alpha += u_inj_alpha
-    u_beta += u_inj_beta
+    scale = fundamental_scale(u_alpha, u_beta, u_inj_alpha, u_inj_beta, inside)
+    x[INT_D] += c.T_s_s * c.ki_d * e_d + (scale - 1.0) * u_d
+    x[INT_Q] += c.T_s_s * c.ki_q * e_q + (scale - 1.0) * u_q
+    u_alpha = scale * u_alpha + u_inj_alpha
+    u_beta = scale * u_beta + u_inj_beta
     if not within(u_alpha, u_beta, inside):
         total = math.hypot(u_alpha, u_beta)
         if total > u_max:

@@ -230,7 +230,8 @@ class ControllerNode(DriveNode):
         self.trip_A = self.trip_current_A()
         self.sensing = current_sensing(self.calibration, self.trip_A)
         self.stated_torque = stated_torque(self.config, self.commissioning, self.params,
-                                           config["tracking_current_limit_A"] is not None)
+                                           config["tracking_current_limit_A"] is not None,
+                                           config.get("tracking_current_bound"))
         self.torque_limit = self.stated_torque.line()
         self.hold = CommandHold(self.hold_settings(), time.monotonic())
         self.hold.command(time.monotonic(), self.omega_m_ref, self.tau_feedforward)

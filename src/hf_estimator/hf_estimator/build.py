@@ -3,6 +3,8 @@ loops scaled to the motor (drive_common.motor.scaled_loops) where the scenario d
 import dataclasses
 import math
 
+import numpy as np
+
 from drive_common.config.scenario import ScenarioError
 from drive_common.motor.commissioning import MIN_CONVERGENCE_SLOPE
 from drive_common.motor.open_loop_start import ESTIMATOR as OPEN_LOOP_ESTIMATOR
@@ -12,7 +14,7 @@ from drive_common.motor.scaled_loops import (
     scaled_loops,
     tracked_acceleration_e_rad_s2,
 )
-from drive_common.motor.torque_limit import estimator_commissioning
+from drive_common.motor.torque_limit import BOUNDS, estimator_commissioning
 
 from .if_observer import below_speed_refusal, plan_for
 from .interface import injects
@@ -110,6 +112,48 @@ def predicted_error(estimator, commissioning):
     gain = injection_frame_noise_gain((p.kp, p.ki, p.ka), 2 * p.N, p.delay_periods, p.T_s_s)
     rms = predicted_angle_error_rad(current, commissioning.sensor_noise_A, gain, p.N)
     return rms, PEAK_PER_RMS * rms, current
+
+
+LOADED_ERROR_SHARE = 0.75
+"""Under load ours keeps its predicted noise-driven angle error (loaded_predicted_rms) within this share of the
+RMS target; the rest is left to what the prediction leaves out under load: a mean error from the dead time and the
+saliency's turn, 0.01-0.04 rad on drawn weakly salient rotors (docs/results.md "Random motors"). A motor whose
+no-load prediction already takes more than the share keeps the target itself."""
+PREDICTION_POINTS = 201
+"""Currents searched, evenly from zero to the tables' limit, for predicted_current_limit."""
+
+
+def loaded_predicted_rms(rms_rad, commissioning, current_A):
+    """Ours' predicted angle error RMS [rad] at q current ±``current_A`` [A] from its no-load prediction ``rms_rad``:
+    the saliency current falls with |Δ|/Σ (Commissioning.saliency_retained) and the error signal's slope with the
+    convergence slope F (the smaller of the two signs), each dividing the angle the same noise gives."""
+    currents, slope = commissioning.saliency_shift_i_q_A, commissioning.convergence_slope
+    F = min(float(np.interp(current_A, currents, slope)), float(np.interp(-current_A, currents, slope)))
+    kept = commissioning.saliency_retained(current_A) * F
+    return rms_rad / kept if kept > 0.0 else math.inf
+
+
+def predicted_current_limit(estimator, commissioning, limit_A):
+    """(current [A], why) up to which ours' loaded_predicted_rms stays within LOADED_ERROR_SHARE of the RMS target
+    (the target itself where the no-load prediction exceeds that share), where that is below ``limit_A`` (the
+    commissioned tables' limit); None where it is not, where the drive predicts no error, or where the no-load
+    prediction misses the target (refused_signal speaks for that)."""
+    predicted = predicted_error(estimator, commissioning)
+    if predicted is None or not math.isfinite(predicted[0]) or not limit_A > 0.0:
+        return None
+    rms = predicted[0]
+    allowed = TARGET_RMS_RAD * (LOADED_ERROR_SHARE if rms <= LOADED_ERROR_SHARE * TARGET_RMS_RAD else 1.0)
+    currents = np.linspace(0.0, limit_A, PREDICTION_POINTS)
+    errors = np.array([loaded_predicted_rms(rms, commissioning, i) for i in currents])
+    beyond = np.flatnonzero(errors > allowed)
+    if beyond.size == 0 or beyond[0] == 0:
+        return None
+    j = int(beyond[0])
+    current = float(currents[j - 1] + (currents[j] - currents[j - 1]) * (
+        allowed - errors[j - 1]) / (errors[j] - errors[j - 1]))
+    why = (f"{rms:.3g} rad RMS predicted at no load reaches {allowed:.3g} rad there, as the saliency falls to "
+           f"{100.0 * commissioning.saliency_retained(current):.0f} % of its no-load |Δ|/Σ")
+    return current, why
 
 
 def refusable(name):
@@ -233,8 +277,13 @@ def estimator_for_scenario(scenario, commissioning):
     except ValueError as error:
         raise ScenarioError(_blamed(scenario, error.args[0] + open_loop_offer(error.args[0], plate, commissioning,
                                                                               scenario.motor.inverter))) from None
+    bound = None
     if injects(scenario.estimator):
         notes += [n for n in (commissioning.weak_saliency_note(), _polarity_note(estimator)) if n]
+        predicted = predicted_current_limit(estimator, commissioning, limit)
+        if predicted is not None:
+            limit = predicted[0]
+            bound = (BOUNDS[7], predicted[1], limit)
     acceleration = (tracked_acceleration_e_rad_s2(estimator.tracking_bandwidth_Hz)
                     if scenario.estimator in RAMPED else math.inf)
     notes += [n for n in (_ramp_note(scenario, plate, estimator.tracking_bandwidth_Hz, acceleration),) if n]
@@ -242,6 +291,7 @@ def estimator_for_scenario(scenario, commissioning):
     amplitude = estimator.injection_amplitude_V
     if amplitude is None and notes:
         amplitude = settings.get("amplitude_V")
-    return dataclasses.replace(estimator, tracking_current_limit_A=limit, injection_note=note,
+    return dataclasses.replace(estimator, tracking_current_limit_A=limit, tracking_current_bound=bound,
+                               injection_note=note,
                                injection_amplitude_V=amplitude, settings=settings,
                                tracking_acceleration_rad_s2=acceleration)

@@ -52,6 +52,9 @@ class Estimator:
     """Natural frequency of the angle-tracking loop (∞ for a sensor): the speed loop is kept below it."""
     tracking_current_limit_A: float = None
     """The largest current at which its angle information holds (injecting estimators; None: no limit)."""
+    tracking_current_bound: tuple = None
+    """(bound, why, current [A]) where its own predicted angle error, not the commissioned tables, sets
+    tracking_current_limit_A (hf_estimator.build.predicted_current_limit); None otherwise."""
     tracking_acceleration_rad_s2: float = math.inf
     """The electrical acceleration its tracking follows within its lag budget where its injection leads over the
     whole speed range (drive_common.motor.scaled_loops.tracked_acceleration_e_rad_s2; ∞: no bound): the
@@ -79,6 +82,8 @@ class Estimator:
                 "injection_amplitude_V": self.injection_amplitude_V, "injection_note": self.injection_note,
                 "tracking_bandwidth_Hz": self.tracking_bandwidth_Hz,
                 "tracking_current_limit_A": self.tracking_current_limit_A,
+                "tracking_current_bound": None if self.tracking_current_bound is None
+                else list(self.tracking_current_bound),
                 "tracking_acceleration_rad_s2": self.tracking_acceleration_rad_s2,
                 "tracking_loop": None if self.tracking_loop is None else [float(v) for v in self.tracking_loop],
                 "estimator_settings": self.settings}

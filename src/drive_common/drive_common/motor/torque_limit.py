@@ -36,7 +36,7 @@ TORQUE_TOLERANCE = 0.10
 (test/test_torque_limit.py: the model is first order in i_d and leaves out the q axis's own saturation)."""
 BOUNDS = ("the saliency left at that current", "the angle signal's slope under load", "the loaded test",
           "the motor's current limit", "the controller's current limit", "the bus",
-          "the largest current commissioning measured the saliency at")
+          "the largest current commissioning measured the saliency at", "ours' angle error predicted at that current")
 """What can set the sensorless current, in the order the lines say them."""
 
 
@@ -203,10 +203,13 @@ def sensorless_torque(plate, commissioning, current_A, path, bound):
                             *bound)
 
 
-def current_bound(plate, commissioning, inverter, current_A, injecting):
-    """(bound, why) of the controller's current limit ``current_A`` [A]: the commissioned tables (for an
-    injecting estimator), the bus at standstill (U_dc/√3 over R_s), the nameplate's limit, else the controller's
-    own setting."""
+def current_bound(plate, commissioning, inverter, current_A, injecting, estimator_bound=None):
+    """(bound, why) of the controller's current limit ``current_A`` [A]: the estimator's own limit
+    ``estimator_bound`` ((bound, why, limit [A]) it states, or None) where it is that current, the commissioned
+    tables (for an injecting estimator), the bus at standstill (U_dc/√3 over R_s), the nameplate's limit, else the
+    controller's own setting."""
+    if estimator_bound is not None and abs(estimator_bound[2] - current_A) <= 1e-6 * max(current_A, 1e-6):
+        return estimator_bound[0], estimator_bound[1]
     tables = tracking_bound(commissioning, current_A) if injecting else None
     if tables and (tables[0] != BOUNDS[6] or current_A < plate.current_limit_A * (1.0 - 1e-9)):
         return tables

@@ -100,7 +100,8 @@ def stated_torque_report(scenario):
                                              estimator.tracking_loop)
     except DriveError as error:
         return {"line": f"sensorless torque limit not stated: the drive refuses to run it ({error})"}
-    return stated_torque(scenario, commissioning, controller, estimator.tracking_current_limit_A is not None).as_dict()
+    return stated_torque(scenario, commissioning, controller, estimator.tracking_current_limit_A is not None,
+                         estimator.tracking_current_bound).as_dict()
 
 
 def drive_loops(scenario):

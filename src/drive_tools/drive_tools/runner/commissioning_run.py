@@ -183,10 +183,12 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
     """The loaded test (hf_estimator.commissioning.loaded) on the scenario's simulated plant, shaft held: the drive,
     commissioned at standstill (``commissioning_file``), runs ours as the scenario configures it and steps its
     torque feed-forward; where a load took ours' angle it runs again lower (loaded.TRIES) and the current the last
-    run completed at, when lower, is ``loaded_test_current_A`` (None otherwise). Returns (the loaded_shift result
-    with ``injection_frequency_Hz`` and ``injection_amplitude_V`` ours ran at, and each hold's true angle error θ −
-    θ̂ [rad] as ``true_error_rad``, for scoring; the RunResult). A correction the file already holds, where ours ran
-    with it, stays in the one returned. Interrupted when a signal stopped it (after the chunk in progress)."""
+    run completed at, when lower, is ``loaded_test_current_A`` (None otherwise). Its controller may reach the
+    test's first current (the tables' limit), whatever lower limit ours' prediction sets for running. Returns
+    (the loaded_shift result with ``injection_frequency_Hz`` and ``injection_amplitude_V`` ours ran at, and each
+    hold's true angle error θ − θ̂ [rad] as ``true_error_rad``, for scoring; the RunResult). A correction the file
+    already holds, where ours ran with it, stays in the one returned. Interrupted when a signal stopped it (after
+    the chunk in progress)."""
     from drive_common.config.experiment import Table
     from drive_common.contract.log import COLUMN
     from drive_common.math.frames import wrap
@@ -215,7 +217,8 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
             shaft_held(scenario, DURATION_S), estimator="injection_frame",
             estimator_settings={k: v for k, v in scenario.estimator_settings.items() if k != "injection_by_rule"}
             if ours else {}, commissioning=str(commissioning_file),
-            controller={**scenario.controller, "speed_bandwidth_rad_s": SPEED_BANDWIDTH_RAD_S},
+            controller={"current_limit_A": first, **scenario.controller,
+                        "speed_bandwidth_rad_s": SPEED_BANDWIDTH_RAD_S},
             torque_feedforward=Table(tuple(t for t, _ in profile), tuple(v for _, v in profile), "linear"))
         result = run_scenario(test, progress, chunk_samples=TEST_CHUNK_SAMPLES)
         if result.interrupted:

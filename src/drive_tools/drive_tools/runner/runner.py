@@ -129,7 +129,8 @@ def run_scenario(scenario, progress=None, chunk_samples=20000):
                      protection=protection_summary(drive.protection_x, drive.protection),
                      injection=contract_injection(drive.estimator.facts(), scenario.injection),
                      sensorless_torque=stated_torque(scenario, drive.commissioning, drive.controller,
-                                                     drive.estimator.tracking_current_limit_A is not None).as_dict(),
+                                                     drive.estimator.tracking_current_limit_A is not None,
+                                                     drive.estimator.tracking_current_bound).as_dict(),
                      speed_ramp_rad_s2=drive.controller.speed_ramp_rad_s2)
 
 

@@ -21,13 +21,18 @@ def relative_gains(readings):
 def resistance_and_dead_time(currents_ab, commands_ab, phase_currents):
     """(R_s [Ω], dead-time voltage per phase [V]) from steady DC points: the mean command balances the
     resistive drop and the dead-time voltage, u = R·i + V_dt·K(i) (K: dead_time_direction), fitted by
-    least squares over both components of every point (K: drive_common.math.dead_time). currents_ab,
-    commands_ab: n × 2; phase_currents: n × 3 (for the signs)."""
+    least squares over both components of every point (K: drive_common.math.dead_time), V_dt ≥ 0 (a loss:
+    where the free fit gives less, an inverter with no dead time measured within its noise, V_dt is 0 and R
+    is fitted alone). currents_ab, commands_ab: n × 2; phase_currents: n × 3 (for the signs)."""
     i = np.asarray(currents_ab, dtype=float)
     k_a, k_b = dead_time_direction.py_func(*np.asarray(phase_currents, dtype=float).T, 0.0)
     design = np.vstack([np.column_stack([i[:, 0], k_a]), np.column_stack([i[:, 1], k_b])])
     u = np.asarray(commands_ab, dtype=float)
-    (R, V), *_ = np.linalg.lstsq(design, np.concatenate([u[:, 0], u[:, 1]]), rcond=None)
+    commands = np.concatenate([u[:, 0], u[:, 1]])
+    (R, V), *_ = np.linalg.lstsq(design, commands, rcond=None)
+    if V < 0.0:
+        (R,), *_ = np.linalg.lstsq(design[:, :1], commands, rcond=None)
+        V = 0.0
     return float(R), float(V)
 
 
