@@ -123,13 +123,20 @@ PREDICTION_POINTS = 201
 """Currents searched, evenly from zero to the tables' limit, for predicted_current_limit."""
 
 
-def loaded_predicted_rms(rms_rad, commissioning, current_A):
-    """Ours' predicted angle error RMS [rad] at q current ±``current_A`` [A] from its no-load prediction ``rms_rad``:
-    the saliency current falls with |Δ|/Σ (Commissioning.saliency_retained) and the error signal's slope with the
-    convergence slope F (the smaller of the two signs), each dividing the angle the same noise gives."""
+def signal_kept(commissioning, current_A):
+    """(share of its no-load |Δ|/Σ the saliency keeps, convergence slope F) at q current ±``current_A`` [A], each
+    the smaller of the two signs (Commissioning.saliency_retained, the commissioned slope table)."""
     currents, slope = commissioning.saliency_shift_i_q_A, commissioning.convergence_slope
     F = min(float(np.interp(current_A, currents, slope)), float(np.interp(-current_A, currents, slope)))
-    kept = commissioning.saliency_retained(current_A) * F
+    return commissioning.saliency_retained(current_A), F
+
+
+def loaded_predicted_rms(rms_rad, commissioning, current_A):
+    """Ours' predicted angle error RMS [rad] at q current ±``current_A`` [A] from its no-load prediction ``rms_rad``:
+    the saliency current falls with |Δ|/Σ and the error signal's slope with F (signal_kept), each dividing the
+    angle the same noise gives."""
+    retained, F = signal_kept(commissioning, current_A)
+    kept = retained * F
     return rms_rad / kept if kept > 0.0 else math.inf
 
 
@@ -151,8 +158,9 @@ def predicted_current_limit(estimator, commissioning, limit_A):
     j = int(beyond[0])
     current = float(currents[j - 1] + (currents[j] - currents[j - 1]) * (
         allowed - errors[j - 1]) / (errors[j] - errors[j - 1]))
-    why = (f"{rms:.3g} rad RMS predicted at no load reaches {allowed:.3g} rad there, as the saliency falls to "
-           f"{100.0 * commissioning.saliency_retained(current):.0f} % of its no-load |Δ|/Σ")
+    retained, F = signal_kept(commissioning, current)
+    why = (f"{rms:.3g} rad RMS predicted at no load reaches {allowed:.3g} rad there, the saliency at "
+           f"{100.0 * retained:.0f} % of its no-load |Δ|/Σ and the error signal's slope F at {F:.2f}")
     return current, why
 
 
