@@ -31,6 +31,7 @@ from hf_estimator.commissioning.identification import resistance_and_dead_time
 from hf_estimator.commissioning.loaded import DURATION_S, HOLD_S, LEVELS, START_S, LoadedTestError, loaded_shift
 from hf_estimator.commissioning.procedure import procedure_for_scenario
 from hf_estimator.injection_frame import loaded_correction
+from hf_estimator.interface import make_estimator
 from pmsm_plant.model import incremental_inductances
 from pmsm_plant.presets import PRESETS, plant_parameters
 
@@ -394,7 +395,8 @@ def test_the_loaded_test_reads_ours_error_under_load_from_a_held_shaft():
 
 def test_ours_takes_the_loaded_correction_only_at_the_tests_carrier_and_amplitude(tmp_path):
     """The file keeps the loaded test's table with its carrier and amplitude (all or none of the three); ours
-    adds the table where it runs within 2 % of both, else it leaves it out and says why."""
+    adds the table where it runs within 2 % of both, else it leaves it out and says why; the square wave, which
+    the loaded test runs where the loops' rule chooses it, likewise at its own carrier and amplitude."""
     record = commission_in_process(load_scenario("wang_100rpm")).procedure.result()
     correction = 0.01 * record.saliency_shift_i_q_A / 5.0
     tested = record._replace(estimator_shift_rad=correction, loaded_test_frequency_Hz=1000.0,
@@ -408,6 +410,18 @@ def test_ours_takes_the_loaded_correction_only_at_the_tests_carrier_and_amplitud
     assert np.array_equal(shift, record.saliency_shift_rad)
     assert "measured at 1000 Hz, 5 V, ours runs at 1000 Hz, 6 V" in note and "--loaded" in note
     assert loaded_correction(record, 1000.0, 5.0) == (record.saliency_shift_rad, "")
+    scenario = load_scenario("wang_100rpm")
+    plate, inverter = record.refined(scenario.motor.nameplate), scenario.motor.inverter
+    built = make_estimator("square_wave", plate, 1e-4, {}, record, inverter)
+    carrier_Hz, amplitude_V = built.injection_frequency_Hz, built.injection_amplitude_V
+    square = record._replace(estimator_shift_rad=correction, loaded_test_frequency_Hz=carrier_Hz,
+                             loaded_test_amplitude_V=amplitude_V)
+    taken = make_estimator("square_wave", plate, 1e-4, {}, square, inverter)
+    assert np.array_equal(taken.params.shift_rad, record.saliency_shift_rad + correction)
+    other = make_estimator("square_wave", plate, 1e-4, {}, square._replace(loaded_test_amplitude_V=1.2 * amplitude_V),
+                           inverter)
+    assert np.array_equal(other.params.shift_rad, record.saliency_shift_rad)
+    assert "the loaded test's correction left out" in other.injection_note
     (tmp_path / "half.yaml").write_text(path.read_text().replace("  loaded_test_amplitude_V: 5.0\n", ""))
     with pytest.raises(CommissioningError, match=r"half.yaml: values: estimator_shift_rad, .* go together"):
         load_commissioning(tmp_path / "half.yaml")

@@ -66,6 +66,7 @@ from .injection_frame import (
     HF_RIPPLE_MAX_PER_RATED,
     HF_VOLTAGE_MAX_PER_LINEAR,
     SNR_REFERENCE_HZ,
+    loaded_correction,
 )
 from .interface import MAX_DELAY_PERIODS, Estimator, check_settings, register, ring_capacity, stator_resistance
 from .outputs import write_injecting_estimate
@@ -411,6 +412,9 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
     notes.append(f"tracking {bandwidth_Hz:.0f} Hz (type {loop_type}; the square wave's delay allows "
                  f"{limit_Hz:.0f} Hz)")
     kp, ki, ka = unit_slope_gains(bandwidth_Hz, float(s["pll_damping"]), loop_type)
+    shift_rad, loaded_note = loaded_correction(commissioning, 0.5 / (m * T_s), amplitude_V)
+    if loaded_note:
+        notes.append(loaded_note)
     salient = commissioning.salient()
     params = SquareWaveParams(
         T_s_s=T_s, half_period=m, injection_amplitude_V=amplitude_V, R_s_ohm=commissioning.R_s_ohm,
@@ -421,7 +425,7 @@ def make_square_wave(nameplate, T_s, settings, commissioning, inverter):
         observable_ratio=float(s["observable_ratio"]),
         smoothing=1.0 - math.exp(-2.0 * math.pi * float(s["signal_smoothing_Hz"]) * T_s),
         current_smoothing=1.0 - math.exp(-1.0 / (2.0 * m)),
-        shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=commissioning.saliency_shift_rad,
+        shift_i_q_A=commissioning.saliency_shift_i_q_A, shift_rad=shift_rad,
         dead_time_voltage_V=commissioning.dead_time_voltage_V if s["dead_time_model"] in (True, "auto") else 0.0,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A,
         startup=make_startup(nameplate, commissioning, T_s, inverter, 1.0 if salient else 0.0, s))

@@ -215,8 +215,7 @@ def loaded_test_in_process(scenario, commissioning_file, progress=None):
         profile = torque_profile(top, 1.5 * plate.n_p * plate.psi_f_Wb)
         test = dataclasses.replace(
             shaft_held(scenario, DURATION_S), estimator="injection_frame",
-            estimator_settings={k: v for k, v in scenario.estimator_settings.items() if k != "injection_by_rule"}
-            if ours else {}, commissioning=str(commissioning_file),
+            estimator_settings=dict(scenario.estimator_settings) if ours else {}, commissioning=str(commissioning_file),
             controller={"current_limit_A": first, **scenario.controller,
                         "speed_bandwidth_rad_s": SPEED_BANDWIDTH_RAD_S},
             torque_feedforward=Table(tuple(t for t, _ in profile), tuple(v for _, v in profile), "linear"))
