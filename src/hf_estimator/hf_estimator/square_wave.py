@@ -20,7 +20,9 @@ drives VESC and MESC run their HFI.
        z_q = (D_yq/T_s − D_b/L̂_qh)/D_a = Δ sin 2θ̃,  z_d = (D_yd/T_s)/D_a − Σ̂ = Δ cos 2θ̃,
    sign-corrected by D_a itself. The error ε = z_q/(2·s·|Δ̂|·r(î_q)) − δ(î_q) has unit slope (ε ≈ θ̃): s the
    commissioned saliency's sign, |Δ̂| its no-load |Δ|, r the share of it the saliency keeps at the smoothed q̂
-   current (the commissioned |Δ|/Σ table over its no-load value), δ the commissioned cross-saturation shift.
+   current (the commissioned |Δ|/Σ table over its no-load value), δ the commissioned cross-saturation shift
+   (plus the loaded test's correction where the square wave ran that test at this carrier and amplitude:
+   injection_frame.loaded_correction).
    Scaled by the no-load |Δ| alone, a q axis that saturates under load (r < 1) leaves θ − θ̂ = δ(1 − r)/r:
    +0.035 rad measured on docs/motors/joint_21pp_48v.yaml at rated current (δ 0.2 rad, r 0.85), 0.000 with r.
    (z_d, z_q) turned into the θ̂ frame and smoothed is the signal |Δ̂| [1/H], observable above
