@@ -140,12 +140,11 @@ def loaded_predicted_rms(rms_rad, commissioning, current_A):
     return rms_rad / kept if kept > 0.0 else math.inf
 
 
-def predicted_current_limit(estimator, commissioning, limit_A):
-    """(current [A], why) up to which ours' loaded_predicted_rms stays within LOADED_ERROR_SHARE of the RMS target
-    (the target itself where the no-load prediction exceeds that share), where that is below ``limit_A`` (the
-    commissioned tables' limit); None where it is not, where the drive predicts no error, or where the no-load
-    prediction misses the target (refused_signal speaks for that)."""
-    predicted = predicted_error(estimator, commissioning)
+def predicted_current_limit(predicted, commissioning, limit_A):
+    """(current [A], why) up to which ours' loaded_predicted_rms, from the no-load ``predicted`` (predicted_error's),
+    stays within LOADED_ERROR_SHARE of the RMS target (the target itself where the no-load prediction exceeds that
+    share), where that is below ``limit_A`` (the commissioned tables' limit); None where it is not, where the drive
+    predicts no error, or where the no-load prediction misses the target (refused_signal speaks for that)."""
     if predicted is None or not math.isfinite(predicted[0]) or not limit_A > 0.0:
         return None
     rms = predicted[0]
@@ -171,11 +170,10 @@ def refusable(name):
     return injects(name) or name == OPEN_LOOP_ESTIMATOR
 
 
-def refused_signal(estimator, commissioning, run_refused):
-    """What the drive says of the predicted angle error ("" within the targets): beyond TARGET_RMS_RAD or
-    TARGET_PEAK_RAD, ValueError in one line (the predicted error, the target, the saliency figure) unless
-    ``run_refused``, then a note."""
-    predicted = predicted_error(estimator, commissioning)
+def refused_signal(predicted, estimator, commissioning, run_refused):
+    """What the drive says of the ``estimator``'s ``predicted`` angle error (predicted_error's; "" within the
+    targets): beyond TARGET_RMS_RAD or TARGET_PEAK_RAD, ValueError in one line (the predicted error, the target,
+    the saliency figure) unless ``run_refused``, then a note."""
     if predicted is None or (predicted[0] <= TARGET_RMS_RAD and predicted[1] <= TARGET_PEAK_RAD):
         return ""
     rms, peak, current = predicted
@@ -277,7 +275,8 @@ def estimator_for_scenario(scenario, commissioning):
             limit = commissioning.tracking_current_limit_A(MIN_CONVERGENCE_SLOPE)
         estimator = drive_estimator(scenario.estimator, scenario.motor.nameplate, scenario.T_s, settings,
                                     commissioning, inverter, scenario.controller)
-        notes += [n for n in (refused_signal(estimator, commissioning, bool(settings.get("run_refused"))),
+        predicted = predicted_error(estimator, commissioning)
+        notes += [n for n in (refused_signal(predicted, estimator, commissioning, bool(settings.get("run_refused"))),
                               below_speed(scenario, estimator, commissioning,
                                           bool(settings.get("run_refused")))) if n]
     except KeyError as error:
@@ -288,10 +287,10 @@ def estimator_for_scenario(scenario, commissioning):
     bound = None
     if injects(scenario.estimator):
         notes += [n for n in (commissioning.weak_saliency_note(), _polarity_note(estimator)) if n]
-        predicted = predicted_current_limit(estimator, commissioning, limit)
-        if predicted is not None:
-            limit = predicted[0]
-            bound = (BOUNDS[7], predicted[1], limit)
+        loaded = predicted_current_limit(predicted, commissioning, limit)
+        if loaded is not None:
+            limit = loaded[0]
+            bound = (BOUNDS[7], loaded[1], limit)
     acceleration = (tracked_acceleration_e_rad_s2(estimator.tracking_bandwidth_Hz)
                     if scenario.estimator in RAMPED else math.inf)
     notes += [n for n in (_ramp_note(scenario, plate, estimator.tracking_bandwidth_Hz, acceleration),) if n]
