@@ -38,6 +38,10 @@ STOP_SETTLE_S = 0.3
 COMMAND_TIMEOUT_S = 0.5
 """The shoulder's command timeout [s]: the test's clients publish every 20-50 ms, and a loaded machine held one for
 over 0.1 s (the shoulder then held its joint between two commands)."""
+LOCKSTEP_LINK_TIMEOUT_S = 3.0
+"""The lock-step axes' link timeout [s of the host's time] (the robot file's default is 0.5 s): their virtual
+inverter is a simulation on a thread of `drive up`'s process, and with both cores busy and more (the suite's other
+worker and a second run) its next block came over 0.5 s after the answer, so the whole arm stopped as a lost link."""
 
 
 def drive_files(folder, duration_s=120.0, load=True):
@@ -62,8 +66,10 @@ def robot_file(folder, text):
 ARM = f"""format_version: 1
 axes:
   - {{joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false,
-     velocity_limit_rad_s: {VELOCITY_LIMIT}, command_timeout_s: {COMMAND_TIMEOUT_S}, hold_timeout_s: {HOLD_S}}}
-  - {{joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, reversed: true, paced: false}}
+     link_timeout_s: {LOCKSTEP_LINK_TIMEOUT_S}, velocity_limit_rad_s: {VELOCITY_LIMIT},
+     command_timeout_s: {COMMAND_TIMEOUT_S}, hold_timeout_s: {HOLD_S}}}
+  - {{joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, reversed: true, paced: false,
+     link_timeout_s: {LOCKSTEP_LINK_TIMEOUT_S}}}
 """
 
 
@@ -601,9 +607,10 @@ HOMED_ARM = """format_version: 1
 initial_state: active
 axes:
   - {joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false, hold_timeout_s: .inf,
-     command_timeout_s: 0.5,
+     link_timeout_s: 3.0, command_timeout_s: 0.5,
      homing: {method: hard_stop, direction: 1, current_A: 1.5, offset_rad: -1.0, backoff_rad: 0.3}}
-  - {joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false}
+  - {joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false,
+     link_timeout_s: 3.0}
 """
 STOP_RAD = 2.3
 """The shoulder's end stop in the simulation (its truth; the drive is not told): 1 rad above its start."""
@@ -665,8 +672,9 @@ INDEXED_ARM = """format_version: 1
 initial_state: active
 axes:
   - {joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false, hold_timeout_s: .inf,
-     command_timeout_s: 0.5, homing: {method: index, direction: 1, offset_rad: 0.4}}
-  - {joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false}
+     link_timeout_s: 3.0, command_timeout_s: 0.5, homing: {method: index, direction: 1, offset_rad: 0.4}}
+  - {joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false,
+     link_timeout_s: 3.0}
 """
 INDEX_RAD = 2.0 * math.pi
 """Where the virtual inverter's index input pulses on the shoulder's way up from 1.3 rad: its true mechanical angle
