@@ -3,8 +3,8 @@ speed (hf_estimator.if_observer, drive_common.motor.open_loop_start, foc_control
 The plan's rules are checked over a random draw; the behaviour on a small fixed draw of round rotors (surface
 magnets, no saturation: no saliency at all), commissioned at standstill as a robot builder would, judged on
 the plant's truth: the start reaches the hand-over speed in synchronism from every start angle tried, the
-hand-over does not jump the torque, closed loop on the observer follows a speed step; a standstill case is
-refused up front."""
+observer within its error bound at the hand-over, which does not jump the torque, closed loop on the observer
+follows a speed step; a standstill case is refused up front."""
 import math
 
 import numpy as np
@@ -24,8 +24,10 @@ from drive_common.motor.open_loop_start import (
     HANDBACK_PER_HANDOVER,
     MIN_HANDOVER_PER_RATED,
     OBSERVER_ERROR_BOUND_RAD,
+    OBSERVER_GAIN_PER_SPEED,
     OBSERVER_SPEED_BANDWIDTH_RAD_S,
     RELUCTANCE_SHARE,
+    SETTLE_DECAYS,
     SWING_PER_CURRENT_LOOP,
     observer_error_V,
     open_loop_start,
@@ -58,7 +60,8 @@ the I-f torque of its mean over the 2 ms before."""
 def test_the_start_is_stated_from_the_nameplate_and_commissioning_over_a_random_draw():
     """Over 300 drawn motors (nameplate-only commissioning): the I-f current within rated current, the swing
     frequency and the reluctance softening within their shares, the ramp's torque share, the minimum speed from
-    the observer's error bound (and at least its floor), the hand-back below it; no J: refused naming it."""
+    the observer's error bound (and at least its floor), the hand-back below it, the hand-over's wait SETTLE_DECAYS of
+    the observer's flux error at the hand-over speed; no J: refused naming it."""
     checked = 0
     for motor in draw_motors(300, 7):
         plate = motor_from_mapping(motor.document, motor.name, whole_file=True).nameplate
@@ -80,6 +83,9 @@ def test_the_start_is_stated_from_the_nameplate_and_commissioning_over_a_random_
         assert plan.handover_rad_s >= u_err / (OBSERVER_ERROR_BOUND_RAD * plate.psi_f_Wb) * (1 - 1e-9)
         assert plan.handover_rad_s >= MIN_HANDOVER_PER_RATED * rated_e * (1 - 1e-9)
         assert plan.handback_rad_s == pytest.approx(HANDBACK_PER_HANDOVER * plan.handover_rad_s)
+        sigma_0 = 0.25 * commissioning.R_s_ohm * (1.0 / plate.L_d_H + 1.0 / plate.L_q_H)
+        decay = sigma_0 + OBSERVER_GAIN_PER_SPEED * plan.handover_rad_s
+        assert plan.observer_settle_s * decay == pytest.approx(SETTLE_DECAYS)
         band = max(MIN_SMOOTHING_A, SMOOTHING_PER_RATED_CURRENT * plate.rated_current_A)
         if plan.current_A < COMMUTATION_MARGIN * band:
             assert plan.refused, "an I-f current near the switches' commutation band is refused"
@@ -164,6 +170,9 @@ def test_the_start_reaches_the_handover_in_synchronism_from_every_angle_without_
         assert handover > 1 and not open_loop[handover:].any(), f"one hand-over, no hand-back, from {theta_e} rad"
         speed_e = abs(log[handover, COLUMN["omega_m"]]) * motor.nameplate.n_p
         assert speed_e >= HANDBACK_PER_HANDOVER * plan.handover_rad_s
+        error = math.remainder(log[handover, COLUMN["theta_e_hat"]]
+                               - motor.nameplate.n_p * log[handover, COLUMN["theta_m"]], 2.0 * math.pi)
+        assert abs(error) <= OBSERVER_ERROR_BOUND_RAD, f"the observer {error:+.3f} rad off at the hand-over"
         window = int(round(0.002 / result.scenario.T_s))
         before = np.mean(log[handover - window:handover, COLUMN["tau_e"]])
         after = np.mean(log[handover:handover + window, COLUMN["tau_e"]])
@@ -206,7 +215,7 @@ def test_ours_refusal_for_saliency_offers_the_start(round_rotors, capsys):
 def test_the_observer_is_set_to_the_measured_current_angle_in_the_lock_over_a_random_draw():
     """Over 20 drawn motors whose I-f start is accepted: with the rotor at rest on the lock's axis (the current at
     I_f along a random angle, the voltage R_s·i and the dead time's), the observer is at that angle within 1e-9 rad
-    and at zero speed from SETTLED_PER_LOCK of the lock on, and set once only."""
+    and at zero speed from SETTLED_PER_LOCK of the lock on, set again at SETTLED_AT_LOCK_END, and never after."""
     rng = np.random.default_rng(3)
     tried = 0
     for whole, plate, commissioning in drawn_with_inertia(17):
@@ -228,7 +237,13 @@ def test_the_observer_is_set_to_the_measured_current_angle_in_the_lock_over_a_ra
         assert abs(math.remainder(x.theta - angle, 2.0 * math.pi)) < 1e-9 and x.omega == 0.0
         x.observer.theta += 0.5
         estimator.step(x, p, p.settled_samples, s, out)
-        assert abs(math.remainder(x.theta - angle, 2.0 * math.pi)) > 0.4, "set once only"
+        assert abs(math.remainder(x.theta - angle, 2.0 * math.pi)) > 0.4, "not set between"
+        for k in range(p.settled_samples + 1, p.settled_end_samples):
+            estimator.step(x, p, k, s, out)
+        assert abs(math.remainder(x.theta - angle, 2.0 * math.pi)) < 1e-9 and x.omega == 0.0
+        x.observer.theta += 0.5
+        estimator.step(x, p, p.settled_end_samples, s, out)
+        assert abs(math.remainder(x.theta - angle, 2.0 * math.pi)) > 0.4, "never set after the lock's end"
         tried += 1
         if tried == 20:
             break

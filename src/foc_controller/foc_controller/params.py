@@ -74,7 +74,8 @@ MARGIN_SEARCH_FLOOR = 0.05
 MARGIN_SEARCH_STEPS = 24
 """speed_gains_within_margins bisects the bandwidth's logarithm this many times (to 0.01 % of it)."""
 IF_AGREEMENT_S = 0.01
-"""The I-f start hands over once the observer's speed has agreed with the ramp's this long."""
+"""The I-f start hands over once the observer's speed has agreed with the ramp's this long at least (longer where its
+flux error decays slower, open_loop_start.OpenLoopStart.observer_settle_s)."""
 
 
 def make_controller_params(nameplate, inverter, T_s, settings=None, injection_frequency_Hz=0.0,
@@ -142,7 +143,7 @@ def make_controller_params(nameplate, inverter, T_s, settings=None, injection_fr
             raise ValueError(plan.refused)
         start = {"if_current_A": plan.current_A, "if_acceleration_rad_s2": plan.acceleration_rad_s2,
                  "if_handover_rad_s": plan.handover_rad_s, "if_align_samples": int(round(plan.align_s / T_s)),
-                 "if_agree_samples": max(1, int(round(IF_AGREEMENT_S / T_s))),
+                 "if_agree_samples": max(1, int(round(max(IF_AGREEMENT_S, plan.observer_settle_s) / T_s))),
                  "if_damping_filter_rad_s": DAMPING_FILTER_PER_SWING * plan.swing_rad_s,
                  "if_damping_gain": DAMPING_GAIN, "if_agreement": AGREEMENT_PER_SPEED}
     return ControllerParams(

@@ -48,6 +48,12 @@ pulled onto the current's axis and damped, sits there at rest: the observer is s
 and zero speed (flux_observer_follow). At rest the back-EMF carries no angle and the observer had drifted
 (0.8-0.9 rad on seed 11 motors 1 and 39): moved by the turn from there, it read the rotor's speed with the wrong
 sign, and the stabilising loop fed that speed pulled the rotor out of the lock."""
+SETTLED_AT_LOCK_END = 0.95
+"""And again at this share of the lock, the quarter turn's swing damped (the rotor at rest again): the ramp then starts
+from the observer's angle at rest. Set only at SETTLED_PER_LOCK, a rotor started near its d axis' unstable point
+(against the current) still swung there at 13-35 rad/s (electrical; drawn motor random_1_0001, from 3.1 rad): the
+observer, set at zero speed on a moving rotor, read −97 rad/s at the ramp's start where the rotor turned at
++128, and the stabilising loop fed that speed pulled the rotor out of synchronism (load angle 1.6 rad)."""
 
 
 class IfObserverParams(NamedTuple):
@@ -60,6 +66,8 @@ class IfObserverParams(NamedTuple):
     psi_f_high_Wb: float
     settled_samples: int
     """SETTLED_PER_LOCK of the first lock [samples] (0: never set)."""
+    settled_end_samples: int
+    """SETTLED_AT_LOCK_END of the first lock [samples]."""
     current_A: float
     """The I-f current [A]: the measured current's angle is taken where it is at least half of it."""
 
@@ -68,19 +76,21 @@ class IfObserverParams(NamedTuple):
 def if_observer_step(x, p, k, sample, out):
     """One sample (interface.py) → ``out``: the observer's θ̂_e, ω̂_e, ε, signal (its back-EMF [V]), no
     injection; the state TRACKING above the hand-over speed (hysteresis to the hand-back speed), else
-    OPEN_LOOP; above it the observer's ψ_f adapts (FLUX_ADAPTATION_RAD_S); once, SETTLED_PER_LOCK into the first
-    lock, the observer is set to the measured current's angle at rest. State x: ``observer`` (flux_observer's),
-    ``tracking`` (1 above the speed), ``lock_samples`` (samples into the first lock; −1 once past it)."""
+    OPEN_LOOP; above it the observer's ψ_f adapts (FLUX_ADAPTATION_RAD_S); twice, SETTLED_PER_LOCK and
+    SETTLED_AT_LOCK_END into the first lock, the observer is set to the measured current's angle at rest. State
+    x: ``observer`` (flux_observer's), ``tracking`` (1 above the speed), ``lock_samples`` (samples into the first
+    lock; −1 once past it)."""
     flux_observer_step(x.observer, p.obs, k, sample, out)
     if x.lock_samples >= 0.0:
         x.lock_samples += 1.0
         if p.settled_samples <= 0:
             x.lock_samples = -1.0
-        elif x.lock_samples >= p.settled_samples:
+        elif x.lock_samples == p.settled_samples or x.lock_samples >= p.settled_end_samples:
             i_alpha, i_beta = clarke_contract(sample.i_a, sample.i_b, sample.i_c)
             if i_alpha * i_alpha + i_beta * i_beta >= (0.5 * p.current_A) ** 2:
                 flux_observer_follow(x.observer, p.obs, math.atan2(i_beta, i_alpha), 0.0)
-            x.lock_samples = -1.0
+            if x.lock_samples >= p.settled_end_samples:
+                x.lock_samples = -1.0
     if x.tracking > 0.5:
         psi_f = x.observer.psi_f - p.flux_step * x.observer.e_d
         x.observer.psi_f = min(max(psi_f, p.psi_f_low_Wb), p.psi_f_high_Wb)
@@ -113,9 +123,10 @@ def make_if_observer(nameplate, T_s, settings, commissioning, inverter):
                                   ("lock_samples", np.float64), ("observer", observer.state.dtype)]))
     state["observer"] = observer.state
     settled = int(round(SETTLED_PER_LOCK * plan.align_s / T_s)) if math.isfinite(plan.align_s) else 0
+    settled_end = max(int(round(SETTLED_AT_LOCK_END * plan.align_s / T_s)), settled) if settled else 0
     params = IfObserverParams(observer.params, plan.handover_rad_s, plan.handback_rad_s, FLUX_ADAPTATION_RAD_S * T_s,
                               FLUX_RANGE[0] * nameplate.psi_f_Wb, FLUX_RANGE[1] * nameplate.psi_f_Wb, settled,
-                              plan.current_A)
+                              settled_end, plan.current_A)
     return Estimator(ESTIMATOR, if_observer_step, params, state, 0.0,
                      SPEED_ESTIMATE_PER_BANDWIDTH * s["speed_bandwidth_Hz"],
                      injection_note="" if plan.refused else plan.statement(nameplate.n_p))

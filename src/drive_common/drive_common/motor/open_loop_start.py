@@ -83,7 +83,13 @@ period. Measured on seeds 11 and 29 (every motor the I-f start ran, 2026-11-28):
 failed (light rotors whose swing rule cut I_f to 1-2 % of rated current: the true current fell to half of I_f,
 the load angle past π/2, or the observer over target); the nine that worked lay at 7 × or more."""
 AGREEMENT_PER_SPEED = 0.2
-"""The hand-over waits for the observer's speed within this share of the ramp's."""
+"""The hand-over waits for the observer's speed within this share of the ramp's,"""
+OBSERVER_GAIN_PER_SPEED = 0.2
+"""for as long as the observer's flux error takes to decay SETTLE_DECAYS times at the hand-over speed: that error
+decays at its gain k_1 = σ_0 + 0.2·|ω| (hf_estimator.flux_observer, Hinkkanen et al. 2018; σ_0 = ¼R_s(1/L_d +
+1/L_q)), and what the voltage model's error built into it below that speed, where k_1 is smallest, is still there
+at the hand-over: random_1_0051 handed over with its observer 0.19 rad behind the rotor (0.15 rad 20 ms later)."""
+SETTLE_DECAYS = 3.0
 
 
 class OpenLoopStart(NamedTuple):
@@ -98,6 +104,8 @@ class OpenLoopStart(NamedTuple):
     align_s: float
     observer_error_V: float
     load_margin_Nm: float
+    observer_settle_s: float
+    """How long the observer's speed must agree with the ramp's before the hand-over [s]."""
     refused: str
     """"" or why this motor cannot be started so (one line)."""
 
@@ -143,6 +151,7 @@ def open_loop_start(plate, commissioning, U_dc_V, current_bandwidth_rad_s):
     swing = math.sqrt(n_p * torque / J) if math.isfinite(J) else math.nan
     u_err = observer_error_V(plate, commissioning, U_dc_V, current)
     handover = max(u_err / (OBSERVER_ERROR_BOUND_RAD * psi_f), MIN_HANDOVER_PER_RATED * omega_rated)
+    sigma_0 = 0.25 * commissioning.R_s_ohm * (1.0 / plate.L_d_H + 1.0 / plate.L_q_H)
     noise = plate.L_q_H * commissioning.sensor_noise_A / psi_f
     if not refused and noise > OBSERVER_NOISE_RMS_RAD:
         refused = (f"the back-EMF observer's angle noise L_q·σ_i/ψ_f {noise:.3f} rad exceeds ours' target "
@@ -161,4 +170,5 @@ def open_loop_start(plate, commissioning, U_dc_V, current_bandwidth_rad_s):
                          handover_rad_s=handover, handback_rad_s=HANDBACK_PER_HANDOVER * handover,
                          align_s=ALIGN_SWINGS * 2.0 * math.pi / swing if math.isfinite(swing) else math.nan,
                          observer_error_V=u_err, load_margin_Nm=(1.0 - ACCELERATION_SHARE) * torque,
+                         observer_settle_s=SETTLE_DECAYS / (sigma_0 + OBSERVER_GAIN_PER_SPEED * handover),
                          refused=refused)
