@@ -29,6 +29,7 @@ from numba import njit
 from drive_common.contract.estimator_states import HOLD, LEADER_BACKEMF, TRACKING
 from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, net_of_dead_time
 from drive_common.math.frames import clarke_contract, rotate
+from drive_common.motor.open_loop_start import OBSERVER_GAIN_PER_SPEED
 
 from .interface import Estimator, check_settings, register, stator_resistance
 
@@ -70,7 +71,7 @@ def flux_observer_step(x, p, k, sample, out):
                                                            p.dead_time_voltage_V, p.dead_time_smoothing_A)
         e_d, w_s = x.e_d, x.omega_s
         u_d, u_q = rotate(u_applied_alpha, u_applied_beta, -(x.theta + 0.5 * p.T_s_s * w_s))
-        k_1 = p.sigma_0 + 0.2 * abs(x.omega)
+        k_1 = p.sigma_0 + OBSERVER_GAIN_PER_SPEED * abs(x.omega)
         # ψ_a is real here, so k_2 = k_1 and k_1 e + k_2 e* = 2 k_1 Re(e).
         R_s = stator_resistance(p.R_s_ohm, sample.R_s_ohm)
         d_psi_d = u_d - R_s * x.prev_id + w_s * x.psi_q + 2.0 * k_1 * e_d

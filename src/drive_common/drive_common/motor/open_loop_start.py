@@ -86,9 +86,10 @@ AGREEMENT_PER_SPEED = 0.2
 """The hand-over waits for the observer's speed within this share of the ramp's,"""
 OBSERVER_GAIN_PER_SPEED = 0.2
 """for as long as the observer's flux error takes to decay SETTLE_DECAYS times at the hand-over speed: that error
-decays at its gain k_1 = σ_0 + 0.2·|ω| (hf_estimator.flux_observer, Hinkkanen et al. 2018; σ_0 = ¼R_s(1/L_d +
-1/L_q)), and what the voltage model's error built into it below that speed, where k_1 is smallest, is still there
-at the hand-over: random_1_0051 handed over with its observer 0.19 rad behind the rotor (0.15 rad 20 ms later)."""
+decays at its gain k_1 = σ_0 + 0.2·|ω| (hf_estimator.flux_observer's, which takes this constant; Hinkkanen et al.
+2018; σ_0 = ¼R_s(1/L_d + 1/L_q)), and what the voltage model's error built into it below that speed, where k_1 is
+smallest, is still there at the hand-over: random_1_0051 handed over with its observer 0.19 rad behind the rotor
+(0.15 rad 20 ms later)."""
 SETTLE_DECAYS = 3.0
 
 
