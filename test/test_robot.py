@@ -603,14 +603,14 @@ def test_drive_up_with_view_serves_the_robots_axes_live_while_it_runs(tmp_path):
         err.close()
 
 
-HOMED_ARM = """format_version: 1
+HOMED_ARM = f"""format_version: 1
 initial_state: active
 axes:
-  - {joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false, hold_timeout_s: .inf,
-     link_timeout_s: 3.0, command_timeout_s: 0.5,
-     homing: {method: hard_stop, direction: 1, current_A: 1.5, offset_rad: -1.0, backoff_rad: 0.3}}
-  - {joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false,
-     link_timeout_s: 3.0}
+  - {{joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false, hold_timeout_s: .inf,
+     link_timeout_s: {LOCKSTEP_LINK_TIMEOUT_S}, command_timeout_s: 0.5,
+     homing: {{method: hard_stop, direction: 1, current_A: 1.5, offset_rad: -1.0, backoff_rad: 0.3}}}}
+  - {{joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false,
+     link_timeout_s: {LOCKSTEP_LINK_TIMEOUT_S}}}
 """
 STOP_RAD = 2.3
 """The shoulder's end stop in the simulation (its truth; the drive is not told): 1 rad above its start."""
@@ -668,13 +668,14 @@ def test_a_joint_homes_against_its_stop_then_follows_position_commands(tmp_path)
         assert client.robot_faults().get("faults.command_not_homed", 0) > 0
 
 
-INDEXED_ARM = """format_version: 1
+INDEXED_ARM = f"""format_version: 1
 initial_state: active
 axes:
-  - {joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false, hold_timeout_s: .inf,
-     link_timeout_s: 3.0, command_timeout_s: 0.5, homing: {method: index, direction: 1, offset_rad: 0.4}}
-  - {joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false,
-     link_timeout_s: 3.0}
+  - {{joint: shoulder, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false, hold_timeout_s: .inf,
+     link_timeout_s: {LOCKSTEP_LINK_TIMEOUT_S}, command_timeout_s: 0.5,
+     homing: {{method: index, direction: 1, offset_rad: 0.4}}}}
+  - {{joint: wrist, drive: arm_drive.yaml, link: virtual, scenario: arm_sim.yaml, paced: false,
+     link_timeout_s: {LOCKSTEP_LINK_TIMEOUT_S}}}
 """
 INDEX_RAD = 2.0 * math.pi
 """Where the virtual inverter's index input pulses on the shoulder's way up from 1.3 rad: its true mechanical angle
