@@ -29,7 +29,7 @@ from numba import njit
 from drive_common.contract.estimator_states import HOLD, LEADER_BACKEMF, TRACKING
 from drive_common.math.dead_time import SMOOTHING_PER_RATED_CURRENT, net_of_dead_time
 from drive_common.math.frames import clarke_contract, rotate
-from drive_common.motor.open_loop_start import OBSERVER_GAIN_PER_SPEED
+from drive_common.motor.open_loop_start import OBSERVER_GAIN_PER_SPEED, observer_gain_rad_s
 
 from .interface import Estimator, check_settings, register, stator_resistance
 
@@ -130,7 +130,7 @@ def make_flux_observer(nameplate, T_s, settings, commissioning, inverter):
     params = FluxObserverParams(
         T_s_s=T_s, R_s_ohm=commissioning.R_s_ohm, L_d_H=nameplate.L_d_H, L_q_H=nameplate.L_q_H,
         psi_f_Wb=nameplate.psi_f_Wb, alpha_d=2.0 * alpha_o,
-        sigma_0=0.25 * commissioning.R_s_ohm * (1.0 / nameplate.L_d_H + 1.0 / nameplate.L_q_H),
+        sigma_0=observer_gain_rad_s(commissioning.R_s_ohm, nameplate.L_d_H, nameplate.L_q_H, 0.0),
         observable_backemf_V=float(s["observable_backemf_per_rated"]) * omega_rated * nameplate.psi_f_Wb,
         dead_time_voltage_V=commissioning.dead_time_voltage_V,
         dead_time_smoothing_A=SMOOTHING_PER_RATED_CURRENT * nameplate.rated_current_A)

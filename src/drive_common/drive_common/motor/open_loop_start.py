@@ -93,6 +93,12 @@ smallest, is still there at the hand-over: random_1_0051 handed over with its ob
 SETTLE_DECAYS = 3.0
 
 
+def observer_gain_rad_s(R_s_ohm, L_d_H, L_q_H, omega_e_rad_s):
+    """The back-EMF observer's gain k_1 = σ_0 + OBSERVER_GAIN_PER_SPEED·|ω| [1/s] at electrical speed
+    ``omega_e_rad_s``, σ_0 = ¼R_s(1/L_d + 1/L_q): the rate its flux error decays at (hf_estimator.flux_observer)."""
+    return 0.25 * R_s_ohm * (1.0 / L_d_H + 1.0 / L_q_H) + OBSERVER_GAIN_PER_SPEED * abs(omega_e_rad_s)
+
+
 class OpenLoopStart(NamedTuple):
     """An I-f start, SI units, speeds and accelerations electrical."""
 
@@ -152,7 +158,6 @@ def open_loop_start(plate, commissioning, U_dc_V, current_bandwidth_rad_s):
     swing = math.sqrt(n_p * torque / J) if math.isfinite(J) else math.nan
     u_err = observer_error_V(plate, commissioning, U_dc_V, current)
     handover = max(u_err / (OBSERVER_ERROR_BOUND_RAD * psi_f), MIN_HANDOVER_PER_RATED * omega_rated)
-    sigma_0 = 0.25 * commissioning.R_s_ohm * (1.0 / plate.L_d_H + 1.0 / plate.L_q_H)
     noise = plate.L_q_H * commissioning.sensor_noise_A / psi_f
     if not refused and noise > OBSERVER_NOISE_RMS_RAD:
         refused = (f"the back-EMF observer's angle noise L_q·σ_i/ψ_f {noise:.3f} rad exceeds ours' target "
@@ -171,5 +176,6 @@ def open_loop_start(plate, commissioning, U_dc_V, current_bandwidth_rad_s):
                          handover_rad_s=handover, handback_rad_s=HANDBACK_PER_HANDOVER * handover,
                          align_s=ALIGN_SWINGS * 2.0 * math.pi / swing if math.isfinite(swing) else math.nan,
                          observer_error_V=u_err, load_margin_Nm=(1.0 - ACCELERATION_SHARE) * torque,
-                         observer_settle_s=SETTLE_DECAYS / (sigma_0 + OBSERVER_GAIN_PER_SPEED * handover),
+                         observer_settle_s=SETTLE_DECAYS / observer_gain_rad_s(commissioning.R_s_ohm, plate.L_d_H,
+                                                                                 plate.L_q_H, handover),
                          refused=refused)
