@@ -394,9 +394,11 @@ def test_joint_commands_move_both_joints_at_their_speed_and_sign(arm):
 
 def test_an_outside_client_without_rclpy_commands_both_joints_and_reads_their_states(arm, tmp_path):
     """A Cyclone DDS client (no rclpy, test/tools/dds_client.py) publishes the joint command topic for both joints at
-    20 Hz and reads `/joint_states`: what it reads shows each joint at its commanded speed and sign, the mean over the
-    joint's distinct states (lock-step, `/joint_states` repeats a joint's last state at its host-timed rate while the
-    simulation waits: a mean over every message weights the state a loaded machine held longest)."""
+    20 Hz and reads `/joint_states`: once both joints turn the commanded way at half the command or more (the robot's
+    subscription may match the client's writer later than the client matches it: the joints reversing from the last
+    test's command then fell in the judged span), what it reads shows each joint at its commanded speed and sign, the
+    mean over the joint's distinct states (lock-step, `/joint_states` repeats a joint's last state at its host-timed
+    rate while the simulation waits: a mean over every message weights the state a loaded machine held longest)."""
     pytest.importorskip("cyclonedds")
     from tools.dds_process import client as outside_client
     from tools.dds_process import matched, read_so_far
@@ -407,6 +409,10 @@ def test_an_outside_client_without_rclpy_commands_both_joints_and_reads_their_st
                              "JointState", "--rate", "20", "--duration", "600")
     try:
         matched(outside, out, ("/joint_commands", "/joint_states"))
+        deadline = time.monotonic() + 120.0
+        while not (client.joint("shoulder", last=3)[1] < -1.0 and client.joint("wrist", last=3)[1] > 1.25):
+            assert time.monotonic() < deadline, "the outside client's command never took effect"
+            client.spin_simulated(0.1)
         client.spin_simulated(0.7)
         settled = len(read_so_far(out))
         client.spin_simulated(0.8)
