@@ -22,6 +22,9 @@ LOAD_ON_S = 7.0
 LOAD_SETTLE_S = 1.0
 """Simulated time after the load steps on within which the shoulder's speed may still be off its command (the
 speed loop's recovery from the step)."""
+JUDGED_SPAN_MARGIN_S = 0.3
+"""Simulated time a judged span is kept clear of the load step beyond its length: `spin_simulated` first spins 0.1 s
+of the host's time, and the states a client reads lag the simulation."""
 HOLD_WITHIN_RAD = 0.25
 """The held shaft's angle (the simulation's truth) stays within this range while the joint is held."""
 VELOCITY_LIMIT = 20.0
@@ -383,9 +386,21 @@ def test_inactive_axes_apply_zero_volts_and_another_process_drives_their_lifecyc
     assert client.commands_seen, "armed, the drive answers"
 
 
+def clear_of_the_load_step(client, span_s, command=None):
+    """Spin (publishing ``command``) until the next ``span_s`` of both joints' simulated time lies clear of the load's
+    step and the speed loop's recovery from it (LOAD_ON_S to LOAD_ON_S + LOAD_SETTLE_S), with JUDGED_SPAN_MARGIN_S.
+    Lock-step, how far the simulations have run when a test begins is the machine's pace: on a loaded one the step
+    fell in a judged span and the shoulder read -2.7 rad/s for -2.0."""
+    def clear(now):
+        return now + span_s + JUDGED_SPAN_MARGIN_S < LOAD_ON_S or now > LOAD_ON_S + LOAD_SETTLE_S
+    while not (clear(client.truth[-1][0]) and clear(client.wrist_at[0])):
+        client.spin_simulated(0.1, command)
+
+
 def test_joint_commands_move_both_joints_at_their_speed_and_sign(arm):
     _, client = arm
     command = (["shoulder", "wrist"], [3.0, -3.0], [])
+    clear_of_the_load_step(client, 1.0, command)
     client.spin_simulated(1.0, command)
     for joint, speed in (("shoulder", 3.0), ("wrist", -3.0)):
         assert client.joint(joint, over_s=0.5)[1] == pytest.approx(speed, abs=0.6), (joint, {
@@ -396,9 +411,10 @@ def test_an_outside_client_without_rclpy_commands_both_joints_and_reads_their_st
     """A Cyclone DDS client (no rclpy, test/tools/dds_client.py) publishes the joint command topic for both joints at
     20 Hz and reads `/joint_states`: once both joints turn the commanded way at half the command or more (the robot's
     subscription may match the client's writer later than the client matches it: the joints reversing from the last
-    test's command then fell in the judged span), what it reads shows each joint at its commanded speed and sign, the
-    mean over the joint's distinct states (lock-step, `/joint_states` repeats a joint's last state at its host-timed
-    rate while the simulation waits: a mean over every message weights the state a loaded machine held longest)."""
+    test's command then fell in the judged span) and the span is clear of the load's step, what it reads shows each
+    joint at its commanded speed and sign, the mean over the joint's distinct states (lock-step, `/joint_states`
+    repeats a joint's last state at its host-timed rate while the simulation waits: a mean over every message weights
+    the state a loaded machine held longest)."""
     pytest.importorskip("cyclonedds")
     from tools.dds_process import client as outside_client
     from tools.dds_process import matched, read_so_far
@@ -414,17 +430,22 @@ def test_an_outside_client_without_rclpy_commands_both_joints_and_reads_their_st
             assert time.monotonic() < deadline, "the outside client's command never took effect"
             client.spin_simulated(0.1)
         client.spin_simulated(0.7)
-        settled = len(read_so_far(out))
+        clear_of_the_load_step(client, 0.8)
+        settled, began, modes_from = len(read_so_far(out)), client.truth[-1], len(client.shoulder_modes)
         client.spin_simulated(0.8)
         read = [r for r in read_so_far(out)[settled:] if set(r["name"]) == {"shoulder", "wrist"}]
+        ended = client.truth[-1]
     finally:
         outside.terminate()
         outside.wait(timeout=30)
     assert len(read) >= 5, read
+    span = (f"judged over the shoulder's simulated {began[0]:.2f}-{ended[0]:.2f} s, where its truth turned at "
+            f"{(ended[1] - began[1]) / (ended[0] - began[0]):.2f} rad/s; its command modes: "
+            f"{[mode for _, mode in client.shoulder_modes[modes_from:]]}")
     for joint, speed in (("shoulder", -2.0), ("wrist", 2.5)):
         states = [(r["position"][r["name"].index(joint)], r["velocity"][r["name"].index(joint)]) for r in read]
         speeds = [v for i, (p, v) in enumerate(states) if i == 0 or p != states[i - 1][0]]
-        assert len(speeds) >= 5 and sum(speeds) / len(speeds) == pytest.approx(speed, abs=0.6), (joint, speeds)
+        assert len(speeds) >= 5 and sum(speeds) / len(speeds) == pytest.approx(speed, abs=0.6), (joint, span, speeds)
 
 
 @pytest.mark.parametrize("names, velocity, effort, kind", [
