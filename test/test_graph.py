@@ -662,12 +662,20 @@ def wait_for_bag_data(bag, process, stderr_path, size=100_000, timeout_s=60.0):
         time.sleep(0.05)
 
 
-def separate_run_and_its_estimator(tmp_path, namespace):
-    """`drive launch wang_100rpm --processes separate --duration 1.0 --json` under ``namespace``, once its bag
-    holds data: (the launcher's process, the estimator node's pid, the launcher's stderr file)."""
+SEPARATE_RUN_SAMPLES = 5000
+"""The samples of the runs whose estimator process is stopped or killed (0.5 s of wang_100rpm at 10 kHz): one
+process per node, sample by sample, each sample's hops cross processes (a few ms a sample here)."""
+
+
+def separate_run_and_its_estimator(tmp_path, namespace, block_samples=1):
+    """`drive launch wang_100rpm --processes separate --duration 0.5 --json` under ``namespace`` in blocks of
+    ``block_samples``, once its bag holds data: (the launcher's process, the estimator node's pid, the launcher's
+    stderr file)."""
     bag, stderr = tmp_path / "bag", tmp_path / "stderr"
     launcher = subprocess.Popen(DRIVE + ["launch", "wang_100rpm", "--processes", "separate", "--namespace",
-                                         namespace, "--duration", "1.0", "--json", "--no-plot", "--record", str(bag)],
+                                         namespace, "--duration", str(SEPARATE_RUN_SAMPLES * 1e-4),
+                                         "--block-samples", str(block_samples), "--json", "--no-plot", "--record",
+                                         str(bag)],
                                 cwd=tmp_path, stdout=subprocess.PIPE, stderr=stderr.open("w"), text=True)
     wait_for_bag_data(bag, launcher, stderr)
     estimator = subprocess.run(["pgrep", "-f", f"hf_estimator.node .*__ns:={namespace}"], capture_output=True,
@@ -677,9 +685,11 @@ def separate_run_and_its_estimator(tmp_path, namespace):
 
 
 def test_a_node_stopped_for_two_seconds_shows_in_node_faults_and_the_exit_code(tmp_path):
-    """SIGSTOP on the estimator process for 2 s (twice the lock-step timeout): the plant applies zero
-    voltage and counts timeouts; the launcher sees the cumulative counters, not only the last status."""
-    launcher, estimator, stderr = separate_run_and_its_estimator(tmp_path, "/sigstop_test")
+    """SIGSTOP on the estimator process for 2 s (twice the lock-step timeout), in blocks of 10 samples (a tenth of
+    the cross-process hops: the run in samples took 25-42 s here): the plant applies zero voltage and counts
+    timeouts; the launcher sees the cumulative counters, not only the last status; and the answers the stopped
+    estimator gave late still reach the log (nothing recorded is lost)."""
+    launcher, estimator, stderr = separate_run_and_its_estimator(tmp_path, "/sigstop_test", block_samples=10)
     os.kill(estimator, signal.SIGSTOP)
     time.sleep(2.0)
     os.kill(estimator, signal.SIGCONT)
@@ -688,8 +698,8 @@ def test_a_node_stopped_for_two_seconds_shows_in_node_faults_and_the_exit_code(t
     metrics = json.loads(out)
     plant = metrics["node_faults"]["/sigstop_test/pmsm_plant"]
     assert plant["faults"]["timeout"] >= 1 and any("zero voltage" in m for m in plant["messages"])
-    assert metrics["samples"] == 10000 and not metrics["interrupted"]
-    assert metrics["missing_samples"]["/sigstop_test/voltage_command"] >= 1, "the command never answered"
+    assert metrics["samples"] == SEPARATE_RUN_SAMPLES and not metrics["interrupted"]
+    assert "missing_samples" not in metrics, metrics["missing_samples"]
 
 
 def test_a_node_process_killed_mid_run_is_a_node_fault_with_the_json_printed(tmp_path):
@@ -702,7 +712,7 @@ def test_a_node_process_killed_mid_run_is_a_node_fault_with_the_json_printed(tmp
     report = json.loads(out)
     fault = report["node_faults"]["/sigkill_test/hf_estimator"]
     assert fault["faults"]["process_exited"] == 1 and any("killed by signal 9" in m for m in fault["messages"])
-    assert 0 < report["samples"] < 10000 and "Traceback" not in stderr.read_text()
+    assert 0 < report["samples"] < SEPARATE_RUN_SAMPLES and "Traceback" not in stderr.read_text()
 
 
 def test_nodes_started_by_hand_exit_when_the_plant_is_gone(tmp_path):

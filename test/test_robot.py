@@ -558,9 +558,9 @@ def recorded_whole(bag, report):
 
 @pytest.mark.parametrize("answer", ["compiled", "nodes"])
 def test_a_lost_link_brings_every_axis_to_its_safe_state_and_exits_3(tmp_path, answer):
-    """The shoulder's simulation ends after 4 s: its link goes silent, and `drive up` stops every axis; either answer
+    """The shoulder's simulation ends after 1.5 s: its link goes silent, and `drive up` stops every axis; either answer
     (the other tests arm the default, compiled)."""
-    drive_files(tmp_path, duration_s=4.0, load=False)
+    drive_files(tmp_path, duration_s=1.5, load=False)
     text = ARM.replace("format_version: 1", "format_version: 1\ninitial_state: active")
     path = robot_file(tmp_path, text.replace("paced: false", f"paced: false, answer: {answer}"))
     run = subprocess.run([str(DRIVE), "up", str(path), "--json", "--record", "robot_bag"], cwd=tmp_path,

@@ -194,7 +194,7 @@ def bring_up(robot, executor_name="events", started=None, record=None):
                 result.running = {"wall_s": time.monotonic() - wall, "cpu_s": time.process_time() - cpu}
             result.axes = _stop(axes, executor)
             if recording is not None:
-                result.recording = recording.close([robot_node, *(n for axis in axes for n in axis.drive_nodes())])
+                recording.acknowledge([robot_node, *(n for axis in axes for n in axis.drive_nodes())])
         result.faults = dict(robot_node.health.counters)
     finally:
         polling.__exit__(None, None, None)

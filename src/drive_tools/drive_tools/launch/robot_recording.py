@@ -96,17 +96,22 @@ class RobotRecording:
             listening.executor.spin_once(timeout_sec=0.02)
             quiet = quiet + 1 if sum(self.writer.counts.values()) == before else 0
 
-    def close(self, nodes=()):
-        """End the recording: what ``nodes`` published acknowledged by the recorder (at most the launcher's
-        ACKNOWLEDGE_WAIT_S), its thread stopped, the bag closed. The recording's report: path, messages written,
-        where a write failed the error (BagWriteError's one line), and the topics not heard from their start."""
+    def acknowledge(self, nodes):
+        """Wait until what ``nodes`` published is acknowledged by the recorder's readers (at most the launcher's
+        ACKNOWLEDGE_WAIT_S): before they stop publishing."""
         from drive_common.ros.node import acknowledged
-        from drive_tools.bags.common import BagWriteError
 
         from .launcher import ACKNOWLEDGE_WAIT_S
+        acknowledged(nodes, ACKNOWLEDGE_WAIT_S)
+
+    def close(self):
+        """End the recording once its sources stopped (the axes' links closed: while a link is open its bridge
+        publishes the inverter's telemetry, and the readers would never fall quiet): its thread stopped, what its
+        readers hold written, the bag closed. The recording's report: path, messages written, where a write failed
+        the error (BagWriteError's one line), and the topics not heard from their start."""
+        from drive_tools.bags.common import BagWriteError
         if self.closed is not None:
             return self.closed
-        acknowledged(nodes, ACKNOWLEDGE_WAIT_S)
         self._drain()
         self.listening.executor.shutdown()
         error = None
