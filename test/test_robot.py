@@ -523,9 +523,10 @@ def test_sigterm_brings_every_axis_to_its_safe_state(arm):
 
 
 def recorded_whole(bag, report):
-    """`drive up --record`'s bag is closed and holds every sample each axis's bridge took (from the first it took,
-    after those that came before the inverter's HELLO, but for at most its first two blocks; without a gap, at least
-    as many as its report counted but those: the bridge takes more until its link closes), and each armed axis's
+    """`drive up --record`'s bag is closed, its readers quiet first, and holds every sample each axis's bridge took
+    (from the first it took, after those that came before the inverter's HELLO, but for at most its first two blocks;
+    without a gap, at least as many as its report counted but those: the bridge takes more until its link closes),
+    and each armed axis's
     estimate lies on its truth (the drive's topics stamped in the inverter's count, as the bridge's: an axis armed at
     sample k0 counts from 0 inside, and a shift of k0 samples would put the estimate radians off its truth)."""
     import numpy as np
@@ -535,6 +536,7 @@ def recorded_whole(bag, report):
     from drive_tools.bags.reader import bag_log, bag_topics, read_topics
     assert (bag / "metadata.yaml").exists(), "the bag is closed"
     assert report["recording"]["not_heard_from_the_start"] == []
+    assert report["recording"]["drained"], "the recorder's readers fell quiet before the bag closed (links closed)"
     for axis in report["axes"]:
         namespace = axis["namespace"]
         _, topics = read_topics(str(bag), ["currents_block"], namespace)

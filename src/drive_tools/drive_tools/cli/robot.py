@@ -46,7 +46,9 @@ def cmd_up(args):
             unheard = recording["not_heard_from_the_start"]
             print(f"recording: {recording['path']}, {recording['messages']} messages"
                   + (f" ({recording['error']})" if recording["error"] else "")
-                  + (f"; not heard from their start (the machine was slow): {', '.join(unheard)}" if unheard else ""))
+                  + (f"; not heard from their start (the machine was slow): {', '.join(unheard)}" if unheard else "")
+                  + ("" if recording["drained"] else "; still receiving when it closed (its last messages may be "
+                     "missing)"))
     if reason:
         say_reason(reason)
     return exit_code

@@ -85,7 +85,8 @@ class RobotRecording:
     def _drain(self):
         """Stop the recorder's thread, then take on this one every message its readers hold (acknowledged is
         received, not yet written): spun until nothing more is written for DRAIN_QUIET_SPINS spins (at most
-        DRAIN_LIMIT_S)."""
+        DRAIN_LIMIT_S). Whether the readers fell quiet (False: the limit came first, and messages may be left
+        unwritten)."""
         listening = self.listening
         listening.stopped.set()
         if listening.thread.is_alive():
@@ -95,6 +96,7 @@ class RobotRecording:
             before = sum(self.writer.counts.values())
             listening.executor.spin_once(timeout_sec=0.02)
             quiet = quiet + 1 if sum(self.writer.counts.values()) == before else 0
+        return quiet >= DRAIN_QUIET_SPINS
 
     def acknowledge(self, nodes):
         """Wait until what ``nodes`` published is acknowledged by the recorder's readers (at most the launcher's
@@ -108,11 +110,12 @@ class RobotRecording:
         """End the recording once its sources stopped (the axes' links closed: while a link is open its bridge
         publishes the inverter's telemetry, and the readers would never fall quiet): its thread stopped, what its
         readers hold written, the bag closed. The recording's report: path, messages written, where a write failed
-        the error (BagWriteError's one line), and the topics not heard from their start."""
+        the error (BagWriteError's one line), the topics not heard from their start, and whether its readers fell
+        quiet before it closed (``drained``)."""
         from drive_tools.bags.common import BagWriteError
         if self.closed is not None:
             return self.closed
-        self._drain()
+        drained = self._drain()
         self.listening.executor.shutdown()
         error = None
         try:
@@ -121,5 +124,5 @@ class RobotRecording:
             error = str(failure)
         self.node.destroy_node()
         self.closed = {"path": str(self.path), "messages": sum(self.writer.counts.values()), "error": error,
-                       "not_heard_from_the_start": sorted(set(self.unheard))}
+                       "not_heard_from_the_start": sorted(set(self.unheard)), "drained": drained}
         return self.closed
