@@ -148,7 +148,11 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
     speed to ``omega_e_ref`` at ``if_acceleration_rad_s2``. During the lock the stabilising loop turns the
     current's angle by φ = −k·ṽ (ṽ the rotor's speed by the observer, the back-EMF of its swing, through
     1/(s + c)), and again from IF_DAMPED_PER_HANDOVER of the hand-over speed; between, φ decays: the
-    swing from the ramp's start stays within 2·asin(ACCELERATION_SHARE) (open_loop_start). Hands over
+    swing from the ramp's start stays within 2·asin(ACCELERATION_SHARE) (open_loop_start). As φ moves, the
+    current integrators are turned with the frame by −Δφ: open loop the back-EMF is not fed forward, they hold it,
+    and it is fixed to the rotor, not to the frame (held still in the frame, the loop's engaging at the hand-back
+    speed put up to 1 V of back-EMF across the current loop of random_1_0170, its current fell to 1.5 A of 7.78 A
+    and the load angle passed π/2 from every start). Hands over
     (x[IF_SWITCH] = 1, x[INT_SPEED] the torque current I_f·sin(θ_if − θ̂)) once the estimator tracks, the
     ramp is at the hand-over speed and the observer's speed agrees for ``if_agree_samples``."""
     if x[IF_MODE] < 0.5:
@@ -183,9 +187,11 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
     observed = x[IF_ALIGN_LEFT] > 0.0 or (abs(ramp) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s and abs(
         omega_e_hat) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s and abs(lead) < 0.5 * math.pi)
     swing = omega_e_hat - ramp if observed else 0.0
+    phi_before = min(max(-c.if_damping_gain * x[IF_FILTERED], -IF_ANGLE_LIMIT_RAD), IF_ANGLE_LIMIT_RAD)
     x[IF_FILTERED] += c.T_s_s * (swing - c.if_damping_filter_rad_s * x[IF_FILTERED])
     x[IF_THETA] += ramp * c.T_s_s
     phi = min(max(-c.if_damping_gain * x[IF_FILTERED], -IF_ANGLE_LIMIT_RAD), IF_ANGLE_LIMIT_RAD)
+    x[INT_D], x[INT_Q] = rotate(x[INT_D], x[INT_Q], phi_before - phi)
     theta = x[IF_THETA] + phi
     lead = wrap(theta - theta_e_hat)
     if (state == TRACKING and x[IF_ALIGN_LEFT] <= 0.0 and abs(ramp) >= c.if_handover_rad_s
