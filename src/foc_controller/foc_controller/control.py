@@ -149,10 +149,8 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
     current's angle by φ = −k·ṽ (ṽ the rotor's speed by the observer, the back-EMF of its swing, through
     1/(s + c)), and again from IF_DAMPED_PER_HANDOVER of the hand-over speed; between, φ decays: the
     swing from the ramp's start stays within 2·asin(ACCELERATION_SHARE) (open_loop_start). As φ moves, the
-    current integrators are turned with the frame by −Δφ: open loop the back-EMF is not fed forward, they hold it,
-    and it is fixed to the rotor, not to the frame (held still in the frame, the loop's engaging at the hand-back
-    speed put up to 1 V of back-EMF across the current loop of random_1_0170, its current fell to 1.5 A of 7.78 A
-    and the load angle passed π/2 from every start). Hands over
+    current integrators turn with the frame by −Δφ: open loop they hold the back-EMF (not fed forward), which is
+    fixed to the rotor, not to the frame (docs/startup.md). Hands over
     (x[IF_SWITCH] = 1, x[INT_SPEED] the torque current I_f·sin(θ_if − θ̂)) once the estimator tracks, the
     ramp is at the hand-over speed and the observer's speed agrees for ``if_agree_samples``."""
     if x[IF_MODE] < 0.5:
