@@ -664,7 +664,7 @@ def wait_for_bag_data(bag, process, stderr_path, size=100_000, timeout_s=60.0):
 
 SEPARATE_RUN_SAMPLES = 5000
 """The samples of the runs whose estimator process is stopped or killed (0.5 s of wang_100rpm at 10 kHz): one
-process per node, sample by sample, each sample's hops cross processes (a few ms a sample here)."""
+process per node, each sample's (or block's) hops cross processes (a few ms a sample here, in samples)."""
 
 
 def separate_run_and_its_estimator(tmp_path, namespace, block_samples=1):

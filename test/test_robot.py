@@ -526,9 +526,9 @@ def recorded_whole(bag, report):
     """`drive up --record`'s bag is closed, its readers quiet first, and holds every sample each axis's bridge took
     (from the first it took, after those that came before the inverter's HELLO, but for at most its first two blocks;
     without a gap, at least as many as its report counted but those: the bridge takes more until its link closes),
-    and each armed axis's
-    estimate lies on its truth (the drive's topics stamped in the inverter's count, as the bridge's: an axis armed at
-    sample k0 counts from 0 inside, and a shift of k0 samples would put the estimate radians off its truth)."""
+    and each armed axis's estimate lies on its truth (the drive's topics stamped in the inverter's count, as the
+    bridge's: an axis armed at sample k0 counts from 0 inside, and a shift of k0 samples would put the estimate
+    radians off its truth)."""
     import numpy as np
 
     from drive_common.contract.log import COLUMN

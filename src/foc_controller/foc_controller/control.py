@@ -138,6 +138,13 @@ def ramped_reference(x, c, omega_m_ref, omega_m_hat, torque):
 
 
 @njit(cache=True, _nrt=False)
+def stabilising_angle(c, filtered):
+    """The stabilising loop's turn φ = −k·ṽ_f of the I-f current [rad], within ±IF_ANGLE_LIMIT_RAD, from ``filtered``
+    (x[IF_FILTERED], the rotor's speed less the ramp's through 1/(s + c))."""
+    return min(max(-c.if_damping_gain * filtered, -IF_ANGLE_LIMIT_RAD), IF_ANGLE_LIMIT_RAD)
+
+
+@njit(cache=True, _nrt=False)
 def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
     """The I-f start (Fatu et al. 2008, drive_common.motor.open_loop_start) for one period: → (whether the
     current is turned open loop, its angle [rad], the frame's speed [rad/s]). Entered when the estimator says
@@ -185,10 +192,10 @@ def open_loop_step(x, c, state, theta_e_hat, omega_e_hat, omega_e_ref):
     observed = x[IF_ALIGN_LEFT] > 0.0 or (abs(ramp) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s and abs(
         omega_e_hat) >= IF_DAMPED_PER_HANDOVER * c.if_handover_rad_s and abs(lead) < 0.5 * math.pi)
     swing = omega_e_hat - ramp if observed else 0.0
-    phi_before = min(max(-c.if_damping_gain * x[IF_FILTERED], -IF_ANGLE_LIMIT_RAD), IF_ANGLE_LIMIT_RAD)
+    phi_before = stabilising_angle(c, x[IF_FILTERED])
     x[IF_FILTERED] += c.T_s_s * (swing - c.if_damping_filter_rad_s * x[IF_FILTERED])
     x[IF_THETA] += ramp * c.T_s_s
-    phi = min(max(-c.if_damping_gain * x[IF_FILTERED], -IF_ANGLE_LIMIT_RAD), IF_ANGLE_LIMIT_RAD)
+    phi = stabilising_angle(c, x[IF_FILTERED])
     x[INT_D], x[INT_Q] = rotate(x[INT_D], x[INT_Q], phi_before - phi)
     theta = x[IF_THETA] + phi
     lead = wrap(theta - theta_e_hat)
