@@ -15,7 +15,6 @@ from drive_tools.runner.runner import run_scenario
 from helpers import ideal_commissioning as commission
 from helpers import run, scenario, shipped
 from hf_estimator.injection_frame import (
-    DEAD_TIME_MODEL_SHARE,
     dead_time_modelled,
     dead_time_share,
     raised_injection_amplitude,
@@ -158,23 +157,23 @@ def test_ours_raises_its_amplitude_until_the_saliency_current_stands_above_the_n
         assert raised_injection_amplitude(requested, record, plate, WANG_INVERTER, omega_h, snr) == (requested, "")
 
 
-def test_ours_models_the_dead_time_where_it_turns_the_axis_against_the_saliency():
-    """``dead_time_model: auto`` (injection_frame item 2): the commissioned dead-time voltage is subtracted where
-    it is at least DEAD_TIME_MODEL_SHARE of the saliency's share of the carrier voltage U_h·|Δ|/Σ, not below it,
-    nor without a commissioned dead-time voltage or saliency; True and False hold as set. The model's sign is
-    smoothed over at least MIN_SMOOTHING_A (Wang's motor: 1 % of its rated current is less)."""
+def test_ours_models_the_dead_time_wherever_the_commissioning_measured_it():
+    """``dead_time_model: auto`` (injection_frame item 2): the commissioned dead-time voltage is subtracted
+    whatever its share of the saliency's share of the carrier voltage U_h·|Δ|/Σ (the note states that share), not
+    without a commissioned dead-time voltage or saliency; True and False hold as set. The model's sign is smoothed
+    over at least MIN_SMOOTHING_A (Wang's motor: 1 % of its rated current is less)."""
     plate = WANG.nameplate
     c = commission(WANG.machine, plate.current_limit_A)._replace(dead_time_voltage_V=0.12)
-    boundary_V = 0.12 * abs(c.sigma / c.delta) / DEAD_TIME_MODEL_SHARE
-    assert dead_time_share(c, boundary_V) == pytest.approx(DEAD_TIME_MODEL_SHARE, rel=1e-12)
-    on, note = dead_time_modelled("auto", c, 0.99 * boundary_V)
-    assert on and note.startswith("dead-time model on: the 0.12 V dead-time voltage is 0.34")
-    assert dead_time_modelled("auto", c, 1.01 * boundary_V) == (False, "")
-    assert dead_time_modelled(True, c, 1.01 * boundary_V) == (True, "")
-    assert dead_time_modelled(False, c, 0.5 * boundary_V) == (False, "")
-    assert dead_time_modelled("auto", c._replace(dead_time_voltage_V=0.0), 0.5 * boundary_V) == (False, "")
-    assert dead_time_modelled("auto", c._replace(L_dh_H=c.L_qh_H), 0.5 * boundary_V) == (False, "")
-    settings = {"amplitude_V": 0.5 * boundary_V, "saliency_snr_min": 0.0}
+    share_one_V = 0.12 * abs(c.sigma / c.delta)
+    assert dead_time_share(c, share_one_V) == pytest.approx(1.0, rel=1e-12)
+    for amplitude_V, share in ((share_one_V, "1.00"), (20.0 * share_one_V, "0.05")):
+        on, note = dead_time_modelled("auto", c, amplitude_V)
+        assert on and note.startswith(f"dead-time model on: the 0.12 V dead-time voltage is {share}")
+    assert dead_time_modelled(True, c, share_one_V) == (True, "")
+    assert dead_time_modelled(False, c, share_one_V) == (False, "")
+    assert dead_time_modelled("auto", c._replace(dead_time_voltage_V=0.0), share_one_V) == (False, "")
+    assert dead_time_modelled("auto", c._replace(L_dh_H=c.L_qh_H), share_one_V) == (False, "")
+    settings = {"amplitude_V": 20.0 * share_one_V, "saliency_snr_min": 0.0}
     for setting, subtracted in (("auto", 0.12), (False, 0.0)):
         p = make_estimator("injection_frame", plate, 1e-4, {**settings, "dead_time_model": setting}, c,
                            WANG_INVERTER).params

