@@ -9,7 +9,7 @@ import pytest
 from drive_common.config.scenario import ScenarioError, load_scenario, parse_scenario, scenario_names
 from drive_common.contract.log import COLUMN, LOG_COLUMNS
 from drive_common.contract.run_result import RunResult
-from drive_common.motor.motor_file import nameplate
+from drive_common.motor.motor_file import load_motor, nameplate
 from drive_tools.evaluation.metrics import compute_metrics
 from drive_tools.evaluation.startup_bench import STANDARD_CASES, startup_sweep
 from drive_tools.runner.runner import build_drive, run_scenario
@@ -89,6 +89,32 @@ def test_a_slip_under_rated_load_is_caught_from_the_back_emf():
     assert abs(np.mean(log[-1000:, COLUMN["omega_m"]]) / log[-1, COLUMN["omega_m_ref"]] - 1.0) < 0.1
 
 
+
+
+def test_a_tracker_wound_up_while_aligning_a_still_rotor_leaves_the_polarity_to_the_pulses(tmp_path):
+    """random_1_0142 (14 pole pairs, surface magnets, |Δ|/Σ 0.09), on the square wave the loops' rule chooses, 12
+    start angles at rest: its fast tracker's speed winds up while aligning, and the polarity was then taken from
+    the sign of a back-EMF that was noise (5 of 24 starts wrong, the shaft turned back up to 9.4° before the lock
+    monitor restarted them). The back-EMF decides only where the measured one stands clear too: every start is
+    told by the pulses (|S/T| ≥ 0.05 against the commissioned asymmetry's sign), right at first torque."""
+    from drive_common.config.motor_experiments import ExperimentOptions
+    from drive_common.config.scenario import motor_experiment
+    from drive_common.motor.commissioning import save_commissioning
+    from drive_tools.evaluation.metrics import startup_metrics
+    from drive_tools.evaluation.random_motors import draw_motor, write_motor_files
+    from drive_tools.runner.commissioning_run import commission_in_process
+    motor = load_motor(write_motor_files([draw_motor(1, 142)], tmp_path)[0], "test")
+    first = motor_experiment("low_speed", motor, "test", options=ExperimentOptions(1e-4, commissioning="nameplate"))
+    commissioning = save_commissioning(tmp_path / "c.yaml", commission_in_process(first).procedure.result(),
+                                       motor.name, "test")
+    for i in range(12):
+        theta_e = -math.pi + 2.0 * math.pi * (i + 0.5) / 12
+        options = ExperimentOptions(1e-4, theta_e, 1 + i % 3, 1.0, str(commissioning))
+        scenario = dataclasses.replace(motor_experiment("low_speed", motor, "test", options=options), duration_s=0.03)
+        result = run_scenario(scenario)
+        start = startup_metrics(scenario, result.log, result.n_p)
+        assert result.estimator_facts["estimator"] == "square_wave"
+        assert start["polarity_correct"] and abs(result.startup["polarity_ratio"]) >= 0.05, (theta_e, start)
 
 
 @pytest.mark.parametrize("commissioning, refusal", [("nameplate", NO_SALIENCY), ("", NO_SETTLED_AXIS)])

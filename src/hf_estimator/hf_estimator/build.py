@@ -298,7 +298,10 @@ def estimator_for_scenario(scenario, commissioning):
     amplitude = estimator.injection_amplitude_V
     if amplitude is None and notes:
         amplitude = settings.get("amplitude_V")
+    tracking_loop = estimator.tracking_loop
+    if injects(scenario.estimator) and tracking_loop is not None:
+        tracking_loop = (*tracking_loop[:4], *commissioning.convergence_slope_range(limit))
     return dataclasses.replace(estimator, tracking_current_limit_A=limit, tracking_current_bound=bound,
-                               injection_note=note,
+                               injection_note=note, tracking_loop=tracking_loop,
                                injection_amplitude_V=amplitude, settings=settings,
                                tracking_acceleration_rad_s2=acceleration)

@@ -62,7 +62,9 @@ class Estimator:
     tracking_loop: tuple = None
     """(k_p [1/s], k_i [1/s²], k_a [1/s³], delay [s]) of its tracking loop on an error of unit slope, the delay that
     of its error path, where its speed estimate is that loop's integrator (foc_controller.speed_margin.TrackingLoop:
-    the speed loop keeps its margins on it); None: a type-2 loop at tracking_bandwidth_Hz is assumed."""
+    the speed loop keeps its margins on it), and for an injecting estimator the smallest and largest slope of its
+    error within tracking_current_limit_A (the commissioned convergence slope F); None: a type-2 loop at
+    tracking_bandwidth_Hz is assumed."""
     injection_amplitude_V: float = None
     """The HF amplitude it injects when it chooses it itself (None: the scenario's)."""
     injection_note: str = ""

@@ -82,7 +82,9 @@ def linear_polarity_ratio(R_s_ohm, L_H, T_s, n, sequences, delay_periods):
 def polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, theta_e_recorded):
     """The axis aligned at sample k: θ̂ and ω̂ held; at speed (or in replay, with the recording drive's
     estimate θ̂_e [rad], NaN where it has none) the polarity is decided at once, else the injection stops
-    for the quiet time before the pulses. → (u_α, u_β [V], state code)."""
+    for the quiet time before the pulses. At speed: the tracker's speed and the measured back-EMF both clear
+    of the lock threshold (a tracker wound up while aligning a still rotor leaves the measured one at
+    noise, whose sign tells nothing). → (u_α, u_β [V], state code)."""
     s = x.startup
     s.theta_held = x.theta
     if p.torque_pulse_A > 0.0 and s.axis_count > 0.0:
@@ -93,7 +95,8 @@ def polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, theta_e_recorded):
     s.held_at = k
     s.score = 0.0
     s.span = 0.0
-    at_speed = backemf_clear(x, p, abs(x.omega) * p.psi_f_Wb)
+    measured = math.hypot(s.residual_d, s.residual_q + x.omega * p.psi_f_Wb)
+    at_speed = backemf_clear(x, p, min(abs(x.omega) * p.psi_f_Wb, measured))
     recorded = p.polarity_from_recording and theta_e_recorded == theta_e_recorded
     if p.polarity_from_recording and not recorded and not at_speed:
         return u_inj_alpha, u_inj_beta, float(ALIGNING)

@@ -167,6 +167,15 @@ class Commissioning(NamedTuple):
         loaded = min(float(np.interp(i_q_A, currents, ratio)), float(np.interp(-i_q_A, currents, ratio)))
         return loaded / at_zero if at_zero > 0.0 else 1.0
 
+    def convergence_slope_range(self, limit_A):
+        """(smallest, largest) convergence slope F over q currents within ±``limit_A`` [A]: the table's points there
+        and its values interpolated at ±limit_A."""
+        currents, slope = self.saliency_shift_i_q_A, self.convergence_slope
+        inside = slope[np.abs(currents) <= limit_A]
+        ends = np.interp([-limit_A, limit_A], currents, slope)
+        values = np.concatenate([inside, ends])
+        return float(np.min(values)), float(np.max(values))
+
     def tracking_current_limit_A(self, min_slope=MIN_CONVERGENCE_SLOPE):
         """The largest current |i_q| [A] up to which the convergence slope (interpolated linearly in the
         table) stays at or above ``min_slope`` on both signs of the current and, where the commissioning
