@@ -15,6 +15,7 @@ from .startup_state import (
     backemf_clear,
     enter,
     lose_lock,
+    measured_backemf,
 )
 
 
@@ -58,7 +59,7 @@ def lock_step(x, p, k, residual, observable):
     else TRACKING where the estimator observes its saliency, HOLD where not."""
     s = x.startup
     expected = abs(x.omega) * p.psi_f_Wb
-    measured = math.hypot(s.residual_d, s.residual_q + x.omega * p.psi_f_Wb)
+    measured = measured_backemf(x, p)
     if residual > p.lock_threshold_V + 0.5 * max(expected, measured):
         s.bad += 1.0
     else:

@@ -21,6 +21,7 @@ from .startup_state import (
     backemf_clear,
     enter,
     hold,
+    measured_backemf,
     turn,
 )
 
@@ -95,8 +96,7 @@ def polarity_begin(x, p, k, u_inj_alpha, u_inj_beta, theta_e_recorded):
     s.held_at = k
     s.score = 0.0
     s.span = 0.0
-    measured = math.hypot(s.residual_d, s.residual_q + x.omega * p.psi_f_Wb)
-    at_speed = backemf_clear(x, p, min(abs(x.omega) * p.psi_f_Wb, measured))
+    at_speed = backemf_clear(x, p, min(abs(x.omega) * p.psi_f_Wb, measured_backemf(x, p)))
     recorded = p.polarity_from_recording and theta_e_recorded == theta_e_recorded
     if p.polarity_from_recording and not recorded and not at_speed:
         return u_inj_alpha, u_inj_beta, float(ALIGNING)

@@ -2,6 +2,7 @@
 keeps as the ``startup`` field of an estimator's state (whose ``theta`` and ``omega`` are θ̂ and ω̂),
 StartupParams, and the moves every job makes: entering a state, turning or holding θ̂, counting a lost
 lock."""
+import math
 from typing import NamedTuple
 
 import numpy as np
@@ -120,6 +121,13 @@ def lose_lock(x, p, k):
     enter(x, p, k, LOCK_LOST)
     x.startup.restarts += 1.0
     return float(LOCK_LOST)
+
+
+@njit(cache=True)
+def measured_backemf(x, p):
+    """The back-EMF [V] the lock monitor measured (low-passed, θ̂ frame): its residual plus what ω̂ implies."""
+    s = x.startup
+    return math.hypot(s.residual_d, s.residual_q + x.omega * p.psi_f_Wb)
 
 
 @njit(cache=True)
