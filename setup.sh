@@ -33,6 +33,32 @@ fi
 # numba's on-disk cache checks only each kernel's own file: a kernel cached before an update of a kernel
 # it calls from another file would keep the old code. Start every setup with a clean cache.
 find src -name "*.nbi" -delete -o -name "*.nbc" -delete
+# Compile the drive's kernels once, here, as an install does (numba caches them on disk): without this the first
+# command of each kind paid its compile (a run 16 s, the compiled answer 35 s), and the test suite's two workers
+# compiled the same kernels side by side. Two streams, one per core; in a scratch folder, on this machine only.
+warm=$(mktemp -d) drive_command="$PWD/.venv/bin/drive"
+warm_kernels() {
+  local command
+  for command in "$@"; do
+    # shellcheck disable=SC2086
+    (cd "$warm" && ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST "$drive_command" $command >/dev/null 2>&1) ||
+      echo "setup: warning: 'drive $command' failed while compiling the kernels; its first run will compile them" >&2
+  done
+}
+echo "setup: compiling the drive's kernels (once; 1-2 min)" >&2
+short="--duration 0.01 --no-plot"
+warm_kernels "launch wang_100rpm --link pty --answer compiled --namespace /setup_link_$$ $short" "bridge wang_100rpm $short" \
+             "run wang_100rpm --estimator square_wave $short" \
+             "run wang_100rpm --estimator sensored $short" \
+             "run wang_100rpm --estimator flux_observer $short" &
+warm_kernels "run wang_100rpm $short" "launch wang_100rpm --namespace /setup_$$ $short" \
+             "run wang_100rpm --estimator conventional $short" \
+             "run wang_100rpm --estimator full_speed $short" \
+             "run wang_100rpm --estimator improved $short" \
+             "run szabo_profile $short" "commission wang_100rpm --out commissioned.yaml" \
+             "run wang_100rpm --duration 0.05 --no-plot --record recorded" "bench replay recorded --no-plot"
+wait
+rm -rf "$warm"
 if [ "${1:-}" = "--with-motulator" ]; then
   MOTULATOR_PYTHON=""
   for candidate in python3.13 python3.12 "$HOME"/.pyenv/versions/3.1[23]*/bin/python; do

@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from drive_common.math.filters import first_order_lowpass
 from drive_tools.evaluation.pll_check import (
     check_scenario,
     closed_loop_figures,
@@ -21,7 +22,6 @@ from hf_estimator.pll_model import (
     szabo_loop,
     tune_pi,
 )
-from hf_estimator.synchronous import first_order_lowpass
 
 pytestmark = pytest.mark.unit
 

@@ -533,13 +533,13 @@ def recorded_whole(bag, report):
 
     from drive_common.contract.log import COLUMN
     from drive_common.contract.stamps import sample_at
-    from drive_tools.bags.reader import bag_log, bag_topics, read_topics
+    from drive_tools.bags.reader import bag_topics, log_from_topics
     assert (bag / "metadata.yaml").exists(), "the bag is closed"
     assert report["recording"]["not_heard_from_the_start"] == []
     assert report["recording"]["drained"], "the recorder's readers fell quiet before the bag closed (links closed)"
     for axis in report["axes"]:
         namespace = axis["namespace"]
-        _, topics = read_topics(str(bag), ["currents_block"], namespace)
+        _, topics, configs = bag_topics(str(bag), namespace)
         blocks = [(sample_at(msg.header.stamp.sec, msg.header.stamp.nanosec, 1e-4), len(msg.a))
                   for _, msg in topics["currents_block"]]
         assert all(k + n == k_next for (k, n), (k_next, _) in zip(blocks, blocks[1:])), f"{namespace}: a gap"
@@ -547,8 +547,8 @@ def recorded_whole(bag, report):
         # blocks although both sides of its topic had matched; bounded here, not yet mended.
         assert 0 <= blocks[0][0] - axis["before_hello"] <= 20, (axis, blocks[0])
         assert sum(n for _, n in blocks) >= axis["samples"] - (blocks[0][0] - axis["before_hello"]), (axis, blocks[-1])
-        n_p = next(config["n_p"] for config in bag_topics(str(bag), namespace)[2] if "n_p" in config)
-        log = bag_log(str(bag), namespace=namespace)[0]
+        n_p = next(config["n_p"] for config in configs if "n_p" in config)
+        log = log_from_topics(str(bag), namespace, topics, configs)[0]
         theta_e = log[:, COLUMN["theta_m"]] * n_p
         estimate = log[:, COLUMN["theta_e_hat"]]
         armed = np.flatnonzero(np.isfinite(estimate))

@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from drive_common.math.filters import butterworth_bandpass
+from drive_common.math.filters import butterworth_bandpass, first_order_lowpass
 from drive_common.math.frames import clarke_contract
 
 from .admittance_monitor import MonitorParams, make_monitor
@@ -68,13 +68,6 @@ def synchronous_step(x, p, k, sample, out):
                                           -i_qhf, observable)
     write_injecting_estimate(out, x.theta, omega, (u_alpha, u_beta), -i_qhf, signal_strength, state,
                              p.injection_amplitude_V)
-
-
-def first_order_lowpass(T_f, T_s):
-    """1/(s T_f + 1) by the bilinear transform, as one SOS row."""
-    from scipy import signal
-    b, a = signal.bilinear([1.0], [T_f, 1.0], fs=1.0 / T_s)
-    return signal.tf2sos(b, a)
 
 
 @register("synchronous", "d̂ sine injection, q̂ phase detector, T_f low-pass, PI (faithful; "

@@ -77,7 +77,6 @@ def _report(result, args, extra, judge):
     its ``outcome`` (exit code and reason) from ``judge(metrics)`` (options.outcome); the reason of a non-zero
     exit said on stderr after it. Returns the exit code."""
     from drive_common.motor.commissioning import NAMEPLATE_ONLY
-    from drive_tools.evaluation.plots import plot_run
     from drive_tools.evaluation.run_report import run_lines, run_report
 
     scenario = result.scenario
@@ -86,6 +85,7 @@ def _report(result, args, extra, judge):
         warn_if_nameplate_only(result.commissioning.source, scenario.motor.name, scenario.name)
     metrics.update(extra)
     if not args.no_plot and result.log.shape[0]:
+        from drive_tools.evaluation.plots import plot_run  # matplotlib: imported only to plot
         out_dir = Path(args.out) if args.out else Path("runs") / scenario.name
         try:
             metrics["plots"] = [str(plot_run(result, out_dir, args.command))]
