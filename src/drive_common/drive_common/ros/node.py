@@ -141,6 +141,16 @@ class SamplePublisher:
     def get_subscription_count(self):
         return self.publisher.get_subscription_count()
 
+    def tap(self, take):
+        """From now on also hand every message published to ``take(topic, data)`` on the publishing thread, after
+        rcl has it: an in-process reader (a recorder's queue) that DDS's matching cannot make miss a message."""
+        publish_raw, topic = self.publisher.handle.publish_raw, self.publisher.topic_name
+
+        def publish(data):
+            publish_raw(data)
+            take(topic, data)
+        self.publish = publish
+
 
 class DriveNode(Node):
     """Base of every drive node, one class below rclpy's Node: fault counting, callback timing,
@@ -179,6 +189,8 @@ class DriveNode(Node):
         self.callback_time_s = 0.0
         self.callback_max_s = 0.0
         self.callbacks = 0
+        self.sample_publishers = []
+        """The node's SamplePublishers (sample_publisher): an in-process recorder taps them."""
         self.config_pub = self.create_publisher(String, DRIVE_CONFIG, topic_qos(DRIVE_CONFIG))
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, topic_qos(DIAGNOSTICS))
         self.collector_s = 0.0
@@ -375,7 +387,9 @@ class DriveNode(Node):
     def sample_publisher(self, topic):
         """A publisher of a per-sample or block contract topic that takes serialized bytes
         (drive_common.contract.wire)."""
-        return SamplePublisher(self.create_publisher(message_class(topic), topic, topic_qos(topic)))
+        publisher = SamplePublisher(self.create_publisher(message_class(topic), topic, topic_qos(topic)))
+        self.sample_publishers.append(publisher)
+        return publisher
 
     def timed(self, callback):
         """Wrap a per-sample callback to accumulate its wall time for /diagnostics."""

@@ -4,6 +4,7 @@ are published, by a node of the robot's process spun on a thread of its own belo
 (launcher.Listening): the bag grows while the robot runs (a killed process leaves what reached the disk, which
 `drive bag reindex` makes a bag again) and is closed when it stops, a signal or a lost link included."""
 import time
+from collections import deque
 from pathlib import Path
 
 from drive_common.contract.topics import CLOCK, DIAGNOSTICS, JOINT_STATES, TOPICS, full_name
@@ -17,6 +18,8 @@ HEARD_WAIT_S = 10.0
 a topic not heard within it is reported."""
 DRAIN_QUIET_SPINS, DRAIN_LIMIT_S = 5, 5.0
 """At the end, the recorder takes what its readers hold until 5 spins of 20 ms write nothing (at most 5 s)."""
+TAPPED_WRITE_PERIOD_S = 0.01
+"""How often the recorder's thread writes what the taps queued (a 10-sample block every 1 ms per topic: ten a time)."""
 
 
 class RobotRecording:
@@ -36,6 +39,12 @@ class RobotRecording:
         self.writer = BagWriter(self.path)
         self.node = Node("drive_recorder", context=context)
         self.subscriptions = {}
+        self.stamped = {}
+        self.tapped = deque()
+        """(topic, data) of the taps (SamplePublisher.tap), appended on the publishing threads, written on the
+        recorder's: unbounded (nothing is dropped), its largest length reported (``queued_max``)."""
+        self.queued_max = 0
+        self.node.create_timer(TAPPED_WRITE_PERIOD_S, self._write_tapped)
         for axis in robot.axes:
             for topic in RECORDED_TOPICS:
                 self._subscribe(full_name(axis.namespace, topic), message_class(topic), topic_qos(topic),
@@ -62,16 +71,32 @@ class RobotRecording:
         sample instant: log times are sample instants, the robot's own topics at the latest one)."""
         msgtype, offered, stamped = recorded
         self.writer.add(name, msgtype, offered)
+        self.stamped[name] = stamped
         write = self.writer.write
         self.subscriptions[name] = self.node.create_subscription(cls, name, lambda data: write(name, data, stamped),
                                                                  qos, raw=True)
 
+    def _write_tapped(self):
+        tapped, write, stamped = self.tapped, self.writer.write, self.stamped
+        self.queued_max = max(self.queued_max, len(tapped))
+        while tapped:
+            name, data = tapped.popleft()
+            write(name, data, stamped[name])
+
     def heard(self, *nodes):
-        """Wait (at most HEARD_WAIT_S in all) until every publisher of ``nodes`` on a recorded topic and the
-        recorder's reader of it have matched each other (both sides: a reader that has not matched its writer yet
-        drops what the writer already sends it): nothing they publish from then on is missed."""
+        """Record ``nodes`` from their first message, before they publish: their sample publishers (the per-sample
+        and block topics) are tapped in this process (SamplePublisher.tap; the recorder's DDS reader of the topic is
+        dropped), and for their other publishers on a recorded topic wait (at most HEARD_WAIT_S in all) until the
+        publisher and the recorder's reader have matched each other (both sides: a reader that has not matched its
+        writer yet drops what the writer already sends it). Over DDS alone, with both sides matched, now and then an
+        axis's first one or two blocks never reached the bag."""
         deadline = time.monotonic() + HEARD_WAIT_S
         for node in nodes:
+            for publisher in getattr(node, "sample_publishers", ()):
+                reader = self.subscriptions.pop(publisher.publisher.topic_name, None)
+                if reader is not None:
+                    self.node.destroy_subscription(reader)
+                    publisher.tap(self._tap)
             for publisher in node.publishers:
                 reader = self.subscriptions.get(publisher.topic_name)
                 if reader is None:
@@ -81,6 +106,9 @@ class RobotRecording:
                     time.sleep(0.001)
                 if publisher.get_subscription_count() == 0 or reader.get_publisher_count() == 0:
                     self.unheard.append(publisher.topic_name)
+
+    def _tap(self, topic, data):
+        self.tapped.append((topic, data))
 
     def _drain(self):
         """Stop the recorder's thread, then take on this one every message its readers hold (acknowledged is
@@ -95,6 +123,7 @@ class RobotRecording:
         while quiet < DRAIN_QUIET_SPINS and time.monotonic() < deadline:
             before = sum(self.writer.counts.values())
             listening.executor.spin_once(timeout_sec=0.02)
+            self._write_tapped()
             quiet = quiet + 1 if sum(self.writer.counts.values()) == before else 0
         return quiet >= DRAIN_QUIET_SPINS
 
@@ -111,7 +140,7 @@ class RobotRecording:
         publishes the inverter's telemetry, and the readers would never fall quiet): its thread stopped, what its
         readers hold written, the bag closed. The recording's report: path, messages written, where a write failed
         the error (BagWriteError's one line), the topics not heard from their start, and whether its readers fell
-        quiet before it closed (``drained``)."""
+        quiet before it closed (``drained``), and the most messages the taps' queue held at a write (``queued_max``)."""
         from drive_tools.bags.common import BagWriteError
         if self.closed is not None:
             return self.closed
@@ -124,5 +153,6 @@ class RobotRecording:
             error = str(failure)
         self.node.destroy_node()
         self.closed = {"path": str(self.path), "messages": sum(self.writer.counts.values()), "error": error,
-                       "not_heard_from_the_start": sorted(set(self.unheard)), "drained": drained}
+                       "not_heard_from_the_start": sorted(set(self.unheard)), "drained": drained,
+                       "queued_max": self.queued_max}
         return self.closed
