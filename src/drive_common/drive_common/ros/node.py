@@ -49,6 +49,9 @@ from drive_common.runtime.realtime import (
 FAULT_REPORT_MIN_S = 0.1
 FAULT_LOG_PERIOD_S = 1.0
 """A node logs each kind of fault at most this often (all are counted, and shown on /diagnostics)."""
+SAMPLE_PUBLISHER_HOOKS = {}
+"""id(rclpy context) → hook(SamplePublisher), called as each node of that context makes a sample publisher, before it
+can publish (an in-process recorder taps it: drive_tools.launch.robot_recording)."""
 PEER_CHECK_PERIOD_S = 0.5
 PEER_GONE_CHECKS = 3
 """Consecutive checks without the peer's publisher before a node gives up on it (graph changes are
@@ -389,6 +392,9 @@ class DriveNode(Node):
         (drive_common.contract.wire)."""
         publisher = SamplePublisher(self.create_publisher(message_class(topic), topic, topic_qos(topic)))
         self.sample_publishers.append(publisher)
+        hook = SAMPLE_PUBLISHER_HOOKS.get(id(self.context))
+        if hook is not None:
+            hook(publisher)
         return publisher
 
     def timed(self, callback):

@@ -30,7 +30,7 @@ class RobotRecording:
         from rclpy.node import Node
         from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 
-        from drive_common.ros.node import message_class, topic_qos
+        from drive_common.ros.node import SAMPLE_PUBLISHER_HOOKS, message_class, topic_qos
         from drive_tools.bags.common import offered_qos
         from drive_tools.bags.writer import BagWriter
 
@@ -44,7 +44,11 @@ class RobotRecording:
         """(topic, data) of the taps (SamplePublisher.tap), appended on the publishing threads, written on the
         recorder's: unbounded (nothing is dropped), its largest length reported (``queued_max``)."""
         self.queued_max = 0
+        self.tapped_names = set()
+        """Recorded topics taken from a tap: their DDS readers (until heard drops them) write nothing."""
         self.node.create_timer(TAPPED_WRITE_PERIOD_S, self._write_tapped)
+        self.context = context
+        SAMPLE_PUBLISHER_HOOKS[id(context)] = self._offered
         for axis in robot.axes:
             for topic in RECORDED_TOPICS:
                 self._subscribe(full_name(axis.namespace, topic), message_class(topic), topic_qos(topic),
@@ -72,9 +76,12 @@ class RobotRecording:
         msgtype, offered, stamped = recorded
         self.writer.add(name, msgtype, offered)
         self.stamped[name] = stamped
-        write = self.writer.write
-        self.subscriptions[name] = self.node.create_subscription(cls, name, lambda data: write(name, data, stamped),
-                                                                 qos, raw=True)
+        write, tapped = self.writer.write, self.tapped_names
+
+        def take(data):
+            if name not in tapped:
+                write(name, data, stamped)
+        self.subscriptions[name] = self.node.create_subscription(cls, name, take, qos, raw=True)
 
     def _write_tapped(self):
         tapped, write, stamped = self.tapped, self.writer.write, self.stamped
@@ -83,20 +90,25 @@ class RobotRecording:
             name, data = tapped.popleft()
             write(name, data, stamped[name])
 
+    def _offered(self, publisher):
+        """Tap a sample publisher on a recorded topic as its node makes it (SAMPLE_PUBLISHER_HOOKS): the recording
+        holds its first message, whatever DDS's matching and the node's first publish do."""
+        name = publisher.publisher.topic_name
+        if name in self.stamped:
+            self.tapped_names.add(name)
+            publisher.tap(self._tap)
+
     def heard(self, *nodes):
-        """Record ``nodes`` from their first message, before they publish: their sample publishers (the per-sample
-        and block topics) are tapped in this process (SamplePublisher.tap; the recorder's DDS reader of the topic is
-        dropped), and for their other publishers on a recorded topic wait (at most HEARD_WAIT_S in all) until the
-        publisher and the recorder's reader have matched each other (both sides: a reader that has not matched its
-        writer yet drops what the writer already sends it). Over DDS alone, with both sides matched, now and then an
-        axis's first one or two blocks never reached the bag."""
+        """Before ``nodes`` are armed: drop the recorder's DDS readers of the topics their sample publishers feed
+        through taps (_offered: the per-sample and block topics), and for their other publishers on a recorded topic
+        wait (at most HEARD_WAIT_S in all) until the publisher and the recorder's reader have matched each other (both
+        sides: a reader that has not matched its writer yet drops what the writer already sends it)."""
         deadline = time.monotonic() + HEARD_WAIT_S
         for node in nodes:
             for publisher in getattr(node, "sample_publishers", ()):
                 reader = self.subscriptions.pop(publisher.publisher.topic_name, None)
                 if reader is not None:
                     self.node.destroy_subscription(reader)
-                    publisher.tap(self._tap)
             for publisher in node.publishers:
                 reader = self.subscriptions.get(publisher.topic_name)
                 if reader is None:
@@ -144,6 +156,8 @@ class RobotRecording:
         from drive_tools.bags.common import BagWriteError
         if self.closed is not None:
             return self.closed
+        from drive_common.ros.node import SAMPLE_PUBLISHER_HOOKS
+        SAMPLE_PUBLISHER_HOOKS.pop(id(self.context), None)
         drained = self._drain()
         self.listening.executor.shutdown()
         error = None
