@@ -39,7 +39,7 @@ def _bilinear_sos(poles, gain, zeros_at_plus_one, T_s):
     rows = []
     for pair in pairs:
         taken, zeros = zeros[:len(pair)], zeros[len(pair):]
-        b = np.real(np.poly(taken)) if taken else np.ones(1)
+        b = np.real(np.poly(taken))
         a = np.real(np.poly(pair))
         rows.append(np.concatenate([np.pad(b, (0, 3 - b.size)), np.pad(a, (0, 3 - a.size))]))
     sos = np.array(rows)

@@ -192,8 +192,6 @@ class DriveNode(Node):
         self.callback_time_s = 0.0
         self.callback_max_s = 0.0
         self.callbacks = 0
-        self.sample_publishers = []
-        """The node's SamplePublishers (sample_publisher): an in-process recorder taps them."""
         self.config_pub = self.create_publisher(String, DRIVE_CONFIG, topic_qos(DRIVE_CONFIG))
         self.diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS, topic_qos(DIAGNOSTICS))
         self.collector_s = 0.0
@@ -391,7 +389,6 @@ class DriveNode(Node):
         """A publisher of a per-sample or block contract topic that takes serialized bytes
         (drive_common.contract.wire)."""
         publisher = SamplePublisher(self.create_publisher(message_class(topic), topic, topic_qos(topic)))
-        self.sample_publishers.append(publisher)
         hook = SAMPLE_PUBLISHER_HOOKS.get(id(self.context))
         if hook is not None:
             hook(publisher)

@@ -44,8 +44,6 @@ class RobotRecording:
         """(topic, data) of the taps (SamplePublisher.tap), appended on the publishing threads, written on the
         recorder's: unbounded (nothing is dropped), its largest length reported (``queued_max``)."""
         self.queued_max = 0
-        self.tapped_names = set()
-        """Recorded topics taken from a tap: their DDS readers (until heard drops them) write nothing."""
         self.node.create_timer(TAPPED_WRITE_PERIOD_S, self._write_tapped)
         self.context = context
         SAMPLE_PUBLISHER_HOOKS[id(context)] = self._offered
@@ -76,12 +74,9 @@ class RobotRecording:
         msgtype, offered, stamped = recorded
         self.writer.add(name, msgtype, offered)
         self.stamped[name] = stamped
-        write, tapped = self.writer.write, self.tapped_names
-
-        def take(data):
-            if name not in tapped:
-                write(name, data, stamped)
-        self.subscriptions[name] = self.node.create_subscription(cls, name, take, qos, raw=True)
+        write = self.writer.write
+        self.subscriptions[name] = self.node.create_subscription(cls, name, lambda data: write(name, data, stamped),
+                                                                 qos, raw=True)
 
     def _write_tapped(self):
         tapped, write, stamped = self.tapped, self.writer.write, self.stamped
@@ -91,24 +86,23 @@ class RobotRecording:
             write(name, data, stamped[name])
 
     def _offered(self, publisher):
-        """Tap a sample publisher on a recorded topic as its node makes it (SAMPLE_PUBLISHER_HOOKS): the recording
-        holds its first message, whatever DDS's matching and the node's first publish do."""
+        """Tap a sample publisher on a recorded topic as its node makes it (SAMPLE_PUBLISHER_HOOKS), before it can
+        publish, and drop the recorder's DDS reader of the topic: the recording holds its first message, whatever
+        DDS's matching does, and never twice."""
         name = publisher.publisher.topic_name
         if name in self.stamped:
-            self.tapped_names.add(name)
+            reader = self.subscriptions.pop(name, None)
+            if reader is not None:
+                self.node.destroy_subscription(reader)
             publisher.tap(self._tap)
 
     def heard(self, *nodes):
-        """Before ``nodes`` are armed: drop the recorder's DDS readers of the topics their sample publishers feed
-        through taps (_offered: the per-sample and block topics), and for their other publishers on a recorded topic
-        wait (at most HEARD_WAIT_S in all) until the publisher and the recorder's reader have matched each other (both
-        sides: a reader that has not matched its writer yet drops what the writer already sends it)."""
+        """Before ``nodes`` publish: for their publishers on a recorded topic not tapped (_offered takes the
+        per-sample and block topics in the process), wait (at most HEARD_WAIT_S in all) until the publisher and the
+        recorder's reader have matched each other (both sides: a reader that has not matched its writer yet drops what
+        the writer already sends it)."""
         deadline = time.monotonic() + HEARD_WAIT_S
         for node in nodes:
-            for publisher in getattr(node, "sample_publishers", ()):
-                reader = self.subscriptions.pop(publisher.publisher.topic_name, None)
-                if reader is not None:
-                    self.node.destroy_subscription(reader)
             for publisher in node.publishers:
                 reader = self.subscriptions.get(publisher.topic_name)
                 if reader is None:
